@@ -1,0 +1,5 @@
+//! The realtime controller: the loop that reads the robot, builds the policy's observation, runs the
+//! ONNX policy, limits its commands and writes them to the buses.
+
+pub mod native;
+pub mod onnx;

@@ -1,0 +1,100 @@
+//! `robodeploy`: run motion-tracking policies on a robot or its mirrored simulator.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use clap::{Parser, Subcommand};
+
+/// Run motion-tracking policies on a real robot, or on its mirrored MuJoCo simulator.
+///
+/// The controller reads the robot's state over its CAN and serial buses, builds the policy's
+/// observation exactly as in training, runs the ONNX policy, limits the commands and writes them
+/// back to the servos, at the policy rate.
+#[derive(Debug, Parser)]
+#[command(name = "robodeploy", version, about, long_about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Check the native libraries and load a MuJoCo model and an ONNX model, moving nothing.
+    ///
+    /// Prints the versions of MuJoCo and ONNX Runtime this build loads, the sizes of the MuJoCo
+    /// model, and the input/output of the ONNX model with one timed inference on zeros.
+    Doctor {
+        /// MJCF model to load.
+        #[arg(long)]
+        mjcf: PathBuf,
+        /// ONNX policy to load.
+        #[arg(long)]
+        onnx: PathBuf,
+    },
+}
+
+fn main() -> Result<()> {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info,ort=warn".into()),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    match Cli::parse().command {
+        Command::Doctor { mjcf, onnx } => doctor(&mjcf, &onnx),
+    }
+}
+
+fn doctor(mjcf: &std::path::Path, onnx: &std::path::Path) -> Result<()> {
+    sim2real::mujoco::check_version()?;
+    println!(
+        "MuJoCo        {} (mj_version {})",
+        sim2real::mujoco::loaded_version_string(),
+        sim2real::mujoco::loaded_version()
+    );
+    let info = controller::onnx::runtime_info()?;
+    println!("ONNX Runtime  {info}");
+
+    let model = sim2real::mujoco::load_model(mjcf)?;
+    let s = sim2real::mujoco::sizes(&model);
+    println!(
+        "MJCF          {}: nq {} nv {} nu {} bodies {} joints {} timestep {} s",
+        mjcf.display(),
+        s.nq,
+        s.nv,
+        s.nu,
+        s.nbody,
+        s.njnt,
+        s.timestep
+    );
+    let mut data = model.make_data();
+    let steps = (1.0 / s.timestep).round() as usize;
+    let t0 = std::time::Instant::now();
+    for _ in 0..steps {
+        data.step();
+    }
+    println!(
+        "              simulated 1 s ({steps} steps) in {:.1} ms",
+        t0.elapsed().as_secs_f64() * 1e3
+    );
+
+    let mut policy =
+        controller::onnx::OnnxModel::load(onnx).with_context(|| format!("loading {}", onnx.display()))?;
+    let (in_name, in_len) = policy.input();
+    let (out_name, out_len) = policy.output();
+    println!(
+        "ONNX          {}: input '{in_name}' [{in_len}] -> output '{out_name}' [{out_len}]",
+        onnx.display()
+    );
+    let obs = vec![0.0f32; in_len];
+    let mut act = vec![0.0f32; out_len];
+    let t0 = std::time::Instant::now();
+    policy.run(&obs, &mut act)?;
+    println!(
+        "              one inference on zeros in {:.1} µs; first actions {:?}",
+        t0.elapsed().as_secs_f64() * 1e6,
+        &act[..act.len().min(4)]
+    );
+    println!("doctor: all checks passed");
+    Ok(())
+}

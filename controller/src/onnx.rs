@@ -1,0 +1,209 @@
+//! ONNX Runtime sessions for policies: one process-wide environment loaded from the pinned
+//! library, single-threaded sessions (the control loop owns its core), and a model handle that
+//! checks names and shapes once at load time so each inference is a plain call.
+
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use ort::environment::Environment;
+use ort::session::Session;
+use ort::session::builder::GraphOptimizationLevel;
+use ort::value::{TensorElementType, TensorRef, ValueType};
+
+use crate::native;
+
+/// Why a policy model could not be loaded or run.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum OnnxError {
+    /// The ONNX Runtime library is missing or of the wrong version.
+    #[error("ONNX Runtime is unavailable: {0}")]
+    Runtime(String),
+    /// The model file does not load.
+    #[error("cannot load ONNX model {path}: {reason}")]
+    Load {
+        /// The model file.
+        path: PathBuf,
+        /// ONNX Runtime's message.
+        reason: String,
+    },
+    /// The model's inputs or outputs are not a single float vector each.
+    #[error("ONNX model {path}: {what}")]
+    Signature {
+        /// The model file.
+        path: PathBuf,
+        /// What does not fit.
+        what: String,
+    },
+    /// A buffer passed to [`OnnxModel::run`] does not match the model.
+    #[error("{what} has {actual} values but the model expects {expected}")]
+    BufferSize {
+        /// `observation` or `action`.
+        what: &'static str,
+        /// The model's size.
+        expected: usize,
+        /// The caller's size.
+        actual: usize,
+    },
+    /// Inference failed.
+    #[error("inference failed: {0}")]
+    Run(String),
+}
+
+static ENVIRONMENT: OnceLock<Result<Environment, String>> = OnceLock::new();
+
+/// The process-wide ONNX Runtime environment, loading the pinned library on first use.
+pub fn environment() -> Result<&'static Environment, OnnxError> {
+    ENVIRONMENT
+        .get_or_init(|| {
+            let path = native::find_onnxruntime().map_err(|e| e.to_string())?;
+            let version = native::onnxruntime_version(&path)?;
+            if version != native::ONNXRUNTIME_VERSION {
+                return Err(format!(
+                    "{} is ONNX Runtime {version}, but this build is pinned to {}; run `scripts/setup` to \
+                     reinstall the pinned library",
+                    path.display(),
+                    native::ONNXRUNTIME_VERSION
+                ));
+            }
+            ort::init_from(&path)
+                .map_err(|e| format!("{e}; run `scripts/setup` to reinstall the pinned library"))?
+                .with_name("robodeploy")
+                .build()
+                .map_err(|e| e.to_string())
+        })
+        .as_ref()
+        .map_err(|e| OnnxError::Runtime(e.clone()))
+}
+
+/// The loaded ONNX Runtime's version and build description, for `doctor` and logs.
+pub fn runtime_info() -> Result<String, OnnxError> {
+    environment()?;
+    Ok(format!("{} ({})", native::ONNXRUNTIME_VERSION, ort::info()))
+}
+
+/// A loaded model with one float input vector and one float output vector (batch 1).
+#[derive(Debug)]
+pub struct OnnxModel {
+    session: Session,
+    path: PathBuf,
+    input_name: String,
+    output_name: String,
+    input_len: usize,
+    output_len: usize,
+}
+
+/// Length of a `[batch?, n]` or `[n]` float tensor, or why it is not one.
+fn vector_len(dtype: &ValueType) -> Result<usize, String> {
+    let (Some(shape), Some(ty)) = (dtype.tensor_shape(), dtype.tensor_type()) else {
+        return Err(format!("is {dtype:?}, not a tensor"));
+    };
+    if ty != TensorElementType::Float32 {
+        return Err(format!("has element type {ty:?}, expected float32"));
+    }
+    let dims: &[i64] = shape;
+    let n = match dims {
+        [n] => *n,
+        [b, n] if *b == 1 || *b < 0 => *n,
+        _ => return Err(format!("has shape {dims:?}, expected [n] or [batch, n]")),
+    };
+    usize::try_from(n).map_err(|_| format!("has shape {dims:?}: the feature size must be fixed"))
+}
+
+impl OnnxModel {
+    /// Loads a model and checks it has exactly one float vector input and one float vector output.
+    pub fn load(path: &Path) -> Result<Self, OnnxError> {
+        let env = environment()?;
+        let load_err = |e: ort::Error| OnnxError::Load {
+            path: path.to_path_buf(),
+            reason: e.to_string(),
+        };
+        if !path.is_file() {
+            return Err(OnnxError::Load {
+                path: path.to_path_buf(),
+                reason: "no such file".into(),
+            });
+        }
+        let builder_err = |e: ort::Error<_>| load_err(e.into());
+        let session = Session::builder(env)
+            .map_err(load_err)?
+            .with_intra_threads(1)
+            .map_err(builder_err)?
+            .with_inter_threads(1)
+            .map_err(builder_err)?
+            .with_optimization_level(GraphOptimizationLevel::All)
+            .map_err(builder_err)?
+            .commit_from_file(path)
+            .map_err(load_err)?;
+        let signature = |what: String| OnnxError::Signature {
+            path: path.to_path_buf(),
+            what,
+        };
+        let (input, output) = match (session.inputs(), session.outputs()) {
+            ([i], [o]) => (i, o),
+            (i, o) => {
+                return Err(signature(format!(
+                    "has {} inputs and {} outputs; this loader takes one of each",
+                    i.len(),
+                    o.len()
+                )));
+            }
+        };
+        let input_len =
+            vector_len(input.dtype()).map_err(|w| signature(format!("input '{}' {w}", input.name())))?;
+        let output_len =
+            vector_len(output.dtype()).map_err(|w| signature(format!("output '{}' {w}", output.name())))?;
+        Ok(Self {
+            input_name: input.name().to_owned(),
+            output_name: output.name().to_owned(),
+            input_len,
+            output_len,
+            path: path.to_path_buf(),
+            session,
+        })
+    }
+
+    /// The model file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Name and length of the input vector.
+    pub fn input(&self) -> (&str, usize) {
+        (&self.input_name, self.input_len)
+    }
+
+    /// Name and length of the output vector.
+    pub fn output(&self) -> (&str, usize) {
+        (&self.output_name, self.output_len)
+    }
+
+    /// Runs one inference: `obs` in, `actions` out (both sized to the model).
+    pub fn run(&mut self, obs: &[f32], actions: &mut [f32]) -> Result<(), OnnxError> {
+        let check = |what, expected, actual| {
+            if expected == actual {
+                Ok(())
+            } else {
+                Err(OnnxError::BufferSize {
+                    what,
+                    expected,
+                    actual,
+                })
+            }
+        };
+        check("observation", self.input_len, obs.len())?;
+        check("action", self.output_len, actions.len())?;
+        let run_err = |e: ort::Error| OnnxError::Run(e.to_string());
+        let input = TensorRef::from_array_view(([1usize, self.input_len], obs)).map_err(run_err)?;
+        let outputs = self
+            .session
+            .run(ort::inputs![self.input_name.as_str() => input])
+            .map_err(run_err)?;
+        let (_, values) = outputs[self.output_name.as_str()]
+            .try_extract_tensor::<f32>()
+            .map_err(run_err)?;
+        check("action", values.len(), actions.len())?;
+        actions.copy_from_slice(values);
+        Ok(())
+    }
+}

@@ -1,0 +1,5 @@
+//! Device protocols, written once and used from both sides of the wire.
+//!
+//! The host drivers the controller uses and the emulated firmware the mirrored simulator runs are
+//! built on the same codecs, over small transport traits, so a bus can be real hardware, an
+//! in-process loopback or a wire to another process without `#[cfg]` inside a driver.

@@ -1,0 +1,24 @@
+//! Shared build script of every crate whose binaries, tests or benches link MuJoCo.
+//!
+//! `.cargo/config.toml` points `MUJOCO_DYNAMIC_LINK_DIR` at the project's `.local/lib`; this bakes
+//! the same directory into the binaries' run path, so they start without `LD_LIBRARY_PATH`.
+//! A missing library is reported here, with the fix, before the linker fails less clearly.
+
+fn main() {
+    println!("cargo::rerun-if-env-changed=MUJOCO_DYNAMIC_LINK_DIR");
+    let Ok(dir) = std::env::var("MUJOCO_DYNAMIC_LINK_DIR") else {
+        println!(
+            "cargo::warning=MUJOCO_DYNAMIC_LINK_DIR is not set; run cargo from the workspace so .cargo/config.toml applies"
+        );
+        return;
+    };
+    let lib = std::path::Path::new(&dir).join("libmujoco.so.3.17.0");
+    println!("cargo::rerun-if-changed={}", lib.display());
+    if !lib.is_file() {
+        panic!(
+            "{} is missing: run `scripts/setup` from the workspace root to install the pinned native libraries",
+            lib.display()
+        );
+    }
+    println!("cargo::rustc-link-arg=-Wl,-rpath,{dir}");
+}

@@ -1,0 +1,4 @@
+//! The mirrored simulator: the robot as the controller sees it through its buses, with emulated
+//! firmware driving MuJoCo behind mock wires.
+
+pub mod mujoco;

@@ -1,0 +1,11 @@
+//! Helpers shared by the tests and benches of every crate in the workspace.
+//!
+//! - [`alloc`]: a counting global allocator, so a test can prove a code path makes no heap allocation.
+//! - [`fixtures`]: where the generated fixtures and the project's Python environment live.
+//! - [`stats`]: latency summaries (p50/p99/max) for bench binaries.
+//!
+//! This crate is a dev-dependency only; nothing here ships in the controller.
+
+pub mod alloc;
+pub mod fixtures;
+pub mod stats;

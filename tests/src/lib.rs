@@ -1,0 +1,1 @@
+//! Whole-path tests live in `tests/`; this library only hosts them as a workspace member.
