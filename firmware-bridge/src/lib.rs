@@ -3,3 +3,13 @@
 //! The host drivers the controller uses and the emulated firmware the mirrored simulator runs are
 //! built on the same codecs, over small transport traits, so a bus can be real hardware, an
 //! in-process loopback or a wire to another process without `#[cfg]` inside a driver.
+//!
+//! - [`can`]: CAN frames, the [`can::CanBus`] transport trait, SocketCAN, socketcand, virtual buses.
+//! - [`mit`]: MIT-mode motors: codec, host driver, emulated firmware.
+//! - [`plant`]: what emulated firmware drives.
+//! - [`time`]: simulated time and deterministic randomness.
+
+pub mod can;
+pub mod mit;
+pub mod plant;
+pub mod time;

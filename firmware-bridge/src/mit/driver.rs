@@ -1,0 +1,379 @@
+//! Host driver for MIT-mode motors on one CAN bus.
+//!
+//! Per control tick, [`MitBusDriver::cycle`] sends one command per motor back to back and collects
+//! one reply per motor until all are in or the deadline passes; it never waits past the deadline.
+//! A motor whose reply is missing keeps its last feedback, marked stale with its age. Joint-side
+//! units (what the policy sees) are converted to motor-side units with a per-joint direction, zero
+//! offset and external gear ratio. Buffers are sized at construction: a cycle does not allocate.
+
+use std::time::Duration;
+
+use super::codec::{CodecError, MitCommand, MotorFault, SpecialFrame, pack_command, unpack_reply};
+use super::models::MotorModel;
+use crate::can::{CanBus, CanError, CanFrame, CanId};
+use crate::time::BusInstant;
+
+/// Most motors one driver (one bus) handles.
+pub const MAX_MOTORS_PER_BUS: usize = 32;
+
+/// One joint driven by an MIT motor.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MitJointConfig {
+    /// Joint name, for errors and logs.
+    pub name: String,
+    /// The motor's CAN ID (1–127 typical).
+    pub motor_id: u8,
+    /// The CAN ID the motor replies on.
+    pub reply_id: u16,
+    /// Ranges and reply format.
+    pub model: MotorModel,
+    /// +1 or −1: sign between joint angle and motor angle.
+    pub direction: f64,
+    /// Motor angle at joint zero, rad.
+    pub offset: f64,
+    /// Motor turns per joint turn (external reduction after the motor's output), ≥ 1 typically.
+    pub gear_ratio: f64,
+}
+
+/// A command in joint units.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct JointCommand {
+    /// Position setpoint, rad.
+    pub q: f64,
+    /// Velocity setpoint, rad/s.
+    pub qd: f64,
+    /// Stiffness, N·m/rad.
+    pub kp: f64,
+    /// Damping, N·m·s/rad.
+    pub kd: f64,
+    /// Feed-forward torque, N·m.
+    pub tau: f64,
+}
+
+/// The latest feedback of one joint, in joint units.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct JointFeedback<I> {
+    /// Angle, rad.
+    pub q: f64,
+    /// Velocity, rad/s.
+    pub qd: f64,
+    /// Torque, N·m.
+    pub tau: f64,
+    /// Winding temperature, °C, where reported.
+    pub temperature: Option<f64>,
+    /// Reported fault.
+    pub fault: MotorFault,
+    /// Torque on/off, where reported.
+    pub enabled: Option<bool>,
+    /// When the last reply arrived (`None`: never).
+    pub received_at: Option<I>,
+    /// Consecutive cycles without a reply (0: fresh this cycle).
+    pub missed_cycles: u32,
+}
+
+impl<I: BusInstant> JointFeedback<I> {
+    /// True when the last cycle brought no reply.
+    pub fn is_stale(&self) -> bool {
+        self.missed_cycles > 0
+    }
+
+    /// Time since the last reply, at `now` (`None`: never received).
+    pub fn age(&self, now: I) -> Option<Duration> {
+        self.received_at.map(|t| now - t)
+    }
+}
+
+/// Errors of the MIT driver, each naming the joint and motor.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum MitError {
+    /// The transport failed.
+    #[error(transparent)]
+    Bus(#[from] CanError),
+    /// The configuration is inconsistent.
+    #[error("joint {joint}: {reason}")]
+    Config {
+        /// The joint.
+        joint: String,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A motor did not answer in time.
+    #[error("joint {joint} (motor ID {motor_id}) did not answer within {timeout:?}")]
+    NoReply {
+        /// The joint.
+        joint: String,
+        /// The motor's CAN ID.
+        motor_id: u8,
+        /// How long the driver waited.
+        timeout: Duration,
+    },
+    /// A command could not be packed (NaN or infinite field).
+    #[error("joint {joint}: {source}")]
+    Command {
+        /// The joint.
+        joint: String,
+        /// The codec's refusal.
+        source: CodecError,
+    },
+    /// The number of commands does not match the number of joints.
+    #[error("{actual} commands for {expected} joints")]
+    CommandCount {
+        /// Joints on the bus.
+        expected: usize,
+        /// Commands given.
+        actual: usize,
+    },
+}
+
+/// Frames that arrived but were not usable replies, by kind.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct RxRejects {
+    /// Frames on an ID no motor replies on.
+    pub unknown_id: u64,
+    /// Frames whose payload names a motor not on this bus.
+    pub unknown_motor: u64,
+    /// Frames of the wrong length for the motor's format.
+    pub wrong_length: u64,
+    /// Extra replies from a motor already heard this cycle (late replies of an earlier cycle).
+    pub duplicate: u64,
+}
+
+/// What one cycle did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct CycleReport {
+    /// Replies received.
+    pub replies: usize,
+    /// Motors that did not answer before the deadline.
+    pub missing: usize,
+    /// Commands that had to be clamped to their motor's range.
+    pub clamped: usize,
+    /// Frames rejected this cycle.
+    pub rejected: usize,
+}
+
+/// Counters since start.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct DriverStats {
+    /// Cycles run.
+    pub cycles: u64,
+    /// Replies missed, summed over motors.
+    pub missed_replies: u64,
+    /// Commands clamped.
+    pub clamped: u64,
+    /// Rejected frames by kind.
+    pub rejects: RxRejects,
+}
+
+/// MIT motors on one bus.
+#[derive(Debug)]
+pub struct MitBusDriver<B: CanBus> {
+    bus: B,
+    joints: Vec<MitJointConfig>,
+    feedback: Vec<JointFeedback<B::Instant>>,
+    answered: Vec<bool>,
+    reply_timeout: Duration,
+    stats: DriverStats,
+}
+
+impl<B: CanBus> MitBusDriver<B> {
+    /// A driver for `joints` on `bus`; `reply_timeout` bounds every wait for replies.
+    pub fn new(bus: B, joints: Vec<MitJointConfig>, reply_timeout: Duration) -> Result<Self, MitError> {
+        if joints.len() > MAX_MOTORS_PER_BUS {
+            return Err(MitError::Config {
+                joint: joints[MAX_MOTORS_PER_BUS].name.clone(),
+                reason: format!("more than {MAX_MOTORS_PER_BUS} motors on one bus"),
+            });
+        }
+        for (i, j) in joints.iter().enumerate() {
+            let bad = |reason: String| Err(MitError::Config { joint: j.name.clone(), reason });
+            if j.direction != 1.0 && j.direction != -1.0 {
+                return bad(format!("direction = {}: must be 1 or -1", j.direction));
+            }
+            if !(j.gear_ratio.is_finite() && j.gear_ratio > 0.0) {
+                return bad(format!("gear_ratio = {}: must be positive", j.gear_ratio));
+            }
+            if !j.offset.is_finite() {
+                return bad(format!("offset = {}: must be finite", j.offset));
+            }
+            if j.motor_id > 0x7F || j.reply_id > 0x7FF {
+                return bad(format!("motor ID {} / reply ID {:#x} out of range", j.motor_id, j.reply_id));
+            }
+            if let Some(other) = joints[..i].iter().find(|o| o.motor_id == j.motor_id) {
+                return bad(format!("motor ID {} is also used by joint {}", j.motor_id, other.name));
+            }
+        }
+        let n = joints.len();
+        let blank = JointFeedback {
+            q: 0.0,
+            qd: 0.0,
+            tau: 0.0,
+            temperature: None,
+            fault: MotorFault::None,
+            enabled: None,
+            received_at: None,
+            missed_cycles: 0,
+        };
+        Ok(Self { bus, joints, feedback: vec![blank; n], answered: vec![false; n], reply_timeout, stats: DriverStats::default() })
+    }
+
+    /// The joints, in command order.
+    pub fn joints(&self) -> &[MitJointConfig] {
+        &self.joints
+    }
+
+    /// Latest feedback per joint.
+    pub fn feedback(&self) -> &[JointFeedback<B::Instant>] {
+        &self.feedback
+    }
+
+    /// Counters since start.
+    pub fn stats(&self) -> DriverStats {
+        self.stats
+    }
+
+    /// The transport's clock.
+    pub fn now(&self) -> B::Instant {
+        self.bus.now()
+    }
+
+    /// The transport.
+    pub fn bus_mut(&mut self) -> &mut B {
+        &mut self.bus
+    }
+
+    fn to_motor(j: &MitJointConfig, c: &JointCommand) -> MitCommand {
+        let (s, g) = (j.direction, j.gear_ratio);
+        MitCommand { p: s * g * c.q + j.offset, v: s * g * c.qd, kp: c.kp / (g * g), kd: c.kd / (g * g), t: s * c.tau / g }
+    }
+
+    /// Sends one command per joint and collects replies until all are in or `reply_timeout` passes.
+    pub fn cycle(&mut self, commands: &[JointCommand]) -> Result<CycleReport, MitError> {
+        if commands.len() != self.joints.len() {
+            return Err(MitError::CommandCount { expected: self.joints.len(), actual: commands.len() });
+        }
+        let mut report = CycleReport::default();
+        // Pack everything before sending anything: a bad command must not leave half a bus commanded.
+        let mut frames = [CanFrame::new8(CanId::Standard(0), [0; 8]); MAX_MOTORS_PER_BUS];
+        for (i, (j, c)) in self.joints.iter().zip(commands).enumerate() {
+            let cmd = Self::to_motor(j, c);
+            if super::codec::needs_clamp(&j.model, &cmd) {
+                report.clamped += 1;
+            }
+            let bytes = pack_command(&j.model, &cmd).map_err(|source| MitError::Command { joint: j.name.clone(), source })?;
+            frames[i] = CanFrame::new8(CanId::Standard(u16::from(j.motor_id)), bytes);
+        }
+        for f in &frames[..self.joints.len()] {
+            self.bus.send(f)?;
+        }
+        self.collect(&mut report)?;
+        self.stats.cycles += 1;
+        self.stats.clamped += report.clamped as u64;
+        Ok(report)
+    }
+
+    fn collect(&mut self, report: &mut CycleReport) -> Result<(), MitError> {
+        self.answered.fill(false);
+        let deadline = self.bus.now() + self.reply_timeout;
+        let mut outstanding = self.joints.len();
+        while outstanding > 0 {
+            let Some(frame) = self.bus.recv_until(deadline)? else { break };
+            match self.accept(&frame) {
+                Ok(()) => {
+                    outstanding -= 1;
+                    report.replies += 1;
+                }
+                Err(()) => report.rejected += 1,
+            }
+        }
+        for (fb, answered) in self.feedback.iter_mut().zip(&self.answered) {
+            if !answered {
+                fb.missed_cycles = fb.missed_cycles.saturating_add(1);
+                report.missing += 1;
+            }
+        }
+        self.stats.missed_replies += report.missing as u64;
+        Ok(())
+    }
+
+    /// Decodes one received frame into its joint's feedback, or counts why it was rejected.
+    fn accept(&mut self, frame: &CanFrame) -> Result<(), ()> {
+        let CanId::Standard(raw) = frame.id() else {
+            self.stats.rejects.unknown_id += 1;
+            return Err(());
+        };
+        let Some(first) = frame.data().first().copied() else {
+            self.stats.rejects.wrong_length += 1;
+            return Err(());
+        };
+        // CubeMars replies share one ID: the payload's first byte names the motor. DaMiao puts its
+        // state in that byte's high nibble; its low nibble and the reply ID name the motor.
+        let index = self.joints.iter().position(|j| {
+            j.reply_id == raw
+                && match j.model.family {
+                    super::models::MotorFamily::Damiao => first & 0x0F == j.motor_id & 0x0F,
+                    _ => first == j.motor_id,
+                }
+        });
+        let Some(i) = index else {
+            if self.joints.iter().any(|j| j.reply_id == raw) {
+                self.stats.rejects.unknown_motor += 1;
+            } else {
+                self.stats.rejects.unknown_id += 1;
+            }
+            return Err(());
+        };
+        let j = &self.joints[i];
+        let Ok(r) = unpack_reply(&j.model, frame.data()) else {
+            self.stats.rejects.wrong_length += 1;
+            return Err(());
+        };
+        if self.answered[i] {
+            self.stats.rejects.duplicate += 1;
+            return Err(());
+        }
+        let (s, g) = (j.direction, j.gear_ratio);
+        let fb = &mut self.feedback[i];
+        fb.q = s * (r.p - j.offset) / g;
+        fb.qd = s * r.v / g;
+        fb.tau = s * r.t * g;
+        fb.temperature = r.temperature;
+        fb.fault = r.fault;
+        fb.enabled = r.enabled;
+        fb.received_at = Some(self.bus.now());
+        fb.missed_cycles = 0;
+        self.answered[i] = true;
+        Ok(())
+    }
+
+    fn special_all(&mut self, which: SpecialFrame) -> Result<(), MitError> {
+        for j in &self.joints {
+            self.bus.send(&CanFrame::new8(CanId::Standard(u16::from(j.motor_id)), which.bytes()))?;
+        }
+        let mut report = CycleReport::default();
+        self.collect(&mut report)?;
+        match self.answered.iter().position(|a| !a) {
+            Some(i) => Err(MitError::NoReply {
+                joint: self.joints[i].name.clone(),
+                motor_id: self.joints[i].motor_id,
+                timeout: self.reply_timeout,
+            }),
+            None => Ok(()),
+        }
+    }
+
+    /// Turns every motor's torque on; fails naming the first motor that did not answer.
+    pub fn enable_all(&mut self) -> Result<(), MitError> {
+        self.special_all(SpecialFrame::Enable)
+    }
+
+    /// Turns every motor's torque off; fails naming the first motor that did not answer.
+    pub fn disable_all(&mut self) -> Result<(), MitError> {
+        self.special_all(SpecialFrame::Disable)
+    }
+
+    /// Takes every motor's current position as its zero (motors must be disabled).
+    pub fn set_zero_all(&mut self) -> Result<(), MitError> {
+        self.special_all(SpecialFrame::SetZero)
+    }
+}

@@ -1,0 +1,112 @@
+//! Simulated time for mock buses and emulated firmware.
+//!
+//! Transports name their own `Instant` type (see [`crate::can::CanBus`]): hardware uses
+//! [`std::time::Instant`], mock buses in lockstep use [`SimInstant`], so the same driver code runs
+//! on the robot, against the mirror, and in replay.
+
+use std::ops::{Add, Sub};
+use std::time::Duration;
+
+/// A point on a simulated clock, in nanoseconds since the simulation started.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Default)]
+pub struct SimInstant(u64);
+
+impl SimInstant {
+    /// The start of simulated time.
+    pub const ZERO: Self = Self(0);
+
+    /// `nanos` after the start.
+    pub const fn from_nanos(nanos: u64) -> Self {
+        Self(nanos)
+    }
+
+    /// Nanoseconds since the start.
+    pub const fn as_nanos(self) -> u64 {
+        self.0
+    }
+
+    /// Seconds since the start.
+    pub fn as_secs_f64(self) -> f64 {
+        self.0 as f64 * 1e-9
+    }
+
+    /// Time since `earlier`, or zero when `earlier` is later.
+    pub fn saturating_since(self, earlier: Self) -> Duration {
+        Duration::from_nanos(self.0.saturating_sub(earlier.0))
+    }
+}
+
+impl Add<Duration> for SimInstant {
+    type Output = Self;
+    fn add(self, d: Duration) -> Self {
+        Self(self.0.saturating_add(u64::try_from(d.as_nanos()).unwrap_or(u64::MAX)))
+    }
+}
+
+impl Sub for SimInstant {
+    type Output = Duration;
+    /// Saturating difference: a later `rhs` gives zero.
+    fn sub(self, rhs: Self) -> Duration {
+        self.saturating_since(rhs)
+    }
+}
+
+/// Operations a transport's `Instant` type offers the drivers.
+pub trait BusInstant: Copy + Ord + Add<Duration, Output = Self> + Sub<Output = Duration> + std::fmt::Debug {}
+
+impl BusInstant for SimInstant {}
+impl BusInstant for std::time::Instant {}
+
+/// A small deterministic PRNG (SplitMix64) for noise and fault injection: same seed, same run.
+#[derive(Debug, Clone)]
+pub struct SimRng(u64);
+
+impl SimRng {
+    /// A generator seeded with `seed`.
+    pub const fn new(seed: u64) -> Self {
+        Self(seed)
+    }
+
+    /// The next 64 random bits.
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in `[0, 1)`.
+    pub fn next_f64(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+    }
+
+    /// True with probability `p`.
+    pub fn chance(&mut self, p: f64) -> bool {
+        p > 0.0 && self.next_f64() < p
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sim_instant_arithmetic_saturates() {
+        let t = SimInstant::from_nanos(1_000) + Duration::from_micros(2);
+        assert_eq!(t.as_nanos(), 3_000);
+        assert_eq!(t - SimInstant::from_nanos(500), Duration::from_nanos(2_500));
+        assert_eq!(SimInstant::ZERO - t, Duration::ZERO);
+    }
+
+    #[test]
+    fn rng_is_deterministic_and_uniform_enough() {
+        let (mut a, mut b) = (SimRng::new(42), SimRng::new(42));
+        let xs: Vec<f64> = (0..10_000).map(|_| a.next_f64()).collect();
+        assert!(xs.iter().zip((0..10_000).map(|_| b.next_f64())).all(|(x, y)| x.to_bits() == y.to_bits()));
+        let mean = xs.iter().sum::<f64>() / xs.len() as f64;
+        assert!((mean - 0.5).abs() < 0.02, "{mean}");
+        assert!(xs.iter().all(|x| (0.0..1.0).contains(x)));
+        assert_ne!(SimRng::new(1).next_u64(), SimRng::new(2).next_u64());
+    }
+}
