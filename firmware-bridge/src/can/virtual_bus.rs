@@ -475,3 +475,50 @@ mod tests {
         assert!(port.now() < deadline + Duration::from_millis(1));
     }
 }
+
+/// Runs a simulated world in real time on its own thread, for serving it over real wires
+/// (socketcand, pseudo-terminals) to a controller in another process.
+#[derive(Debug)]
+pub struct WallClockRunner {
+    stop: Arc<std::sync::atomic::AtomicBool>,
+    thread: Option<std::thread::JoinHandle<()>>,
+    start: std::time::Instant,
+}
+
+impl WallClockRunner {
+    /// Starts stepping `world` so that its clock follows the wall clock from now on, checking
+    /// every `resolution`.
+    pub fn spawn<W: SimWorld + Send + 'static>(world: Arc<Mutex<W>>, resolution: Duration) -> std::io::Result<Self> {
+        let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let start = std::time::Instant::now();
+        let flag = Arc::clone(&stop);
+        let thread = std::thread::Builder::new().name("sim-wall-clock".into()).spawn(move || {
+            let origin = world.lock().unwrap_or_else(std::sync::PoisonError::into_inner).now();
+            while !flag.load(std::sync::atomic::Ordering::Relaxed) {
+                let target = origin + start.elapsed();
+                {
+                    let mut w = world.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+                    while w.now() < target {
+                        w.step_until(target);
+                    }
+                }
+                std::thread::sleep(resolution);
+            }
+        })?;
+        Ok(Self { stop, thread: Some(thread), start })
+    }
+
+    /// Wall time since the runner started: the timestamp for frames served to clients.
+    pub fn elapsed(&self) -> Duration {
+        self.start.elapsed()
+    }
+}
+
+impl Drop for WallClockRunner {
+    fn drop(&mut self) {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
