@@ -5,6 +5,8 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 
+mod cli_can;
+
 /// Run motion-tracking policies on a real robot, or on its mirrored MuJoCo simulator.
 ///
 /// The controller reads the robot's state over its CAN and serial buses, builds the policy's
@@ -19,6 +21,9 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// CAN bus tools: emulated MIT-mode motors behind socketcand, and bus scans.
+    #[command(subcommand)]
+    Can(cli_can::CanCommand),
     /// Check the native libraries and load a MuJoCo model and an ONNX model, moving nothing.
     ///
     /// Prints the versions of MuJoCo and ONNX Runtime this build loads, the sizes of the MuJoCo
@@ -42,6 +47,7 @@ fn main() -> Result<()> {
         .init();
     match Cli::parse().command {
         Command::Doctor { mjcf, onnx } => doctor(&mjcf, &onnx),
+        Command::Can(cmd) => cli_can::run(cmd),
     }
 }
 

@@ -65,3 +65,77 @@ fn help_teaches_the_commands() {
     assert!(out.status.success());
     assert!(stdout.contains("doctor"), "{stdout}");
 }
+
+#[test]
+fn can_scan_finds_the_motors_can_emulate_serves() {
+    use std::io::BufRead;
+    let mut emulate = robodeploy()
+        .args([
+            "can",
+            "emulate",
+            "--listen",
+            "127.0.0.1:0",
+            "--motor",
+            "1:DM-J4310",
+            "--motor",
+            "4:DM-J4310",
+            "--seconds",
+            "20",
+        ])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut first = String::new();
+    let mut reader = std::io::BufReader::new(emulate.stdout.take().unwrap());
+    reader.read_line(&mut first).unwrap();
+    // Keep draining the server's output so it never writes into a closed pipe.
+    let drain = std::thread::Builder::new()
+        .name("drain".into())
+        .spawn(move || std::io::copy(&mut reader, &mut std::io::sink()))
+        .unwrap();
+    let addr = first.rsplit(' ').next().unwrap().trim().to_owned();
+    assert!(addr.starts_with("127.0.0.1:"), "{first}");
+    let out = robodeploy()
+        .args([
+            "can",
+            "scan",
+            "--socketcand",
+            &addr,
+            "--model",
+            "DM-J4310",
+            "--ids",
+            "1-5",
+        ])
+        .output()
+        .unwrap();
+    let _ = emulate.kill();
+    let _ = emulate.wait();
+    let _ = drain.join();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.contains("2 motor(s) answered out of 5 asked"), "{stdout}");
+    // DaMiao motors reply on their master ID (motor ID + 0x10).
+    assert!(
+        stdout.contains("   1     0x11") && stdout.contains("   4     0x14"),
+        "{stdout}"
+    );
+}
+
+#[test]
+fn can_emulate_rejects_unknown_models_by_name() {
+    let out = robodeploy()
+        .args(["can", "emulate", "--motor", "1:AK99-1"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("unknown motor model 'AK99-1'") && stderr.contains("AK80-9"),
+        "{stderr}"
+    );
+}

@@ -33,7 +33,14 @@ pub struct InertiaPlant {
 impl InertiaPlant {
     /// A plant at rest at `q`.
     pub fn new(inertia: f64, damping: f64, friction: f64, q: f64) -> Self {
-        Self { inertia, damping, friction, q, qd: 0.0, torque: 0.0 }
+        Self {
+            inertia,
+            damping,
+            friction,
+            q,
+            qd: 0.0,
+            torque: 0.0,
+        }
     }
 
     /// Advances the plant by `dt` seconds under the applied torque.

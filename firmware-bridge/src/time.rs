@@ -39,7 +39,10 @@ impl SimInstant {
 impl Add<Duration> for SimInstant {
     type Output = Self;
     fn add(self, d: Duration) -> Self {
-        Self(self.0.saturating_add(u64::try_from(d.as_nanos()).unwrap_or(u64::MAX)))
+        Self(
+            self.0
+                .saturating_add(u64::try_from(d.as_nanos()).unwrap_or(u64::MAX)),
+        )
     }
 }
 
@@ -52,7 +55,10 @@ impl Sub for SimInstant {
 }
 
 /// Operations a transport's `Instant` type offers the drivers.
-pub trait BusInstant: Copy + Ord + Add<Duration, Output = Self> + Sub<Output = Duration> + std::fmt::Debug {}
+pub trait BusInstant:
+    Copy + Ord + Add<Duration, Output = Self> + Sub<Output = Duration> + std::fmt::Debug
+{
+}
 
 impl BusInstant for SimInstant {}
 impl BusInstant for std::time::Instant {}
@@ -103,7 +109,11 @@ mod tests {
     fn rng_is_deterministic_and_uniform_enough() {
         let (mut a, mut b) = (SimRng::new(42), SimRng::new(42));
         let xs: Vec<f64> = (0..10_000).map(|_| a.next_f64()).collect();
-        assert!(xs.iter().zip((0..10_000).map(|_| b.next_f64())).all(|(x, y)| x.to_bits() == y.to_bits()));
+        assert!(
+            xs.iter()
+                .zip((0..10_000).map(|_| b.next_f64()))
+                .all(|(x, y)| x.to_bits() == y.to_bits())
+        );
         let mean = xs.iter().sum::<f64>() / xs.len() as f64;
         assert!((mean - 0.5).abs() < 0.02, "{mean}");
         assert!(xs.iter().all(|x| (0.0..1.0).contains(x)));

@@ -22,20 +22,35 @@ struct Served {
 fn serve() -> Served {
     let bus = VirtualCanBus::new("can0", 1_000_000);
     let mut rig = MitRig::new(vec![bus.clone()], Duration::from_micros(500));
-    rig.add_motor(0, MitFirmwareConfig::new(1, find("AK80-9").unwrap()), InertiaPlant::new(0.01, 0.05, 0.0, 0.0));
-    rig.add_motor(0, MitFirmwareConfig::new(2, find("DM-J4310").unwrap()), InertiaPlant::new(0.005, 0.02, 0.0, 0.0));
+    rig.add_motor(
+        0,
+        MitFirmwareConfig::new(1, find("AK80-9").unwrap()),
+        InertiaPlant::new(0.01, 0.05, 0.0, 0.0),
+    );
+    rig.add_motor(
+        0,
+        MitFirmwareConfig::new(2, find("DM-J4310").unwrap()),
+        InertiaPlant::new(0.005, 0.02, 0.0, 0.0),
+    );
     let rig = rig.shared();
     let runner = WallClockRunner::spawn(rig, Duration::from_micros(200)).unwrap();
     let clock_start = std::time::Instant::now();
-    let server = SocketcandServer::spawn("127.0.0.1:0".parse().unwrap(), "can0", bus.attach(), move || clock_start.elapsed()).unwrap();
-    Served { server, _runner: runner }
+    let server = SocketcandServer::spawn("127.0.0.1:0".parse().unwrap(), "can0", bus.attach(), move || {
+        clock_start.elapsed()
+    })
+    .unwrap();
+    Served {
+        server,
+        _runner: runner,
+    }
 }
 
 #[test]
 fn python_can_enables_commands_and_reads_an_emulated_motor() {
     let served = serve();
     let m = find("AK80-9").unwrap();
-    let script = test_support::fixtures::workspace_root().join("firmware-bridge/tests/python/mit_over_socketcand.py");
+    let script =
+        test_support::fixtures::workspace_root().join("firmware-bridge/tests/python/mit_over_socketcand.py");
     let out = std::process::Command::new(test_support::fixtures::venv_python())
         .arg(script)
         .args(["127.0.0.1", &served.server.local_addr().port().to_string(), "1"])
@@ -43,10 +58,17 @@ fn python_can_enables_commands_and_reads_an_emulated_motor() {
         .output()
         .unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(out.status.success(), "python-can run failed\nstdout: {stdout}\nstderr: {}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "python-can run failed\nstdout: {stdout}\nstderr: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let summary: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
     assert_eq!(summary["enable"]["err"], 0);
-    let (p, target) = (summary["final"]["p"].as_f64().unwrap(), summary["target"].as_f64().unwrap());
+    let (p, target) = (
+        summary["final"]["p"].as_f64().unwrap(),
+        summary["target"].as_f64().unwrap(),
+    );
     assert!((p - target).abs() < 0.05, "{summary}");
     assert_eq!(served.server.malformed(), 0);
 }
@@ -54,7 +76,8 @@ fn python_can_enables_commands_and_reads_an_emulated_motor() {
 #[test]
 fn the_driver_runs_over_tcp_like_over_any_bus() {
     let served = serve();
-    let client = SocketcandClient::connect(served.server.local_addr(), "can0", Duration::from_secs(2)).unwrap();
+    let client =
+        SocketcandClient::connect(served.server.local_addr(), "can0", Duration::from_secs(2)).unwrap();
     let joint = |name: &str, id: u8, model: &str| {
         let model = find(model).unwrap();
         MitJointConfig {
@@ -70,7 +93,13 @@ fn the_driver_runs_over_tcp_like_over_any_bus() {
     let joints = vec![joint("hip", 1, "AK80-9"), joint("wrist", 2, "DM-J4310")];
     let mut driver = MitBusDriver::new(client, joints, Duration::from_millis(20)).unwrap();
     driver.enable_all().unwrap();
-    let cmds = [0.5, -0.4].map(|q| JointCommand { q, qd: 0.0, kp: 20.0, kd: 0.8, tau: 0.0 });
+    let cmds = [0.5, -0.4].map(|q| JointCommand {
+        q,
+        qd: 0.0,
+        kp: 20.0,
+        kd: 0.8,
+        tau: 0.0,
+    });
     for _ in 0..100 {
         driver.cycle(&cmds).unwrap();
         std::thread::sleep(Duration::from_millis(10));
@@ -96,7 +125,10 @@ fn garbage_on_the_wire_is_counted_and_the_session_survives() {
     s.write_all(b"< rawmode >").unwrap();
     let n = s.read(&mut buf).unwrap();
     assert_eq!(&buf[..n], b"< ok >");
-    s.write_all(b"hello there< send 800 1 00 >< send 001 9 00 >< bogus >< send 001 8 FF FF FF FF FF FF FF FC >").unwrap();
+    s.write_all(
+        b"hello there< send 800 1 00 >< send 001 9 00 >< bogus >< send 001 8 FF FF FF FF FF FF FF FC >",
+    )
+    .unwrap();
     // The valid enable frame after the garbage still reaches the motor, which answers.
     let mut text = String::new();
     let deadline = std::time::Instant::now() + Duration::from_secs(2);

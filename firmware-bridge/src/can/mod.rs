@@ -20,12 +20,20 @@ pub enum CanId {
 impl CanId {
     /// A standard identifier, or `None` above `0x7FF`.
     pub const fn standard(raw: u16) -> Option<Self> {
-        if raw <= 0x7FF { Some(Self::Standard(raw)) } else { None }
+        if raw <= 0x7FF {
+            Some(Self::Standard(raw))
+        } else {
+            None
+        }
     }
 
     /// An extended identifier, or `None` above `0x1FFF_FFFF`.
     pub const fn extended(raw: u32) -> Option<Self> {
-        if raw <= 0x1FFF_FFFF { Some(Self::Extended(raw)) } else { None }
+        if raw <= 0x1FFF_FFFF {
+            Some(Self::Extended(raw))
+        } else {
+            None
+        }
     }
 
     /// The numeric identifier.
@@ -61,7 +69,11 @@ impl CanFrame {
         }
         let mut buf = [0u8; 8];
         buf[..data.len()].copy_from_slice(data);
-        Some(Self { id, len: data.len() as u8, data: buf })
+        Some(Self {
+            id,
+            len: data.len() as u8,
+            data: buf,
+        })
     }
 
     /// A frame carrying exactly eight bytes.

@@ -22,14 +22,25 @@ impl SocketCanBus {
             bus: name.to_owned(),
             reason: format!("cannot open SocketCAN interface: {e} (is it up? `ip link show {name}`)"),
         })?;
-        Ok(Self { name: name.to_owned(), socket })
+        Ok(Self {
+            name: name.to_owned(),
+            socket,
+        })
     }
 
     fn io(&self, e: &std::io::Error) -> CanError {
         match e.raw_os_error() {
-            Some(105) => CanError::TxQueueFull { bus: self.name.clone() }, // ENOBUFS
-            Some(100) => CanError::Disconnected { bus: self.name.clone(), reason: "network is down".into() }, // ENETDOWN
-            _ => CanError::Io { bus: self.name.clone(), reason: e.to_string() },
+            Some(105) => CanError::TxQueueFull {
+                bus: self.name.clone(),
+            }, // ENOBUFS
+            Some(100) => CanError::Disconnected {
+                bus: self.name.clone(),
+                reason: "network is down".into(),
+            }, // ENETDOWN
+            _ => CanError::Io {
+                bus: self.name.clone(),
+                reason: e.to_string(),
+            },
         }
     }
 }
@@ -81,9 +92,17 @@ impl CanBus for SocketCanBus {
                 // No device of ours sends remote frames; skip them.
                 Ok(socketcan::CanFrame::Remote(_)) => {}
                 Ok(socketcan::CanFrame::Error(e)) => {
-                    return Err(CanError::Io { bus: self.name.clone(), reason: format!("error frame: {e:?}") });
+                    return Err(CanError::Io {
+                        bus: self.name.clone(),
+                        reason: format!("error frame: {e:?}"),
+                    });
                 }
-                Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => {
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                    ) =>
+                {
                     return Ok(None);
                 }
                 Err(e) => return Err(self.io(&e)),

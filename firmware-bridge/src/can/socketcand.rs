@@ -46,7 +46,10 @@ pub enum Message {
 fn parse_id(s: &str) -> Result<CanId, &'static str> {
     let raw = u32::from_str_radix(s, 16).map_err(|_| "identifier is not hexadecimal")?;
     match s.len() {
-        3 => u16::try_from(raw).ok().and_then(CanId::standard).ok_or("standard identifier above 0x7FF"),
+        3 => u16::try_from(raw)
+            .ok()
+            .and_then(CanId::standard)
+            .ok_or("standard identifier above 0x7FF"),
         8 => CanId::extended(raw).ok_or("extended identifier above 0x1FFFFFFF"),
         _ => Err("identifier must have 3 (standard) or 8 (extended) hex digits"),
     }
@@ -67,11 +70,16 @@ pub fn parse(msg: &str) -> Result<Message, &'static str> {
         "ok" => Ok(Message::Ok),
         "rawmode" => Ok(Message::RawMode),
         "echo" => Ok(Message::Echo),
-        "open" => Ok(Message::Open(words.next().ok_or("open needs a bus name")?.to_owned())),
-        "error" => Ok(Message::Error(body.strip_prefix("error").unwrap_or("").trim().to_owned())),
+        "open" => Ok(Message::Open(
+            words.next().ok_or("open needs a bus name")?.to_owned(),
+        )),
+        "error" => Ok(Message::Error(
+            body.strip_prefix("error").unwrap_or("").trim().to_owned(),
+        )),
         "send" => {
             let id = parse_id(words.next().ok_or("send needs an identifier")?)?;
-            let dlc = usize::from_str_radix(words.next().ok_or("send needs a length")?, 16).map_err(|_| "length is not hexadecimal")?;
+            let dlc = usize::from_str_radix(words.next().ok_or("send needs a length")?, 16)
+                .map_err(|_| "length is not hexadecimal")?;
             if dlc > 8 {
                 return Err("length above 8");
             }
@@ -82,24 +90,32 @@ pub fn parse(msg: &str) -> Result<Message, &'static str> {
             if words.next().is_some() {
                 return Err("more data bytes than the length says");
             }
-            Ok(Message::Send(CanFrame::new(id, &data[..dlc]).ok_or("length above 8")?))
+            Ok(Message::Send(
+                CanFrame::new(id, &data[..dlc]).ok_or("length above 8")?,
+            ))
         }
         "frame" => {
             let id = parse_id(words.next().ok_or("frame needs an identifier")?)?;
             let stamp = words.next().ok_or("frame needs a timestamp")?;
             let (secs, usecs) = stamp.split_once('.').ok_or("timestamp must be SECS.USECS")?;
             let secs: u64 = secs.parse().map_err(|_| "timestamp seconds are not a number")?;
-            let usecs: u64 = usecs.parse().map_err(|_| "timestamp microseconds are not a number")?;
+            let usecs: u64 = usecs
+                .parse()
+                .map_err(|_| "timestamp microseconds are not a number")?;
             let hex = words.next().unwrap_or("");
             if hex.len() % 2 != 0 || hex.len() > 16 {
                 return Err("frame data must be 0–8 bytes of two hex digits each");
             }
             let n = hex.len() / 2;
             for (i, slot) in data.iter_mut().take(n).enumerate() {
-                *slot = u8::from_str_radix(&hex[2 * i..2 * i + 2], 16).map_err(|_| "frame data is not hexadecimal")?;
+                *slot = u8::from_str_radix(&hex[2 * i..2 * i + 2], 16)
+                    .map_err(|_| "frame data is not hexadecimal")?;
             }
             let frame = CanFrame::new(id, &data[..n]).ok_or("frame data above 8 bytes")?;
-            Ok(Message::Frame(frame, Duration::from_secs(secs) + Duration::from_micros(usecs)))
+            Ok(Message::Frame(
+                frame,
+                Duration::from_secs(secs) + Duration::from_micros(usecs),
+            ))
         }
         _ => Err("unknown command"),
     }
@@ -154,7 +170,9 @@ pub enum Framed {
 
 impl Default for Framer {
     fn default() -> Self {
-        Self { buf: Vec::with_capacity(4 * MAX_MESSAGE) }
+        Self {
+            buf: Vec::with_capacity(4 * MAX_MESSAGE),
+        }
     }
 }
 
@@ -169,7 +187,10 @@ impl Framer {
         let text = |b: &[u8]| String::from_utf8_lossy(b).into_owned();
         let start = self.buf.iter().position(|&b| !b.is_ascii_whitespace())?;
         if self.buf[start] != b'<' {
-            let end = self.buf[start..].iter().position(|&b| b == b'<').map_or(self.buf.len(), |p| start + p);
+            let end = self.buf[start..]
+                .iter()
+                .position(|&b| b == b'<')
+                .map_or(self.buf.len(), |p| start + p);
             let junk = text(&self.buf[start..end]);
             self.buf.drain(..end);
             return Some(Framed::Junk(junk));
@@ -224,14 +245,27 @@ pub struct SocketcandClient {
 impl SocketcandClient {
     /// Connects to `addr`, opens `bus` and switches to raw mode.
     pub fn connect(addr: impl ToSocketAddrs, bus: &str, timeout: Duration) -> Result<Self, CanError> {
-        let io = |e: std::io::Error| CanError::Disconnected { bus: bus.to_owned(), reason: e.to_string() };
-        let addr = addr.to_socket_addrs().map_err(io)?.next().ok_or_else(|| CanError::Io {
+        let io = |e: std::io::Error| CanError::Disconnected {
             bus: bus.to_owned(),
-            reason: "address resolves to nothing".into(),
-        })?;
+            reason: e.to_string(),
+        };
+        let addr = addr
+            .to_socket_addrs()
+            .map_err(io)?
+            .next()
+            .ok_or_else(|| CanError::Io {
+                bus: bus.to_owned(),
+                reason: "address resolves to nothing".into(),
+            })?;
         let stream = TcpStream::connect_timeout(&addr, timeout).map_err(io)?;
         stream.set_nodelay(true).map_err(io)?;
-        let mut client = Self { bus: bus.to_owned(), stream, framer: Framer::default(), out: String::with_capacity(64), malformed: Arc::default() };
+        let mut client = Self {
+            bus: bus.to_owned(),
+            stream,
+            framer: Framer::default(),
+            out: String::with_capacity(64),
+            malformed: Arc::default(),
+        };
         let deadline = Instant::now() + timeout;
         client.expect(Message::Hi, deadline)?;
         client.write_raw(&format!("< open {bus} >"))?;
@@ -249,14 +283,23 @@ impl SocketcandClient {
     fn write_raw(&mut self, s: &str) -> Result<(), CanError> {
         self.stream
             .write_all(s.as_bytes())
-            .map_err(|e| CanError::Disconnected { bus: self.bus.clone(), reason: e.to_string() })
+            .map_err(|e| CanError::Disconnected {
+                bus: self.bus.clone(),
+                reason: e.to_string(),
+            })
     }
 
     fn expect(&mut self, want: Message, deadline: Instant) -> Result<(), CanError> {
         match self.next_message(deadline)? {
             Some(m) if m == want => Ok(()),
-            Some(Message::Error(e)) => Err(CanError::Io { bus: self.bus.clone(), reason: format!("server refused: {e}") }),
-            other => Err(CanError::Io { bus: self.bus.clone(), reason: format!("expected {want:?} from server, got {other:?}") }),
+            Some(Message::Error(e)) => Err(CanError::Io {
+                bus: self.bus.clone(),
+                reason: format!("server refused: {e}"),
+            }),
+            other => Err(CanError::Io {
+                bus: self.bus.clone(),
+                reason: format!("expected {want:?} from server, got {other:?}"),
+            }),
         }
     }
 
@@ -268,9 +311,17 @@ impl SocketcandClient {
                 let bad = match item {
                     Framed::Message(m) => match parse(&m) {
                         Ok(msg) => return Ok(Some(msg)),
-                        Err(reason) => CanError::Malformed { bus: self.bus.clone(), input: truncated(&m), reason },
+                        Err(reason) => CanError::Malformed {
+                            bus: self.bus.clone(),
+                            input: truncated(&m),
+                            reason,
+                        },
                     },
-                    Framed::Junk(j) => CanError::Malformed { bus: self.bus.clone(), input: truncated(&j), reason: "text outside < >" },
+                    Framed::Junk(j) => CanError::Malformed {
+                        bus: self.bus.clone(),
+                        input: truncated(&j),
+                        reason: "text outside < >",
+                    },
                 };
                 self.malformed.record(&bad);
             }
@@ -278,12 +329,24 @@ impl SocketcandClient {
             if left.is_zero() {
                 return Ok(None);
             }
-            let _ = self.stream.set_read_timeout(Some(left.max(Duration::from_micros(50))));
+            let _ = self
+                .stream
+                .set_read_timeout(Some(left.max(Duration::from_micros(50))));
             match self.stream.read(&mut chunk) {
-                Ok(0) => return Err(CanError::Disconnected { bus: self.bus.clone(), reason: "server closed the connection".into() }),
+                Ok(0) => {
+                    return Err(CanError::Disconnected {
+                        bus: self.bus.clone(),
+                        reason: "server closed the connection".into(),
+                    });
+                }
                 Ok(n) => self.framer.push(&chunk[..n]),
                 Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => return Ok(None),
-                Err(e) => return Err(CanError::Disconnected { bus: self.bus.clone(), reason: e.to_string() }),
+                Err(e) => {
+                    return Err(CanError::Disconnected {
+                        bus: self.bus.clone(),
+                        reason: e.to_string(),
+                    });
+                }
             }
         }
     }
@@ -310,7 +373,12 @@ impl CanBus for SocketcandClient {
             match self.next_message(deadline)? {
                 None => return Ok(None),
                 Some(Message::Frame(f, _)) => return Ok(Some(f)),
-                Some(Message::Error(e)) => return Err(CanError::Io { bus: self.bus.clone(), reason: format!("error frame: {e}") }),
+                Some(Message::Error(e)) => {
+                    return Err(CanError::Io {
+                        bus: self.bus.clone(),
+                        reason: format!("error frame: {e}"),
+                    });
+                }
                 Some(other) => self.malformed.record(&CanError::Malformed {
                     bus: self.bus.clone(),
                     input: format!("{other:?}"),
@@ -344,11 +412,22 @@ impl SocketcandServer {
         let addr = listener.local_addr()?;
         let stop = Arc::new(AtomicBool::new(false));
         let malformed = Arc::new(MalformedCounter::default());
-        let session = Session { bus: bus.to_owned(), node, stop: Arc::clone(&stop), malformed: Arc::clone(&malformed), clock: Box::new(clock) };
+        let session = Session {
+            bus: bus.to_owned(),
+            node,
+            stop: Arc::clone(&stop),
+            malformed: Arc::clone(&malformed),
+            clock: Box::new(clock),
+        };
         let thread = std::thread::Builder::new()
             .name(format!("socketcand-{bus}"))
             .spawn(move || session.serve(&listener))?;
-        Ok(Self { addr, stop, malformed, thread: Some(thread) })
+        Ok(Self {
+            addr,
+            stop,
+            malformed,
+            thread: Some(thread),
+        })
     }
 
     /// The address the server listens on.
@@ -463,7 +542,11 @@ impl Session {
                         ""
                     }
                     (Err((input, reason)), _) => {
-                        self.malformed.record(&CanError::Malformed { bus: self.bus.clone(), input: truncated(&input), reason });
+                        self.malformed.record(&CanError::Malformed {
+                            bus: self.bus.clone(),
+                            input: truncated(&input),
+                            reason,
+                        });
                         ""
                     }
                 };
@@ -485,25 +568,50 @@ mod tests {
         assert_eq!(parse("< hi >"), Ok(Message::Hi));
         assert_eq!(parse("< open can0 >"), Ok(Message::Open("can0".into())));
         let send = parse("< send 123 8 11 22 33 44 55 66 77 88 >").unwrap();
-        let Message::Send(f) = send else { panic!("{send:?}") };
-        assert_eq!((f.id(), f.data()), (CanId::Standard(0x123), &[0x11, 0x22, 0x33, 0x44, 0x55, 0x66, 0x77, 0x88][..]));
+        let Message::Send(f) = send else {
+            panic!("{send:?}")
+        };
+        assert_eq!(
+            (f.id(), f.data()),
+            (
+                CanId::Standard(0x123),
+                &[0x11, 0x22, 0x33, 0x44, 0x55, 0x66, 0x77, 0x88][..]
+            )
+        );
         // python-can writes bytes without zero padding and IDs in upper case.
-        let Ok(Message::Send(f)) = parse("< send 001 3 ff 0 a >") else { panic!() };
+        let Ok(Message::Send(f)) = parse("< send 001 3 ff 0 a >") else {
+            panic!()
+        };
         assert_eq!(f.data(), &[0xFF, 0x00, 0x0A]);
-        let Ok(Message::Frame(f, t)) = parse("< frame 12345678 23.000450 0102 >") else { panic!() };
-        assert_eq!((f.id(), f.data(), t), (CanId::Extended(0x1234_5678), &[1u8, 2][..], Duration::from_micros(23_000_450)));
+        let Ok(Message::Frame(f, t)) = parse("< frame 12345678 23.000450 0102 >") else {
+            panic!()
+        };
+        assert_eq!(
+            (f.id(), f.data(), t),
+            (
+                CanId::Extended(0x1234_5678),
+                &[1u8, 2][..],
+                Duration::from_micros(23_000_450)
+            )
+        );
     }
 
     #[test]
     fn malformed_messages_are_rejected_with_a_reason() {
         for (bad, why) in [
             ("< send 800 1 00 >", "standard identifier above 0x7FF"),
-            ("< send 12 1 00 >", "identifier must have 3 (standard) or 8 (extended) hex digits"),
+            (
+                "< send 12 1 00 >",
+                "identifier must have 3 (standard) or 8 (extended) hex digits",
+            ),
             ("< send 123 9 00 >", "length above 8"),
             ("< send 123 2 00 >", "fewer data bytes than the length says"),
             ("< send 123 1 00 11 >", "more data bytes than the length says"),
             ("< send 123 1 zz >", "data byte is not a hex byte"),
-            ("< frame 123 1.5 ABC >", "frame data must be 0–8 bytes of two hex digits each"),
+            (
+                "< frame 123 1.5 ABC >",
+                "frame data must be 0–8 bytes of two hex digits each",
+            ),
             ("< fly away >", "unknown command"),
             ("hi", "message must be enclosed in < >"),
         ] {
@@ -532,7 +640,10 @@ mod tests {
         assert_eq!(fr.next_item(), Some(Framed::Junk("garbage".into())));
         assert_eq!(fr.next_item(), None);
         fr.push(b"me 123 0.000001 01 >");
-        assert_eq!(fr.next_item(), Some(Framed::Message("< frame 123 0.000001 01 >".into())));
+        assert_eq!(
+            fr.next_item(),
+            Some(Framed::Message("< frame 123 0.000001 01 >".into()))
+        );
         fr.push(&[b'<'; MAX_MESSAGE + 2]);
         assert!(matches!(fr.next_item(), Some(Framed::Junk(_))));
     }

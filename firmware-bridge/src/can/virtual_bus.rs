@@ -97,7 +97,10 @@ struct Medium {
 
 impl Medium {
     fn bus_off_at(&self, t: SimInstant) -> bool {
-        self.faults.bus_off.iter().any(|&(from, until)| t >= from && t < until)
+        self.faults
+            .bus_off
+            .iter()
+            .any(|&(from, until)| t >= from && t < until)
     }
 
     fn fault_for(&mut self, frame: &CanFrame, t: SimInstant) -> Option<CanFaultKind> {
@@ -114,7 +117,9 @@ impl Medium {
     fn transmit(&mut self, from: usize, frame: &CanFrame) -> Result<(), CanError> {
         if self.bus_off_at(self.now) {
             self.stats.refused_bus_off += 1;
-            return Err(CanError::BusOff { bus: self.name.clone() });
+            return Err(CanError::BusOff {
+                bus: self.name.clone(),
+            });
         }
         let start = self.now.max(self.busy_until);
         let mut end = start + frame_time(frame, self.bitrate);
@@ -199,14 +204,21 @@ impl VirtualCanBus {
 
     fn lock(&self) -> MutexGuard<'_, Medium> {
         // A panic while holding the lock leaves plain data behind; keep using it.
-        self.medium.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+        self.medium
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
     }
 
     /// Attaches a node (a host adapter or a device) and returns its handle.
     pub fn attach(&self) -> VirtualCanNode {
         let mut m = self.lock();
-        m.nodes.push(Node { rx: VecDeque::with_capacity(RX_FIFO_DEPTH) });
-        VirtualCanNode { bus: self.clone(), index: m.nodes.len() - 1 }
+        m.nodes.push(Node {
+            rx: VecDeque::with_capacity(RX_FIFO_DEPTH),
+        });
+        VirtualCanNode {
+            bus: self.clone(),
+            index: m.nodes.len() - 1,
+        }
     }
 
     /// Moves the wire's clock to `t` (never backwards). Called by the simulated world.
@@ -299,7 +311,9 @@ impl<W: SimWorld> LockstepCanPort<W> {
     }
 
     fn world(&self) -> MutexGuard<'_, W> {
-        self.world.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+        self.world
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
     }
 }
 
@@ -321,7 +335,10 @@ impl<W: SimWorld> CanBus for LockstepCanPort<W> {
             if let Some(frame) = self.node.try_recv() {
                 return Ok(Some(frame));
             }
-            let mut world = self.world.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+            let mut world = self
+                .world
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
             if world.now() >= deadline {
                 return Ok(None);
             }
@@ -383,7 +400,13 @@ mod tests {
         let id = CanId::standard(7).unwrap();
         let plan = CanFaultPlan {
             rules: vec![
-                CanFaultRule { id: Some(id), from: SimInstant::ZERO, until: None, probability: 1.0, kind: CanFaultKind::Drop },
+                CanFaultRule {
+                    id: Some(id),
+                    from: SimInstant::ZERO,
+                    until: None,
+                    probability: 1.0,
+                    kind: CanFaultKind::Drop,
+                },
                 CanFaultRule {
                     id: Some(CanId::standard(8).unwrap()),
                     from: SimInstant::ZERO,
@@ -399,7 +422,10 @@ mod tests {
                     kind: CanFaultKind::Truncate(5),
                 },
             ],
-            bus_off: vec![(SimInstant::from_nanos(10_000_000), SimInstant::from_nanos(20_000_000))],
+            bus_off: vec![(
+                SimInstant::from_nanos(10_000_000),
+                SimInstant::from_nanos(20_000_000),
+            )],
             seed: 1,
         };
         let bus = VirtualCanBus::with_faults("can0", 1_000_000, plan);
@@ -420,7 +446,10 @@ mod tests {
         bus.set_now(SimInstant::from_nanos(20_000_000));
         a.send(&frame(1, 0)).unwrap();
         let s = bus.stats();
-        assert_eq!((s.dropped, s.delayed, s.truncated, s.refused_bus_off), (1, 1, 1, 1));
+        assert_eq!(
+            (s.dropped, s.delayed, s.truncated, s.refused_bus_off),
+            (1, 1, 1, 1)
+        );
     }
 
     #[test]
@@ -443,7 +472,10 @@ mod tests {
             rx.next_arrival().unwrap()
         };
         let (t_clean, t_noisy) = (arrival(&clean), arrival(&noisy));
-        assert_eq!(t_noisy - t_clean, frame_time(&frame(1, 0xAA), 1_000_000) + Duration::from_micros(20));
+        assert_eq!(
+            t_noisy - t_clean,
+            frame_time(&frame(1, 0xAA), 1_000_000) + Duration::from_micros(20)
+        );
     }
 
     #[test]
@@ -459,7 +491,10 @@ mod tests {
     #[test]
     fn lockstep_port_waits_in_simulated_time_only() {
         let bus = VirtualCanBus::new("can0", 1_000_000);
-        let world = Arc::new(Mutex::new(EmptyWorld { now: SimInstant::ZERO, bus: bus.clone() }));
+        let world = Arc::new(Mutex::new(EmptyWorld {
+            now: SimInstant::ZERO,
+            bus: bus.clone(),
+        }));
         let mut port = LockstepCanPort::new(bus.attach(), world.clone());
         let peer = bus.attach();
         let wall = std::time::Instant::now();
@@ -470,7 +505,10 @@ mod tests {
         assert!(wall.elapsed() < Duration::from_secs(1), "lockstep must not sleep");
         // A frame sent by a peer is received at its arrival time, before the deadline.
         peer.send(&frame(3, 1)).unwrap();
-        let got = port.recv_until(deadline + Duration::from_secs(1)).unwrap().unwrap();
+        let got = port
+            .recv_until(deadline + Duration::from_secs(1))
+            .unwrap()
+            .unwrap();
         assert_eq!(got.id(), CanId::Standard(3));
         assert!(port.now() < deadline + Duration::from_millis(1));
     }
@@ -488,24 +526,36 @@ pub struct WallClockRunner {
 impl WallClockRunner {
     /// Starts stepping `world` so that its clock follows the wall clock from now on, checking
     /// every `resolution`.
-    pub fn spawn<W: SimWorld + Send + 'static>(world: Arc<Mutex<W>>, resolution: Duration) -> std::io::Result<Self> {
+    pub fn spawn<W: SimWorld + Send + 'static>(
+        world: Arc<Mutex<W>>,
+        resolution: Duration,
+    ) -> std::io::Result<Self> {
         let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
         let start = std::time::Instant::now();
         let flag = Arc::clone(&stop);
-        let thread = std::thread::Builder::new().name("sim-wall-clock".into()).spawn(move || {
-            let origin = world.lock().unwrap_or_else(std::sync::PoisonError::into_inner).now();
-            while !flag.load(std::sync::atomic::Ordering::Relaxed) {
-                let target = origin + start.elapsed();
-                {
-                    let mut w = world.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-                    while w.now() < target {
-                        w.step_until(target);
+        let thread = std::thread::Builder::new()
+            .name("sim-wall-clock".into())
+            .spawn(move || {
+                let origin = world
+                    .lock()
+                    .unwrap_or_else(std::sync::PoisonError::into_inner)
+                    .now();
+                while !flag.load(std::sync::atomic::Ordering::Relaxed) {
+                    let target = origin + start.elapsed();
+                    {
+                        let mut w = world.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+                        while w.now() < target {
+                            w.step_until(target);
+                        }
                     }
+                    std::thread::sleep(resolution);
                 }
-                std::thread::sleep(resolution);
-            }
-        })?;
-        Ok(Self { stop, thread: Some(thread), start })
+            })?;
+        Ok(Self {
+            stop,
+            thread: Some(thread),
+            start,
+        })
     }
 
     /// Wall time since the runner started: the timestamp for frames served to clients.

@@ -40,7 +40,10 @@ fn crc15(bits: &[bool]) -> u32 {
 
 /// Number of bits `frame` occupies on the wire, stuff bits and interframe space included.
 pub fn frame_bits(frame: &CanFrame) -> u32 {
-    let mut b = Bits { bits: [false; 160], len: 0 };
+    let mut b = Bits {
+        bits: [false; 160],
+        len: 0,
+    };
     b.push(0, 1); // SOF (dominant)
     match frame.id() {
         CanId::Standard(id) => {
@@ -125,7 +128,10 @@ mod tests {
         assert!(w > a && w <= 135, "all-zero frame: {w} bits");
         // 1 Mbit/s: about 0.11–0.135 ms per frame, as the protocol notes say.
         let t = frame_time(&worst, 1_000_000);
-        assert!(t >= Duration::from_micros(111) && t <= Duration::from_micros(135), "{t:?}");
+        assert!(
+            t >= Duration::from_micros(111) && t <= Duration::from_micros(135),
+            "{t:?}"
+        );
     }
 
     #[test]

@@ -212,7 +212,13 @@ pub fn needs_clamp(model: &MotorModel, cmd: &MitCommand) -> bool {
 
 /// Packs a command, clamping every field to the model's range. Refuses NaN and infinities.
 pub fn pack_command(model: &MotorModel, cmd: &MitCommand) -> Result<[u8; 8], CodecError> {
-    for (field, v) in [("p", cmd.p), ("v", cmd.v), ("kp", cmd.kp), ("kd", cmd.kd), ("t", cmd.t)] {
+    for (field, v) in [
+        ("p", cmd.p),
+        ("v", cmd.v),
+        ("kp", cmd.kp),
+        ("kd", cmd.kd),
+        ("t", cmd.t),
+    ] {
         if !v.is_finite() {
             return Err(CodecError::NotFinite { field });
         }
@@ -236,7 +242,10 @@ pub fn pack_command(model: &MotorModel, cmd: &MitCommand) -> Result<[u8; 8], Cod
 
 /// Unpacks a command (the firmware's side).
 pub fn unpack_command(model: &MotorModel, data: &[u8]) -> Result<MitCommand, CodecError> {
-    let d: &[u8; 8] = data.try_into().map_err(|_| CodecError::WrongLength { expected: 8, actual: data.len() })?;
+    let d: &[u8; 8] = data.try_into().map_err(|_| CodecError::WrongLength {
+        expected: 8,
+        actual: data.len(),
+    })?;
     let p = u16::from_be_bytes([d[0], d[1]]);
     let v = (u16::from(d[2]) << 4) | (u16::from(d[3]) >> 4);
     let kp = (u16::from(d[3] & 0xF) << 8) | u16::from(d[4]);
@@ -268,7 +277,16 @@ pub fn pack_reply(model: &MotorModel, r: &MitReply) -> ([u8; 8], usize) {
     let p = float_to_uint(r.p, -model.p_max, model.p_max, 16);
     let v = float_to_uint(r.v, -model.v_max, model.v_max, 12);
     let t = float_to_uint(r.t, -model.t_max, model.t_max, 12);
-    let mut out = [(r.motor_id), (p >> 8) as u8, p as u8, (v >> 4) as u8, (((v & 0xF) << 4) | (t >> 8)) as u8, t as u8, 0, 0];
+    let mut out = [
+        (r.motor_id),
+        (p >> 8) as u8,
+        p as u8,
+        (v >> 4) as u8,
+        (((v & 0xF) << 4) | (t >> 8)) as u8,
+        t as u8,
+        0,
+        0,
+    ];
     match model.family {
         MotorFamily::MiniCheetah => {}
         MotorFamily::Cubemars => {
@@ -288,7 +306,10 @@ pub fn pack_reply(model: &MotorModel, r: &MitReply) -> ([u8; 8], usize) {
 pub fn unpack_reply(model: &MotorModel, data: &[u8]) -> Result<MitReply, CodecError> {
     let expected = reply_len(model.family);
     if data.len() != expected {
-        return Err(CodecError::WrongLength { expected, actual: data.len() });
+        return Err(CodecError::WrongLength {
+            expected,
+            actual: data.len(),
+        });
     }
     let p = u16::from_be_bytes([data[1], data[2]]);
     let v = (u16::from(data[3]) << 4) | (u16::from(data[4]) >> 4);
@@ -325,13 +346,21 @@ mod tests {
     fn all_zero_command_on_a_symmetric_range_packs_to_the_known_vector() {
         for model in builtin() {
             let bytes = pack_command(model, &MitCommand::default()).unwrap();
-            assert_eq!(bytes, [0x7F, 0xFF, 0x7F, 0xF0, 0x00, 0x00, 0x07, 0xFF], "{}", model.name);
+            assert_eq!(
+                bytes,
+                [0x7F, 0xFF, 0x7F, 0xF0, 0x00, 0x00, 0x07, 0xFF],
+                "{}",
+                model.name
+            );
         }
     }
 
     #[test]
     fn special_frames_are_the_documented_bytes() {
-        assert_eq!(SpecialFrame::Enable.bytes(), [0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFC]);
+        assert_eq!(
+            SpecialFrame::Enable.bytes(),
+            [0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFC]
+        );
         assert_eq!(SpecialFrame::Disable.bytes()[7], 0xFD);
         assert_eq!(SpecialFrame::SetZero.bytes()[7], 0xFE);
         for s in [SpecialFrame::Enable, SpecialFrame::Disable, SpecialFrame::SetZero] {
@@ -355,7 +384,11 @@ mod tests {
                     t: u(&mut rng, -m.t_max, m.t_max),
                 };
                 let back = unpack_command(m, &pack_command(m, &cmd).unwrap()).unwrap();
-                assert!((back.p - cmd.p).abs() <= q(2.0 * m.p_max, 16), "{} p {cmd:?} {back:?}", m.name);
+                assert!(
+                    (back.p - cmd.p).abs() <= q(2.0 * m.p_max, 16),
+                    "{} p {cmd:?} {back:?}",
+                    m.name
+                );
                 assert!((back.v - cmd.v).abs() <= q(2.0 * m.v_max, 12), "{} v", m.name);
                 assert!((back.kp - cmd.kp).abs() <= q(m.kp_max, 12), "{} kp", m.name);
                 assert!((back.kd - cmd.kd).abs() <= q(m.kd_max, 12), "{} kd", m.name);
@@ -367,11 +400,23 @@ mod tests {
     #[test]
     fn out_of_range_fields_are_clamped_and_nan_refused() {
         let m = find("DM-J4310").unwrap();
-        let cmd = MitCommand { p: 100.0, v: -100.0, kp: 900.0, kd: -1.0, t: 50.0 };
+        let cmd = MitCommand {
+            p: 100.0,
+            v: -100.0,
+            kp: 900.0,
+            kd: -1.0,
+            t: 50.0,
+        };
         assert!(needs_clamp(m, &cmd));
         let back = unpack_command(m, &pack_command(m, &cmd).unwrap()).unwrap();
-        assert_eq!((back.p, back.v, back.kp, back.kd, back.t), (m.p_max, -m.v_max, m.kp_max, 0.0, m.t_max));
-        let nan = MitCommand { kd: f64::NAN, ..MitCommand::default() };
+        assert_eq!(
+            (back.p, back.v, back.kp, back.kd, back.t),
+            (m.p_max, -m.v_max, m.kp_max, 0.0, m.t_max)
+        );
+        let nan = MitCommand {
+            kd: f64::NAN,
+            ..MitCommand::default()
+        };
         assert_eq!(pack_command(m, &nan), Err(CodecError::NotFinite { field: "kd" }));
         assert!(unpack_command(m, &[0; 7]).is_err());
     }
@@ -404,8 +449,17 @@ mod tests {
     #[test]
     fn reply_byte_layout_matches_the_protocol() {
         // Mini Cheetah layout: id, p[15:8], p[7:0], v[11:4], v[3:0]|i[11:8], i[7:0].
-        let m = MotorModel { family: MotorFamily::MiniCheetah, ..find("AK80-9").unwrap().clone() };
-        let (bytes, len) = pack_reply(&m, &MitReply { motor_id: 3, ..MitReply::default() });
+        let m = MotorModel {
+            family: MotorFamily::MiniCheetah,
+            ..find("AK80-9").unwrap().clone()
+        };
+        let (bytes, len) = pack_reply(
+            &m,
+            &MitReply {
+                motor_id: 3,
+                ..MitReply::default()
+            },
+        );
         assert_eq!(&bytes[..len], &[0x03, 0x7F, 0xFF, 0x7F, 0xF7, 0xFF]);
     }
 }

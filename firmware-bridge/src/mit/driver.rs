@@ -186,7 +186,12 @@ impl<B: CanBus> MitBusDriver<B> {
             });
         }
         for (i, j) in joints.iter().enumerate() {
-            let bad = |reason: String| Err(MitError::Config { joint: j.name.clone(), reason });
+            let bad = |reason: String| {
+                Err(MitError::Config {
+                    joint: j.name.clone(),
+                    reason,
+                })
+            };
             if j.direction != 1.0 && j.direction != -1.0 {
                 return bad(format!("direction = {}: must be 1 or -1", j.direction));
             }
@@ -197,10 +202,16 @@ impl<B: CanBus> MitBusDriver<B> {
                 return bad(format!("offset = {}: must be finite", j.offset));
             }
             if j.motor_id > 0x7F || j.reply_id > 0x7FF {
-                return bad(format!("motor ID {} / reply ID {:#x} out of range", j.motor_id, j.reply_id));
+                return bad(format!(
+                    "motor ID {} / reply ID {:#x} out of range",
+                    j.motor_id, j.reply_id
+                ));
             }
             if let Some(other) = joints[..i].iter().find(|o| o.motor_id == j.motor_id) {
-                return bad(format!("motor ID {} is also used by joint {}", j.motor_id, other.name));
+                return bad(format!(
+                    "motor ID {} is also used by joint {}",
+                    j.motor_id, other.name
+                ));
             }
         }
         let n = joints.len();
@@ -214,7 +225,14 @@ impl<B: CanBus> MitBusDriver<B> {
             received_at: None,
             missed_cycles: 0,
         };
-        Ok(Self { bus, joints, feedback: vec![blank; n], answered: vec![false; n], reply_timeout, stats: DriverStats::default() })
+        Ok(Self {
+            bus,
+            joints,
+            feedback: vec![blank; n],
+            answered: vec![false; n],
+            reply_timeout,
+            stats: DriverStats::default(),
+        })
     }
 
     /// The joints, in command order.
@@ -244,13 +262,22 @@ impl<B: CanBus> MitBusDriver<B> {
 
     fn to_motor(j: &MitJointConfig, c: &JointCommand) -> MitCommand {
         let (s, g) = (j.direction, j.gear_ratio);
-        MitCommand { p: s * g * c.q + j.offset, v: s * g * c.qd, kp: c.kp / (g * g), kd: c.kd / (g * g), t: s * c.tau / g }
+        MitCommand {
+            p: s * g * c.q + j.offset,
+            v: s * g * c.qd,
+            kp: c.kp / (g * g),
+            kd: c.kd / (g * g),
+            t: s * c.tau / g,
+        }
     }
 
     /// Sends one command per joint and collects replies until all are in or `reply_timeout` passes.
     pub fn cycle(&mut self, commands: &[JointCommand]) -> Result<CycleReport, MitError> {
         if commands.len() != self.joints.len() {
-            return Err(MitError::CommandCount { expected: self.joints.len(), actual: commands.len() });
+            return Err(MitError::CommandCount {
+                expected: self.joints.len(),
+                actual: commands.len(),
+            });
         }
         let mut report = CycleReport::default();
         // Pack everything before sending anything: a bad command must not leave half a bus commanded.
@@ -260,7 +287,10 @@ impl<B: CanBus> MitBusDriver<B> {
             if super::codec::needs_clamp(&j.model, &cmd) {
                 report.clamped += 1;
             }
-            let bytes = pack_command(&j.model, &cmd).map_err(|source| MitError::Command { joint: j.name.clone(), source })?;
+            let bytes = pack_command(&j.model, &cmd).map_err(|source| MitError::Command {
+                joint: j.name.clone(),
+                source,
+            })?;
             frames[i] = CanFrame::new8(CanId::Standard(u16::from(j.motor_id)), bytes);
         }
         for f in &frames[..self.joints.len()] {
@@ -277,7 +307,9 @@ impl<B: CanBus> MitBusDriver<B> {
         let deadline = self.bus.now() + self.reply_timeout;
         let mut outstanding = self.joints.len();
         while outstanding > 0 {
-            let Some(frame) = self.bus.recv_until(deadline)? else { break };
+            let Some(frame) = self.bus.recv_until(deadline)? else {
+                break;
+            };
             match self.accept(&frame) {
                 Ok(()) => {
                     outstanding -= 1;
@@ -348,7 +380,10 @@ impl<B: CanBus> MitBusDriver<B> {
 
     fn special_all(&mut self, which: SpecialFrame) -> Result<(), MitError> {
         for j in &self.joints {
-            self.bus.send(&CanFrame::new8(CanId::Standard(u16::from(j.motor_id)), which.bytes()))?;
+            self.bus.send(&CanFrame::new8(
+                CanId::Standard(u16::from(j.motor_id)),
+                which.bytes(),
+            ))?;
         }
         let mut report = CycleReport::default();
         self.collect(&mut report)?;
@@ -376,4 +411,54 @@ impl<B: CanBus> MitBusDriver<B> {
     pub fn set_zero_all(&mut self) -> Result<(), MitError> {
         self.special_all(SpecialFrame::SetZero)
     }
+}
+
+/// What one ID answered during a [`scan`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ScanHit {
+    /// The motor ID asked.
+    pub motor_id: u8,
+    /// The CAN ID the reply came on.
+    pub reply_id: u16,
+    /// The decoded reply.
+    pub reply: super::codec::MitReply,
+}
+
+/// Asks each ID in `ids` for its state with a *disable* frame (torque off: safe on a robot that
+/// is not running) and returns the motors that answered within `timeout`, decoded as `model`.
+pub fn scan<B: CanBus>(
+    bus: &mut B,
+    model: &MotorModel,
+    ids: impl IntoIterator<Item = u8>,
+    timeout: Duration,
+) -> Result<Vec<ScanHit>, CanError> {
+    let mut hits = Vec::new();
+    for id in ids {
+        bus.send(&CanFrame::new8(
+            CanId::Standard(u16::from(id)),
+            SpecialFrame::Disable.bytes(),
+        ))?;
+        let deadline = bus.now() + timeout;
+        while let Some(frame) = bus.recv_until(deadline)? {
+            let CanId::Standard(reply_id) = frame.id() else {
+                continue;
+            };
+            let Ok(reply) = unpack_reply(model, frame.data()) else {
+                continue;
+            };
+            let named = match model.family {
+                super::models::MotorFamily::Damiao => reply.motor_id == id & 0x0F,
+                _ => reply.motor_id == id,
+            };
+            if named {
+                hits.push(ScanHit {
+                    motor_id: id,
+                    reply_id,
+                    reply,
+                });
+                break;
+            }
+        }
+    }
+    Ok(hits)
 }

@@ -143,7 +143,12 @@ impl MitMotorFirmware {
     }
 
     /// Handles a frame from the bus; returns the reply to send, if any.
-    pub fn on_frame(&mut self, now: SimInstant, frame: &CanFrame, plant: &dyn MotorPlant) -> Option<CanFrame> {
+    pub fn on_frame(
+        &mut self,
+        now: SimInstant,
+        frame: &CanFrame,
+        plant: &dyn MotorPlant,
+    ) -> Option<CanFrame> {
         if self.injected.silent || frame.id() != CanId::Standard(u16::from(self.cfg.motor_id)) {
             return None;
         }
@@ -248,7 +253,13 @@ mod tests {
     }
 
     /// Runs firmware + plant for `secs`, re-sending `cmd` every 20 ms as a 50 Hz controller would.
-    fn run(fw: &mut MitMotorFirmware, plant: &mut InertiaPlant, t: &mut SimInstant, secs: f64, cmd: Option<&MitCommand>) {
+    fn run(
+        fw: &mut MitMotorFirmware,
+        plant: &mut InertiaPlant,
+        t: &mut SimInstant,
+        secs: f64,
+        cmd: Option<&MitCommand>,
+    ) {
         let steps = (secs / DT.as_secs_f64()).round() as u64;
         for i in 0..steps {
             if let Some(c) = cmd
@@ -272,11 +283,21 @@ mod tests {
         let reply = fw.on_frame(t, &special(1, SpecialFrame::Enable), &plant).unwrap();
         assert_eq!(reply.id(), CanId::Standard(0));
         assert!(fw.enabled());
-        let cmd = MitCommand { p: 1.0, v: 0.0, kp: 40.0, kd: 1.0, t: 0.0 };
+        let cmd = MitCommand {
+            p: 1.0,
+            v: 0.0,
+            kp: 40.0,
+            kd: 1.0,
+            t: 0.0,
+        };
         run(&mut fw, &mut plant, &mut t, 2.0, Some(&cmd));
         assert!((plant.q - 1.0).abs() < 0.01, "settled at {}", plant.q);
         // A huge error saturates at the model's torque limit.
-        let far = MitCommand { p: 12.0, kp: 500.0, ..cmd };
+        let far = MitCommand {
+            p: 12.0,
+            kp: 500.0,
+            ..cmd
+        };
         fw.on_frame(t, &cmd_frame(1, model, &far), &plant);
         fw.tick(t, DT, &mut plant);
         assert_eq!(fw.torque(), model.t_max);
@@ -287,16 +308,29 @@ mod tests {
         let model = find("DM-J4310").unwrap();
         let mut fw = MitMotorFirmware::new(MitFirmwareConfig::new(3, model));
         let mut plant = InertiaPlant::new(0.01, 0.0, 0.0, 0.3);
-        let cmd = MitCommand { p: 0.0, kp: 50.0, ..MitCommand::default() };
-        let reply = fw.on_frame(SimInstant::ZERO, &cmd_frame(3, model, &cmd), &plant).unwrap();
-        assert_eq!(reply.id(), CanId::Standard(0x13), "DaMiao replies to its master ID");
+        let cmd = MitCommand {
+            p: 0.0,
+            kp: 50.0,
+            ..MitCommand::default()
+        };
+        let reply = fw
+            .on_frame(SimInstant::ZERO, &cmd_frame(3, model, &cmd), &plant)
+            .unwrap();
+        assert_eq!(
+            reply.id(),
+            CanId::Standard(0x13),
+            "DaMiao replies to its master ID"
+        );
         let r = unpack_reply(model, reply.data()).unwrap();
         assert_eq!((r.motor_id, r.enabled), (3, Some(false)));
         assert!((r.p - 0.3).abs() < 1e-3);
         fw.tick(SimInstant::ZERO, DT, &mut plant);
         assert_eq!(plant.torque, 0.0);
         // Frames for other IDs and short frames are ignored.
-        assert!(fw.on_frame(SimInstant::ZERO, &cmd_frame(4, model, &cmd), &plant).is_none());
+        assert!(
+            fw.on_frame(SimInstant::ZERO, &cmd_frame(4, model, &cmd), &plant)
+                .is_none()
+        );
         let short = CanFrame::new(CanId::Standard(3), &[1, 2, 3]).unwrap();
         assert!(fw.on_frame(SimInstant::ZERO, &short, &plant).is_none());
     }
@@ -306,7 +340,9 @@ mod tests {
         let model = find("AK10-9").unwrap();
         let mut fw = MitMotorFirmware::new(MitFirmwareConfig::new(2, model));
         let plant = InertiaPlant::new(0.01, 0.0, 0.0, 0.7);
-        let r = fw.on_frame(SimInstant::ZERO, &special(2, SpecialFrame::SetZero), &plant).unwrap();
+        let r = fw
+            .on_frame(SimInstant::ZERO, &special(2, SpecialFrame::SetZero), &plant)
+            .unwrap();
         assert!(unpack_reply(model, r.data()).unwrap().p.abs() < 1e-3);
         assert_eq!(fw.zero_offset(), 0.7);
     }
@@ -318,7 +354,12 @@ mod tests {
         let mut plant = InertiaPlant::new(0.02, 0.1, 0.0, 0.0);
         let mut t = SimInstant::ZERO;
         fw.on_frame(t, &special(1, SpecialFrame::Enable), &plant);
-        let cmd = MitCommand { p: 0.5, kp: 30.0, kd: 1.0, ..MitCommand::default() };
+        let cmd = MitCommand {
+            p: 0.5,
+            kp: 30.0,
+            kd: 1.0,
+            ..MitCommand::default()
+        };
         fw.on_frame(t, &cmd_frame(1, model, &cmd), &plant);
         run(&mut fw, &mut plant, &mut t, 0.09, None);
         assert!(fw.enabled() && fw.torque() != 0.0);
@@ -339,16 +380,27 @@ mod tests {
         let mut plant = InertiaPlant::new(1e9, 0.0, 0.0, 0.0);
         let mut t = SimInstant::ZERO;
         fw.on_frame(t, &special(1, SpecialFrame::Enable), &plant);
-        let cmd = MitCommand { t: model.t_max, ..MitCommand::default() };
+        let cmd = MitCommand {
+            t: model.t_max,
+            ..MitCommand::default()
+        };
         let mut waited = 0.0;
         while fw.fault() == MotorFault::None && waited < 20.0 {
             run(&mut fw, &mut plant, &mut t, 0.1, Some(&cmd));
             waited += 0.1;
         }
-        assert_eq!(fw.fault(), MotorFault::OverTemperature, "after {waited} s at {} °C", fw.temperature());
+        assert_eq!(
+            fw.fault(),
+            MotorFault::OverTemperature,
+            "after {waited} s at {} °C",
+            fw.temperature()
+        );
         assert!(!fw.enabled());
         let r = fw.on_frame(t, &cmd_frame(1, model, &cmd), &plant).unwrap();
-        assert_eq!(unpack_reply(model, r.data()).unwrap().fault, MotorFault::OverTemperature);
+        assert_eq!(
+            unpack_reply(model, r.data()).unwrap().fault,
+            MotorFault::OverTemperature
+        );
         // Re-enabling while hot is refused; after cooling it is accepted and the fault clears.
         fw.on_frame(t, &special(1, SpecialFrame::Enable), &plant);
         assert!(!fw.enabled());
@@ -363,11 +415,25 @@ mod tests {
         let model = find("AK80-9").unwrap();
         let mut fw = MitMotorFirmware::new(MitFirmwareConfig::new(1, model));
         let plant = InertiaPlant::new(0.01, 0.0, 0.0, 0.0);
-        fw.inject(InjectedFaults { silent: true, fault: None });
-        assert!(fw.on_frame(SimInstant::ZERO, &special(1, SpecialFrame::Enable), &plant).is_none());
-        fw.inject(InjectedFaults { silent: false, fault: Some(MotorFault::OverCurrent) });
-        let r = fw.on_frame(SimInstant::ZERO, &special(1, SpecialFrame::Enable), &plant).unwrap();
+        fw.inject(InjectedFaults {
+            silent: true,
+            fault: None,
+        });
+        assert!(
+            fw.on_frame(SimInstant::ZERO, &special(1, SpecialFrame::Enable), &plant)
+                .is_none()
+        );
+        fw.inject(InjectedFaults {
+            silent: false,
+            fault: Some(MotorFault::OverCurrent),
+        });
+        let r = fw
+            .on_frame(SimInstant::ZERO, &special(1, SpecialFrame::Enable), &plant)
+            .unwrap();
         assert!(!fw.enabled());
-        assert_eq!(unpack_reply(model, r.data()).unwrap().fault, MotorFault::OverCurrent);
+        assert_eq!(
+            unpack_reply(model, r.data()).unwrap().fault,
+            MotorFault::OverCurrent
+        );
     }
 }

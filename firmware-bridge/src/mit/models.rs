@@ -51,17 +51,29 @@ pub struct MotorTableError {
 
 /// Parses a motor table (the format of `data/mit_motors.toml`), validating every range.
 pub fn parse_table(source_name: &str, text: &str) -> Result<Vec<MotorModel>, MotorTableError> {
-    let err = |reason: String| MotorTableError { source_name: source_name.to_owned(), reason };
+    let err = |reason: String| MotorTableError {
+        source_name: source_name.to_owned(),
+        reason,
+    };
     let table: BTreeMap<String, MotorModel> = toml::from_str(text).map_err(|e| err(e.to_string()))?;
     let mut models = Vec::with_capacity(table.len());
     for (name, mut m) in table {
-        for (field, v) in [("p_max", m.p_max), ("v_max", m.v_max), ("t_max", m.t_max), ("kp_max", m.kp_max), ("kd_max", m.kd_max)] {
+        for (field, v) in [
+            ("p_max", m.p_max),
+            ("v_max", m.v_max),
+            ("t_max", m.t_max),
+            ("kp_max", m.kp_max),
+            ("kd_max", m.kd_max),
+        ] {
             if !(v.is_finite() && v > 0.0) {
                 return Err(err(format!("[{name}] {field} = {v}: must be a positive number")));
             }
         }
         if !(m.rated_torque > 0.0 && m.rated_torque <= m.t_max) {
-            return Err(err(format!("[{name}] rated_torque = {}: must be in (0, t_max = {}]", m.rated_torque, m.t_max)));
+            return Err(err(format!(
+                "[{name}] rated_torque = {}: must be in (0, t_max = {}]",
+                m.rated_torque, m.t_max
+            )));
         }
         m.name = name;
         models.push(m);
@@ -73,8 +85,11 @@ pub fn parse_table(source_name: &str, text: &str) -> Result<Vec<MotorModel>, Mot
 pub fn builtin() -> &'static [MotorModel] {
     static MODELS: OnceLock<Vec<MotorModel>> = OnceLock::new();
     MODELS.get_or_init(|| {
-        parse_table("firmware-bridge/data/mit_motors.toml", include_str!("../../data/mit_motors.toml"))
-            .expect("the built-in motor table is valid (checked by a unit test)")
+        parse_table(
+            "firmware-bridge/data/mit_motors.toml",
+            include_str!("../../data/mit_motors.toml"),
+        )
+        .expect("the built-in motor table is valid (checked by a unit test)")
     })
 }
 
@@ -90,16 +105,32 @@ mod tests {
     #[test]
     fn builtin_table_has_the_four_models_with_the_vendor_ranges() {
         let ak80 = find("AK80-9").unwrap();
-        assert_eq!((ak80.p_max, ak80.v_max, ak80.t_max, ak80.family), (12.5, 25.64, 18.0, MotorFamily::Cubemars));
-        assert_eq!((find("AK10-9").unwrap().v_max, find("AK10-9").unwrap().t_max), (50.0, 65.0));
-        assert_eq!((find("DM-J4310").unwrap().v_max, find("DM-J4310").unwrap().t_max), (30.0, 10.0));
-        assert_eq!((find("DM-J4340").unwrap().v_max, find("DM-J4340").unwrap().t_max), (8.0, 28.0));
+        assert_eq!(
+            (ak80.p_max, ak80.v_max, ak80.t_max, ak80.family),
+            (12.5, 25.64, 18.0, MotorFamily::Cubemars)
+        );
+        assert_eq!(
+            (find("AK10-9").unwrap().v_max, find("AK10-9").unwrap().t_max),
+            (50.0, 65.0)
+        );
+        assert_eq!(
+            (find("DM-J4310").unwrap().v_max, find("DM-J4310").unwrap().t_max),
+            (30.0, 10.0)
+        );
+        assert_eq!(
+            (find("DM-J4340").unwrap().v_max, find("DM-J4340").unwrap().t_max),
+            (8.0, 28.0)
+        );
         assert!(find("AK00-0").is_none());
     }
 
     #[test]
     fn bad_tables_name_model_and_field() {
-        let e = parse_table("m.toml", "[X]\nfamily='damiao'\np_max=0\nv_max=1\nt_max=1\nkp_max=1\nkd_max=1\nrated_torque=1\n").unwrap_err();
+        let e = parse_table(
+            "m.toml",
+            "[X]\nfamily='damiao'\np_max=0\nv_max=1\nt_max=1\nkp_max=1\nkd_max=1\nrated_torque=1\n",
+        )
+        .unwrap_err();
         assert!(e.to_string().contains("[X] p_max = 0"), "{e}");
         let e = parse_table("m.toml", "[X]\nfamily='nope'\n").unwrap_err();
         assert!(e.to_string().contains("m.toml"), "{e}");

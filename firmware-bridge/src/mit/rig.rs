@@ -39,7 +39,13 @@ pub struct MitRig {
 impl MitRig {
     /// A rig whose firmware runs every `period` (e.g. 500 µs for a 2 kHz loop).
     pub fn new(buses: Vec<VirtualCanBus>, period: Duration) -> Self {
-        Self { buses, motors: Vec::new(), now: SimInstant::ZERO, period, next_tick: SimInstant::ZERO }
+        Self {
+            buses,
+            motors: Vec::new(),
+            now: SimInstant::ZERO,
+            period,
+            next_tick: SimInstant::ZERO,
+        }
     }
 
     /// Adds a motor on rig bus `bus` driving `plant`. Returns its index.
@@ -48,7 +54,12 @@ impl MitRig {
     /// When `bus` is not a bus of this rig.
     pub fn add_motor(&mut self, bus: usize, cfg: MitFirmwareConfig, plant: InertiaPlant) -> usize {
         let node = self.buses[bus].attach();
-        self.motors.push(RigMotor { bus, node, firmware: MitMotorFirmware::new(cfg), plant });
+        self.motors.push(RigMotor {
+            bus,
+            node,
+            firmware: MitMotorFirmware::new(cfg),
+            plant,
+        });
         self.motors.len() - 1
     }
 
@@ -74,7 +85,11 @@ impl MitRig {
 
     /// A host adapter on rig bus `bus` that advances the shared rig while it waits.
     pub fn host_port(rig: &Arc<Mutex<Self>>, bus: usize) -> LockstepCanPort<Self> {
-        let node = rig.lock().unwrap_or_else(std::sync::PoisonError::into_inner).buses[bus].attach();
+        let node = rig
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .buses[bus]
+            .attach();
         LockstepCanPort::new(node, Arc::clone(rig))
     }
 
@@ -93,7 +108,11 @@ impl SimWorld for MitRig {
 
     fn step_until(&mut self, limit: SimInstant) -> SimInstant {
         let next_frame = self.motors.iter().filter_map(|m| m.node.next_arrival()).min();
-        let t = [Some(self.next_tick), next_frame, Some(limit)].into_iter().flatten().min().unwrap_or(limit);
+        let t = [Some(self.next_tick), next_frame, Some(limit)]
+            .into_iter()
+            .flatten()
+            .min()
+            .unwrap_or(limit);
         let t = t.max(self.now);
         self.set_now(t);
         for m in &mut self.motors {
