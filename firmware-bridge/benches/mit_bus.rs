@@ -24,15 +24,7 @@ const BITRATE: u32 = 1_000_000;
 
 fn joint(i: usize, model: &MotorModel) -> MitJointConfig {
     let id = (i + 1) as u8;
-    MitJointConfig {
-        name: format!("j{id}"),
-        motor_id: id,
-        reply_id: MitFirmwareConfig::new(id, model).reply_id,
-        model: model.clone(),
-        direction: 1.0,
-        offset: 0.0,
-        gear_ratio: 1.0,
-    }
+    MitJointConfig::new(&format!("j{id}"), id, model)
 }
 
 fn commands(n: usize, k: usize) -> Vec<JointCommand> {

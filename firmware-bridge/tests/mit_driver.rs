@@ -76,13 +76,10 @@ fn setup(faults: [CanFaultPlan; 2]) -> (Arc<Mutex<MitRig>>, Vec<Driver>) {
             // The motor's shaft starts where joint zero is.
             rig.add_motor(bus, fw.clone(), InertiaPlant::new(0.01, 0.05, 0.01, j.offset));
             config.push(MitJointConfig {
-                name: format!("{}_{bus}", j.name),
-                motor_id: j.id,
-                reply_id: fw.reply_id,
-                model: model.clone(),
                 direction: j.direction,
                 offset: j.offset,
                 gear_ratio: j.gear,
+                ..MitJointConfig::new(&format!("{}_{bus}", j.name), j.id, model)
             });
         }
     }
@@ -298,13 +295,8 @@ fn steady_state_cycles_do_not_allocate() {
 fn duplicate_motor_ids_and_bad_directions_are_refused() {
     let model = find("AK80-9").unwrap().clone();
     let j = |name: &str, id, direction| MitJointConfig {
-        name: name.into(),
-        motor_id: id,
-        reply_id: 0,
-        model: model.clone(),
         direction,
-        offset: 0.0,
-        gear_ratio: 1.0,
+        ..MitJointConfig::new(name, id, &model)
     };
     let bus = VirtualCanBus::new("can0", 1_000_000);
     let rig = MitRig::new(vec![bus], Duration::from_micros(500)).shared();

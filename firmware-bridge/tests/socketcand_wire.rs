@@ -80,15 +80,7 @@ fn the_driver_runs_over_tcp_like_over_any_bus() {
         SocketcandClient::connect(served.server.local_addr(), "can0", Duration::from_secs(2)).unwrap();
     let joint = |name: &str, id: u8, model: &str| {
         let model = find(model).unwrap();
-        MitJointConfig {
-            name: name.into(),
-            motor_id: id,
-            reply_id: MitFirmwareConfig::new(id, model).reply_id,
-            model: model.clone(),
-            direction: 1.0,
-            offset: 0.0,
-            gear_ratio: 1.0,
-        }
+        MitJointConfig::new(name, id, model)
     };
     let joints = vec![joint("hip", 1, "AK80-9"), joint("wrist", 2, "DM-J4310")];
     let mut driver = MitBusDriver::new(client, joints, Duration::from_millis(20)).unwrap();

@@ -647,4 +647,29 @@ mod tests {
         fr.push(&[b'<'; MAX_MESSAGE + 2]);
         assert!(matches!(fr.next_item(), Some(Framed::Junk(_))));
     }
+
+    #[test]
+    fn random_input_never_panics() {
+        let mut rng = crate::time::SimRng::new(77);
+        let alphabet = b"<> sendframeopenhirawmodeok0123456789ABCDEFabcdef.\n\x00\xff";
+        let mut fr = Framer::default();
+        let mut messages = 0;
+        for _ in 0..20_000 {
+            let n = (rng.next_u64() % 40) as usize;
+            let bytes: Vec<u8> = (0..n)
+                .map(|_| alphabet[(rng.next_u64() % alphabet.len() as u64) as usize])
+                .collect();
+            fr.push(&bytes);
+            while let Some(item) = fr.next_item() {
+                if let Framed::Message(m) = item {
+                    let _ = parse(&m);
+                    messages += 1;
+                }
+            }
+        }
+        assert!(
+            messages > 1000,
+            "the generator should produce many candidate messages ({messages})"
+        );
+    }
 }

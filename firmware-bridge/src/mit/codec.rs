@@ -462,4 +462,21 @@ mod tests {
         );
         assert_eq!(&bytes[..len], &[0x03, 0x7F, 0xFF, 0x7F, 0xF7, 0xFF]);
     }
+
+    #[test]
+    fn random_payloads_never_panic_and_decode_in_range() {
+        let mut rng = crate::time::SimRng::new(5);
+        for m in builtin() {
+            for _ in 0..5000 {
+                let len = (rng.next_u64() % 10) as usize;
+                let data: Vec<u8> = (0..len).map(|_| rng.next_u64() as u8).collect();
+                if let Ok(c) = unpack_command(m, &data) {
+                    assert!(c.p.abs() <= m.p_max + 1e-9 && c.kp <= m.kp_max + 1e-9);
+                }
+                if let Ok(r) = unpack_reply(m, &data) {
+                    assert!(r.v.abs() <= m.v_max + 1e-9 && r.t.abs() <= m.t_max + 1e-9);
+                }
+            }
+        }
+    }
 }

@@ -35,6 +35,22 @@ pub struct MitJointConfig {
     pub gear_ratio: f64,
 }
 
+impl MitJointConfig {
+    /// A joint on motor `motor_id` with the family's default reply ID, positive direction, no
+    /// offset and no external gearing; adjust the fields that differ.
+    pub fn new(name: &str, motor_id: u8, model: &MotorModel) -> Self {
+        Self {
+            name: name.to_owned(),
+            motor_id,
+            reply_id: model.family.default_reply_id(motor_id),
+            model: model.clone(),
+            direction: 1.0,
+            offset: 0.0,
+            gear_ratio: 1.0,
+        }
+    }
+}
+
 /// A command in joint units.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct JointCommand {

@@ -41,13 +41,9 @@ pub struct MitFirmwareConfig {
 impl MitFirmwareConfig {
     /// Defaults of the model's family: reply ID, a 100 ms timeout, 25 °C ambient, 100 °C limit.
     pub fn new(motor_id: u8, model: &MotorModel) -> Self {
-        let reply_id = match model.family {
-            MotorFamily::Damiao => u16::from(motor_id) + 0x10,
-            MotorFamily::Cubemars | MotorFamily::MiniCheetah => 0,
-        };
         Self {
             motor_id,
-            reply_id,
+            reply_id: model.family.default_reply_id(motor_id),
             model: model.clone(),
             command_timeout: Some(Duration::from_millis(100)),
             ambient_c: 25.0,

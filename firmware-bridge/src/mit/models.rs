@@ -16,6 +16,17 @@ pub enum MotorFamily {
     MiniCheetah,
 }
 
+impl MotorFamily {
+    /// The CAN ID a motor of this family replies on by default: CubeMars and Mini Cheetah answer
+    /// the host on ID 0; DaMiao answers on its master ID, commonly set to motor ID + 0x10.
+    pub const fn default_reply_id(self, motor_id: u8) -> u16 {
+        match self {
+            Self::Damiao => motor_id as u16 + 0x10,
+            Self::Cubemars | Self::MiniCheetah => 0,
+        }
+    }
+}
+
 /// One motor model: the ranges its 16/12-bit command and reply fields map onto.
 #[derive(Debug, Clone, PartialEq, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
