@@ -1,5 +1,6 @@
 //! `robodeploy can …`: emulated MIT motors behind socketcand, and scanning a CAN bus for motors.
 
+use std::io::Write as _;
 use std::net::SocketAddr;
 use std::time::Duration;
 
@@ -133,22 +134,29 @@ fn emulate(args: &EmulateArgs) -> Result<()> {
     let start = std::time::Instant::now();
     let server = SocketcandServer::spawn(args.listen, &args.bus, bus.attach(), move || start.elapsed())
         .with_context(|| format!("cannot listen on {}", args.listen))?;
-    println!(
+    // A server must outlive whoever reads its output: a closed stdout (a pipe to `head`, a test
+    // that read the address and left) is ignored instead of killing the motors mid-run.
+    let mut out = std::io::stdout().lock();
+    let _ = writeln!(
+        out,
         "socketcand: serving bus {} with {} emulated motor(s) on {}",
         args.bus,
         args.motors.len(),
         server.local_addr()
     );
     for (id, model) in &args.motors {
-        println!("  motor {id:>3}  {model}");
+        let _ = writeln!(out, "  motor {id:>3}  {model}");
     }
+    let _ = out.flush();
+    drop(out);
     match args.seconds {
         Some(s) => std::thread::sleep(Duration::from_secs(s)),
         None => loop {
             std::thread::sleep(Duration::from_secs(3600));
         },
     }
-    println!(
+    let _ = writeln!(
+        std::io::stdout(),
         "stopping after {:.1} s; malformed input received: {}",
         runner.elapsed().as_secs_f64(),
         server.malformed()
