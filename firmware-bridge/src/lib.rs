@@ -5,7 +5,7 @@
 //! in-process loopback or a wire to another process without `#[cfg]` inside a driver.
 //!
 //! - [`can`]: CAN frames, the [`can::CanBus`] transport trait, SocketCAN, socketcand, virtual buses.
-//! - [`dxl`]: Dynamixel Protocol 2.0 packet codec (the servo driver and emulator build on it).
+//! - [`dxl`]: Dynamixel Protocol 2.0: codec, host driver, emulated X-series servos, pty wire.
 //! - [`mit`]: MIT-mode motors: codec, host driver, emulated firmware.
 //! - [`plant`]: what emulated firmware drives.
 //! - [`time`]: simulated time and deterministic randomness.

@@ -168,8 +168,9 @@ pub enum Decoded<'a> {
         /// Junk bytes before a possible header.
         skip: usize,
     },
-    /// A broken packet: drop `skip` bytes and try again.
-    Invalid(PacketError, usize),
+    /// A broken packet (with the ID its header names, where it got that far): drop `skip` bytes
+    /// and try again.
+    Invalid(PacketError, Option<u8>, usize),
 }
 
 /// Finds and decodes the first packet in `input`, unstuffing its body into `scratch`.
@@ -191,7 +192,7 @@ pub fn decode<'a>(input: &[u8], scratch: &'a mut [u8]) -> Decoded<'a> {
     let id = rest[4];
     let len = u16::from_le_bytes([rest[5], rest[6]]);
     if len < 3 {
-        return Decoded::Invalid(PacketError::LengthTooSmall(len), start + 4);
+        return Decoded::Invalid(PacketError::LengthTooSmall(len), Some(id), start + 4);
     }
     let total = PREFIX + usize::from(len);
     if rest.len() < total {
@@ -200,7 +201,7 @@ pub fn decode<'a>(input: &[u8], scratch: &'a mut [u8]) -> Decoded<'a> {
     let received = u16::from_le_bytes([rest[total - 2], rest[total - 1]]);
     let computed = crc16(0, &rest[..total - 2]);
     if received != computed {
-        return Decoded::Invalid(PacketError::Crc { received, computed }, start + 4);
+        return Decoded::Invalid(PacketError::Crc { received, computed }, Some(id), start + 4);
     }
     // Unstuff INST..params: drop the FD that follows every FF FF FD.
     let body = &rest[PREFIX..total - 2];
@@ -213,6 +214,7 @@ pub fn decode<'a>(input: &[u8], scratch: &'a mut [u8]) -> Decoded<'a> {
                     needed: body.len(),
                     capacity: scratch.len(),
                 },
+                Some(id),
                 start + total,
             );
         }
@@ -228,7 +230,7 @@ pub fn decode<'a>(input: &[u8], scratch: &'a mut [u8]) -> Decoded<'a> {
     let (error, params) = if instruction == STATUS {
         match unstuffed.get(1) {
             Some(&e) => (Some(e), &unstuffed[2..]),
-            None => return Decoded::Invalid(PacketError::LengthTooSmall(len), start + total),
+            None => return Decoded::Invalid(PacketError::LengthTooSmall(len), Some(id), start + total),
         }
     } else {
         (None, &unstuffed[1..])
@@ -324,12 +326,12 @@ mod tests {
         bad[n - 1] ^= 0x01;
         assert!(matches!(
             decode(&bad[..n], &mut scratch),
-            Decoded::Invalid(PacketError::Crc { .. }, 4)
+            Decoded::Invalid(PacketError::Crc { .. }, Some(1), 4)
         ));
         let short_len = [0xFF, 0xFF, 0xFD, 0x00, 0x01, 0x02, 0x00, 0x01, 0x00];
         assert!(matches!(
             decode(&short_len, &mut scratch),
-            Decoded::Invalid(PacketError::LengthTooSmall(2), 4)
+            Decoded::Invalid(PacketError::LengthTooSmall(2), Some(1), 4)
         ));
         assert!(encode_instruction(1, inst::WRITE, &[0; 40], &mut buf).is_err());
     }
@@ -349,7 +351,7 @@ mod tests {
             let mut input = &bytes[..];
             while !input.is_empty() {
                 let used = match decode(input, &mut scratch) {
-                    Decoded::Packet(_, used) | Decoded::Invalid(_, used) => used,
+                    Decoded::Packet(_, used) | Decoded::Invalid(_, _, used) => used,
                     Decoded::Incomplete { .. } => break,
                 };
                 input = &input[used.clamp(1, input.len())..];

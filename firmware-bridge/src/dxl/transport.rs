@@ -1,0 +1,254 @@
+//! How the host driver reaches a line: send one instruction packet, receive status packets.
+//!
+//! [`SerialDxlPort`] is the real thing: the `dynamixel2` crate's bus on a serial device (a USB
+//! adapter, or the pseudo-terminal the emulator serves). [`LockstepDxlPort`] runs the same driver
+//! against a simulated world in lockstep, encoding with the shared codec.
+
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::time::Duration;
+
+use super::packet::{self, Decoded};
+use super::wire::DxlSimWorld;
+use crate::time::{BusInstant, SimInstant};
+
+/// A status packet, its parameters borrowed from the transport's buffer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct StatusPacket<'a> {
+    /// Sender ID.
+    pub id: u8,
+    /// Error byte (bit 7: alert).
+    pub error: u8,
+    /// Parameters, unstuffed.
+    pub params: &'a [u8],
+}
+
+/// What went wrong on the line, below the level of servo IDs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum LinkError {
+    /// Nothing (complete) arrived before the deadline.
+    #[error("no status packet before the deadline")]
+    Timeout,
+    /// A status packet arrived with a bad CRC (and was dropped).
+    #[error("status packet with a bad CRC")]
+    Crc,
+    /// Bytes arrived that are not a status packet (and were dropped).
+    #[error("malformed status packet")]
+    Malformed,
+    /// A status packet reported an instruction error; the transport dropped its contents.
+    #[error("status packet with error byte {0:#04x}")]
+    ServoError(u8),
+    /// The serial device failed.
+    #[error("serial port I/O error: {0}")]
+    Io(std::io::ErrorKind),
+}
+
+/// A half-duplex Dynamixel line as the host driver sees it.
+pub trait DxlTransport {
+    /// Timestamps of this transport.
+    type Instant: BusInstant;
+
+    /// The transport's clock.
+    fn now(&self) -> Self::Instant;
+
+    /// Line speed, for timeouts.
+    fn baud(&self) -> u32;
+
+    /// Sends one instruction packet, dropping any unread input first.
+    fn send(&mut self, id: u8, instruction: u8, params: &[u8]) -> Result<(), LinkError>;
+
+    /// The next status packet, waiting until `deadline` at most.
+    fn recv_status(&mut self, deadline: Self::Instant) -> Result<StatusPacket<'_>, LinkError>;
+}
+
+/// The `dynamixel2` bus on a serial device, with buffers sized for whole sync reads.
+#[derive(Debug)]
+pub struct SerialDxlPort {
+    bus: dynamixel2::Bus<Vec<u8>, Vec<u8>>,
+    params: Vec<u8>,
+}
+
+impl SerialDxlPort {
+    /// Opens `path` at `baud` (8N1, raw).
+    pub fn open(path: &str, baud: u32) -> std::io::Result<Self> {
+        let bus = dynamixel2::Bus::open_with_buffers(path, baud, vec![0; 8192], vec![0; 4096])?;
+        Ok(Self {
+            bus,
+            params: vec![0; 8192],
+        })
+    }
+}
+
+impl DxlTransport for SerialDxlPort {
+    type Instant = std::time::Instant;
+
+    fn now(&self) -> std::time::Instant {
+        std::time::Instant::now()
+    }
+
+    fn baud(&self) -> u32 {
+        self.bus.baud_rate()
+    }
+
+    fn send(&mut self, id: u8, instruction: u8, params: &[u8]) -> Result<(), LinkError> {
+        self.bus
+            .write_instruction(id, instruction, params.len(), |buf| buf.copy_from_slice(params))
+            .map_err(|e| match e {
+                dynamixel2::WriteError::Write(e) | dynamixel2::WriteError::DiscardBuffer(e) => {
+                    LinkError::Io(e.kind())
+                }
+                _ => LinkError::Malformed,
+            })
+    }
+
+    fn recv_status(&mut self, deadline: std::time::Instant) -> Result<StatusPacket<'_>, LinkError> {
+        match self.bus.read_status_response_deadline(deadline) {
+            Ok(status) => {
+                let (id, error) = (status.packet_id(), status.error());
+                let n = status.parameters().len();
+                self.params[..n].copy_from_slice(status.parameters());
+                Ok(StatusPacket {
+                    id,
+                    error,
+                    params: &self.params[..n],
+                })
+            }
+            Err(dynamixel2::ReadError::Io(e)) if e.kind() == std::io::ErrorKind::TimedOut => {
+                Err(LinkError::Timeout)
+            }
+            Err(dynamixel2::ReadError::Io(e)) => Err(LinkError::Io(e.kind())),
+            Err(dynamixel2::ReadError::InvalidMessage(dynamixel2::InvalidMessage::InvalidChecksum(_))) => {
+                Err(LinkError::Crc)
+            }
+            Err(dynamixel2::ReadError::MotorError(e)) => Err(LinkError::ServoError(
+                e.error_number() | (u8::from(e.alert()) << 7),
+            )),
+            Err(_) => Err(LinkError::Malformed),
+        }
+    }
+}
+
+/// The host's end of line `line` of a simulated world: waiting for a status packet runs the
+/// world forward event by event.
+#[derive(Debug)]
+pub struct LockstepDxlPort<W> {
+    world: Arc<Mutex<W>>,
+    line: usize,
+    baud: u32,
+    tx: Vec<u8>,
+    rx: Vec<u8>,
+    scratch: Vec<u8>,
+    consumed: usize,
+}
+
+impl<W: DxlSimWorld> LockstepDxlPort<W> {
+    /// A port on line `line` of `world`, which runs at `baud`.
+    pub fn new(world: Arc<Mutex<W>>, line: usize, baud: u32) -> Self {
+        Self {
+            world,
+            line,
+            baud,
+            tx: vec![0; 8192],
+            rx: Vec::with_capacity(8192),
+            scratch: vec![0; 8192],
+            consumed: 0,
+        }
+    }
+
+    fn world(&self) -> MutexGuard<'_, W> {
+        self.world.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// The shared world.
+    pub fn shared_world(&self) -> &Arc<Mutex<W>> {
+        &self.world
+    }
+}
+
+impl<W: DxlSimWorld> DxlTransport for LockstepDxlPort<W> {
+    type Instant = SimInstant;
+
+    fn now(&self) -> SimInstant {
+        self.world().now()
+    }
+
+    fn baud(&self) -> u32 {
+        self.baud
+    }
+
+    fn send(&mut self, id: u8, instruction: u8, params: &[u8]) -> Result<(), LinkError> {
+        let n = packet::encode_instruction(id, instruction, params, &mut self.tx)
+            .map_err(|_| LinkError::Malformed)?;
+        self.rx.clear();
+        self.consumed = 0;
+        let mut world = self.world.lock().unwrap_or_else(PoisonError::into_inner);
+        // Like `dynamixel2`, drop whatever arrived unasked before the instruction goes out.
+        let mut stale = std::mem::take(&mut self.rx);
+        world.host_receive(self.line, &mut stale);
+        stale.clear();
+        self.rx = stale;
+        world.host_transmit(self.line, &self.tx[..n]);
+        Ok(())
+    }
+
+    fn recv_status(&mut self, deadline: SimInstant) -> Result<StatusPacket<'_>, LinkError> {
+        self.rx.drain(..self.consumed);
+        self.consumed = 0;
+        loop {
+            // Decode into the scratch buffer first, then hand out a borrow once decided.
+            let outcome = match packet::decode(&self.rx, &mut self.scratch) {
+                Decoded::Packet(p, used) if p.instruction == packet::STATUS => {
+                    Some(Ok((p.id, p.error.unwrap_or(0), p.params.len(), used)))
+                }
+                Decoded::Packet(_, used) => Some(Err((LinkError::Malformed, used))),
+                Decoded::Invalid(packet::PacketError::Crc { .. }, _, skip) => {
+                    // Skip the whole packet, as `dynamixel2` does, not just its header.
+                    let len = self
+                        .rx
+                        .get(skip + 1..skip + 3)
+                        .map_or(0, |l| usize::from(u16::from_le_bytes([l[0], l[1]])));
+                    Some(Err((LinkError::Crc, (skip + 3 + len).min(self.rx.len()))))
+                }
+                Decoded::Invalid(_, _, skip) => Some(Err((LinkError::Malformed, skip))),
+                Decoded::Incomplete { skip } => {
+                    self.rx.drain(..skip);
+                    None
+                }
+            };
+            match outcome {
+                Some(Ok((id, error, len, used))) => {
+                    self.consumed = used;
+                    return Ok(StatusPacket {
+                        id,
+                        error,
+                        params: &self.scratch[2..2 + len],
+                    });
+                }
+                Some(Err((e, used))) => {
+                    self.rx.drain(..used);
+                    return Err(e);
+                }
+                None => {}
+            }
+            let mut world = self.world.lock().unwrap_or_else(PoisonError::into_inner);
+            if world.now() >= deadline {
+                return Err(LinkError::Timeout);
+            }
+            let from = world.now();
+            world.step_until(deadline.max(from));
+            world.host_receive(self.line, &mut self.rx);
+        }
+    }
+}
+
+/// How long to wait for `bytes` of status packets on a line: their wire time, the servos' return
+/// delays, the adapter latency and a margin for the host's scheduler.
+pub fn reply_budget(
+    baud: u32,
+    bytes: usize,
+    servos: usize,
+    per_servo_delay: Duration,
+    slack: Duration,
+) -> Duration {
+    super::wire::WireTiming::new(baud).bytes_time(bytes) + per_servo_delay * servos as u32 + slack
+}

@@ -1,0 +1,539 @@
+//! The servo side of a half-duplex Dynamixel line: emulated servos sharing a wire, the wire's
+//! timing in simulated time, a small rig of servos turning inertias, and a pseudo-terminal that
+//! serves any such world to programs that open a serial device.
+//!
+//! Timing follows the line: an instruction takes `bytes × 10 / baud` to arrive; a servo starts
+//! its status packet Return Delay Time after the instruction ends; in a sync/bulk read each
+//! servo starts after the previous servo's status packet has ended; the host sees a status packet
+//! when its last byte arrived plus the USB adapter's latency.
+
+use std::collections::VecDeque;
+use std::io::{Read, Write};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::Duration;
+
+use super::packet::{self, Decoded, PacketError};
+use super::servo::{Reply, ReplySlot, XSeriesServo};
+use crate::can::virtual_bus::SimWorld;
+use crate::plant::InertiaPlant;
+use crate::time::SimInstant;
+
+/// Baud rate of an X-series Baud Rate code (address 8).
+pub const fn baud_of_code(code: u8) -> Option<u32> {
+    match code {
+        0 => Some(9_600),
+        1 => Some(57_600),
+        2 => Some(115_200),
+        3 => Some(1_000_000),
+        4 => Some(2_000_000),
+        5 => Some(3_000_000),
+        6 => Some(4_000_000),
+        7 => Some(4_500_000),
+        _ => None,
+    }
+}
+
+/// The Baud Rate code of a baud rate, if the servos support it.
+pub fn code_of_baud(baud: u32) -> Option<u8> {
+    (0..=7).find(|&c| baud_of_code(c) == Some(baud))
+}
+
+/// How long bytes take on a line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct WireTiming {
+    /// Bits per second.
+    pub baud: u32,
+    /// Added to every transfer towards the host (USB adapters buffer: FTDI latency timer).
+    pub usb_latency: Duration,
+}
+
+impl WireTiming {
+    /// A line at `baud` with a 1 ms-latency adapter setting turned down to zero.
+    pub const fn new(baud: u32) -> Self {
+        Self {
+            baud,
+            usb_latency: Duration::ZERO,
+        }
+    }
+
+    /// Wire time of `bytes` bytes (start bit, 8 data bits, stop bit each).
+    pub fn bytes_time(&self, bytes: usize) -> Duration {
+        let bits = bytes as u64 * 10;
+        Duration::from_nanos((bits * 1_000_000_000).div_ceil(u64::from(self.baud.max(1))))
+    }
+}
+
+/// Counters of the servo side of a line.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ChainStats {
+    /// Complete instruction packets decoded.
+    pub packets: u64,
+    /// Packets dropped for a CRC mismatch.
+    pub crc_errors: u64,
+    /// Other malformed packets dropped.
+    pub malformed: u64,
+    /// Bytes skipped while hunting for a header.
+    pub junk_bytes: u64,
+    /// Status packets sent.
+    pub replies: u64,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Scheduled {
+    start: SimInstant,
+    from: usize,
+    to: usize,
+}
+
+/// The servos on one line, as they hear and answer it.
+#[derive(Debug)]
+pub struct ServoChain {
+    servos: Vec<XSeriesServo>,
+    timing: WireTiming,
+    rx: Vec<u8>,
+    scratch: Vec<u8>,
+    answers: Vec<(usize, usize, Reply)>,
+    scheduled: VecDeque<Scheduled>,
+    reply_bytes: Vec<u8>,
+    stats: ChainStats,
+}
+
+/// Largest instruction the servos accept (a bulk write to many servos).
+const MAX_PACKET: usize = 4096;
+
+impl ServoChain {
+    /// Servos on a line with `timing`.
+    pub fn new(servos: Vec<XSeriesServo>, timing: WireTiming) -> Self {
+        let n = servos.len();
+        Self {
+            servos,
+            timing,
+            rx: Vec::with_capacity(2 * MAX_PACKET),
+            scratch: vec![0; MAX_PACKET],
+            answers: Vec::with_capacity(n),
+            scheduled: VecDeque::with_capacity(n + 4),
+            reply_bytes: Vec::with_capacity(n * 512),
+            stats: ChainStats::default(),
+        }
+    }
+
+    /// The servos, in the order given.
+    pub fn servos(&self) -> &[XSeriesServo] {
+        &self.servos
+    }
+
+    /// The servos, to inject faults or inspect.
+    pub fn servos_mut(&mut self) -> &mut [XSeriesServo] {
+        &mut self.servos
+    }
+
+    /// Line timing.
+    pub fn timing(&self) -> WireTiming {
+        self.timing
+    }
+
+    /// Counters.
+    pub fn stats(&self) -> ChainStats {
+        self.stats
+    }
+
+    /// Bytes whose last bit arrived at `now`. Complete packets are executed at once.
+    pub fn receive(&mut self, bytes: &[u8], now: SimInstant) {
+        if self.rx.len() + bytes.len() > self.rx.capacity() {
+            // A flood without headers: keep only what could still start a packet.
+            let keep = self.rx.len().min(3);
+            self.stats.junk_bytes += (self.rx.len() - keep) as u64;
+            self.rx.drain(..self.rx.len() - keep);
+        }
+        self.rx.extend_from_slice(bytes);
+        loop {
+            let used = match packet::decode(&self.rx, &mut self.scratch) {
+                Decoded::Packet(p, used) => {
+                    self.stats.packets += 1;
+                    let junk = used - packet_len_hint(&self.rx[..used]);
+                    self.stats.junk_bytes += junk as u64;
+                    let packet = packet::Packet { ..p };
+                    let (servos, answers) = (&mut self.servos, &mut self.answers);
+                    answers.clear();
+                    for (index, servo) in servos.iter_mut().enumerate() {
+                        if baud_of_code(servo.baud_code()) != Some(self.timing.baud) {
+                            continue;
+                        }
+                        if let Some(reply) = servo.handle(&packet, now) {
+                            let order = match reply.slot {
+                                ReplySlot::First => 0,
+                                ReplySlot::InList(k) => k,
+                                ReplySlot::ById => usize::from(reply.id),
+                            };
+                            answers.push((order, index, reply));
+                        }
+                    }
+                    self.schedule_answers(now);
+                    used
+                }
+                Decoded::Incomplete { skip } => {
+                    self.stats.junk_bytes += skip as u64;
+                    self.rx.drain(..skip);
+                    break;
+                }
+                Decoded::Invalid(error, id, skip) => {
+                    match error {
+                        PacketError::Crc { .. } => {
+                            self.stats.crc_errors += 1;
+                            self.answers.clear();
+                            for (index, servo) in self.servos.iter_mut().enumerate() {
+                                if let Some(reply) = id.and_then(|id| servo.handle_crc_error(id, now)) {
+                                    self.answers.push((0, index, reply));
+                                }
+                            }
+                            self.schedule_answers(now);
+                        }
+                        _ => self.stats.malformed += 1,
+                    }
+                    skip
+                }
+            };
+            self.rx.drain(..used);
+        }
+    }
+
+    fn schedule_answers(&mut self, now: SimInstant) {
+        self.answers.sort_unstable_by_key(|&(order, _, _)| order);
+        if self.scheduled.is_empty() {
+            self.reply_bytes.clear();
+        }
+        let mut line_free = now;
+        for &(_, index, reply) in &self.answers {
+            let servo = &self.servos[index];
+            let from = self.reply_bytes.len();
+            self.reply_bytes.resize(from + 16 + 2 * reply.len, 0);
+            let n = packet::encode_status(
+                reply.id,
+                reply.error,
+                servo.reply_params(&reply),
+                &mut self.reply_bytes[from..],
+            )
+            .expect("a status packet fits twice its parameters plus the header");
+            self.reply_bytes.truncate(from + n);
+            if reply.corrupt_crc {
+                self.reply_bytes[from + n - 1] ^= 0x5A;
+            }
+            let start = line_free + servo.return_delay() + reply.extra_delay;
+            line_free = start + self.timing.bytes_time(n);
+            self.scheduled.push_back(Scheduled {
+                start,
+                from,
+                to: from + n,
+            });
+            self.stats.replies += 1;
+        }
+    }
+
+    /// When the next status packet starts, if one is pending.
+    pub fn next_reply_at(&self) -> Option<SimInstant> {
+        self.scheduled.iter().map(|s| s.start).min()
+    }
+
+    /// Hands every status packet that starts by `now` to `sink(start, bytes)`, in start order.
+    pub fn take_replies_due(&mut self, now: SimInstant, mut sink: impl FnMut(SimInstant, &[u8])) {
+        while let Some(i) = (0..self.scheduled.len())
+            .filter(|&i| self.scheduled[i].start <= now)
+            .min_by_key(|&i| self.scheduled[i].start)
+        {
+            let s = self.scheduled.remove(i).expect("index in range");
+            sink(s.start, &self.reply_bytes[s.from..s.to]);
+        }
+    }
+}
+
+/// Length of the packet at the end of `used` (for junk accounting): `used` minus leading junk.
+fn packet_len_hint(used: &[u8]) -> usize {
+    used.windows(4)
+        .position(|w| w == packet::HEADER)
+        .map_or(used.len(), |start| used.len() - start)
+}
+
+/// A line in simulated time between a host and a [`ServoChain`].
+#[derive(Debug)]
+pub struct SimDxlWire {
+    chain: ServoChain,
+    line_free_at: SimInstant,
+    to_servos: VecDeque<(SimInstant, usize)>,
+    to_servos_bytes: VecDeque<u8>,
+    to_host: VecDeque<(SimInstant, usize)>,
+    to_host_bytes: VecDeque<u8>,
+    chunk: Vec<u8>,
+}
+
+impl SimDxlWire {
+    /// A wire to `chain`.
+    pub fn new(chain: ServoChain) -> Self {
+        Self {
+            chain,
+            line_free_at: SimInstant::ZERO,
+            to_servos: VecDeque::with_capacity(16),
+            to_servos_bytes: VecDeque::with_capacity(2 * MAX_PACKET),
+            to_host: VecDeque::with_capacity(64),
+            to_host_bytes: VecDeque::with_capacity(2 * MAX_PACKET),
+            chunk: Vec::with_capacity(2 * MAX_PACKET),
+        }
+    }
+
+    /// The servos' side.
+    pub fn chain(&self) -> &ServoChain {
+        &self.chain
+    }
+
+    /// The servos' side, to inject faults.
+    pub fn chain_mut(&mut self) -> &mut ServoChain {
+        &mut self.chain
+    }
+
+    /// The host starts sending `bytes` at `now` (after anything it is still sending).
+    pub fn host_transmit(&mut self, now: SimInstant, bytes: &[u8]) {
+        let start = self.line_free_at.max(now);
+        let arrival = start + self.chain.timing.bytes_time(bytes.len());
+        self.line_free_at = arrival;
+        self.to_servos.push_back((arrival, bytes.len()));
+        self.to_servos_bytes.extend(bytes);
+    }
+
+    /// The next time something happens on the wire.
+    pub fn next_event(&self) -> Option<SimInstant> {
+        [
+            self.to_servos.front().map(|e| e.0),
+            self.chain.next_reply_at(),
+            self.to_host.front().map(|e| e.0),
+        ]
+        .into_iter()
+        .flatten()
+        .min()
+    }
+
+    /// Runs everything due by `now`.
+    pub fn advance(&mut self, now: SimInstant) {
+        while let Some(&(arrival, n)) = self.to_servos.front() {
+            if arrival > now {
+                break;
+            }
+            self.to_servos.pop_front();
+            self.chunk.clear();
+            self.chunk.extend(self.to_servos_bytes.drain(..n));
+            self.chain.receive(&self.chunk, arrival);
+        }
+        let timing = self.chain.timing;
+        let (to_host, to_host_bytes) = (&mut self.to_host, &mut self.to_host_bytes);
+        self.chain.take_replies_due(now, |start, bytes| {
+            let delivered = start + timing.bytes_time(bytes.len()) + timing.usb_latency;
+            to_host.push_back((delivered, bytes.len()));
+            to_host_bytes.extend(bytes);
+        });
+    }
+
+    /// Moves the bytes that reached the host by `now` into `out`.
+    pub fn host_receive(&mut self, now: SimInstant, out: &mut Vec<u8>) {
+        while let Some(&(at, n)) = self.to_host.front() {
+            if at > now {
+                break;
+            }
+            self.to_host.pop_front();
+            out.extend(self.to_host_bytes.drain(..n));
+        }
+    }
+}
+
+/// A simulated world with Dynamixel lines a host can talk on.
+pub trait DxlSimWorld: SimWorld {
+    /// The host puts `bytes` on line `line` now.
+    fn host_transmit(&mut self, line: usize, bytes: &[u8]);
+    /// Appends the bytes that reached the host on line `line` by now.
+    fn host_receive(&mut self, line: usize, out: &mut Vec<u8>);
+}
+
+/// Emulated servos on one line, each turning an [`InertiaPlant`]: the smallest world a driver
+/// can be tested against. The mirrored simulator does the same with MuJoCo joints.
+#[derive(Debug)]
+pub struct DxlRig {
+    wire: SimDxlWire,
+    plants: Vec<InertiaPlant>,
+    now: SimInstant,
+    period: Duration,
+    next_tick: SimInstant,
+    busy: Duration,
+}
+
+impl DxlRig {
+    /// Servos on a line with `timing`, one plant each, their firmware run every `period`.
+    ///
+    /// # Panics
+    /// When the numbers of servos and plants differ.
+    pub fn new(
+        servos: Vec<XSeriesServo>,
+        plants: Vec<InertiaPlant>,
+        timing: WireTiming,
+        period: Duration,
+    ) -> Self {
+        assert_eq!(servos.len(), plants.len(), "one plant per servo");
+        Self {
+            wire: SimDxlWire::new(ServoChain::new(servos, timing)),
+            plants,
+            now: SimInstant::ZERO,
+            period,
+            next_tick: SimInstant::ZERO,
+            busy: Duration::ZERO,
+        }
+    }
+
+    /// The wire and its servos.
+    pub fn wire(&self) -> &SimDxlWire {
+        &self.wire
+    }
+
+    /// The servo at `index`, to inject faults.
+    pub fn servo_mut(&mut self, index: usize) -> &mut XSeriesServo {
+        &mut self.wire.chain.servos[index]
+    }
+
+    /// The servo at `index`.
+    pub fn servo(&self, index: usize) -> &XSeriesServo {
+        &self.wire.chain.servos[index]
+    }
+
+    /// The plants.
+    pub fn plants(&self) -> &[InertiaPlant] {
+        &self.plants
+    }
+
+    /// The plant at `index`, to push it around.
+    pub fn plant_mut(&mut self, index: usize) -> &mut InertiaPlant {
+        &mut self.plants[index]
+    }
+
+    /// CPU time spent inside the world (firmware, plants, wire), for benches that separate the
+    /// host's share.
+    pub fn busy(&self) -> Duration {
+        self.busy
+    }
+}
+
+impl SimWorld for DxlRig {
+    fn now(&self) -> SimInstant {
+        self.now
+    }
+
+    fn step_until(&mut self, limit: SimInstant) -> SimInstant {
+        let started = std::time::Instant::now();
+        let next = self
+            .wire
+            .next_event()
+            .map_or(limit, |t| t.min(limit))
+            .min(self.next_tick);
+        self.now = self.now.max(next);
+        self.wire.advance(self.now);
+        if self.now >= self.next_tick {
+            let dt = self.period.as_secs_f64();
+            for (servo, plant) in self.wire.chain.servos.iter_mut().zip(&mut self.plants) {
+                servo.tick(self.now, plant);
+                plant.integrate(dt);
+            }
+            self.next_tick = self.next_tick + self.period;
+        }
+        self.busy += started.elapsed();
+        self.now
+    }
+}
+
+impl DxlSimWorld for DxlRig {
+    fn host_transmit(&mut self, line: usize, bytes: &[u8]) {
+        assert_eq!(line, 0, "a rig has one line");
+        self.wire.host_transmit(self.now, bytes);
+    }
+
+    fn host_receive(&mut self, line: usize, out: &mut Vec<u8>) {
+        assert_eq!(line, 0, "a rig has one line");
+        self.wire.host_receive(self.now, out);
+    }
+}
+
+/// Serves line `line` of a world on a pseudo-terminal, in wall-clock time: programs open
+/// [`PtyServoBus::path`] like a USB serial adapter.
+#[derive(Debug)]
+pub struct PtyServoBus {
+    path: String,
+    stop: Arc<AtomicBool>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl PtyServoBus {
+    /// Opens a pseudo-terminal pair and starts serving; the world's clock follows the wall clock,
+    /// checked every `resolution`.
+    pub fn spawn<W: DxlSimWorld + Send + 'static>(
+        world: Arc<Mutex<W>>,
+        line: usize,
+        resolution: Duration,
+    ) -> std::io::Result<Self> {
+        let (mut master, slave) = serialport::TTYPort::pair().map_err(std::io::Error::other)?;
+        let path = serialport::SerialPort::name(&slave)
+            .ok_or_else(|| std::io::Error::other("the pseudo-terminal has no device path"))?;
+        serialport::SerialPort::set_timeout(&mut master, resolution).map_err(std::io::Error::other)?;
+        let stop = Arc::new(AtomicBool::new(false));
+        let flag = Arc::clone(&stop);
+        let thread = std::thread::Builder::new()
+            .name("dxl-pty".into())
+            .spawn(move || {
+                // Keeping the slave open means the master never reads EIO between clients.
+                let _slave = slave;
+                let start = std::time::Instant::now();
+                let origin = world.lock().unwrap_or_else(PoisonError::into_inner).now();
+                let mut inbound = [0u8; 4096];
+                let mut outbound = Vec::with_capacity(8192);
+                while !flag.load(Ordering::Relaxed) {
+                    let n = match master.read(&mut inbound) {
+                        Ok(n) => n,
+                        Err(e) if e.kind() == std::io::ErrorKind::TimedOut => 0,
+                        Err(e) if e.kind() == std::io::ErrorKind::Interrupted => 0,
+                        Err(e) => {
+                            tracing::warn!("pseudo-terminal read failed: {e}; stopping the servo bus");
+                            break;
+                        }
+                    };
+                    let target = origin + start.elapsed();
+                    outbound.clear();
+                    {
+                        let mut w = world.lock().unwrap_or_else(PoisonError::into_inner);
+                        while w.now() < target {
+                            w.step_until(target);
+                        }
+                        if n > 0 {
+                            w.host_transmit(line, &inbound[..n]);
+                        }
+                        w.host_receive(line, &mut outbound);
+                    }
+                    if !outbound.is_empty() && master.write_all(&outbound).is_err() {
+                        tracing::warn!("pseudo-terminal write failed; stopping the servo bus");
+                        break;
+                    }
+                }
+            })?;
+        Ok(Self {
+            path,
+            stop,
+            thread: Some(thread),
+        })
+    }
+
+    /// The device path to open (e.g. `/dev/pts/7`).
+    pub fn path(&self) -> &str {
+        &self.path
+    }
+}
+
+impl Drop for PtyServoBus {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
