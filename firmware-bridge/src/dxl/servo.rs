@@ -364,6 +364,8 @@ impl XSeriesServo {
         if !direct && !broadcast {
             return None;
         }
+        // A write that changes the Status Return Level is still answered per the old level.
+        let level = self.table[usize::from(addr::STATUS_RETURN_LEVEL)];
         let (result, slot) = match (packet.instruction, broadcast) {
             (inst::SYNC_READ | inst::SYNC_WRITE | inst::BULK_READ | inst::BULK_WRITE, true) => {
                 self.handle_group(packet)?
@@ -388,7 +390,6 @@ impl XSeriesServo {
             }
         };
         let reads = matches!(packet.instruction, inst::READ | inst::SYNC_READ | inst::BULK_READ);
-        let level = self.table[usize::from(addr::STATUS_RETURN_LEVEL)];
         let answers = match packet.instruction {
             inst::PING => true,
             _ if broadcast && !matches!(slot, ReplySlot::InList(_)) => false,

@@ -96,6 +96,7 @@ pub struct ServoChain {
     answers: Vec<(usize, usize, Reply)>,
     scheduled: VecDeque<Scheduled>,
     reply_bytes: Vec<u8>,
+    last_rx_at: SimInstant,
     stats: ChainStats,
 }
 
@@ -114,6 +115,7 @@ impl ServoChain {
             answers: Vec::with_capacity(n),
             scheduled: VecDeque::with_capacity(n + 4),
             reply_bytes: Vec::with_capacity(n * 512),
+            last_rx_at: SimInstant::ZERO,
             stats: ChainStats::default(),
         }
     }
@@ -140,6 +142,13 @@ impl ServoChain {
 
     /// Bytes whose last bit arrived at `now`. Complete packets are executed at once.
     pub fn receive(&mut self, bytes: &[u8], now: SimInstant) {
+        // Like the firmware's packet timeout: a line idle for a while ends any partial packet.
+        let idle = now.saturating_since(self.last_rx_at);
+        if idle > self.timing.bytes_time(64).max(Duration::from_millis(2)) {
+            self.stats.junk_bytes += self.rx.len() as u64;
+            self.rx.clear();
+        }
+        self.last_rx_at = now;
         if self.rx.len() + bytes.len() > self.rx.capacity() {
             // A flood without headers: keep only what could still start a packet.
             let keep = self.rx.len().min(3);
@@ -299,12 +308,13 @@ impl SimDxlWire {
         self.to_servos_bytes.extend(bytes);
     }
 
-    /// The next time something happens on the wire.
-    pub fn next_event(&self) -> Option<SimInstant> {
+    /// The next time after `now` something happens on the wire (bytes already delivered to the
+    /// host wait for [`Self::host_receive`] and are no event).
+    pub fn next_event(&self, now: SimInstant) -> Option<SimInstant> {
         [
             self.to_servos.front().map(|e| e.0),
             self.chain.next_reply_at(),
-            self.to_host.front().map(|e| e.0),
+            self.to_host.iter().map(|e| e.0).find(|&t| t > now),
         ]
         .into_iter()
         .flatten()
@@ -426,7 +436,7 @@ impl SimWorld for DxlRig {
         let started = std::time::Instant::now();
         let next = self
             .wire
-            .next_event()
+            .next_event(self.now)
             .map_or(limit, |t| t.min(limit))
             .min(self.next_tick);
         self.now = self.now.max(next);

@@ -1,0 +1,111 @@
+//! The emulated servos served on a pseudo-terminal, in wall-clock time, to unmodified clients:
+//! this project's driver on the `dynamixel2` crate, and ROBOTIS's Python `dynamixel-sdk`.
+
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use firmware_bridge::dxl::driver::{DxlBusDriver, DxlCommand, DxlDriverOptions, DxlJointConfig};
+use firmware_bridge::dxl::models::find;
+use firmware_bridge::dxl::servo::{ServoConfig, XSeriesServo};
+use firmware_bridge::dxl::transport::SerialDxlPort;
+use firmware_bridge::dxl::wire::{DxlRig, PtyServoBus, WireTiming};
+use firmware_bridge::plant::InertiaPlant;
+
+const BAUD: u32 = 1_000_000;
+
+fn serve(models: &[&str]) -> (Arc<Mutex<DxlRig>>, PtyServoBus) {
+    let servos = models
+        .iter()
+        .enumerate()
+        .map(|(i, m)| {
+            let cfg = ServoConfig::new(i as u8 + 1).on_line(BAUD, Duration::from_micros(500));
+            XSeriesServo::new(find(m).unwrap(), cfg)
+        })
+        .collect();
+    let plants = models
+        .iter()
+        .map(|_| InertiaPlant::new(2e-3, 0.05, 0.02, 0.0))
+        .collect();
+    let rig = DxlRig::new(servos, plants, WireTiming::new(BAUD), Duration::from_micros(500));
+    let world = Arc::new(Mutex::new(rig));
+    let pty = PtyServoBus::spawn(Arc::clone(&world), 0, Duration::from_micros(200)).unwrap();
+    (world, pty)
+}
+
+#[test]
+fn the_dynamixel2_driver_drives_emulated_servos_through_a_serial_device() {
+    let models = ["XM430-W350", "XL430-W250"];
+    let (world, pty) = serve(&models);
+    let port = SerialDxlPort::open(pty.path(), BAUD).unwrap();
+    let joints = vec![
+        DxlJointConfig::new("shoulder", 1, models[0]),
+        DxlJointConfig::new("elbow", 2, models[1]),
+    ];
+    let options = DxlDriverOptions {
+        // A pseudo-terminal and a loaded test machine need more than a USB adapter's margin.
+        reply_slack: Duration::from_millis(30),
+        ..DxlDriverOptions::default()
+    };
+    let mut d = DxlBusDriver::new(port, joints, options).unwrap();
+    d.configure().unwrap();
+    d.enable().unwrap();
+    let commands = [0.4, -0.6].map(|q| DxlCommand { q, current: 0.0 });
+    let start = std::time::Instant::now();
+    let mut fresh = 0;
+    while start.elapsed() < Duration::from_millis(800) {
+        fresh += d.cycle(&commands).unwrap().fresh;
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    assert!(fresh > 20, "only {fresh} fresh joint states");
+    for (fb, c) in d.feedback().iter().zip(commands) {
+        assert!((fb.q - c.q).abs() < 0.03, "q = {} for goal {}", fb.q, c.q);
+    }
+    d.disable().unwrap();
+    std::thread::sleep(Duration::from_millis(20));
+    assert!(!world.lock().unwrap().servo(0).torque_enabled());
+}
+
+#[test]
+fn robotis_dynamixel_sdk_pings_reads_writes_and_syncs_the_emulated_servos() {
+    let (_world, pty) = serve(&["XM430-W350", "XM430-W350", "XL430-W250"]);
+    let script =
+        test_support::fixtures::workspace_root().join("firmware-bridge/tests/python/dxl_sdk_client.py");
+    let out = std::process::Command::new(test_support::fixtures::venv_python())
+        .arg(script)
+        .args([pty.path(), &BAUD.to_string()])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    let ping = &v["ping"];
+    assert_eq!(ping["1"]["model"], 1020);
+    assert_eq!(ping["2"]["model"], 1020);
+    assert_eq!(ping["3"]["model"], 1060);
+    assert_eq!(ping["9"]["ok"], false, "no servo 9");
+    let ok = |key: &str| v[key]["ok"] == true && v[key]["error"] == 0;
+    assert!(ok("torque_before") && v["torque_before"]["value"] == 0);
+    assert!(ok("mode_write_torque_off") && v["mode_read_back"]["value"] == 4 && ok("mode_restore"));
+    // The manual's error numbers: 4 data range, 7 access (EEPROM with torque on), 6 data limit.
+    assert_eq!(v["mode_out_of_range"]["error"], 4);
+    assert!(ok("torque_on_1") && ok("torque_on_2") && ok("torque_on_3"));
+    assert_eq!(v["eeprom_with_torque_on"]["error"], 7);
+    assert_eq!(v["goal_beyond_limit"]["error"], 6);
+    assert_eq!(v["sync_write"], true);
+    assert_eq!(v["sync_read_ok"], true);
+    for id in ["1", "2", "3"] {
+        let (present, goal) = (
+            v["present"][id].as_i64().unwrap(),
+            v["goals"][id].as_i64().unwrap(),
+        );
+        assert!(
+            (present - goal).abs() <= 25,
+            "servo {id}: present {present}, goal {goal}"
+        );
+    }
+    assert!(ok("hardware_error") && v["hardware_error"]["value"] == 0);
+}
