@@ -6,6 +6,7 @@ use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 
 mod cli_can;
+mod cli_dxl;
 
 /// Run motion-tracking policies on a real robot, or on its mirrored MuJoCo simulator.
 ///
@@ -24,6 +25,9 @@ enum Command {
     /// CAN bus tools: emulated MIT-mode motors behind socketcand, and bus scans.
     #[command(subcommand)]
     Can(cli_can::CanCommand),
+    /// Dynamixel serial bus tools: emulated X-series servos on a pseudo-terminal, and bus scans.
+    #[command(subcommand)]
+    Dxl(cli_dxl::DxlCommand),
     /// Check the native libraries and load a MuJoCo model and an ONNX model, moving nothing.
     ///
     /// Prints the versions of MuJoCo and ONNX Runtime this build loads, the sizes of the MuJoCo
@@ -48,6 +52,7 @@ fn main() -> Result<()> {
     match Cli::parse().command {
         Command::Doctor { mjcf, onnx } => doctor(&mjcf, &onnx),
         Command::Can(cmd) => cli_can::run(cmd),
+        Command::Dxl(cmd) => cli_dxl::run(cmd),
     }
 }
 

@@ -139,3 +139,90 @@ fn can_emulate_rejects_unknown_models_by_name() {
         "{stderr}"
     );
 }
+
+#[test]
+fn dxl_scan_finds_the_servos_dxl_emulate_serves() {
+    use std::io::BufRead;
+    let mut emulate = robodeploy()
+        .args([
+            "dxl",
+            "emulate",
+            "--servo",
+            "1:XM430-W350",
+            "--servo",
+            "3:XL430-W250",
+            "--baud",
+            "4000000",
+            "--seconds",
+            "20",
+        ])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut first = String::new();
+    let mut reader = std::io::BufReader::new(emulate.stdout.take().unwrap());
+    reader.read_line(&mut first).unwrap();
+    let drain = std::thread::Builder::new()
+        .name("drain".into())
+        .spawn(move || std::io::copy(&mut reader, &mut std::io::sink()))
+        .unwrap();
+    let path = first
+        .split(" on ")
+        .nth(1)
+        .and_then(|s| s.split(' ').next())
+        .unwrap()
+        .to_owned();
+    assert!(path.starts_with("/dev/pts/"), "{first}");
+    let out = robodeploy()
+        .args([
+            "dxl", "scan", "--port", &path, "--baud", "4000000", "--ids", "1-4",
+        ])
+        .output()
+        .unwrap();
+    let _ = emulate.kill();
+    let _ = emulate.wait();
+    let _ = drain.join();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.contains("2 servo(s) answered out of 4 asked"), "{stdout}");
+    assert!(
+        stdout.contains("   1   XM430-W350") && stdout.contains("   3   XL430-W250"),
+        "{stdout}"
+    );
+}
+
+#[test]
+fn dxl_emulate_rejects_bad_servos_and_rates_by_name() {
+    let out = robodeploy()
+        .args(["dxl", "emulate", "--servo", "1:XM999"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && stderr.contains("unknown servo model 'XM999'"),
+        "{stderr}"
+    );
+    let out = robodeploy()
+        .args([
+            "dxl",
+            "emulate",
+            "--servo",
+            "1:XM430-W350",
+            "--baud",
+            "12345",
+            "--seconds",
+            "1",
+        ])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && stderr.contains("--baud 12345"),
+        "{stderr}"
+    );
+}

@@ -31,7 +31,7 @@ fn exchange(c: &mut ServoChain, at: SimInstant, bytes: &[u8]) -> Vec<(u8, u8, Ve
     c.receive(bytes, at);
     let mut wire = Vec::new();
     c.take_replies_due(at + Duration::from_secs(1), |start, b| {
-        wire.push((start, b.to_vec()))
+        wire.push((start, b.to_vec()));
     });
     let mut scratch = [0u8; 1024];
     wire.into_iter()

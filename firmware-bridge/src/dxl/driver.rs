@@ -501,6 +501,11 @@ impl<T: DxlTransport> DxlBusDriver<T> {
         &self.transport
     }
 
+    /// The transport, mutably (fault injection, recording).
+    pub fn transport_mut(&mut self) -> &mut T {
+        &mut self.transport
+    }
+
     fn deadline(&self, request: usize, reply: usize, servos: usize) -> T::Instant {
         let wire = super::wire::WireTiming::new(self.transport.baud());
         let budget = wire.bytes_time(request + reply)
@@ -920,4 +925,67 @@ fn decode_feedback<I>(joint: &DxlJointConfig, model: &DxlModel, b: &[u8]) -> Dxl
         missed_cycles: 0,
         last_fault: None,
     }
+}
+
+/// A servo that answered a scan.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ScanHit {
+    /// Its ID.
+    pub id: u8,
+    /// Model number from ping.
+    pub model_number: u16,
+    /// Firmware version from ping.
+    pub firmware: u8,
+    /// Hardware Error Status.
+    pub hardware_error: u8,
+    /// Present Position, ticks.
+    pub position: i32,
+    /// Present Temperature, °C.
+    pub temperature: u8,
+}
+
+/// Pings every ID in `ids` and reads the state of those that answer. Writes nothing.
+pub fn scan<T: DxlTransport>(
+    transport: &mut T,
+    ids: std::ops::RangeInclusive<u8>,
+    timeout: Duration,
+) -> Result<Vec<ScanHit>, LinkError> {
+    let mut hits = Vec::new();
+    for id in ids {
+        let mut ask = |instruction: u8, params: &[u8], want: usize| -> Result<Option<[u8; 4]>, LinkError> {
+            transport.send(id, instruction, params)?;
+            match transport.recv_status(transport.now() + timeout) {
+                Ok(s) if s.id == id && s.params.len() == want => {
+                    let mut out = [0u8; 4];
+                    out[..want].copy_from_slice(s.params);
+                    Ok(Some(out))
+                }
+                Ok(_)
+                | Err(
+                    LinkError::Timeout | LinkError::Crc | LinkError::Malformed | LinkError::ServoError(_),
+                ) => Ok(None),
+                Err(e) => Err(e),
+            }
+        };
+        let Some(ping) = ask(inst::PING, &[], 3)? else {
+            continue;
+        };
+        let read = |a: u16, n: u16| {
+            let [a0, a1] = a.to_le_bytes();
+            let [n0, n1] = n.to_le_bytes();
+            [a0, a1, n0, n1]
+        };
+        let hw = ask(inst::READ, &read(addr::HARDWARE_ERROR_STATUS, 1), 1)?.unwrap_or_default();
+        let pos = ask(inst::READ, &read(addr::PRESENT_POSITION, 4), 4)?.unwrap_or_default();
+        let temp = ask(inst::READ, &read(addr::PRESENT_TEMPERATURE, 1), 1)?.unwrap_or_default();
+        hits.push(ScanHit {
+            id,
+            model_number: u16::from_le_bytes([ping[0], ping[1]]),
+            firmware: ping[2],
+            hardware_error: hw[0],
+            position: i32::from_le_bytes(pos),
+            temperature: temp[0],
+        });
+    }
+    Ok(hits)
 }
