@@ -326,7 +326,7 @@ mod tests {
         bad[n - 1] ^= 0x01;
         assert!(matches!(
             decode(&bad[..n], &mut scratch),
-            Decoded::Invalid(PacketError::Crc { .. }, Some(1), 4)
+            Decoded::Invalid(PacketError::Crc { .. }, Some(3), 4)
         ));
         let short_len = [0xFF, 0xFF, 0xFD, 0x00, 0x01, 0x02, 0x00, 0x01, 0x00];
         assert!(matches!(
