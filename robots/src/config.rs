@@ -1,0 +1,422 @@
+//! `robot.toml`: joints in policy order, buses, IMU, feet and root, checked against the MJCF beside it
+//! and against the actuator models of `firmware-bridge`.
+
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+
+use firmware_bridge::{dxl, mit};
+
+use crate::mjcf::{self, MjcfSummary};
+
+/// A bus of the robot.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct BusConfig {
+    /// Name joints refer to, e.g. `can0`.
+    pub name: String,
+    /// What runs on it.
+    pub kind: BusKind,
+    /// Device on the real robot: a SocketCAN interface (`can0`) or a serial device path.
+    pub device: String,
+    /// Bit rate (CAN) or baud rate (serial).
+    pub rate: u32,
+}
+
+/// The protocol of a bus.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BusKind {
+    /// MIT-mode motors on CAN.
+    MitCan,
+    /// Dynamixel Protocol 2.0 servos on a half-duplex serial line.
+    Dynamixel,
+    /// An IMU streaming on a serial line.
+    ImuSerial,
+}
+
+/// One actuated joint, in the policy's order.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct JointConfig {
+    /// Name the policy and telemetry use.
+    pub name: String,
+    /// Joint name in the MJCF.
+    pub mjcf_joint: String,
+    /// Bus name.
+    pub bus: String,
+    /// Device ID on that bus.
+    pub id: u8,
+    /// Motor or servo model (`firmware-bridge` tables).
+    pub model: String,
+    /// +1 or -1: joint sign relative to the actuator's.
+    pub direction: f64,
+    /// Actuator angle at joint zero, rad (MIT: motor angle; Dynamixel: converted to ticks).
+    pub zero_offset: f64,
+    /// Actuator turns per joint turn (1 for direct drive).
+    pub gear: f64,
+    /// Joint position limits, rad.
+    pub position_limits: [f64; 2],
+    /// Joint speed limit, rad/s.
+    pub velocity_limit: f64,
+    /// Joint torque limit, N·m.
+    pub torque_limit: f64,
+    /// Default (standing) joint angle, rad.
+    pub default_position: f64,
+    /// Joint stiffness, N·m/rad.
+    pub kp: f64,
+    /// Joint damping, N·m·s/rad.
+    pub kd: f64,
+}
+
+/// The IMU.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ImuConfig {
+    /// Bus name (an `imu_serial` bus).
+    pub bus: String,
+    /// Site in the MJCF where the IMU sits.
+    pub site: String,
+    /// Output rate, Hz.
+    pub rate_hz: f64,
+    /// Rotation from the IMU's axes to the site's axes, roll/pitch/yaw in degrees.
+    pub mounting_rpy_deg: [f64; 3],
+}
+
+/// A robot description.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct RobotConfig {
+    /// Robot name.
+    pub name: String,
+    /// MJCF file, relative to the robot.toml.
+    pub mjcf: PathBuf,
+    /// The floating base body.
+    pub root_body: String,
+    /// Foot bodies (contact, gantry height).
+    pub feet: Vec<String>,
+    /// Policy rate, Hz.
+    pub control_rate_hz: f64,
+    /// Buses.
+    pub buses: Vec<BusConfig>,
+    /// IMU.
+    pub imu: ImuConfig,
+    /// Joints in policy order.
+    pub joints: Vec<JointConfig>,
+}
+
+/// A robot description that failed to load: the file, the place in it, and what is wrong.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{file}: {place}: {message}")]
+pub struct RobotError {
+    /// The file.
+    pub file: PathBuf,
+    /// Field path, e.g. `joints[3] (left_knee).model`.
+    pub place: String,
+    /// What is wrong, with the value.
+    pub message: String,
+}
+
+/// A loaded, checked robot: its description, where it came from, and its MJCF summary.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Robot {
+    /// The description.
+    pub config: RobotConfig,
+    /// The robot.toml path.
+    pub path: PathBuf,
+    /// The MJCF path (resolved).
+    pub mjcf_path: PathBuf,
+    /// What the MJCF declares.
+    pub mjcf: MjcfSummary,
+}
+
+impl Robot {
+    /// Loads and checks `path` (a robot.toml).
+    pub fn load(path: &Path) -> Result<Self, RobotError> {
+        let err = |place: &str, message: String| RobotError {
+            file: path.to_path_buf(),
+            place: place.to_owned(),
+            message,
+        };
+        let text = std::fs::read_to_string(path).map_err(|e| err("file", format!("cannot read: {e}")))?;
+        Self::from_str(path, &text)
+    }
+
+    /// Checks a description given as text, as if read from `path`.
+    pub fn from_str(path: &Path, text: &str) -> Result<Self, RobotError> {
+        let err = |place: &str, message: String| RobotError {
+            file: path.to_path_buf(),
+            place: place.to_owned(),
+            message,
+        };
+        let config: RobotConfig = toml::from_str(text).map_err(|e| {
+            let span = e
+                .span()
+                .map(|s| line_of(text, s.start))
+                .map_or(String::new(), |l| format!("line {l}"));
+            err(&span, e.message().to_owned())
+        })?;
+        let mjcf_path = path.parent().unwrap_or(Path::new(".")).join(&config.mjcf);
+        let mjcf = mjcf::summarize(&mjcf_path).map_err(|m| err("mjcf", m))?;
+        let robot = Self {
+            config,
+            path: path.to_path_buf(),
+            mjcf_path,
+            mjcf,
+        };
+        robot.check().map_err(|(place, message)| err(&place, message))?;
+        Ok(robot)
+    }
+
+    /// The bus called `name`.
+    pub fn bus(&self, name: &str) -> Option<&BusConfig> {
+        self.config.buses.iter().find(|b| b.name == name)
+    }
+
+    /// Joints on bus `name`, with their policy index.
+    pub fn joints_on<'a>(&'a self, name: &'a str) -> impl Iterator<Item = (usize, &'a JointConfig)> + 'a {
+        self.config
+            .joints
+            .iter()
+            .enumerate()
+            .filter(move |(_, j)| j.bus == name)
+    }
+
+    fn check(&self) -> Result<(), (String, String)> {
+        let c = &self.config;
+        let m = &self.mjcf;
+        for file in &m.mesh_files {
+            if !file.exists() {
+                return Err((
+                    "mjcf".into(),
+                    format!("mesh file {} does not exist", file.display()),
+                ));
+            }
+        }
+        if !m.bodies.contains(&c.root_body) {
+            return Err((
+                "root_body".into(),
+                format!("{:?} is not a body of the MJCF", c.root_body),
+            ));
+        }
+        for (i, foot) in c.feet.iter().enumerate() {
+            if !m.bodies.contains(foot) {
+                return Err((
+                    format!("feet[{i}]"),
+                    format!("{foot:?} is not a body of the MJCF"),
+                ));
+            }
+        }
+        if !(c.control_rate_hz.is_finite() && c.control_rate_hz > 0.0) {
+            return Err((
+                "control_rate_hz".into(),
+                format!("{} is not a positive rate", c.control_rate_hz),
+            ));
+        }
+        let mut bus_names = BTreeSet::new();
+        for (i, b) in c.buses.iter().enumerate() {
+            if !bus_names.insert(&b.name) {
+                return Err((format!("buses[{i}].name"), format!("{:?} is used twice", b.name)));
+            }
+            if b.kind == BusKind::Dynamixel && dxl::wire::code_of_baud(b.rate).is_none() {
+                return Err((
+                    format!("buses[{i}] ({}).rate", b.name),
+                    format!("{} is not a Dynamixel X-series baud rate", b.rate),
+                ));
+            }
+            if b.rate == 0 {
+                return Err((format!("buses[{i}] ({}).rate", b.name), "0 is not a rate".into()));
+            }
+        }
+        let imu_bus = self
+            .bus(&c.imu.bus)
+            .ok_or_else(|| ("imu.bus".to_owned(), format!("{:?} is not a bus", c.imu.bus)))?;
+        if imu_bus.kind != BusKind::ImuSerial {
+            return Err((
+                "imu.bus".into(),
+                format!("{:?} is a {:?} bus, not imu_serial", c.imu.bus, imu_bus.kind),
+            ));
+        }
+        if !m.sites.contains(&c.imu.site) {
+            return Err((
+                "imu.site".into(),
+                format!("{:?} is not a site of the MJCF", c.imu.site),
+            ));
+        }
+        if !(c.imu.rate_hz > 0.0 && c.imu.rate_hz <= 1000.0) {
+            return Err((
+                "imu.rate_hz".into(),
+                format!("{} is outside (0, 1000]", c.imu.rate_hz),
+            ));
+        }
+        let mut names = BTreeSet::new();
+        let mut ids = BTreeSet::new();
+        let mut mjcf_joints = BTreeSet::new();
+        for (i, j) in c.joints.iter().enumerate() {
+            let at = |field: &str| format!("joints[{i}] ({}).{field}", j.name);
+            if !names.insert(&j.name) {
+                return Err((at("name"), format!("{:?} is used twice", j.name)));
+            }
+            let Some(mj) = m.joints.get(&j.mjcf_joint) else {
+                return Err((
+                    at("mjcf_joint"),
+                    format!("{:?} is not a joint of the MJCF", j.mjcf_joint),
+                ));
+            };
+            if mj.kind != "hinge" {
+                return Err((
+                    at("mjcf_joint"),
+                    format!("{:?} is a {} joint, not a hinge", j.mjcf_joint, mj.kind),
+                ));
+            }
+            if !mjcf_joints.insert(&j.mjcf_joint) {
+                return Err((at("mjcf_joint"), format!("{:?} is driven twice", j.mjcf_joint)));
+            }
+            let Some(bus) = self.bus(&j.bus) else {
+                return Err((at("bus"), format!("{:?} is not a bus", j.bus)));
+            };
+            if !ids.insert((&j.bus, j.id)) {
+                return Err((at("id"), format!("{} is used twice on bus {}", j.id, j.bus)));
+            }
+            if j.direction.abs() != 1.0 {
+                return Err((at("direction"), format!("{} (must be 1 or -1)", j.direction)));
+            }
+            if !(j.gear.is_finite() && j.gear > 0.0) {
+                return Err((at("gear"), format!("{} is not a positive ratio", j.gear)));
+            }
+            let [lo, hi] = j.position_limits;
+            if !(lo.is_finite() && hi.is_finite() && lo < hi) {
+                return Err((at("position_limits"), format!("[{lo}, {hi}] is not an interval")));
+            }
+            if let Some((mlo, mhi)) = mj.range
+                && (lo < mlo - 1e-9 || hi > mhi + 1e-9)
+            {
+                return Err((
+                    at("position_limits"),
+                    format!("[{lo}, {hi}] leaves the MJCF joint range [{mlo:.4}, {mhi:.4}]"),
+                ));
+            }
+            if !(lo..=hi).contains(&j.default_position) {
+                return Err((
+                    at("default_position"),
+                    format!("{} is outside the position limits", j.default_position),
+                ));
+            }
+            for (field, v) in [
+                ("velocity_limit", j.velocity_limit),
+                ("torque_limit", j.torque_limit),
+            ] {
+                if !(v.is_finite() && v > 0.0) {
+                    return Err((at(field), format!("{v} is not a positive limit")));
+                }
+            }
+            for (field, v) in [("kp", j.kp), ("kd", j.kd), ("zero_offset", j.zero_offset)] {
+                if !v.is_finite() || (field != "zero_offset" && v < 0.0) {
+                    return Err((at(field), format!("{v} is not allowed")));
+                }
+            }
+            check_actuator(j, bus.kind).map_err(|(f, msg)| (at(f), msg))?;
+        }
+        Ok(())
+    }
+}
+
+/// Joint limits must fit what the actuator can do (through the gear).
+fn check_actuator(j: &JointConfig, kind: BusKind) -> Result<(), (&'static str, String)> {
+    match kind {
+        BusKind::MitCan => {
+            let Some(motor) = mit::models::find(&j.model) else {
+                let known: Vec<_> = mit::models::builtin().iter().map(|m| m.name.as_str()).collect();
+                return Err((
+                    "model",
+                    format!(
+                        "{:?} is not an MIT-mode motor (known: {})",
+                        j.model,
+                        known.join(", ")
+                    ),
+                ));
+            };
+            let g = j.gear;
+            let reach = |q: f64| (j.direction * q * g + j.zero_offset).abs() <= motor.p_max;
+            if !(reach(j.position_limits[0]) && reach(j.position_limits[1])) {
+                return Err((
+                    "position_limits",
+                    format!(
+                        "{:?} need motor angles beyond ±{} rad of the {}",
+                        j.position_limits, motor.p_max, motor.name
+                    ),
+                ));
+            }
+            if j.velocity_limit * g > motor.v_max {
+                return Err((
+                    "velocity_limit",
+                    format!(
+                        "{} rad/s needs {:.2} rad/s at the motor, beyond the {}'s {}",
+                        j.velocity_limit,
+                        j.velocity_limit * g,
+                        motor.name,
+                        motor.v_max
+                    ),
+                ));
+            }
+            if j.torque_limit / g > motor.t_max {
+                return Err((
+                    "torque_limit",
+                    format!(
+                        "{} N·m needs {:.2} N·m at the motor, beyond the {}'s {}",
+                        j.torque_limit,
+                        j.torque_limit / g,
+                        motor.name,
+                        motor.t_max
+                    ),
+                ));
+            }
+            if j.kp / (g * g) > motor.kp_max || j.kd / (g * g) > motor.kd_max {
+                return Err((
+                    "kp",
+                    format!(
+                        "kp {} / kd {} exceed the {}'s ranges (0–{}, 0–{}) at the motor",
+                        j.kp, j.kd, motor.name, motor.kp_max, motor.kd_max
+                    ),
+                ));
+            }
+        }
+        BusKind::Dynamixel => {
+            let Some(servo) = dxl::models::find(&j.model) else {
+                let known: Vec<_> = dxl::models::builtin().iter().map(|m| m.name.as_str()).collect();
+                return Err((
+                    "model",
+                    format!(
+                        "{:?} is not a Dynamixel servo (known: {})",
+                        j.model,
+                        known.join(", ")
+                    ),
+                ));
+            };
+            let no_load = servo.no_load_speed * std::f64::consts::TAU / 60.0;
+            if j.velocity_limit * j.gear > no_load {
+                return Err((
+                    "velocity_limit",
+                    format!(
+                        "{} rad/s is beyond the {}'s no-load speed {no_load:.2} rad/s",
+                        j.velocity_limit, servo.name
+                    ),
+                ));
+            }
+            if j.torque_limit / j.gear > servo.stall_torque {
+                return Err((
+                    "torque_limit",
+                    format!(
+                        "{} N·m is beyond the {}'s stall torque {} N·m",
+                        j.torque_limit, servo.name, servo.stall_torque
+                    ),
+                ));
+            }
+        }
+        BusKind::ImuSerial => return Err(("bus", "joints cannot sit on an imu_serial bus".into())),
+    }
+    Ok(())
+}
+
+fn line_of(text: &str, offset: usize) -> usize {
+    text[..offset.min(text.len())].matches('\n').count() + 1
+}

@@ -1,0 +1,129 @@
+//! The reference robot loads; broken robot files fail naming the file, the place and the value.
+
+use std::path::{Path, PathBuf};
+
+use robots::{BusKind, Robot, reference_robot_path};
+
+fn reference_text() -> String {
+    std::fs::read_to_string(reference_robot_path()).unwrap()
+}
+
+/// Checks `text` as if it were the reference robot.toml (so the MJCF beside it is found).
+fn load_variant(text: &str) -> Result<Robot, robots::RobotError> {
+    Robot::from_str(&reference_robot_path(), text)
+}
+
+#[test]
+fn the_reference_biped_loads_with_twenty_joints_on_three_buses() {
+    let robot = Robot::load(&reference_robot_path()).unwrap();
+    let c = &robot.config;
+    assert_eq!(c.joints.len(), 20);
+    assert_eq!(robot.joints_on("can0").count(), 6);
+    assert_eq!(robot.joints_on("can1").count(), 6);
+    assert_eq!(robot.joints_on("dxl0").count(), 8);
+    assert_eq!(robot.bus("imu0").unwrap().kind, BusKind::ImuSerial);
+    assert!(robot.mjcf.floating);
+    assert_eq!(c.joints[3].name, "left_knee");
+}
+
+fn expect_error(text: &str, needles: &[&str]) {
+    let e = load_variant(text).unwrap_err().to_string();
+    assert!(
+        e.starts_with(&reference_robot_path().display().to_string()),
+        "{e}"
+    );
+    for n in needles {
+        assert!(e.contains(n), "{e}\n  should contain {n:?}");
+    }
+}
+
+#[test]
+fn an_unknown_mjcf_joint_is_named() {
+    let text = reference_text().replacen("mjcf_joint = \"left_knee\"", "mjcf_joint = \"left_kneee\"", 1);
+    expect_error(
+        &text,
+        &[
+            "joints[3] (left_knee).mjcf_joint",
+            "\"left_kneee\" is not a joint of the MJCF",
+        ],
+    );
+}
+
+#[test]
+fn a_duplicate_id_on_a_bus_is_named() {
+    let text = reference_text().replacen("bus = \"can0\"\nid = 2", "bus = \"can0\"\nid = 1", 1);
+    expect_error(
+        &text,
+        &["joints[1] (left_hip_roll).id", "1 is used twice on bus can0"],
+    );
+}
+
+#[test]
+fn limits_beyond_the_motor_are_named_with_the_motor() {
+    // The DM-J4310 ankle-roll motor gives 10 N·m.
+    let text = reference_text().replacen("torque_limit = 8.0", "torque_limit = 12.0", 1);
+    expect_error(
+        &text,
+        &["joints[5] (left_ankle_roll).torque_limit", "12", "DM-J4310", "10"],
+    );
+    let text = reference_text().replacen("velocity_limit = 7.5", "velocity_limit = 9.0", 1);
+    expect_error(&text, &["(left_ankle_pitch).velocity_limit", "DM-J4340"]);
+    let text = reference_text().replacen("position_limits = [0.0, 2.2]", "position_limits = [0.0, 2.5]", 1);
+    expect_error(
+        &text,
+        &["(left_knee).position_limits", "leaves the MJCF joint range"],
+    );
+}
+
+#[test]
+fn a_missing_mesh_and_a_broken_mjcf_are_named() {
+    let dir = std::env::temp_dir().join(format!("robots-mesh-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let xml = std::fs::read_to_string(reference_robot_path().with_file_name("biped.xml")).unwrap();
+    let with_mesh = xml.replacen(
+        "<worldbody>",
+        "<asset><mesh name=\"shell\" file=\"meshes/shell.stl\"/></asset>\n  <worldbody>",
+        1,
+    );
+    std::fs::write(dir.join("biped.xml"), with_mesh).unwrap();
+    let toml_path: PathBuf = dir.join("robot.toml");
+    let e = Robot::from_str(&toml_path, &reference_text())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("mesh file") && e.contains("meshes/shell.stl") && e.contains("does not exist"),
+        "{e}"
+    );
+    std::fs::write(dir.join("biped.xml"), "<mujoco><worldbody>").unwrap();
+    let e = Robot::from_str(&toml_path, &reference_text())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("biped.xml: not valid XML"), "{e}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn type_errors_and_unknown_fields_name_the_line() {
+    let text = reference_text().replacen("kp = 40.0", "kp = \"stiff\"", 1);
+    expect_error(&text, &["line ", "invalid type"]);
+    let text = reference_text().replacen("zero_offset = 0.0", "zero_ofset = 0.0", 1);
+    expect_error(&text, &["unknown field `zero_ofset`"]);
+    let e = Robot::load(Path::new("/nonexistent/robot.toml"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("/nonexistent/robot.toml: file: cannot read"), "{e}");
+}
+
+#[test]
+fn unknown_models_and_buses_are_named() {
+    let text = reference_text().replacen("model = \"AK10-9\"", "model = \"XM430-W350\"", 1);
+    expect_error(
+        &text,
+        &[
+            "(left_hip_pitch).model",
+            "\"XM430-W350\" is not an MIT-mode motor",
+        ],
+    );
+    let text = reference_text().replacen("bus = \"dxl0\"", "bus = \"dxl9\"", 1);
+    expect_error(&text, &[".bus", "\"dxl9\" is not a bus"]);
+}
