@@ -10,8 +10,9 @@ use firmware_bridge::dxl::driver::{hardware_error_names, scan};
 use firmware_bridge::dxl::models;
 use firmware_bridge::dxl::servo::{ServoConfig, XSeriesServo};
 use firmware_bridge::dxl::transport::SerialDxlPort;
-use firmware_bridge::dxl::wire::{DxlRig, PtyServoBus, WireTiming, code_of_baud};
+use firmware_bridge::dxl::wire::{DxlRig, WireTiming, code_of_baud};
 use firmware_bridge::plant::InertiaPlant;
+use firmware_bridge::serial::PtyServer;
 
 /// Serial bus tools for Dynamixel X-series servos (Protocol 2.0).
 #[derive(Debug, Subcommand)]
@@ -136,7 +137,7 @@ fn emulate(args: &EmulateArgs) -> Result<()> {
         timing,
         Duration::from_micros(500),
     )));
-    let pty = PtyServoBus::spawn(Arc::clone(&rig), 0, Duration::from_micros(200))
+    let pty = PtyServer::spawn(Arc::clone(&rig), 0, Duration::from_micros(200))
         .context("cannot open a pseudo-terminal pair")?;
     // As with `can emulate`: a closed stdout must not take the servos down mid-run.
     let mut out = std::io::stdout().lock();

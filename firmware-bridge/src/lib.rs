@@ -6,12 +6,16 @@
 //!
 //! - [`can`]: CAN frames, the [`can::CanBus`] transport trait, SocketCAN, socketcand, virtual buses.
 //! - [`dxl`]: Dynamixel Protocol 2.0: codec, host driver, emulated X-series servos, pty wire.
+//! - [`imu`]: WIT-protocol serial AHRS: decoder, emulated part, host reader.
 //! - [`mit`]: MIT-mode motors: codec, host driver, emulated firmware.
 //! - [`plant`]: what emulated firmware drives.
+//! - [`serial`]: serial lines to simulated worlds, byte streams, the pseudo-terminal server.
 //! - [`time`]: simulated time and deterministic randomness.
 
 pub mod can;
 pub mod dxl;
+pub mod imu;
 pub mod mit;
 pub mod plant;
+pub mod serial;
 pub mod time;

@@ -8,12 +8,13 @@ use firmware_bridge::dxl::driver::{DxlBusDriver, DxlCommand, DxlDriverOptions, D
 use firmware_bridge::dxl::models::find;
 use firmware_bridge::dxl::servo::{ServoConfig, XSeriesServo};
 use firmware_bridge::dxl::transport::SerialDxlPort;
-use firmware_bridge::dxl::wire::{DxlRig, PtyServoBus, WireTiming};
+use firmware_bridge::dxl::wire::{DxlRig, WireTiming};
 use firmware_bridge::plant::InertiaPlant;
+use firmware_bridge::serial::PtyServer;
 
 const BAUD: u32 = 1_000_000;
 
-fn serve(models: &[&str]) -> (Arc<Mutex<DxlRig>>, PtyServoBus) {
+fn serve(models: &[&str]) -> (Arc<Mutex<DxlRig>>, PtyServer) {
     let servos = models
         .iter()
         .enumerate()
@@ -28,7 +29,7 @@ fn serve(models: &[&str]) -> (Arc<Mutex<DxlRig>>, PtyServoBus) {
         .collect();
     let rig = DxlRig::new(servos, plants, WireTiming::new(BAUD), Duration::from_micros(500));
     let world = Arc::new(Mutex::new(rig));
-    let pty = PtyServoBus::spawn(Arc::clone(&world), 0, Duration::from_micros(200)).unwrap();
+    let pty = PtyServer::spawn(Arc::clone(&world), 0, Duration::from_micros(200)).unwrap();
     (world, pty)
 }
 

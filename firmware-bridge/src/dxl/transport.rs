@@ -8,7 +8,7 @@ use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
 
 use super::packet::{self, Decoded};
-use super::wire::DxlSimWorld;
+use crate::serial::SerialSimWorld;
 use crate::time::{BusInstant, SimInstant};
 
 /// A status packet, its parameters borrowed from the transport's buffer.
@@ -141,7 +141,7 @@ pub struct LockstepDxlPort<W> {
     consumed: usize,
 }
 
-impl<W: DxlSimWorld> LockstepDxlPort<W> {
+impl<W: SerialSimWorld> LockstepDxlPort<W> {
     /// A port on line `line` of `world`, which runs at `baud`.
     pub fn new(world: Arc<Mutex<W>>, line: usize, baud: u32) -> Self {
         Self {
@@ -165,7 +165,7 @@ impl<W: DxlSimWorld> LockstepDxlPort<W> {
     }
 }
 
-impl<W: DxlSimWorld> DxlTransport for LockstepDxlPort<W> {
+impl<W: SerialSimWorld> DxlTransport for LockstepDxlPort<W> {
     type Instant = SimInstant;
 
     fn now(&self) -> SimInstant {

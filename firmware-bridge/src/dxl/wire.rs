@@ -1,6 +1,6 @@
 //! The servo side of a half-duplex Dynamixel line: emulated servos sharing a wire, the wire's
-//! timing in simulated time, a small rig of servos turning inertias, and a pseudo-terminal that
-//! serves any such world to programs that open a serial device.
+//! timing in simulated time, and a small rig of servos turning inertias. [`crate::serial`] serves
+//! any such world on a pseudo-terminal.
 //!
 //! Timing follows the line: an instruction takes `bytes × 10 / baud` to arrive; a servo starts
 //! its status packet Return Delay Time after the instruction ends; in a sync/bulk read each
@@ -8,15 +8,13 @@
 //! when its last byte arrived plus the USB adapter's latency.
 
 use std::collections::VecDeque;
-use std::io::{Read, Write};
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
 use super::packet::{self, Decoded, PacketError};
 use super::servo::{Reply, ReplySlot, XSeriesServo};
 use crate::can::virtual_bus::SimWorld;
 use crate::plant::InertiaPlant;
+use crate::serial::SerialSimWorld;
 use crate::time::SimInstant;
 
 /// Baud rate of an X-series Baud Rate code (address 8).
@@ -353,14 +351,6 @@ impl SimDxlWire {
     }
 }
 
-/// A simulated world with Dynamixel lines a host can talk on.
-pub trait DxlSimWorld: SimWorld {
-    /// The host puts `bytes` on line `line` now.
-    fn host_transmit(&mut self, line: usize, bytes: &[u8]);
-    /// Appends the bytes that reached the host on line `line` by now.
-    fn host_receive(&mut self, line: usize, out: &mut Vec<u8>);
-}
-
 /// Emulated servos on one line, each turning an [`InertiaPlant`]: the smallest world a driver
 /// can be tested against. The mirrored simulator does the same with MuJoCo joints.
 #[derive(Debug)]
@@ -454,7 +444,7 @@ impl SimWorld for DxlRig {
     }
 }
 
-impl DxlSimWorld for DxlRig {
+impl SerialSimWorld for DxlRig {
     fn host_transmit(&mut self, line: usize, bytes: &[u8]) {
         assert_eq!(line, 0, "a rig has one line");
         self.wire.host_transmit(self.now, bytes);
@@ -463,87 +453,5 @@ impl DxlSimWorld for DxlRig {
     fn host_receive(&mut self, line: usize, out: &mut Vec<u8>) {
         assert_eq!(line, 0, "a rig has one line");
         self.wire.host_receive(self.now, out);
-    }
-}
-
-/// Serves line `line` of a world on a pseudo-terminal, in wall-clock time: programs open
-/// [`PtyServoBus::path`] like a USB serial adapter.
-#[derive(Debug)]
-pub struct PtyServoBus {
-    path: String,
-    stop: Arc<AtomicBool>,
-    thread: Option<std::thread::JoinHandle<()>>,
-}
-
-impl PtyServoBus {
-    /// Opens a pseudo-terminal pair and starts serving; the world's clock follows the wall clock,
-    /// checked every `resolution`.
-    pub fn spawn<W: DxlSimWorld + Send + 'static>(
-        world: Arc<Mutex<W>>,
-        line: usize,
-        resolution: Duration,
-    ) -> std::io::Result<Self> {
-        let (mut master, slave) = serialport::TTYPort::pair().map_err(std::io::Error::other)?;
-        let path = serialport::SerialPort::name(&slave)
-            .ok_or_else(|| std::io::Error::other("the pseudo-terminal has no device path"))?;
-        serialport::SerialPort::set_timeout(&mut master, resolution).map_err(std::io::Error::other)?;
-        let stop = Arc::new(AtomicBool::new(false));
-        let flag = Arc::clone(&stop);
-        let thread = std::thread::Builder::new()
-            .name("dxl-pty".into())
-            .spawn(move || {
-                // Keeping the slave open means the master never reads EIO between clients.
-                let _slave = slave;
-                let start = std::time::Instant::now();
-                let origin = world.lock().unwrap_or_else(PoisonError::into_inner).now();
-                let mut inbound = [0u8; 4096];
-                let mut outbound = Vec::with_capacity(8192);
-                while !flag.load(Ordering::Relaxed) {
-                    let n = match master.read(&mut inbound) {
-                        Ok(n) => n,
-                        Err(e) if e.kind() == std::io::ErrorKind::TimedOut => 0,
-                        Err(e) if e.kind() == std::io::ErrorKind::Interrupted => 0,
-                        Err(e) => {
-                            tracing::warn!("pseudo-terminal read failed: {e}; stopping the servo bus");
-                            break;
-                        }
-                    };
-                    let target = origin + start.elapsed();
-                    outbound.clear();
-                    {
-                        let mut w = world.lock().unwrap_or_else(PoisonError::into_inner);
-                        while w.now() < target {
-                            w.step_until(target);
-                        }
-                        if n > 0 {
-                            w.host_transmit(line, &inbound[..n]);
-                        }
-                        w.host_receive(line, &mut outbound);
-                    }
-                    if !outbound.is_empty() && master.write_all(&outbound).is_err() {
-                        tracing::warn!("pseudo-terminal write failed; stopping the servo bus");
-                        break;
-                    }
-                }
-            })?;
-        Ok(Self {
-            path,
-            stop,
-            thread: Some(thread),
-        })
-    }
-
-    /// The device path to open (e.g. `/dev/pts/7`).
-    pub fn path(&self) -> &str {
-        &self.path
-    }
-}
-
-impl Drop for PtyServoBus {
-    fn drop(&mut self) {
-        self.stop.store(true, Ordering::Relaxed);
-        if let Some(t) = self.thread.take() {
-            let _ = t.join();
-        }
     }
 }

@@ -1,0 +1,165 @@
+//! An emulated WIT-protocol AHRS: truth from the simulator in, a serial byte stream out, with
+//! white noise, a constant per-unit bias, quantisation and the configured output rate.
+
+use std::time::Duration;
+
+use super::wit::{self, ImuSample, PACKET_LEN};
+use crate::time::{SimInstant, SimRng};
+
+/// Noise and rate of the emulated part.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ImuEmulatorConfig {
+    /// Output rate, Hz.
+    pub rate_hz: f64,
+    /// Gyro white noise, rad/s (1σ per sample).
+    pub gyro_noise: f64,
+    /// Gyro bias bound, rad/s (each unit draws a constant bias within ±this).
+    pub gyro_bias: f64,
+    /// Accelerometer white noise, m/s² (1σ).
+    pub accel_noise: f64,
+    /// Accelerometer bias bound, m/s².
+    pub accel_bias: f64,
+    /// Orientation noise, rad (1σ, small-angle about each axis).
+    pub attitude_noise: f64,
+}
+
+impl Default for ImuEmulatorConfig {
+    /// Figures of a WT901-class MEMS part: ~0.05 °/s gyro noise at 200 Hz, ~0.3 °/s bias,
+    /// ~0.01 g accel noise, ~0.05 g bias, ~0.1° attitude noise.
+    fn default() -> Self {
+        Self {
+            rate_hz: 200.0,
+            gyro_noise: 0.05_f64.to_radians(),
+            gyro_bias: 0.3_f64.to_radians(),
+            accel_noise: 0.01 * wit::G,
+            accel_bias: 0.05 * wit::G,
+            attitude_noise: 0.1_f64.to_radians(),
+        }
+    }
+}
+
+/// What the emulated IMU measures, in its own axes.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ImuTruth {
+    /// Angular velocity, rad/s.
+    pub gyro: [f64; 3],
+    /// Specific force, m/s².
+    pub accel: [f64; 3],
+    /// Orientation `[w, x, y, z]`, sensor to world.
+    pub quat: [f64; 4],
+}
+
+/// One emulated IMU.
+#[derive(Debug, Clone)]
+pub struct WitImuEmulator {
+    config: ImuEmulatorConfig,
+    rng: SimRng,
+    gyro_bias: [f64; 3],
+    accel_bias: [f64; 3],
+    next_output: SimInstant,
+}
+
+impl WitImuEmulator {
+    /// A unit whose biases are drawn from `seed`.
+    pub fn new(config: ImuEmulatorConfig, seed: u64) -> Self {
+        let mut rng = SimRng::new(seed);
+        let mut draw = |bound: f64| [0; 3].map(|_| (2.0 * rng.next_f64() - 1.0) * bound);
+        let gyro_bias = draw(config.gyro_bias);
+        let accel_bias = draw(config.accel_bias);
+        Self {
+            config,
+            rng,
+            gyro_bias,
+            accel_bias,
+            next_output: SimInstant::ZERO,
+        }
+    }
+
+    /// The output period.
+    pub fn period(&self) -> Duration {
+        Duration::from_nanos((1e9 / self.config.rate_hz).round() as u64)
+    }
+
+    /// When the next output cycle is due.
+    pub fn next_output(&self) -> SimInstant {
+        self.next_output
+    }
+
+    /// Produces the output cycle due at `now` from `truth` into `out` (44 bytes).
+    pub fn output(&mut self, now: SimInstant, truth: &ImuTruth, out: &mut [u8; 4 * PACKET_LEN]) {
+        self.next_output = self.next_output.max(now) + self.period();
+        let c = self.config;
+        let mut noise = |sigma: f64| sigma * self.rng.gaussian();
+        let gyro = [0, 1, 2].map(|i| truth.gyro[i] + self.gyro_bias[i] + noise(c.gyro_noise));
+        let accel = [0, 1, 2].map(|i| truth.accel[i] + self.accel_bias[i] + noise(c.accel_noise));
+        let tilt = [0; 3].map(|_| noise(c.attitude_noise) / 2.0);
+        let quat = normalize(mul(truth.quat, [1.0, tilt[0], tilt[1], tilt[2]]));
+        let sample = ImuSample {
+            accel,
+            gyro,
+            quat,
+            rpy: rpy_of(quat),
+            temperature: 35.0,
+        };
+        wit::encode_cycle(&sample, out);
+    }
+}
+
+/// Hamilton product `a ⊗ b` of `[w, x, y, z]` quaternions.
+pub fn mul(a: [f64; 4], b: [f64; 4]) -> [f64; 4] {
+    [
+        a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
+        a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
+        a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
+        a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0],
+    ]
+}
+
+fn normalize(q: [f64; 4]) -> [f64; 4] {
+    let n = q.iter().map(|x| x * x).sum::<f64>().sqrt();
+    let s = if q[0] < 0.0 { -1.0 / n } else { 1.0 / n };
+    q.map(|x| x * s)
+}
+
+/// Roll, pitch, yaw (Z-Y-X intrinsic) of a `[w, x, y, z]` quaternion.
+pub fn rpy_of(q: [f64; 4]) -> [f64; 3] {
+    let [w, x, y, z] = q;
+    let roll = (2.0 * (w * x + y * z)).atan2(1.0 - 2.0 * (x * x + y * y));
+    let pitch = (2.0 * (w * y - z * x)).clamp(-1.0, 1.0).asin();
+    let yaw = (2.0 * (w * z + x * y)).atan2(1.0 - 2.0 * (y * y + z * z));
+    [roll, pitch, yaw]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::imu::wit::WitDecoder;
+
+    #[test]
+    fn noise_and_bias_have_the_configured_size_and_the_seed_decides_them() {
+        let truth = ImuTruth {
+            gyro: [0.0; 3],
+            accel: [0.0, 0.0, wit::G],
+            quat: [1.0, 0.0, 0.0, 0.0],
+        };
+        let mut imu = WitImuEmulator::new(ImuEmulatorConfig::default(), 11);
+        let mut d = WitDecoder::new();
+        let mut gyro_x = Vec::new();
+        let mut bytes = [0u8; 44];
+        for k in 0..2000u64 {
+            imu.output(SimInstant::from_nanos(k * 5_000_000), &truth, &mut bytes);
+            d.feed(&bytes, |s| gyro_x.push(s.gyro[0]));
+        }
+        assert_eq!(gyro_x.len(), 2000);
+        let mean = gyro_x.iter().sum::<f64>() / 2000.0;
+        let sd = (gyro_x.iter().map(|g| (g - mean).powi(2)).sum::<f64>() / 2000.0).sqrt();
+        let c = ImuEmulatorConfig::default();
+        assert!(
+            mean.abs() <= c.gyro_bias + 3.0 * c.gyro_noise / 40.0 && mean.abs() > 1e-5,
+            "bias {mean}"
+        );
+        assert!((sd - c.gyro_noise).abs() < 0.25 * c.gyro_noise, "noise {sd}");
+        assert_ne!(WitImuEmulator::new(c, 12).gyro_bias, imu.gyro_bias);
+        assert_eq!(WitImuEmulator::new(c, 11).gyro_bias, imu.gyro_bias);
+    }
+}
