@@ -5,6 +5,7 @@
 //! bus; limits inside what the motor model can do) and fails with the file, the field and the value.
 
 pub mod config;
+pub mod drivers;
 pub mod mjcf;
 
 pub use config::{BusConfig, BusKind, ImuConfig, JointConfig, Robot, RobotConfig, RobotError};

@@ -1,4 +1,6 @@
 //! The mirrored simulator: the robot as the controller sees it through its buses, with emulated
 //! firmware driving MuJoCo behind mock wires.
 
+pub mod config;
+pub mod mirror;
 pub mod mujoco;

@@ -1,0 +1,51 @@
+//! A robot's joints as the bus drivers of `firmware-bridge` want them.
+
+use firmware_bridge::dxl::driver::DxlJointConfig;
+use firmware_bridge::dxl::models as dxl_models;
+use firmware_bridge::mit::driver::MitJointConfig;
+use firmware_bridge::mit::models as mit_models;
+
+use crate::config::JointConfig;
+
+/// The MIT driver's view of a joint on an `mit_can` bus.
+///
+/// # Panics
+/// When the joint's model is not an MIT motor (loading a [`crate::Robot`] checks this).
+pub fn mit_joint(j: &JointConfig) -> MitJointConfig {
+    let model = mit_models::find(&j.model).expect("an MIT-mode motor (checked at load)");
+    let mut c = MitJointConfig::new(&j.name, j.id, model);
+    c.direction = j.direction;
+    c.offset = j.zero_offset;
+    c.gear_ratio = j.gear;
+    c
+}
+
+/// The Dynamixel driver's view of a joint on a `dynamixel` bus. Direct drive only: the servo's
+/// own position loop runs in servo ticks, so a gear between servo and joint is folded into the
+/// joint's limits by the robot file, not here.
+///
+/// # Panics
+/// When the joint's model is not a Dynamixel servo (loading a [`crate::Robot`] checks this).
+pub fn dxl_joint(j: &JointConfig) -> DxlJointConfig {
+    let model = dxl_models::find(&j.model).expect("a Dynamixel servo (checked at load)");
+    let mut c = DxlJointConfig::new(&j.name, j.id, &model.name);
+    c.direction = j.direction;
+    c.zero_ticks = 2048.0 + j.zero_offset / dxl_models::rad_per_tick();
+    c.position_gains = Some(position_gains_for(j.kp, j.kd, model));
+    c
+}
+
+/// Position P and D gains of a servo that give roughly stiffness `kp` (N·m/rad) and damping `kd`
+/// (N·m·s/rad) at the joint, at nominal voltage: the firmware's PWM per tick of error is P/128
+/// (D/16 per tick per control period of 1 ms), and PWM turns into stall torque linearly.
+pub fn position_gains_for(kp: f64, kd: f64, model: &dxl_models::DxlModel) -> [u16; 3] {
+    let stall_torque_per_pwm = model.stall_torque / dxl_models::PWM_FULL_SCALE;
+    let per_tick = dxl_models::rad_per_tick();
+    let p = kp * per_tick / stall_torque_per_pwm * 128.0;
+    let d = kd * per_tick / 1e-3 / stall_torque_per_pwm * 16.0;
+    [
+        p.round().clamp(0.0, 16383.0) as u16,
+        0,
+        d.round().clamp(0.0, 16383.0) as u16,
+    ]
+}

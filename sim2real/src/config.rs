@@ -1,0 +1,100 @@
+//! How a mirror run is set up: seed, gantry, firmware rate, randomisation and scheduled faults.
+//! Loaded from TOML (`[mirror]` tables of a run config) or built in code.
+
+use std::time::Duration;
+
+/// A uniform range `[lo, hi]` a quantity is drawn from once per run.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+pub struct Range(pub f64, pub f64);
+
+impl Range {
+    /// The degenerate range `[v, v]`.
+    pub const fn fixed(v: f64) -> Self {
+        Self(v, v)
+    }
+}
+
+/// What is randomised per run (each joint/body draws its own factor).
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Randomization {
+    /// Scale of every body's mass.
+    pub mass_scale: Range,
+    /// Scale of every joint's friction loss and damping.
+    pub friction_scale: Range,
+    /// Scale of every actuator's torque (motor strength).
+    pub strength_scale: Range,
+    /// USB adapter latency on serial lines, µs.
+    pub usb_latency_us: Range,
+    /// Scale of the IMU's noise and bias.
+    pub imu_noise_scale: f64,
+}
+
+impl Default for Randomization {
+    fn default() -> Self {
+        Self {
+            mass_scale: Range::fixed(1.0),
+            friction_scale: Range::fixed(1.0),
+            strength_scale: Range::fixed(1.0),
+            usb_latency_us: Range::fixed(0.0),
+            imu_noise_scale: 1.0,
+        }
+    }
+}
+
+/// A fault the mirror applies at a given simulated time.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScheduledFault {
+    /// When, seconds after the start.
+    pub at_s: f64,
+    /// The joint (robot.toml name) whose device misbehaves.
+    pub joint: String,
+    /// What happens.
+    pub fault: FaultKind,
+}
+
+/// Faults a device can be made to show.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "snake_case", tag = "kind")]
+pub enum FaultKind {
+    /// The device stops answering for `count` packets/frames (`None`: for good).
+    Silent {
+        /// How many answers are lost.
+        count: Option<u32>,
+    },
+    /// The device's answers carry a bad CRC (Dynamixel) for `count` answers.
+    CorruptCrc {
+        /// How many answers.
+        count: u32,
+    },
+    /// The device overheats (Dynamixel hardware error / motor over-temperature fault).
+    Overheat,
+    /// The device loses power for good.
+    Vanish,
+}
+
+/// A mirror run's setup.
+#[derive(Debug, Clone, PartialEq, Default, serde::Deserialize, serde::Serialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct MirrorConfig {
+    /// Seed of every random draw (noise, randomisation): same seed, same run.
+    pub seed: u64,
+    /// Hold the root on a gantry (a stiff spring-damper) with the feet off the ground.
+    pub gantry: bool,
+    /// Period of the emulated firmware's control loops, µs (0: the physics step).
+    pub firmware_period_us: u64,
+    /// Return Delay Time the mirror's servos are set to, µs.
+    pub servo_return_delay_us: u64,
+    /// What to randomise.
+    pub randomization: Randomization,
+    /// Faults, in any order.
+    pub faults: Vec<ScheduledFault>,
+}
+
+impl MirrorConfig {
+    /// The servos' Return Delay Time.
+    pub fn servo_return_delay(&self) -> Duration {
+        Duration::from_micros(self.servo_return_delay_us)
+    }
+}

@@ -1,0 +1,676 @@
+//! The mirror: a robot's MuJoCo model behind its buses. Every joint is driven by the emulated
+//! firmware of its real actuator (MIT-mode motor on a virtual CAN bus, Dynamixel servo on a serial
+//! line), the IMU streams WIT packets on its own line, and the controller reaches all of them
+//! through the same host ports it would use on hardware.
+//!
+//! Time is one event loop over physics steps, firmware periods, frame and byte arrivals, IMU
+//! outputs and scheduled faults. In lockstep it advances only when a host port waits, so a run
+//! is a pure function of its seed; `sim serve` drives the same loop from the wall clock.
+
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use firmware_bridge::can::virtual_bus::{LockstepCanPort, SimWorld, VirtualCanBus, VirtualCanNode};
+use firmware_bridge::dxl::servo::{ReplyFault, ServoConfig, XSeriesServo};
+use firmware_bridge::dxl::table::hw;
+use firmware_bridge::dxl::transport::LockstepDxlPort;
+use firmware_bridge::dxl::wire::{ServoChain, SimDxlWire, WireTiming};
+use firmware_bridge::imu::emulator::{ImuEmulatorConfig, ImuTruth, WitImuEmulator, mul};
+use firmware_bridge::mit::codec::MotorFault;
+use firmware_bridge::mit::firmware::{InjectedFaults, MitFirmwareConfig, MitMotorFirmware};
+use firmware_bridge::plant::MotorPlant;
+use firmware_bridge::serial::{LockstepStream, SerialSimWorld, StreamLine};
+use firmware_bridge::time::{SimInstant, SimRng};
+use firmware_bridge::{dxl, mit};
+use mujoco_rs::prelude::*;
+use mujoco_rs::wrappers::mj_model::MjtObjBase;
+use robots::{BusKind, Robot};
+
+use crate::config::{FaultKind, MirrorConfig, Range};
+use crate::mujoco::{MujocoError, load_model};
+
+/// Why a mirror could not be built.
+#[derive(Debug, thiserror::Error)]
+pub enum MirrorError {
+    /// MuJoCo refused the model.
+    #[error(transparent)]
+    Mujoco(#[from] MujocoError),
+    /// The robot and its model disagree.
+    #[error("{0}")]
+    Robot(String),
+}
+
+/// One joint as the mirror sees it: where it lives in MuJoCo and how its actuator meets it.
+#[derive(Debug, Clone)]
+struct MirrorJoint {
+    qpos: usize,
+    dof: usize,
+    /// Actuator angle = zero_offset + direction · gear · joint angle.
+    direction: f64,
+    gear: f64,
+    zero_offset: f64,
+    strength: f64,
+}
+
+/// The actuator-side view of a joint that firmware reads and drives.
+#[derive(Debug, Clone, Copy, Default)]
+struct ActuatorPlant {
+    q: f64,
+    qd: f64,
+    torque: f64,
+}
+
+impl MotorPlant for ActuatorPlant {
+    fn position(&self) -> f64 {
+        self.q
+    }
+    fn velocity(&self) -> f64 {
+        self.qd
+    }
+    fn apply_torque(&mut self, torque: f64) {
+        self.torque = torque;
+    }
+}
+
+#[derive(Debug)]
+struct MitMotor {
+    node: VirtualCanNode,
+    firmware: MitMotorFirmware,
+    joint: usize,
+}
+
+#[derive(Debug)]
+struct CanLine {
+    name: String,
+    bus: VirtualCanBus,
+    motors: Vec<MitMotor>,
+}
+
+#[derive(Debug)]
+struct DxlLine {
+    name: String,
+    wire: SimDxlWire,
+    joints: Vec<usize>,
+}
+
+#[derive(Debug)]
+struct Imu {
+    emulator: WitImuEmulator,
+    line: StreamLine,
+    gyro: usize,
+    accel: usize,
+    quat: usize,
+    /// Rotation from the site's axes to the IMU's axes (inverse mounting).
+    mount: [f64; 4],
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Gantry {
+    pos: [f64; 3],
+    quat: [f64; 4],
+}
+
+/// Counters of a mirror run.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct MirrorStats {
+    /// Physics steps taken.
+    pub physics_steps: u64,
+    /// Firmware periods run.
+    pub firmware_ticks: u64,
+    /// IMU output cycles sent.
+    pub imu_outputs: u64,
+    /// Scheduled faults applied.
+    pub faults_applied: usize,
+}
+
+/// The mirrored robot.
+#[derive(Debug)]
+pub struct Mirror {
+    robot: Robot,
+    config: MirrorConfig,
+    data: MjData<Box<MjModel>>,
+    joints: Vec<MirrorJoint>,
+    plants: Vec<ActuatorPlant>,
+    can: Vec<CanLine>,
+    dxl: Vec<DxlLine>,
+    imu: Imu,
+    gantry: Option<Gantry>,
+    root_qpos: usize,
+    now: SimInstant,
+    physics_dt: Duration,
+    next_physics: SimInstant,
+    firmware_period: Duration,
+    next_firmware: SimInstant,
+    faults: Vec<(SimInstant, usize, FaultKind)>,
+    next_fault: usize,
+    stats: MirrorStats,
+}
+
+/// Serial line numbers: Dynamixel lines first (in robot.toml order), then the IMU.
+impl Mirror {
+    /// Builds the mirror of `robot`: loads and randomises its model, places it in its default
+    /// pose standing on the floor (or on the gantry), and wires emulated devices to every bus.
+    pub fn new(robot: Robot, config: MirrorConfig) -> Result<Self, MirrorError> {
+        let mut model = load_model(&robot.mjcf_path)?;
+        let mut rng = SimRng::new(config.seed);
+        let mut draw = |r: Range| r.0 + (r.1 - r.0) * rng.next_f64();
+        let rnd = config.randomization.clone();
+        let nbody = model.ffi().nbody as usize;
+        for b in 1..nbody {
+            let scale = draw(rnd.mass_scale);
+            model.body_mass_mut()[b] *= scale;
+            for k in 0..3 {
+                model.body_inertia_mut()[b][k] *= scale;
+            }
+        }
+        let physics_dt = Duration::try_from_secs_f64(model.ffi().opt.timestep)
+            .ok()
+            .filter(|d| !d.is_zero())
+            .ok_or_else(|| {
+                MirrorError::Robot(format!(
+                    "the model's timestep {} is not a step",
+                    model.ffi().opt.timestep
+                ))
+            })?;
+        let firmware_period = match config.firmware_period_us {
+            0 => physics_dt,
+            us => Duration::from_micros(us),
+        };
+        let find = |model: &MjModel, kind: MjtObjBase, name: &str| model.name_to_id(kind, name);
+        let mut joints = Vec::with_capacity(robot.config.joints.len());
+        for j in &robot.config.joints {
+            let id = find(&model, MjtObjBase::mjOBJ_JOINT, &j.mjcf_joint).ok_or_else(|| {
+                MirrorError::Robot(format!("joint {:?} is not in the compiled model", j.mjcf_joint))
+            })?;
+            joints.push(MirrorJoint {
+                qpos: model.jnt_qposadr()[id] as usize,
+                dof: model.jnt_dofadr()[id] as usize,
+                direction: j.direction,
+                gear: j.gear,
+                zero_offset: j.zero_offset,
+                strength: draw(rnd.strength_scale),
+            });
+        }
+        for j in &joints {
+            let scale = draw(rnd.friction_scale);
+            model.dof_frictionloss_mut()[j.dof] *= scale;
+            model.dof_damping_mut()[j.dof] *= scale;
+        }
+        let sensor = |name: &str| {
+            find(&model, MjtObjBase::mjOBJ_SENSOR, name)
+                .map(|id| model.sensor_adr()[id] as usize)
+                .ok_or_else(|| MirrorError::Robot(format!("the model has no sensor {name:?} (the IMU needs imu_gyro, imu_accel, imu_quat at its site)")))
+        };
+        let (gyro, accel, quat) = (sensor("imu_gyro")?, sensor("imu_accel")?, sensor("imu_quat")?);
+        let root_body = find(&model, MjtObjBase::mjOBJ_BODY, &robot.config.root_body).ok_or_else(|| {
+            MirrorError::Robot(format!(
+                "root body {:?} is not in the model",
+                robot.config.root_body
+            ))
+        })?;
+        let root_joint = model.body_jntadr()[root_body];
+        if root_joint < 0 || model.jnt_type()[root_joint as usize] != MjtJoint::mjJNT_FREE {
+            return Err(MirrorError::Robot(format!(
+                "root body {:?} has no free joint",
+                robot.config.root_body
+            )));
+        }
+        let root_qpos = model.jnt_qposadr()[root_joint as usize] as usize;
+
+        // Devices on every bus.
+        let mut can = Vec::new();
+        let mut dxl_lines = Vec::new();
+        let latency = Duration::from_micros(draw(rnd.usb_latency_us).max(0.0) as u64);
+        for bus in &robot.config.buses {
+            match bus.kind {
+                BusKind::MitCan => {
+                    let wire = VirtualCanBus::new(&bus.name, bus.rate);
+                    let motors = robot
+                        .joints_on(&bus.name)
+                        .map(|(i, j)| {
+                            let m = mit::models::find(&j.model).expect("checked at load");
+                            MitMotor {
+                                node: wire.attach(),
+                                firmware: MitMotorFirmware::new(MitFirmwareConfig::new(j.id, m)),
+                                joint: i,
+                            }
+                        })
+                        .collect();
+                    can.push(CanLine {
+                        name: bus.name.clone(),
+                        bus: wire,
+                        motors,
+                    });
+                }
+                BusKind::Dynamixel => {
+                    let mut servos = Vec::new();
+                    let mut idx = Vec::new();
+                    for (i, j) in robot.joints_on(&bus.name) {
+                        let m = dxl::models::find(&j.model).expect("checked at load");
+                        let mut cfg = ServoConfig::new(j.id).on_line(bus.rate, config.servo_return_delay());
+                        cfg.control_period = firmware_period;
+                        servos.push(XSeriesServo::new(m, cfg));
+                        idx.push(i);
+                    }
+                    let timing = WireTiming {
+                        baud: bus.rate,
+                        usb_latency: latency,
+                    };
+                    dxl_lines.push(DxlLine {
+                        name: bus.name.clone(),
+                        wire: SimDxlWire::new(ServoChain::new(servos, timing)),
+                        joints: idx,
+                    });
+                }
+                BusKind::ImuSerial => {}
+            }
+        }
+        let imu_cfg = &robot.config.imu;
+        let imu_bus = robot.bus(&imu_cfg.bus).expect("checked at load");
+        let n = rnd.imu_noise_scale;
+        let d = ImuEmulatorConfig::default();
+        let emulator = WitImuEmulator::new(
+            ImuEmulatorConfig {
+                rate_hz: imu_cfg.rate_hz,
+                gyro_noise: d.gyro_noise * n,
+                gyro_bias: d.gyro_bias * n,
+                accel_noise: d.accel_noise * n,
+                accel_bias: d.accel_bias * n,
+                attitude_noise: d.attitude_noise * n,
+            },
+            config.seed ^ 0x1u64.rotate_left(40),
+        );
+        let [r, p, y] = imu_cfg.mounting_rpy_deg.map(f64::to_radians);
+        let mounting = quat_rpy(r, p, y);
+        let imu = Imu {
+            emulator,
+            line: StreamLine::new(imu_bus.rate),
+            gyro,
+            accel,
+            quat,
+            mount: [mounting[0], -mounting[1], -mounting[2], -mounting[3]],
+        };
+
+        let mut faults = Vec::new();
+        for f in &config.faults {
+            let joint = robot
+                .config
+                .joints
+                .iter()
+                .position(|j| j.name == f.joint)
+                .ok_or_else(|| {
+                    MirrorError::Robot(format!("scheduled fault names unknown joint {:?}", f.joint))
+                })?;
+            let at = Duration::try_from_secs_f64(f.at_s).map_err(|_| {
+                MirrorError::Robot(format!(
+                    "scheduled fault for {:?}: at_s = {} is not a time",
+                    f.joint, f.at_s
+                ))
+            })?;
+            faults.push((SimInstant::ZERO + at, joint, f.fault));
+        }
+        faults.sort_by_key(|f| f.0);
+
+        let data = MjData::new(Box::new(model));
+        let n_joints = joints.len();
+        let mut mirror = Self {
+            robot,
+            config,
+            data,
+            joints,
+            plants: vec![ActuatorPlant::default(); n_joints],
+            can,
+            dxl: dxl_lines,
+            imu,
+            gantry: None,
+            root_qpos,
+            now: SimInstant::ZERO,
+            physics_dt,
+            next_physics: SimInstant::ZERO,
+            firmware_period,
+            next_firmware: SimInstant::ZERO,
+            faults,
+            next_fault: 0,
+            stats: MirrorStats::default(),
+        };
+        mirror.place_in_default_pose();
+        Ok(mirror)
+    }
+
+    /// Default joint angles; feet on the floor, or lifted 5 cm and held when on the gantry.
+    fn place_in_default_pose(&mut self) {
+        for (j, cfg) in self.joints.iter().zip(&self.robot.config.joints) {
+            self.data.qpos_mut()[j.qpos] = cfg.default_position;
+        }
+        self.data.forward();
+        let model = self.data.model();
+        let mut lowest = f64::INFINITY;
+        for g in 0..model.ffi().ngeom as usize {
+            let body = model.geom_bodyid()[g] as usize;
+            if body == 0 || model.geom_contype()[g] == 0 {
+                continue;
+            }
+            let size = model.geom_size()[g];
+            let z = self.data.geom_xpos()[g][2] - size[2].max(size[0].min(size[1]).min(size[2]));
+            lowest = lowest.min(z);
+        }
+        let lift = if self.config.gantry { 0.05 } else { 0.0 };
+        if lowest.is_finite() {
+            self.data.qpos_mut()[self.root_qpos + 2] += lift - lowest + 1e-4;
+        }
+        self.data.forward();
+        if self.config.gantry {
+            let q = self.data.qpos();
+            let r = self.root_qpos;
+            self.gantry = Some(Gantry {
+                pos: [q[r], q[r + 1], q[r + 2]],
+                quat: [q[r + 3], q[r + 4], q[r + 5], q[r + 6]],
+            });
+        }
+        self.sync_plants();
+    }
+
+    /// The robot it mirrors.
+    pub fn robot(&self) -> &Robot {
+        &self.robot
+    }
+
+    /// The run's setup.
+    pub fn config(&self) -> &MirrorConfig {
+        &self.config
+    }
+
+    /// MuJoCo's state (for telemetry, rendering, tests).
+    pub fn data(&self) -> &MjData<Box<MjModel>> {
+        &self.data
+    }
+
+    /// Counters.
+    pub fn stats(&self) -> MirrorStats {
+        self.stats
+    }
+
+    /// Joint angles in policy order, rad (ground truth, for tests and validation).
+    pub fn joint_positions(&self) -> impl Iterator<Item = f64> + '_ {
+        self.joints.iter().map(|j| self.data.qpos()[j.qpos])
+    }
+
+    /// Root position and orientation `[x, y, z, qw, qx, qy, qz]`.
+    pub fn root_pose(&self) -> [f64; 7] {
+        let q = self.data.qpos();
+        std::array::from_fn(|i| q[self.root_qpos + i])
+    }
+
+    /// CAN bus `name` of the mirror.
+    pub fn can_bus(&self, name: &str) -> Option<&VirtualCanBus> {
+        self.can.iter().find(|c| c.name == name).map(|c| &c.bus)
+    }
+
+    /// The serial line number of Dynamixel bus `name`.
+    pub fn dxl_line(&self, name: &str) -> Option<usize> {
+        self.dxl.iter().position(|d| d.name == name)
+    }
+
+    /// The serial line number of the IMU.
+    pub fn imu_line(&self) -> usize {
+        self.dxl.len()
+    }
+
+    /// The Dynamixel servo driving policy joint `joint`, to inspect or inject faults.
+    pub fn servo_mut(&mut self, joint: usize) -> Option<&mut XSeriesServo> {
+        let (line, k) = self
+            .dxl
+            .iter()
+            .enumerate()
+            .find_map(|(l, d)| d.joints.iter().position(|&j| j == joint).map(|k| (l, k)))?;
+        Some(&mut self.dxl[line].wire.chain_mut().servos_mut()[k])
+    }
+
+    /// The MIT motor firmware driving policy joint `joint`.
+    pub fn motor_mut(&mut self, joint: usize) -> Option<&mut MitMotorFirmware> {
+        self.can
+            .iter_mut()
+            .flat_map(|c| c.motors.iter_mut())
+            .find(|m| m.joint == joint)
+            .map(|m| &mut m.firmware)
+    }
+
+    fn sync_plants(&mut self) {
+        let (q, qd) = (self.data.qpos(), self.data.qvel());
+        for (p, j) in self.plants.iter_mut().zip(&self.joints) {
+            p.q = j.zero_offset + j.direction * j.gear * q[j.qpos];
+            p.qd = j.direction * j.gear * qd[j.dof];
+        }
+    }
+
+    fn run_firmware(&mut self, t: SimInstant) {
+        self.sync_plants();
+        for line in &mut self.can {
+            for m in &mut line.motors {
+                m.firmware
+                    .tick(t, self.firmware_period, &mut self.plants[m.joint]);
+            }
+        }
+        for line in &mut self.dxl {
+            for (servo, &j) in line.wire.chain_mut().servos_mut().iter_mut().zip(&line.joints) {
+                servo.tick(t, &mut self.plants[j]);
+            }
+        }
+        self.stats.firmware_ticks += 1;
+    }
+
+    fn step_physics(&mut self) {
+        // Torques (or position goals) from the firmware's last period.
+        for (j, p) in self.joints.iter().zip(&self.plants) {
+            let tau = j.direction * j.gear * p.torque * j.strength;
+            self.data.qfrc_applied_mut()[j.dof] = tau;
+        }
+        if let Some(g) = self.gantry {
+            self.hold_on_gantry(g);
+        }
+        self.data.step();
+        self.stats.physics_steps += 1;
+    }
+
+    fn hold_on_gantry(&mut self, g: Gantry) {
+        let r = self.root_qpos;
+        let (q, v) = (self.data.qpos(), self.data.qvel());
+        let (k, c, kr, cr) = (2.0e4, 8.0e2, 2.0e3, 8.0e1);
+        let force: [f64; 3] = std::array::from_fn(|i| k * (g.pos[i] - q[r + i]) - c * v[i]);
+        // Orientation error as a rotation vector (world frame), angular velocity is body-frame.
+        let cur = [q[r + 3], q[r + 4], q[r + 5], q[r + 6]];
+        let err = mul(g.quat, [cur[0], -cur[1], -cur[2], -cur[3]]);
+        let s = if err[0] < 0.0 { -2.0 } else { 2.0 };
+        let w_body = [v[3], v[4], v[5]];
+        let w_world = rotate(cur, w_body);
+        let torque: [f64; 3] = std::array::from_fn(|i| kr * s * err[i + 1] - cr * w_world[i]);
+        let body = self
+            .data
+            .model()
+            .name_to_id(MjtObjBase::mjOBJ_BODY, &self.robot.config.root_body)
+            .unwrap_or(1);
+        let x = &mut self.data.xfrc_applied_mut()[body];
+        x[..3].copy_from_slice(&force);
+        x[3..].copy_from_slice(&torque);
+    }
+
+    fn output_imu(&mut self, t: SimInstant) {
+        let s = self.data.sensordata();
+        let i = &self.imu;
+        let site_gyro = [s[i.gyro], s[i.gyro + 1], s[i.gyro + 2]];
+        let site_accel = [s[i.accel], s[i.accel + 1], s[i.accel + 2]];
+        let site_quat = [s[i.quat], s[i.quat + 1], s[i.quat + 2], s[i.quat + 3]];
+        let truth = ImuTruth {
+            gyro: rotate(i.mount, site_gyro),
+            accel: rotate(i.mount, site_accel),
+            quat: mul(site_quat, [i.mount[0], -i.mount[1], -i.mount[2], -i.mount[3]]),
+        };
+        let mut bytes = [0u8; 44];
+        self.imu.emulator.output(t, &truth, &mut bytes);
+        self.imu.line.device_transmit(t, &bytes);
+        self.stats.imu_outputs += 1;
+    }
+
+    fn apply_fault(&mut self, joint: usize, fault: FaultKind) {
+        if let Some(servo) = self.servo_mut(joint) {
+            match fault {
+                FaultKind::Silent { count } => servo.inject(ReplyFault::Silent, count),
+                FaultKind::CorruptCrc { count } => servo.inject(ReplyFault::CorruptCrc, Some(count)),
+                FaultKind::Overheat => servo.raise_hardware_error(hw::OVERHEAT),
+                FaultKind::Vanish => servo.vanish(),
+            }
+        } else if let Some(motor) = self.motor_mut(joint) {
+            let injected = match fault {
+                FaultKind::Silent { .. } | FaultKind::Vanish | FaultKind::CorruptCrc { .. } => {
+                    InjectedFaults {
+                        silent: true,
+                        fault: None,
+                    }
+                }
+                FaultKind::Overheat => InjectedFaults {
+                    silent: false,
+                    fault: Some(MotorFault::OverTemperature),
+                },
+            };
+            motor.inject(injected);
+        }
+        self.stats.faults_applied += 1;
+    }
+
+    /// Host ports on every bus of the mirror, sharing it in lockstep.
+    pub fn host_ports(world: &Arc<Mutex<Self>>) -> HostPorts {
+        let w = world.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        let can = w
+            .can
+            .iter()
+            .map(|c| {
+                (
+                    c.name.clone(),
+                    LockstepCanPort::new(c.bus.attach(), Arc::clone(world)),
+                )
+            })
+            .collect();
+        let dxl = w
+            .dxl
+            .iter()
+            .enumerate()
+            .map(|(i, d)| {
+                let baud = d.wire.chain().timing().baud;
+                (d.name.clone(), LockstepDxlPort::new(Arc::clone(world), i, baud))
+            })
+            .collect();
+        let imu = LockstepStream::new(Arc::clone(world), w.imu_line());
+        HostPorts { can, dxl, imu }
+    }
+}
+
+/// The controller's ends of a mirror's buses in lockstep.
+#[derive(Debug)]
+pub struct HostPorts {
+    /// CAN buses by name.
+    pub can: Vec<(String, LockstepCanPort<Mirror>)>,
+    /// Dynamixel lines by name.
+    pub dxl: Vec<(String, LockstepDxlPort<Mirror>)>,
+    /// The IMU's byte stream.
+    pub imu: LockstepStream<Mirror>,
+}
+
+impl SimWorld for Mirror {
+    fn now(&self) -> SimInstant {
+        self.now
+    }
+
+    fn step_until(&mut self, limit: SimInstant) -> SimInstant {
+        let now = self.now;
+        let mut t = limit
+            .min(self.next_physics)
+            .min(self.next_firmware)
+            .min(self.imu.emulator.next_output());
+        for line in &self.can {
+            if let Some(a) = line.motors.iter().filter_map(|m| m.node.next_arrival()).min() {
+                t = t.min(a);
+            }
+        }
+        for line in &self.dxl {
+            if let Some(e) = line.wire.next_event(now) {
+                t = t.min(e);
+            }
+        }
+        if let Some(e) = self.imu.line.next_event(now) {
+            t = t.min(e);
+        }
+        if let Some(f) = self.faults.get(self.next_fault) {
+            t = t.min(f.0);
+        }
+        let t = t.max(now);
+        self.now = t;
+        for line in &mut self.can {
+            line.bus.set_now(t);
+            for m in &mut line.motors {
+                while let Some(frame) = m.node.try_recv() {
+                    if let Some(reply) = m.firmware.on_frame(t, &frame, &self.plants[m.joint]) {
+                        // A send refused while bus-off is lost, as on a real bus.
+                        let _ = m.node.send(&reply);
+                    }
+                }
+            }
+        }
+        for line in &mut self.dxl {
+            line.wire.advance(t);
+        }
+        while let Some(&(at, joint, fault)) = self.faults.get(self.next_fault) {
+            if at > t {
+                break;
+            }
+            self.next_fault += 1;
+            self.apply_fault(joint, fault);
+        }
+        if t >= self.next_firmware {
+            self.run_firmware(t);
+            self.next_firmware = self.next_firmware + self.firmware_period;
+        }
+        if t >= self.next_physics {
+            self.step_physics();
+            self.next_physics = self.next_physics + self.physics_dt;
+        }
+        if t >= self.imu.emulator.next_output() {
+            self.output_imu(t);
+        }
+        t
+    }
+}
+
+impl SerialSimWorld for Mirror {
+    fn host_transmit(&mut self, line: usize, bytes: &[u8]) {
+        if let Some(d) = self.dxl.get_mut(line) {
+            d.wire.host_transmit(self.now, bytes);
+        }
+        // The IMU line is output only: bytes towards it are dropped, as a sensor ignores them.
+    }
+
+    fn host_receive(&mut self, line: usize, out: &mut Vec<u8>) {
+        match self.dxl.get_mut(line) {
+            Some(d) => d.wire.host_receive(self.now, out),
+            None => self.imu.line.host_receive(self.now, out),
+        }
+    }
+}
+
+/// `[w, x, y, z]` of roll/pitch/yaw (Z-Y-X intrinsic).
+pub fn quat_rpy(roll: f64, pitch: f64, yaw: f64) -> [f64; 4] {
+    let (cr, sr) = ((roll / 2.0).cos(), (roll / 2.0).sin());
+    let (cp, sp) = ((pitch / 2.0).cos(), (pitch / 2.0).sin());
+    let (cy, sy) = ((yaw / 2.0).cos(), (yaw / 2.0).sin());
+    [
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+    ]
+}
+
+/// Rotates `v` by the unit quaternion `q` (`[w, x, y, z]`).
+pub fn rotate(q: [f64; 4], v: [f64; 3]) -> [f64; 3] {
+    let p = mul(mul(q, [0.0, v[0], v[1], v[2]]), [q[0], -q[1], -q[2], -q[3]]);
+    [p[1], p[2], p[3]]
+}
