@@ -2,5 +2,6 @@
 //! firmware driving MuJoCo behind mock wires.
 
 pub mod config;
+pub mod host;
 pub mod mirror;
 pub mod mujoco;

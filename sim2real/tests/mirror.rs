@@ -1,110 +1,51 @@
 //! The mirrored reference biped, driven through its buses by the real host drivers in lockstep.
 
-use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use firmware_bridge::can::virtual_bus::{LockstepCanPort, SimWorld};
-use firmware_bridge::dxl::driver::{DxlBusDriver, DxlCommand, DxlDriverOptions};
-use firmware_bridge::dxl::transport::LockstepDxlPort;
-use firmware_bridge::imu::reader::ImuReader;
-use firmware_bridge::mit::driver::{JointCommand, MitBusDriver};
-use firmware_bridge::serial::LockstepStream;
-use robots::{Robot, drivers, reference_robot_path};
+use robots::{Robot, reference_robot_path};
 use sim2real::config::{FaultKind, MirrorConfig, Randomization, Range, ScheduledFault};
+use sim2real::host::MirrorHost;
 use sim2real::mirror::Mirror;
 
 const TICK: Duration = Duration::from_millis(20);
 
 struct Host {
-    world: Arc<Mutex<Mirror>>,
-    mit: Vec<(MitBusDriver<LockstepCanPort<Mirror>>, Vec<usize>)>,
-    dxl: DxlBusDriver<LockstepDxlPort<Mirror>>,
-    dxl_joints: Vec<usize>,
-    imu: ImuReader<LockstepStream<Mirror>>,
+    inner: MirrorHost,
     robot: Robot,
+    default_pose: Vec<f64>,
 }
 
 fn host(config: MirrorConfig) -> Host {
     let robot = Robot::load(&reference_robot_path()).unwrap();
-    let world = Arc::new(Mutex::new(Mirror::new(robot.clone(), config).unwrap()));
-    let ports = Mirror::host_ports(&world);
-    let mut mit = Vec::new();
-    for (name, port) in ports.can {
-        let (idx, joints): (Vec<_>, Vec<_>) = robot
-            .joints_on(&name)
-            .map(|(i, j)| (i, drivers::mit_joint(j)))
-            .unzip();
-        let mut d = MitBusDriver::new(port, joints, Duration::from_millis(2)).unwrap();
-        d.enable_all().unwrap();
-        mit.push((d, idx));
-    }
-    let (name, port) = ports.dxl.into_iter().next().unwrap();
-    let (dxl_joints, joints): (Vec<_>, Vec<_>) = robot
-        .joints_on(&name)
-        .map(|(i, j)| (i, drivers::dxl_joint(j)))
-        .unzip();
-    let options = DxlDriverOptions {
-        expected_return_delay: Duration::ZERO,
-        ..DxlDriverOptions::default()
-    };
-    let mut dxl = DxlBusDriver::new(port, joints, options).unwrap();
-    dxl.configure().unwrap();
-    dxl.enable().unwrap();
+    let default_pose = robot.config.joints.iter().map(|j| j.default_position).collect();
     Host {
-        world,
-        mit,
-        dxl,
-        dxl_joints,
-        imu: ImuReader::new(ports.imu),
+        inner: MirrorHost::start(robot.clone(), config).unwrap(),
         robot,
+        default_pose,
     }
 }
 
 impl Host {
-    /// One control tick holding the default pose; returns the joint angles the buses reported.
-    fn hold_default_pose(&mut self, log: &mut Vec<u64>) {
-        let joints = &self.robot.config.joints;
-        for (d, idx) in &mut self.mit {
-            let cmds: Vec<_> = idx
-                .iter()
-                .map(|&i| JointCommand {
-                    q: joints[i].default_position,
-                    qd: 0.0,
-                    kp: joints[i].kp,
-                    kd: joints[i].kd,
-                    tau: 0.0,
-                })
-                .collect();
-            d.cycle(&cmds).unwrap();
-            log.extend(d.feedback().iter().map(|f| f.q.to_bits()));
-        }
-        let cmds: Vec<_> = self
-            .dxl_joints
-            .iter()
-            .map(|&i| DxlCommand {
-                q: joints[i].default_position,
-                current: 0.0,
-            })
-            .collect();
-        self.dxl.cycle(&cmds).unwrap();
-        log.extend(self.dxl.feedback().iter().map(|f| f.q.to_bits()));
-        if let Some(r) = self.imu.poll().unwrap() {
-            log.extend(r.sample.gyro.map(f64::to_bits));
-            log.extend(r.sample.quat.map(f64::to_bits));
-        }
-    }
-
+    /// Holds the default pose for `seconds`; returns a log of what the buses and the IMU reported.
     fn run(&mut self, seconds: f64) -> Vec<u64> {
         let mut log = Vec::new();
         let ticks = (seconds / TICK.as_secs_f64()).round() as u32;
-        let start = self.world.lock().unwrap().now();
+        let start = self.inner.now();
         for k in 1..=ticks {
-            self.hold_default_pose(&mut log);
-            let mut w = self.world.lock().unwrap();
-            let target = start + TICK * k;
-            while w.now() < target {
-                w.step_until(target);
+            self.inner
+                .command_positions(&self.robot, &self.default_pose)
+                .unwrap();
+            for (d, _) in &self.inner.mit {
+                log.extend(d.feedback().iter().map(|f| f.q.to_bits()));
             }
+            for (d, _) in &self.inner.dxl {
+                log.extend(d.feedback().iter().map(|f| f.q.to_bits()));
+            }
+            if let Some(r) = self.inner.imu.poll().unwrap() {
+                log.extend(r.sample.gyro.map(f64::to_bits));
+                log.extend(r.sample.quat.map(f64::to_bits));
+            }
+            self.inner.wait_until(start + TICK * k);
         }
         log
     }
@@ -113,18 +54,9 @@ impl Host {
 #[test]
 fn the_biped_stands_ten_seconds_under_its_own_firmware_pd() {
     let mut h = host(MirrorConfig::default());
-    let start = h.world.lock().unwrap().root_pose();
-    for _ in 0..20 {
-        h.run(0.5);
-        let w = h.world.lock().unwrap();
-        eprintln!(
-            "t={:?} root={:?} ncon={}",
-            w.now(),
-            w.root_pose(),
-            w.data().ffi().ncon
-        );
-    }
-    let w = h.world.lock().unwrap();
+    let start = h.inner.world.lock().unwrap().root_pose();
+    h.run(10.0);
+    let w = h.inner.world.lock().unwrap();
     let end = w.root_pose();
     assert!(
         end[2] > 0.9 * start[2],
@@ -147,7 +79,7 @@ fn the_biped_stands_ten_seconds_under_its_own_firmware_pd() {
     assert!(w.stats().physics_steps >= 10_000 && w.stats().imu_outputs >= 1_990);
     // The IMU says the same: gravity along its z.
     drop(w);
-    let imu = h.imu.poll().unwrap().unwrap();
+    let imu = h.inner.imu.poll().unwrap().unwrap();
     assert!((imu.sample.accel[2] - 9.81).abs() < 1.0, "{:?}", imu.sample.accel);
 }
 
@@ -157,9 +89,9 @@ fn on_the_gantry_the_feet_stay_off_the_floor_and_the_pose_holds() {
         gantry: true,
         ..MirrorConfig::default()
     });
-    let start = h.world.lock().unwrap().root_pose();
+    let start = h.inner.world.lock().unwrap().root_pose();
     h.run(3.0);
-    let w = h.world.lock().unwrap();
+    let w = h.inner.world.lock().unwrap();
     let end = w.root_pose();
     assert!(
         (end[2] - start[2]).abs() < 0.01 && (end[0] - start[0]).abs() < 0.01,
@@ -211,21 +143,16 @@ fn scheduled_faults_reach_the_devices_at_their_time() {
         ..MirrorConfig::default()
     });
     h.run(0.4);
-    assert!(h.dxl.feedback().iter().all(|f| !f.is_stale()));
+    assert!(h.inner.dxl[0].0.feedback().iter().all(|f| !f.is_stale()));
     h.run(0.2);
-    let elbow = h
-        .dxl_joints
-        .iter()
-        .position(|&i| h.robot.config.joints[i].name == "left_elbow")
-        .unwrap();
-    assert!(h.dxl.feedback()[elbow].is_stale());
-    let (right, idx) = &h.mit[1];
-    let knee = idx
-        .iter()
-        .position(|&i| h.robot.config.joints[i].name == "right_knee")
-        .unwrap();
+    let name = |i: &usize| h.robot.config.joints[*i].name.clone();
+    let (dxl, dxl_joints) = &h.inner.dxl[0];
+    let elbow = dxl_joints.iter().position(|i| name(i) == "left_elbow").unwrap();
+    assert!(dxl.feedback()[elbow].is_stale());
+    let (right, idx) = &h.inner.mit[1];
+    let knee = idx.iter().position(|i| name(i) == "right_knee").unwrap();
     assert!(right.feedback()[knee].is_stale());
-    assert_eq!(h.world.lock().unwrap().stats().faults_applied, 2);
+    assert_eq!(h.inner.world.lock().unwrap().stats().faults_applied, 2);
 }
 
 #[test]
