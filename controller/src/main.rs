@@ -7,6 +7,7 @@ use clap::{Parser, Subcommand};
 
 mod cli_can;
 mod cli_dxl;
+mod cli_sim;
 
 /// Run motion-tracking policies on a real robot, or on its mirrored MuJoCo simulator.
 ///
@@ -28,6 +29,9 @@ enum Command {
     /// Dynamixel serial bus tools: emulated X-series servos on a pseudo-terminal, and bus scans.
     #[command(subcommand)]
     Dxl(cli_dxl::DxlCommand),
+    /// The mirrored simulator: a robot's MuJoCo model behind emulated firmware on its buses.
+    #[command(subcommand)]
+    Sim(cli_sim::SimCommand),
     /// Check the native libraries and load a MuJoCo model and an ONNX model, moving nothing.
     ///
     /// Prints the versions of MuJoCo and ONNX Runtime this build loads, the sizes of the MuJoCo
@@ -53,6 +57,7 @@ fn main() -> Result<()> {
         Command::Doctor { mjcf, onnx } => doctor(&mjcf, &onnx),
         Command::Can(cmd) => cli_can::run(cmd),
         Command::Dxl(cmd) => cli_dxl::run(cmd),
+        Command::Sim(cmd) => cli_sim::run(cmd),
     }
 }
 

@@ -226,3 +226,86 @@ fn dxl_emulate_rejects_bad_servos_and_rates_by_name() {
         "{stderr}"
     );
 }
+
+#[test]
+fn sim_serve_exposes_the_biped_to_the_bus_scanners() {
+    use std::io::BufRead;
+    let mut serve = robodeploy()
+        .args(["sim", "serve", "--gantry", "--port", "0", "--seconds", "30"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut reader = std::io::BufReader::new(serve.stdout.take().unwrap());
+    let mut lines = Vec::new();
+    for _ in 0..5 {
+        let mut l = String::new();
+        reader.read_line(&mut l).unwrap();
+        lines.push(l);
+    }
+    let drain = std::thread::Builder::new()
+        .name("drain".into())
+        .spawn(move || std::io::copy(&mut reader, &mut std::io::sink()))
+        .unwrap();
+    let field = |prefix: &str| {
+        lines
+            .iter()
+            .find(|l| l.trim_start().starts_with(prefix))
+            .and_then(|l| l.split_whitespace().last())
+            .unwrap_or_else(|| panic!("no {prefix} line in {lines:?}"))
+            .to_owned()
+    };
+    let dxl_path = field("dxl");
+    let can_addr = field("can  can0");
+    let dxl = robodeploy()
+        .args([
+            "dxl", "scan", "--port", &dxl_path, "--baud", "4000000", "--ids", "1-10",
+        ])
+        .output()
+        .unwrap();
+    let can = robodeploy()
+        .args([
+            "can",
+            "scan",
+            "--socketcand",
+            &can_addr,
+            "--model",
+            "AK80-9",
+            "--ids",
+            "1-8",
+        ])
+        .output()
+        .unwrap();
+    let _ = serve.kill();
+    let _ = serve.wait();
+    let _ = drain.join();
+    let dxl = String::from_utf8_lossy(&dxl.stdout);
+    assert!(dxl.contains("8 servo(s) answered out of 10 asked"), "{dxl}");
+    assert!(dxl.contains("   7   XL430-W250"), "{dxl}");
+    let can = String::from_utf8_lossy(&can.stdout);
+    assert!(can.contains("6 motor(s) answered out of 8 asked"), "{can}");
+}
+
+#[test]
+fn sim_serve_names_a_broken_robot_file() {
+    let dir = std::env::temp_dir().join(format!("robodeploy-badrobot-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let src = robots::reference_robot_path();
+    std::fs::copy(src.with_file_name("biped.xml"), dir.join("biped.xml")).unwrap();
+    let text = std::fs::read_to_string(&src)
+        .unwrap()
+        .replacen("id = 2", "id = 1", 1);
+    std::fs::write(dir.join("robot.toml"), text).unwrap();
+    let out = robodeploy()
+        .args(["sim", "serve", "--robot"])
+        .arg(dir.join("robot.toml"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("robot.toml: joints[1] (left_hip_roll).id: 1 is used twice on bus can0"),
+        "{stderr}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}

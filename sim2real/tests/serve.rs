@@ -1,0 +1,115 @@
+//! The mirror served in wall-clock time: the unmodified drivers reach it over socketcand (CAN) and
+//! pseudo-terminals (Dynamixel, IMU), as they would reach the robot.
+
+use std::net::{IpAddr, Ipv4Addr};
+use std::time::{Duration, Instant};
+
+use firmware_bridge::can::socketcand::SocketcandClient;
+use firmware_bridge::dxl::driver::{DxlBusDriver, DxlCommand, DxlDriverOptions};
+use firmware_bridge::dxl::transport::SerialDxlPort;
+use firmware_bridge::imu::reader::ImuReader;
+use firmware_bridge::mit::driver::{JointCommand, MitBusDriver};
+use firmware_bridge::serial::DeviceStream;
+use robots::{Robot, drivers, reference_robot_path};
+use sim2real::config::MirrorConfig;
+use sim2real::mirror::Mirror;
+use sim2real::serve::ServedMirror;
+
+#[test]
+fn drivers_hold_the_served_biped_over_socketcand_and_pseudo_terminals() {
+    let robot = Robot::load(&reference_robot_path()).unwrap();
+    let mirror = Mirror::new(
+        robot.clone(),
+        MirrorConfig {
+            gantry: true,
+            ..MirrorConfig::default()
+        },
+    )
+    .unwrap();
+    let served = ServedMirror::start(mirror, IpAddr::V4(Ipv4Addr::LOCALHOST), 0).unwrap();
+    let ep = served.endpoints().clone();
+    assert_eq!((ep.can.len(), ep.dxl.len()), (2, 1));
+    assert!(ep.can.iter().all(|(_, a)| a.ip().is_loopback()));
+
+    let joints = &robot.config.joints;
+    let mut mit = Vec::new();
+    for (name, addr) in &ep.can {
+        let client = SocketcandClient::connect(addr, name, Duration::from_secs(2)).unwrap();
+        let (idx, cfg): (Vec<_>, Vec<_>) = robot
+            .joints_on(name)
+            .map(|(i, j)| (i, drivers::mit_joint(j)))
+            .unzip();
+        let mut d = MitBusDriver::new(client, cfg, Duration::from_millis(20)).unwrap();
+        d.enable_all().unwrap();
+        mit.push((d, idx));
+    }
+    let (name, path) = &ep.dxl[0];
+    let rate = robot.bus(name).unwrap().rate;
+    let (dxl_idx, cfg): (Vec<_>, Vec<_>) = robot
+        .joints_on(name)
+        .map(|(i, j)| (i, drivers::dxl_joint(j)))
+        .unzip();
+    let options = DxlDriverOptions {
+        reply_slack: Duration::from_millis(30),
+        ..DxlDriverOptions::default()
+    };
+    let mut dxl = DxlBusDriver::new(SerialDxlPort::open(path, rate).unwrap(), cfg, options).unwrap();
+    dxl.configure().unwrap();
+    dxl.enable().unwrap();
+    let imu_rate = robot.bus(&robot.config.imu.bus).unwrap().rate;
+    let mut imu = ImuReader::new(DeviceStream::open(&ep.imu, imu_rate).unwrap());
+
+    let start = Instant::now();
+    let mut imu_samples = 0;
+    while start.elapsed() < Duration::from_millis(1500) {
+        for (d, idx) in &mut mit {
+            let cmds: Vec<_> = idx
+                .iter()
+                .map(|&i| JointCommand {
+                    q: joints[i].default_position,
+                    qd: 0.0,
+                    kp: joints[i].kp,
+                    kd: joints[i].kd,
+                    tau: 0.0,
+                })
+                .collect();
+            d.cycle(&cmds).unwrap();
+        }
+        let cmds: Vec<_> = dxl_idx
+            .iter()
+            .map(|&i| DxlCommand {
+                q: joints[i].default_position,
+                current: 0.0,
+            })
+            .collect();
+        dxl.cycle(&cmds).unwrap();
+        if imu.poll().unwrap().is_some() {
+            imu_samples += 1;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    for (d, idx) in &mit {
+        for (f, &i) in d.feedback().iter().zip(idx) {
+            assert!(
+                (f.q - joints[i].default_position).abs() < 0.1,
+                "{}: {}",
+                joints[i].name,
+                f.q
+            );
+        }
+    }
+    for (f, &i) in dxl.feedback().iter().zip(&dxl_idx) {
+        assert!(
+            !f.is_stale() && (f.q - joints[i].default_position).abs() < 0.1,
+            "{}: {:?}",
+            joints[i].name,
+            f
+        );
+    }
+    let sample = imu.poll().unwrap().expect("IMU samples arrived").sample;
+    assert!(
+        imu_samples > 10 && (sample.accel[2] - 9.81).abs() < 1.0,
+        "{imu_samples} samples, last {sample:?}"
+    );
+    assert_eq!(imu.stats().checksum_errors, 0);
+}
