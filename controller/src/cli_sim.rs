@@ -9,6 +9,8 @@ use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
 use robots::Robot;
 use sim2real::config::MirrorConfig;
+use sim2real::host::MirrorHost;
+use sim2real::render::CameraSpec;
 use sim2real::mirror::Mirror;
 use sim2real::serve::ServedMirror;
 
@@ -23,6 +25,46 @@ pub enum SimCommand {
     /// `robodeploy dxl scan`, python-can, dynamixel-sdk) at the printed endpoints. Binds to
     /// 127.0.0.1 unless --listen says otherwise.
     Serve(ServeArgs),
+    /// Stand the robot in its default pose in lockstep through its real drivers, and render the
+    /// run to PNG frames (CPU ray casting; no GPU needed).
+    ///
+    /// Faults and randomisation from --mirror apply, so this shows what a fault does to the robot.
+    Stand(StandArgs),
+}
+
+/// Arguments of `sim stand`.
+#[derive(Debug, Args)]
+pub struct StandArgs {
+    /// The robot description.
+    #[arg(long, default_value_os_t = robots::reference_robot_path())]
+    robot: PathBuf,
+    /// Mirror settings (TOML: seed, gantry, randomization, faults …).
+    #[arg(long)]
+    mirror: Option<PathBuf>,
+    /// Hold the robot on a gantry.
+    #[arg(long)]
+    gantry: bool,
+    /// Simulated seconds.
+    #[arg(long, default_value_t = 3.0)]
+    seconds: f64,
+    /// Folder for the frames (frame_0000.png …); none when absent.
+    #[arg(long)]
+    frames: Option<PathBuf>,
+    /// Frames per simulated second.
+    #[arg(long, default_value_t = 10.0)]
+    fps: f64,
+    /// Frame size, px.
+    #[arg(long, default_value = "480x360", value_parser = parse_size)]
+    size: (u32, u32),
+}
+
+fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s.split_once('x').ok_or_else(|| format!("'{s}': expected WIDTHxHEIGHT, e.g. 480x360"))?;
+    let parse = |v: &str| v.parse::<u32>().ok().filter(|v| (16..=4096).contains(v));
+    match (parse(w), parse(h)) {
+        (Some(w), Some(h)) => Ok((w, h)),
+        _ => Err(format!("'{s}': width and height must be 16-4096")),
+    }
 }
 
 /// Arguments of `sim serve`.
@@ -61,16 +103,80 @@ pub fn load_mirror_config(path: &Path) -> Result<MirrorConfig> {
 pub fn run(cmd: SimCommand) -> Result<()> {
     match cmd {
         SimCommand::Serve(args) => serve(&args),
+        SimCommand::Stand(args) => stand(&args),
     }
+}
+
+fn mirror_config(path: Option<&Path>, gantry: bool) -> Result<MirrorConfig> {
+    let mut config = match path {
+        Some(p) => load_mirror_config(p)?,
+        None => MirrorConfig::default(),
+    };
+    config.gantry |= gantry;
+    Ok(config)
+}
+
+fn stand(args: &StandArgs) -> Result<()> {
+    if !(args.seconds.is_finite() && args.seconds > 0.0 && args.fps > 0.0 && args.fps <= 100.0) {
+        anyhow::bail!("--seconds must be positive and --fps in (0, 100]");
+    }
+    let robot = Robot::load(&args.robot)?;
+    let config = mirror_config(args.mirror.as_deref(), args.gantry)?;
+    let mut host = MirrorHost::start(robot.clone(), config).context("cannot start the mirror and its drivers")?;
+    if let Some(dir) = &args.frames {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    }
+    let pose: Vec<f64> = robot.config.joints.iter().map(|j| j.default_position).collect();
+    let tick = Duration::from_nanos((1e9 / robot.config.control_rate_hz).round() as u64);
+    let ticks = (args.seconds * robot.config.control_rate_hz).round() as u64;
+    let frame_every = (robot.config.control_rate_hz / args.fps).round().max(1.0) as u64;
+    let camera = CameraSpec {
+        width: args.size.0,
+        height: args.size.1,
+        ..CameraSpec::default()
+    };
+    let bar = indicatif::ProgressBar::new(ticks).with_message("standing");
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} ticks {elapsed}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let start = host.now();
+    let mut frames = 0;
+    for k in 0..ticks {
+        host.command_positions(&robot, &pose)?;
+        host.wait_until(start + tick * (k as u32 + 1));
+        if let Some(dir) = &args.frames
+            && k % frame_every == 0
+        {
+            let image = host.world.lock().unwrap_or_else(std::sync::PoisonError::into_inner).render(&camera);
+            let path = dir.join(format!("frame_{frames:04}.png"));
+            image.save_png(&path).with_context(|| format!("cannot write {}", path.display()))?;
+            frames += 1;
+        }
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let w = host.world.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    let root = w.root_pose();
+    let up = 1.0 - 2.0 * (root[4] * root[4] + root[5] * root[5]);
+    println!(
+        "{}: {:.1} s standing; pelvis height {:.3} m, uprightness {:.3}, {} physics steps, {} faults applied",
+        robot.config.name,
+        args.seconds,
+        root[2],
+        up,
+        w.stats().physics_steps,
+        w.stats().faults_applied
+    );
+    if let Some(dir) = &args.frames {
+        println!("{frames} frames in {}", dir.display());
+    }
+    Ok(())
 }
 
 fn serve(args: &ServeArgs) -> Result<()> {
     let robot = Robot::load(&args.robot)?;
-    let mut config = match &args.mirror {
-        Some(p) => load_mirror_config(p)?,
-        None => MirrorConfig::default(),
-    };
-    config.gantry |= args.gantry;
+    let mut config = mirror_config(args.mirror.as_deref(), args.gantry)?;
     if let Some(seed) = args.seed {
         config.seed = seed;
     }

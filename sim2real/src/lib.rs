@@ -5,4 +5,5 @@ pub mod config;
 pub mod host;
 pub mod mirror;
 pub mod mujoco;
+pub mod render;
 pub mod serve;

@@ -385,6 +385,12 @@ impl Mirror {
         &self.data
     }
 
+    /// A picture of the robot now, the camera looking at its root.
+    pub fn render(&mut self, camera: &crate::render::CameraSpec) -> crate::render::Image {
+        let root = self.root_pose();
+        crate::render::render(&mut self.data, camera, [root[0], root[1], root[2] - 0.05])
+    }
+
     /// Counters.
     pub fn stats(&self) -> MirrorStats {
         self.stats

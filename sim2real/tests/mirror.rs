@@ -172,3 +172,29 @@ fn a_robot_whose_model_lacks_imu_sensors_is_refused_by_name() {
     assert!(e.contains("no sensor \"imu_gyro\""), "{e}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn a_rendered_frame_shows_the_robot_against_floor_and_sky() {
+    use sim2real::render::{CameraSpec, SKY};
+    let h = host(MirrorConfig::default());
+    let camera = CameraSpec {
+        width: 96,
+        height: 72,
+        ..CameraSpec::default()
+    };
+    let image = h.inner.world.lock().unwrap().render(&camera);
+    assert_eq!(image.rgb.len(), 96 * 72 * 3);
+    // Sky at the top, floor at the bottom, robot in the middle.
+    let px = |x: usize, y: usize| &image.rgb[(y * 96 + x) * 3..(y * 96 + x) * 3 + 3];
+    assert_eq!(px(2, 1), SKY);
+    assert_ne!(px(48, 70), SKY);
+    let middle: Vec<_> = (30..66).map(|x| px(x, 36).to_vec()).collect();
+    assert!(middle.iter().any(|p| p != &SKY.to_vec()), "nothing in the middle of the frame");
+    let coverage = image.coverage(SKY);
+    assert!(coverage > 0.2 && coverage < 0.95, "coverage {coverage}");
+    let path = std::env::temp_dir().join(format!("mirror-frame-{}.png", std::process::id()));
+    image.save_png(&path).unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n");
+    std::fs::remove_file(&path).unwrap();
+}
