@@ -10,8 +10,8 @@ use clap::{Args, Subcommand};
 use robots::Robot;
 use sim2real::config::MirrorConfig;
 use sim2real::host::MirrorHost;
-use sim2real::render::CameraSpec;
 use sim2real::mirror::Mirror;
+use sim2real::render::CameraSpec;
 use sim2real::serve::ServedMirror;
 
 /// The mirrored MuJoCo simulator.
@@ -59,7 +59,9 @@ pub struct StandArgs {
 }
 
 fn parse_size(s: &str) -> Result<(u32, u32), String> {
-    let (w, h) = s.split_once('x').ok_or_else(|| format!("'{s}': expected WIDTHxHEIGHT, e.g. 480x360"))?;
+    let (w, h) = s
+        .split_once('x')
+        .ok_or_else(|| format!("'{s}': expected WIDTHxHEIGHT, e.g. 480x360"))?;
     let parse = |v: &str| v.parse::<u32>().ok().filter(|v| (16..=4096).contains(v));
     match (parse(w), parse(h)) {
         (Some(w), Some(h)) => Ok((w, h)),
@@ -122,7 +124,8 @@ fn stand(args: &StandArgs) -> Result<()> {
     }
     let robot = Robot::load(&args.robot)?;
     let config = mirror_config(args.mirror.as_deref(), args.gantry)?;
-    let mut host = MirrorHost::start(robot.clone(), config).context("cannot start the mirror and its drivers")?;
+    let mut host =
+        MirrorHost::start(robot.clone(), config).context("cannot start the mirror and its drivers")?;
     if let Some(dir) = &args.frames {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
@@ -148,15 +151,24 @@ fn stand(args: &StandArgs) -> Result<()> {
         if let Some(dir) = &args.frames
             && k % frame_every == 0
         {
-            let image = host.world.lock().unwrap_or_else(std::sync::PoisonError::into_inner).render(&camera);
+            let image = host
+                .world
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .render(&camera);
             let path = dir.join(format!("frame_{frames:04}.png"));
-            image.save_png(&path).with_context(|| format!("cannot write {}", path.display()))?;
+            image
+                .save_png(&path)
+                .with_context(|| format!("cannot write {}", path.display()))?;
             frames += 1;
         }
         bar.inc(1);
     }
     bar.finish_and_clear();
-    let w = host.world.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    let w = host
+        .world
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
     let root = w.root_pose();
     let up = 1.0 - 2.0 * (root[4] * root[4] + root[5] * root[5]);
     println!(

@@ -309,3 +309,59 @@ fn sim_serve_names_a_broken_robot_file() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn sim_stand_applies_scheduled_faults_and_writes_frames() {
+    let root = test_support::fixtures::workspace_root();
+    let frames = std::env::temp_dir().join(format!("robodeploy-frames-{}", std::process::id()));
+    let out = robodeploy()
+        .args([
+            "sim",
+            "stand",
+            "--seconds",
+            "2.5",
+            "--fps",
+            "2",
+            "--size",
+            "64x48",
+            "--mirror",
+        ])
+        .arg(root.join("sim2real/configs/randomized-with-faults.toml"))
+        .arg("--frames")
+        .arg(&frames)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.contains("2 faults applied"), "{stdout}");
+    assert!(stdout.contains("5 frames in"), "{stdout}");
+    let png = std::fs::read(frames.join("frame_0004.png")).unwrap();
+    assert_eq!(&png[1..4], b"PNG");
+    std::fs::remove_dir_all(&frames).unwrap();
+}
+
+#[test]
+fn sim_stand_names_a_broken_mirror_file() {
+    let path = std::env::temp_dir().join(format!("robodeploy-mirror-{}.toml", std::process::id()));
+    std::fs::write(
+        &path,
+        "seed = 1\n[[faults]]\nat_s = 1.0\njoint = \"left_elbow\"\nfault = { kind = \"explode\" }\n",
+    )
+    .unwrap();
+    let out = robodeploy()
+        .args(["sim", "stand", "--mirror"])
+        .arg(&path)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains(&path.display().to_string()) && stderr.contains("explode"),
+        "{stderr}"
+    );
+    std::fs::remove_file(&path).unwrap();
+}

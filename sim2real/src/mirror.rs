@@ -50,6 +50,8 @@ struct MirrorJoint {
     gear: f64,
     zero_offset: f64,
     strength: f64,
+    /// A `<position>` actuator of the model driving this joint: it gets the firmware's goal.
+    actuator: Option<usize>,
 }
 
 /// The actuator-side view of a joint that firmware reads and drives.
@@ -58,6 +60,8 @@ struct ActuatorPlant {
     q: f64,
     qd: f64,
     torque: f64,
+    /// The firmware's position goal (actuator frame), for models with position actuators.
+    goal: Option<f64>,
 }
 
 impl MotorPlant for ActuatorPlant {
@@ -182,6 +186,13 @@ impl Mirror {
             let id = find(&model, MjtObjBase::mjOBJ_JOINT, &j.mjcf_joint).ok_or_else(|| {
                 MirrorError::Robot(format!("joint {:?} is not in the compiled model", j.mjcf_joint))
             })?;
+            // A position servo in the model: joint transmission, gain = -bias (kp), no velocity bias.
+            let actuator = (0..model.ffi().nu as usize).find(|&a| {
+                model.actuator_trntype()[a] == MjtTrn::mjTRN_JOINT
+                    && model.actuator_trnid()[a][0] == id as i32
+                    && model.actuator_biasprm()[a][1] < 0.0
+                    && (model.actuator_gainprm()[a][0] + model.actuator_biasprm()[a][1]).abs() < 1e-9
+            });
             joints.push(MirrorJoint {
                 qpos: model.jnt_qposadr()[id] as usize,
                 dof: model.jnt_dofadr()[id] as usize,
@@ -189,6 +200,7 @@ impl Mirror {
                 gear: j.gear,
                 zero_offset: j.zero_offset,
                 strength: draw(rnd.strength_scale),
+                actuator,
             });
         }
         for j in &joints {
@@ -396,6 +408,11 @@ impl Mirror {
         self.stats
     }
 
+    /// Policy joints driven through the model's own position actuators.
+    pub fn position_actuated_joints(&self) -> usize {
+        self.joints.iter().filter(|j| j.actuator.is_some()).count()
+    }
+
     /// Joint angles in policy order, rad (ground truth, for tests and validation).
     pub fn joint_positions(&self) -> impl Iterator<Item = f64> + '_ {
         self.joints.iter().map(|j| self.data.qpos()[j.qpos])
@@ -455,11 +472,13 @@ impl Mirror {
             for m in &mut line.motors {
                 m.firmware
                     .tick(t, self.firmware_period, &mut self.plants[m.joint]);
+                self.plants[m.joint].goal = m.firmware.position_goal();
             }
         }
         for line in &mut self.dxl {
             for (servo, &j) in line.wire.chain_mut().servos_mut().iter_mut().zip(&line.joints) {
                 servo.tick(t, &mut self.plants[j]);
+                self.plants[j].goal = servo.position_goal();
             }
         }
         self.stats.firmware_ticks += 1;
@@ -468,8 +487,17 @@ impl Mirror {
     fn step_physics(&mut self) {
         // Torques (or position goals) from the firmware's last period.
         for (j, p) in self.joints.iter().zip(&self.plants) {
-            let tau = j.direction * j.gear * p.torque * j.strength;
-            self.data.qfrc_applied_mut()[j.dof] = tau;
+            match j.actuator {
+                Some(a) => {
+                    // The model's own servo tracks the firmware's goal; with no goal (torque
+                    // off) it holds where the joint is, as a position actuator cannot go limp.
+                    let q = self.data.qpos()[j.qpos];
+                    let goal = p.goal.map_or(q, |g| (g - j.zero_offset) / (j.direction * j.gear));
+                    self.data.ctrl_mut()[a] = goal;
+                    self.data.qfrc_applied_mut()[j.dof] = 0.0;
+                }
+                None => self.data.qfrc_applied_mut()[j.dof] = j.direction * j.gear * p.torque * j.strength,
+            }
         }
         if let Some(g) = self.gantry {
             self.hold_on_gantry(g);

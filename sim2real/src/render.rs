@@ -91,7 +91,12 @@ pub fn render<M: ModelType>(data: &mut MjData<M>, camera: &CameraSpec, target: [
     let half_w = half_h * f64::from(camera.width) / f64::from(camera.height);
     let mut rgb = Vec::with_capacity((camera.width * camera.height * 3) as usize);
     let rgba: Vec<[f32; 4]> = data.model().geom_rgba().to_vec();
-    let planes: Vec<bool> = data.model().geom_type().iter().map(|t| *t == mujoco_rs::mujoco_c::_mjtGeomBase::mjGEOM_PLANE).collect();
+    let planes: Vec<bool> = data
+        .model()
+        .geom_type()
+        .iter()
+        .map(|t| *t == mujoco_rs::mujoco_c::_mjtGeomBase::mjGEOM_PLANE)
+        .collect();
     for y in 0..camera.height {
         for x in 0..camera.width {
             let u = (2.0 * (f64::from(x) + 0.5) / f64::from(camera.width) - 1.0) * half_w;
@@ -107,10 +112,18 @@ pub fn render<M: ModelType>(data: &mut MjData<M>, camera: &CameraSpec, target: [
                 rgb.extend_from_slice(&SKY);
                 continue;
             };
-            let hit = [eye[0] + dist * dir[0], eye[1] + dist * dir[1], eye[2] + dist * dir[2]];
+            let hit = [
+                eye[0] + dist * dir[0],
+                eye[1] + dist * dir[1],
+                eye[2] + dist * dir[2],
+            ];
             let lit = dot(normal, light).max(0.0);
             // Shadow: anything between the hit point and the light.
-            let start = [hit[0] + 1e-4 * normal[0], hit[1] + 1e-4 * normal[1], hit[2] + 1e-4 * normal[2]];
+            let start = [
+                hit[0] + 1e-4 * normal[0],
+                hit[1] + 1e-4 * normal[1],
+                hit[2] + 1e-4 * normal[2],
+            ];
             let (blocker, _) = data.ray(&start, &light, None, true, None, None);
             let shade = 0.35 + 0.65 * if blocker.is_some() { 0.3 * lit } else { lit };
             let c = rgba[g];
@@ -132,7 +145,11 @@ pub fn render<M: ModelType>(data: &mut MjData<M>, camera: &CameraSpec, target: [
 }
 
 fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
 }
 
 fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {

@@ -189,7 +189,10 @@ fn a_rendered_frame_shows_the_robot_against_floor_and_sky() {
     assert_eq!(px(2, 1), SKY);
     assert_ne!(px(48, 70), SKY);
     let middle: Vec<_> = (30..66).map(|x| px(x, 36).to_vec()).collect();
-    assert!(middle.iter().any(|p| p != &SKY.to_vec()), "nothing in the middle of the frame");
+    assert!(
+        middle.iter().any(|p| p != &SKY.to_vec()),
+        "nothing in the middle of the frame"
+    );
     let coverage = image.coverage(SKY);
     assert!(coverage > 0.2 && coverage < 0.95, "coverage {coverage}");
     let path = std::env::temp_dir().join(format!("mirror-frame-{}.png", std::process::id()));
@@ -197,4 +200,58 @@ fn a_rendered_frame_shows_the_robot_against_floor_and_sky() {
     let bytes = std::fs::read(&path).unwrap();
     assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n");
     std::fs::remove_file(&path).unwrap();
+}
+
+#[test]
+fn models_with_their_own_position_actuators_track_the_firmware_goals() {
+    let base = Robot::load(&reference_robot_path()).unwrap();
+    let dir = std::env::temp_dir().join(format!("mirror-position-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let servos: String = base
+        .config
+        .joints
+        .iter()
+        .map(|j| {
+            format!(
+                "    <position joint=\"{}\" kp=\"{}\" kv=\"{}\"/>\n",
+                j.mjcf_joint, j.kp, j.kd
+            )
+        })
+        .collect();
+    let xml = std::fs::read_to_string(&base.mjcf_path).unwrap().replace(
+        "  <sensor>",
+        &format!("  <actuator>\n{servos}  </actuator>\n  <sensor>"),
+    );
+    std::fs::write(dir.join("biped.xml"), xml).unwrap();
+    let text = std::fs::read_to_string(reference_robot_path()).unwrap();
+    let robot = Robot::from_str(&dir.join("robot.toml"), &text).unwrap();
+    let mut h = Host {
+        inner: MirrorHost::start(
+            robot.clone(),
+            MirrorConfig {
+                gantry: true,
+                ..MirrorConfig::default()
+            },
+        )
+        .unwrap(),
+        default_pose: robot.config.joints.iter().map(|j| j.default_position).collect(),
+        robot,
+    };
+    assert_eq!(h.inner.world.lock().unwrap().position_actuated_joints(), 20);
+    h.run(2.0);
+    let w = h.inner.world.lock().unwrap();
+    let ctrl = w.data().ctrl();
+    for (k, (q, j)) in w.joint_positions().zip(&h.robot.config.joints).enumerate() {
+        // The model's servo got the firmware's goal (the default pose, through the bus).
+        assert!(
+            (ctrl[k] - j.default_position).abs() < 2e-3,
+            "{}: ctrl {}",
+            j.name,
+            ctrl[k]
+        );
+        assert!((q - j.default_position).abs() < 0.1, "{}: {q:.3}", j.name);
+    }
+    assert!(w.data().qfrc_applied().iter().all(|&f| f == 0.0));
+    drop(w);
+    std::fs::remove_dir_all(&dir).unwrap();
 }

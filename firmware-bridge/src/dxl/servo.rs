@@ -218,6 +218,24 @@ impl XSeriesServo {
         self.table[usize::from(addr::TORQUE_ENABLE)] == 1
     }
 
+    /// The shaft angle (rad, plant frame) Goal Position asks for, while torque is on in a
+    /// position mode: what a simulator's position actuator should track instead of the torque.
+    pub fn position_goal(&self) -> Option<f64> {
+        if !self.torque_enabled() || !matches!(self.reg(addr::OPERATING_MODE), 3..=5) {
+            return None;
+        }
+        let reverse = if self.table[usize::from(addr::DRIVE_MODE)] & 1 == 1 {
+            -1.0
+        } else {
+            1.0
+        };
+        let ticks = self.reg(addr::GOAL_POSITION)
+            - self.reg(addr::HOMING_OFFSET)
+            - self.multi_turn_base
+            - i64::from(self.config.mount_offset_ticks);
+        Some(reverse * ticks as f64 * models::rad_per_tick())
+    }
+
     /// Hardware Error Status (address 70).
     pub fn hardware_error(&self) -> u8 {
         self.table[usize::from(addr::HARDWARE_ERROR_STATUS)]

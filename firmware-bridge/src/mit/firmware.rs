@@ -95,6 +95,12 @@ impl MitMotorFirmware {
         }
     }
 
+    /// The shaft angle the motor is holding towards (rad, plant frame), while enabled with
+    /// stiffness: what a simulator's position actuator should track instead of the PD torque.
+    pub fn position_goal(&self) -> Option<f64> {
+        (self.enabled && self.command.kp > 0.0).then_some(self.command.p + self.zero)
+    }
+
     /// The configuration.
     pub fn config(&self) -> &MitFirmwareConfig {
         &self.cfg
