@@ -66,7 +66,7 @@ impl Image {
     /// Fraction of pixels that differ from the background colour of the sky.
     pub fn coverage(&self, sky: [u8; 3]) -> f64 {
         let px = self.rgb.chunks_exact(3).filter(|p| *p != sky).count();
-        px as f64 / (self.width as f64 * self.height as f64)
+        px as f64 / (f64::from(self.width) * f64::from(self.height))
     }
 }
 
@@ -132,8 +132,8 @@ pub fn render<M: ModelType>(data: &mut MjData<M>, camera: &CameraSpec, target: [
             } else {
                 1.0
             };
-            for k in 0..3 {
-                rgb.push((f64::from(c[k]) * shade * checker * 255.0).clamp(0.0, 255.0) as u8);
+            for channel in &c[..3] {
+                rgb.push((f64::from(*channel) * shade * checker * 255.0).clamp(0.0, 255.0) as u8);
             }
         }
     }
