@@ -104,7 +104,7 @@ fn a_missing_mesh_and_a_broken_mjcf_are_named() {
 
 #[test]
 fn type_errors_and_unknown_fields_name_the_line() {
-    let text = reference_text().replacen("kp = 40.0", "kp = \"stiff\"", 1);
+    let text = reference_text().replacen("kp = 60.0", "kp = \"stiff\"", 1);
     expect_error(&text, &["line ", "invalid type"]);
     let text = reference_text().replacen("zero_offset = 0.0", "zero_ofset = 0.0", 1);
     expect_error(&text, &["unknown field `zero_ofset`"]);
