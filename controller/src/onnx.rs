@@ -8,9 +8,11 @@ use std::sync::OnceLock;
 use ort::environment::Environment;
 use ort::session::Session;
 use ort::session::builder::GraphOptimizationLevel;
-use ort::value::{TensorElementType, TensorRef, ValueType};
+use ort::value::{TensorElementType, ValueType};
 
 use crate::native;
+
+mod bound;
 
 /// Why a policy model could not be loaded or run.
 #[derive(Debug, thiserror::Error)]
@@ -91,6 +93,7 @@ pub struct OnnxModel {
     output_name: String,
     input_len: usize,
     output_len: usize,
+    bound: bound::BoundTensors,
 }
 
 /// Length of a `[batch?, n]` or `[n]` float tensor, or why it is not one.
@@ -153,7 +156,14 @@ impl OnnxModel {
             vector_len(input.dtype()).map_err(|w| signature(format!("input '{}' {w}", input.name())))?;
         let output_len =
             vector_len(output.dtype()).map_err(|w| signature(format!("output '{}' {w}", output.name())))?;
+        let bound = bound::BoundTensors::new(input.name(), input_len, output.name(), output_len).map_err(
+            |reason| OnnxError::Load {
+                path: path.to_path_buf(),
+                reason,
+            },
+        )?;
         Ok(Self {
+            bound,
             input_name: input.name().to_owned(),
             output_name: output.name().to_owned(),
             input_len,
@@ -178,7 +188,8 @@ impl OnnxModel {
         (&self.output_name, self.output_len)
     }
 
-    /// Runs one inference: `obs` in, `actions` out (both sized to the model).
+    /// Runs one inference: `obs` in, `actions` out (both sized to the model). Allocates nothing:
+    /// the tensors are bound to buffers made at load time.
     pub fn run(&mut self, obs: &[f32], actions: &mut [f32]) -> Result<(), OnnxError> {
         let check = |what, expected, actual| {
             if expected == actual {
@@ -193,17 +204,8 @@ impl OnnxModel {
         };
         check("observation", self.input_len, obs.len())?;
         check("action", self.output_len, actions.len())?;
-        let run_err = |e: ort::Error| OnnxError::Run(e.to_string());
-        let input = TensorRef::from_array_view(([1usize, self.input_len], obs)).map_err(run_err)?;
-        let outputs = self
-            .session
-            .run(ort::inputs![self.input_name.as_str() => input])
-            .map_err(run_err)?;
-        let (_, values) = outputs[self.output_name.as_str()]
-            .try_extract_tensor::<f32>()
-            .map_err(run_err)?;
-        check("action", values.len(), actions.len())?;
-        actions.copy_from_slice(values);
-        Ok(())
+        self.bound
+            .run(&mut self.session, obs, actions)
+            .map_err(OnnxError::Run)
     }
 }

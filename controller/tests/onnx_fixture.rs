@@ -1,6 +1,9 @@
 //! The fixture policy runs through ort + the pinned ONNX Runtime and agrees with ONNX Runtime's
 //! Python API, which produced the reference outputs beside the model (scripts/gen_onnx_fixtures.py).
 
+#[global_allocator]
+static ALLOC: test_support::alloc::CountingAllocator = test_support::alloc::CountingAllocator;
+
 use controller::onnx::{OnnxError, OnnxModel};
 
 #[derive(serde::Deserialize)]
@@ -85,4 +88,20 @@ fn missing_and_corrupt_models_name_the_file() {
     let err = OnnxModel::load(&garbage).unwrap_err();
     assert!(matches!(err, OnnxError::Load { .. }), "{err}");
     assert!(err.to_string().contains(&garbage.display().to_string()), "{err}");
+}
+
+#[test]
+fn inference_allocates_nothing_after_the_first_run() {
+    use test_support::alloc::count_allocations;
+    let mut model = OnnxModel::load(&test_support::fixtures::fixture("mlp_obs96_act20.onnx")).unwrap();
+    let obs = vec![0.1f32; 96];
+    let mut actions = vec![0.0f32; 20];
+    model.run(&obs, &mut actions).unwrap();
+    let (_, stats) = count_allocations(|| {
+        for _ in 0..50 {
+            model.run(&obs, &mut actions).unwrap();
+        }
+    });
+    assert!(stats.is_zero(), "{stats:?}");
+    assert!(actions.iter().all(|a| a.is_finite()));
 }
