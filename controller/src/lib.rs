@@ -1,5 +1,8 @@
 //! The realtime controller: the loop that reads the robot, builds the policy's observation, runs the
 //! ONNX policy, limits its commands and writes them to the buses.
 
+pub mod clip;
 pub mod native;
 pub mod onnx;
+pub mod policy;
+pub mod robot_io;
