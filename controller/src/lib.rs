@@ -4,5 +4,8 @@
 pub mod clip;
 pub mod native;
 pub mod onnx;
+pub mod player;
 pub mod policy;
 pub mod robot_io;
+pub mod safety;
+pub mod sim;

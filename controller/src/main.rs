@@ -7,6 +7,7 @@ use clap::{Parser, Subcommand};
 
 mod cli_can;
 mod cli_dxl;
+mod cli_play;
 mod cli_sim;
 
 /// Run motion-tracking policies on a real robot, or on its mirrored MuJoCo simulator.
@@ -29,6 +30,18 @@ enum Command {
     /// Dynamixel serial bus tools: emulated X-series servos on a pseudo-terminal, and bus scans.
     #[command(subcommand)]
     Dxl(cli_dxl::DxlCommand),
+    /// Play a clip through a policy: on the mirrored robot (default, lockstep), in real time over
+    /// real wires (--wall), or on the hardware (--hardware).
+    ///
+    /// The loop reads every bus and the IMU, builds the observation the policy manifest declares,
+    /// runs the ONNX policy, maps actions to joint targets, passes them through the safety governor
+    /// (position limits with margin, speed limits, torque bounds) and writes them. The state machine
+    /// goes Off → Ready → SoftStart → Running → Stopping → Damped → Off; faults (stale feedback,
+    /// device faults, NaN, tilt, overruns) and SIGINT/SIGTERM take the short way to Damped.
+    Play(cli_play::PlayArgs),
+    /// Validate a robot, a policy manifest with its ONNX file, and a clip, moving nothing: prints
+    /// the resolved observation layout and the clip's length, or the first problem with its place.
+    Check(cli_play::CheckArgs),
     /// The mirrored simulator: a robot's MuJoCo model behind emulated firmware on its buses.
     #[command(subcommand)]
     Sim(cli_sim::SimCommand),
@@ -58,6 +71,8 @@ fn main() -> Result<()> {
         Command::Can(cmd) => cli_can::run(cmd),
         Command::Dxl(cmd) => cli_dxl::run(cmd),
         Command::Sim(cmd) => cli_sim::run(cmd),
+        Command::Play(args) => cli_play::play(&args),
+        Command::Check(args) => cli_play::check(&args),
     }
 }
 

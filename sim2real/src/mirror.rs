@@ -140,6 +140,8 @@ pub struct Mirror {
     imu: Imu,
     gantry: Option<Gantry>,
     root_qpos: usize,
+    root_dof: usize,
+    feet: Vec<usize>,
     now: SimInstant,
     physics_dt: Duration,
     next_physics: SimInstant,
@@ -228,6 +230,16 @@ impl Mirror {
             )));
         }
         let root_qpos = model.jnt_qposadr()[root_joint as usize] as usize;
+        let root_dof = model.jnt_dofadr()[root_joint as usize] as usize;
+        let feet = robot
+            .config
+            .feet
+            .iter()
+            .map(|f| {
+                find(&model, MjtObjBase::mjOBJ_BODY, f)
+                    .ok_or_else(|| MirrorError::Robot(format!("foot body {f:?} is not in the model")))
+            })
+            .collect::<Result<Vec<_>, _>>()?;
 
         // Devices on every bus.
         let mut can = Vec::new();
@@ -336,6 +348,8 @@ impl Mirror {
             imu,
             gantry: None,
             root_qpos,
+            root_dof,
+            feet,
             now: SimInstant::ZERO,
             physics_dt,
             next_physics: SimInstant::ZERO,
@@ -422,6 +436,33 @@ impl Mirror {
     pub fn root_pose(&self) -> [f64; 7] {
         let q = self.data.qpos();
         std::array::from_fn(|i| q[self.root_qpos + i])
+    }
+
+    /// Ground truth a state estimator would provide: root pose `[x, y, z, w, qx, qy, qz]`, root
+    /// linear velocity in the base frame, and whether each foot (robot.toml order) touches anything.
+    pub fn ground_truth(&self, root_pose: &mut [f64; 7], base_lin_vel: &mut [f64; 3], feet: &mut [bool]) {
+        *root_pose = self.root_pose();
+        let v = self.data.qvel();
+        // The free joint's linear velocity is in the world frame; rotate it into the base.
+        let dof = self.root_dof;
+        let world = [v[dof], v[dof + 1], v[dof + 2]];
+        let q = [root_pose[3], -root_pose[4], -root_pose[5], -root_pose[6]];
+        *base_lin_vel = rotate(q, world);
+        feet.fill(false);
+        let model = self.data.model();
+        for c in self.data.contact() {
+            for g in c.geom {
+                if g < 0 {
+                    continue;
+                }
+                let body = model.geom_bodyid()[g as usize];
+                if let Some(k) = self.feet.iter().position(|&f| f as i32 == body) {
+                    if k < feet.len() {
+                        feet[k] = true;
+                    }
+                }
+            }
+        }
     }
 
     /// CAN bus `name` of the mirror.

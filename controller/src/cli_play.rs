@@ -1,0 +1,192 @@
+//! `robodeploy play` and `robodeploy check`: run a policy on a clip, or validate the three files.
+
+use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
+use std::sync::{Arc, Mutex};
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use robots::Robot;
+use sim2real::mirror::Mirror;
+
+use crate::cli_sim::load_mirror_config;
+use controller::clip::{Clip, Reference};
+use controller::onnx::OnnxModel;
+use controller::player::{EndMode, PlayOptions, PlaySummary, Player};
+use controller::policy::PolicyLayout;
+use controller::sim::{LockstepClock, ServedClock, lockstep_robot, serve_locally, wired_robot};
+
+/// Arguments of `play`.
+#[derive(Debug, Args)]
+pub struct PlayArgs {
+    #[command(flatten)]
+    files: Files,
+    /// Run on the robot's own buses (robot.toml devices) instead of the mirror.
+    #[arg(long, conflicts_with = "wall")]
+    hardware: bool,
+    /// Run the mirror in real time behind real wires (socketcand, pseudo-terminals) and connect
+    /// to it as to hardware.
+    #[arg(long)]
+    wall: bool,
+    /// Mirror settings (seed, gantry, randomisation, faults), TOML.
+    #[arg(long)]
+    mirror: Option<PathBuf>,
+    /// Hold the mirrored robot on a gantry.
+    #[arg(long)]
+    gantry: bool,
+    /// What to do when the clip ends.
+    #[arg(long, value_enum, default_value_t = EndMode::Hold)]
+    end: EndMode,
+    /// Seconds of the start-up ramp ψ (clip held at its first frame).
+    #[arg(long, default_value_t = 1.5)]
+    ramp: f64,
+}
+
+/// Arguments of `check`.
+#[derive(Debug, Args)]
+pub struct CheckArgs {
+    #[command(flatten)]
+    files: Files,
+}
+
+#[derive(Debug, Args)]
+struct Files {
+    /// The robot description.
+    #[arg(long, default_value_os_t = robots::reference_robot_path())]
+    robot: PathBuf,
+    /// The policy manifest (TOML beside its ONNX file).
+    #[arg(long, default_value_os_t = robots::reference_robot_path().with_file_name("policies/reference_follower.toml"))]
+    policy: PathBuf,
+    /// The clip (CSV: time, root pose, joint columns named as in robot.toml).
+    #[arg(long, default_value_os_t = robots::reference_robot_path().with_file_name("clips/squat.csv"))]
+    clip: PathBuf,
+}
+
+struct Loaded {
+    robot: Robot,
+    layout: PolicyLayout,
+    reference: Reference,
+    clip: Clip,
+}
+
+fn load(files: &Files) -> Result<Loaded> {
+    let robot = Robot::load(&files.robot)?;
+    let layout = PolicyLayout::load(&files.policy, &robot)?;
+    let model = OnnxModel::load(&layout.onnx_path)?;
+    layout.check_shapes(model.input().1, model.output().1)?;
+    let clip = Clip::load(&files.clip)?;
+    let reference = Reference::from_clip(&clip, &robot, layout.manifest.rate_hz)?;
+    Ok(Loaded {
+        robot,
+        layout,
+        reference,
+        clip,
+    })
+}
+
+/// Runs `check`.
+pub fn check(args: &CheckArgs) -> Result<()> {
+    let l = load(&args.files)?;
+    println!(
+        "robot  {} ({} joints) — {}",
+        l.robot.config.name,
+        l.robot.config.joints.len(),
+        l.robot.path.display()
+    );
+    println!("policy {}", l.layout.path.display());
+    println!(
+        "       {}",
+        l.layout
+            .manifest
+            .description
+            .split_whitespace()
+            .collect::<Vec<_>>()
+            .join(" ")
+    );
+    println!(
+        "       {} Hz, {:?} actions, observation of {} values:",
+        l.layout.manifest.rate_hz, l.layout.manifest.action.kind, l.layout.obs_len
+    );
+    print!("{}", l.layout.describe());
+    if l.layout.needs_ground_truth() {
+        println!(
+            "       note: some terms need simulation ground truth; on hardware they need a state estimator"
+        );
+    }
+    println!(
+        "clip   {}: {:.2} s at {} frames → {} ticks at {} Hz, within every joint and speed limit",
+        l.clip.path.display(),
+        l.clip.duration(),
+        l.clip.times.len(),
+        l.reference.len(),
+        l.reference.rate_hz
+    );
+    if !l.reference.held_joints.is_empty() {
+        println!(
+            "       joints not in the clip, held at the default pose: {}",
+            l.reference.held_joints.join(", ")
+        );
+    }
+    println!("ok: nothing moved");
+    Ok(())
+}
+
+/// Runs `play`.
+pub fn play(args: &PlayArgs) -> Result<()> {
+    let l = load(&args.files)?;
+    if !(args.ramp.is_finite() && args.ramp >= 0.0) {
+        bail!("--ramp {} is not a duration", args.ramp);
+    }
+    let options = PlayOptions {
+        ramp_s: args.ramp,
+        end: args.end,
+        ..PlayOptions::default()
+    };
+    let stop = Arc::new(AtomicBool::new(false));
+    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(signal, Arc::clone(&stop))
+            .context("cannot install the stop signal handlers")?;
+    }
+    if args.hardware {
+        bail!(
+            "--hardware: this build talks to hardware through the same drivers, but opening the robot's \
+             SocketCAN interfaces and serial devices from robot.toml is not wired into `play` yet; \
+             use `--wall` to run the mirror over real wires"
+        );
+    }
+    let mut config = match &args.mirror {
+        Some(p) => load_mirror_config(p)?,
+        None => sim2real::config::MirrorConfig::default(),
+    };
+    config.gantry |= args.gantry;
+    if l.layout.needs_ground_truth() {
+        eprintln!("note: the policy reads simulation ground truth (no state estimator yet)");
+    }
+    let mirror = Mirror::new(l.robot.clone(), config).context("cannot build the mirror")?;
+    println!(
+        "{}: {} ({} ticks) on the mirror{}",
+        l.robot.config.name,
+        l.clip.path.display(),
+        l.reference.len(),
+        if args.wall {
+            " in real time over socketcand and pseudo-terminals"
+        } else {
+            " in lockstep"
+        }
+    );
+    let summary: PlaySummary = if args.wall {
+        let served = serve_locally(mirror).context("cannot serve the mirror")?;
+        let io = wired_robot(&l.robot, &served)?;
+        let mut clock = ServedClock::new(Arc::clone(&served.world));
+        let mut player = Player::new(l.robot, l.layout, l.reference, options, io, stop)?;
+        player.run(&mut clock)?
+    } else {
+        let world = Arc::new(Mutex::new(mirror));
+        let io = lockstep_robot(&l.robot, &world)?;
+        let mut clock = LockstepClock::new(Arc::clone(&world));
+        let mut player = Player::new(l.robot, l.layout, l.reference, options, io, stop)?;
+        player.run(&mut clock)?
+    };
+    print!("{summary}");
+    Ok(())
+}

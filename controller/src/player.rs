@@ -1,0 +1,876 @@
+//! The control loop: read → estimate → observe → infer → act → limit → write, once per policy tick,
+//! under the state machine of [`crate::safety`]. Every buffer is sized before the first tick; a
+//! steady-state tick allocates nothing.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use firmware_bridge::can::CanBus;
+use firmware_bridge::dxl::transport::DxlTransport;
+use firmware_bridge::serial::ByteStream;
+use robots::Robot;
+
+use crate::clip::Reference;
+use crate::onnx::OnnxModel;
+use crate::policy::{
+    ActionKind, GroundTruth, ObsInputs, ObservationBuilder, PolicyLayout, ReferenceView, Term,
+};
+use crate::robot_io::{BusRobot, IoError, JointTarget, RobotState};
+use crate::safety::{Cause, Mode, SafetyLimits, Transition, govern_position, govern_torque, tilt_of};
+
+/// What happens when the clip ends.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum EndMode {
+    /// Hold the last frame for a moment, then stop.
+    #[default]
+    Hold,
+    /// Blend back to the default pose, then stop.
+    Blend,
+    /// Start the clip again (until stopped).
+    Loop,
+}
+
+/// How a run goes.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PlayOptions {
+    /// Soft start: time to reach the default pose, s.
+    pub soft_start_s: f64,
+    /// Soft start gain factor.
+    pub soft_start_gain: f64,
+    /// ψ ramp with the clip held at its first frame, s.
+    pub ramp_s: f64,
+    /// What happens at the end of the clip.
+    pub end: EndMode,
+    /// End hold or blend time, s.
+    pub end_s: f64,
+    /// Damping time before torque off, s.
+    pub damping_s: f64,
+    /// Safety thresholds.
+    pub limits: SafetyLimits,
+    /// Stop after this many ticks in any case (loops, tests).
+    pub max_ticks: Option<u64>,
+}
+
+impl Default for PlayOptions {
+    fn default() -> Self {
+        Self {
+            soft_start_s: 1.0,
+            soft_start_gain: 0.3,
+            ramp_s: 1.5,
+            end: EndMode::Hold,
+            end_s: 0.5,
+            damping_s: 0.5,
+            limits: SafetyLimits::default(),
+            max_ticks: None,
+        }
+    }
+}
+
+/// A histogram of durations in 10 µs bins up to 40 ms, preallocated.
+#[derive(Debug, Clone)]
+pub struct Histogram {
+    bins: Vec<u32>,
+    count: u64,
+    max: Duration,
+}
+
+const BIN: Duration = Duration::from_micros(10);
+
+impl Default for Histogram {
+    fn default() -> Self {
+        Self {
+            bins: vec![0; 4000],
+            count: 0,
+            max: Duration::ZERO,
+        }
+    }
+}
+
+impl Histogram {
+    /// Adds a sample (no allocation).
+    pub fn record(&mut self, d: Duration) {
+        let i = ((d.as_nanos() / BIN.as_nanos()) as usize).min(self.bins.len() - 1);
+        self.bins[i] += 1;
+        self.count += 1;
+        self.max = self.max.max(d);
+    }
+
+    /// The `p`-quantile (upper edge of its bin).
+    pub fn quantile(&self, p: f64) -> Duration {
+        let want = (p * self.count as f64).ceil().max(1.0) as u64;
+        let mut seen = 0u64;
+        for (i, &c) in self.bins.iter().enumerate() {
+            seen += u64::from(c);
+            if seen >= want {
+                return BIN * (i as u32 + 1);
+            }
+        }
+        self.max
+    }
+
+    /// Largest sample.
+    pub fn max(&self) -> Duration {
+        self.max
+    }
+
+    /// Samples.
+    pub fn count(&self) -> u64 {
+        self.count
+    }
+}
+
+impl std::fmt::Display for Histogram {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "p50 {:.0} µs, p99 {:.0} µs, max {:.0} µs over {} ticks",
+            self.quantile(0.5).as_secs_f64() * 1e6,
+            self.quantile(0.99).as_secs_f64() * 1e6,
+            self.max.as_secs_f64() * 1e6,
+            self.count
+        )
+    }
+}
+
+/// What a run did.
+#[derive(Debug, Clone)]
+pub struct PlaySummary {
+    /// Ticks run.
+    pub ticks: u64,
+    /// Simulated or wall seconds covered.
+    pub duration_s: f64,
+    /// Ticks that missed their deadline (wall clock only).
+    pub overruns: u64,
+    /// Joint tracking RMSE over the clip, rad.
+    pub joint_rmse: f64,
+    /// Root position RMSE over the clip, m (when the root is known: simulation).
+    pub root_rmse: Option<f64>,
+    /// Whether the robot fell (tilt beyond the limit).
+    pub fell: bool,
+    /// The state machine's course.
+    pub transitions: Vec<Transition>,
+    /// Per-tick compute time (observe, infer, limit).
+    pub compute: Histogram,
+    /// Per-tick bus time (read + write).
+    pub io: Histogram,
+}
+
+impl std::fmt::Display for PlaySummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(
+            f,
+            "ran {} ticks ({:.2} s), {} overruns",
+            self.ticks, self.duration_s, self.overruns
+        )?;
+        writeln!(f, "joint tracking RMSE: {:.2}°", self.joint_rmse.to_degrees())?;
+        if let Some(r) = self.root_rmse {
+            writeln!(f, "root position RMSE:  {:.1} cm", r * 100.0)?;
+        }
+        writeln!(f, "fell: {}", if self.fell { "YES" } else { "no" })?;
+        writeln!(f, "compute per tick: {}", self.compute)?;
+        writeln!(f, "bus I/O per tick: {}", self.io)?;
+        writeln!(f, "state machine:")?;
+        for t in &self.transitions {
+            writeln!(f, "  tick {:>5}: {:?} → {:?} ({})", t.tick, t.from, t.to, t.cause)?;
+        }
+        Ok(())
+    }
+}
+
+/// How the loop waits for the next tick and what ground truth it can see.
+pub trait TickClock {
+    /// Seconds since the run started.
+    fn elapsed(&self) -> Duration;
+    /// Waits until `deadline` (since the start); returns whether the deadline had already passed.
+    fn wait_until(&mut self, deadline: Duration) -> bool;
+    /// Simulation ground truth into `truth`, if this clock runs a simulation.
+    fn ground_truth(&self, truth: &mut GroundTruth) -> bool;
+}
+
+/// The wall clock (hardware, or a mirror served in real time).
+#[derive(Debug)]
+pub struct WallClock {
+    start: Instant,
+}
+
+impl WallClock {
+    /// Starts now.
+    pub fn start() -> Self {
+        Self {
+            start: Instant::now(),
+        }
+    }
+}
+
+impl TickClock for WallClock {
+    fn elapsed(&self) -> Duration {
+        self.start.elapsed()
+    }
+
+    fn wait_until(&mut self, deadline: Duration) -> bool {
+        let now = self.start.elapsed();
+        if now >= deadline {
+            return true;
+        }
+        // Sleep most of the way, then spin: the scheduler's wake-up slack is ~50–100 µs.
+        let spin = Duration::from_micros(200);
+        if deadline - now > spin {
+            std::thread::sleep(deadline - now - spin);
+        }
+        while self.start.elapsed() < deadline {
+            std::hint::spin_loop();
+        }
+        false
+    }
+
+    fn ground_truth(&self, _truth: &mut GroundTruth) -> bool {
+        false
+    }
+}
+
+/// The reference as the observation sees it at one tick.
+#[derive(Debug)]
+struct RefCursor {
+    /// Robot-order reference of the current tick (blended during ramps).
+    current_q: Vec<f64>,
+    current_qd: Vec<f64>,
+    /// Policy-order copies handed to the observation.
+    policy_q: Vec<Vec<f64>>,
+    policy_qd: Vec<Vec<f64>>,
+    root: Vec<[f64; 7]>,
+}
+
+impl ReferenceView for RefCursor {
+    fn joint_pos(&self, offset: usize) -> &[f64] {
+        &self.policy_q[offset.min(self.policy_q.len() - 1)]
+    }
+    fn joint_vel(&self, offset: usize) -> &[f64] {
+        &self.policy_qd[offset.min(self.policy_qd.len() - 1)]
+    }
+    fn root_pose(&self, offset: usize) -> [f64; 7] {
+        self.root[offset.min(self.root.len() - 1)]
+    }
+}
+
+/// The controller of one run.
+#[derive(Debug)]
+pub struct Player<C: CanBus, D: DxlTransport, S: ByteStream> {
+    robot: Robot,
+    layout: PolicyLayout,
+    model: OnnxModel,
+    obs_builder: ObservationBuilder,
+    reference: Reference,
+    options: PlayOptions,
+    io: BusRobot<C, D, S>,
+    stop: Arc<AtomicBool>,
+    dt: f64,
+    // State machine.
+    mode: Mode,
+    mode_ticks: u64,
+    tick: u64,
+    clip_tick: usize,
+    transitions: Vec<Transition>,
+    pending_cause: Option<Cause>,
+    // Buffers, robot order unless named policy_.
+    state: RobotState,
+    targets: Vec<JointTarget>,
+    start_pose: Vec<f64>,
+    default_q: Vec<f64>,
+    filtered: Vec<f64>,
+    cursor: RefCursor,
+    policy_q: Vec<f64>,
+    policy_qd: Vec<f64>,
+    policy_default: Vec<f64>,
+    policy_last_targets: Vec<f64>,
+    past_actions: Vec<f32>,
+    obs: Vec<f32>,
+    actions: Vec<f32>,
+    truth: GroundTruth,
+    // Metrics.
+    sq_joint_error: f64,
+    joint_samples: u64,
+    sq_root_error: f64,
+    root_samples: u64,
+    overruns: u64,
+    overrun_run: u32,
+    fell: bool,
+    compute: Histogram,
+    io_time: Histogram,
+}
+
+/// Why a run could not start or continue.
+#[derive(Debug, thiserror::Error)]
+pub enum PlayError {
+    /// The buses.
+    #[error(transparent)]
+    Io(#[from] IoError),
+    /// The policy.
+    #[error(transparent)]
+    Onnx(#[from] crate::onnx::OnnxError),
+    /// The policy manifest.
+    #[error(transparent)]
+    Policy(#[from] crate::policy::PolicyError),
+    /// Something else, described.
+    #[error("{0}")]
+    Setup(String),
+}
+
+const MAX_FRAMES_AHEAD: usize = 64;
+
+impl<C: CanBus, D: DxlTransport, S: ByteStream> Player<C, D, S> {
+    /// Prepares a run: checks the policy against its model, sizes every buffer.
+    pub fn new(
+        robot: Robot,
+        layout: PolicyLayout,
+        reference: Reference,
+        options: PlayOptions,
+        io: BusRobot<C, D, S>,
+        stop: Arc<AtomicBool>,
+    ) -> Result<Self, PlayError> {
+        let model = OnnxModel::load(&layout.onnx_path)?;
+        layout.check_shapes(model.input().1, model.output().1)?;
+        if (layout.manifest.rate_hz - reference.rate_hz).abs() > 1e-9 {
+            return Err(PlayError::Setup(format!(
+                "reference resampled at {} Hz for a {} Hz policy",
+                reference.rate_hz, layout.manifest.rate_hz
+            )));
+        }
+        let n = robot.config.joints.len();
+        let frames = layout
+            .slots
+            .iter()
+            .filter_map(|s| match &s.term {
+                Term::RefJointPos { frames, .. }
+                | Term::RefJointVel { frames, .. }
+                | Term::RefRootPose { frames, .. } => frames.iter().max().copied(),
+                _ => None,
+            })
+            .max()
+            .unwrap_or(0)
+            + 1;
+        if frames > MAX_FRAMES_AHEAD {
+            return Err(PlayError::Setup(format!(
+                "the policy looks {frames} frames ahead; at most {MAX_FRAMES_AHEAD}"
+            )));
+        }
+        let k_actions = layout
+            .slots
+            .iter()
+            .map(|s| match &s.term {
+                Term::LastActions { k, .. } => *k,
+                _ => 0,
+            })
+            .max()
+            .unwrap_or(0)
+            .max(1);
+        let default_q: Vec<f64> = robot.config.joints.iter().map(|j| j.default_position).collect();
+        let policy_default = layout.robot_index.iter().map(|&r| default_q[r]).collect();
+        let obs_builder = ObservationBuilder::new(&layout);
+        let obs_len = layout.obs_len;
+        Ok(Self {
+            dt: 1.0 / layout.manifest.rate_hz,
+            cursor: RefCursor {
+                current_q: default_q.clone(),
+                current_qd: vec![0.0; n],
+                policy_q: vec![vec![0.0; n]; frames],
+                policy_qd: vec![vec![0.0; n]; frames],
+                root: vec![[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]; frames],
+            },
+            obs_builder,
+            model,
+            options,
+            io,
+            stop,
+            mode: Mode::Off,
+            mode_ticks: 0,
+            tick: 0,
+            clip_tick: 0,
+            transitions: Vec::with_capacity(64),
+            pending_cause: None,
+            state: RobotState::new(n),
+            targets: vec![JointTarget::default(); n],
+            start_pose: default_q.clone(),
+            filtered: default_q.clone(),
+            policy_q: vec![0.0; n],
+            policy_qd: vec![0.0; n],
+            policy_default,
+            policy_last_targets: vec![0.0; n],
+            past_actions: vec![0.0; k_actions * n],
+            obs: vec![0.0; obs_len],
+            actions: vec![0.0; n],
+            truth: GroundTruth {
+                foot_contacts: vec![false; robot.config.feet.len()],
+                ..GroundTruth::default()
+            },
+            default_q,
+            sq_joint_error: 0.0,
+            joint_samples: 0,
+            sq_root_error: 0.0,
+            root_samples: 0,
+            overruns: 0,
+            overrun_run: 0,
+            fell: false,
+            compute: Histogram::default(),
+            io_time: Histogram::default(),
+            robot,
+            layout,
+            reference,
+        })
+    }
+
+    /// The current mode.
+    pub fn mode(&self) -> Mode {
+        self.mode
+    }
+
+    /// Transitions so far.
+    pub fn transitions(&self) -> &[Transition] {
+        &self.transitions
+    }
+
+    /// The last measured state (robot order).
+    pub fn state(&self) -> &RobotState {
+        &self.state
+    }
+
+    /// The last commanded targets (robot order).
+    pub fn targets(&self) -> &[JointTarget] {
+        &self.targets
+    }
+
+    /// Ticks run.
+    pub fn ticks(&self) -> u64 {
+        self.tick
+    }
+
+    fn go(&mut self, to: Mode, cause: Cause) {
+        if self.transitions.len() < self.transitions.capacity() {
+            self.transitions.push(Transition {
+                tick: self.tick,
+                from: self.mode,
+                to,
+                cause,
+            });
+        }
+        if cause.is_fault() {
+            tracing::warn!(tick = self.tick, from = ?self.mode, to = ?to, "{cause}");
+        } else {
+            tracing::info!(tick = self.tick, from = ?self.mode, to = ?to, "{cause}");
+        }
+        self.mode = to;
+        self.mode_ticks = 0;
+    }
+
+    /// Checks every device and goes to Ready.
+    pub fn identify(&mut self) -> Result<(), PlayError> {
+        self.io.identify()?;
+        self.io.read(&mut self.state)?;
+        self.go(Mode::Ready, Cause::DevicesIdentified);
+        Ok(())
+    }
+
+    /// Runs to the end (Off), waiting on `clock` between ticks.
+    pub fn run(&mut self, clock: &mut dyn TickClock) -> Result<PlaySummary, PlayError> {
+        if self.mode == Mode::Off {
+            self.identify()?;
+        }
+        let period = Duration::from_nanos((self.dt * 1e9).round() as u64);
+        let start = clock.elapsed();
+        while self.mode != Mode::Off {
+            self.step(clock)?;
+            let deadline = start + period * (self.tick as u32);
+            if clock.wait_until(deadline) {
+                self.overruns += 1;
+                self.overrun_run += 1;
+            } else {
+                self.overrun_run = 0;
+            }
+        }
+        Ok(self.summary(clock.elapsed() - start))
+    }
+
+    /// One tick: read, check, compute, write.
+    pub fn step(&mut self, clock: &dyn TickClock) -> Result<(), PlayError> {
+        let t0 = Instant::now();
+        let read = self.io.read(&mut self.state);
+        let t_read = t0.elapsed();
+        let has_truth = clock.ground_truth(&mut self.truth);
+        let c0 = Instant::now();
+        if let Err(e) = read {
+            self.fail(Cause::BusFailure);
+            self.finish_io(t_read, c0, Some(e))?;
+            return Ok(());
+        }
+        if let Some(cause) = self.check_state() {
+            self.fail(cause);
+        }
+        if has_truth
+            && tilt_of([
+                self.truth.root_pose[3],
+                self.truth.root_pose[4],
+                self.truth.root_pose[5],
+                self.truth.root_pose[6],
+            ]) > self.options.limits.tilt
+        {
+            self.fell = true;
+        }
+        self.advance(has_truth);
+        let compute = c0.elapsed();
+        self.compute.record(compute);
+        let w0 = Instant::now();
+        let write = self.io.write(&self.targets);
+        self.io_time.record(t_read + w0.elapsed());
+        self.tick += 1;
+        self.mode_ticks += 1;
+        if let Err(e) = write {
+            self.fail(Cause::BusFailure);
+            return Err(e.into());
+        }
+        Ok(())
+    }
+
+    fn finish_io(&mut self, t_read: Duration, c0: Instant, e: Option<IoError>) -> Result<(), PlayError> {
+        self.io_time.record(t_read + c0.elapsed());
+        self.tick += 1;
+        let _ = self.io.torque_off();
+        self.go(Mode::Off, Cause::BusFailure);
+        e.map_or(Ok(()), |e| Err(e.into()))
+    }
+
+    /// A fault: hold (if running), then damping, then off.
+    fn fail(&mut self, cause: Cause) {
+        match self.mode {
+            Mode::SoftStart | Mode::Running => self.go(Mode::Stopping, cause),
+            Mode::Stopping if !self.pending_cause.is_some_and(|c| c.is_fault()) && cause.is_fault() => {
+                // A fault during a soft stop cuts it short.
+                self.go(Mode::Damped, cause);
+            }
+            _ => {}
+        }
+        self.pending_cause = Some(cause);
+    }
+
+    fn check_state(&self) -> Option<Cause> {
+        if !matches!(self.mode, Mode::SoftStart | Mode::Running | Mode::Stopping) {
+            return None;
+        }
+        let s = &self.state;
+        let lim = &self.options.limits;
+        if let Some(joint) = s.missed.iter().position(|&m| m > lim.stale_ticks) {
+            return Some(Cause::StaleFeedback {
+                joint,
+                ticks: s.missed[joint],
+            });
+        }
+        if let Some(joint) = s.faulted.iter().position(|&f| f) {
+            return Some(Cause::DeviceFault { joint });
+        }
+        if s.imu_missed > lim.stale_ticks {
+            return Some(Cause::StaleImu { ticks: s.imu_missed });
+        }
+        let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
+        if !(finite(&s.q) && finite(&s.qd) && finite(&s.gyro) && finite(&s.quat)) {
+            return Some(Cause::NonFinite { what: "state" });
+        }
+        let tilt = tilt_of(s.quat);
+        if tilt > lim.tilt {
+            return Some(Cause::Tilt { angle: tilt });
+        }
+        if self.overrun_run >= lim.overruns {
+            return Some(Cause::Overruns {
+                count: self.overrun_run,
+            });
+        }
+        if self.stop.load(Ordering::Relaxed) && self.mode != Mode::Stopping {
+            return Some(Cause::StopRequested);
+        }
+        None
+    }
+
+    /// The state machine: fills `targets` for this tick.
+    fn advance(&mut self, has_truth: bool) {
+        let n = self.targets.len();
+        let joints = &self.robot.config.joints;
+        match self.mode {
+            Mode::Off => {}
+            Mode::Ready => {
+                self.start_pose.copy_from_slice(&self.state.q);
+                self.go(Mode::SoftStart, Cause::Start);
+                self.soft_start_targets();
+            }
+            Mode::SoftStart => {
+                if self.mode_ticks as f64 * self.dt >= self.options.soft_start_s {
+                    self.filtered.copy_from_slice(&self.default_q);
+                    self.clip_tick = 0;
+                    self.go(Mode::Running, Cause::SoftStartDone);
+                    self.policy_tick(has_truth);
+                } else {
+                    self.soft_start_targets();
+                }
+            }
+            Mode::Running => {
+                if self.clip_done() {
+                    self.go(Mode::Stopping, Cause::ClipFinished);
+                    self.pending_cause = Some(Cause::ClipFinished);
+                    self.hold_targets();
+                } else {
+                    self.policy_tick(has_truth);
+                }
+            }
+            Mode::Stopping => {
+                let soft = self.pending_cause.is_some_and(|c| !c.is_fault());
+                let stop_ticks = if soft {
+                    (self.options.end_s / self.dt).round() as u64
+                } else {
+                    1
+                };
+                if self.mode_ticks >= stop_ticks {
+                    self.go(Mode::Damped, Cause::HoldDone);
+                    self.damping_targets();
+                } else if soft {
+                    // Blend towards the default pose from where the targets are.
+                    let a = 1.0 / (stop_ticks - self.mode_ticks) as f64;
+                    for i in 0..n {
+                        let t = &mut self.targets[i];
+                        t.q += (self.default_q[i] - t.q) * a;
+                        t.q = govern_position(
+                            &joints[i],
+                            t.q,
+                            t.q,
+                            self.dt,
+                            self.options.limits.position_margin,
+                            None,
+                        );
+                    }
+                } else {
+                    self.hold_targets();
+                }
+            }
+            Mode::Damped => {
+                if self.mode_ticks as f64 * self.dt >= self.options.damping_s {
+                    for t in &mut self.targets {
+                        t.enabled = false;
+                    }
+                    self.go(Mode::Off, Cause::DampingDone);
+                } else {
+                    self.damping_targets();
+                }
+            }
+        }
+    }
+
+    fn soft_start_targets(&mut self) {
+        let s = ((self.mode_ticks + 1) as f64 * self.dt / self.options.soft_start_s).min(1.0);
+        let g = self.options.soft_start_gain + (1.0 - self.options.soft_start_gain) * s;
+        for (i, j) in self.robot.config.joints.iter().enumerate() {
+            let q = self.start_pose[i] + (self.default_q[i] - self.start_pose[i]) * s;
+            self.targets[i] = JointTarget {
+                q: q.clamp(
+                    j.position_limits[0] + self.options.limits.position_margin,
+                    j.position_limits[1] - self.options.limits.position_margin,
+                ),
+                qd: 0.0,
+                kp: j.kp * g,
+                kd: j.kd,
+                tau: 0.0,
+                enabled: true,
+            };
+        }
+    }
+
+    fn hold_targets(&mut self) {
+        for (t, j) in self.targets.iter_mut().zip(&self.robot.config.joints) {
+            t.kp = j.kp;
+            t.kd = j.kd;
+            t.qd = 0.0;
+            t.tau = 0.0;
+            t.enabled = true;
+        }
+    }
+
+    fn damping_targets(&mut self) {
+        for (t, j) in self.targets.iter_mut().zip(&self.robot.config.joints) {
+            *t = JointTarget {
+                q: t.q,
+                qd: 0.0,
+                kp: 0.0,
+                kd: j.kd,
+                tau: 0.0,
+                enabled: true,
+            };
+        }
+    }
+
+    fn clip_done(&self) -> bool {
+        if self.options.max_ticks.is_some_and(|m| self.tick >= m) {
+            return true;
+        }
+        let ramp = (self.options.ramp_s / self.dt).round() as usize;
+        let end = match self.options.end {
+            EndMode::Loop => return false,
+            EndMode::Hold | EndMode::Blend => (self.options.end_s / self.dt).round() as usize,
+        };
+        self.clip_tick >= ramp + self.reference.len() + end
+    }
+
+    /// Where the reference is at this tick: ramp (held first frame, ψ rising), clip, end.
+    fn update_reference(&mut self) -> f64 {
+        let n = self.targets.len();
+        let ramp = (self.options.ramp_s / self.dt).round() as usize;
+        let len = self.reference.len();
+        let psi = if ramp == 0 {
+            1.0
+        } else {
+            (self.clip_tick as f64 / ramp as f64).min(1.0)
+        };
+        let base = self.clip_tick.saturating_sub(ramp);
+        let base = if self.options.end == EndMode::Loop {
+            base % len
+        } else {
+            base
+        };
+        let end_ticks = ((self.options.end_s / self.dt).round() as usize).max(1);
+        let frames = self.cursor.policy_q.len();
+        for f in 0..frames {
+            let k = base + f;
+            let (q, qd) = (self.reference.q_at(k), self.reference.qd_at(k));
+            let blend = if self.options.end == EndMode::Blend && k >= len {
+                ((k - len + 1) as f64 / end_ticks as f64).min(1.0)
+            } else {
+                0.0
+            };
+            for (p, &r) in self.layout.robot_index.iter().enumerate() {
+                let moving = self.clip_tick >= ramp && k < len;
+                self.cursor.policy_q[f][p] = q[r] + (self.default_q[r] - q[r]) * blend;
+                self.cursor.policy_qd[f][p] = if moving { qd[r] } else { 0.0 };
+            }
+            self.cursor.root[f] = self.reference.root[k.min(len - 1)];
+            if f == 0 {
+                for (p, &r) in self.layout.robot_index.iter().enumerate() {
+                    self.cursor.current_q[r] = self.cursor.policy_q[0][p];
+                    self.cursor.current_qd[r] = self.cursor.policy_qd[0][p];
+                }
+            }
+        }
+        let _ = n;
+        psi
+    }
+
+    fn policy_tick(&mut self, has_truth: bool) {
+        let psi = self.update_reference();
+        let idx = &self.layout.robot_index;
+        for (p, &r) in idx.iter().enumerate() {
+            self.policy_q[p] = self.state.q[r];
+            self.policy_qd[p] = self.state.qd[r];
+            self.policy_last_targets[p] = self.targets[r].q;
+        }
+        let inputs = ObsInputs {
+            gyro: self.state.gyro,
+            accel: self.state.accel,
+            quat: self.state.quat,
+            q: &self.policy_q,
+            qd: &self.policy_qd,
+            default_q: &self.policy_default,
+            past_actions: &self.past_actions,
+            last_targets: &self.policy_last_targets,
+            time_s: self.clip_tick as f64 * self.dt,
+            ramp: psi,
+            reference: &self.cursor,
+            truth: has_truth.then_some(&self.truth),
+        };
+        self.obs_builder.build(&inputs, &mut self.obs);
+        if !self.obs.iter().all(|x| x.is_finite()) {
+            self.fail(Cause::NonFinite { what: "observation" });
+            self.hold_targets();
+            return;
+        }
+        if self.model.run(&self.obs, &mut self.actions).is_err()
+            || !self.actions.iter().all(|a| a.is_finite())
+        {
+            self.fail(Cause::NonFinite { what: "action" });
+            self.hold_targets();
+            return;
+        }
+        // Remember actions, newest first.
+        let n = self.actions.len();
+        let kept = self.past_actions.len() - n;
+        self.past_actions.copy_within(..kept, n);
+        self.past_actions[..n].copy_from_slice(&self.actions);
+        let spec = &self.layout.manifest.action;
+        let alpha = spec.lowpass_hz.map_or(1.0, |fc| {
+            let rc = 1.0 / (std::f64::consts::TAU * fc);
+            self.dt / (rc + self.dt)
+        });
+        let margin = self.options.limits.position_margin;
+        for (p, &r) in idx.iter().enumerate() {
+            let j = &self.robot.config.joints[r];
+            let a = f64::from(self.actions[p]);
+            let a = spec.clip.map_or(a, |c| a.clamp(-c, c));
+            self.targets[r] = match spec.kind {
+                ActionKind::Position => {
+                    let wanted = self.default_q[r] + spec.scale * a;
+                    self.filtered[r] += alpha * (wanted - self.filtered[r]);
+                    let previous = self.targets[r].q;
+                    JointTarget {
+                        q: govern_position(j, previous, self.filtered[r], self.dt, margin, spec.rate_limit),
+                        qd: 0.0,
+                        kp: j.kp,
+                        kd: j.kd,
+                        tau: 0.0,
+                        enabled: true,
+                    }
+                }
+                ActionKind::Torque => JointTarget {
+                    q: self.state.q[r],
+                    qd: 0.0,
+                    kp: 0.0,
+                    kd: 0.0,
+                    tau: govern_torque(j, a * j.torque_limit),
+                    enabled: true,
+                },
+            };
+        }
+        // Tracking error against the clip (not during the ramp or the end).
+        let ramp = (self.options.ramp_s / self.dt).round() as usize;
+        if self.clip_tick >= ramp && self.clip_tick < ramp + self.reference.len() {
+            for i in 0..self.state.q.len() {
+                let e = self.state.q[i] - self.cursor.current_q[i];
+                self.sq_joint_error += e * e;
+            }
+            self.joint_samples += self.state.q.len() as u64;
+            if has_truth {
+                let r = self.cursor.root[0];
+                let t = self.truth.root_pose;
+                let e2 = (0..3).map(|k| (t[k] - r[k]).powi(2)).sum::<f64>();
+                self.sq_root_error += e2;
+                self.root_samples += 1;
+            }
+        }
+        self.clip_tick += 1;
+    }
+
+    fn summary(&self, took: Duration) -> PlaySummary {
+        PlaySummary {
+            ticks: self.tick,
+            duration_s: took.as_secs_f64(),
+            overruns: self.overruns,
+            joint_rmse: if self.joint_samples > 0 {
+                (self.sq_joint_error / self.joint_samples as f64).sqrt()
+            } else {
+                0.0
+            },
+            root_rmse: (self.root_samples > 0)
+                .then(|| (self.sq_root_error / self.root_samples as f64).sqrt()),
+            fell: self.fell,
+            transitions: self.transitions.clone(),
+            compute: self.compute.clone(),
+            io: self.io_time.clone(),
+        }
+    }
+
+    /// Asks for a soft stop (what SIGINT does).
+    pub fn request_stop(&self) {
+        self.stop.store(true, Ordering::Relaxed);
+    }
+}

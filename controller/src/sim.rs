@@ -1,0 +1,162 @@
+//! Running the loop against the mirror: in lockstep (simulated time advances only while the loop
+//! waits on its buses or for its next tick), or served in real time over real wires.
+
+use std::net::{IpAddr, Ipv4Addr};
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::Duration;
+
+use firmware_bridge::can::socketcand::SocketcandClient;
+use firmware_bridge::can::virtual_bus::{LockstepCanPort, SimWorld};
+use firmware_bridge::dxl::driver::DxlDriverOptions;
+use firmware_bridge::dxl::transport::{LockstepDxlPort, SerialDxlPort};
+use firmware_bridge::serial::{DeviceStream, LockstepStream};
+use firmware_bridge::time::SimInstant;
+use robots::Robot;
+use sim2real::mirror::Mirror;
+use sim2real::serve::ServedMirror;
+
+use crate::player::{TickClock, WallClock};
+use crate::policy::GroundTruth;
+use crate::robot_io::{BusPorts, BusRobot, IoError};
+
+/// The robot's buses on a mirror in lockstep.
+pub type LockstepRobot = BusRobot<LockstepCanPort<Mirror>, LockstepDxlPort<Mirror>, LockstepStream<Mirror>>;
+
+/// The robot's buses on a served mirror, over socketcand and pseudo-terminals.
+pub type WiredRobot = BusRobot<SocketcandClient, SerialDxlPort, DeviceStream>;
+
+/// Reply timeout of MIT motors in lockstep (simulated time).
+const LOCKSTEP_REPLY: Duration = Duration::from_millis(2);
+
+/// Drivers on every bus of `world`, in lockstep.
+pub fn lockstep_robot(robot: &Robot, world: &Arc<Mutex<Mirror>>) -> Result<LockstepRobot, IoError> {
+    let ports = Mirror::host_ports(world);
+    let options = DxlDriverOptions {
+        expected_return_delay: Duration::ZERO,
+        ..DxlDriverOptions::default()
+    };
+    BusRobot::new(
+        robot,
+        BusPorts {
+            can: ports.can,
+            dxl: ports.dxl,
+            imu: ports.imu,
+        },
+        LOCKSTEP_REPLY,
+        options,
+    )
+}
+
+/// Drivers on every bus of a served mirror, connected as to hardware.
+pub fn wired_robot(robot: &Robot, served: &ServedMirror) -> Result<WiredRobot, IoError> {
+    let ep = served.endpoints();
+    let mut can = Vec::new();
+    for (name, addr) in &ep.can {
+        let client = SocketcandClient::connect(addr, name, Duration::from_secs(2))
+            .map_err(|e| IoError::Setup(format!("{name} at {addr}: {e}")))?;
+        can.push((name.clone(), client));
+    }
+    let mut dxl = Vec::new();
+    for (name, path) in &ep.dxl {
+        let rate = robot.bus(name).map_or(1_000_000, |b| b.rate);
+        dxl.push((
+            name.clone(),
+            SerialDxlPort::open(path, rate).map_err(|e| IoError::Setup(format!("{path}: {e}")))?,
+        ));
+    }
+    let imu_rate = robot.bus(&robot.config.imu.bus).map_or(921_600, |b| b.rate);
+    let imu =
+        DeviceStream::open(&ep.imu, imu_rate).map_err(|e| IoError::Setup(format!("{}: {e}", ep.imu)))?;
+    let options = DxlDriverOptions {
+        // A pseudo-terminal on a busy machine needs more margin than a USB adapter.
+        reply_slack: Duration::from_millis(5),
+        ..DxlDriverOptions::default()
+    };
+    BusRobot::new(
+        robot,
+        BusPorts { can, dxl, imu },
+        Duration::from_millis(5),
+        options,
+    )
+}
+
+/// Serves `mirror` on loopback (free ports) for a wired run.
+pub fn serve_locally(mirror: Mirror) -> std::io::Result<ServedMirror> {
+    ServedMirror::start(mirror, IpAddr::V4(Ipv4Addr::LOCALHOST), 0)
+}
+
+fn truth_of(world: &Arc<Mutex<Mirror>>, truth: &mut GroundTruth) -> bool {
+    let w = world.lock().unwrap_or_else(PoisonError::into_inner);
+    w.ground_truth(
+        &mut truth.root_pose,
+        &mut truth.base_lin_vel,
+        &mut truth.foot_contacts,
+    );
+    true
+}
+
+/// The mirror's clock, advanced by the loop.
+#[derive(Debug)]
+pub struct LockstepClock {
+    world: Arc<Mutex<Mirror>>,
+    start: SimInstant,
+}
+
+impl LockstepClock {
+    /// Starts at the mirror's current time.
+    pub fn new(world: Arc<Mutex<Mirror>>) -> Self {
+        let start = world.lock().unwrap_or_else(PoisonError::into_inner).now();
+        Self { world, start }
+    }
+}
+
+impl TickClock for LockstepClock {
+    fn elapsed(&self) -> Duration {
+        self.world.lock().unwrap_or_else(PoisonError::into_inner).now() - self.start
+    }
+
+    fn wait_until(&mut self, deadline: Duration) -> bool {
+        let mut w = self.world.lock().unwrap_or_else(PoisonError::into_inner);
+        let target = self.start + deadline;
+        let late = w.now() > target;
+        while w.now() < target {
+            w.step_until(target);
+        }
+        late
+    }
+
+    fn ground_truth(&self, truth: &mut GroundTruth) -> bool {
+        truth_of(&self.world, truth)
+    }
+}
+
+/// The wall clock of a served mirror, with the mirror's ground truth.
+#[derive(Debug)]
+pub struct ServedClock {
+    wall: WallClock,
+    world: Arc<Mutex<Mirror>>,
+}
+
+impl ServedClock {
+    /// Starts now.
+    pub fn new(world: Arc<Mutex<Mirror>>) -> Self {
+        Self {
+            wall: WallClock::start(),
+            world,
+        }
+    }
+}
+
+impl TickClock for ServedClock {
+    fn elapsed(&self) -> Duration {
+        self.wall.elapsed()
+    }
+
+    fn wait_until(&mut self, deadline: Duration) -> bool {
+        self.wall.wait_until(deadline)
+    }
+
+    fn ground_truth(&self, truth: &mut GroundTruth) -> bool {
+        truth_of(&self.world, truth)
+    }
+}
