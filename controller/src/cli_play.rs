@@ -40,6 +40,9 @@ pub struct PlayArgs {
     /// Seconds of the start-up ramp ψ (clip held at its first frame).
     #[arg(long, default_value_t = 1.5)]
     ramp: f64,
+    /// Stop (softly) after this many seconds of the run, whatever the clip.
+    #[arg(long)]
+    max_seconds: Option<f64>,
 }
 
 /// Arguments of `check`.
@@ -137,9 +140,16 @@ pub fn play(args: &PlayArgs) -> Result<()> {
     if !(args.ramp.is_finite() && args.ramp >= 0.0) {
         bail!("--ramp {} is not a duration", args.ramp);
     }
+    let rate = l.layout.manifest.rate_hz;
+    let max_ticks = match args.max_seconds {
+        Some(s) if s.is_finite() && s > 0.0 => Some((s * rate).round() as u64),
+        Some(s) => bail!("--max-seconds {s} is not a duration"),
+        None => None,
+    };
     let options = PlayOptions {
         ramp_s: args.ramp,
         end: args.end,
+        max_ticks,
         ..PlayOptions::default()
     };
     let stop = Arc::new(AtomicBool::new(false));

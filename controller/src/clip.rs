@@ -254,21 +254,26 @@ impl Reference {
             root,
             held_joints,
         };
-        // Can the robot follow it? First offending frame, by time.
+        // Can the robot follow it? Positions first (the clearer message), then speeds; each
+        // names the first offending frame.
         for k in 0..ticks {
             for (i, j) in joints.iter().enumerate() {
-                let (x, v) = (reference.q[k * n + i], reference.qd[k * n + i]);
-                let t = k as f64 / rate_hz;
+                let x = reference.q[k * n + i];
                 let [lo, hi] = j.position_limits;
                 if x < lo || x > hi {
                     return Err(err(
-                        format!("t = {t:.3} s (tick {k})"),
+                        format!("t = {:.3} s (tick {k})", k as f64 / rate_hz),
                         format!("{} = {x:.3} rad is outside its limits [{lo}, {hi}]", j.name),
                     ));
                 }
+            }
+        }
+        for k in 0..ticks {
+            for (i, j) in joints.iter().enumerate() {
+                let v = reference.qd[k * n + i];
                 if v.abs() > j.velocity_limit {
                     return Err(err(
-                        format!("t = {t:.3} s (tick {k})"),
+                        format!("t = {:.3} s (tick {k})", k as f64 / rate_hz),
                         format!(
                             "{} moves at {:.2} rad/s, beyond its limit {} rad/s",
                             j.name,

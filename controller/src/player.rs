@@ -590,7 +590,6 @@ impl<C: CanBus, D: DxlTransport, S: ByteStream> Player<C, D, S> {
 
     /// The state machine: fills `targets` for this tick.
     fn advance(&mut self, has_truth: bool) {
-        let n = self.targets.len();
         let joints = &self.robot.config.joints;
         match self.mode {
             Mode::Off => {}
@@ -631,17 +630,10 @@ impl<C: CanBus, D: DxlTransport, S: ByteStream> Player<C, D, S> {
                 } else if soft {
                     // Blend towards the default pose from where the targets are.
                     let a = 1.0 / (stop_ticks - self.mode_ticks) as f64;
-                    for i in 0..n {
-                        let t = &mut self.targets[i];
-                        t.q += (self.default_q[i] - t.q) * a;
-                        t.q = govern_position(
-                            &joints[i],
-                            t.q,
-                            t.q,
-                            self.dt,
-                            self.options.limits.position_margin,
-                            None,
-                        );
+                    let margin = self.options.limits.position_margin;
+                    for ((t, d), j) in self.targets.iter_mut().zip(&self.default_q).zip(joints) {
+                        t.q += (d - t.q) * a;
+                        t.q = govern_position(j, t.q, t.q, self.dt, margin, None);
                     }
                 } else {
                     self.hold_targets();
@@ -716,7 +708,6 @@ impl<C: CanBus, D: DxlTransport, S: ByteStream> Player<C, D, S> {
 
     /// Where the reference is at this tick: ramp (held first frame, ψ rising), clip, end.
     fn update_reference(&mut self) -> f64 {
-        let n = self.targets.len();
         let ramp = (self.options.ramp_s / self.dt).round() as usize;
         let len = self.reference.len();
         let psi = if ramp == 0 {
@@ -753,7 +744,7 @@ impl<C: CanBus, D: DxlTransport, S: ByteStream> Player<C, D, S> {
                 }
             }
         }
-        let _ = n;
+
         psi
     }
 

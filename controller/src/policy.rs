@@ -566,8 +566,8 @@ fn fill_term(term: &Term, x: &ObsInputs<'_>, v: &mut [f64]) {
         Term::BaseHeight(_) => v[0] = x.truth.map_or(0.0, |t| t.root_pose[2]),
         Term::BaseLinVel(_) => v.copy_from_slice(&x.truth.map_or([0.0; 3], |t| t.base_lin_vel)),
         Term::JointPos { relative, .. } => {
-            for i in 0..n {
-                v[i] = x.q[i] - if *relative { x.default_q[i] } else { 0.0 };
+            for ((o, q), d) in v.iter_mut().zip(x.q).zip(x.default_q) {
+                *o = q - if *relative { *d } else { 0.0 };
             }
         }
         Term::JointVel(_) => v.copy_from_slice(x.qd),

@@ -73,13 +73,13 @@ impl RobotState {
 #[derive(Debug, thiserror::Error)]
 pub enum IoError {
     /// A CAN bus failed.
-    #[error("CAN: {0}")]
+    #[error("CAN")]
     Mit(#[from] MitError),
     /// A Dynamixel bus failed.
-    #[error("Dynamixel: {0}")]
+    #[error("Dynamixel")]
     Dxl(#[from] DxlError),
     /// The IMU stream failed.
-    #[error("IMU: {0}")]
+    #[error("IMU")]
     Imu(#[from] std::io::Error),
     /// The robot description and the ports do not fit.
     #[error("{0}")]

@@ -75,7 +75,7 @@ pub fn wired_robot(robot: &Robot, served: &ServedMirror) -> Result<WiredRobot, I
     BusRobot::new(
         robot,
         BusPorts { can, dxl, imu },
-        Duration::from_millis(5),
+        Duration::from_millis(20),
         options,
     )
 }

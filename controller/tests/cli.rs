@@ -365,3 +365,95 @@ fn sim_stand_names_a_broken_mirror_file() {
     );
     std::fs::remove_file(&path).unwrap();
 }
+
+#[test]
+fn play_runs_the_default_clip_on_the_mirror_and_prints_a_summary() {
+    let out = robodeploy().arg("play").output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("joint tracking RMSE") && stdout.contains("fell: no"),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("Running → Stopping (clip finished)") && stdout.contains("Damped → Off"),
+        "{stdout}"
+    );
+}
+
+#[test]
+fn play_refuses_a_clip_beyond_the_limits_before_anything_moves() {
+    let clip = robots::reference_robot_path().with_file_name("clips/squat.csv");
+    let text = std::fs::read_to_string(clip)
+        .unwrap()
+        .replace("-0.25000,0.50000,-0.25000", "-0.25000,2.90000,-0.25000");
+    let path = std::env::temp_dir().join(format!("robodeploy-badclip-{}.csv", std::process::id()));
+    std::fs::write(&path, text).unwrap();
+    let out = robodeploy().args(["play", "--clip"]).arg(&path).output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("t = 0.000 s (tick 0): left_knee = 2.900 rad is outside its limits"),
+        "{stderr}"
+    );
+    assert!(
+        !String::from_utf8_lossy(&out.stdout).contains("on the mirror"),
+        "nothing may start"
+    );
+    std::fs::remove_file(&path).unwrap();
+}
+
+#[test]
+fn sigint_soft_stops_a_looping_play() {
+    use std::io::Read;
+    let mut child = robodeploy()
+        .args(["play", "--end", "loop", "--clip"])
+        .arg(robots::reference_robot_path().with_file_name("clips/wave_and_look.csv"))
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    let status = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let mut stdout = String::new();
+    child.stdout.take().unwrap().read_to_string(&mut stdout).unwrap();
+    assert!(child.wait().unwrap().success(), "{stdout}");
+    assert!(stdout.contains("Running → Stopping (stop requested)"), "{stdout}");
+    assert!(
+        stdout.contains("Stopping → Damped") && stdout.contains("Damped → Off"),
+        "{stdout}"
+    );
+}
+
+#[test]
+fn play_over_real_wires_tracks_in_real_time() {
+    let out = robodeploy()
+        .args(["play", "--wall", "--gantry", "--max-seconds", "3", "--clip"])
+        .arg(robots::reference_robot_path().with_file_name("clips/wave_and_look.csv"))
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("in real time over socketcand and pseudo-terminals"),
+        "{stdout}"
+    );
+    let rmse: f64 = stdout
+        .lines()
+        .find_map(|l| l.strip_prefix("joint tracking RMSE: "))
+        .and_then(|v| v.trim_end_matches('°').parse().ok())
+        .unwrap();
+    assert!(rmse < 5.0, "{stdout}");
+}

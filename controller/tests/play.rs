@@ -17,6 +17,9 @@ use robots::{Robot, reference_robot_path};
 use sim2real::config::MirrorConfig;
 use sim2real::mirror::Mirror;
 
+#[global_allocator]
+static ALLOC: test_support::alloc::CountingAllocator = test_support::alloc::CountingAllocator;
+
 type MirrorPlayer = Player<LockstepCanPort<Mirror>, LockstepDxlPort<Mirror>, LockstepStream<Mirror>>;
 
 fn biped(file: &str) -> PathBuf {
@@ -80,4 +83,153 @@ fn the_biped_squats_with_the_reference_follower_and_the_log_shows_the_state_mach
         "{s}"
     );
     assert_eq!(s.transitions[3].cause, Cause::ClipFinished);
+}
+
+fn transition(s: &PlaySummary, to: Mode) -> Option<&controller::safety::Transition> {
+    s.transitions.iter().find(|t| t.to == to)
+}
+
+#[test]
+fn a_servo_that_stops_answering_brings_damping_within_two_ticks() {
+    use sim2real::config::{FaultKind, ScheduledFault};
+    let mirror = MirrorConfig {
+        faults: vec![ScheduledFault {
+            at_s: 3.0,
+            joint: "left_elbow".into(),
+            fault: FaultKind::Vanish,
+        }],
+        ..MirrorConfig::default()
+    };
+    let (mut p, mut clock, _w) = player(
+        follower(),
+        biped("clips/wave_and_look.csv"),
+        mirror,
+        PlayOptions::default(),
+    );
+    let s = p.run(&mut clock).unwrap();
+    let stop = transition(&s, Mode::Stopping).expect("a stop");
+    assert!(
+        matches!(stop.cause, Cause::StaleFeedback { joint: 14, .. }),
+        "{s}"
+    );
+    // The servo vanished at 3.0 s = tick 150; stale for more than 2 ticks is detected by tick 153.
+    assert!(stop.tick <= 153, "{s}");
+    let damped = transition(&s, Mode::Damped).unwrap();
+    assert!(damped.tick - stop.tick <= 2, "{s}");
+    assert_eq!(s.transitions.last().unwrap().to, Mode::Off);
+}
+
+#[test]
+fn a_nan_action_leads_to_the_safe_state() {
+    let dir = std::env::temp_dir().join(format!("play-nan-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let onnx = test_support::fixtures::fixture("nan_after_half_ramp.onnx");
+    let manifest = std::fs::read_to_string(follower()).unwrap().replace(
+        "onnx = \"reference_follower.onnx\"",
+        &format!("onnx = {:?}", onnx.display().to_string()),
+    );
+    std::fs::write(dir.join("nan.toml"), manifest).unwrap();
+    let (mut p, mut clock, _w) = player(
+        dir.join("nan.toml"),
+        biped("clips/squat.csv"),
+        MirrorConfig {
+            gantry: true,
+            ..MirrorConfig::default()
+        },
+        PlayOptions::default(),
+    );
+    let s = p.run(&mut clock).unwrap();
+    let stop = transition(&s, Mode::Stopping).expect("a stop");
+    assert_eq!(stop.cause, Cause::NonFinite { what: "action" }, "{s}");
+    // ψ passes 0.5 half-way through the 1.5 s ramp, which starts after the 1 s soft start.
+    assert!((85..=90).contains(&stop.tick), "{s}");
+    assert!(transition(&s, Mode::Damped).unwrap().tick <= stop.tick + 2);
+    // Every target sent stayed finite.
+    assert!(p.targets().iter().all(|t| t.q.is_finite() && t.kp.is_finite()));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_clip_beyond_the_limits_is_refused_with_its_first_bad_frame() {
+    let robot = Robot::load(&reference_robot_path()).unwrap();
+    let text = std::fs::read_to_string(biped("clips/squat.csv")).unwrap();
+    // Push the left knee past its 2.2 rad limit from t = 1.0 s on.
+    let mut out = String::new();
+    for line in text.lines() {
+        let mut cells: Vec<String> = line.split(',').map(str::to_owned).collect();
+        if let Ok(t) = cells[0].parse::<f64>()
+            && t >= 1.0
+        {
+            cells[11] = "2.5".into();
+        }
+        out.push_str(&cells.join(","));
+        out.push('\n');
+    }
+    let path = std::env::temp_dir().join(format!("bad-clip-{}.csv", std::process::id()));
+    std::fs::write(&path, out).unwrap();
+    let e = Reference::from_clip(&Clip::load(&path).unwrap(), &robot, 50.0)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("t = 1.000 s (tick 50): left_knee = 2.500 rad is outside its limits [0, 2.2]"),
+        "{e}"
+    );
+    std::fs::remove_file(&path).unwrap();
+}
+
+#[test]
+fn a_stop_request_soft_stops_through_blend_and_damping() {
+    let options = PlayOptions {
+        end: controller::player::EndMode::Loop,
+        ..PlayOptions::default()
+    };
+    let (mut p, mut clock, _w) = player(
+        follower(),
+        biped("clips/wave_and_look.csv"),
+        MirrorConfig::default(),
+        options,
+    );
+    p.identify().unwrap();
+    use controller::player::TickClock;
+    let period = std::time::Duration::from_millis(20);
+    for k in 1..=200u32 {
+        if k == 150 {
+            p.request_stop();
+        }
+        p.step(&clock).unwrap();
+        clock.wait_until(period * k);
+    }
+    let t = p.transitions();
+    let stop = t.iter().find(|t| t.to == Mode::Stopping).unwrap();
+    assert_eq!((stop.cause, stop.tick), (Cause::StopRequested, 149));
+    let damped = t.iter().find(|t| t.to == Mode::Damped).unwrap();
+    // Soft: the blend to the default pose takes its 0.5 s before damping.
+    assert_eq!(damped.tick - stop.tick, 25);
+}
+
+#[test]
+fn a_steady_state_tick_allocates_nothing() {
+    use controller::player::TickClock;
+    use test_support::alloc::count_allocations;
+    let (mut p, mut clock, _w) = player(
+        follower(),
+        biped("clips/squat.csv"),
+        MirrorConfig::default(),
+        PlayOptions::default(),
+    );
+    p.identify().unwrap();
+    let period = std::time::Duration::from_millis(20);
+    for k in 1..=80u32 {
+        p.step(&clock).unwrap();
+        clock.wait_until(period * k);
+    }
+    assert_eq!(p.mode(), Mode::Running);
+    let (_, stats) = count_allocations(|| {
+        for k in 81..=180u32 {
+            p.step(&clock).unwrap();
+            clock.wait_until(period * k);
+        }
+    });
+    assert_eq!(p.mode(), Mode::Running);
+    assert!(stats.is_zero(), "{stats:?}");
 }

@@ -23,10 +23,10 @@ pub enum HostError {
     #[error(transparent)]
     Mirror(#[from] MirrorError),
     /// A CAN driver failed.
-    #[error("CAN: {0}")]
+    #[error("CAN")]
     Mit(#[from] MitError),
     /// A Dynamixel driver failed.
-    #[error("Dynamixel: {0}")]
+    #[error("Dynamixel")]
     Dxl(#[from] DxlError),
 }
 

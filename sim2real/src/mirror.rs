@@ -456,10 +456,10 @@ impl Mirror {
                     continue;
                 }
                 let body = model.geom_bodyid()[g as usize];
-                if let Some(k) = self.feet.iter().position(|&f| f as i32 == body) {
-                    if k < feet.len() {
-                        feet[k] = true;
-                    }
+                if let Some(k) = self.feet.iter().position(|&f| f as i32 == body)
+                    && k < feet.len()
+                {
+                    feet[k] = true;
                 }
             }
         }
