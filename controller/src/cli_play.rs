@@ -43,6 +43,10 @@ pub struct PlayArgs {
     /// Stop (softly) after this many seconds of the run, whatever the clip.
     #[arg(long)]
     max_seconds: Option<f64>,
+    /// Real-time set-up of the loop thread: SCHED_FIFO, mlockall, pinned to the last CPU. Steps
+    /// the system refuses are reported and skipped.
+    #[arg(long)]
+    realtime: bool,
 }
 
 /// Arguments of `check`.
@@ -152,17 +156,36 @@ pub fn play(args: &PlayArgs) -> Result<()> {
         max_ticks,
         ..PlayOptions::default()
     };
+    if args.realtime {
+        let cpus = std::thread::available_parallelism().map_or(1, std::num::NonZero::get);
+        for step in controller::realtime::setup(80, Some(cpus - 1)).steps {
+            eprintln!("realtime: {step}");
+        }
+    }
     let stop = Arc::new(AtomicBool::new(false));
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         signal_hook::flag::register(signal, Arc::clone(&stop))
             .context("cannot install the stop signal handlers")?;
     }
     if args.hardware {
-        bail!(
-            "--hardware: this build talks to hardware through the same drivers, but opening the robot's \
-             SocketCAN interfaces and serial devices from robot.toml is not wired into `play` yet; \
-             use `--wall` to run the mirror over real wires"
+        if l.layout.needs_ground_truth() {
+            bail!(
+                "{}: this policy reads simulation ground truth; the hardware has no state estimator yet",
+                l.layout.path.display()
+            );
+        }
+        println!(
+            "{}: {} ({} ticks) on the hardware",
+            l.robot.config.name,
+            l.clip.path.display(),
+            l.reference.len()
         );
+        let io = controller::hardware::open(&l.robot)?;
+        let mut clock = controller::player::WallClock::start();
+        let mut player = Player::new(l.robot, l.layout, l.reference, options, io, stop)?;
+        let summary = player.run(&mut clock)?;
+        print!("{summary}");
+        return Ok(());
     }
     let mut config = match &args.mirror {
         Some(p) => load_mirror_config(p)?,

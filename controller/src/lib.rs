@@ -2,10 +2,12 @@
 //! ONNX policy, limits its commands and writes them to the buses.
 
 pub mod clip;
+pub mod hardware;
 pub mod native;
 pub mod onnx;
 pub mod player;
 pub mod policy;
+pub mod realtime;
 pub mod robot_io;
 pub mod safety;
 pub mod sim;

@@ -154,6 +154,8 @@ pub struct PlaySummary {
     pub compute: Histogram,
     /// Per-tick bus time (read + write).
     pub io: Histogram,
+    /// How late each tick started after its deadline.
+    pub jitter: Histogram,
 }
 
 impl std::fmt::Display for PlaySummary {
@@ -170,6 +172,7 @@ impl std::fmt::Display for PlaySummary {
         writeln!(f, "fell: {}", if self.fell { "YES" } else { "no" })?;
         writeln!(f, "compute per tick: {}", self.compute)?;
         writeln!(f, "bus I/O per tick: {}", self.io)?;
+        writeln!(f, "tick start lateness: {}", self.jitter)?;
         writeln!(f, "state machine:")?;
         for t in &self.transitions {
             writeln!(f, "  tick {:>5}: {:?} → {:?} ({})", t.tick, t.from, t.to, t.cause)?;
@@ -297,6 +300,7 @@ pub struct Player<C: CanBus, D: DxlTransport, S: ByteStream> {
     fell: bool,
     compute: Histogram,
     io_time: Histogram,
+    jitter: Histogram,
 }
 
 /// Why a run could not start or continue.
@@ -413,6 +417,7 @@ impl<C: CanBus, D: DxlTransport, S: ByteStream> Player<C, D, S> {
             fell: false,
             compute: Histogram::default(),
             io_time: Histogram::default(),
+            jitter: Histogram::default(),
             robot,
             layout,
             reference,
@@ -486,6 +491,7 @@ impl<C: CanBus, D: DxlTransport, S: ByteStream> Player<C, D, S> {
             } else {
                 self.overrun_run = 0;
             }
+            self.jitter.record(clock.elapsed().saturating_sub(deadline));
         }
         Ok(self.summary(clock.elapsed() - start))
     }
@@ -857,6 +863,7 @@ impl<C: CanBus, D: DxlTransport, S: ByteStream> Player<C, D, S> {
             transitions: self.transitions.clone(),
             compute: self.compute.clone(),
             io: self.io_time.clone(),
+            jitter: self.jitter.clone(),
         }
     }
 

@@ -457,3 +457,27 @@ fn play_over_real_wires_tracks_in_real_time() {
         .unwrap();
     assert!(rmse < 5.0, "{stdout}");
 }
+
+#[test]
+fn play_on_hardware_names_a_missing_bus_and_moves_nothing() {
+    let out = robodeploy().args(["play", "--hardware"]).output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(stderr.contains("bus can0 (can0): cannot open"), "{stderr}");
+    assert!(
+        !String::from_utf8_lossy(&out.stdout).contains("ran "),
+        "nothing ran"
+    );
+}
+
+#[test]
+fn check_prints_the_layout_without_moving_anything() {
+    let out = robodeploy().arg("check").output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{stdout}");
+    assert!(stdout.contains("[  87..127 ) ref_joint_pos"), "{stdout}");
+    assert!(
+        stdout.contains("observation of 127 values") && stdout.contains("ok: nothing moved"),
+        "{stdout}"
+    );
+}

@@ -125,6 +125,9 @@ pub struct MirrorStats {
     pub imu_outputs: u64,
     /// Scheduled faults applied.
     pub faults_applied: usize,
+    /// CPU time spent inside the mirror (physics, firmware, wires), for benches that separate
+    /// the controller's share.
+    pub busy: Duration,
 }
 
 /// The mirrored robot.
@@ -656,6 +659,15 @@ impl SimWorld for Mirror {
     }
 
     fn step_until(&mut self, limit: SimInstant) -> SimInstant {
+        let started = std::time::Instant::now();
+        let t = self.step_once(limit);
+        self.stats.busy += started.elapsed();
+        t
+    }
+}
+
+impl Mirror {
+    fn step_once(&mut self, limit: SimInstant) -> SimInstant {
         let now = self.now;
         let mut t = limit
             .min(self.next_physics)

@@ -485,10 +485,11 @@ impl Session {
     }
 
     fn client(&self, mut stream: TcpStream) -> std::io::Result<()> {
-        stream.set_nonblocking(false)?;
+        // Non-blocking with a short sleep, not a read timeout: socket timeouts are rounded up to
+        // scheduler ticks (1–4 ms), which would hold every reply frame back that long.
+        stream.set_nonblocking(true)?;
         stream.set_nodelay(true)?;
-        stream.set_read_timeout(Some(Duration::from_micros(200)))?;
-        stream.write_all(b"< hi >")?;
+        write_fully(&mut stream, b"< hi >")?;
         // Drop frames that were sent before this client connected.
         while self.node.try_recv().is_some() {}
         let mut mode = Mode::Greeted;
@@ -502,13 +503,16 @@ impl Session {
                     format_frame(&mut out, &f, (self.clock)());
                 }
                 if !out.is_empty() {
-                    stream.write_all(out.as_bytes())?;
+                    write_fully(&mut stream, out.as_bytes())?;
                 }
             }
             match stream.read(&mut chunk) {
                 Ok(0) => return Ok(()),
                 Ok(n) => framer.push(&chunk[..n]),
-                Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => continue,
+                Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => {
+                    std::thread::sleep(Duration::from_micros(50));
+                    continue;
+                }
                 Err(e) => return Err(e),
             }
             while let Some(item) = framer.next_item() {
@@ -551,12 +555,26 @@ impl Session {
                     }
                 };
                 if !reply.is_empty() {
-                    stream.write_all(reply.as_bytes())?;
+                    write_fully(&mut stream, reply.as_bytes())?;
                 }
             }
         }
         Ok(())
     }
+}
+
+/// `write_all` on a non-blocking socket: waits out a full send buffer instead of failing.
+fn write_fully(stream: &mut TcpStream, mut bytes: &[u8]) -> std::io::Result<()> {
+    while !bytes.is_empty() {
+        match stream.write(bytes) {
+            Ok(0) => return Err(ErrorKind::WriteZero.into()),
+            Ok(n) => bytes = &bytes[n..],
+            Err(e) if e.kind() == ErrorKind::WouldBlock => std::thread::sleep(Duration::from_micros(50)),
+            Err(e) if e.kind() == ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(())
 }
 
 #[cfg(test)]
