@@ -12,7 +12,7 @@ use robots::{BusKind, Robot};
 use crate::robot_io::{BusPorts, BusRobot, IoError};
 
 /// The hardware robot's buses.
-pub type HardwareRobot = BusRobot<SocketCanBus, SerialDxlPort, DeviceStream>;
+pub type HardwareRobot = BusRobot<DeviceStream>;
 
 /// Opens every bus of `robot` (nothing is sent yet). Errors name the bus and device.
 pub fn open(robot: &Robot) -> Result<HardwareRobot, IoError> {
@@ -44,10 +44,12 @@ pub fn open(robot: &Robot) -> Result<HardwareRobot, IoError> {
         reply_slack: Duration::from_millis(3),
         ..DxlDriverOptions::default()
     };
+    // Buses on their own threads: the tick's I/O costs the slowest bus, not the sum.
     BusRobot::new(
         robot,
         BusPorts { can, dxl, imu },
         Duration::from_millis(2),
         options,
-    )
+    )?
+    .parallel()
 }

@@ -6,8 +6,6 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use firmware_bridge::can::CanBus;
-use firmware_bridge::dxl::transport::DxlTransport;
 use firmware_bridge::serial::ByteStream;
 use robots::Robot;
 
@@ -258,14 +256,14 @@ impl ReferenceView for RefCursor {
 
 /// The controller of one run.
 #[derive(Debug)]
-pub struct Player<C: CanBus, D: DxlTransport, S: ByteStream> {
+pub struct Player<S: ByteStream> {
     robot: Robot,
     layout: PolicyLayout,
     model: OnnxModel,
     obs_builder: ObservationBuilder,
     reference: Reference,
     options: PlayOptions,
-    io: BusRobot<C, D, S>,
+    io: BusRobot<S>,
     stop: Arc<AtomicBool>,
     dt: f64,
     // State machine.
@@ -322,14 +320,14 @@ pub enum PlayError {
 
 const MAX_FRAMES_AHEAD: usize = 64;
 
-impl<C: CanBus, D: DxlTransport, S: ByteStream> Player<C, D, S> {
+impl<S: ByteStream> Player<S> {
     /// Prepares a run: checks the policy against its model, sizes every buffer.
     pub fn new(
         robot: Robot,
         layout: PolicyLayout,
         reference: Reference,
         options: PlayOptions,
-        io: BusRobot<C, D, S>,
+        io: BusRobot<S>,
         stop: Arc<AtomicBool>,
     ) -> Result<Self, PlayError> {
         let model = OnnxModel::load(&layout.onnx_path)?;

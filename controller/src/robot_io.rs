@@ -8,9 +8,11 @@ use firmware_bridge::dxl::transport::DxlTransport;
 use firmware_bridge::imu::reader::ImuReader;
 use firmware_bridge::mit::codec::MotorFault;
 use firmware_bridge::mit::driver::{JointCommand, MitBusDriver, MitError};
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::Duration;
+
 use firmware_bridge::serial::ByteStream;
 use robots::{BusKind, Robot, drivers};
-use std::time::Duration;
 
 /// A joint command in robot order: PD target and feed-forward torque.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -97,13 +99,16 @@ pub struct BusPorts<C, D, S> {
     pub imu: S,
 }
 
-/// Every bus of a robot.
-#[derive(Debug)]
-pub struct BusRobot<C: CanBus, D: DxlTransport, S: ByteStream> {
-    mit: Vec<Bus<MitBusDriver<C>, JointCommand>>,
-    dxl: Vec<Bus<DxlBusDriver<D>, DxlCommand>>,
-    imu: ImuReader<S>,
-    last_imu: Option<S::Instant>,
+/// One bus of joints as the loop drives it.
+pub trait JointBus: Send + std::fmt::Debug {
+    /// Checks the devices answer with their identities; leaves them limp.
+    fn identify(&mut self) -> Result<(), IoError>;
+    /// Reads the bus's joints into `state` (robot order).
+    fn read(&mut self, state: &mut RobotState) -> Result<(), IoError>;
+    /// Sends the bus's joints their targets (robot order).
+    fn write(&mut self, targets: &[JointTarget]) -> Result<(), IoError>;
+    /// Torque off.
+    fn torque_off(&mut self) -> Result<(), IoError>;
 }
 
 /// One bus: its driver, the robot index of each of its joints, its command buffer, torque state.
@@ -115,15 +120,229 @@ struct Bus<Driver, Command> {
     enabled: bool,
 }
 
-impl<C: CanBus, D: DxlTransport, S: ByteStream> BusRobot<C, D, S> {
+impl<C: CanBus + Send + std::fmt::Debug> JointBus for Bus<MitBusDriver<C>, JointCommand>
+where
+    C::Instant: Send,
+{
+    fn identify(&mut self) -> Result<(), IoError> {
+        self.driver.disable_all()?;
+        self.enabled = false;
+        Ok(())
+    }
+
+    fn read(&mut self, state: &mut RobotState) -> Result<(), IoError> {
+        // MIT motors answer commands: repeating the last one is the read.
+        self.driver.cycle(&self.commands)?;
+        for (f, &i) in self.driver.feedback().iter().zip(&self.joints) {
+            state.q[i] = f.q;
+            state.qd[i] = f.qd;
+            state.tau[i] = f.tau;
+            state.missed[i] = f.missed_cycles;
+            state.faulted[i] = !matches!(f.fault, MotorFault::None);
+        }
+        Ok(())
+    }
+
+    fn write(&mut self, targets: &[JointTarget]) -> Result<(), IoError> {
+        let want = self.joints.iter().any(|&i| targets[i].enabled);
+        if want != self.enabled {
+            if want {
+                self.driver.enable_all()?;
+            } else {
+                self.driver.disable_all()?;
+            }
+            self.enabled = want;
+        }
+        for (c, &i) in self.commands.iter_mut().zip(&self.joints) {
+            let t = targets[i];
+            *c = if t.enabled {
+                JointCommand {
+                    q: t.q,
+                    qd: t.qd,
+                    kp: t.kp,
+                    kd: t.kd,
+                    tau: t.tau,
+                }
+            } else {
+                JointCommand::default()
+            };
+        }
+        self.driver.cycle(&self.commands)?;
+        Ok(())
+    }
+
+    fn torque_off(&mut self) -> Result<(), IoError> {
+        self.commands.fill(JointCommand::default());
+        self.enabled = false;
+        self.driver.disable_all()?;
+        Ok(())
+    }
+}
+
+impl<D: DxlTransport + Send + std::fmt::Debug> JointBus for Bus<DxlBusDriver<D>, DxlCommand>
+where
+    D::Instant: Send,
+{
+    fn identify(&mut self) -> Result<(), IoError> {
+        self.driver.configure()?;
+        self.enabled = false;
+        Ok(())
+    }
+
+    fn read(&mut self, state: &mut RobotState) -> Result<(), IoError> {
+        self.driver.read_state()?;
+        for (f, &i) in self.driver.feedback().iter().zip(&self.joints) {
+            state.q[i] = f.q;
+            state.qd[i] = f.qd;
+            state.tau[i] = f.tau;
+            state.missed[i] = f.missed_cycles;
+            state.faulted[i] = f.hardware_error != 0;
+        }
+        Ok(())
+    }
+
+    fn write(&mut self, targets: &[JointTarget]) -> Result<(), IoError> {
+        // Dynamixel position servos have no pure-damping mode: joints asked for kp = 0 go limp
+        // (the gearbox resists), which is the damped state for these joints.
+        let want = self
+            .joints
+            .iter()
+            .all(|&i| targets[i].enabled && targets[i].kp > 0.0);
+        for (c, &i) in self.commands.iter_mut().zip(&self.joints) {
+            *c = DxlCommand {
+                q: targets[i].q,
+                current: 0.0,
+            };
+        }
+        if want {
+            // Goals first, so torque comes on towards the target, not a stale goal.
+            self.driver.write_goals(&self.commands)?;
+        }
+        if want != self.enabled {
+            if want {
+                self.driver.enable()?;
+            } else {
+                self.driver.disable()?;
+            }
+            self.enabled = want;
+        }
+        Ok(())
+    }
+
+    fn torque_off(&mut self) -> Result<(), IoError> {
+        self.enabled = false;
+        self.driver.disable()?;
+        Ok(())
+    }
+}
+
+/// What a bus worker is asked to do.
+#[derive(Debug, Clone, Copy)]
+enum Op {
+    Identify,
+    Read,
+    Write,
+    TorqueOff,
+}
+
+/// Buffers a worker and the loop share.
+#[derive(Debug)]
+struct Slot {
+    state: RobotState,
+    targets: Vec<JointTarget>,
+}
+
+/// A bus serviced on its own thread, so the I/O phase costs the slowest bus, not the sum.
+#[derive(Debug)]
+struct Worker {
+    ops: Option<crossbeam::channel::Sender<Op>>,
+    done: crossbeam::channel::Receiver<Result<(), IoError>>,
+    slot: Arc<Mutex<Slot>>,
+    joints: Vec<usize>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl Worker {
+    fn spawn(
+        mut bus: Box<dyn JointBus>,
+        joints: Vec<usize>,
+        n: usize,
+        index: usize,
+    ) -> std::io::Result<Self> {
+        let (ops, rx) = crossbeam::channel::bounded::<Op>(1);
+        let (tx, done) = crossbeam::channel::bounded::<Result<(), IoError>>(1);
+        let slot = Arc::new(Mutex::new(Slot {
+            state: RobotState::new(n),
+            targets: vec![JointTarget::default(); n],
+        }));
+        let shared = Arc::clone(&slot);
+        let thread = std::thread::Builder::new()
+            .name(format!("bus-{index}"))
+            .spawn(move || {
+                while let Ok(op) = rx.recv() {
+                    let mut s = shared.lock().unwrap_or_else(PoisonError::into_inner);
+                    let Slot { state, targets } = &mut *s;
+                    let r = match op {
+                        Op::Identify => bus.identify(),
+                        Op::Read => bus.read(state),
+                        Op::Write => bus.write(targets),
+                        Op::TorqueOff => bus.torque_off(),
+                    };
+                    drop(s);
+                    if tx.send(r).is_err() {
+                        break;
+                    }
+                }
+            })?;
+        Ok(Self {
+            ops: Some(ops),
+            done,
+            slot,
+            joints,
+            thread: Some(thread),
+        })
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, Slot> {
+        self.slot.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+}
+
+impl Drop for Worker {
+    fn drop(&mut self) {
+        // Closing the channel ends the worker's loop.
+        self.ops.take();
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+/// Every bus of a robot, in sequence (lockstep: deterministic) or in parallel (wall clock).
+#[derive(Debug)]
+pub struct BusRobot<S: ByteStream> {
+    buses: Vec<(Box<dyn JointBus>, Vec<usize>)>,
+    workers: Vec<Worker>,
+    imu: ImuReader<S>,
+    last_imu: Option<S::Instant>,
+    n: usize,
+}
+
+impl<S: ByteStream> BusRobot<S> {
     /// Drivers for `robot` on `ports`. Nothing is sent yet.
-    pub fn new(
+    pub fn new<C, D>(
         robot: &Robot,
         ports: BusPorts<C, D, S>,
         reply_timeout: Duration,
         dxl: DxlDriverOptions,
-    ) -> Result<Self, IoError> {
-        let mut mit = Vec::new();
+    ) -> Result<Self, IoError>
+    where
+        C: CanBus + Send + std::fmt::Debug + 'static,
+        C::Instant: Send,
+        D: DxlTransport + Send + std::fmt::Debug + 'static,
+        D::Instant: Send,
+    {
+        let mut buses: Vec<(Box<dyn JointBus>, Vec<usize>)> = Vec::new();
         for (name, port) in ports.can {
             check_kind(robot, &name, BusKind::MitCan)?;
             let (idx, cfg): (Vec<_>, Vec<_>) = robot
@@ -131,14 +350,14 @@ impl<C: CanBus, D: DxlTransport, S: ByteStream> BusRobot<C, D, S> {
                 .map(|(i, j)| (i, drivers::mit_joint(j)))
                 .unzip();
             let n = idx.len();
-            mit.push(Bus {
+            let bus = Bus {
                 driver: MitBusDriver::new(port, cfg, reply_timeout)?,
-                joints: idx,
+                joints: idx.clone(),
                 commands: vec![JointCommand::default(); n],
                 enabled: false,
-            });
+            };
+            buses.push((Box::new(bus), idx));
         }
-        let mut dxl_drivers = Vec::new();
         for (name, port) in ports.dxl {
             check_kind(robot, &name, BusKind::Dynamixel)?;
             let (idx, cfg): (Vec<_>, Vec<_>) = robot
@@ -146,64 +365,90 @@ impl<C: CanBus, D: DxlTransport, S: ByteStream> BusRobot<C, D, S> {
                 .map(|(i, j)| (i, drivers::dxl_joint(j)))
                 .unzip();
             let n = idx.len();
-            dxl_drivers.push(Bus {
+            let bus = Bus {
                 driver: DxlBusDriver::new(port, cfg, dxl)?,
-                joints: idx,
+                joints: idx.clone(),
                 commands: vec![DxlCommand::default(); n],
                 enabled: false,
-            });
+            };
+            buses.push((Box::new(bus), idx));
         }
-        let covered: usize = mit.iter().map(|b| b.joints.len()).sum::<usize>()
-            + dxl_drivers.iter().map(|b| b.joints.len()).sum::<usize>();
-        if covered != robot.config.joints.len() {
+        let covered: usize = buses.iter().map(|b| b.1.len()).sum();
+        let n = robot.config.joints.len();
+        if covered != n {
             return Err(IoError::Setup(format!(
-                "the ports reach {covered} of the robot's {} joints",
-                robot.config.joints.len()
+                "the ports reach {covered} of the robot's {n} joints"
             )));
         }
         Ok(Self {
-            mit,
-            dxl: dxl_drivers,
+            buses,
+            workers: Vec::new(),
             imu: ImuReader::new(ports.imu),
             last_imu: None,
+            n,
         })
+    }
+
+    /// Moves each bus onto its own thread: reads and writes of all buses then overlap.
+    pub fn parallel(mut self) -> Result<Self, IoError> {
+        for (i, (bus, joints)) in std::mem::take(&mut self.buses).into_iter().enumerate() {
+            let w = Worker::spawn(bus, joints, self.n, i)
+                .map_err(|e| IoError::Setup(format!("cannot start a bus thread: {e}")))?;
+            self.workers.push(w);
+        }
+        Ok(self)
+    }
+
+    /// Runs `op` on every worker at once and waits for all; the first error wins.
+    fn fan_out(&mut self, op: Op) -> Result<(), IoError> {
+        for w in &self.workers {
+            if let Some(ops) = &w.ops {
+                ops.send(op)
+                    .map_err(|_| IoError::Setup("a bus thread stopped".into()))?;
+            }
+        }
+        let mut first = None;
+        for w in &self.workers {
+            match w.done.recv() {
+                Ok(Ok(())) => {}
+                Ok(Err(e)) => {
+                    first.get_or_insert(e);
+                }
+                Err(_) => {
+                    first.get_or_insert(IoError::Setup("a bus thread stopped".into()));
+                }
+            }
+        }
+        first.map_or(Ok(()), Err)
     }
 
     /// Checks every device answers with the right identity and configures the servos (torque
     /// off). MIT motors are asked with a *disable* frame, which also leaves them limp.
     pub fn identify(&mut self) -> Result<(), IoError> {
-        for b in &mut self.mit {
-            b.driver.disable_all()?;
-            b.enabled = false;
+        for (b, _) in &mut self.buses {
+            b.identify()?;
         }
-        for b in &mut self.dxl {
-            b.driver.configure()?;
-            b.enabled = false;
-        }
-        Ok(())
+        self.fan_out(Op::Identify)
     }
 
-    /// Reads every bus (MIT motors by repeating the last command) and the IMU into `state`.
+    /// Reads every bus and the IMU into `state`.
     pub fn read(&mut self, state: &mut RobotState) -> Result<(), IoError> {
-        for b in &mut self.mit {
-            b.driver.cycle(&b.commands)?;
-            for (f, &i) in b.driver.feedback().iter().zip(&b.joints) {
-                state.q[i] = f.q;
-                state.qd[i] = f.qd;
-                state.tau[i] = f.tau;
-                state.missed[i] = f.missed_cycles;
-                state.faulted[i] = !matches!(f.fault, MotorFault::None);
-            }
+        for (b, _) in &mut self.buses {
+            b.read(state)?;
         }
-        for b in &mut self.dxl {
-            b.driver.read_state()?;
-            for (f, &i) in b.driver.feedback().iter().zip(&b.joints) {
-                state.q[i] = f.q;
-                state.qd[i] = f.qd;
-                state.tau[i] = f.tau;
-                state.missed[i] = f.missed_cycles;
-                state.faulted[i] = f.hardware_error != 0;
+        if !self.workers.is_empty() {
+            let r = self.fan_out(Op::Read);
+            for w in &self.workers {
+                let s = w.lock();
+                for &i in &w.joints {
+                    state.q[i] = s.state.q[i];
+                    state.qd[i] = s.state.qd[i];
+                    state.tau[i] = s.state.tau[i];
+                    state.missed[i] = s.state.missed[i];
+                    state.faulted[i] = s.state.faulted[i];
+                }
             }
+            r?;
         }
         match self.imu.poll()? {
             Some(r) if Some(r.received_at) != self.last_imu => {
@@ -220,76 +465,28 @@ impl<C: CanBus, D: DxlTransport, S: ByteStream> BusRobot<C, D, S> {
 
     /// Sends every joint its target (robot order), switching torque on or off per bus as needed.
     pub fn write(&mut self, targets: &[JointTarget]) -> Result<(), IoError> {
-        for b in &mut self.mit {
-            let want = b.joints.iter().any(|&i| targets[i].enabled);
-            if want != b.enabled {
-                if want {
-                    b.driver.enable_all()?;
-                } else {
-                    b.driver.disable_all()?;
-                }
-                b.enabled = want;
-            }
-            for (c, &i) in b.commands.iter_mut().zip(&b.joints) {
-                let t = targets[i];
-                *c = if t.enabled {
-                    JointCommand {
-                        q: t.q,
-                        qd: t.qd,
-                        kp: t.kp,
-                        kd: t.kd,
-                        tau: t.tau,
-                    }
-                } else {
-                    JointCommand::default()
-                };
-            }
-            b.driver.cycle(&b.commands)?;
+        for (b, _) in &mut self.buses {
+            b.write(targets)?;
         }
-        for b in &mut self.dxl {
-            // Dynamixel position servos have no pure-damping mode: joints asked for kp = 0 go
-            // limp (the gearbox resists), which is the damped state for these joints.
-            let want = b
-                .joints
-                .iter()
-                .all(|&i| targets[i].enabled && targets[i].kp > 0.0);
-            for (c, &i) in b.commands.iter_mut().zip(&b.joints) {
-                *c = DxlCommand {
-                    q: targets[i].q,
-                    current: 0.0,
-                };
-            }
-            if want {
-                // Goals first, so torque comes on towards the target, not a stale goal.
-                b.driver.write_goals(&b.commands)?;
-            }
-            if want != b.enabled {
-                if want {
-                    b.driver.enable()?;
-                } else {
-                    b.driver.disable()?;
-                }
-                b.enabled = want;
-            }
+        if self.workers.is_empty() {
+            return Ok(());
         }
-        Ok(())
+        for w in &self.workers {
+            w.lock().targets.copy_from_slice(targets);
+        }
+        self.fan_out(Op::Write)
     }
 
     /// Torque off everywhere (best effort on every bus, first error reported).
     pub fn torque_off(&mut self) -> Result<(), IoError> {
         let mut first: Option<IoError> = None;
-        for b in &mut self.mit {
-            b.commands.fill(JointCommand::default());
-            b.enabled = false;
-            if let Err(e) = b.driver.disable_all() {
-                first.get_or_insert(e.into());
+        for (b, _) in &mut self.buses {
+            if let Err(e) = b.torque_off() {
+                first.get_or_insert(e);
             }
         }
-        for b in &mut self.dxl {
-            b.enabled = false;
-            if let Err(e) = b.driver.disable() {
-                first.get_or_insert(e.into());
-            }
+        if let Err(e) = self.fan_out(Op::TorqueOff) {
+            first.get_or_insert(e);
         }
         first.map_or(Ok(()), Err)
     }

@@ -6,9 +6,9 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
 use firmware_bridge::can::socketcand::SocketcandClient;
-use firmware_bridge::can::virtual_bus::{LockstepCanPort, SimWorld};
+use firmware_bridge::can::virtual_bus::SimWorld;
 use firmware_bridge::dxl::driver::DxlDriverOptions;
-use firmware_bridge::dxl::transport::{LockstepDxlPort, SerialDxlPort};
+use firmware_bridge::dxl::transport::SerialDxlPort;
 use firmware_bridge::serial::{DeviceStream, LockstepStream};
 use firmware_bridge::time::SimInstant;
 use robots::Robot;
@@ -20,10 +20,10 @@ use crate::policy::GroundTruth;
 use crate::robot_io::{BusPorts, BusRobot, IoError};
 
 /// The robot's buses on a mirror in lockstep.
-pub type LockstepRobot = BusRobot<LockstepCanPort<Mirror>, LockstepDxlPort<Mirror>, LockstepStream<Mirror>>;
+pub type LockstepRobot = BusRobot<LockstepStream<Mirror>>;
 
 /// The robot's buses on a served mirror, over socketcand and pseudo-terminals.
-pub type WiredRobot = BusRobot<SocketcandClient, SerialDxlPort, DeviceStream>;
+pub type WiredRobot = BusRobot<DeviceStream>;
 
 /// Reply timeout of MIT motors in lockstep (simulated time).
 const LOCKSTEP_REPLY: Duration = Duration::from_millis(2);
@@ -72,12 +72,14 @@ pub fn wired_robot(robot: &Robot, served: &ServedMirror) -> Result<WiredRobot, I
         reply_slack: Duration::from_millis(5),
         ..DxlDriverOptions::default()
     };
+    // Buses on their own threads: the tick's I/O costs the slowest bus.
     BusRobot::new(
         robot,
         BusPorts { can, dxl, imu },
         Duration::from_millis(20),
         options,
-    )
+    )?
+    .parallel()
 }
 
 /// Serves `mirror` on loopback (free ports) for a wired run.

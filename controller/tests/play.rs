@@ -10,8 +10,6 @@ use controller::player::{PlayOptions, PlaySummary, Player};
 use controller::policy::PolicyLayout;
 use controller::safety::{Cause, Mode};
 use controller::sim::{LockstepClock, LockstepRobot, lockstep_robot};
-use firmware_bridge::can::virtual_bus::LockstepCanPort;
-use firmware_bridge::dxl::transport::LockstepDxlPort;
 use firmware_bridge::serial::LockstepStream;
 use robots::{Robot, reference_robot_path};
 use sim2real::config::MirrorConfig;
@@ -20,7 +18,7 @@ use sim2real::mirror::Mirror;
 #[global_allocator]
 static ALLOC: test_support::alloc::CountingAllocator = test_support::alloc::CountingAllocator;
 
-type MirrorPlayer = Player<LockstepCanPort<Mirror>, LockstepDxlPort<Mirror>, LockstepStream<Mirror>>;
+type MirrorPlayer = Player<LockstepStream<Mirror>>;
 
 fn biped(file: &str) -> PathBuf {
     reference_robot_path().with_file_name(file)
