@@ -5,6 +5,10 @@
 //! CSV layout: `#` comment lines, then a header `time,root_x,root_y,root_z,root_qw,root_qx,root_qy,
 //! root_qz,<joint>,<joint>,…` (joint names as in robot.toml), then one row per frame with `time` in
 //! seconds, strictly increasing.
+//!
+//! NPZ layout (named arrays, as retargeting tools in Python write them): `joint_names` (J strings),
+//! `joint_pos` (T × J), `root_pos` (T × 3), `root_quat` (T × 4, w x y z), and either `fps` (a scalar)
+//! or `time` (T).
 
 use std::path::{Path, PathBuf};
 
@@ -42,15 +46,108 @@ const ROOT_COLUMNS: [&str; 8] = [
 ];
 
 impl Clip {
-    /// Reads a CSV clip.
+    /// Reads a clip: `.npz` by its named arrays, anything else as CSV.
     pub fn load(path: &Path) -> Result<Self, ClipError> {
+        if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("npz")) {
+            Self::load_npz(path)
+        } else {
+            Self::load_csv(path)
+        }
+    }
+
+    /// Reads an NPZ clip.
+    pub fn load_npz(path: &Path) -> Result<Self, ClipError> {
+        use crate::npy::NpyArray;
+        let err = |place: &str, message: String| ClipError {
+            file: path.to_path_buf(),
+            place: place.to_owned(),
+            message,
+        };
+        let arrays = crate::npy::read_npz(path).map_err(|m| err("file", m))?;
+        let numbers = |name: &str, cols: Option<usize>| -> Result<(usize, Vec<f64>), ClipError> {
+            match arrays.get(name) {
+                Some(NpyArray::Numbers { shape, data }) => match (shape.as_slice(), cols) {
+                    ([t, c], Some(want)) if *c == want => Ok((*t, data.clone())),
+                    ([t], None) => Ok((*t, data.clone())),
+                    ([], None) => Ok((1, data.clone())),
+                    (s, _) => Err(err(
+                        name,
+                        format!(
+                            "has shape {s:?}, expected {}",
+                            cols.map_or("(T,)".into(), |c| format!("(T, {c})"))
+                        ),
+                    )),
+                },
+                Some(NpyArray::Strings { .. }) => Err(err(name, "holds strings, expected numbers".into())),
+                None => Err(err(
+                    name,
+                    "array missing (need joint_names, joint_pos, root_pos, root_quat, fps or time)".into(),
+                )),
+            }
+        };
+        let joints = match arrays.get("joint_names") {
+            Some(NpyArray::Strings { data, .. }) => data.clone(),
+            Some(_) => return Err(err("joint_names", "is not a string array".into())),
+            None => return Err(err("joint_names", "array missing".into())),
+        };
+        let (t, q) = numbers("joint_pos", Some(joints.len()))?;
+        let (t_pos, pos) = numbers("root_pos", Some(3))?;
+        let (t_quat, quat) = numbers("root_quat", Some(4))?;
+        if t_pos != t || t_quat != t {
+            return Err(err(
+                "root_pos",
+                format!("joint_pos has {t} frames, root_pos {t_pos}, root_quat {t_quat}"),
+            ));
+        }
+        let times: Vec<f64> = if arrays.contains_key("time") {
+            let (tt, times) = numbers("time", None)?;
+            if tt != t {
+                return Err(err("time", format!("{tt} values for {t} frames")));
+            }
+            times
+        } else {
+            let (_, fps) = numbers("fps", None)?;
+            let fps = fps.first().copied().unwrap_or(0.0);
+            if !(fps.is_finite() && fps > 0.0) {
+                return Err(err("fps", format!("{fps} is not a frame rate")));
+            }
+            (0..t).map(|k| k as f64 / fps).collect()
+        };
+        // The CSV reader checks every row; reuse it through the same text layout.
+        let mut text = String::new();
+        text.push_str("time,root_x,root_y,root_z,root_qw,root_qx,root_qy,root_qz,");
+        text.push_str(&joints.join(","));
+        text.push('\n');
+        for k in 0..t {
+            let row: Vec<String> = std::iter::once(times[k])
+                .chain(pos[3 * k..3 * k + 3].iter().copied())
+                .chain(quat[4 * k..4 * k + 4].iter().copied())
+                .chain(q[joints.len() * k..joints.len() * (k + 1)].iter().copied())
+                .map(|x| format!("{x:?}"))
+                .collect();
+            text.push_str(&row.join(","));
+            text.push('\n');
+        }
+        Self::parse_csv(path, &text)
+    }
+
+    /// Reads a CSV clip.
+    pub fn load_csv(path: &Path) -> Result<Self, ClipError> {
+        let text = std::fs::read_to_string(path).map_err(|e| ClipError {
+            file: path.to_path_buf(),
+            place: "file".into(),
+            message: format!("cannot read: {e}"),
+        })?;
+        Self::parse_csv(path, &text)
+    }
+
+    /// Parses CSV text as if read from `path`.
+    pub fn parse_csv(path: &Path, text: &str) -> Result<Self, ClipError> {
         let err = |place: String, message: String| ClipError {
             file: path.to_path_buf(),
             place,
             message,
         };
-        let text =
-            std::fs::read_to_string(path).map_err(|e| err("file".into(), format!("cannot read: {e}")))?;
         let mut lines = text
             .lines()
             .enumerate()

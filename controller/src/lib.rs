@@ -4,6 +4,7 @@
 pub mod clip;
 pub mod hardware;
 pub mod native;
+pub mod npy;
 pub mod onnx;
 pub mod player;
 pub mod policy;
