@@ -47,6 +47,9 @@ pub struct PlayArgs {
     /// the system refuses are reported and skipped.
     #[arg(long)]
     realtime: bool,
+    /// Listen for an e-stop on this UDP address (a datagram `ESTOP` damps the robot at once).
+    #[arg(long)]
+    estop_udp: Option<std::net::SocketAddr>,
 }
 
 /// Arguments of `check`.
@@ -138,6 +141,19 @@ pub fn check(args: &CheckArgs) -> Result<()> {
     Ok(())
 }
 
+fn with_estop<S: firmware_bridge::serial::ByteStream>(
+    player: Player<S>,
+    args: &PlayArgs,
+) -> Result<Player<S>> {
+    let Some(addr) = args.estop_udp else {
+        return Ok(player);
+    };
+    let (flag, local) =
+        controller::estop::listen(addr).with_context(|| format!("cannot listen for the e-stop on {addr}"))?;
+    println!("e-stop: send ESTOP to udp://{local}");
+    Ok(player.with_estop(flag))
+}
+
 /// Runs `play`.
 pub fn play(args: &PlayArgs) -> Result<()> {
     let l = load(&args.files)?;
@@ -182,7 +198,10 @@ pub fn play(args: &PlayArgs) -> Result<()> {
         );
         let io = controller::hardware::open(&l.robot)?;
         let mut clock = controller::player::WallClock::start();
-        let mut player = Player::new(l.robot, l.layout, l.reference, options, io, stop)?;
+        let mut player = with_estop(
+            Player::new(l.robot, l.layout, l.reference, options, io, stop)?,
+            args,
+        )?;
         let summary = player.run(&mut clock)?;
         print!("{summary}");
         return Ok(());
@@ -211,13 +230,19 @@ pub fn play(args: &PlayArgs) -> Result<()> {
         let served = serve_locally(mirror).context("cannot serve the mirror")?;
         let io = wired_robot(&l.robot, &served)?;
         let mut clock = ServedClock::new(Arc::clone(&served.world));
-        let mut player = Player::new(l.robot, l.layout, l.reference, options, io, stop)?;
+        let mut player = with_estop(
+            Player::new(l.robot, l.layout, l.reference, options, io, stop)?,
+            args,
+        )?;
         player.run(&mut clock)?
     } else {
         let world = Arc::new(Mutex::new(mirror));
         let io = lockstep_robot(&l.robot, &world)?;
         let mut clock = LockstepClock::new(Arc::clone(&world));
-        let mut player = Player::new(l.robot, l.layout, l.reference, options, io, stop)?;
+        let mut player = with_estop(
+            Player::new(l.robot, l.layout, l.reference, options, io, stop)?,
+            args,
+        )?;
         player.run(&mut clock)?
     };
     print!("{summary}");

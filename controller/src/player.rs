@@ -265,6 +265,7 @@ pub struct Player<S: ByteStream> {
     options: PlayOptions,
     io: BusRobot<S>,
     stop: Arc<AtomicBool>,
+    estop: Option<Arc<AtomicBool>>,
     dt: f64,
     // State machine.
     mode: Mode,
@@ -384,6 +385,7 @@ impl<S: ByteStream> Player<S> {
             options,
             io,
             stop,
+            estop: None,
             mode: Mode::Off,
             mode_ticks: 0,
             tick: 0,
@@ -420,6 +422,13 @@ impl<S: ByteStream> Player<S> {
             layout,
             reference,
         })
+    }
+
+    /// An e-stop input: when the flag is set, the robot goes to damping at once (a fault, unlike
+    /// the soft stop of SIGINT).
+    pub fn with_estop(mut self, flag: Arc<AtomicBool>) -> Self {
+        self.estop = Some(flag);
+        self
     }
 
     /// The current mode.
@@ -558,6 +567,9 @@ impl<S: ByteStream> Player<S> {
     fn check_state(&self) -> Option<Cause> {
         if !matches!(self.mode, Mode::SoftStart | Mode::Running | Mode::Stopping) {
             return None;
+        }
+        if self.estop.as_ref().is_some_and(|f| f.load(Ordering::Relaxed)) {
+            return Some(Cause::EStop);
         }
         let s = &self.state;
         let lim = &self.options.limits;

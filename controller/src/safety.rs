@@ -65,6 +65,8 @@ pub enum Cause {
         /// How many in a row.
         count: u32,
     },
+    /// An e-stop input fired.
+    EStop,
     /// A bus failed as a whole.
     BusFailure,
     /// The hold before damping ended.
@@ -87,6 +89,7 @@ impl std::fmt::Display for Cause {
             Self::NonFinite { what } => write!(f, "non-finite {what}"),
             Self::Tilt { angle } => write!(f, "base tilted {:.0}°", angle.to_degrees()),
             Self::Overruns { count } => write!(f, "{count} deadline overruns in a row"),
+            Self::EStop => write!(f, "e-stop"),
             Self::BusFailure => write!(f, "bus failure"),
             Self::HoldDone => write!(f, "hold or blend done"),
             Self::DampingDone => write!(f, "damping done"),

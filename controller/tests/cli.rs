@@ -481,3 +481,45 @@ fn check_prints_the_layout_without_moving_anything() {
         "{stdout}"
     );
 }
+
+#[test]
+fn a_udp_estop_damps_the_robot_at_once() {
+    use std::io::{BufRead, Read};
+    let mut child = robodeploy()
+        .args(["play", "--end", "loop", "--estop-udp", "127.0.0.1:0"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut reader = std::io::BufReader::new(child.stdout.take().unwrap());
+    let mut line = String::new();
+    let addr = loop {
+        line.clear();
+        assert!(reader.read_line(&mut line).unwrap() > 0, "no e-stop line");
+        if let Some(a) = line.trim().strip_prefix("e-stop: send ESTOP to udp://") {
+            break a.to_owned();
+        }
+    };
+    std::thread::sleep(std::time::Duration::from_millis(800));
+    let socket = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    socket.send_to(b"hello", &addr).unwrap();
+    socket.send_to(b"ESTOP", &addr).unwrap();
+    let mut rest = String::new();
+    reader.read_to_string(&mut rest).unwrap();
+    assert!(child.wait().unwrap().success(), "{rest}");
+    let stop = rest
+        .lines()
+        .find(|l| l.contains("→ Stopping"))
+        .unwrap_or_else(|| panic!("{rest}"));
+    assert!(stop.contains("(e-stop)"), "{rest}");
+    let tick = |l: &str| {
+        l.split_whitespace()
+            .nth(1)
+            .unwrap()
+            .trim_end_matches(':')
+            .parse::<u64>()
+            .unwrap()
+    };
+    let damped = rest.lines().find(|l| l.contains("→ Damped")).unwrap();
+    assert!(tick(damped) - tick(stop) <= 2, "{rest}");
+}
