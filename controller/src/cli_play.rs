@@ -81,9 +81,9 @@ struct Loaded {
 
 fn load(files: &Files) -> Result<Loaded> {
     let robot = Robot::load(&files.robot)?;
-    let layout = PolicyLayout::load(&files.policy, &robot)?;
+    let mut layout = PolicyLayout::load(&files.policy, &robot)?;
     let model = OnnxModel::load(&layout.onnx_path)?;
-    layout.check_shapes(model.input().1, model.output().1)?;
+    layout.bind_model(model.inputs(), model.output().1)?;
     let clip = Clip::load(&files.clip)?;
     let reference = Reference::from_clip(&clip, &robot, layout.manifest.rate_hz)?;
     Ok(Loaded {

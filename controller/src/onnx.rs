@@ -84,14 +84,15 @@ pub fn runtime_info() -> Result<String, OnnxError> {
     Ok(format!("{} ({})", native::ONNXRUNTIME_VERSION, ort::info()))
 }
 
-/// A loaded model with one float input vector and one float output vector (batch 1).
+/// A loaded model with float vector inputs (one or several, named) and one float vector output
+/// (batch 1).
 #[derive(Debug)]
 pub struct OnnxModel {
     session: Session,
     path: PathBuf,
-    input_name: String,
-    output_name: String,
+    inputs: Vec<(String, usize)>,
     input_len: usize,
+    output_name: String,
     output_len: usize,
     bound: bound::BoundTensors,
 }
@@ -142,31 +143,37 @@ impl OnnxModel {
             path: path.to_path_buf(),
             what,
         };
-        let (input, output) = match (session.inputs(), session.outputs()) {
-            ([i], [o]) => (i, o),
-            (i, o) => {
+        let output = match session.outputs() {
+            [o] => o,
+            o => {
                 return Err(signature(format!(
-                    "has {} inputs and {} outputs; this loader takes one of each",
-                    i.len(),
+                    "has {} outputs; this loader takes one",
                     o.len()
                 )));
             }
         };
-        let input_len =
-            vector_len(input.dtype()).map_err(|w| signature(format!("input '{}' {w}", input.name())))?;
+        if session.inputs().is_empty() {
+            return Err(signature("has no inputs".into()));
+        }
+        let mut inputs = Vec::with_capacity(session.inputs().len());
+        for input in session.inputs() {
+            let n =
+                vector_len(input.dtype()).map_err(|w| signature(format!("input '{}' {w}", input.name())))?;
+            inputs.push((input.name().to_owned(), n));
+        }
         let output_len =
             vector_len(output.dtype()).map_err(|w| signature(format!("output '{}' {w}", output.name())))?;
-        let bound = bound::BoundTensors::new(input.name(), input_len, output.name(), output_len).map_err(
-            |reason| OnnxError::Load {
+        let bound = bound::BoundTensors::new(&inputs, output.name(), output_len).map_err(|reason| {
+            OnnxError::Load {
                 path: path.to_path_buf(),
                 reason,
-            },
-        )?;
+            }
+        })?;
         Ok(Self {
             bound,
-            input_name: input.name().to_owned(),
+            input_len: inputs.iter().map(|i| i.1).sum(),
+            inputs,
             output_name: output.name().to_owned(),
-            input_len,
             output_len,
             path: path.to_path_buf(),
             session,
@@ -178,9 +185,15 @@ impl OnnxModel {
         &self.path
     }
 
-    /// Name and length of the input vector.
+    /// Name and total length of the inputs (the first input's name).
     pub fn input(&self) -> (&str, usize) {
-        (&self.input_name, self.input_len)
+        (&self.inputs[0].0, self.input_len)
+    }
+
+    /// Every input, in the model's order, with its length. [`Self::run`] takes their
+    /// concatenation in this order.
+    pub fn inputs(&self) -> &[(String, usize)] {
+        &self.inputs
     }
 
     /// Name and length of the output vector.
@@ -188,8 +201,8 @@ impl OnnxModel {
         (&self.output_name, self.output_len)
     }
 
-    /// Runs one inference: `obs` in, `actions` out (both sized to the model). Allocates nothing:
-    /// the tensors are bound to buffers made at load time.
+    /// Runs one inference: `obs` (the inputs concatenated in the model's order) in, `actions` out.
+    /// Allocates nothing: the tensors are bound to buffers made at load time.
     pub fn run(&mut self, obs: &[f32], actions: &mut [f32]) -> Result<(), OnnxError> {
         let check = |what, expected, actual| {
             if expected == actual {

@@ -325,14 +325,14 @@ impl<S: ByteStream> Player<S> {
     /// Prepares a run: checks the policy against its model, sizes every buffer.
     pub fn new(
         robot: Robot,
-        layout: PolicyLayout,
+        mut layout: PolicyLayout,
         reference: Reference,
         options: PlayOptions,
         io: BusRobot<S>,
         stop: Arc<AtomicBool>,
     ) -> Result<Self, PlayError> {
         let model = OnnxModel::load(&layout.onnx_path)?;
-        layout.check_shapes(model.input().1, model.output().1)?;
+        layout.bind_model(model.inputs(), model.output().1)?;
         if (layout.manifest.rate_hz - reference.rate_hz).abs() > 1e-9 {
             return Err(PlayError::Setup(format!(
                 "reference resampled at {} Hz for a {} Hz policy",

@@ -109,7 +109,7 @@ fn current_frame() -> Vec<usize> {
 }
 
 /// `(value − offset) · scale`, then clipped, with `history` stacked copies (newest first).
-#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct Shaping {
     /// Multiplier.
@@ -124,6 +124,10 @@ pub struct Shaping {
     /// Stacked past values (1: current only).
     #[serde(default = "one")]
     pub history: usize,
+    /// The ONNX input this term goes to, for models with several named inputs (default: the
+    /// model's first input).
+    #[serde(default)]
+    pub input: Option<String>,
 }
 
 fn unit() -> f64 {
@@ -137,6 +141,7 @@ impl Default for Shaping {
             offset: 0.0,
             clip: None,
             history: 1,
+            input: None,
         }
     }
 }
@@ -409,22 +414,64 @@ impl PolicyLayout {
         self.slots.iter().any(|s| s.term.needs_ground_truth())
     }
 
-    /// Checks the layout against the model's input and output sizes.
-    pub fn check_shapes(&self, input: usize, output: usize) -> Result<(), PolicyError> {
+    /// Fits the layout to the model: the terms of each ONNX input (by the terms' `input`, default
+    /// the first) are laid out contiguously in the model's input order; each input's size and the
+    /// action count must match.
+    pub fn bind_model(&mut self, inputs: &[(String, usize)], output: usize) -> Result<(), PolicyError> {
         let err = |place: &str, message: String| PolicyError {
             file: self.path.clone(),
             place: place.to_owned(),
             message,
         };
-        if input != self.obs_len {
+        let names: Vec<&str> = inputs.iter().map(|i| i.0.as_str()).collect();
+        for (k, s) in self.slots.iter().enumerate() {
+            if let Some(name) = &s.term.shaping().input
+                && !names.contains(&name.as_str())
+            {
+                return Err(err(
+                    &format!("observation[{k}] ({})", s.term.name()),
+                    format!(
+                        "input {name:?} is not an input of {} (inputs: {})",
+                        self.onnx_path.display(),
+                        names.join(", ")
+                    ),
+                ));
+            }
+        }
+        if inputs.len() > 1 && self.slots.iter().all(|s| s.term.shaping().input.is_none()) {
             return Err(err(
                 "observation",
                 format!(
-                    "the terms add up to {} values but {} takes {input}",
-                    self.obs_len,
-                    self.onnx_path.display()
+                    "{} has inputs {}: give each term its `input`",
+                    self.onnx_path.display(),
+                    names.join(", ")
                 ),
             ));
+        }
+        let mut at = 0;
+        let mut ranges = vec![0..0; self.slots.len()];
+        for (i, (name, len)) in inputs.iter().enumerate() {
+            let start = at;
+            for (k, s) in self.slots.iter().enumerate() {
+                if s.term.shaping().input.as_deref().map_or(i == 0, |n| n == name) {
+                    let n = s.range.len();
+                    ranges[k] = at..at + n;
+                    at += n;
+                }
+            }
+            if at - start != *len {
+                return Err(err(
+                    "observation",
+                    format!(
+                        "the terms of input {name:?} add up to {} values but {} takes {len}",
+                        at - start,
+                        self.onnx_path.display()
+                    ),
+                ));
+            }
+        }
+        for (s, r) in self.slots.iter_mut().zip(ranges) {
+            s.range = r;
         }
         if output != self.robot_index.len() {
             return Err(err(
@@ -454,6 +501,10 @@ impl PolicyLayout {
                 sh.scale,
                 sh.offset,
                 sh.clip.map_or(String::new(), |c| format!(" clip ±{c}"))
+                    + &sh
+                        .input
+                        .as_ref()
+                        .map_or(String::new(), |i| format!("  → input {i:?}"))
             ));
         }
         out
@@ -533,7 +584,7 @@ impl ObservationBuilder {
     pub fn build(&mut self, inputs: &ObsInputs<'_>, obs: &mut [f32]) {
         for slot in &self.slots {
             let w = slot.width;
-            let sh = *slot.term.shaping();
+            let sh = slot.term.shaping();
             // Age the history: shift older copies back by one step.
             let r = slot.range.clone();
             if sh.history > 1 {

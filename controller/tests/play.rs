@@ -231,3 +231,53 @@ fn a_steady_state_tick_allocates_nothing() {
     assert_eq!(p.mode(), Mode::Running);
     assert!(stats.is_zero(), "{stats:?}");
 }
+
+#[test]
+fn a_policy_with_two_named_inputs_gets_each_its_terms() {
+    let dir = std::env::temp_dir().join(format!("play-two-inputs-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    // The follower's graph with its observation split: "proprio" = joint_pos (20), "task" = ramp
+    // (1) + ref_joint_pos (20). The model lists "task" first, so the layout must reorder.
+    let script = format!(
+        r#"
+import onnx, numpy as np
+from onnx import helper, numpy_helper, TensorProto as T
+c = lambda n, v, t=np.int64: numpy_helper.from_array(np.array(v, dtype=t), n)
+nodes = [
+    helper.make_node("Slice", ["task", "p_lo", "p_hi"], ["psi"]),
+    helper.make_node("Slice", ["task", "r_lo", "r_hi"], ["ref"]),
+    helper.make_node("Sub", ["ref", "proprio"], ["gap"]),
+    helper.make_node("Mul", ["psi", "gap"], ["step"]),
+    helper.make_node("Add", ["proprio", "step"], ["actions"]),
+]
+g = helper.make_graph(nodes, "two_inputs",
+    [helper.make_tensor_value_info("task", T.FLOAT, [1, 21]), helper.make_tensor_value_info("proprio", T.FLOAT, [1, 20])],
+    [helper.make_tensor_value_info("actions", T.FLOAT, [1, 20])],
+    [c("p_lo", [0, 0]), c("p_hi", [1, 1]), c("r_lo", [0, 1]), c("r_hi", [1, 21])])
+m = helper.make_model(g, opset_imports=[helper.make_opsetid("", 17)]); m.ir_version = 8
+onnx.checker.check_model(m); onnx.save(m, {out:?})
+"#,
+        out = dir.join("two.onnx").display().to_string()
+    );
+    let out = std::process::Command::new(test_support::fixtures::venv_python())
+        .args(["-c", &script])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let follower_text = std::fs::read_to_string(follower()).unwrap();
+    let head = &follower_text[..follower_text.find("[[observation]]").unwrap()];
+    let manifest = head.replace("reference_follower.onnx", "two.onnx")
+        + "[[observation]]\nterm = \"joint_pos\"\nrelative = true\ninput = \"proprio\"\n\n\
+           [[observation]]\nterm = \"ramp\"\ninput = \"task\"\n\n\
+           [[observation]]\nterm = \"ref_joint_pos\"\nrelative = true\ninput = \"task\"\n";
+    std::fs::write(dir.join("two.toml"), manifest).unwrap();
+    let (mut p, mut clock, _w) = player(
+        dir.join("two.toml"),
+        biped("clips/squat.csv"),
+        MirrorConfig::default(),
+        PlayOptions::default(),
+    );
+    let s = p.run(&mut clock).unwrap();
+    assert!(!s.fell && s.joint_rmse.to_degrees() < 3.0, "{s}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -15,16 +15,22 @@ use ort::sys::{
     ONNXTensorElementDataType, OrtAllocatorType, OrtMemType, OrtMemoryInfo, OrtStatusPtr, OrtValue,
 };
 
+/// One bound tensor: its name, the buffer it lives in, its ONNX Runtime value.
+#[derive(Debug)]
+struct Bound {
+    _name: CString,
+    buffer: Box<[f32]>,
+    value: *mut OrtValue,
+}
+
 /// Input and output tensors bound to owned buffers.
 #[derive(Debug)]
 pub(super) struct BoundTensors {
-    obs: Box<[f32]>,
-    actions: Box<[f32]>,
     memory: *mut OrtMemoryInfo,
-    input: *mut OrtValue,
-    output: *mut OrtValue,
-    _names: [CString; 2],
-    input_name: *const c_char,
+    inputs: Vec<Bound>,
+    output: Bound,
+    input_names: Vec<*const c_char>,
+    input_values: Vec<*const OrtValue>,
     output_name: *const c_char,
 }
 
@@ -46,88 +52,95 @@ fn check(status: OrtStatusPtr) -> Result<(), String> {
     Err(message)
 }
 
+/// A `[1, n]` float tensor over a new buffer.
+fn tensor(memory: *mut OrtMemoryInfo, name: &str, n: usize) -> Result<Bound, String> {
+    let mut bound = Bound {
+        _name: CString::new(name).map_err(|e| e.to_string())?,
+        buffer: vec![0.0; n].into_boxed_slice(),
+        value: std::ptr::null_mut(),
+    };
+    let shape = [1i64, n as i64];
+    // SAFETY: the buffer is owned by `bound` and outlives the value (released first in Drop).
+    unsafe {
+        check((ort::api().CreateTensorWithDataAsOrtValue)(
+            memory,
+            bound.buffer.as_mut_ptr().cast::<c_void>(),
+            n * size_of::<f32>(),
+            shape.as_ptr(),
+            2,
+            ONNXTensorElementDataType::ONNX_TENSOR_ELEMENT_DATA_TYPE_FLOAT,
+            &mut bound.value,
+        ))?;
+    }
+    Ok(bound)
+}
+
 impl BoundTensors {
-    /// Tensors `[1, n_in]` and `[1, n_out]` for a session whose input/output carry these names.
-    pub(super) fn new(
-        input_name: &str,
-        n_in: usize,
-        output_name: &str,
-        n_out: usize,
-    ) -> Result<Self, String> {
-        let api = ort::api();
-        let names = [
-            CString::new(input_name).map_err(|e| e.to_string())?,
-            CString::new(output_name).map_err(|e| e.to_string())?,
-        ];
-        let mut bound = Self {
-            obs: vec![0.0; n_in].into_boxed_slice(),
-            actions: vec![0.0; n_out].into_boxed_slice(),
-            memory: std::ptr::null_mut(),
-            input: std::ptr::null_mut(),
-            output: std::ptr::null_mut(),
-            input_name: names[0].as_ptr(),
-            output_name: names[1].as_ptr(),
-            _names: names,
-        };
-        // SAFETY: out-pointers to fields of `bound`; on error the partially built struct is dropped,
-        // and Drop releases exactly the non-null pointers.
-        unsafe {
-            check((api.CreateCpuMemoryInfo)(
+    /// Tensors `[1, n]` for each input (in the session's order) and the output.
+    pub(super) fn new(inputs: &[(String, usize)], output_name: &str, n_out: usize) -> Result<Self, String> {
+        let mut memory = std::ptr::null_mut();
+        // SAFETY: out-pointer to a local; released in Drop (or below on error).
+        check(unsafe {
+            (ort::api().CreateCpuMemoryInfo)(
                 OrtAllocatorType::OrtArenaAllocator,
                 OrtMemType::OrtMemTypeDefault,
-                &mut bound.memory,
-            ))?;
-            let shape_in = [1i64, n_in as i64];
-            check((api.CreateTensorWithDataAsOrtValue)(
-                bound.memory,
-                bound.obs.as_mut_ptr().cast::<c_void>(),
-                n_in * size_of::<f32>(),
-                shape_in.as_ptr(),
-                2,
-                ONNXTensorElementDataType::ONNX_TENSOR_ELEMENT_DATA_TYPE_FLOAT,
-                &mut bound.input,
-            ))?;
-            let shape_out = [1i64, n_out as i64];
-            check((api.CreateTensorWithDataAsOrtValue)(
-                bound.memory,
-                bound.actions.as_mut_ptr().cast::<c_void>(),
-                n_out * size_of::<f32>(),
-                shape_out.as_ptr(),
-                2,
-                ONNXTensorElementDataType::ONNX_TENSOR_ELEMENT_DATA_TYPE_FLOAT,
-                &mut bound.output,
-            ))?;
+                &mut memory,
+            )
+        })?;
+        let mut this = Self {
+            memory,
+            inputs: Vec::with_capacity(inputs.len()),
+            output: Bound {
+                _name: CString::default(),
+                buffer: Box::new([]),
+                value: std::ptr::null_mut(),
+            },
+            input_names: Vec::with_capacity(inputs.len()),
+            input_values: Vec::with_capacity(inputs.len()),
+            output_name: std::ptr::null(),
+        };
+        for (name, n) in inputs {
+            let b = tensor(memory, name, *n)?;
+            this.input_names.push(b._name.as_ptr());
+            this.input_values.push(b.value.cast_const());
+            this.inputs.push(b);
         }
-        Ok(bound)
+        this.output = tensor(memory, output_name, n_out)?;
+        this.output_name = this.output._name.as_ptr();
+        Ok(this)
     }
 
-    /// Copies `obs` in, runs `session`, copies the actions out. Buffer sizes are checked by the caller.
+    /// Copies `obs` into the inputs (consecutive blocks, in input order), runs `session`, copies
+    /// the actions out. Buffer sizes are checked by the caller.
     pub(super) fn run(
         &mut self,
         session: &mut Session,
         obs: &[f32],
         actions: &mut [f32],
     ) -> Result<(), String> {
-        self.obs.copy_from_slice(obs);
-        let api = ort::api();
-        let inputs = [self.input.cast_const()];
-        let mut outputs = [self.output];
+        let mut at = 0;
+        for input in &mut self.inputs {
+            let n = input.buffer.len();
+            input.buffer.copy_from_slice(&obs[at..at + n]);
+            at += n;
+        }
+        let mut outputs = [self.output.value];
         // SAFETY: the session is live (borrowed mutably for the call); names and tensors are owned
         // by `self` and outlive the call; the output tensor is pre-allocated with the model's shape,
-        // so ONNX Runtime writes into `self.actions` instead of allocating.
+        // so ONNX Runtime writes into our buffer instead of allocating.
         unsafe {
-            check((api.Run)(
+            check((ort::api().Run)(
                 session.ptr_mut(),
                 std::ptr::null(),
-                &self.input_name,
-                inputs.as_ptr(),
-                1,
+                self.input_names.as_ptr(),
+                self.input_values.as_ptr(),
+                self.inputs.len(),
                 &self.output_name,
                 1,
                 outputs.as_mut_ptr(),
             ))?;
         }
-        actions.copy_from_slice(&self.actions);
+        actions.copy_from_slice(&self.output.buffer);
         Ok(())
     }
 }
@@ -137,11 +150,10 @@ impl Drop for BoundTensors {
         let api = ort::api();
         // SAFETY: each pointer was created by the API, is released once, and null ones are skipped.
         unsafe {
-            if !self.input.is_null() {
-                (api.ReleaseValue)(self.input);
-            }
-            if !self.output.is_null() {
-                (api.ReleaseValue)(self.output);
+            for b in self.inputs.iter().chain(std::iter::once(&self.output)) {
+                if !b.value.is_null() {
+                    (api.ReleaseValue)(b.value);
+                }
             }
             if !self.memory.is_null() {
                 (api.ReleaseMemoryInfo)(self.memory);
