@@ -84,6 +84,33 @@ pub fn runtime_info() -> Result<String, OnnxError> {
     Ok(format!("{} ({})", native::ONNXRUNTIME_VERSION, ort::info()))
 }
 
+/// The custom metadata properties of a model file (empty when it has none).
+pub fn read_metadata(path: &Path) -> Result<std::collections::BTreeMap<String, String>, OnnxError> {
+    let env = environment()?;
+    let load_err = |e: ort::Error| OnnxError::Load {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    };
+    if !path.is_file() {
+        return Err(OnnxError::Load {
+            path: path.to_path_buf(),
+            reason: "no such file".into(),
+        });
+    }
+    let session = Session::builder(env)
+        .map_err(load_err)?
+        .commit_from_file(path)
+        .map_err(load_err)?;
+    let meta = session.metadata().map_err(load_err)?;
+    let mut out = std::collections::BTreeMap::new();
+    for key in meta.custom_keys().map_err(load_err)? {
+        if let Some(v) = meta.custom(&key) {
+            out.insert(key, v);
+        }
+    }
+    Ok(out)
+}
+
 /// A loaded model with float vector inputs (one or several, named) and one float vector output
 /// (batch 1).
 #[derive(Debug)]

@@ -367,7 +367,7 @@ impl<S: ByteStream> Player<S> {
             .max()
             .unwrap_or(0)
             .max(1);
-        let default_q: Vec<f64> = robot.config.joints.iter().map(|j| j.default_position).collect();
+        let default_q: Vec<f64> = layout.default_q.clone();
         let policy_default = layout.robot_index.iter().map(|&r| default_q[r]).collect();
         let obs_builder = ObservationBuilder::new(&layout);
         let obs_len = layout.obs_len;
@@ -679,8 +679,8 @@ impl<S: ByteStream> Player<S> {
                     j.position_limits[1] - self.options.limits.position_margin,
                 ),
                 qd: 0.0,
-                kp: j.kp * g,
-                kd: j.kd,
+                kp: self.layout.kp[i] * g,
+                kd: self.layout.kd[i],
                 tau: 0.0,
                 enabled: true,
             };
@@ -688,9 +688,9 @@ impl<S: ByteStream> Player<S> {
     }
 
     fn hold_targets(&mut self) {
-        for (t, j) in self.targets.iter_mut().zip(&self.robot.config.joints) {
-            t.kp = j.kp;
-            t.kd = j.kd;
+        for (i, t) in self.targets.iter_mut().enumerate() {
+            t.kp = self.layout.kp[i];
+            t.kd = self.layout.kd[i];
             t.qd = 0.0;
             t.tau = 0.0;
             t.enabled = true;
@@ -698,12 +698,12 @@ impl<S: ByteStream> Player<S> {
     }
 
     fn damping_targets(&mut self) {
-        for (t, j) in self.targets.iter_mut().zip(&self.robot.config.joints) {
+        for (t, &kd) in self.targets.iter_mut().zip(&self.layout.kd) {
             *t = JointTarget {
                 q: t.q,
                 qd: 0.0,
                 kp: 0.0,
-                kd: j.kd,
+                kd,
                 tau: 0.0,
                 enabled: true,
             };
@@ -816,14 +816,14 @@ impl<S: ByteStream> Player<S> {
             let a = spec.clip.map_or(a, |c| a.clamp(-c, c));
             self.targets[r] = match spec.kind {
                 ActionKind::Position => {
-                    let wanted = self.default_q[r] + spec.scale * a;
+                    let wanted = self.default_q[r] + spec.scale.unwrap_or(1.0) * a;
                     self.filtered[r] += alpha * (wanted - self.filtered[r]);
                     let previous = self.targets[r].q;
                     JointTarget {
                         q: govern_position(j, previous, self.filtered[r], self.dt, margin, spec.rate_limit),
                         qd: 0.0,
-                        kp: j.kp,
-                        kd: j.kd,
+                        kp: self.layout.kp[r],
+                        kd: self.layout.kd[r],
                         tau: 0.0,
                         enabled: true,
                     }

@@ -234,9 +234,10 @@ pub enum ActionKind {
 pub struct ActionSpec {
     /// What an action means.
     pub kind: ActionKind,
-    /// Scale of a position action, rad per unit.
-    #[serde(default = "unit")]
-    pub scale: f64,
+    /// Scale of a position action, rad per unit (default: the ONNX metadata's `action_scale`,
+    /// else 1).
+    #[serde(default)]
+    pub scale: Option<f64>,
     /// Clip of the raw action.
     #[serde(default)]
     pub clip: Option<f64>,
@@ -258,8 +259,20 @@ pub struct PolicyManifest {
     pub onnx: PathBuf,
     /// Control rate the policy was trained at, Hz.
     pub rate_hz: f64,
-    /// Joint names in the policy's order (mapped to the robot's joints by name).
+    /// Joint names in the policy's order, mapped to the robot's joints by name (default: the
+    /// ONNX metadata's `joint_names`).
+    #[serde(default)]
     pub joints: Vec<String>,
+    /// The pose actions are relative to, policy order (default: metadata `default_joint_pos`,
+    /// else the robot's default pose).
+    #[serde(default)]
+    pub default_pose: Option<Vec<f64>>,
+    /// PD stiffness per joint, policy order (default: metadata `joint_stiffness`, else robot.toml).
+    #[serde(default)]
+    pub stiffness: Option<Vec<f64>>,
+    /// PD damping per joint, policy order (default: metadata `joint_damping`, else robot.toml).
+    #[serde(default)]
+    pub damping: Option<Vec<f64>>,
     /// Action mapping.
     pub action: ActionSpec,
     /// Observation terms, in order.
@@ -276,6 +289,68 @@ pub struct PolicyError {
     pub place: String,
     /// What is wrong.
     pub message: String,
+}
+
+/// Fills what the manifest leaves out from the ONNX file's metadata properties, as training
+/// frameworks export them (comma-separated `joint_names`, `action_scale`, `default_joint_pos`,
+/// `joint_stiffness`, `joint_damping`).
+fn fill_from_metadata(m: &mut PolicyManifest, onnx: &Path) -> Result<(), (String, String)> {
+    let needs = m.joints.is_empty()
+        || m.action.scale.is_none()
+        || m.default_pose.is_none()
+        || m.stiffness.is_none()
+        || m.damping.is_none();
+    if !needs {
+        return Ok(());
+    }
+    let meta = crate::onnx::read_metadata(onnx).map_err(|e| ("onnx".to_owned(), e.to_string()))?;
+    let numbers = |key: &str| -> Result<Option<Vec<f64>>, (String, String)> {
+        meta.get(key)
+            .map(|text| {
+                text.split(',')
+                    .map(|v| {
+                        v.trim()
+                            .parse::<f64>()
+                            .map_err(|_| (format!("ONNX metadata {key}"), format!("{v:?} is not a number")))
+                    })
+                    .collect()
+            })
+            .transpose()
+    };
+    if m.joints.is_empty() {
+        let names = meta.get("joint_names").ok_or((
+            "joints".to_owned(),
+            "missing, and the ONNX file has no joint_names metadata".to_owned(),
+        ))?;
+        m.joints = names.split(',').map(|s| s.trim().to_owned()).collect();
+    }
+    if m.action.scale.is_none()
+        && let Some(v) = numbers("action_scale")?
+    {
+        // One scale for every joint is what this loop applies.
+        match v.as_slice() {
+            [s] => m.action.scale = Some(*s),
+            many if many.iter().all(|x| (x - many[0]).abs() < 1e-12) && !many.is_empty() => {
+                m.action.scale = Some(many[0])
+            }
+            _ => {
+                return Err((
+                    "ONNX metadata action_scale".into(),
+                    "per-joint scales differ; give action.scale in the manifest".into(),
+                ));
+            }
+        }
+    }
+    if m.default_pose.is_none() {
+        m.default_pose = numbers("default_joint_pos")?;
+    }
+    if m.stiffness.is_none() {
+        m.stiffness = numbers("joint_stiffness")?;
+    }
+    if m.damping.is_none() {
+        m.damping = numbers("joint_damping")?;
+    }
+    Ok(())
 }
 
 /// One term's slot in the observation vector.
@@ -304,6 +379,12 @@ pub struct PolicyLayout {
     pub slots: Vec<TermSlot>,
     /// Observation length.
     pub obs_len: usize,
+    /// The pose actions and relative terms refer to, robot order.
+    pub default_q: Vec<f64>,
+    /// Stiffness per joint, robot order.
+    pub kp: Vec<f64>,
+    /// Damping per joint, robot order.
+    pub kd: Vec<f64>,
 }
 
 impl PolicyLayout {
@@ -315,13 +396,14 @@ impl PolicyLayout {
             message,
         };
         let text = std::fs::read_to_string(path).map_err(|e| err("file", format!("cannot read: {e}")))?;
-        let manifest: PolicyManifest = toml::from_str(&text).map_err(|e| {
+        let mut manifest: PolicyManifest = toml::from_str(&text).map_err(|e| {
             let line = e
                 .span()
                 .map_or(0, |s| text[..s.start.min(text.len())].matches('\n').count() + 1);
             err(&format!("line {line}"), e.message().to_owned())
         })?;
         let onnx_path = path.parent().unwrap_or(Path::new(".")).join(&manifest.onnx);
+        fill_from_metadata(&mut manifest, &onnx_path).map_err(|(place, m)| err(&place, m))?;
         let names: Vec<&str> = robot.config.joints.iter().map(|j| j.name.as_str()).collect();
         let mut robot_index = Vec::with_capacity(manifest.joints.len());
         for (i, name) in manifest.joints.iter().enumerate() {
@@ -356,7 +438,7 @@ impl PolicyLayout {
         }
         let a = &manifest.action;
         for (field, v) in [
-            ("action.scale", Some(a.scale)),
+            ("action.scale", a.scale),
             ("action.clip", a.clip),
             ("action.rate_limit", a.rate_limit),
             ("action.lowpass_hz", a.lowpass_hz),
@@ -399,6 +481,46 @@ impl PolicyLayout {
             });
             at += width * s.history;
         }
+        // Per-joint vectors in robot order: the policy's where it declares them, else the robot's.
+        let joints = &robot.config.joints;
+        let per_joint = |field: &str, given: &Option<Vec<f64>>, robot_value: &dyn Fn(usize) -> f64| {
+            let mut out: Vec<f64> = (0..joints.len()).map(robot_value).collect();
+            if let Some(values) = given {
+                if values.len() != robot_index.len() {
+                    return Err(err(
+                        field,
+                        format!("{} values for {} joints", values.len(), robot_index.len()),
+                    ));
+                }
+                for (p, (&r, &v)) in robot_index.iter().zip(values).enumerate() {
+                    if !v.is_finite() {
+                        return Err(err(&format!("{field}[{p}]"), format!("{v} is not finite")));
+                    }
+                    out[r] = v;
+                }
+            }
+            Ok(out)
+        };
+        let default_q = per_joint("default_pose", &manifest.default_pose, &|r| {
+            joints[r].default_position
+        })?;
+        let kp = per_joint("stiffness", &manifest.stiffness, &|r| joints[r].kp)?;
+        let kd = per_joint("damping", &manifest.damping, &|r| joints[r].kd)?;
+        for (r, j) in joints.iter().enumerate() {
+            let [lo, hi] = j.position_limits;
+            if !(lo..=hi).contains(&default_q[r]) {
+                return Err(err(
+                    "default_pose",
+                    format!("{} = {} is outside its limits [{lo}, {hi}]", j.name, default_q[r]),
+                ));
+            }
+            if kp[r] < 0.0 || kd[r] < 0.0 {
+                return Err(err(
+                    "stiffness",
+                    format!("{}: kp {} / kd {} must not be negative", j.name, kp[r], kd[r]),
+                ));
+            }
+        }
         Ok(Self {
             manifest,
             path: path.to_path_buf(),
@@ -406,6 +528,9 @@ impl PolicyLayout {
             robot_index,
             slots,
             obs_len: at,
+            default_q,
+            kp,
+            kd,
         })
     }
 

@@ -281,3 +281,74 @@ onnx.checker.check_model(m); onnx.save(m, {out:?})
     assert!(!s.fell && s.joint_rmse.to_degrees() < 3.0, "{s}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn joint_order_defaults_and_gains_can_come_from_onnx_metadata() {
+    let robot = Robot::load(&reference_robot_path()).unwrap();
+    let dir = std::env::temp_dir().join(format!("play-meta-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    // The follower with metadata in the style training frameworks export, joints in reverse order.
+    let names: Vec<&str> = robot
+        .config
+        .joints
+        .iter()
+        .rev()
+        .map(|j| j.name.as_str())
+        .collect();
+    let defaults: Vec<String> = robot
+        .config
+        .joints
+        .iter()
+        .rev()
+        .map(|j| j.default_position.to_string())
+        .collect();
+    let kp: Vec<String> = robot
+        .config
+        .joints
+        .iter()
+        .rev()
+        .map(|j| (j.kp * 0.9).to_string())
+        .collect();
+    let script = format!(
+        r#"
+import onnx
+m = onnx.load({src:?})
+onnx.helper.set_model_props(m, dict(joint_names={names:?}, default_joint_pos={defaults:?}, joint_stiffness={kp:?}, action_scale="1.0"))
+onnx.save(m, {out:?})
+"#,
+        src = biped("policies/reference_follower.onnx").display().to_string(),
+        names = names.join(","),
+        defaults = defaults.join(","),
+        kp = kp.join(","),
+        out = dir.join("meta.onnx").display().to_string(),
+    );
+    let out = std::process::Command::new(test_support::fixtures::venv_python())
+        .args(["-c", &script])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = std::fs::read_to_string(follower()).unwrap();
+    let start = text.find("joints = [").unwrap();
+    let end = start + text[start..].find("]\n").unwrap() + 2;
+    let manifest = format!("{}{}", &text[..start], &text[end..])
+        .replace("reference_follower.onnx", "meta.onnx")
+        .replace("scale = 1.0\n", "");
+    std::fs::write(dir.join("meta.toml"), manifest).unwrap();
+    let layout = PolicyLayout::load(&dir.join("meta.toml"), &robot).unwrap();
+    assert_eq!(
+        layout.manifest.joints.first().map(String::as_str),
+        Some("head_pitch")
+    );
+    assert_eq!(layout.robot_index[0], 19);
+    assert!((layout.kp[3] - robot.config.joints[3].kp * 0.9).abs() < 1e-9);
+    assert_eq!(layout.manifest.action.scale, Some(1.0));
+    let (mut p, mut clock, _w) = player(
+        dir.join("meta.toml"),
+        biped("clips/squat.csv"),
+        MirrorConfig::default(),
+        PlayOptions::default(),
+    );
+    let s = p.run(&mut clock).unwrap();
+    assert!(!s.fell && s.joint_rmse.to_degrees() < 3.0, "{s}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
