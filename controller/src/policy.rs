@@ -331,7 +331,7 @@ fn fill_from_metadata(m: &mut PolicyManifest, onnx: &Path) -> Result<(), (String
         match v.as_slice() {
             [s] => m.action.scale = Some(*s),
             many if many.iter().all(|x| (x - many[0]).abs() < 1e-12) && !many.is_empty() => {
-                m.action.scale = Some(many[0])
+                m.action.scale = Some(many[0]);
             }
             _ => {
                 return Err((
