@@ -38,6 +38,8 @@ def width(term: dict, joints: int) -> int:
         return joints * len(term.get("frames", [0]))
     if kind == "ref_root_pose":
         return 9 * len(term.get("frames", [0]))
+    if kind == "ref_body_pos":
+        return 3 * len(term["bodies"]) * len(term.get("frames", [0]))
     if kind == "command":
         return len(term["values"])
     raise SystemExit(f"unsupported term {kind!r}")

@@ -250,6 +250,10 @@ pub struct Reference {
     pub root: Vec<[f64; 7]>,
     /// Robot joints the clip does not name (held at the default pose).
     pub held_joints: Vec<String>,
+    /// Bodies whose positions [`Self::body_pos`] holds (filled when a policy asks for them).
+    pub bodies: Vec<String>,
+    /// Body positions per tick relative to the reference root in its heading frame, 3 per body.
+    pub body_pos: Vec<f64>,
 }
 
 impl Reference {
@@ -267,6 +271,13 @@ impl Reference {
     pub fn q_at(&self, k: usize) -> &[f64] {
         let k = k.min(self.len() - 1);
         &self.q[k * self.n..(k + 1) * self.n]
+    }
+
+    /// Body positions at tick `k` (clamped to the last), 3 per body of [`Self::bodies`].
+    pub fn body_pos_at(&self, k: usize) -> &[f64] {
+        let w = 3 * self.bodies.len();
+        let k = k.min(self.len() - 1);
+        &self.body_pos[k * w..(k + 1) * w]
     }
 
     /// Joint velocities at tick `k` (clamped to the last).
@@ -350,6 +361,8 @@ impl Reference {
             qd,
             root,
             held_joints,
+            bodies: Vec::new(),
+            body_pos: Vec::new(),
         };
         // Can the robot follow it? Positions first (the clearer message), then speeds; each
         // names the first offending frame.

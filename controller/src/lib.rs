@@ -3,6 +3,7 @@
 
 pub mod clip;
 pub mod estop;
+pub mod fk;
 pub mod hardware;
 pub mod native;
 pub mod npy;

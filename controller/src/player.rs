@@ -240,6 +240,7 @@ struct RefCursor {
     policy_q: Vec<Vec<f64>>,
     policy_qd: Vec<Vec<f64>>,
     root: Vec<[f64; 7]>,
+    body: Vec<Vec<f64>>,
 }
 
 impl ReferenceView for RefCursor {
@@ -251,6 +252,9 @@ impl ReferenceView for RefCursor {
     }
     fn root_pose(&self, offset: usize) -> [f64; 7] {
         self.root[offset.min(self.root.len() - 1)]
+    }
+    fn body_pos(&self, offset: usize) -> &[f64] {
+        &self.body[offset.min(self.body.len() - 1)]
     }
 }
 
@@ -326,12 +330,28 @@ impl<S: ByteStream> Player<S> {
     pub fn new(
         robot: Robot,
         mut layout: PolicyLayout,
-        reference: Reference,
+        mut reference: Reference,
         options: PlayOptions,
         io: BusRobot<S>,
         stop: Arc<AtomicBool>,
     ) -> Result<Self, PlayError> {
         let model = OnnxModel::load(&layout.onnx_path)?;
+        // Reference body positions, by forward kinematics, when the policy observes them.
+        let mut body_lists = layout.slots.iter().filter_map(|s| match &s.term {
+            Term::RefBodyPos { bodies, .. } => Some(bodies.clone()),
+            _ => None,
+        });
+        if let Some(bodies) = body_lists.next() {
+            if body_lists.any(|b| b != bodies) {
+                return Err(PlayError::Setup(
+                    "all ref_body_pos terms must name the same bodies".into(),
+                ));
+            }
+            reference.body_pos =
+                crate::fk::body_positions(&robot, &reference, &bodies).map_err(PlayError::Setup)?;
+            reference.bodies = bodies;
+        }
+        let body_width = 3 * reference.bodies.len();
         layout.bind_model(model.inputs(), model.output().1)?;
         if (layout.manifest.rate_hz - reference.rate_hz).abs() > 1e-9 {
             return Err(PlayError::Setup(format!(
@@ -346,7 +366,8 @@ impl<S: ByteStream> Player<S> {
             .filter_map(|s| match &s.term {
                 Term::RefJointPos { frames, .. }
                 | Term::RefJointVel { frames, .. }
-                | Term::RefRootPose { frames, .. } => frames.iter().max().copied(),
+                | Term::RefRootPose { frames, .. }
+                | Term::RefBodyPos { frames, .. } => frames.iter().max().copied(),
                 _ => None,
             })
             .max()
@@ -379,6 +400,7 @@ impl<S: ByteStream> Player<S> {
                 policy_q: vec![vec![0.0; n]; frames],
                 policy_qd: vec![vec![0.0; n]; frames],
                 root: vec![[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]; frames],
+                body: vec![vec![0.0; body_width]; frames],
             },
             obs_builder,
             model,
@@ -753,6 +775,9 @@ impl<S: ByteStream> Player<S> {
                 self.cursor.policy_qd[f][p] = if moving { qd[r] } else { 0.0 };
             }
             self.cursor.root[f] = self.reference.root[k.min(len - 1)];
+            if !self.reference.bodies.is_empty() {
+                self.cursor.body[f].copy_from_slice(self.reference.body_pos_at(k));
+            }
             if f == 0 {
                 for (p, &r) in self.layout.robot_index.iter().enumerate() {
                     self.cursor.current_q[r] = self.cursor.policy_q[0][p];

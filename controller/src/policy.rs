@@ -98,6 +98,19 @@ pub enum Term {
         #[serde(flatten)]
         shaping: Shaping,
     },
+    /// Positions of the reference's bodies (forward kinematics of the robot model at the
+    /// reference pose) relative to the reference root, in the reference's heading frame: 3 per
+    /// body per frame.
+    RefBodyPos {
+        /// MJCF body names.
+        bodies: Vec<String>,
+        /// Frame offsets, in control ticks.
+        #[serde(default = "current_frame")]
+        frames: Vec<usize>,
+        /// Scaling.
+        #[serde(flatten)]
+        shaping: Shaping,
+    },
 }
 
 fn one() -> usize {
@@ -166,7 +179,8 @@ impl Term {
             | Self::Phase { shaping, .. }
             | Self::RefJointPos { shaping, .. }
             | Self::RefJointVel { shaping, .. }
-            | Self::RefRootPose { shaping, .. } => shaping,
+            | Self::RefRootPose { shaping, .. }
+            | Self::RefBodyPos { shaping, .. } => shaping,
         }
     }
 
@@ -190,6 +204,7 @@ impl Term {
             Self::RefJointPos { .. } => "ref_joint_pos",
             Self::RefJointVel { .. } => "ref_joint_vel",
             Self::RefRootPose { .. } => "ref_root_pose",
+            Self::RefBodyPos { .. } => "ref_body_pos",
         }
     }
 
@@ -206,6 +221,7 @@ impl Term {
             Self::Phase { .. } => 2,
             Self::RefJointPos { frames, .. } | Self::RefJointVel { frames, .. } => joints * frames.len(),
             Self::RefRootPose { frames, .. } => 9 * frames.len(),
+            Self::RefBodyPos { bodies, frames, .. } => 3 * bodies.len() * frames.len(),
         }
     }
 
@@ -673,6 +689,9 @@ pub trait ReferenceView: std::fmt::Debug {
     fn joint_vel(&self, offset: usize) -> &[f64];
     /// Root pose `offset` ticks ahead: `[x, y, z, w, qx, qy, qz]`.
     fn root_pose(&self, offset: usize) -> [f64; 7];
+    /// Positions of the reference bodies `offset` ticks ahead, 3 per body, relative to the
+    /// reference root in its heading frame (bodies in the order the reference was built with).
+    fn body_pos(&self, offset: usize) -> &[f64];
 }
 
 /// Simulation ground truth for terms a robot cannot measure directly.
@@ -788,6 +807,12 @@ fn fill_term(term: &Term, x: &ObsInputs<'_>, v: &mut [f64]) {
             for (f, &offset) in frames.iter().enumerate() {
                 v[f * 9..(f + 1) * 9]
                     .copy_from_slice(&relative_pose_in_heading(robot, x.reference.root_pose(offset)));
+            }
+        }
+        Term::RefBodyPos { bodies, frames, .. } => {
+            let w = 3 * bodies.len();
+            for (f, &offset) in frames.iter().enumerate() {
+                v[f * w..(f + 1) * w].copy_from_slice(&x.reference.body_pos(offset)[..w]);
             }
         }
     }

@@ -352,3 +352,48 @@ onnx.save(m, {out:?})
     assert!(!s.fell && s.joint_rmse.to_degrees() < 3.0, "{s}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn reference_body_positions_come_from_forward_kinematics_on_the_robot_model() {
+    let robot = Robot::load(&reference_robot_path()).unwrap();
+    let reference =
+        Reference::from_clip(&Clip::load(&biped("clips/squat.csv")).unwrap(), &robot, 50.0).unwrap();
+    let bodies = vec!["left_foot".to_owned(), "right_foot".to_owned(), "head".to_owned()];
+    let p = controller::fk::body_positions(&robot, &reference, &bodies).unwrap();
+    assert_eq!(p.len(), reference.len() * 9);
+    // Standing: the ankles are under the hips (±7 cm sideways), 0.41 m below the pelvis; the head
+    // joint is above it.
+    let first = &p[..9];
+    assert!(
+        first[0].abs() < 1e-3 && (first[1] - 0.07).abs() < 1e-3 && (first[2] + 0.409).abs() < 2e-3,
+        "{first:?}"
+    );
+    assert!((first[4] + 0.07).abs() < 1e-3);
+    assert!(first[8] > 0.2);
+    // Deepest squat (t = 1.5 s): the feet stay under the hips, the pelvis comes down to them.
+    let deep = &p[75 * 9..75 * 9 + 9];
+    assert!(deep[0].abs() < 0.01 && deep[2] > -0.35, "{deep:?}");
+
+    // And a policy that observes them runs: the follower regenerated for a layout with the term.
+    let dir = std::env::temp_dir().join(format!("play-fk-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let manifest = std::fs::read_to_string(follower()).unwrap()
+        + "\n[[observation]]\nterm = \"ref_body_pos\"\nbodies = [\"left_foot\", \"right_foot\", \"head\"]\nframes = [0, 10]\n";
+    std::fs::write(dir.join("reference_follower.toml"), manifest).unwrap();
+    let generator = test_support::fixtures::workspace_root().join("scripts/gen_reference_policy.py");
+    let out = std::process::Command::new(test_support::fixtures::venv_python())
+        .arg(generator)
+        .arg(dir.join("reference_follower.toml"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let (mut pl, mut clock, _w) = player(
+        dir.join("reference_follower.toml"),
+        biped("clips/squat.csv"),
+        MirrorConfig::default(),
+        PlayOptions::default(),
+    );
+    let s = pl.run(&mut clock).unwrap();
+    assert!(!s.fell && s.joint_rmse.to_degrees() < 3.0, "{s}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
