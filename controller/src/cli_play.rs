@@ -50,6 +50,10 @@ pub struct PlayArgs {
     /// Listen for an e-stop on this UDP address (a datagram `ESTOP` damps the robot at once).
     #[arg(long)]
     estop_udp: Option<std::net::SocketAddr>,
+    /// Values of the policy's `command` term (e.g. a velocity command `0.3,0,0`), replacing the
+    /// manifest's constants.
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+    command: Option<Vec<f64>>,
 }
 
 /// Arguments of `check`.
@@ -156,7 +160,10 @@ fn with_estop<S: firmware_bridge::serial::ByteStream>(
 
 /// Runs `play`.
 pub fn play(args: &PlayArgs) -> Result<()> {
-    let l = load(&args.files)?;
+    let mut l = load(&args.files)?;
+    if let Some(values) = &args.command {
+        l.layout.set_command(values)?;
+    }
     if !(args.ramp.is_finite() && args.ramp >= 0.0) {
         bail!("--ramp {} is not a duration", args.ramp);
     }

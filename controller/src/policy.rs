@@ -550,6 +550,29 @@ impl PolicyLayout {
         })
     }
 
+    /// Replaces the values of the (first) `command` term, e.g. from the command line. The count
+    /// must match the manifest's.
+    pub fn set_command(&mut self, values: &[f64]) -> Result<(), PolicyError> {
+        let err = |message: String| PolicyError {
+            file: self.path.clone(),
+            place: "command".into(),
+            message,
+        };
+        let slot = self
+            .slots
+            .iter_mut()
+            .find(|s| matches!(s.term, Term::Command { .. }))
+            .ok_or_else(|| err("the policy has no `command` term to set".into()))?;
+        let Term::Command { values: current, .. } = &mut slot.term else {
+            unreachable!("matched above")
+        };
+        if current.len() != values.len() || values.iter().any(|v| !v.is_finite()) {
+            return Err(err(format!("{} finite values needed, got {values:?}", current.len())));
+        }
+        current.copy_from_slice(values);
+        Ok(())
+    }
+
     /// Whether any term needs simulation ground truth.
     pub fn needs_ground_truth(&self) -> bool {
         self.slots.iter().any(|s| s.term.needs_ground_truth())

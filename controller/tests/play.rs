@@ -397,3 +397,58 @@ fn reference_body_positions_come_from_forward_kinematics_on_the_robot_model() {
     assert!(!s.fell && s.joint_rmse.to_degrees() < 3.0, "{s}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn command_values_from_the_command_line_reach_the_observation() {
+    use controller::policy::{ObsInputs, ObservationBuilder, ReferenceView};
+    #[derive(Debug)]
+    struct Still(Vec<f64>);
+    impl ReferenceView for Still {
+        fn joint_pos(&self, _: usize) -> &[f64] {
+            &self.0
+        }
+        fn joint_vel(&self, _: usize) -> &[f64] {
+            &self.0
+        }
+        fn root_pose(&self, _: usize) -> [f64; 7] {
+            [0.0, 0.0, 0.45, 1.0, 0.0, 0.0, 0.0]
+        }
+        fn body_pos(&self, _: usize) -> &[f64] {
+            &[]
+        }
+    }
+    let robot = Robot::load(&reference_robot_path()).unwrap();
+    let dir = std::env::temp_dir().join(format!("play-cmd-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let manifest = std::fs::read_to_string(follower()).unwrap().replace("reference_follower.onnx", biped("policies/reference_follower.onnx").to_str().unwrap())
+        + "\n[[observation]]\nterm = \"command\"\nvalues = [0.0, 0.0]\nscale = 2.0\n";
+    std::fs::write(dir.join("cmd.toml"), manifest).unwrap();
+    let mut layout = PolicyLayout::load(&dir.join("cmd.toml"), &robot).unwrap();
+    assert!(layout.set_command(&[0.3]).unwrap_err().to_string().contains("2 finite values needed"));
+    layout.set_command(&[0.3, -0.1]).unwrap();
+    let slot = layout.slots.iter().find(|s| s.term.name() == "command").unwrap().range.clone();
+    let zeros = vec![0.0; 20];
+    let still = Still(zeros.clone());
+    let mut b = ObservationBuilder::new(&layout);
+    let mut obs = vec![0.0f32; layout.obs_len];
+    let past = vec![0.0f32; 40];
+    b.build(
+        &ObsInputs {
+            gyro: [0.0; 3],
+            accel: [0.0; 3],
+            quat: [1.0, 0.0, 0.0, 0.0],
+            q: &zeros,
+            qd: &zeros,
+            default_q: &zeros,
+            past_actions: &past,
+            last_targets: &zeros,
+            time_s: 0.0,
+            ramp: 1.0,
+            reference: &still,
+            truth: None,
+        },
+        &mut obs,
+    );
+    assert_eq!(&obs[slot], &[0.6f32, -0.2]);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
