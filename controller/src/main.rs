@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 
+mod cli_bus;
 mod cli_can;
 mod cli_dxl;
 mod cli_play;
@@ -27,6 +28,9 @@ enum Command {
     /// CAN bus tools: emulated MIT-mode motors behind socketcand, and bus scans.
     #[command(subcommand)]
     Can(cli_can::CanCommand),
+    /// Tools over every bus of a robot: scan and compare with robot.toml.
+    #[command(subcommand)]
+    Bus(cli_bus::BusCommand),
     /// Dynamixel serial bus tools: emulated X-series servos on a pseudo-terminal, and bus scans.
     #[command(subcommand)]
     Dxl(cli_dxl::DxlCommand),
@@ -81,6 +85,7 @@ fn run() -> Result<()> {
         Command::Doctor { mjcf, onnx } => doctor(&mjcf, &onnx),
         Command::Can(cmd) => cli_can::run(cmd),
         Command::Dxl(cmd) => cli_dxl::run(cmd),
+        Command::Bus(cmd) => cli_bus::run(cmd),
         Command::Sim(cmd) => cli_sim::run(cmd),
         Command::Play(args) => cli_play::play(&args),
         Command::Check(args) => cli_play::check(&args),

@@ -567,7 +567,10 @@ impl PolicyLayout {
             unreachable!("matched above")
         };
         if current.len() != values.len() || values.iter().any(|v| !v.is_finite()) {
-            return Err(err(format!("{} finite values needed, got {values:?}", current.len())));
+            return Err(err(format!(
+                "{} finite values needed, got {values:?}",
+                current.len()
+            )));
         }
         current.copy_from_slice(values);
         Ok(())

@@ -523,3 +523,25 @@ fn a_udp_estop_damps_the_robot_at_once() {
     let damped = rest.lines().find(|l| l.contains("→ Damped")).unwrap();
     assert!(tick(damped) - tick(stop) <= 2, "{rest}");
 }
+
+#[test]
+fn bus_scan_compares_every_bus_of_the_robot_with_its_file() {
+    let out = robodeploy().args(["bus", "scan", "--sim"]).output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("can  can0: 6 motor(s) answered")
+            && stdout.contains("can  can1: 6 motor(s) answered"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("dxl  dxl0: 8 servo(s) answered"), "{stdout}");
+    assert!(
+        stdout.contains("0 checksum errors")
+            && stdout.contains("every device of rd-biped answered as configured"),
+        "{stdout}"
+    );
+}

@@ -420,13 +420,27 @@ fn command_values_from_the_command_line_reach_the_observation() {
     let robot = Robot::load(&reference_robot_path()).unwrap();
     let dir = std::env::temp_dir().join(format!("play-cmd-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let manifest = std::fs::read_to_string(follower()).unwrap().replace("reference_follower.onnx", biped("policies/reference_follower.onnx").to_str().unwrap())
-        + "\n[[observation]]\nterm = \"command\"\nvalues = [0.0, 0.0]\nscale = 2.0\n";
+    let manifest = std::fs::read_to_string(follower()).unwrap().replace(
+        "reference_follower.onnx",
+        biped("policies/reference_follower.onnx").to_str().unwrap(),
+    ) + "\n[[observation]]\nterm = \"command\"\nvalues = [0.0, 0.0]\nscale = 2.0\n";
     std::fs::write(dir.join("cmd.toml"), manifest).unwrap();
     let mut layout = PolicyLayout::load(&dir.join("cmd.toml"), &robot).unwrap();
-    assert!(layout.set_command(&[0.3]).unwrap_err().to_string().contains("2 finite values needed"));
+    assert!(
+        layout
+            .set_command(&[0.3])
+            .unwrap_err()
+            .to_string()
+            .contains("2 finite values needed")
+    );
     layout.set_command(&[0.3, -0.1]).unwrap();
-    let slot = layout.slots.iter().find(|s| s.term.name() == "command").unwrap().range.clone();
+    let slot = layout
+        .slots
+        .iter()
+        .find(|s| s.term.name() == "command")
+        .unwrap()
+        .range
+        .clone();
     let zeros = vec![0.0; 20];
     let still = Still(zeros.clone());
     let mut b = ObservationBuilder::new(&layout);
