@@ -10,15 +10,15 @@
 //!
 //! Run: `cargo bench -p controller --bench tick`
 
+use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
-use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use controller::clip::{Clip, Reference};
 use controller::player::{EndMode, PlayOptions, Player, TickClock};
 use controller::policy::PolicyLayout;
 use controller::safety::Mode;
-use controller::sim::{LockstepClock, ServedClock, lockstep_robot, serve_locally, wired_robot};
+use controller::sim::{ServedClock, lockstep_player, serve_locally, wired_robot};
 use robots::{Robot, reference_robot_path};
 use sim2real::config::MirrorConfig;
 use sim2real::mirror::Mirror;
@@ -38,24 +38,13 @@ fn files() -> (Robot, PolicyLayout, Reference) {
 
 fn lockstep_compute() -> Summary {
     let (robot, layout, reference) = files();
-    let world = Arc::new(Mutex::new(
-        Mirror::new(robot.clone(), MirrorConfig::default()).unwrap(),
-    ));
-    let io = lockstep_robot(&robot, &world).unwrap();
     let options = PlayOptions {
         end: EndMode::Loop,
         ..PlayOptions::default()
     };
-    let mut p = Player::new(
-        robot,
-        layout,
-        reference,
-        options,
-        io,
-        Arc::new(AtomicBool::new(false)),
-    )
-    .unwrap();
-    let mut clock = LockstepClock::new(Arc::clone(&world));
+    let stop = Arc::new(AtomicBool::new(false));
+    let (mut p, mut clock, world) =
+        lockstep_player(robot, layout, reference, options, MirrorConfig::default(), stop).unwrap();
     p.identify().unwrap();
     let period = Duration::from_millis(20);
     let mut samples = Vec::with_capacity(1000);

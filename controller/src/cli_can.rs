@@ -75,37 +75,12 @@ pub struct ScanArgs {
 }
 
 fn parse_motor(s: &str) -> Result<(u8, String), String> {
-    let (id, model) = s
-        .split_once(':')
-        .ok_or_else(|| format!("'{s}': expected ID:MODEL, e.g. 1:AK80-9"))?;
-    let id: u8 = id
-        .parse()
-        .map_err(|_| format!("'{s}': motor ID '{id}' is not a number 1-127"))?;
-    if !(1..=127).contains(&id) {
-        return Err(format!("'{s}': motor ID {id} outside 1-127"));
-    }
-    if models::find(model).is_none() {
-        let known: Vec<_> = models::builtin().iter().map(|m| m.name.as_str()).collect();
-        return Err(format!(
-            "'{s}': unknown motor model '{model}' (known: {})",
-            known.join(", ")
-        ));
-    }
-    Ok((id, model.to_owned()))
+    let known: Vec<&str> = models::builtin().iter().map(|m| m.name.as_str()).collect();
+    crate::cli_args::id_and_model(s, "motor", 1..=127, &known)
 }
 
 fn parse_range(s: &str) -> Result<(u8, u8), String> {
-    let (a, b) = s.split_once('-').unwrap_or((s, s));
-    let a: u8 = a
-        .parse()
-        .map_err(|_| format!("'{s}': expected FIRST-LAST, e.g. 1-16"))?;
-    let b: u8 = b
-        .parse()
-        .map_err(|_| format!("'{s}': expected FIRST-LAST, e.g. 1-16"))?;
-    if a > b || b > 127 {
-        return Err(format!("'{s}': need FIRST <= LAST <= 127"));
-    }
-    Ok((a, b))
+    crate::cli_args::id_range(s, 127)
 }
 
 /// Runs a `can` subcommand.

@@ -68,35 +68,12 @@ pub struct ScanArgs {
 }
 
 fn parse_servo(s: &str) -> Result<(u8, String), String> {
-    let (id, model) = s
-        .split_once(':')
-        .ok_or_else(|| format!("'{s}': expected ID:MODEL, e.g. 1:XM430-W350"))?;
-    let id: u8 = id
-        .parse()
-        .ok()
-        .filter(|id| *id <= 252)
-        .ok_or_else(|| format!("'{s}': servo ID '{id}' is not a number 0-252"))?;
-    if models::find(model).is_none() {
-        let known: Vec<_> = models::builtin().iter().map(|m| m.name.as_str()).collect();
-        return Err(format!(
-            "'{s}': unknown servo model '{model}' (known: {})",
-            known.join(", ")
-        ));
-    }
-    Ok((id, model.to_owned()))
+    let known: Vec<&str> = models::builtin().iter().map(|m| m.name.as_str()).collect();
+    crate::cli_args::id_and_model(s, "servo", 0..=252, &known)
 }
 
 fn parse_ids(s: &str) -> Result<(u8, u8), String> {
-    let (a, b) = s.split_once('-').unwrap_or((s, s));
-    let parse = |x: &str| {
-        x.parse::<u8>()
-            .map_err(|_| format!("'{s}': expected FIRST-LAST, e.g. 1-20"))
-    };
-    let (a, b) = (parse(a)?, parse(b)?);
-    if a > b || b > 252 {
-        return Err(format!("'{s}': need FIRST <= LAST <= 252"));
-    }
-    Ok((a, b))
+    crate::cli_args::id_range(s, 252)
 }
 
 /// Runs a `dxl` subcommand.

@@ -1,8 +1,8 @@
 //! `robodeploy play` and `robodeploy check`: run a policy on a clip, or validate the three files.
 
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
-use std::sync::{Arc, Mutex};
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
@@ -14,7 +14,7 @@ use controller::clip::{Clip, Reference};
 use controller::onnx::OnnxModel;
 use controller::player::{EndMode, PlayOptions, PlaySummary, Player};
 use controller::policy::PolicyLayout;
-use controller::sim::{LockstepClock, ServedClock, lockstep_robot, serve_locally, wired_robot};
+use controller::sim::{ServedClock, lockstep_player, serve_locally, wired_robot};
 
 /// Arguments of `play`.
 #[derive(Debug, Args)]
@@ -221,7 +221,6 @@ pub fn play(args: &PlayArgs) -> Result<()> {
     if l.layout.needs_ground_truth() {
         eprintln!("note: the policy reads simulation ground truth (no state estimator yet)");
     }
-    let mirror = Mirror::new(l.robot.clone(), config).context("cannot build the mirror")?;
     println!(
         "{}: {} ({} ticks) on the mirror{}",
         l.robot.config.name,
@@ -234,6 +233,7 @@ pub fn play(args: &PlayArgs) -> Result<()> {
         }
     );
     let summary: PlaySummary = if args.wall {
+        let mirror = Mirror::new(l.robot.clone(), config).context("cannot build the mirror")?;
         let served = serve_locally(mirror).context("cannot serve the mirror")?;
         let io = wired_robot(&l.robot, &served)?;
         let mut clock = ServedClock::new(Arc::clone(&served.world));
@@ -243,13 +243,9 @@ pub fn play(args: &PlayArgs) -> Result<()> {
         )?;
         player.run(&mut clock)?
     } else {
-        let world = Arc::new(Mutex::new(mirror));
-        let io = lockstep_robot(&l.robot, &world)?;
-        let mut clock = LockstepClock::new(Arc::clone(&world));
-        let mut player = with_estop(
-            Player::new(l.robot, l.layout, l.reference, options, io, stop)?,
-            args,
-        )?;
+        let (player, mut clock, _world) =
+            lockstep_player(l.robot, l.layout, l.reference, options, config, stop)?;
+        let mut player = with_estop(player, args)?;
         player.run(&mut clock)?
     };
     print!("{summary}");

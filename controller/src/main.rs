@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 
+mod cli_args;
 mod cli_bus;
 mod cli_can;
 mod cli_dxl;

@@ -9,7 +9,7 @@ use controller::clip::{Clip, Reference};
 use controller::player::{PlayOptions, PlaySummary, Player};
 use controller::policy::PolicyLayout;
 use controller::safety::{Cause, Mode};
-use controller::sim::{LockstepClock, LockstepRobot, lockstep_robot};
+use controller::sim::{LockstepClock, lockstep_player};
 use firmware_bridge::serial::LockstepStream;
 use robots::{Robot, reference_robot_path};
 use sim2real::config::MirrorConfig;
@@ -34,18 +34,15 @@ fn player(
     let layout = PolicyLayout::load(&policy, &robot).unwrap();
     let reference =
         Reference::from_clip(&Clip::load(&clip).unwrap(), &robot, layout.manifest.rate_hz).unwrap();
-    let world = Arc::new(Mutex::new(Mirror::new(robot.clone(), mirror).unwrap()));
-    let io: LockstepRobot = lockstep_robot(&robot, &world).unwrap();
-    let p = Player::new(
+    lockstep_player(
         robot,
         layout,
         reference,
         options,
-        io,
+        mirror,
         Arc::new(AtomicBool::new(false)),
     )
-    .unwrap();
-    (p, LockstepClock::new(Arc::clone(&world)), world)
+    .unwrap()
 }
 
 fn follower() -> PathBuf {
