@@ -15,6 +15,7 @@ use controller::onnx::OnnxModel;
 use controller::player::{EndMode, PlayOptions, PlaySummary, Player};
 use controller::policy::PolicyLayout;
 use controller::sim::{ServedClock, lockstep_player, serve_locally, wired_robot};
+use controller::telemetry::{Backpressure, TelemetrySink};
 
 /// Arguments of `play`.
 #[derive(Debug, Args)]
@@ -54,6 +55,12 @@ pub struct PlayArgs {
     /// manifest's constants.
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
     command: Option<Vec<f64>>,
+    /// Record the run as MCAP here (default: out/runs/ROBOT-CLIP.mcap; opens in Foxglove).
+    #[arg(long)]
+    record: Option<PathBuf>,
+    /// Do not record the run.
+    #[arg(long, conflicts_with = "record")]
+    no_record: bool,
 }
 
 /// Arguments of `check`.
@@ -145,10 +152,12 @@ pub fn check(args: &CheckArgs) -> Result<()> {
     Ok(())
 }
 
+/// Adds the recorder and the e-stop a run asked for.
 fn with_estop<S: firmware_bridge::serial::ByteStream>(
     player: Player<S>,
     args: &PlayArgs,
 ) -> Result<Player<S>> {
+    let player = with_recorder(player, args)?;
     let Some(addr) = args.estop_udp else {
         return Ok(player);
     };
@@ -156,6 +165,42 @@ fn with_estop<S: firmware_bridge::serial::ByteStream>(
         controller::estop::listen(addr).with_context(|| format!("cannot listen for the e-stop on {addr}"))?;
     println!("e-stop: send ESTOP to udp://{local}");
     Ok(player.with_estop(flag))
+}
+
+fn with_recorder<S: firmware_bridge::serial::ByteStream>(
+    player: Player<S>,
+    args: &PlayArgs,
+) -> Result<Player<S>> {
+    if args.no_record {
+        return Ok(player);
+    }
+    let robot = player.robot_name().to_owned();
+    let path = args.record.clone().unwrap_or_else(|| {
+        let clip = args
+            .files
+            .clip
+            .file_stem()
+            .map_or("run".into(), |s| s.to_string_lossy().into_owned());
+        PathBuf::from("out/runs").join(format!("{robot}-{clip}.mcap"))
+    });
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    }
+    // Lockstep runs can wait for the disk; real-time runs drop (and count) instead.
+    let backpressure = if args.wall || args.hardware {
+        Backpressure::Drop
+    } else {
+        Backpressure::Block
+    };
+    let sink = TelemetrySink::start(
+        &path,
+        1024,
+        backpressure,
+        &player.joint_names(),
+        &player.root_frame(),
+    )
+    .map_err(anyhow::Error::msg)?;
+    Ok(player.with_telemetry(sink))
 }
 
 /// Runs `play`.

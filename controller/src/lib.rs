@@ -14,3 +14,4 @@ pub mod realtime;
 pub mod robot_io;
 pub mod safety;
 pub mod sim;
+pub mod telemetry;

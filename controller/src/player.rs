@@ -154,6 +154,8 @@ pub struct PlaySummary {
     pub io: Histogram,
     /// How late each tick started after its deadline.
     pub jitter: Histogram,
+    /// What the telemetry logger wrote, when recording.
+    pub telemetry: Option<crate::telemetry::TelemetryReport>,
 }
 
 impl std::fmt::Display for PlaySummary {
@@ -171,6 +173,9 @@ impl std::fmt::Display for PlaySummary {
         writeln!(f, "compute per tick: {}", self.compute)?;
         writeln!(f, "bus I/O per tick: {}", self.io)?;
         writeln!(f, "tick start lateness: {}", self.jitter)?;
+        if let Some(t) = &self.telemetry {
+            writeln!(f, "{t}")?;
+        }
         writeln!(f, "state machine:")?;
         for t in &self.transitions {
             writeln!(f, "  tick {:>5}: {:?} → {:?} ({})", t.tick, t.from, t.to, t.cause)?;
@@ -304,6 +309,8 @@ pub struct Player<S: ByteStream> {
     compute: Histogram,
     io_time: Histogram,
     jitter: Histogram,
+    telemetry: Option<crate::telemetry::TelemetrySink>,
+    record: Box<crate::telemetry::TickRecord>,
 }
 
 /// Why a run could not start or continue.
@@ -440,6 +447,8 @@ impl<S: ByteStream> Player<S> {
             compute: Histogram::default(),
             io_time: Histogram::default(),
             jitter: Histogram::default(),
+            telemetry: None,
+            record: Box::default(),
             robot,
             layout,
             reference,
@@ -451,6 +460,32 @@ impl<S: ByteStream> Player<S> {
     pub fn with_estop(mut self, flag: Arc<AtomicBool>) -> Self {
         self.estop = Some(flag);
         self
+    }
+
+    /// Records every tick into `sink` (see [`crate::telemetry`]).
+    pub fn with_telemetry(mut self, sink: crate::telemetry::TelemetrySink) -> Self {
+        self.telemetry = Some(sink);
+        self
+    }
+
+    /// Stops recording: waits for the logger and returns what it wrote.
+    pub fn finish_telemetry(&mut self) -> Option<Result<crate::telemetry::TelemetryReport, String>> {
+        self.telemetry.take().map(crate::telemetry::TelemetrySink::finish)
+    }
+
+    /// The robot's name.
+    pub fn robot_name(&self) -> &str {
+        &self.robot.config.name
+    }
+
+    /// Joint names, robot order.
+    pub fn joint_names(&self) -> Vec<String> {
+        self.robot.config.joints.iter().map(|j| j.name.clone()).collect()
+    }
+
+    /// The robot's base frame name.
+    pub fn root_frame(&self) -> String {
+        self.robot.config.root_body.clone()
     }
 
     /// The current mode.
@@ -522,7 +557,9 @@ impl<S: ByteStream> Player<S> {
             }
             self.jitter.record(clock.elapsed().saturating_sub(deadline));
         }
-        Ok(self.summary(clock.elapsed() - start))
+        let mut summary = self.summary(clock.elapsed() - start);
+        summary.telemetry = self.finish_telemetry().transpose().map_err(PlayError::Setup)?;
+        Ok(summary)
     }
 
     /// One tick: read, check, compute, write.
@@ -555,7 +592,14 @@ impl<S: ByteStream> Player<S> {
         self.compute.record(compute);
         let w0 = Instant::now();
         let write = self.io.write(&self.targets);
-        self.io_time.record(t_read + w0.elapsed());
+        let io = t_read + w0.elapsed();
+        self.io_time.record(io);
+        if self.telemetry.is_some() {
+            self.fill_record(clock.elapsed(), io, compute, has_truth);
+            if let Some(t) = &mut self.telemetry {
+                t.push(&self.record);
+            }
+        }
         self.tick += 1;
         self.mode_ticks += 1;
         if let Err(e) = write {
@@ -563,6 +607,57 @@ impl<S: ByteStream> Player<S> {
             return Err(e.into());
         }
         Ok(())
+    }
+
+    fn fill_record(&mut self, now: Duration, io: Duration, compute: Duration, has_truth: bool) {
+        use crate::telemetry::{MAX_JOINTS, MAX_OBS};
+        let r = &mut *self.record;
+        let n = self.state.q.len().min(MAX_JOINTS);
+        r.tick = self.tick;
+        r.time_ns = now.as_nanos() as u64;
+        r.mode = match self.mode {
+            Mode::Off => 0,
+            Mode::Ready => 1,
+            Mode::SoftStart => 2,
+            Mode::Running => 3,
+            Mode::Stopping => 4,
+            Mode::Damped => 5,
+        };
+        r.joints = n as u16;
+        for i in 0..n {
+            r.q[i] = self.state.q[i] as f32;
+            r.qd[i] = self.state.qd[i] as f32;
+            r.tau[i] = self.state.tau[i] as f32;
+            r.target_q[i] = self.targets[i].q as f32;
+            r.target_kp[i] = self.targets[i].kp as f32;
+            r.reference_q[i] = self.cursor.current_q[i] as f32;
+            r.missed[i] = self.state.missed[i].min(255) as u8;
+        }
+        let m = self.actions.len().min(MAX_JOINTS);
+        r.action[..m].copy_from_slice(&self.actions[..m]);
+        let k = self.obs.len().min(MAX_OBS);
+        r.obs_len = k as u16;
+        r.obs[..k].copy_from_slice(&self.obs[..k]);
+        for i in 0..3 {
+            r.imu[i] = self.state.gyro[i] as f32;
+            r.imu[3 + i] = self.state.accel[i] as f32;
+        }
+        for i in 0..4 {
+            r.imu[6 + i] = self.state.quat[i] as f32;
+        }
+        r.base_pose = if has_truth {
+            self.truth.root_pose
+        } else {
+            [f64::NAN; 7]
+        };
+        r.io_us = io.as_secs_f32() * 1e6;
+        r.compute_us = compute.as_secs_f32() * 1e6;
+        if let Some(t) = self.transitions.last() {
+            use std::io::Write as _;
+            let mut cursor = std::io::Cursor::new(&mut r.cause[..]);
+            let _ = write!(cursor, "{}", t.cause);
+            r.cause_len = cursor.position() as u8;
+        }
     }
 
     fn finish_io(&mut self, t_read: Duration, c0: Instant, e: Option<IoError>) -> Result<(), PlayError> {
@@ -899,6 +994,7 @@ impl<S: ByteStream> Player<S> {
             compute: self.compute.clone(),
             io: self.io_time.clone(),
             jitter: self.jitter.clone(),
+            telemetry: None,
         }
     }
 

@@ -206,12 +206,24 @@ fn a_stop_request_soft_stops_through_blend_and_damping() {
 fn a_steady_state_tick_allocates_nothing() {
     use controller::player::TickClock;
     use test_support::alloc::count_allocations;
-    let (mut p, mut clock, _w) = player(
+    let (p, mut clock, _w) = player(
         follower(),
         biped("clips/squat.csv"),
         MirrorConfig::default(),
         PlayOptions::default(),
     );
+    // Recording too: the loop's side of telemetry is a copy into a preallocated ring.
+    let path = std::env::temp_dir().join(format!("alloc-{}.mcap", std::process::id()));
+    let names: Vec<String> = (0..20).map(|i| format!("j{i}")).collect();
+    let sink = controller::telemetry::TelemetrySink::start(
+        &path,
+        256,
+        controller::telemetry::Backpressure::Drop,
+        &names,
+        "pelvis",
+    )
+    .unwrap();
+    let mut p = p.with_telemetry(sink);
     p.identify().unwrap();
     let period = std::time::Duration::from_millis(20);
     for k in 1..=80u32 {

@@ -1,0 +1,369 @@
+//! Run telemetry as MCAP: the loop fills a fixed-size [`TickRecord`] and pushes it into a
+//! preallocated ring (a bounded channel); a logger thread encodes JSON messages and writes an
+//! lz4-compressed MCAP file that Foxglove, Rerun and Python's `mcap` read.
+//!
+//! In wall-clock runs the loop never waits for the logger: a full ring drops the record and counts
+//! it. In lockstep runs simulated time can wait, so the loop blocks instead and nothing is dropped.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// Most joints a record carries.
+pub const MAX_JOINTS: usize = 48;
+/// Most observation values a record carries (longer observations are truncated in the log).
+pub const MAX_OBS: usize = 512;
+
+/// Everything the loop knows at the end of one tick, in fixed-size arrays (robot joint order).
+#[derive(Debug, Clone, Copy)]
+pub struct TickRecord {
+    /// Tick number.
+    pub tick: u64,
+    /// Run time at the tick, ns.
+    pub time_ns: u64,
+    /// Safety mode (as its name's index in [`MODE_NAMES`]).
+    pub mode: u8,
+    /// Joints in use.
+    pub joints: u16,
+    /// Observation values in use.
+    pub obs_len: u16,
+    /// Measured positions, rad.
+    pub q: [f32; MAX_JOINTS],
+    /// Measured velocities, rad/s.
+    pub qd: [f32; MAX_JOINTS],
+    /// Measured torques, N·m.
+    pub tau: [f32; MAX_JOINTS],
+    /// Commanded position targets, rad.
+    pub target_q: [f32; MAX_JOINTS],
+    /// Commanded stiffness.
+    pub target_kp: [f32; MAX_JOINTS],
+    /// Reference positions, rad.
+    pub reference_q: [f32; MAX_JOINTS],
+    /// Raw policy actions (policy order).
+    pub action: [f32; MAX_JOINTS],
+    /// The observation the policy saw.
+    pub obs: [f32; MAX_OBS],
+    /// Consecutive missed reads per joint (saturated at 255).
+    pub missed: [u8; MAX_JOINTS],
+    /// IMU gyro, accelerometer, orientation `[w, x, y, z]`.
+    pub imu: [f32; 10],
+    /// Ground-truth base pose `[x, y, z, w, qx, qy, qz]` (simulation), NaN when unknown.
+    pub base_pose: [f64; 7],
+    /// Bus I/O and compute time of the tick, µs.
+    pub io_us: f32,
+    /// Compute time, µs.
+    pub compute_us: f32,
+    /// The cause of the latest transition, UTF-8, `cause_len` bytes.
+    pub cause: [u8; 64],
+    /// Bytes of `cause` in use.
+    pub cause_len: u8,
+}
+
+impl Default for TickRecord {
+    fn default() -> Self {
+        Self {
+            tick: 0,
+            time_ns: 0,
+            mode: 0,
+            joints: 0,
+            obs_len: 0,
+            q: [0.0; MAX_JOINTS],
+            qd: [0.0; MAX_JOINTS],
+            tau: [0.0; MAX_JOINTS],
+            target_q: [0.0; MAX_JOINTS],
+            target_kp: [0.0; MAX_JOINTS],
+            reference_q: [0.0; MAX_JOINTS],
+            action: [0.0; MAX_JOINTS],
+            obs: [0.0; MAX_OBS],
+            missed: [0; MAX_JOINTS],
+            imu: [0.0; 10],
+            base_pose: [f64::NAN; 7],
+            io_us: 0.0,
+            compute_us: 0.0,
+            cause: [0; 64],
+            cause_len: 0,
+        }
+    }
+}
+
+/// Names of the modes, by [`TickRecord::mode`].
+pub const MODE_NAMES: [&str; 6] = ["Off", "Ready", "SoftStart", "Running", "Stopping", "Damped"];
+
+/// What the ring does when the logger falls behind.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Backpressure {
+    /// Wait (lockstep: simulated time can wait).
+    Block,
+    /// Drop the record and count it (wall clock: the loop never waits for the disk).
+    Drop,
+}
+
+/// What the logger wrote.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TelemetryReport {
+    /// The MCAP file.
+    pub path: PathBuf,
+    /// Records pushed by the loop.
+    pub pushed: u64,
+    /// Records written.
+    pub written: u64,
+    /// Records dropped because the ring was full.
+    pub dropped: u64,
+    /// Messages per topic.
+    pub messages: BTreeMap<String, u64>,
+}
+
+impl std::fmt::Display for TelemetryReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "telemetry: {} ({} ticks written, {} dropped, {} topics)",
+            self.path.display(),
+            self.written,
+            self.dropped,
+            self.messages.len()
+        )
+    }
+}
+
+/// The loop's end of the telemetry ring.
+#[derive(Debug)]
+pub struct TelemetrySink {
+    tx: Option<crossbeam::channel::Sender<TickRecord>>,
+    backpressure: Backpressure,
+    pushed: u64,
+    dropped: Arc<AtomicU64>,
+    logger: Option<std::thread::JoinHandle<Result<(u64, BTreeMap<String, u64>), String>>>,
+    path: PathBuf,
+}
+
+/// Topics, their JSON schemas, and how a record becomes their messages.
+const TOPICS: [(&str, &str); 7] = [
+    (
+        "/joint_state",
+        r#"{"type":"object","properties":{"q":{"type":"array","items":{"type":"number"}},"qd":{"type":"array","items":{"type":"number"}},"tau":{"type":"array","items":{"type":"number"}},"missed":{"type":"array","items":{"type":"number"}}}}"#,
+    ),
+    (
+        "/command",
+        r#"{"type":"object","properties":{"q":{"type":"array","items":{"type":"number"}},"kp":{"type":"array","items":{"type":"number"}},"reference_q":{"type":"array","items":{"type":"number"}}}}"#,
+    ),
+    (
+        "/policy",
+        r#"{"type":"object","properties":{"obs":{"type":"array","items":{"type":"number"}},"action":{"type":"array","items":{"type":"number"}}}}"#,
+    ),
+    (
+        "/safety",
+        r#"{"type":"object","properties":{"tick":{"type":"integer"},"mode":{"type":"string"},"cause":{"type":"string"}}}"#,
+    ),
+    (
+        "/imu",
+        r#"{"type":"object","properties":{"gyro":{"type":"array","items":{"type":"number"}},"accel":{"type":"array","items":{"type":"number"}},"quat":{"type":"array","items":{"type":"number"}}}}"#,
+    ),
+    (
+        "/timing",
+        r#"{"type":"object","properties":{"io_us":{"type":"number"},"compute_us":{"type":"number"}}}"#,
+    ),
+    ("/tf", FRAME_TRANSFORM_SCHEMA),
+];
+
+/// `foxglove.FrameTransform` as a JSON schema (the names Foxglove's 3D panel matches).
+const FRAME_TRANSFORM_SCHEMA: &str = r#"{"title":"foxglove.FrameTransform","type":"object","properties":{"timestamp":{"type":"object","properties":{"sec":{"type":"integer"},"nsec":{"type":"integer"}}},"parent_frame_id":{"type":"string"},"child_frame_id":{"type":"string"},"translation":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}}},"rotation":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"},"w":{"type":"number"}}}}}"#;
+
+impl TelemetrySink {
+    /// Creates `path` and starts the logger with a ring of `capacity` records. `joint_names`
+    /// (robot order) go into the channels' metadata; `root_frame` names the base frame.
+    pub fn start(
+        path: &Path,
+        capacity: usize,
+        backpressure: Backpressure,
+        joint_names: &[String],
+        root_frame: &str,
+    ) -> Result<Self, String> {
+        let file =
+            std::fs::File::create(path).map_err(|e| format!("cannot create {}: {e}", path.display()))?;
+        let (tx, rx) = crossbeam::channel::bounded::<TickRecord>(capacity.max(1));
+        let mut writer = mcap::WriteOptions::new()
+            .compression(Some(mcap::Compression::Lz4))
+            .profile("")
+            .create(BufWriter::new(file))
+            .map_err(|e| e.to_string())?;
+        let meta: BTreeMap<String, String> = [("joint_names".to_owned(), joint_names.join(","))].into();
+        let mut channels = Vec::with_capacity(TOPICS.len());
+        for (topic, schema) in TOPICS {
+            let name = if topic == "/tf" {
+                "foxglove.FrameTransform"
+            } else {
+                topic.trim_start_matches('/')
+            };
+            let schema_id = writer
+                .add_schema(name, "jsonschema", schema.as_bytes())
+                .map_err(|e| e.to_string())?;
+            channels.push(
+                writer
+                    .add_channel(schema_id, topic, "json", &meta)
+                    .map_err(|e| e.to_string())?,
+            );
+        }
+        let root = root_frame.to_owned();
+        let logger = std::thread::Builder::new()
+            .name("telemetry".into())
+            .spawn(move || {
+                let mut counts: BTreeMap<String, u64> = BTreeMap::new();
+                let mut written = 0u64;
+                let mut text = String::with_capacity(16 * 1024);
+                let mut sequence = 0u32;
+                let mut last_mode = u8::MAX;
+                while let Ok(r) = rx.recv() {
+                    for (k, (topic, _)) in TOPICS.iter().enumerate() {
+                        text.clear();
+                        let wrote = encode(&mut text, k, &r, &root, &mut last_mode);
+                        if !wrote {
+                            continue;
+                        }
+                        sequence = sequence.wrapping_add(1);
+                        let header = mcap::records::MessageHeader {
+                            channel_id: channels[k],
+                            sequence,
+                            log_time: r.time_ns,
+                            publish_time: r.time_ns,
+                        };
+                        writer
+                            .write_to_known_channel(&header, text.as_bytes())
+                            .map_err(|e| e.to_string())?;
+                        *counts.entry((*topic).to_owned()).or_default() += 1;
+                    }
+                    written += 1;
+                }
+                writer.finish().map_err(|e| e.to_string())?;
+                Ok((written, counts))
+            })
+            .map_err(|e| e.to_string())?;
+        Ok(Self {
+            tx: Some(tx),
+            backpressure,
+            pushed: 0,
+            dropped: Arc::new(AtomicU64::new(0)),
+            logger: Some(logger),
+            path: path.to_path_buf(),
+        })
+    }
+
+    /// Hands a record to the logger (no allocation; blocks or drops per the backpressure).
+    pub fn push(&mut self, record: &TickRecord) {
+        let Some(tx) = &self.tx else { return };
+        self.pushed += 1;
+        let full = match self.backpressure {
+            Backpressure::Block => tx.send(*record).is_err(),
+            Backpressure::Drop => tx.try_send(*record).is_err(),
+        };
+        if full {
+            self.dropped.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// Closes the ring, waits for the logger to write everything, finishes the file.
+    pub fn finish(mut self) -> Result<TelemetryReport, String> {
+        self.tx.take();
+        let (written, messages) = self.logger.take().map_or(Ok((0, BTreeMap::new())), |h| {
+            h.join().map_err(|_| "the telemetry thread panicked".to_owned())?
+        })?;
+        Ok(TelemetryReport {
+            path: self.path.clone(),
+            pushed: self.pushed,
+            written,
+            dropped: self.dropped.load(Ordering::Relaxed),
+            messages,
+        })
+    }
+}
+
+fn array(out: &mut String, name: &str, values: &[f32]) {
+    let _ = write!(out, "\"{name}\":[");
+    for (i, v) in values.iter().enumerate() {
+        if i > 0 {
+            out.push(',');
+        }
+        if v.is_finite() {
+            let _ = write!(out, "{v}");
+        } else {
+            out.push_str("null");
+        }
+    }
+    out.push(']');
+}
+
+/// Encodes topic `k` of `r` as JSON into `out`; false when the topic has nothing this tick.
+fn encode(out: &mut String, k: usize, r: &TickRecord, root: &str, last_mode: &mut u8) -> bool {
+    let n = usize::from(r.joints);
+    out.push('{');
+    match k {
+        0 => {
+            array(out, "q", &r.q[..n]);
+            out.push(',');
+            array(out, "qd", &r.qd[..n]);
+            out.push(',');
+            array(out, "tau", &r.tau[..n]);
+            out.push(',');
+            let missed: [f32; MAX_JOINTS] = std::array::from_fn(|i| f32::from(r.missed[i]));
+            array(out, "missed", &missed[..n]);
+        }
+        1 => {
+            array(out, "q", &r.target_q[..n]);
+            out.push(',');
+            array(out, "kp", &r.target_kp[..n]);
+            out.push(',');
+            array(out, "reference_q", &r.reference_q[..n]);
+        }
+        2 => {
+            array(out, "obs", &r.obs[..usize::from(r.obs_len)]);
+            out.push(',');
+            array(out, "action", &r.action[..n]);
+        }
+        3 => {
+            if r.mode == *last_mode {
+                out.clear();
+                return false;
+            }
+            *last_mode = r.mode;
+            let name = MODE_NAMES.get(usize::from(r.mode)).copied().unwrap_or("?");
+            let cause = std::str::from_utf8(&r.cause[..usize::from(r.cause_len)]).unwrap_or("?");
+            let _ = write!(out, "\"tick\":{},\"mode\":\"{name}\",\"cause\":{cause:?}", r.tick);
+        }
+        4 => {
+            array(out, "gyro", &r.imu[..3]);
+            out.push(',');
+            array(out, "accel", &r.imu[3..6]);
+            out.push(',');
+            array(out, "quat", &r.imu[6..10]);
+        }
+        5 => {
+            let _ = write!(out, "\"io_us\":{},\"compute_us\":{}", r.io_us, r.compute_us);
+        }
+        _ => {
+            if r.base_pose[0].is_nan() {
+                out.clear();
+                return false;
+            }
+            let p = r.base_pose;
+            let _ = write!(
+                out,
+                "\"timestamp\":{{\"sec\":{},\"nsec\":{}}},\"parent_frame_id\":\"world\",\"child_frame_id\":\"{root}\",\
+                 \"translation\":{{\"x\":{},\"y\":{},\"z\":{}}},\"rotation\":{{\"x\":{},\"y\":{},\"z\":{},\"w\":{}}}",
+                r.time_ns / 1_000_000_000,
+                r.time_ns % 1_000_000_000,
+                p[0],
+                p[1],
+                p[2],
+                p[4],
+                p[5],
+                p[6],
+                p[3]
+            );
+        }
+    }
+    out.push('}');
+    true
+}
