@@ -129,6 +129,9 @@ impl std::fmt::Display for TelemetryReport {
     }
 }
 
+/// Records written and messages per topic, as the logger thread returns them.
+type Written = (u64, BTreeMap<String, u64>);
+
 /// The loop's end of the telemetry ring.
 #[derive(Debug)]
 pub struct TelemetrySink {
@@ -136,7 +139,7 @@ pub struct TelemetrySink {
     backpressure: Backpressure,
     pushed: u64,
     dropped: Arc<AtomicU64>,
-    logger: Option<std::thread::JoinHandle<Result<(u64, BTreeMap<String, u64>), String>>>,
+    logger: Option<std::thread::JoinHandle<Result<Written, String>>>,
     path: PathBuf,
 }
 
