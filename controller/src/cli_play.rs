@@ -148,6 +148,17 @@ pub fn check(args: &CheckArgs) -> Result<()> {
             l.reference.held_joints.join(", ")
         );
     }
+    let quality = controller::motion_check::analyze(&l.robot, &l.reference).map_err(anyhow::Error::msg)?;
+    println!("clip quality on the robot model:");
+    print!("{quality}");
+    let problems = quality.problems();
+    if !problems.is_empty() {
+        bail!(
+            "{}: the robot should not play this clip:\n  {}",
+            l.clip.path.display(),
+            problems.join("\n  ")
+        );
+    }
     println!("ok: nothing moved");
     Ok(())
 }

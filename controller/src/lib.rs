@@ -5,6 +5,7 @@ pub mod clip;
 pub mod estop;
 pub mod fk;
 pub mod hardware;
+pub mod motion_check;
 pub mod native;
 pub mod npy;
 pub mod onnx;

@@ -545,3 +545,43 @@ fn bus_scan_compares_every_bus_of_the_robot_with_its_file() {
         "{stdout}"
     );
 }
+
+#[test]
+fn check_flags_a_clip_that_pushes_a_foot_into_the_floor() {
+    let clip = robots::reference_robot_path().with_file_name("clips/squat.csv");
+    // Lower the root 3 cm from t = 2 s on: the soles go 3 cm into the floor.
+    let mut out = String::new();
+    for line in std::fs::read_to_string(clip).unwrap().lines() {
+        let mut cells: Vec<String> = line.split(',').map(str::to_owned).collect();
+        if let Ok(t) = cells[0].parse::<f64>()
+            && t >= 2.0
+        {
+            let z: f64 = cells[3].parse().unwrap();
+            cells[3] = format!("{:.5}", z - 0.03);
+        }
+        out.push_str(&cells.join(","));
+        out.push('\n');
+    }
+    let path = std::env::temp_dir().join(format!("robodeploy-sunk-{}.csv", std::process::id()));
+    std::fs::write(&path, out).unwrap();
+    let run = robodeploy()
+        .args(["check", "--clip"])
+        .arg(&path)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success());
+    assert!(stderr.contains("the robot should not play this clip"), "{stderr}");
+    // Resampled from 30 to 50 Hz, the tick at 1.98 s already lies 1.2 cm deep (interpolated).
+    assert!(
+        stderr.contains("ground penetration")
+            && stderr.contains("first at t = 1.980 s (tick 99, left_sole); deepest 3.0 cm"),
+        "{stderr}"
+    );
+    // The 3 cm drop in one frame also needs torques far beyond the knees' motors.
+    assert!(
+        stderr.contains("left_knee needs") && stderr.contains("the motor would saturate"),
+        "{stderr}"
+    );
+    std::fs::remove_file(&path).unwrap();
+}
