@@ -14,6 +14,7 @@ use controller::clip::{Clip, Reference};
 use controller::onnx::OnnxModel;
 use controller::player::{EndMode, PlayOptions, PlaySummary, Player};
 use controller::policy::PolicyLayout;
+use controller::robot_io::RobotLink;
 use controller::sim::{ServedClock, lockstep_player, serve_locally, wired_robot};
 use controller::telemetry::{Backpressure, TelemetrySink};
 
@@ -164,11 +165,8 @@ pub fn check(args: &CheckArgs) -> Result<()> {
 }
 
 /// Adds the recorder and the e-stop a run asked for.
-fn with_estop<S: firmware_bridge::serial::ByteStream>(
-    player: Player<S>,
-    args: &PlayArgs,
-) -> Result<Player<S>> {
-    let player = with_recorder(player, args)?;
+fn with_estop<L: RobotLink>(player: Player<L>, args: &PlayArgs, options: &PlayOptions) -> Result<Player<L>> {
+    let player = with_recorder(player, args, options)?;
     let Some(addr) = args.estop_udp else {
         return Ok(player);
     };
@@ -178,10 +176,11 @@ fn with_estop<S: firmware_bridge::serial::ByteStream>(
     Ok(player.with_estop(flag))
 }
 
-fn with_recorder<S: firmware_bridge::serial::ByteStream>(
-    player: Player<S>,
+fn with_recorder<L: RobotLink>(
+    player: Player<L>,
     args: &PlayArgs,
-) -> Result<Player<S>> {
+    options: &PlayOptions,
+) -> Result<Player<L>> {
     if args.no_record {
         return Ok(player);
     }
@@ -203,12 +202,29 @@ fn with_recorder<S: firmware_bridge::serial::ByteStream>(
     } else {
         Backpressure::Block
     };
+    let mut run: std::collections::BTreeMap<String, String> = options.to_pairs().into_iter().collect();
+    let absolute = |p: &PathBuf| {
+        std::fs::canonicalize(p)
+            .unwrap_or_else(|_| p.clone())
+            .display()
+            .to_string()
+    };
+    run.insert("robot".into(), absolute(&args.files.robot));
+    run.insert("policy".into(), absolute(&args.files.policy));
+    run.insert("clip".into(), absolute(&args.files.clip));
+    if let Some(c) = &args.command {
+        run.insert(
+            "command".into(),
+            c.iter().map(|v| format!("{v:?}")).collect::<Vec<_>>().join(","),
+        );
+    }
     let sink = TelemetrySink::start(
         &path,
         1024,
         backpressure,
         &player.joint_names(),
         &player.root_frame(),
+        &run,
     )
     .map_err(anyhow::Error::msg)?;
     Ok(player.with_telemetry(sink))
@@ -264,6 +280,7 @@ pub fn play(args: &PlayArgs) -> Result<()> {
         let mut player = with_estop(
             Player::new(l.robot, l.layout, l.reference, options, io, stop)?,
             args,
+            &options,
         )?;
         let summary = player.run(&mut clock)?;
         print!("{summary}");
@@ -296,12 +313,13 @@ pub fn play(args: &PlayArgs) -> Result<()> {
         let mut player = with_estop(
             Player::new(l.robot, l.layout, l.reference, options, io, stop)?,
             args,
+            &options,
         )?;
         player.run(&mut clock)?
     } else {
         let (player, mut clock, _world) =
             lockstep_player(l.robot, l.layout, l.reference, options, config, stop)?;
-        let mut player = with_estop(player, args)?;
+        let mut player = with_estop(player, args, &options)?;
         player.run(&mut clock)?
     };
     print!("{summary}");

@@ -12,6 +12,7 @@ pub mod onnx;
 pub mod player;
 pub mod policy;
 pub mod realtime;
+pub mod replay;
 pub mod robot_io;
 pub mod safety;
 pub mod sim;

@@ -47,6 +47,13 @@ enum Command {
     /// Validate a robot, a policy manifest with its ONNX file, and a clip, moving nothing: prints
     /// the resolved observation layout and the clip's length, or the first problem with its place.
     Check(cli_play::CheckArgs),
+    /// Replay a recorded run (the MCAP `play` writes) through the same controller code: feeds the
+    /// recorded bus readings, IMU, ground truth and stop requests tick by tick and reports the first
+    /// command that differs from the recording, bit for bit.
+    Replay {
+        /// The recording.
+        log: PathBuf,
+    },
     /// The mirrored simulator: a robot's MuJoCo model behind emulated firmware on its buses.
     #[command(subcommand)]
     Sim(cli_sim::SimCommand),
@@ -90,6 +97,14 @@ fn run() -> Result<()> {
         Command::Sim(cmd) => cli_sim::run(cmd),
         Command::Play(args) => cli_play::play(&args),
         Command::Check(args) => cli_play::check(&args),
+        Command::Replay { log } => {
+            let report = controller::replay::replay(&log)?;
+            println!("{report}");
+            if report.first_difference.is_some() {
+                anyhow::bail!("the replay does not reproduce the recording");
+            }
+            Ok(())
+        }
     }
 }
 

@@ -6,7 +6,6 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use firmware_bridge::serial::ByteStream;
 use robots::Robot;
 
 use crate::clip::Reference;
@@ -14,7 +13,7 @@ use crate::onnx::OnnxModel;
 use crate::policy::{
     ActionKind, GroundTruth, ObsInputs, ObservationBuilder, PolicyLayout, ReferenceView, Term,
 };
-use crate::robot_io::{BusRobot, IoError, JointTarget, RobotState};
+use crate::robot_io::{IoError, JointTarget, RobotLink, RobotState};
 use crate::safety::{Cause, Mode, SafetyLimits, Transition, govern_position, govern_torque, tilt_of};
 
 /// What happens when the clip ends.
@@ -48,6 +47,70 @@ pub struct PlayOptions {
     pub limits: SafetyLimits,
     /// Stop after this many ticks in any case (loops, tests).
     pub max_ticks: Option<u64>,
+}
+
+impl PlayOptions {
+    /// The options as text pairs (recorded with a run, read back by a replay).
+    pub fn to_pairs(self) -> Vec<(String, String)> {
+        let l = &self.limits;
+        [
+            ("soft_start_s", format!("{:?}", self.soft_start_s)),
+            ("soft_start_gain", format!("{:?}", self.soft_start_gain)),
+            ("ramp_s", format!("{:?}", self.ramp_s)),
+            ("end", format!("{:?}", self.end)),
+            ("end_s", format!("{:?}", self.end_s)),
+            ("damping_s", format!("{:?}", self.damping_s)),
+            ("stale_ticks", l.stale_ticks.to_string()),
+            ("tilt", format!("{:?}", l.tilt)),
+            ("overruns", l.overruns.to_string()),
+            ("position_margin", format!("{:?}", l.position_margin)),
+            (
+                "max_ticks",
+                self.max_ticks.map_or(String::new(), |m| m.to_string()),
+            ),
+        ]
+        .into_iter()
+        .map(|(k, v)| (k.to_owned(), v))
+        .collect()
+    }
+
+    /// Reads options written by [`Self::to_pairs`]; missing keys keep their defaults.
+    pub fn from_pairs(get: impl Fn(&str) -> Option<String>) -> Result<Self, String> {
+        let mut o = Self::default();
+        let num = |k: &str, into: &mut f64| -> Result<(), String> {
+            if let Some(v) = get(k) {
+                *into = v
+                    .parse()
+                    .map_err(|_| format!("option {k} = {v:?} is not a number"))?;
+            }
+            Ok(())
+        };
+        num("soft_start_s", &mut o.soft_start_s)?;
+        num("soft_start_gain", &mut o.soft_start_gain)?;
+        num("ramp_s", &mut o.ramp_s)?;
+        num("end_s", &mut o.end_s)?;
+        num("damping_s", &mut o.damping_s)?;
+        num("tilt", &mut o.limits.tilt)?;
+        num("position_margin", &mut o.limits.position_margin)?;
+        if let Some(v) = get("end") {
+            o.end = match v.as_str() {
+                "Hold" => EndMode::Hold,
+                "Blend" => EndMode::Blend,
+                "Loop" => EndMode::Loop,
+                other => return Err(format!("option end = {other:?} is not Hold, Blend or Loop")),
+            };
+        }
+        if let Some(v) = get("stale_ticks") {
+            o.limits.stale_ticks = v.parse().map_err(|_| format!("option stale_ticks = {v:?}"))?;
+        }
+        if let Some(v) = get("overruns") {
+            o.limits.overruns = v.parse().map_err(|_| format!("option overruns = {v:?}"))?;
+        }
+        if let Some(v) = get("max_ticks").filter(|v| !v.is_empty()) {
+            o.max_ticks = Some(v.parse().map_err(|_| format!("option max_ticks = {v:?}"))?);
+        }
+        Ok(o)
+    }
 }
 
 impl Default for PlayOptions {
@@ -265,16 +328,18 @@ impl ReferenceView for RefCursor {
 
 /// The controller of one run.
 #[derive(Debug)]
-pub struct Player<S: ByteStream> {
+pub struct Player<L: RobotLink> {
     robot: Robot,
     layout: PolicyLayout,
     model: OnnxModel,
     obs_builder: ObservationBuilder,
     reference: Reference,
     options: PlayOptions,
-    io: BusRobot<S>,
+    io: L,
     stop: Arc<AtomicBool>,
     estop: Option<Arc<AtomicBool>>,
+    /// The stop flag as this tick's checks saw it (recorded, so a replay sees the same).
+    stop_seen: bool,
     dt: f64,
     // State machine.
     mode: Mode,
@@ -332,14 +397,14 @@ pub enum PlayError {
 
 const MAX_FRAMES_AHEAD: usize = 64;
 
-impl<S: ByteStream> Player<S> {
+impl<L: RobotLink> Player<L> {
     /// Prepares a run: checks the policy against its model, sizes every buffer.
     pub fn new(
         robot: Robot,
         mut layout: PolicyLayout,
         mut reference: Reference,
         options: PlayOptions,
-        io: BusRobot<S>,
+        io: L,
         stop: Arc<AtomicBool>,
     ) -> Result<Self, PlayError> {
         let model = OnnxModel::load(&layout.onnx_path)?;
@@ -415,6 +480,7 @@ impl<S: ByteStream> Player<S> {
             io,
             stop,
             estop: None,
+            stop_seen: false,
             mode: Mode::Off,
             mode_ticks: 0,
             tick: 0,
@@ -471,6 +537,11 @@ impl<S: ByteStream> Player<S> {
     /// Stops recording: waits for the logger and returns what it wrote.
     pub fn finish_telemetry(&mut self) -> Option<Result<crate::telemetry::TelemetryReport, String>> {
         self.telemetry.take().map(crate::telemetry::TelemetrySink::finish)
+    }
+
+    /// The robot link the loop drives.
+    pub fn link(&self) -> &L {
+        &self.io
     }
 
     /// The robot's name.
@@ -574,6 +645,7 @@ impl<S: ByteStream> Player<S> {
             self.finish_io(t_read, c0, Some(e))?;
             return Ok(());
         }
+        self.stop_seen = self.stop.load(Ordering::Relaxed);
         if let Some(cause) = self.check_state() {
             self.fail(cause);
         }
@@ -625,31 +697,35 @@ impl<S: ByteStream> Player<S> {
         };
         r.joints = n as u16;
         for i in 0..n {
-            r.q[i] = self.state.q[i] as f32;
-            r.qd[i] = self.state.qd[i] as f32;
-            r.tau[i] = self.state.tau[i] as f32;
-            r.target_q[i] = self.targets[i].q as f32;
-            r.target_kp[i] = self.targets[i].kp as f32;
+            r.q[i] = self.state.q[i];
+            r.qd[i] = self.state.qd[i];
+            r.tau[i] = self.state.tau[i];
+            r.missed[i] = self.state.missed[i];
+            r.faulted[i] = self.state.faulted[i];
+            let t = &self.targets[i];
+            r.target[i] = [t.q, t.qd, t.kp, t.kd, t.tau];
+            r.enabled[i] = t.enabled;
             r.reference_q[i] = self.cursor.current_q[i] as f32;
-            r.missed[i] = self.state.missed[i].min(255) as u8;
         }
         let m = self.actions.len().min(MAX_JOINTS);
         r.action[..m].copy_from_slice(&self.actions[..m]);
         let k = self.obs.len().min(MAX_OBS);
         r.obs_len = k as u16;
         r.obs[..k].copy_from_slice(&self.obs[..k]);
-        for i in 0..3 {
-            r.imu[i] = self.state.gyro[i] as f32;
-            r.imu[3 + i] = self.state.accel[i] as f32;
-        }
-        for i in 0..4 {
-            r.imu[6 + i] = self.state.quat[i] as f32;
-        }
+        r.imu[..3].copy_from_slice(&self.state.gyro);
+        r.imu[3..6].copy_from_slice(&self.state.accel);
+        r.imu[6..].copy_from_slice(&self.state.quat);
+        r.imu_missed = self.state.imu_missed;
         r.base_pose = if has_truth {
             self.truth.root_pose
         } else {
             [f64::NAN; 7]
         };
+        r.base_lin_vel = self.truth.base_lin_vel;
+        let feet = self.truth.foot_contacts.len().min(crate::telemetry::MAX_FEET);
+        r.feet = feet as u8;
+        r.foot_contacts[..feet].copy_from_slice(&self.truth.foot_contacts[..feet]);
+        r.stop_requested = self.stop_seen;
         r.io_us = io.as_secs_f32() * 1e6;
         r.compute_us = compute.as_secs_f32() * 1e6;
         if let Some(t) = self.transitions.last() {
@@ -715,7 +791,7 @@ impl<S: ByteStream> Player<S> {
                 count: self.overrun_run,
             });
         }
-        if self.stop.load(Ordering::Relaxed) && self.mode != Mode::Stopping {
+        if self.stop_seen && self.mode != Mode::Stopping {
             return Some(Cause::StopRequested);
         }
         None

@@ -318,6 +318,37 @@ impl Drop for Worker {
     }
 }
 
+/// The robot as the loop drives it: identify, read, write, torque off. [`BusRobot`] is the real
+/// thing (on hardware or a mirror); a replay feeds a recording through the same loop.
+pub trait RobotLink: std::fmt::Debug {
+    /// Checks every device answers with the right identity; leaves them limp.
+    fn identify(&mut self) -> Result<(), IoError>;
+    /// Reads every bus and the IMU into `state`.
+    fn read(&mut self, state: &mut RobotState) -> Result<(), IoError>;
+    /// Sends every joint its target (robot order).
+    fn write(&mut self, targets: &[JointTarget]) -> Result<(), IoError>;
+    /// Torque off everywhere.
+    fn torque_off(&mut self) -> Result<(), IoError>;
+}
+
+impl<S: ByteStream + std::fmt::Debug> RobotLink for BusRobot<S>
+where
+    S::Instant: std::fmt::Debug,
+{
+    fn identify(&mut self) -> Result<(), IoError> {
+        BusRobot::identify(self)
+    }
+    fn read(&mut self, state: &mut RobotState) -> Result<(), IoError> {
+        BusRobot::read(self, state)
+    }
+    fn write(&mut self, targets: &[JointTarget]) -> Result<(), IoError> {
+        BusRobot::write(self, targets)
+    }
+    fn torque_off(&mut self) -> Result<(), IoError> {
+        BusRobot::torque_off(self)
+    }
+}
+
 /// Every bus of a robot, in sequence (lockstep: deterministic) or in parallel (wall clock).
 #[derive(Debug)]
 pub struct BusRobot<S: ByteStream> {

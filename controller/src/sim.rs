@@ -84,7 +84,7 @@ pub fn wired_robot(robot: &Robot, served: &ServedMirror) -> Result<WiredRobot, I
 
 /// A lockstep run: the player, the clock that advances the mirror, and the mirror.
 pub type LockstepRun = (
-    crate::player::Player<LockstepStream<Mirror>>,
+    crate::player::Player<LockstepRobot>,
     LockstepClock,
     Arc<Mutex<Mirror>>,
 );

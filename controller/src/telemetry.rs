@@ -17,7 +17,12 @@ pub const MAX_JOINTS: usize = 48;
 /// Most observation values a record carries (longer observations are truncated in the log).
 pub const MAX_OBS: usize = 512;
 
+/// Most feet a record carries.
+pub const MAX_FEET: usize = 8;
+
 /// Everything the loop knows at the end of one tick, in fixed-size arrays (robot joint order).
+/// Inputs (what the buses, the IMU and the simulator said) and outputs (the targets sent) are kept
+/// at full precision, so a replay can feed the same inputs and compare outputs bit for bit.
 #[derive(Debug, Clone, Copy)]
 pub struct TickRecord {
     /// Tick number.
@@ -28,31 +33,43 @@ pub struct TickRecord {
     pub mode: u8,
     /// Joints in use.
     pub joints: u16,
+    /// Feet in use.
+    pub feet: u8,
     /// Observation values in use.
     pub obs_len: u16,
     /// Measured positions, rad.
-    pub q: [f32; MAX_JOINTS],
+    pub q: [f64; MAX_JOINTS],
     /// Measured velocities, rad/s.
-    pub qd: [f32; MAX_JOINTS],
+    pub qd: [f64; MAX_JOINTS],
     /// Measured torques, N·m.
-    pub tau: [f32; MAX_JOINTS],
-    /// Commanded position targets, rad.
-    pub target_q: [f32; MAX_JOINTS],
-    /// Commanded stiffness.
-    pub target_kp: [f32; MAX_JOINTS],
+    pub tau: [f64; MAX_JOINTS],
+    /// Consecutive missed reads per joint.
+    pub missed: [u32; MAX_JOINTS],
+    /// Device fault flags per joint.
+    pub faulted: [bool; MAX_JOINTS],
+    /// IMU gyro, accelerometer, orientation `[w, x, y, z]`.
+    pub imu: [f64; 10],
+    /// Consecutive reads without an IMU sample.
+    pub imu_missed: u32,
+    /// Ground-truth base pose `[x, y, z, w, qx, qy, qz]` (simulation), NaN when unknown.
+    pub base_pose: [f64; 7],
+    /// Ground-truth base linear velocity in the base frame.
+    pub base_lin_vel: [f64; 3],
+    /// Ground-truth foot contacts.
+    pub foot_contacts: [bool; MAX_FEET],
+    /// Whether a stop had been requested when the tick ran.
+    pub stop_requested: bool,
+    /// Commanded targets: q, qd, kp, kd, tau.
+    pub target: [[f64; 5]; MAX_JOINTS],
+    /// Commanded torque on/off.
+    pub enabled: [bool; MAX_JOINTS],
     /// Reference positions, rad.
     pub reference_q: [f32; MAX_JOINTS],
     /// Raw policy actions (policy order).
     pub action: [f32; MAX_JOINTS],
     /// The observation the policy saw.
     pub obs: [f32; MAX_OBS],
-    /// Consecutive missed reads per joint (saturated at 255).
-    pub missed: [u8; MAX_JOINTS],
-    /// IMU gyro, accelerometer, orientation `[w, x, y, z]`.
-    pub imu: [f32; 10],
-    /// Ground-truth base pose `[x, y, z, w, qx, qy, qz]` (simulation), NaN when unknown.
-    pub base_pose: [f64; 7],
-    /// Bus I/O and compute time of the tick, µs.
+    /// Bus I/O time of the tick, µs.
     pub io_us: f32,
     /// Compute time, µs.
     pub compute_us: f32,
@@ -69,18 +86,24 @@ impl Default for TickRecord {
             time_ns: 0,
             mode: 0,
             joints: 0,
+            feet: 0,
             obs_len: 0,
             q: [0.0; MAX_JOINTS],
             qd: [0.0; MAX_JOINTS],
             tau: [0.0; MAX_JOINTS],
-            target_q: [0.0; MAX_JOINTS],
-            target_kp: [0.0; MAX_JOINTS],
+            missed: [0; MAX_JOINTS],
+            faulted: [false; MAX_JOINTS],
+            imu: [0.0; 10],
+            imu_missed: 0,
+            base_pose: [f64::NAN; 7],
+            base_lin_vel: [0.0; 3],
+            foot_contacts: [false; MAX_FEET],
+            stop_requested: false,
+            target: [[0.0; 5]; MAX_JOINTS],
+            enabled: [false; MAX_JOINTS],
             reference_q: [0.0; MAX_JOINTS],
             action: [0.0; MAX_JOINTS],
             obs: [0.0; MAX_OBS],
-            missed: [0; MAX_JOINTS],
-            imu: [0.0; 10],
-            base_pose: [f64::NAN; 7],
             io_us: 0.0,
             compute_us: 0.0,
             cause: [0; 64],
@@ -144,7 +167,7 @@ pub struct TelemetrySink {
 }
 
 /// Topics, their JSON schemas, and how a record becomes their messages.
-const TOPICS: [(&str, &str); 7] = [
+const TOPICS: [(&str, &str); 8] = [
     (
         "/joint_state",
         r#"{"type":"object","properties":{"q":{"type":"array","items":{"type":"number"}},"qd":{"type":"array","items":{"type":"number"}},"tau":{"type":"array","items":{"type":"number"}},"missed":{"type":"array","items":{"type":"number"}}}}"#,
@@ -170,6 +193,10 @@ const TOPICS: [(&str, &str); 7] = [
         r#"{"type":"object","properties":{"io_us":{"type":"number"},"compute_us":{"type":"number"}}}"#,
     ),
     ("/tf", FRAME_TRANSFORM_SCHEMA),
+    (
+        "/replay",
+        r#"{"type":"object","description":"full-precision loop inputs and outputs of one tick, for robodeploy replay"}"#,
+    ),
 ];
 
 /// `foxglove.FrameTransform` as a JSON schema (the names Foxglove's 3D panel matches).
@@ -184,6 +211,7 @@ impl TelemetrySink {
         backpressure: Backpressure,
         joint_names: &[String],
         root_frame: &str,
+        run: &BTreeMap<String, String>,
     ) -> Result<Self, String> {
         let file =
             std::fs::File::create(path).map_err(|e| format!("cannot create {}: {e}", path.display()))?;
@@ -194,6 +222,9 @@ impl TelemetrySink {
             .create(BufWriter::new(file))
             .map_err(|e| e.to_string())?;
         let meta: BTreeMap<String, String> = [("joint_names".to_owned(), joint_names.join(","))].into();
+        // The replay channel also says how to rebuild the run: files and options.
+        let mut replay_meta = meta.clone();
+        replay_meta.extend(run.iter().map(|(k, v)| (k.clone(), v.clone())));
         let mut channels = Vec::with_capacity(TOPICS.len());
         for (topic, schema) in TOPICS {
             let name = if topic == "/tf" {
@@ -204,9 +235,10 @@ impl TelemetrySink {
             let schema_id = writer
                 .add_schema(name, "jsonschema", schema.as_bytes())
                 .map_err(|e| e.to_string())?;
+            let m = if topic == "/replay" { &replay_meta } else { &meta };
             channels.push(
                 writer
-                    .add_channel(schema_id, topic, "json", &meta)
+                    .add_channel(schema_id, topic, "json", m)
                     .map_err(|e| e.to_string())?,
             );
         }
@@ -283,6 +315,22 @@ impl TelemetrySink {
     }
 }
 
+fn array64(out: &mut String, name: &str, values: impl IntoIterator<Item = f64>) {
+    let _ = write!(out, "\"{name}\":[");
+    for (i, v) in values.into_iter().enumerate() {
+        if i > 0 {
+            out.push(',');
+        }
+        if v.is_finite() {
+            // `{:?}` prints the shortest text that reads back to the same bits.
+            let _ = write!(out, "{v:?}");
+        } else {
+            out.push_str("null");
+        }
+    }
+    out.push(']');
+}
+
 fn array(out: &mut String, name: &str, values: &[f32]) {
     let _ = write!(out, "\"{name}\":[");
     for (i, v) in values.iter().enumerate() {
@@ -304,19 +352,18 @@ fn encode(out: &mut String, k: usize, r: &TickRecord, root: &str, last_mode: &mu
     out.push('{');
     match k {
         0 => {
-            array(out, "q", &r.q[..n]);
+            array64(out, "q", r.q[..n].iter().copied());
             out.push(',');
-            array(out, "qd", &r.qd[..n]);
+            array64(out, "qd", r.qd[..n].iter().copied());
             out.push(',');
-            array(out, "tau", &r.tau[..n]);
+            array64(out, "tau", r.tau[..n].iter().copied());
             out.push(',');
-            let missed: [f32; MAX_JOINTS] = std::array::from_fn(|i| f32::from(r.missed[i]));
-            array(out, "missed", &missed[..n]);
+            array64(out, "missed", r.missed[..n].iter().map(|&m| f64::from(m)));
         }
         1 => {
-            array(out, "q", &r.target_q[..n]);
+            array64(out, "q", r.target[..n].iter().map(|t| t[0]));
             out.push(',');
-            array(out, "kp", &r.target_kp[..n]);
+            array64(out, "kp", r.target[..n].iter().map(|t| t[2]));
             out.push(',');
             array(out, "reference_q", &r.reference_q[..n]);
         }
@@ -336,14 +383,59 @@ fn encode(out: &mut String, k: usize, r: &TickRecord, root: &str, last_mode: &mu
             let _ = write!(out, "\"tick\":{},\"mode\":\"{name}\",\"cause\":{cause:?}", r.tick);
         }
         4 => {
-            array(out, "gyro", &r.imu[..3]);
+            array64(out, "gyro", r.imu[..3].iter().copied());
             out.push(',');
-            array(out, "accel", &r.imu[3..6]);
+            array64(out, "accel", r.imu[3..6].iter().copied());
             out.push(',');
-            array(out, "quat", &r.imu[6..10]);
+            array64(out, "quat", r.imu[6..10].iter().copied());
         }
         5 => {
             let _ = write!(out, "\"io_us\":{},\"compute_us\":{}", r.io_us, r.compute_us);
+        }
+        7 => {
+            let f = usize::from(r.feet);
+            let _ = write!(
+                out,
+                "\"tick\":{},\"imu_missed\":{},\"stop\":{},",
+                r.tick, r.imu_missed, r.stop_requested
+            );
+            array64(out, "q", r.q[..n].iter().copied());
+            out.push(',');
+            array64(out, "qd", r.qd[..n].iter().copied());
+            out.push(',');
+            array64(out, "tau", r.tau[..n].iter().copied());
+            out.push(',');
+            array64(out, "missed", r.missed[..n].iter().map(|&m| f64::from(m)));
+            out.push(',');
+            array64(
+                out,
+                "faulted",
+                r.faulted[..n].iter().map(|&b| f64::from(u8::from(b))),
+            );
+            out.push(',');
+            array64(out, "imu", r.imu.iter().copied());
+            out.push(',');
+            array64(out, "base_pose", r.base_pose.iter().copied());
+            out.push(',');
+            array64(out, "base_lin_vel", r.base_lin_vel.iter().copied());
+            out.push(',');
+            array64(
+                out,
+                "feet",
+                r.foot_contacts[..f].iter().map(|&b| f64::from(u8::from(b))),
+            );
+            out.push(',');
+            array64(
+                out,
+                "target",
+                r.target[..n].iter().flat_map(|t| t.iter().copied()),
+            );
+            out.push(',');
+            array64(
+                out,
+                "enabled",
+                r.enabled[..n].iter().map(|&b| f64::from(u8::from(b))),
+            );
         }
         _ => {
             if r.base_pose[0].is_nan() {

@@ -585,3 +585,62 @@ fn check_flags_a_clip_that_pushes_a_foot_into_the_floor() {
     );
     std::fs::remove_file(&path).unwrap();
 }
+
+#[test]
+fn replay_reproduces_a_recorded_run_bit_for_bit_and_finds_where_a_changed_clip_departs() {
+    let dir = std::env::temp_dir().join(format!("robodeploy-replay-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let clip = dir.join("squat.csv");
+    std::fs::copy(
+        robots::reference_robot_path().with_file_name("clips/squat.csv"),
+        &clip,
+    )
+    .unwrap();
+    let log = dir.join("run.mcap");
+    let out = robodeploy()
+        .arg("play")
+        .arg("--clip")
+        .arg(&clip)
+        .arg("--record")
+        .arg(&log)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = robodeploy().arg("replay").arg(&log).output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("replayed 552 ticks")
+            && stdout.contains("every command matches the recording bit for bit"),
+        "{stdout}"
+    );
+
+    // Change the clip from t = 4 s on: the replay departs where the changed reference reaches a
+    // command: 50 soft-start ticks + 75 ramp ticks + clip tick 199 (t = 3.98 s, which the 30 → 50 Hz
+    // resampling already interpolates towards the changed 4.0 s frame) = tick 324.
+    let text = std::fs::read_to_string(&clip).unwrap();
+    let changed: Vec<String> = text
+        .lines()
+        .map(|l| {
+            let mut c: Vec<String> = l.split(',').map(str::to_owned).collect();
+            if c[0].parse::<f64>().is_ok_and(|t| t >= 4.0) {
+                let v: f64 = c[20].parse().unwrap();
+                c[20] = format!("{:.5}", v + 0.01);
+            }
+            c.join(",")
+        })
+        .collect();
+    std::fs::write(&clip, changed.join("\n") + "\n").unwrap();
+    let out = robodeploy().arg("replay").arg(&log).output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(!out.status.success());
+    assert!(
+        stdout.contains("first difference at tick 324, joint 12 (left_shoulder_pitch) q"),
+        "{stdout}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}

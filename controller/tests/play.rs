@@ -10,7 +10,6 @@ use controller::player::{PlayOptions, PlaySummary, Player};
 use controller::policy::PolicyLayout;
 use controller::safety::{Cause, Mode};
 use controller::sim::{LockstepClock, lockstep_player};
-use firmware_bridge::serial::LockstepStream;
 use robots::{Robot, reference_robot_path};
 use sim2real::config::MirrorConfig;
 use sim2real::mirror::Mirror;
@@ -18,7 +17,7 @@ use sim2real::mirror::Mirror;
 #[global_allocator]
 static ALLOC: test_support::alloc::CountingAllocator = test_support::alloc::CountingAllocator;
 
-type MirrorPlayer = Player<LockstepStream<Mirror>>;
+type MirrorPlayer = Player<controller::sim::LockstepRobot>;
 
 fn biped(file: &str) -> PathBuf {
     reference_robot_path().with_file_name(file)
@@ -221,6 +220,7 @@ fn a_steady_state_tick_allocates_nothing() {
         controller::telemetry::Backpressure::Drop,
         &names,
         "pelvis",
+        &Default::default(),
     )
     .unwrap();
     let mut p = p.with_telemetry(sink);

@@ -24,7 +24,15 @@ fn a_recorded_run_reads_back_in_python_with_the_reported_counts() {
     let reference = Reference::from_clip(&clip, &robot, 50.0).unwrap();
     let path = std::env::temp_dir().join(format!("run-{}.mcap", std::process::id()));
     let names: Vec<String> = robot.config.joints.iter().map(|j| j.name.clone()).collect();
-    let sink = TelemetrySink::start(&path, 64, Backpressure::Block, &names, "pelvis").unwrap();
+    let sink = TelemetrySink::start(
+        &path,
+        64,
+        Backpressure::Block,
+        &names,
+        "pelvis",
+        &Default::default(),
+    )
+    .unwrap();
     let (p, mut clock, _w) = lockstep_player(
         robot,
         layout,
@@ -77,7 +85,15 @@ fn a_recorded_run_reads_back_in_python_with_the_reported_counts() {
 #[test]
 fn an_overflowing_ring_counts_every_dropped_record() {
     let path = std::env::temp_dir().join(format!("overflow-{}.mcap", std::process::id()));
-    let mut sink = TelemetrySink::start(&path, 2, Backpressure::Drop, &["j".into()], "base").unwrap();
+    let mut sink = TelemetrySink::start(
+        &path,
+        2,
+        Backpressure::Drop,
+        &["j".into()],
+        "base",
+        &Default::default(),
+    )
+    .unwrap();
     let mut r = TickRecord {
         joints: 1,
         obs_len: 512,
