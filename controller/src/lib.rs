@@ -2,6 +2,7 @@
 //! ONNX policy, limits its commands and writes them to the buses.
 
 pub mod clip;
+pub mod compare;
 pub mod estop;
 pub mod fk;
 pub mod hardware;

@@ -54,6 +54,18 @@ enum Command {
         /// The recording.
         log: PathBuf,
     },
+    /// Compare the observations of two runs, or of a run and an export from training (NPZ with an
+    /// `obs` array, or CSV rows), term by term: which term diverges first, at which step, by how
+    /// much. The first file must be a run (its manifest names the terms).
+    Compare {
+        /// A recorded run (MCAP from `play`).
+        run: PathBuf,
+        /// Another run, or a training export (.npz / .csv).
+        other: PathBuf,
+        /// Differences up to this are equal.
+        #[arg(long, default_value_t = 1e-3)]
+        tolerance: f64,
+    },
     /// The mirrored simulator: a robot's MuJoCo model behind emulated firmware on its buses.
     #[command(subcommand)]
     Sim(cli_sim::SimCommand),
@@ -97,6 +109,11 @@ fn run() -> Result<()> {
         Command::Sim(cmd) => cli_sim::run(cmd),
         Command::Play(args) => cli_play::play(&args),
         Command::Check(args) => cli_play::check(&args),
+        Command::Compare {
+            run,
+            other,
+            tolerance,
+        } => compare(&run, &other, tolerance),
         Command::Replay { log } => {
             let report = controller::replay::replay(&log)?;
             println!("{report}");
@@ -106,6 +123,52 @@ fn run() -> Result<()> {
             Ok(())
         }
     }
+}
+
+fn compare(run: &std::path::Path, other: &std::path::Path, tolerance: f64) -> Result<()> {
+    use controller::compare::{compare, trace_from_export, trace_from_run};
+    let (a, meta) = trace_from_run(run).map_err(anyhow::Error::msg)?;
+    let file = |k: &str| {
+        meta.get(k)
+            .map(PathBuf::from)
+            .ok_or_else(|| anyhow::anyhow!("{}: the recording does not say which {k} it ran", run.display()))
+    };
+    let robot = robots::Robot::load(&file("robot")?)?;
+    let mut layout = controller::policy::PolicyLayout::load(&file("policy")?, &robot)?;
+    let model = controller::onnx::OnnxModel::load(&layout.onnx_path)?;
+    layout.bind_model(model.inputs(), model.output().1)?;
+    let is_run = other.extension().is_some_and(|e| e.eq_ignore_ascii_case("mcap"));
+    let b = if is_run {
+        trace_from_run(other).map_err(anyhow::Error::msg)?.0
+    } else {
+        trace_from_export(other).map_err(anyhow::Error::msg)?
+    };
+    let diffs = compare(&a, &b, &layout, tolerance).map_err(anyhow::Error::msg)?;
+    let steps = a.steps.len().min(b.steps.len());
+    match diffs.first().filter(|d| d.first_step.is_some()) {
+        Some(d) => {
+            let step = d.first_step.unwrap_or(0);
+            println!(
+                "first divergence: term {} (obs[{}..{}]) at step {step} (tick {} of {}), max |Δ| {:.4}",
+                d.term,
+                d.range.start,
+                d.range.end,
+                a.ticks.get(step).copied().unwrap_or(0),
+                run.display(),
+                d.max_abs
+            );
+        }
+        None => println!("no term differs by more than {tolerance} over {steps} steps"),
+    }
+    println!(
+        "{:<18} {:>11} {:>12} {:>12}",
+        "term", "first step", "max |Δ|", "RMS Δ"
+    );
+    for d in &diffs {
+        let first = d.first_step.map_or("-".to_owned(), |s| s.to_string());
+        println!("{:<18} {first:>11} {:>12.5} {:>12.5}", d.term, d.max_abs, d.rms);
+    }
+    Ok(())
 }
 
 fn doctor(mjcf: &std::path::Path, onnx: &std::path::Path) -> Result<()> {

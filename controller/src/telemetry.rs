@@ -368,6 +368,7 @@ fn encode(out: &mut String, k: usize, r: &TickRecord, root: &str, last_mode: &mu
             array(out, "reference_q", &r.reference_q[..n]);
         }
         2 => {
+            let _ = write!(out, "\"tick\":{},\"running\":{},", r.tick, r.mode == 3);
             array(out, "obs", &r.obs[..usize::from(r.obs_len)]);
             out.push(',');
             array(out, "action", &r.action[..n]);

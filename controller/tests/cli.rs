@@ -644,3 +644,81 @@ fn replay_reproduces_a_recorded_run_bit_for_bit_and_finds_where_a_changed_clip_d
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn compare_pinpoints_a_mis_scaled_observation_term() {
+    let dir = std::env::temp_dir().join(format!("robodeploy-compare-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let follower = robots::reference_robot_path().with_file_name("policies/reference_follower.toml");
+    let onnx = follower.with_file_name("reference_follower.onnx");
+    // The same policy with its gyro term scaled 0.5 instead of 0.25: what a typo in a deployment
+    // config does.
+    let text = std::fs::read_to_string(&follower)
+        .unwrap()
+        .replace(
+            "onnx = \"reference_follower.onnx\"",
+            &format!("onnx = {:?}", onnx.display().to_string()),
+        )
+        .replace("term = \"gyro\"\nscale = 0.25", "term = \"gyro\"\nscale = 0.5");
+    std::fs::write(dir.join("typo.toml"), text).unwrap();
+    let (a, b) = (dir.join("a.mcap"), dir.join("b.mcap"));
+    assert!(
+        robodeploy()
+            .args(["play", "--record"])
+            .arg(&a)
+            .output()
+            .unwrap()
+            .status
+            .success()
+    );
+    let out = robodeploy()
+        .args(["play", "--policy"])
+        .arg(dir.join("typo.toml"))
+        .arg("--record")
+        .arg(&b)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = robodeploy().arg("compare").arg(&a).arg(&b).output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("first divergence: term gyro (obs[3..6]) at step 0 (tick 50"),
+        "{stdout}"
+    );
+
+    // A training export: the run's observations written by NumPy, joint_vel doubled from step 100.
+    let script = format!(
+        r#"
+import json, numpy as np
+from mcap.reader import make_reader
+rows = [json.loads(m.data)["obs"] for s, c, m in make_reader(open({a:?}, "rb")).iter_messages(topics=["/policy"]) if json.loads(m.data)["running"]]
+obs = np.array(rows, dtype=np.float32)
+obs[100:, 26:46] *= 2.0
+np.savez({out:?}, obs=obs)
+"#,
+        a = a.display().to_string(),
+        out = dir.join("train.npz").display().to_string()
+    );
+    let py = Command::new(test_support::fixtures::venv_python())
+        .args(["-c", &script])
+        .output()
+        .unwrap();
+    assert!(py.status.success(), "{}", String::from_utf8_lossy(&py.stderr));
+    let out = robodeploy()
+        .arg("compare")
+        .arg(&a)
+        .arg(dir.join("train.npz"))
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        stdout.contains("first divergence: term joint_vel (obs[26..46]) at step 100"),
+        "{stdout}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
