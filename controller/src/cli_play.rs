@@ -62,6 +62,9 @@ pub struct PlayArgs {
     /// Do not record the run.
     #[arg(long, conflicts_with = "record")]
     no_record: bool,
+    /// After the run, write its report (plots, summary) into this folder.
+    #[arg(long, conflicts_with = "no_record")]
+    report: Option<PathBuf>,
 }
 
 /// Arguments of `check`.
@@ -323,5 +326,13 @@ pub fn play(args: &PlayArgs) -> Result<()> {
         player.run(&mut clock)?
     };
     print!("{summary}");
+    if let (Some(dir), Some(t)) = (&args.report, &summary.telemetry) {
+        let r = controller::report::write_report(&t.path, dir).map_err(anyhow::Error::msg)?;
+        println!(
+            "report: {} (joint RMSE {:.2}°)",
+            dir.join("report.html").display(),
+            r.joints_rmse_deg
+        );
+    }
     Ok(())
 }

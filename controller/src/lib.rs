@@ -14,6 +14,7 @@ pub mod player;
 pub mod policy;
 pub mod realtime;
 pub mod replay;
+pub mod report;
 pub mod robot_io;
 pub mod safety;
 pub mod sim;

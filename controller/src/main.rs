@@ -66,6 +66,15 @@ enum Command {
         #[arg(long, default_value_t = 1e-3)]
         tolerance: f64,
     },
+    /// Write the report of a recorded run: tracking plots, root error, success, RMSE, jitter,
+    /// timing, bus misses, safety events (report.html with plots, summary.md, summary.json).
+    Report {
+        /// A recorded run (MCAP from `play`).
+        run: PathBuf,
+        /// Folder to write into.
+        #[arg(long, default_value = "out/report")]
+        out: PathBuf,
+    },
     /// The mirrored simulator: a robot's MuJoCo model behind emulated firmware on its buses.
     #[command(subcommand)]
     Sim(cli_sim::SimCommand),
@@ -114,6 +123,16 @@ fn run() -> Result<()> {
             other,
             tolerance,
         } => compare(&run, &other, tolerance),
+        Command::Report { run, out } => {
+            let s = controller::report::write_report(&run, &out).map_err(anyhow::Error::msg)?;
+            println!(
+                "report in {}: joint RMSE {:.2}°, {} safety events",
+                out.display(),
+                s.joints_rmse_deg,
+                s.safety_events.len()
+            );
+            Ok(())
+        }
         Command::Replay { log } => {
             let report = controller::replay::replay(&log)?;
             println!("{report}");

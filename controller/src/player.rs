@@ -707,6 +707,11 @@ impl<L: RobotLink> Player<L> {
             r.enabled[i] = t.enabled;
             r.reference_q[i] = self.cursor.current_q[i] as f32;
         }
+        r.reference_root = self.cursor.root[0];
+        let ramp = (self.options.ramp_s / self.dt).round() as usize;
+        r.tracking = self.mode == Mode::Running
+            && self.clip_tick > ramp
+            && self.clip_tick <= ramp + self.reference.len();
         let m = self.actions.len().min(MAX_JOINTS);
         r.action[..m].copy_from_slice(&self.actions[..m]);
         let k = self.obs.len().min(MAX_OBS);

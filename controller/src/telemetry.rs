@@ -65,6 +65,10 @@ pub struct TickRecord {
     pub enabled: [bool; MAX_JOINTS],
     /// Reference positions, rad.
     pub reference_q: [f32; MAX_JOINTS],
+    /// Reference root pose `[x, y, z, w, qx, qy, qz]`.
+    pub reference_root: [f64; 7],
+    /// Whether the reference is the clip itself (not the start-up ramp or the end).
+    pub tracking: bool,
     /// Raw policy actions (policy order).
     pub action: [f32; MAX_JOINTS],
     /// The observation the policy saw.
@@ -102,6 +106,8 @@ impl Default for TickRecord {
             target: [[0.0; 5]; MAX_JOINTS],
             enabled: [false; MAX_JOINTS],
             reference_q: [0.0; MAX_JOINTS],
+            reference_root: [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
+            tracking: false,
             action: [0.0; MAX_JOINTS],
             obs: [0.0; MAX_OBS],
             io_us: 0.0,
@@ -366,6 +372,9 @@ fn encode(out: &mut String, k: usize, r: &TickRecord, root: &str, last_mode: &mu
             array64(out, "kp", r.target[..n].iter().map(|t| t[2]));
             out.push(',');
             array(out, "reference_q", &r.reference_q[..n]);
+            out.push(',');
+            array64(out, "reference_root", r.reference_root.iter().copied());
+            let _ = write!(out, ",\"tracking\":{}", r.tracking);
         }
         2 => {
             let _ = write!(out, "\"tick\":{},\"running\":{},", r.tick, r.mode == 3);

@@ -722,3 +722,35 @@ np.savez({out:?}, obs=obs)
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn play_writes_a_report_with_plots_and_the_reactor_metrics() {
+    let dir = std::env::temp_dir().join(format!("robodeploy-report-{}", std::process::id()));
+    let out = robodeploy()
+        .args(["play", "--record"])
+        .arg(dir.join("run.mcap"))
+        .arg("--report")
+        .arg(&dir)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["success"], true);
+    assert_eq!(summary["tracking_ticks"], 351);
+    let rmse = summary["joints_rmse_deg"].as_f64().unwrap();
+    assert!(rmse > 0.1 && rmse < 3.0, "{summary}");
+    assert!(summary["root_position_rmse_cm"].as_f64().unwrap() < 3.0);
+    assert_eq!(summary["safety_events"].as_array().unwrap().len(), 5);
+    let html = std::fs::read_to_string(dir.join("report.html")).unwrap();
+    assert!(
+        html.matches("<svg").count() >= 9 && html.contains("left_knee tracking"),
+        "plots missing"
+    );
+    assert!(
+        std::fs::read_to_string(dir.join("summary.md"))
+            .unwrap()
+            .contains("| success (root within 1 m and 45°) | yes |")
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}

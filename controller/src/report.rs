@@ -1,0 +1,377 @@
+//! Run reports, made from a run's MCAP: tracking per joint over time, root position and orientation
+//! error, the ReActor success criterion (failure when the root is more than 1 m or 45° off), RMSE of
+//! root position (cm), root orientation (deg) and joints (deg), jitter (mean |d³q/dt³|), loop timing,
+//! bus misses and safety events. Written as `report.html` (inline SVG plots), `summary.md` and
+//! `summary.json`.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::Path;
+
+/// The headline numbers of a run.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct RunSummary {
+    /// Ticks recorded.
+    pub ticks: usize,
+    /// Ticks tracking the clip (the metrics' window).
+    pub tracking_ticks: usize,
+    /// Joint RMSE per joint, deg.
+    pub joint_rmse_deg: BTreeMap<String, f64>,
+    /// Joint RMSE over all joints, deg.
+    pub joints_rmse_deg: f64,
+    /// Root position RMSE, cm (simulation runs).
+    pub root_position_rmse_cm: Option<f64>,
+    /// Root orientation RMSE, deg (simulation runs).
+    pub root_orientation_rmse_deg: Option<f64>,
+    /// ReActor success: root never more than 1 m or 45° from the reference.
+    pub success: Option<bool>,
+    /// Mean magnitude of the third time derivative of joint positions, rad/s³.
+    pub jitter: f64,
+    /// Ticks where some joint's feedback was missing.
+    pub bus_miss_ticks: usize,
+    /// Safety transitions: tick, mode, cause.
+    pub safety_events: Vec<(u64, String, String)>,
+    /// Bus I/O per tick: p50, p99, max, µs.
+    pub io_us: [f64; 3],
+    /// Compute per tick: p50, p99, max, µs.
+    pub compute_us: [f64; 3],
+}
+
+#[derive(Debug, Default)]
+struct Series {
+    time: Vec<f64>,
+    q: Vec<Vec<f64>>,
+    reference_q: Vec<Vec<f64>>,
+    reference_root: Vec<[f64; 7]>,
+    tracking: Vec<bool>,
+    base_pose: Vec<[f64; 7]>,
+    missed: Vec<bool>,
+    io: Vec<f64>,
+    compute: Vec<f64>,
+    safety: Vec<(u64, String, String)>,
+    joints: Vec<String>,
+}
+
+fn floats(v: &serde_json::Value) -> Vec<f64> {
+    v.as_array().map_or_else(Vec::new, |a| {
+        a.iter().map(|x| x.as_f64().unwrap_or(f64::NAN)).collect()
+    })
+}
+
+fn read(path: &Path) -> Result<Series, String> {
+    let bytes = std::fs::read(path).map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
+    let stream =
+        mcap::MessageStream::new(&bytes).map_err(|e| format!("{}: not an MCAP file: {e}", path.display()))?;
+    let mut s = Series::default();
+    for message in stream {
+        let m = message.map_err(|e| format!("{}: {e}", path.display()))?;
+        let v: serde_json::Value = serde_json::from_slice(&m.data)
+            .map_err(|e| format!("{}: {}: {e}", path.display(), m.channel.topic))?;
+        match m.channel.topic.as_str() {
+            "/joint_state" => {
+                if s.joints.is_empty() {
+                    s.joints = m
+                        .channel
+                        .metadata
+                        .get("joint_names")
+                        .map_or_else(Vec::new, |n| n.split(',').map(str::to_owned).collect());
+                }
+                s.time.push(m.log_time as f64 * 1e-9);
+                s.q.push(floats(&v["q"]));
+                s.missed.push(floats(&v["missed"]).iter().any(|&m| m > 0.0));
+            }
+            "/command" => {
+                s.reference_q.push(floats(&v["reference_q"]));
+                let r = floats(&v["reference_root"]);
+                s.reference_root
+                    .push(std::array::from_fn(|i| r.get(i).copied().unwrap_or(f64::NAN)));
+                s.tracking.push(v["tracking"].as_bool().unwrap_or(false));
+            }
+            "/replay" => {
+                let p = floats(&v["base_pose"]);
+                s.base_pose
+                    .push(std::array::from_fn(|i| p.get(i).copied().unwrap_or(f64::NAN)));
+            }
+            "/timing" => {
+                s.io.push(v["io_us"].as_f64().unwrap_or(0.0));
+                s.compute.push(v["compute_us"].as_f64().unwrap_or(0.0));
+            }
+            "/safety" => s.safety.push((
+                v["tick"].as_u64().unwrap_or(0),
+                v["mode"].as_str().unwrap_or("?").to_owned(),
+                v["cause"].as_str().unwrap_or("").to_owned(),
+            )),
+            _ => {}
+        }
+    }
+    if s.q.is_empty() {
+        return Err(format!("{}: no /joint_state messages", path.display()));
+    }
+    Ok(s)
+}
+
+fn quantiles(v: &[f64]) -> [f64; 3] {
+    if v.is_empty() {
+        return [0.0; 3];
+    }
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    let at = |p: f64| s[((p * (s.len() - 1) as f64).round() as usize).min(s.len() - 1)];
+    [at(0.5), at(0.99), s[s.len() - 1]]
+}
+
+/// Angle between two orientations `[w, x, y, z]`, rad.
+fn angle_between(a: [f64; 4], b: [f64; 4]) -> f64 {
+    let dot: f64 = (0..4).map(|i| a[i] * b[i]).sum();
+    2.0 * dot.abs().clamp(0.0, 1.0).acos()
+}
+
+fn summarize(s: &Series) -> RunSummary {
+    let n = s.joints.len().max(s.q.first().map_or(0, Vec::len));
+    let window: Vec<usize> = (0..s.q.len())
+        .filter(|&k| s.tracking.get(k).copied().unwrap_or(false))
+        .collect();
+    let mut per_joint = vec![0.0; n];
+    for &k in &window {
+        for j in 0..n {
+            let e = s.q[k][j]
+                - s.reference_q
+                    .get(k)
+                    .and_then(|r| r.get(j))
+                    .copied()
+                    .unwrap_or(f64::NAN);
+            per_joint[j] += e * e;
+        }
+    }
+    let count = window.len().max(1) as f64;
+    let joint_rmse_deg = s
+        .joints
+        .iter()
+        .zip(&per_joint)
+        .map(|(name, sq)| (name.clone(), (sq / count).sqrt().to_degrees()))
+        .collect();
+    let joints_rmse_deg = (per_joint.iter().sum::<f64>() / (count * n.max(1) as f64))
+        .sqrt()
+        .to_degrees();
+    let has_truth = s.base_pose.iter().any(|p| !p[0].is_nan());
+    let (mut pos_sq, mut ori_sq, mut success) = (0.0, 0.0, true);
+    for &k in &window {
+        let (Some(p), Some(r)) = (s.base_pose.get(k), s.reference_root.get(k)) else {
+            continue;
+        };
+        let d = ((p[0] - r[0]).powi(2) + (p[1] - r[1]).powi(2) + (p[2] - r[2]).powi(2)).sqrt();
+        let a = angle_between([p[3], p[4], p[5], p[6]], [r[3], r[4], r[5], r[6]]);
+        pos_sq += d * d;
+        ori_sq += a * a;
+        success &= d <= 1.0 && a <= 45f64.to_radians();
+    }
+    // Jitter: third derivative by finite differences over the tracking window.
+    let mut jitter = (0.0, 0usize);
+    for w in window.windows(4) {
+        if w[3] - w[0] != 3 {
+            continue;
+        }
+        let dt = (s.time[w[3]] - s.time[w[0]]) / 3.0;
+        if dt <= 0.0 {
+            continue;
+        }
+        for j in 0..n {
+            let d3 = (s.q[w[3]][j] - 3.0 * s.q[w[2]][j] + 3.0 * s.q[w[1]][j] - s.q[w[0]][j]) / dt.powi(3);
+            jitter.0 += d3.abs();
+            jitter.1 += 1;
+        }
+    }
+    RunSummary {
+        ticks: s.q.len(),
+        tracking_ticks: window.len(),
+        joint_rmse_deg,
+        joints_rmse_deg,
+        root_position_rmse_cm: has_truth.then(|| (pos_sq / count).sqrt() * 100.0),
+        root_orientation_rmse_deg: has_truth.then(|| (ori_sq / count).sqrt().to_degrees()),
+        success: has_truth.then_some(success),
+        jitter: if jitter.1 > 0 {
+            jitter.0 / jitter.1 as f64
+        } else {
+            0.0
+        },
+        bus_miss_ticks: s.missed.iter().filter(|&&m| m).count(),
+        safety_events: s.safety.clone(),
+        io_us: quantiles(&s.io),
+        compute_us: quantiles(&s.compute),
+    }
+}
+
+/// An SVG line plot of `series` (label, colour, points).
+fn svg_plot(title: &str, unit: &str, series: &[(&str, &str, Vec<(f64, f64)>)]) -> String {
+    let (w, h, pad) = (560.0, 200.0, 40.0);
+    let pts = series.iter().flat_map(|s| s.2.iter()).filter(|p| p.1.is_finite());
+    let (mut x0, mut x1, mut y0, mut y1) =
+        (f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY);
+    for &(x, y) in pts {
+        x0 = x0.min(x);
+        x1 = x1.max(x);
+        y0 = y0.min(y);
+        y1 = y1.max(y);
+    }
+    if !x0.is_finite() {
+        return format!("<p>{title}: no data</p>");
+    }
+    if (y1 - y0).abs() < 1e-9 {
+        y0 -= 1.0;
+        y1 += 1.0;
+    }
+    let (sx, sy) = ((w - 2.0 * pad) / (x1 - x0).max(1e-9), (h - 2.0 * pad) / (y1 - y0));
+    let mut out = format!(
+        r#"<figure><svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" style="background:#fff;border:1px solid #ccc">"#
+    );
+    let _ = write!(
+        out,
+        r#"<text x="{pad}" y="16" font-size="13" font-family="sans-serif">{title}</text>"#
+    );
+    let _ = write!(
+        out,
+        r#"<text x="4" y="{}" font-size="10" font-family="sans-serif">{y1:.3} {unit}</text><text x="4" y="{}" font-size="10" font-family="sans-serif">{y0:.3}</text><text x="{}" y="{}" font-size="10" font-family="sans-serif">t = {x1:.1} s</text>"#,
+        pad - 4.0,
+        h - pad + 10.0,
+        w - pad - 40.0,
+        h - 8.0
+    );
+    for (i, (label, colour, points)) in series.iter().enumerate() {
+        let mut d = String::new();
+        for &(x, y) in points.iter().filter(|p| p.1.is_finite()) {
+            let _ = write!(
+                d,
+                "{}{:.1},{:.1}",
+                if d.is_empty() { "M" } else { " L" },
+                pad + (x - x0) * sx,
+                h - pad - (y - y0) * sy
+            );
+        }
+        let _ = write!(
+            out,
+            r#"<path d="{d}" fill="none" stroke="{colour}" stroke-width="1.3"/>"#
+        );
+        let _ = write!(
+            out,
+            r#"<text x="{}" y="16" font-size="11" fill="{colour}" font-family="sans-serif">{label}</text>"#,
+            w - 160.0 + 80.0 * i as f64
+        );
+    }
+    out.push_str("</svg></figure>\n");
+    out
+}
+
+/// Writes the report of the run `log` into `dir`; returns the summary.
+pub fn write_report(log: &Path, dir: &Path) -> Result<RunSummary, String> {
+    let s = read(log)?;
+    let summary = summarize(&s);
+    std::fs::create_dir_all(dir).map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
+    let json = serde_json::to_string_pretty(&summary).map_err(|e| e.to_string())?;
+    std::fs::write(dir.join("summary.json"), json).map_err(|e| e.to_string())?;
+    let mut md = format!("# Run report: {}\n\n", log.display());
+    let _ = writeln!(md, "| metric | value |\n|---|---|");
+    let _ = writeln!(
+        md,
+        "| ticks (tracking) | {} ({}) |",
+        summary.ticks, summary.tracking_ticks
+    );
+    let _ = writeln!(md, "| joint RMSE | {:.2}° |", summary.joints_rmse_deg);
+    if let (Some(p), Some(o), Some(ok)) = (
+        summary.root_position_rmse_cm,
+        summary.root_orientation_rmse_deg,
+        summary.success,
+    ) {
+        let _ = writeln!(
+            md,
+            "| root position RMSE | {p:.1} cm |\n| root orientation RMSE | {o:.1}° |"
+        );
+        let _ = writeln!(
+            md,
+            "| success (root within 1 m and 45°) | {} |",
+            if ok { "yes" } else { "NO" }
+        );
+    }
+    let _ = writeln!(
+        md,
+        "| jitter (mean \\|d³q/dt³\\|) | {:.2} rad/s³ |",
+        summary.jitter
+    );
+    let _ = writeln!(md, "| ticks with bus misses | {} |", summary.bus_miss_ticks);
+    let _ = writeln!(
+        md,
+        "| bus I/O p50 / p99 / max | {:.0} / {:.0} / {:.0} µs |",
+        summary.io_us[0], summary.io_us[1], summary.io_us[2]
+    );
+    let _ = writeln!(
+        md,
+        "| compute p50 / p99 / max | {:.0} / {:.0} / {:.0} µs |",
+        summary.compute_us[0], summary.compute_us[1], summary.compute_us[2]
+    );
+    let _ = writeln!(md, "\n## Safety events\n");
+    for (tick, mode, cause) in &summary.safety_events {
+        let _ = writeln!(md, "- tick {tick}: {mode} ({cause})");
+    }
+    let _ = writeln!(md, "\n## Joint RMSE\n");
+    for (j, e) in &summary.joint_rmse_deg {
+        let _ = writeln!(md, "- {j}: {e:.2}°");
+    }
+    std::fs::write(dir.join("summary.md"), &md).map_err(|e| e.to_string())?;
+
+    let mut html = String::from(
+        "<!doctype html><html><head><meta charset=\"utf-8\"><title>robodeploy run report</title></head><body style=\"font-family:sans-serif;max-width:1200px\">\n",
+    );
+    let _ = writeln!(
+        html,
+        "<h1>Run report</h1><p>{}</p><pre>{}</pre>",
+        log.display(),
+        md.replace('<', "&lt;")
+    );
+    // The joints that moved most, measured against reference.
+    let mut order: Vec<usize> = (0..s.joints.len()).collect();
+    let span = |j: usize| {
+        let v: Vec<f64> = s.reference_q.iter().filter_map(|r| r.get(j).copied()).collect();
+        v.iter().copied().fold(f64::NEG_INFINITY, f64::max) - v.iter().copied().fold(f64::INFINITY, f64::min)
+    };
+    order.sort_by(|&a, &b| span(b).total_cmp(&span(a)));
+    for &j in order.iter().take(8) {
+        let measured: Vec<(f64, f64)> = s.time.iter().zip(&s.q).map(|(&t, q)| (t, q[j])).collect();
+        let reference: Vec<(f64, f64)> = s
+            .time
+            .iter()
+            .zip(&s.reference_q)
+            .map(|(&t, r)| (t, r.get(j).copied().unwrap_or(f64::NAN)))
+            .collect();
+        html.push_str(&svg_plot(
+            &format!("{} tracking", s.joints[j]),
+            "rad",
+            &[("reference", "#888", reference), ("measured", "#c33", measured)],
+        ));
+    }
+    if summary.root_position_rmse_cm.is_some() {
+        let err: Vec<(f64, f64)> = s
+            .time
+            .iter()
+            .enumerate()
+            .map(|(k, &t)| {
+                let (p, r) = (s.base_pose.get(k), s.reference_root.get(k));
+                (
+                    t,
+                    p.zip(r).map_or(f64::NAN, |(p, r)| {
+                        ((p[0] - r[0]).powi(2) + (p[1] - r[1]).powi(2) + (p[2] - r[2]).powi(2)).sqrt() * 100.0
+                    }),
+                )
+            })
+            .collect();
+        html.push_str(&svg_plot("root position error", "cm", &[("error", "#36c", err)]));
+    }
+    let io: Vec<(f64, f64)> = s.time.iter().zip(&s.io).map(|(&t, &v)| (t, v)).collect();
+    let compute: Vec<(f64, f64)> = s.time.iter().zip(&s.compute).map(|(&t, &v)| (t, v)).collect();
+    html.push_str(&svg_plot(
+        "loop timing per tick",
+        "µs",
+        &[("bus I/O", "#393", io), ("compute", "#c60", compute)],
+    ));
+    html.push_str("</body></html>\n");
+    std::fs::write(dir.join("report.html"), html).map_err(|e| e.to_string())?;
+    Ok(summary)
+}
