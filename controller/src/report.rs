@@ -133,14 +133,15 @@ fn summarize(s: &Series) -> RunSummary {
         .collect();
     let mut per_joint = vec![0.0; n];
     for &k in &window {
-        for j in 0..n {
-            let e = s.q[k][j]
-                - s.reference_q
-                    .get(k)
-                    .and_then(|r| r.get(j))
-                    .copied()
-                    .unwrap_or(f64::NAN);
-            per_joint[j] += e * e;
+        for (j, sum) in per_joint.iter_mut().enumerate() {
+            let reference = s
+                .reference_q
+                .get(k)
+                .and_then(|r| r.get(j))
+                .copied()
+                .unwrap_or(f64::NAN);
+            let e = s.q[k][j] - reference;
+            *sum += e * e;
         }
     }
     let count = window.len().max(1) as f64;
@@ -201,8 +202,11 @@ fn summarize(s: &Series) -> RunSummary {
     }
 }
 
-/// An SVG line plot of `series` (label, colour, points).
-fn svg_plot(title: &str, unit: &str, series: &[(&str, &str, Vec<(f64, f64)>)]) -> String {
+/// One plotted line: label, colour, points.
+type Line<'a> = (&'a str, &'a str, Vec<(f64, f64)>);
+
+/// An SVG line plot of `series`.
+fn svg_plot(title: &str, unit: &str, series: &[Line<'_>]) -> String {
     let (w, h, pad) = (560.0, 200.0, 40.0);
     let pts = series.iter().flat_map(|s| s.2.iter()).filter(|p| p.1.is_finite());
     let (mut x0, mut x1, mut y0, mut y1) =
