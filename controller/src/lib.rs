@@ -1,6 +1,7 @@
 //! The realtime controller: the loop that reads the robot, builds the policy's observation, runs the
 //! ONNX policy, limits its commands and writes them to the buses.
 
+pub mod batch;
 pub mod clip;
 pub mod compare;
 pub mod estop;

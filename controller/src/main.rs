@@ -6,6 +6,7 @@ use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 
 mod cli_args;
+mod cli_batch;
 mod cli_bus;
 mod cli_can;
 mod cli_dxl;
@@ -44,6 +45,9 @@ enum Command {
     /// goes Off → Ready → SoftStart → Running → Stopping → Damped → Off; faults (stale feedback,
     /// device faults, NaN, tilt, overruns) and SIGINT/SIGTERM take the short way to Damped.
     Play(cli_play::PlayArgs),
+    /// Run many clips × seeds on the mirror in lockstep, in parallel over the cores, and print one
+    /// table per clip: success rate, tracking RMSE, governor saturation.
+    Batch(cli_batch::BatchArgs),
     /// Validate a robot, a policy manifest with its ONNX file, and a clip, moving nothing: prints
     /// the resolved observation layout and the clip's length, or the first problem with its place.
     Check(cli_play::CheckArgs),
@@ -118,6 +122,7 @@ fn run() -> Result<()> {
         Command::Sim(cmd) => cli_sim::run(cmd),
         Command::Play(args) => cli_play::play(&args),
         Command::Check(args) => cli_play::check(&args),
+        Command::Batch(args) => cli_batch::run(&args),
         Command::Compare {
             run,
             other,

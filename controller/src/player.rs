@@ -203,12 +203,14 @@ pub struct PlaySummary {
     pub duration_s: f64,
     /// Ticks that missed their deadline (wall clock only).
     pub overruns: u64,
-    /// Joint tracking RMSE over the clip, rad.
+    /// Joint tracking RMSE over the clip, rad (NaN when the run never reached the clip).
     pub joint_rmse: f64,
     /// Root position RMSE over the clip, m (when the root is known: simulation).
     pub root_rmse: Option<f64>,
     /// Whether the robot fell (tilt beyond the limit).
     pub fell: bool,
+    /// Policy ticks where the governor changed a command (limit, speed or torque saturation).
+    pub limited_ticks: u64,
     /// The state machine's course.
     pub transitions: Vec<Transition>,
     /// Per-tick compute time (observe, infer, limit).
@@ -233,6 +235,11 @@ impl std::fmt::Display for PlaySummary {
             writeln!(f, "root position RMSE:  {:.1} cm", r * 100.0)?;
         }
         writeln!(f, "fell: {}", if self.fell { "YES" } else { "no" })?;
+        writeln!(
+            f,
+            "ticks where the governor limited a command: {}",
+            self.limited_ticks
+        )?;
         writeln!(f, "compute per tick: {}", self.compute)?;
         writeln!(f, "bus I/O per tick: {}", self.io)?;
         writeln!(f, "tick start lateness: {}", self.jitter)?;
@@ -370,6 +377,7 @@ pub struct Player<L: RobotLink> {
     root_samples: u64,
     overruns: u64,
     overrun_run: u32,
+    limited_ticks: u64,
     fell: bool,
     compute: Histogram,
     io_time: Histogram,
@@ -509,6 +517,7 @@ impl<L: RobotLink> Player<L> {
             root_samples: 0,
             overruns: 0,
             overrun_run: 0,
+            limited_ticks: 0,
             fell: false,
             compute: Histogram::default(),
             io_time: Histogram::default(),
@@ -1011,6 +1020,7 @@ impl<L: RobotLink> Player<L> {
             self.dt / (rc + self.dt)
         });
         let margin = self.options.limits.position_margin;
+        let mut limited = 0u64;
         for (p, &r) in idx.iter().enumerate() {
             let j = &self.robot.config.joints[r];
             let a = f64::from(self.actions[p]);
@@ -1020,8 +1030,13 @@ impl<L: RobotLink> Player<L> {
                     let wanted = self.default_q[r] + spec.scale.unwrap_or(1.0) * a;
                     self.filtered[r] += alpha * (wanted - self.filtered[r]);
                     let previous = self.targets[r].q;
+                    let governed =
+                        govern_position(j, previous, self.filtered[r], self.dt, margin, spec.rate_limit);
+                    if governed != self.filtered[r] {
+                        limited += 1;
+                    }
                     JointTarget {
-                        q: govern_position(j, previous, self.filtered[r], self.dt, margin, spec.rate_limit),
+                        q: governed,
                         qd: 0.0,
                         kp: self.layout.kp[r],
                         kd: self.layout.kd[r],
@@ -1034,10 +1049,19 @@ impl<L: RobotLink> Player<L> {
                     qd: 0.0,
                     kp: 0.0,
                     kd: 0.0,
-                    tau: govern_torque(j, a * j.torque_limit),
+                    tau: {
+                        let tau = govern_torque(j, a * j.torque_limit);
+                        if tau != a * j.torque_limit {
+                            limited += 1;
+                        }
+                        tau
+                    },
                     enabled: true,
                 },
             };
+        }
+        if limited > 0 {
+            self.limited_ticks += 1;
         }
         // Tracking error against the clip (not during the ramp or the end).
         let ramp = (self.options.ramp_s / self.dt).round() as usize;
@@ -1066,11 +1090,12 @@ impl<L: RobotLink> Player<L> {
             joint_rmse: if self.joint_samples > 0 {
                 (self.sq_joint_error / self.joint_samples as f64).sqrt()
             } else {
-                0.0
+                f64::NAN
             },
             root_rmse: (self.root_samples > 0)
                 .then(|| (self.sq_root_error / self.root_samples as f64).sqrt()),
             fell: self.fell,
+            limited_ticks: self.limited_ticks,
             transitions: self.transitions.clone(),
             compute: self.compute.clone(),
             io: self.io_time.clone(),

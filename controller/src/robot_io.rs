@@ -148,8 +148,10 @@ where
         if want != self.enabled {
             if want {
                 self.driver.enable_all()?;
-            } else {
-                self.driver.disable_all()?;
+            } else if let Err(e) = self.driver.disable_all() {
+                // On the way down every motor that still listens is off; a silent one cannot be
+                // reached, and that must not stop the others from being switched off.
+                tracing::warn!("torque off: {e}");
             }
             self.enabled = want;
         }

@@ -754,3 +754,42 @@ fn play_writes_a_report_with_plots_and_the_reactor_metrics() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn batch_runs_clips_times_seeds_in_parallel_and_tabulates_them() {
+    let clips = robots::reference_robot_path().with_file_name("clips");
+    let out = robodeploy()
+        .args(["batch", "--seeds", "0-2", "--jobs", "2", "--clips"])
+        .arg(clips.join("squat.csv"))
+        .arg(clips.join("wave_and_look.csv"))
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let row = |name: &str| {
+        stdout
+            .lines()
+            .find(|l| l.starts_with(name))
+            .unwrap_or_else(|| panic!("{stdout}"))
+            .to_owned()
+    };
+    assert!(row("squat.csv").contains("     3      100%"), "{stdout}");
+    assert!(row("wave_and_look.csv").contains("     3      100%"), "{stdout}");
+    // With the elbow servo vanishing during start-up, no run succeeds.
+    let out = robodeploy()
+        .args(["batch", "--seeds", "0-1", "--mirror"])
+        .arg(test_support::fixtures::workspace_root().join("sim2real/configs/randomized-with-faults.toml"))
+        .arg("--clips")
+        .arg(clips.join("squat.csv"))
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        stdout.contains("squat.csv                         2        0%"),
+        "{stdout}"
+    );
+}
