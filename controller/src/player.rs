@@ -789,7 +789,11 @@ impl<L: RobotLink> Player<L> {
         if let Some(joint) = s.faulted.iter().position(|&f| f) {
             return Some(Cause::DeviceFault { joint });
         }
-        if s.imu_missed > lim.stale_ticks {
+        // The IMU may be slower than the loop: allow two of its periods, at least the joints' limit.
+        let imu_limit = lim
+            .stale_ticks
+            .max((2.0 / (self.dt * self.robot.config.imu.rate_hz)).ceil() as u32);
+        if s.imu_missed > imu_limit {
             return Some(Cause::StaleImu { ticks: s.imu_missed });
         }
         let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
