@@ -221,15 +221,17 @@ fn with_recorder<L: RobotLink>(
             c.iter().map(|v| format!("{v:?}")).collect::<Vec<_>>().join(","),
         );
     }
-    let sink = TelemetrySink::start(
-        &path,
-        1024,
-        backpressure,
-        &player.joint_names(),
-        &player.root_frame(),
-        &run,
-    )
-    .map_err(anyhow::Error::msg)?;
+    let robot = player.robot();
+    let info = controller::telemetry::RecordingInfo {
+        joint_names: player.joint_names(),
+        root_frame: player.root_frame(),
+        run,
+        kinematics: Some((
+            robot.mjcf_path.clone(),
+            robot.config.joints.iter().map(|j| j.mjcf_joint.clone()).collect(),
+        )),
+    };
+    let sink = TelemetrySink::start(&path, 1024, backpressure, &info).map_err(anyhow::Error::msg)?;
     Ok(player.with_telemetry(sink))
 }
 

@@ -553,6 +553,11 @@ impl<L: RobotLink> Player<L> {
         &self.io
     }
 
+    /// The robot.
+    pub fn robot(&self) -> &Robot {
+        &self.robot
+    }
+
     /// The robot's name.
     pub fn robot_name(&self) -> &str {
         &self.robot.config.name

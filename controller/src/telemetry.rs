@@ -161,6 +161,20 @@ impl std::fmt::Display for TelemetryReport {
 /// Records written and messages per topic, as the logger thread returns them.
 type Written = (u64, BTreeMap<String, u64>);
 
+/// What a recording says about itself.
+#[derive(Debug, Clone, Default)]
+pub struct RecordingInfo {
+    /// Joint names, robot order.
+    pub joint_names: Vec<String>,
+    /// The base frame's name.
+    pub root_frame: String,
+    /// How to rebuild the run (files, options), for replays.
+    pub run: BTreeMap<String, String>,
+    /// The robot's MJCF and its joint names in robot order: with them the logger also writes a
+    /// `foxglove.FrameTransform` per link (forward kinematics of the measured joints).
+    pub kinematics: Option<(PathBuf, Vec<String>)>,
+}
+
 /// The loop's end of the telemetry ring.
 #[derive(Debug)]
 pub struct TelemetrySink {
@@ -215,10 +229,9 @@ impl TelemetrySink {
         path: &Path,
         capacity: usize,
         backpressure: Backpressure,
-        joint_names: &[String],
-        root_frame: &str,
-        run: &BTreeMap<String, String>,
+        info: &RecordingInfo,
     ) -> Result<Self, String> {
+        let (joint_names, root_frame, run) = (&info.joint_names, info.root_frame.as_str(), &info.run);
         let file =
             std::fs::File::create(path).map_err(|e| format!("cannot create {}: {e}", path.display()))?;
         let (tx, rx) = crossbeam::channel::bounded::<TickRecord>(capacity.max(1));
@@ -249,9 +262,15 @@ impl TelemetrySink {
             );
         }
         let root = root_frame.to_owned();
+        let kinematics = info.kinematics.clone();
         let logger = std::thread::Builder::new()
             .name("telemetry".into())
             .spawn(move || {
+                let mut links = match &kinematics {
+                    Some((mjcf, joints)) => Some(Links::new(mjcf, joints, &root)?),
+                    None => None,
+                };
+                let tf = channels[TOPICS.len() - 2];
                 let mut counts: BTreeMap<String, u64> = BTreeMap::new();
                 let mut written = 0u64;
                 let mut text = String::with_capacity(16 * 1024);
@@ -275,6 +294,25 @@ impl TelemetrySink {
                             .write_to_known_channel(&header, text.as_bytes())
                             .map_err(|e| e.to_string())?;
                         *counts.entry((*topic).to_owned()).or_default() += 1;
+                    }
+                    if let Some(links) = &mut links
+                        && !r.base_pose[0].is_nan()
+                    {
+                        for i in 0..links.update(&r) {
+                            text.clear();
+                            links.encode(&mut text, i, r.time_ns);
+                            sequence = sequence.wrapping_add(1);
+                            let header = mcap::records::MessageHeader {
+                                channel_id: tf,
+                                sequence,
+                                log_time: r.time_ns,
+                                publish_time: r.time_ns,
+                            };
+                            writer
+                                .write_to_known_channel(&header, text.as_bytes())
+                                .map_err(|e| e.to_string())?;
+                            *counts.entry("/tf".to_owned()).or_default() += 1;
+                        }
                     }
                     written += 1;
                 }
@@ -471,4 +509,111 @@ fn encode(out: &mut String, k: usize, r: &TickRecord, root: &str, last_mode: &mu
     }
     out.push('}');
     true
+}
+
+/// Forward kinematics of the recorded joints for per-link frame transforms.
+struct Links {
+    data: mujoco_rs::prelude::MjData<Box<mujoco_rs::prelude::MjModel>>,
+    root_qpos: usize,
+    joint_qpos: Vec<usize>,
+    /// (parent name, child name, parent body, child body) for every body but the world and root.
+    pairs: Vec<(String, String, usize, usize)>,
+    poses: Vec<([f64; 3], [f64; 4])>,
+}
+
+impl Links {
+    fn new(mjcf: &Path, joints: &[String], root: &str) -> Result<Self, String> {
+        use mujoco_rs::wrappers::mj_model::MjtObjBase;
+        let model = crate::sim_model(mjcf)?;
+        let id = |kind, name: &str| {
+            model
+                .name_to_id(kind, name)
+                .ok_or_else(|| format!("{name:?} is not in {}", mjcf.display()))
+        };
+        let root_body = id(MjtObjBase::mjOBJ_BODY, root)?;
+        let root_joint = model.body_jntadr()[root_body];
+        if root_joint < 0 {
+            return Err(format!("root body {root:?} has no free joint"));
+        }
+        let root_qpos = model.jnt_qposadr()[root_joint as usize] as usize;
+        let joint_qpos = joints
+            .iter()
+            .map(|j| id(MjtObjBase::mjOBJ_JOINT, j).map(|i| model.jnt_qposadr()[i] as usize))
+            .collect::<Result<Vec<_>, _>>()?;
+        let name = |b: usize| {
+            model
+                .id_to_name(MjtObjBase::mjOBJ_BODY, b)
+                .unwrap_or("world")
+                .to_owned()
+        };
+        let pairs: Vec<_> = (1..model.ffi().nbody as usize)
+            .filter(|&b| b != root_body)
+            .map(|b| {
+                let p = model.body_parentid()[b] as usize;
+                (name(p), name(b), p, b)
+            })
+            .collect();
+        let n = pairs.len();
+        Ok(Self {
+            data: mujoco_rs::prelude::MjData::new(Box::new(model)),
+            root_qpos,
+            joint_qpos,
+            pairs,
+            poses: vec![([0.0; 3], [1.0, 0.0, 0.0, 0.0]); n],
+        })
+    }
+
+    /// Computes every link's pose in its parent's frame; returns how many.
+    fn update(&mut self, r: &TickRecord) -> usize {
+        self.data.qpos_mut()[self.root_qpos..self.root_qpos + 7].copy_from_slice(&r.base_pose);
+        for (i, &adr) in self.joint_qpos.iter().enumerate().take(usize::from(r.joints)) {
+            self.data.qpos_mut()[adr] = r.q[i];
+        }
+        self.data.kinematics();
+        let (xpos, xquat) = (self.data.xpos(), self.data.xquat());
+        for (k, &(_, _, p, b)) in self.pairs.iter().enumerate() {
+            let inv = [xquat[p][0], -xquat[p][1], -xquat[p][2], -xquat[p][3]];
+            let d = [
+                xpos[b][0] - xpos[p][0],
+                xpos[b][1] - xpos[p][1],
+                xpos[b][2] - xpos[p][2],
+            ];
+            let t = firmware_bridge::imu::emulator::mul(
+                firmware_bridge::imu::emulator::mul(inv, [0.0, d[0], d[1], d[2]]),
+                xquat[p],
+            );
+            self.poses[k] = (
+                [t[1], t[2], t[3]],
+                firmware_bridge::imu::emulator::mul(inv, xquat[b]),
+            );
+        }
+        self.pairs.len()
+    }
+
+    fn encode(&self, out: &mut String, i: usize, time_ns: u64) {
+        let (parent, child, _, _) = &self.pairs[i];
+        let (t, q) = self.poses[i];
+        let _ = write!(
+            out,
+            "{{\"timestamp\":{{\"sec\":{},\"nsec\":{}}},\"parent_frame_id\":\"{parent}\",\"child_frame_id\":\"{child}\",\
+             \"translation\":{{\"x\":{},\"y\":{},\"z\":{}}},\"rotation\":{{\"x\":{},\"y\":{},\"z\":{},\"w\":{}}}}}",
+            time_ns / 1_000_000_000,
+            time_ns % 1_000_000_000,
+            t[0],
+            t[1],
+            t[2],
+            q[1],
+            q[2],
+            q[3],
+            q[0]
+        );
+    }
+}
+
+impl std::fmt::Debug for Links {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Links")
+            .field("links", &self.pairs.len())
+            .finish_non_exhaustive()
+    }
 }

@@ -218,9 +218,11 @@ fn a_steady_state_tick_allocates_nothing() {
         &path,
         256,
         controller::telemetry::Backpressure::Drop,
-        &names,
-        "pelvis",
-        &Default::default(),
+        &controller::telemetry::RecordingInfo {
+            joint_names: names.clone(),
+            root_frame: "pelvis".into(),
+            ..Default::default()
+        },
     )
     .unwrap();
     let mut p = p.with_telemetry(sink);

@@ -24,15 +24,16 @@ fn a_recorded_run_reads_back_in_python_with_the_reported_counts() {
     let reference = Reference::from_clip(&clip, &robot, 50.0).unwrap();
     let path = std::env::temp_dir().join(format!("run-{}.mcap", std::process::id()));
     let names: Vec<String> = robot.config.joints.iter().map(|j| j.name.clone()).collect();
-    let sink = TelemetrySink::start(
-        &path,
-        64,
-        Backpressure::Block,
-        &names,
-        "pelvis",
-        &Default::default(),
-    )
-    .unwrap();
+    let info = controller::telemetry::RecordingInfo {
+        joint_names: names.clone(),
+        root_frame: "pelvis".into(),
+        kinematics: Some((
+            robot.mjcf_path.clone(),
+            robot.config.joints.iter().map(|j| j.mjcf_joint.clone()).collect(),
+        )),
+        ..Default::default()
+    };
+    let sink = TelemetrySink::start(&path, 64, Backpressure::Block, &info).unwrap();
     let (p, mut clock, _w) = lockstep_player(
         robot,
         layout,
@@ -64,6 +65,18 @@ fn a_recorded_run_reads_back_in_python_with_the_reported_counts() {
     assert_eq!(v["counts"]["/joint_state"].as_u64(), Some(summary.ticks));
     assert_eq!(v["schemas"]["/tf"], "foxglove.FrameTransform");
     assert_eq!(v["first_tf"]["child_frame_id"], "pelvis");
+    // Every link of the robot gets its transform each tick: root + 21 links.
+    assert_eq!(v["counts"]["/tf"].as_u64(), Some(22 * summary.ticks));
+    let frames: Vec<&str> = v["tf_children"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f.as_str().unwrap())
+        .collect();
+    assert!(
+        frames.contains(&"left_foot") && frames.contains(&"head"),
+        "{frames:?}"
+    );
     assert!(
         v["metadata"]["/joint_state"]["joint_names"]
             .as_str()
@@ -89,9 +102,11 @@ fn an_overflowing_ring_counts_every_dropped_record() {
         &path,
         2,
         Backpressure::Drop,
-        &["j".into()],
-        "base",
-        &Default::default(),
+        &controller::telemetry::RecordingInfo {
+            joint_names: vec!["j".into()],
+            root_frame: "base".into(),
+            ..Default::default()
+        },
     )
     .unwrap();
     let mut r = TickRecord {
@@ -129,9 +144,11 @@ fn ten_minutes_of_records_at_500_hz_lose_nothing_in_lockstep() {
         &path,
         1024,
         Backpressure::Block,
-        &names,
-        "pelvis",
-        &Default::default(),
+        &controller::telemetry::RecordingInfo {
+            joint_names: names.clone(),
+            root_frame: "pelvis".into(),
+            ..Default::default()
+        },
     )
     .unwrap();
     let ticks: u64 = 10 * 60 * 500;

@@ -9,7 +9,7 @@ import sys
 from mcap.reader import make_reader
 
 counts, schemas, metadata = {}, {}, {}
-first_joint_state, modes, first_tf = None, [], None
+first_joint_state, modes, first_tf, tf_children = None, [], None, set()
 with open(sys.argv[1], "rb") as f:
     reader = make_reader(f)
     for schema, channel, message in reader.iter_messages():
@@ -21,7 +21,10 @@ with open(sys.argv[1], "rb") as f:
             first_joint_state = data
         if channel.topic == "/safety":
             modes.append(data["mode"])
-        if channel.topic == "/tf" and first_tf is None:
-            first_tf = data
+        if channel.topic == "/tf":
+            tf_children.add(data["child_frame_id"])
+            if first_tf is None:
+                first_tf = data
 print(json.dumps(dict(counts=counts, schemas=schemas, metadata=metadata,
-                      first_joint_state=first_joint_state, modes=modes, first_tf=first_tf)))
+                      first_joint_state=first_joint_state, modes=modes, first_tf=first_tf,
+                      tf_children=sorted(tf_children))))
