@@ -41,6 +41,10 @@ pub struct MotionQuality {
     pub deepest: Option<(f64, usize, String)>,
     /// First tick deeper than the threshold, and the geom.
     pub first_penetration: Option<(usize, String)>,
+    /// Ticks where two bodies of different chains overlap by more than [`PENETRATION`].
+    pub self_penetration_ticks: usize,
+    /// Deepest self-penetration: depth, tick, "geom/geom".
+    pub deepest_self: Option<(f64, usize, String)>,
     /// Mean horizontal foot speed while in contact, m/s.
     pub foot_sliding: f64,
     /// Mean foot height above the floor while in contact, m.
@@ -67,6 +71,15 @@ impl MotionQuality {
                 depth * 100.0
             ));
         }
+        if let Some((depth, tick, pair)) = &self.deepest_self {
+            out.push(format!(
+                "self-penetration: {} ticks with limbs overlapping more than {:.0} cm (deepest {:.1} cm, {pair}, t = {:.3} s, tick {tick})",
+                self.self_penetration_ticks,
+                PENETRATION * 100.0,
+                depth * 100.0,
+                *tick as f64 / self.rate_hz
+            ));
+        }
         for t in self.torques.iter().filter(|t| t.first_saturated.is_some()) {
             let tick = t.first_saturated.unwrap_or(0);
             out.push(format!(
@@ -91,6 +104,12 @@ impl std::fmt::Display for MotionQuality {
             self.ticks,
             100.0 * self.penetration_ticks as f64 / self.ticks.max(1) as f64,
             self.penetration_mean * 100.0
+        )?;
+        writeln!(
+            f,
+            "  self-penetration > {:.0} cm (different chains): {} ticks",
+            PENETRATION * 100.0,
+            self.self_penetration_ticks
         )?;
         writeln!(
             f,
@@ -166,6 +185,38 @@ pub fn analyze(robot: &Robot, reference: &Reference) -> Result<MotionQuality, St
                 .collect()
         })
         .collect();
+    // Geom pairs of different kinematic chains (neither body an ancestor of the other).
+    let parent = |b: usize| model.body_parentid()[b] as usize;
+    let ancestor = |a: usize, mut b: usize| {
+        while b != 0 {
+            if b == a {
+                return true;
+            }
+            b = parent(b);
+        }
+        false
+    };
+    let body_of = |g: usize| model.geom_bodyid()[g] as usize;
+    let cross_pairs: Vec<(usize, usize)> = (0..ngeom)
+        .flat_map(|a| (a + 1..ngeom).map(move |b| (a, b)))
+        .filter(|&(a, b)| {
+            let (ba, bb) = (body_of(a), body_of(b));
+            ba != 0 && bb != 0 && !ancestor(ba, bb) && !ancestor(bb, ba)
+        })
+        .collect();
+    let geom_name = |g: usize| {
+        model.id_to_name(MjtObjBase::mjOBJ_GEOM, g).map_or_else(
+            || {
+                format!(
+                    "geom {g} ({})",
+                    model
+                        .id_to_name(MjtObjBase::mjOBJ_BODY, body_of(g))
+                        .unwrap_or("?")
+                )
+            },
+            str::to_owned,
+        )
+    };
     let nv = model.ffi().nv as usize;
     let n = reference.len();
     let dt = 1.0 / reference.rate_hz;
@@ -193,6 +244,8 @@ pub fn analyze(robot: &Robot, reference: &Reference) -> Result<MotionQuality, St
         penetration_mean: 0.0,
         deepest: None,
         first_penetration: None,
+        self_penetration_ticks: 0,
+        deepest_self: None,
         foot_sliding: 0.0,
         foot_floating: 0.0,
         limit_margin: (f64::INFINITY, String::new(), 0),
@@ -239,6 +292,24 @@ pub fn analyze(robot: &Robot, reference: &Reference) -> Result<MotionQuality, St
             q.first_penetration.get_or_insert_with(|| (k, name.clone()));
             if q.deepest.as_ref().is_none_or(|d| deepest_now.0 > d.0) {
                 q.deepest = Some((deepest_now.0, k, name));
+            }
+        }
+        // Self-penetration between different chains.
+        let mut worst = (0.0, 0, 0);
+        for &(a, b) in &cross_pairs {
+            let depth = -data.geom_distance(a, b, 0.05, None);
+            if depth > worst.0 {
+                worst = (depth, a, b);
+            }
+        }
+        if worst.0 > PENETRATION {
+            q.self_penetration_ticks += 1;
+            if q.deepest_self.as_ref().is_none_or(|d| worst.0 > d.0) {
+                q.deepest_self = Some((
+                    worst.0,
+                    k,
+                    format!("{}/{}", geom_name(worst.1), geom_name(worst.2)),
+                ));
             }
         }
         // Feet: height of the lowest sole point, horizontal speed.

@@ -793,3 +793,46 @@ fn batch_runs_clips_times_seeds_in_parallel_and_tabulates_them() {
         "{stdout}"
     );
 }
+
+#[test]
+fn check_flags_limbs_that_pass_through_each_other() {
+    let clip = robots::reference_robot_path().with_file_name("clips/squat.csv");
+    let text = std::fs::read_to_string(clip).unwrap();
+    let header: Vec<&str> = text
+        .lines()
+        .find(|l| l.starts_with("time,"))
+        .unwrap()
+        .split(',')
+        .collect();
+    let (l, r) = (
+        header.iter().position(|c| *c == "left_hip_roll").unwrap(),
+        header.iter().position(|c| *c == "right_hip_roll").unwrap(),
+    );
+    // Both hips rolled fully inwards (within their limits) from t = 1 s on, eased in over 1 s:
+    // the thighs cross.
+    let mut out = String::new();
+    for line in text.lines() {
+        let mut cells: Vec<String> = line.split(',').map(str::to_owned).collect();
+        if let Ok(t) = cells[0].parse::<f64>() {
+            let a = ((t - 1.0) / 1.0).clamp(0.0, 1.0);
+            cells[l] = format!("{:.5}", -0.28 * a);
+            cells[r] = format!("{:.5}", 0.28 * a);
+        }
+        out.push_str(&cells.join(","));
+        out.push('\n');
+    }
+    let path = std::env::temp_dir().join(format!("robodeploy-crossed-{}.csv", std::process::id()));
+    std::fs::write(&path, out).unwrap();
+    let run = robodeploy()
+        .args(["check", "--clip"])
+        .arg(&path)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success(), "{}", String::from_utf8_lossy(&run.stdout));
+    assert!(
+        stderr.contains("self-penetration:") && stderr.contains("limbs overlapping more than 1 cm"),
+        "{stderr}"
+    );
+    std::fs::remove_file(&path).unwrap();
+}
