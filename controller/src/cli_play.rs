@@ -226,6 +226,7 @@ fn with_recorder<L: RobotLink>(
         joint_names: player.joint_names(),
         root_frame: player.root_frame(),
         run,
+        bus_names: player.link().bus_names().to_vec(),
         kinematics: Some((
             robot.mjcf_path.clone(),
             robot.config.joints.iter().map(|j| j.mjcf_joint.clone()).collect(),

@@ -745,6 +745,12 @@ impl<L: RobotLink> Player<L> {
         r.feet = feet as u8;
         r.foot_contacts[..feet].copy_from_slice(&self.truth.foot_contacts[..feet]);
         r.stop_requested = self.stop_seen;
+        let times = self.io.bus_times();
+        let b = times.len().min(r.bus_us.len());
+        r.buses = b as u8;
+        for (slot, t) in r.bus_us.iter_mut().zip(&times[..b]) {
+            *slot = t.as_secs_f32() * 1e6;
+        }
         r.io_us = io.as_secs_f32() * 1e6;
         r.compute_us = compute.as_secs_f32() * 1e6;
         if let Some(t) = self.transitions.last() {

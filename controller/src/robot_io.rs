@@ -9,7 +9,7 @@ use firmware_bridge::imu::reader::ImuReader;
 use firmware_bridge::mit::codec::MotorFault;
 use firmware_bridge::mit::driver::{JointCommand, MitBusDriver, MitError};
 use std::sync::{Arc, Mutex, PoisonError};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use firmware_bridge::serial::ByteStream;
 use robots::{BusKind, Robot, drivers};
@@ -252,6 +252,7 @@ enum Op {
 struct Slot {
     state: RobotState,
     targets: Vec<JointTarget>,
+    elapsed: Duration,
 }
 
 /// A bus serviced on its own thread, so the I/O phase costs the slowest bus, not the sum.
@@ -276,6 +277,7 @@ impl Worker {
         let slot = Arc::new(Mutex::new(Slot {
             state: RobotState::new(n),
             targets: vec![JointTarget::default(); n],
+            elapsed: Duration::ZERO,
         }));
         let shared = Arc::clone(&slot);
         let thread = std::thread::Builder::new()
@@ -283,13 +285,19 @@ impl Worker {
             .spawn(move || {
                 while let Ok(op) = rx.recv() {
                     let mut s = shared.lock().unwrap_or_else(PoisonError::into_inner);
-                    let Slot { state, targets } = &mut *s;
+                    let Slot {
+                        state,
+                        targets,
+                        elapsed,
+                    } = &mut *s;
+                    let started = Instant::now();
                     let r = match op {
                         Op::Identify => bus.identify(),
                         Op::Read => bus.read(state),
                         Op::Write => bus.write(targets),
                         Op::TorqueOff => bus.torque_off(),
                     };
+                    *elapsed = started.elapsed();
                     drop(s);
                     if tx.send(r).is_err() {
                         break;
@@ -331,6 +339,14 @@ pub trait RobotLink: std::fmt::Debug {
     fn write(&mut self, targets: &[JointTarget]) -> Result<(), IoError>;
     /// Torque off everywhere.
     fn torque_off(&mut self) -> Result<(), IoError>;
+    /// Bus names, in the order of [`Self::bus_times`].
+    fn bus_names(&self) -> &[String] {
+        &[]
+    }
+    /// Time each bus took in the last read + write.
+    fn bus_times(&self) -> &[Duration] {
+        &[]
+    }
 }
 
 impl<S: ByteStream + std::fmt::Debug> RobotLink for BusRobot<S>
@@ -349,6 +365,12 @@ where
     fn torque_off(&mut self) -> Result<(), IoError> {
         BusRobot::torque_off(self)
     }
+    fn bus_names(&self) -> &[String] {
+        &self.names
+    }
+    fn bus_times(&self) -> &[Duration] {
+        &self.times
+    }
 }
 
 /// Every bus of a robot, in sequence (lockstep: deterministic) or in parallel (wall clock).
@@ -359,6 +381,8 @@ pub struct BusRobot<S: ByteStream> {
     imu: ImuReader<S>,
     last_imu: Option<S::Instant>,
     n: usize,
+    names: Vec<String>,
+    times: Vec<Duration>,
 }
 
 impl<S: ByteStream> BusRobot<S> {
@@ -376,6 +400,7 @@ impl<S: ByteStream> BusRobot<S> {
         D::Instant: Send,
     {
         let mut buses: Vec<(Box<dyn JointBus>, Vec<usize>)> = Vec::new();
+        let mut names = Vec::new();
         for (name, port) in ports.can {
             check_kind(robot, &name, BusKind::MitCan)?;
             let (idx, cfg): (Vec<_>, Vec<_>) = robot
@@ -390,6 +415,7 @@ impl<S: ByteStream> BusRobot<S> {
                 enabled: false,
             };
             buses.push((Box::new(bus), idx));
+            names.push(name);
         }
         for (name, port) in ports.dxl {
             check_kind(robot, &name, BusKind::Dynamixel)?;
@@ -405,6 +431,7 @@ impl<S: ByteStream> BusRobot<S> {
                 enabled: false,
             };
             buses.push((Box::new(bus), idx));
+            names.push(name);
         }
         let covered: usize = buses.iter().map(|b| b.1.len()).sum();
         let n = robot.config.joints.len();
@@ -419,6 +446,8 @@ impl<S: ByteStream> BusRobot<S> {
             imu: ImuReader::new(ports.imu),
             last_imu: None,
             n,
+            times: vec![Duration::ZERO; names.len()],
+            names,
         })
     }
 
@@ -466,13 +495,16 @@ impl<S: ByteStream> BusRobot<S> {
 
     /// Reads every bus and the IMU into `state`.
     pub fn read(&mut self, state: &mut RobotState) -> Result<(), IoError> {
-        for (b, _) in &mut self.buses {
+        for ((b, _), t) in self.buses.iter_mut().zip(&mut self.times) {
+            let started = Instant::now();
             b.read(state)?;
+            *t = started.elapsed();
         }
         if !self.workers.is_empty() {
             let r = self.fan_out(Op::Read);
-            for w in &self.workers {
+            for (w, t) in self.workers.iter().zip(&mut self.times) {
                 let s = w.lock();
+                *t = s.elapsed;
                 for &i in &w.joints {
                     state.q[i] = s.state.q[i];
                     state.qd[i] = s.state.qd[i];
@@ -498,8 +530,10 @@ impl<S: ByteStream> BusRobot<S> {
 
     /// Sends every joint its target (robot order), switching torque on or off per bus as needed.
     pub fn write(&mut self, targets: &[JointTarget]) -> Result<(), IoError> {
-        for (b, _) in &mut self.buses {
+        for ((b, _), t) in self.buses.iter_mut().zip(&mut self.times) {
+            let started = Instant::now();
             b.write(targets)?;
+            *t += started.elapsed();
         }
         if self.workers.is_empty() {
             return Ok(());
@@ -507,7 +541,11 @@ impl<S: ByteStream> BusRobot<S> {
         for w in &self.workers {
             w.lock().targets.copy_from_slice(targets);
         }
-        self.fan_out(Op::Write)
+        let r = self.fan_out(Op::Write);
+        for (w, t) in self.workers.iter().zip(&mut self.times) {
+            *t += w.lock().elapsed;
+        }
+        r
     }
 
     /// Torque off everywhere (best effort on every bus, first error reported).

@@ -77,6 +77,10 @@ pub struct TickRecord {
     pub io_us: f32,
     /// Compute time, µs.
     pub compute_us: f32,
+    /// Time each bus took (read + write), µs, in [`RecordingInfo::bus_names`] order.
+    pub bus_us: [f32; 8],
+    /// Buses in use.
+    pub buses: u8,
     /// The cause of the latest transition, UTF-8, `cause_len` bytes.
     pub cause: [u8; 64],
     /// Bytes of `cause` in use.
@@ -112,6 +116,8 @@ impl Default for TickRecord {
             obs: [0.0; MAX_OBS],
             io_us: 0.0,
             compute_us: 0.0,
+            bus_us: [0.0; 8],
+            buses: 0,
             cause: [0; 64],
             cause_len: 0,
         }
@@ -170,6 +176,8 @@ pub struct RecordingInfo {
     pub root_frame: String,
     /// How to rebuild the run (files, options), for replays.
     pub run: BTreeMap<String, String>,
+    /// Bus names, in the order of [`TickRecord::bus_us`].
+    pub bus_names: Vec<String>,
     /// The robot's MJCF and its joint names in robot order: with them the logger also writes a
     /// `foxglove.FrameTransform` per link (forward kinematics of the measured joints).
     pub kinematics: Option<(PathBuf, Vec<String>)>,
@@ -210,7 +218,7 @@ const TOPICS: [(&str, &str); 8] = [
     ),
     (
         "/timing",
-        r#"{"type":"object","properties":{"io_us":{"type":"number"},"compute_us":{"type":"number"}}}"#,
+        r#"{"type":"object","properties":{"io_us":{"type":"number"},"compute_us":{"type":"number"},"bus_us":{"type":"array","items":{"type":"number"}}}}"#,
     ),
     ("/tf", FRAME_TRANSFORM_SCHEMA),
     (
@@ -242,6 +250,8 @@ impl TelemetrySink {
             .map_err(|e| e.to_string())?;
         let meta: BTreeMap<String, String> = [("joint_names".to_owned(), joint_names.join(","))].into();
         // The replay channel also says how to rebuild the run: files and options.
+        let mut timing_meta = meta.clone();
+        timing_meta.insert("bus_names".into(), info.bus_names.join(","));
         let mut replay_meta = meta.clone();
         replay_meta.extend(run.iter().map(|(k, v)| (k.clone(), v.clone())));
         let mut channels = Vec::with_capacity(TOPICS.len());
@@ -254,7 +264,11 @@ impl TelemetrySink {
             let schema_id = writer
                 .add_schema(name, "jsonschema", schema.as_bytes())
                 .map_err(|e| e.to_string())?;
-            let m = if topic == "/replay" { &replay_meta } else { &meta };
+            let m = match topic {
+                "/replay" => &replay_meta,
+                "/timing" => &timing_meta,
+                _ => &meta,
+            };
             channels.push(
                 writer
                     .add_channel(schema_id, topic, "json", m)
@@ -438,7 +452,8 @@ fn encode(out: &mut String, k: usize, r: &TickRecord, root: &str, last_mode: &mu
             array64(out, "quat", r.imu[6..10].iter().copied());
         }
         5 => {
-            let _ = write!(out, "\"io_us\":{},\"compute_us\":{}", r.io_us, r.compute_us);
+            let _ = write!(out, "\"io_us\":{},\"compute_us\":{},", r.io_us, r.compute_us);
+            array(out, "bus_us", &r.bus_us[..usize::from(r.buses)]);
         }
         7 => {
             let f = usize::from(r.feet);

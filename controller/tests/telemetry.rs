@@ -7,6 +7,7 @@ use std::sync::atomic::AtomicBool;
 use controller::clip::{Clip, Reference};
 use controller::player::PlayOptions;
 use controller::policy::PolicyLayout;
+use controller::robot_io::RobotLink;
 use controller::sim::lockstep_player;
 use controller::telemetry::{Backpressure, TelemetrySink, TickRecord};
 use robots::{Robot, reference_robot_path};
@@ -24,16 +25,8 @@ fn a_recorded_run_reads_back_in_python_with_the_reported_counts() {
     let reference = Reference::from_clip(&clip, &robot, 50.0).unwrap();
     let path = std::env::temp_dir().join(format!("run-{}.mcap", std::process::id()));
     let names: Vec<String> = robot.config.joints.iter().map(|j| j.name.clone()).collect();
-    let info = controller::telemetry::RecordingInfo {
-        joint_names: names.clone(),
-        root_frame: "pelvis".into(),
-        kinematics: Some((
-            robot.mjcf_path.clone(),
-            robot.config.joints.iter().map(|j| j.mjcf_joint.clone()).collect(),
-        )),
-        ..Default::default()
-    };
-    let sink = TelemetrySink::start(&path, 64, Backpressure::Block, &info).unwrap();
+    let mjcf = robot.mjcf_path.clone();
+    let mjcf_joints: Vec<String> = robot.config.joints.iter().map(|j| j.mjcf_joint.clone()).collect();
     let (p, mut clock, _w) = lockstep_player(
         robot,
         layout,
@@ -43,6 +36,14 @@ fn a_recorded_run_reads_back_in_python_with_the_reported_counts() {
         Arc::new(AtomicBool::new(false)),
     )
     .unwrap();
+    let info = controller::telemetry::RecordingInfo {
+        joint_names: names.clone(),
+        root_frame: "pelvis".into(),
+        kinematics: Some((mjcf.clone(), mjcf_joints.clone())),
+        bus_names: p.link().bus_names().to_vec(),
+        ..Default::default()
+    };
+    let sink = TelemetrySink::start(&path, 64, Backpressure::Block, &info).unwrap();
     let mut p = p.with_telemetry(sink);
     let summary = p.run(&mut clock).unwrap();
     let t = summary.telemetry.expect("recorded");
@@ -65,6 +66,7 @@ fn a_recorded_run_reads_back_in_python_with_the_reported_counts() {
     assert_eq!(v["counts"]["/joint_state"].as_u64(), Some(summary.ticks));
     assert_eq!(v["schemas"]["/tf"], "foxglove.FrameTransform");
     assert_eq!(v["first_tf"]["child_frame_id"], "pelvis");
+    assert_eq!(v["metadata"]["/timing"]["bus_names"], "can0,can1,dxl0");
     // Every link of the robot gets its transform each tick: root + 21 links.
     assert_eq!(v["counts"]["/tf"].as_u64(), Some(22 * summary.ticks));
     let frames: Vec<&str> = v["tf_children"]
