@@ -376,6 +376,13 @@ pub fn write_report(log: &Path, dir: &Path) -> Result<RunSummary, String> {
         &[("bus I/O", "#393", io), ("compute", "#c60", compute)],
     ));
     html.push_str("</body></html>\n");
-    std::fs::write(dir.join("report.html"), html).map_err(|e| e.to_string())?;
+    std::fs::write(dir.join("report.html"), &html).map_err(|e| e.to_string())?;
+    // Each plot also as its own SVG file, for documents that embed pictures.
+    let plots = dir.join("plots");
+    std::fs::create_dir_all(&plots).map_err(|e| format!("cannot create {}: {e}", plots.display()))?;
+    for (i, svg) in html.split("<figure>").skip(1).enumerate() {
+        let svg = &svg[..svg.find("</figure>").unwrap_or(svg.len())];
+        std::fs::write(plots.join(format!("{i:02}.svg")), svg).map_err(|e| e.to_string())?;
+    }
     Ok(summary)
 }
