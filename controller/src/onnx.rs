@@ -84,26 +84,37 @@ pub fn runtime_info() -> Result<String, OnnxError> {
     Ok(format!("{} ({})", native::ONNXRUNTIME_VERSION, ort::info()))
 }
 
-/// The custom metadata properties of a model file (empty when it has none).
-pub fn read_metadata(path: &Path) -> Result<std::collections::BTreeMap<String, String>, OnnxError> {
-    let env = environment()?;
-    let load_err = |e: ort::Error| OnnxError::Load {
+/// A load error naming the model file.
+fn load_error(path: &Path) -> impl Fn(ort::Error) -> OnnxError + '_ {
+    move |e| OnnxError::Load {
         path: path.to_path_buf(),
         reason: e.to_string(),
-    };
+    }
+}
+
+/// The pinned environment, after checking the file exists.
+fn environment_for(path: &Path) -> Result<&'static Environment, OnnxError> {
+    let env = environment()?;
     if !path.is_file() {
         return Err(OnnxError::Load {
             path: path.to_path_buf(),
             reason: "no such file".into(),
         });
     }
+    Ok(env)
+}
+
+/// The custom metadata properties of a model file (empty when it has none).
+pub fn read_metadata(path: &Path) -> Result<std::collections::BTreeMap<String, String>, OnnxError> {
+    let env = environment_for(path)?;
+    let load_err = load_error(path);
     let session = Session::builder(env)
-        .map_err(load_err)?
+        .map_err(&load_err)?
         .commit_from_file(path)
-        .map_err(load_err)?;
-    let meta = session.metadata().map_err(load_err)?;
+        .map_err(&load_err)?;
+    let meta = session.metadata().map_err(&load_err)?;
     let mut out = std::collections::BTreeMap::new();
-    for key in meta.custom_keys().map_err(load_err)? {
+    for key in meta.custom_keys().map_err(&load_err)? {
         if let Some(v) = meta.custom(&key) {
             out.insert(key, v);
         }
@@ -144,20 +155,11 @@ fn vector_len(dtype: &ValueType) -> Result<usize, String> {
 impl OnnxModel {
     /// Loads a model and checks it has exactly one float vector input and one float vector output.
     pub fn load(path: &Path) -> Result<Self, OnnxError> {
-        let env = environment()?;
-        let load_err = |e: ort::Error| OnnxError::Load {
-            path: path.to_path_buf(),
-            reason: e.to_string(),
-        };
-        if !path.is_file() {
-            return Err(OnnxError::Load {
-                path: path.to_path_buf(),
-                reason: "no such file".into(),
-            });
-        }
+        let env = environment_for(path)?;
+        let load_err = load_error(path);
         let builder_err = |e: ort::Error<_>| load_err(e.into());
         let session = Session::builder(env)
-            .map_err(load_err)?
+            .map_err(&load_err)?
             .with_intra_threads(1)
             .map_err(builder_err)?
             .with_inter_threads(1)
@@ -165,7 +167,7 @@ impl OnnxModel {
             .with_optimization_level(GraphOptimizationLevel::All)
             .map_err(builder_err)?
             .commit_from_file(path)
-            .map_err(load_err)?;
+            .map_err(&load_err)?;
         let signature = |what: String| OnnxError::Signature {
             path: path.to_path_buf(),
             what,

@@ -373,14 +373,19 @@ impl TelemetrySink {
     }
 }
 
-fn array64(out: &mut String, name: &str, values: impl IntoIterator<Item = f64>) {
+/// A JSON array named `name`; non-finite values as null. `{:?}` prints the shortest text that
+/// reads back to the same bits (for f32 and f64 alike).
+fn json_array<T: Copy + Into<f64> + std::fmt::Debug>(
+    out: &mut String,
+    name: &str,
+    values: impl IntoIterator<Item = T>,
+) {
     let _ = write!(out, "\"{name}\":[");
     for (i, v) in values.into_iter().enumerate() {
         if i > 0 {
             out.push(',');
         }
-        if v.is_finite() {
-            // `{:?}` prints the shortest text that reads back to the same bits.
+        if v.into().is_finite() {
             let _ = write!(out, "{v:?}");
         } else {
             out.push_str("null");
@@ -389,19 +394,12 @@ fn array64(out: &mut String, name: &str, values: impl IntoIterator<Item = f64>) 
     out.push(']');
 }
 
+fn array64(out: &mut String, name: &str, values: impl IntoIterator<Item = f64>) {
+    json_array(out, name, values);
+}
+
 fn array(out: &mut String, name: &str, values: &[f32]) {
-    let _ = write!(out, "\"{name}\":[");
-    for (i, v) in values.iter().enumerate() {
-        if i > 0 {
-            out.push(',');
-        }
-        if v.is_finite() {
-            let _ = write!(out, "{v}");
-        } else {
-            out.push_str("null");
-        }
-    }
-    out.push(']');
+    json_array(out, name, values.iter().copied());
 }
 
 /// Encodes topic `k` of `r` as JSON into `out`; false when the topic has nothing this tick.
