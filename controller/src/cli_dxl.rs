@@ -8,10 +8,8 @@ use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand};
 use firmware_bridge::dxl::driver::{hardware_error_names, scan};
 use firmware_bridge::dxl::models;
-use firmware_bridge::dxl::servo::{ServoConfig, XSeriesServo};
 use firmware_bridge::dxl::transport::SerialDxlPort;
 use firmware_bridge::dxl::wire::{DxlRig, WireTiming, code_of_baud};
-use firmware_bridge::plant::InertiaPlant;
 use firmware_bridge::serial::PtyServer;
 
 /// Serial bus tools for Dynamixel X-series servos (Protocol 2.0).
@@ -96,23 +94,16 @@ fn emulate(args: &EmulateArgs) -> Result<()> {
         if args.servos.iter().filter(|(other, _)| other == id).count() > 1 {
             bail!("servo ID {id} is given twice");
         }
-        let model = models::find(name).context("model checked by the parser")?;
-        let cfg = ServoConfig::new(*id).on_line(args.baud, Duration::from_micros(args.return_delay_us));
-        servos.push(XSeriesServo::new(model, cfg));
+        servos.push((*id, models::find(name).context("model checked by the parser")?));
     }
-    let plants = servos
-        .iter()
-        .map(|_| InertiaPlant::new(2e-3, 0.05, 0.02, 0.0))
-        .collect();
     let timing = WireTiming {
         baud: args.baud,
         usb_latency: Duration::from_micros(args.usb_latency_us),
     };
-    let rig = Arc::new(Mutex::new(DxlRig::new(
-        servos,
-        plants,
+    let rig = Arc::new(Mutex::new(DxlRig::bench(
+        &servos,
         timing,
-        Duration::from_micros(500),
+        Duration::from_micros(args.return_delay_us),
     )));
     let pty = PtyServer::spawn(Arc::clone(&rig), 0, Duration::from_micros(200))
         .context("cannot open a pseudo-terminal pair")?;

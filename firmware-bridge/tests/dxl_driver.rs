@@ -9,11 +9,10 @@ use firmware_bridge::dxl::driver::{
     DxlBusDriver, DxlCommand, DxlDriverOptions, DxlError, DxlFault, DxlJointConfig, DxlMode, ScanProblem,
 };
 use firmware_bridge::dxl::models::find;
-use firmware_bridge::dxl::servo::{ReplyFault, ServoConfig, XSeriesServo};
+use firmware_bridge::dxl::servo::ReplyFault;
 use firmware_bridge::dxl::table::{addr, hw};
 use firmware_bridge::dxl::transport::LockstepDxlPort;
 use firmware_bridge::dxl::wire::{DxlRig, WireTiming};
-use firmware_bridge::plant::InertiaPlant;
 use firmware_bridge::time::SimInstant;
 use test_support::alloc::{CountingAllocator, count_allocations};
 
@@ -27,21 +26,13 @@ type Driver = DxlBusDriver<LockstepDxlPort<DxlRig>>;
 
 /// `models[i]` servos with IDs 1.., each on a small arm link, their joints' zero at `zero[i]` ticks.
 fn rig(models: &[&str]) -> Arc<Mutex<DxlRig>> {
-    let servos = models
+    let servos: Vec<_> = models
         .iter()
         .enumerate()
-        .map(|(i, m)| {
-            let cfg = ServoConfig::new(i as u8 + 1).on_line(BAUD, Duration::from_micros(500));
-            XSeriesServo::new(find(m).unwrap(), cfg)
-        })
+        .map(|(i, m)| (i as u8 + 1, find(m).unwrap()))
         .collect();
-    let plants = models
-        .iter()
-        .map(|_| InertiaPlant::new(2e-3, 0.05, 0.02, 0.0))
-        .collect();
-    Arc::new(Mutex::new(DxlRig::new(
-        servos,
-        plants,
+    Arc::new(Mutex::new(DxlRig::bench(
+        &servos,
         WireTiming::new(BAUD),
         Duration::from_micros(500),
     )))

@@ -6,28 +6,19 @@ use std::time::Duration;
 
 use firmware_bridge::dxl::driver::{DxlBusDriver, DxlCommand, DxlDriverOptions, DxlJointConfig};
 use firmware_bridge::dxl::models::find;
-use firmware_bridge::dxl::servo::{ServoConfig, XSeriesServo};
 use firmware_bridge::dxl::transport::SerialDxlPort;
 use firmware_bridge::dxl::wire::{DxlRig, WireTiming};
-use firmware_bridge::plant::InertiaPlant;
 use firmware_bridge::serial::PtyServer;
 
 const BAUD: u32 = 1_000_000;
 
 fn serve(models: &[&str]) -> (Arc<Mutex<DxlRig>>, PtyServer) {
-    let servos = models
+    let servos: Vec<_> = models
         .iter()
         .enumerate()
-        .map(|(i, m)| {
-            let cfg = ServoConfig::new(i as u8 + 1).on_line(BAUD, Duration::from_micros(500));
-            XSeriesServo::new(find(m).unwrap(), cfg)
-        })
+        .map(|(i, m)| (i as u8 + 1, find(m).unwrap()))
         .collect();
-    let plants = models
-        .iter()
-        .map(|_| InertiaPlant::new(2e-3, 0.05, 0.02, 0.0))
-        .collect();
-    let rig = DxlRig::new(servos, plants, WireTiming::new(BAUD), Duration::from_micros(500));
+    let rig = DxlRig::bench(&servos, WireTiming::new(BAUD), Duration::from_micros(500));
     let world = Arc::new(Mutex::new(rig));
     let pty = PtyServer::spawn(Arc::clone(&world), 0, Duration::from_micros(200)).unwrap();
     (world, pty)

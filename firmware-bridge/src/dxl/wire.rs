@@ -10,8 +10,9 @@
 use std::collections::VecDeque;
 use std::time::Duration;
 
+use super::models::DxlModel;
 use super::packet::{self, Decoded, PacketError};
-use super::servo::{Reply, ReplySlot, XSeriesServo};
+use super::servo::{Reply, ReplySlot, ServoConfig, XSeriesServo};
 use crate::can::virtual_bus::SimWorld;
 use crate::plant::InertiaPlant;
 use crate::serial::SerialSimWorld;
@@ -383,6 +384,22 @@ impl DxlRig {
             next_tick: SimInstant::ZERO,
             busy: Duration::ZERO,
         }
+    }
+
+    /// A bench rig: servos `(id, model)` on one line with `timing`, answering after
+    /// `return_delay`, each turning a small arm link (2 g·m², light friction), firmware at 2 kHz.
+    pub fn bench(servos: &[(u8, &DxlModel)], timing: WireTiming, return_delay: Duration) -> Self {
+        let emulated = servos
+            .iter()
+            .map(|&(id, model)| {
+                XSeriesServo::new(model, ServoConfig::new(id).on_line(timing.baud, return_delay))
+            })
+            .collect();
+        let plants = servos
+            .iter()
+            .map(|_| InertiaPlant::new(2e-3, 0.05, 0.02, 0.0))
+            .collect();
+        Self::new(emulated, plants, timing, Duration::from_micros(500))
     }
 
     /// The wire and its servos.
