@@ -368,7 +368,7 @@ fn sim_stand_names_a_broken_mirror_file() {
 
 #[test]
 fn play_runs_the_default_clip_on_the_mirror_and_prints_a_summary() {
-    let out = robodeploy().arg("play").output().unwrap();
+    let out = robodeploy().args(["play", "--no-record"]).output().unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
         out.status.success(),
@@ -393,7 +393,11 @@ fn play_refuses_a_clip_beyond_the_limits_before_anything_moves() {
         .replace("-0.25000,0.50000,-0.25000", "-0.25000,2.90000,-0.25000");
     let path = std::env::temp_dir().join(format!("robodeploy-badclip-{}.csv", std::process::id()));
     std::fs::write(&path, text).unwrap();
-    let out = robodeploy().args(["play", "--clip"]).arg(&path).output().unwrap();
+    let out = robodeploy()
+        .args(["play", "--no-record", "--clip"])
+        .arg(&path)
+        .output()
+        .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
     assert!(
@@ -411,7 +415,7 @@ fn play_refuses_a_clip_beyond_the_limits_before_anything_moves() {
 fn sigint_soft_stops_a_looping_play() {
     use std::io::Read;
     let mut child = robodeploy()
-        .args(["play", "--end", "loop", "--clip"])
+        .args(["play", "--no-record", "--end", "loop", "--clip"])
         .arg(robots::reference_robot_path().with_file_name("clips/wave_and_look.csv"))
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::null())
@@ -436,7 +440,15 @@ fn sigint_soft_stops_a_looping_play() {
 #[test]
 fn play_over_real_wires_tracks_in_real_time() {
     let out = robodeploy()
-        .args(["play", "--wall", "--gantry", "--max-seconds", "3", "--clip"])
+        .args([
+            "play",
+            "--no-record",
+            "--wall",
+            "--gantry",
+            "--max-seconds",
+            "3",
+            "--clip",
+        ])
         .arg(robots::reference_robot_path().with_file_name("clips/wave_and_look.csv"))
         .output()
         .unwrap();
@@ -460,7 +472,10 @@ fn play_over_real_wires_tracks_in_real_time() {
 
 #[test]
 fn play_on_hardware_names_a_missing_bus_and_moves_nothing() {
-    let out = robodeploy().args(["play", "--hardware"]).output().unwrap();
+    let out = robodeploy()
+        .args(["play", "--no-record", "--hardware"])
+        .output()
+        .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
     assert!(stderr.contains("bus can0 (can0): cannot open"), "{stderr}");
@@ -486,7 +501,14 @@ fn check_prints_the_layout_without_moving_anything() {
 fn a_udp_estop_damps_the_robot_at_once() {
     use std::io::{BufRead, Read};
     let mut child = robodeploy()
-        .args(["play", "--end", "loop", "--estop-udp", "127.0.0.1:0"])
+        .args([
+            "play",
+            "--no-record",
+            "--end",
+            "loop",
+            "--estop-udp",
+            "127.0.0.1:0",
+        ])
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::null())
         .spawn()
