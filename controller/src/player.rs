@@ -157,14 +157,14 @@ impl Histogram {
         self.max = self.max.max(d);
     }
 
-    /// The `p`-quantile (upper edge of its bin).
+    /// The `p`-quantile (upper edge of its bin, never above the largest sample).
     pub fn quantile(&self, p: f64) -> Duration {
         let want = (p * self.count as f64).ceil().max(1.0) as u64;
         let mut seen = 0u64;
         for (i, &c) in self.bins.iter().enumerate() {
             seen += u64::from(c);
             if seen >= want {
-                return BIN * (i as u32 + 1);
+                return (BIN * (i as u32 + 1)).min(self.max);
             }
         }
         self.max
