@@ -1124,3 +1124,24 @@ impl<L: RobotLink> Player<L> {
         self.stop.store(true, Ordering::Relaxed);
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn histogram_quantiles_bracket_the_samples() {
+        let mut h = Histogram::default();
+        for us in 1..=100u64 {
+            h.record(Duration::from_micros(us));
+        }
+        assert_eq!(h.count(), 100);
+        // 10 µs bins, upper edges: the median sample (50 µs) lies in the [50, 60) µs bin.
+        assert_eq!(h.quantile(0.5), Duration::from_micros(60));
+        assert_eq!(h.quantile(0.99), Duration::from_micros(100));
+        assert_eq!(h.max(), Duration::from_micros(100));
+        let mut idle = Histogram::default();
+        idle.record(Duration::ZERO);
+        assert_eq!(idle.quantile(0.99), Duration::ZERO);
+    }
+}
