@@ -380,6 +380,9 @@ pub struct BusRobot<S: ByteStream> {
     workers: Vec<Worker>,
     imu: ImuReader<S>,
     last_imu: Option<S::Instant>,
+    /// IMU mounting (IMU axes to base axes) and gyro bias, from the robot's calibration.
+    imu_mount: [f64; 4],
+    gyro_bias: [f64; 3],
     n: usize,
     names: Vec<String>,
     times: Vec<Duration>,
@@ -445,6 +448,11 @@ impl<S: ByteStream> BusRobot<S> {
             workers: Vec::new(),
             imu: ImuReader::new(ports.imu),
             last_imu: None,
+            imu_mount: {
+                let [r, p, y] = robot.config.imu.mounting_rpy_deg.map(f64::to_radians);
+                sim2real::mirror::quat_rpy(r, p, y)
+            },
+            gyro_bias: robot.config.imu.gyro_bias,
             n,
             times: vec![Duration::ZERO; names.len()],
             names,
@@ -518,9 +526,19 @@ impl<S: ByteStream> BusRobot<S> {
         match self.imu.poll()? {
             Some(r) if Some(r.received_at) != self.last_imu => {
                 self.last_imu = Some(r.received_at);
-                state.gyro = r.sample.gyro;
-                state.accel = r.sample.accel;
-                state.quat = r.sample.quat;
+                // Into the base's axes: bias off, then the mounting rotation.
+                let m = self.imu_mount;
+                let g = r.sample.gyro;
+                state.gyro = sim2real::mirror::rotate(
+                    m,
+                    [
+                        g[0] - self.gyro_bias[0],
+                        g[1] - self.gyro_bias[1],
+                        g[2] - self.gyro_bias[2],
+                    ],
+                );
+                state.accel = sim2real::mirror::rotate(m, r.sample.accel);
+                state.quat = firmware_bridge::imu::emulator::mul(r.sample.quat, [m[0], -m[1], -m[2], -m[3]]);
                 state.imu_missed = 0;
             }
             _ => state.imu_missed = state.imu_missed.saturating_add(1),

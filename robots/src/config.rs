@@ -80,6 +80,9 @@ pub struct ImuConfig {
     pub rate_hz: f64,
     /// Rotation from the IMU's axes to the site's axes, roll/pitch/yaw in degrees.
     pub mounting_rpy_deg: [f64; 3],
+    /// Gyro bias to subtract, rad/s (from calibration).
+    #[serde(default)]
+    pub gyro_bias: [f64; 3],
 }
 
 /// A robot description.
@@ -148,13 +151,36 @@ impl Robot {
             place: place.to_owned(),
             message,
         };
-        let config: RobotConfig = toml::from_str(text).map_err(|e| {
+        let mut config: RobotConfig = toml::from_str(text).map_err(|e| {
             let span = e
                 .span()
                 .map(|s| line_of(text, s.start))
                 .map_or(String::new(), |l| format!("line {l}"));
             err(&span, e.message().to_owned())
         })?;
+        // What calibration measured overrides the description.
+        let cal_path = crate::calibration::path_for(path);
+        if let Some(cal) =
+            crate::calibration::Calibration::read(&cal_path).map_err(|m| err("calibration", m))?
+        {
+            for (name, c) in &cal.joints {
+                let j = config
+                    .joints
+                    .iter_mut()
+                    .find(|j| &j.name == name)
+                    .ok_or_else(|| RobotError {
+                        file: cal_path.clone(),
+                        place: format!("joints.{name}"),
+                        message: "not a joint of this robot".into(),
+                    })?;
+                j.zero_offset = c.zero_offset;
+                j.direction = c.direction;
+            }
+            if let Some(imu) = cal.imu {
+                config.imu.mounting_rpy_deg = imu.mounting_rpy_deg;
+                config.imu.gyro_bias = imu.gyro_bias;
+            }
+        }
         let mjcf_path = path.parent().unwrap_or(Path::new(".")).join(&config.mjcf);
         let mjcf = mjcf::summarize(&mjcf_path).map_err(|m| err("mjcf", m))?;
         let robot = Self {

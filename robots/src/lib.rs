@@ -4,6 +4,7 @@
 //! Loading checks every cross-reference (MJCF joints, bodies, sites and meshes; unique IDs per
 //! bus; limits inside what the motor model can do) and fails with the file, the field and the value.
 
+pub mod calibration;
 pub mod config;
 pub mod drivers;
 pub mod mjcf;

@@ -74,6 +74,27 @@ pub enum FaultKind {
     Vanish,
 }
 
+/// What the real machine is like where it differs from its description: the values a
+/// calibration must find. The mirror builds its physics from these; the host never sees them.
+#[derive(Debug, Clone, Default, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct HardwareTruth {
+    /// Per joint (robot.toml name): the actuator's true zero offset and direction.
+    pub joints: std::collections::BTreeMap<String, TrueJoint>,
+    /// The IMU's true mounting, roll/pitch/yaw in degrees.
+    pub imu_mounting_rpy_deg: Option<[f64; 3]>,
+}
+
+/// A joint's true actuator mapping.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrueJoint {
+    /// Actuator angle at joint zero, rad.
+    pub zero_offset: f64,
+    /// +1 or -1.
+    pub direction: f64,
+}
+
 /// A mirror run's setup.
 #[derive(Debug, Clone, PartialEq, Default, serde::Deserialize, serde::Serialize)]
 #[serde(default, deny_unknown_fields)]
@@ -90,6 +111,8 @@ pub struct MirrorConfig {
     pub randomization: Randomization,
     /// Faults, in any order.
     pub faults: Vec<ScheduledFault>,
+    /// The machine's true offsets, directions and IMU mounting (for calibration tests).
+    pub hardware: HardwareTruth,
 }
 
 impl MirrorConfig {

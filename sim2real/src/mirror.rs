@@ -142,6 +142,8 @@ pub struct Mirror {
     dxl: Vec<DxlLine>,
     imu: Imu,
     gantry: Option<Gantry>,
+    /// Joint angles a jig holds the joints at (policy order), if any.
+    jig: Option<Vec<f64>>,
     root_qpos: usize,
     root_dof: usize,
     feet: Vec<usize>,
@@ -152,6 +154,7 @@ pub struct Mirror {
     next_firmware: SimInstant,
     faults: Vec<(SimInstant, usize, FaultKind)>,
     next_fault: usize,
+    peak_torque: f64,
     stats: MirrorStats,
 }
 
@@ -198,12 +201,13 @@ impl Mirror {
                     && model.actuator_biasprm()[a][1] < 0.0
                     && (model.actuator_gainprm()[a][0] + model.actuator_biasprm()[a][1]).abs() < 1e-9
             });
+            let truth = config.hardware.joints.get(&j.name);
             joints.push(MirrorJoint {
                 qpos: model.jnt_qposadr()[id] as usize,
                 dof: model.jnt_dofadr()[id] as usize,
-                direction: j.direction,
+                direction: truth.map_or(j.direction, |t| t.direction),
                 gear: j.gear,
-                zero_offset: j.zero_offset,
+                zero_offset: truth.map_or(j.zero_offset, |t| t.zero_offset),
                 strength: draw(rnd.strength_scale),
                 actuator,
             });
@@ -307,7 +311,11 @@ impl Mirror {
             },
             config.seed ^ 0x1u64.rotate_left(40),
         );
-        let [r, p, y] = imu_cfg.mounting_rpy_deg.map(f64::to_radians);
+        let [r, p, y] = config
+            .hardware
+            .imu_mounting_rpy_deg
+            .unwrap_or(imu_cfg.mounting_rpy_deg)
+            .map(f64::to_radians);
         let mounting = quat_rpy(r, p, y);
         let imu = Imu {
             emulator,
@@ -350,6 +358,7 @@ impl Mirror {
             dxl: dxl_lines,
             imu,
             gantry: None,
+            jig: None,
             root_qpos,
             root_dof,
             feet,
@@ -360,6 +369,7 @@ impl Mirror {
             next_firmware: SimInstant::ZERO,
             faults,
             next_fault: 0,
+            peak_torque: 0.0,
             stats: MirrorStats::default(),
         };
         mirror.place_in_default_pose();
@@ -412,6 +422,32 @@ impl Mirror {
     /// MuJoCo's state (for telemetry, rendering, tests).
     pub fn data(&self) -> &MjData<Box<MjModel>> {
         &self.data
+    }
+
+    /// The largest torque any actuator applied so far, N·m (actuator side).
+    pub fn peak_actuator_torque(&self) -> f64 {
+        self.peak_torque
+    }
+
+    /// Clamps the joints into a jig at `pose` (robot joint order), or releases them (`None`).
+    pub fn set_jig(&mut self, pose: Option<Vec<f64>>) {
+        if let Some(p) = &pose {
+            for (j, &q) in self.joints.iter().zip(p) {
+                self.data.qpos_mut()[j.qpos] = q;
+                self.data.qvel_mut()[j.dof] = 0.0;
+            }
+            self.data.forward();
+            self.sync_plants();
+        }
+        self.jig = pose;
+    }
+
+    /// Turns the gantry-held base to roll/pitch/yaw (rad) about its held position, as a person
+    /// tilting the robot on its stand would. No effect without a gantry.
+    pub fn set_gantry_rpy(&mut self, rpy: [f64; 3]) {
+        if let Some(g) = &mut self.gantry {
+            g.quat = quat_rpy(rpy[0], rpy[1], rpy[2]);
+        }
     }
 
     /// A picture of the robot now, the camera looking at its root.
@@ -540,13 +576,23 @@ impl Mirror {
                     self.data.ctrl_mut()[a] = goal;
                     self.data.qfrc_applied_mut()[j.dof] = 0.0;
                 }
-                None => self.data.qfrc_applied_mut()[j.dof] = j.direction * j.gear * p.torque * j.strength,
+                None => {
+                    self.peak_torque = self.peak_torque.max(p.torque.abs());
+                    self.data.qfrc_applied_mut()[j.dof] = j.direction * j.gear * p.torque * j.strength;
+                }
             }
         }
         if let Some(g) = self.gantry {
             self.hold_on_gantry(g);
         }
         self.data.step();
+        if let Some(jig) = &self.jig {
+            // A jig is rigid: the joints are where it puts them, whatever the motors do.
+            for (j, &q) in self.joints.iter().zip(jig) {
+                self.data.qpos_mut()[j.qpos] = q;
+                self.data.qvel_mut()[j.dof] = 0.0;
+            }
+        }
         self.stats.physics_steps += 1;
     }
 

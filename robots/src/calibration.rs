@@ -1,0 +1,81 @@
+//! `calibration.toml` beside a robot.toml: what calibration measured (joint zero offsets and
+//! directions, IMU mounting and gyro bias). Loading a robot merges it over the description; writing
+//! it keeps the previous file and replaces atomically, so an interrupted write never leaves a half
+//! file behind.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// One joint's measured actuator mapping.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct JointCalibration {
+    /// Actuator angle at joint zero, rad.
+    pub zero_offset: f64,
+    /// +1 or -1.
+    pub direction: f64,
+}
+
+/// The IMU's measured mounting and bias.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ImuCalibration {
+    /// Rotation from the IMU's axes to the site's axes, roll/pitch/yaw in degrees.
+    pub mounting_rpy_deg: [f64; 3],
+    /// Gyro bias to subtract, rad/s.
+    pub gyro_bias: [f64; 3],
+}
+
+/// A calibration file.
+#[derive(Debug, Clone, Default, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Calibration {
+    /// When and how it was made (free text).
+    #[serde(default)]
+    pub note: String,
+    /// Per joint, by robot.toml name.
+    #[serde(default)]
+    pub joints: BTreeMap<String, JointCalibration>,
+    /// The IMU.
+    #[serde(default)]
+    pub imu: Option<ImuCalibration>,
+}
+
+/// Where a robot's calibration lives: `calibration.toml` beside its robot.toml.
+pub fn path_for(robot_toml: &Path) -> PathBuf {
+    robot_toml.with_file_name("calibration.toml")
+}
+
+/// Where the previous calibration is kept when a new one is written.
+pub fn previous_path_for(robot_toml: &Path) -> PathBuf {
+    robot_toml.with_file_name("calibration.previous.toml")
+}
+
+impl Calibration {
+    /// Reads `path`; a missing file is no calibration (`Ok(None)`).
+    pub fn read(path: &Path) -> Result<Option<Self>, String> {
+        match std::fs::read_to_string(path) {
+            Ok(text) => toml::from_str(&text)
+                .map(Some)
+                .map_err(|e| format!("{}: {}", path.display(), e.message())),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+            Err(e) => Err(format!("{}: cannot read: {e}", path.display())),
+        }
+    }
+
+    /// Writes beside `robot_toml`: the old file becomes `calibration.previous.toml`, the new one
+    /// is written to a temporary file first and renamed into place.
+    pub fn write_beside(&self, robot_toml: &Path) -> Result<PathBuf, String> {
+        let path = path_for(robot_toml);
+        let text = toml::to_string_pretty(self).map_err(|e| e.to_string())?;
+        let tmp = path.with_extension("toml.partial");
+        std::fs::write(&tmp, text).map_err(|e| format!("{}: {e}", tmp.display()))?;
+        if path.exists() {
+            let previous = previous_path_for(robot_toml);
+            std::fs::copy(&path, &previous)
+                .map_err(|e| format!("cannot keep {} as {}: {e}", path.display(), previous.display()))?;
+        }
+        std::fs::rename(&tmp, &path).map_err(|e| format!("{}: {e}", path.display()))?;
+        Ok(path)
+    }
+}
