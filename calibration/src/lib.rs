@@ -1,3 +1,17 @@
-//! Calibration procedures: servo zero offsets and directions, IMU mounting, identity checks, and the
-//! human side of retargeting (T-pose scale and device offsets). Results are files the controller
-//! merges at start-up.
+//! Calibration that cannot break the robot: device identities, joint zero offsets and directions
+//! from a jig (torque off), the IMU's gyro bias and mounting from static poses, and a verification
+//! that moves to the default pose within low torque and speed limits. Results go to
+//! `calibration.toml` beside robot.toml (the previous file is kept), which loading a robot merges.
+//!
+//! The procedure talks to a [`rig::Rig`] (the controller provides one over the real bus drivers, on
+//! hardware or on the mirror) and to an [`operator::Operator`] (a console on hardware; in the
+//! mirror, [`operator::MirrorHands`] clamps the simulated jig and tilts the simulated stand).
+
+pub mod log;
+pub mod operator;
+pub mod procedure;
+pub mod rig;
+pub mod solve;
+pub mod verify;
+
+pub use procedure::raw_robot;

@@ -14,8 +14,16 @@ use crate::robot_io::{BusPorts, BusRobot, IoError};
 /// The hardware robot's buses.
 pub type HardwareRobot = BusRobot<DeviceStream>;
 
-/// Opens every bus of `robot` (nothing is sent yet). Errors name the bus and device.
+/// Opens every bus of `robot` (nothing is sent yet), its buses on their own threads. Errors name
+/// the bus and device.
 pub fn open(robot: &Robot) -> Result<HardwareRobot, IoError> {
+    // Buses on their own threads: the tick's I/O costs the slowest bus, not the sum.
+    open_sequential(robot)?.parallel()
+}
+
+/// Opens every bus of `robot`, serviced one after another (tools that need the drivers themselves,
+/// such as calibration).
+pub fn open_sequential(robot: &Robot) -> Result<HardwareRobot, IoError> {
     let mut can = Vec::new();
     let mut dxl = Vec::new();
     let mut imu = None;
@@ -44,12 +52,10 @@ pub fn open(robot: &Robot) -> Result<HardwareRobot, IoError> {
         reply_slack: Duration::from_millis(3),
         ..DxlDriverOptions::default()
     };
-    // Buses on their own threads: the tick's I/O costs the slowest bus, not the sum.
     BusRobot::new(
         robot,
         BusPorts { can, dxl, imu },
         Duration::from_millis(2),
         options,
-    )?
-    .parallel()
+    )
 }

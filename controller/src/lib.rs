@@ -2,6 +2,7 @@
 //! ONNX policy, limits its commands and writes them to the buses.
 
 pub mod batch;
+pub mod calibrate;
 pub mod clip;
 pub mod compare;
 pub mod estop;

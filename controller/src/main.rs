@@ -8,6 +8,7 @@ use clap::{Parser, Subcommand};
 mod cli_args;
 mod cli_batch;
 mod cli_bus;
+mod cli_calibrate;
 mod cli_can;
 mod cli_dxl;
 mod cli_play;
@@ -30,6 +31,11 @@ enum Command {
     /// CAN bus tools: emulated MIT-mode motors behind socketcand, and bus scans.
     #[command(subcommand)]
     Can(cli_can::CanCommand),
+    /// Calibrate a robot without risking it: identity check, joint zeros and directions from a
+    /// jig (torque off), IMU bias and mounting, and a gentle verification. Results go to
+    /// calibration.toml beside robot.toml, which every later run merges.
+    #[command(subcommand)]
+    Calibrate(cli_calibrate::CalibrateCommand),
     /// Tools over every bus of a robot: scan and compare with robot.toml.
     #[command(subcommand)]
     Bus(cli_bus::BusCommand),
@@ -119,6 +125,7 @@ fn run() -> Result<()> {
         Command::Can(cmd) => cli_can::run(cmd),
         Command::Dxl(cmd) => cli_dxl::run(cmd),
         Command::Bus(cmd) => cli_bus::run(cmd),
+        Command::Calibrate(cmd) => cli_calibrate::run(cmd),
         Command::Sim(cmd) => cli_sim::run(cmd),
         Command::Play(args) => cli_play::play(&args),
         Command::Check(args) => cli_play::check(&args),

@@ -11,6 +11,9 @@ use firmware_bridge::mit::driver::{JointCommand, MitBusDriver, MitError};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, Instant};
 
+use calibration::rig::DeviceIdentity;
+use firmware_bridge::dxl::models as dxl_models;
+use firmware_bridge::dxl::table::addr;
 use firmware_bridge::serial::ByteStream;
 use robots::{BusKind, Robot, drivers};
 
@@ -109,6 +112,8 @@ pub trait JointBus: Send + std::fmt::Debug {
     fn write(&mut self, targets: &[JointTarget]) -> Result<(), IoError>;
     /// Torque off.
     fn torque_off(&mut self) -> Result<(), IoError>;
+    /// Who each device says it is (after [`Self::identify`]), appended to `out`.
+    fn identities(&mut self, bus: &str, out: &mut Vec<DeviceIdentity>) -> Result<(), IoError>;
 }
 
 /// One bus: its driver, the robot index of each of its joints, its command buffer, torque state.
@@ -179,6 +184,28 @@ where
         self.driver.disable_all()?;
         Ok(())
     }
+
+    fn identities(&mut self, bus: &str, out: &mut Vec<DeviceIdentity>) -> Result<(), IoError> {
+        // The MIT protocol has no identity query: a reply in the model's format from the right
+        // reply ID is the identity; version and limits come from the model table.
+        for (j, f) in self.driver.joints().iter().zip(self.driver.feedback()) {
+            out.push(DeviceIdentity {
+                joint: j.name.clone(),
+                bus: bus.to_owned(),
+                id: j.motor_id,
+                model: j.model.name.clone(),
+                answer: if f.is_stale() {
+                    "no reply".into()
+                } else {
+                    format!("{} reply from 0x{:03X}", j.model.name, j.reply_id)
+                },
+                firmware: None,
+                current_limit_a: None,
+                torque_limit_nm: j.model.t_max,
+            });
+        }
+        Ok(())
+    }
 }
 
 impl<D: DxlTransport + Send + std::fmt::Debug> JointBus for Bus<DxlBusDriver<D>, DxlCommand>
@@ -234,6 +261,35 @@ where
     fn torque_off(&mut self) -> Result<(), IoError> {
         self.enabled = false;
         self.driver.disable()?;
+        Ok(())
+    }
+
+    fn identities(&mut self, bus: &str, out: &mut Vec<DeviceIdentity>) -> Result<(), IoError> {
+        for k in 0..self.driver.joints().len() {
+            let j = self.driver.joints()[k].clone();
+            let (number, firmware) = self.driver.ping(j.id)?;
+            let model = dxl_models::find(&j.model);
+            let current_limit_a = match model {
+                Some(m) if m.current_sensing => {
+                    let mut raw = [0u8; 2];
+                    self.driver.read(j.id, addr::CURRENT_LIMIT, &mut raw)?;
+                    Some(f64::from(u16::from_le_bytes(raw)) * dxl_models::CURRENT_UNIT_A)
+                }
+                _ => None,
+            };
+            let found =
+                dxl_models::find_by_number(number).map_or(String::from("unknown"), |m| m.name.clone());
+            out.push(DeviceIdentity {
+                joint: j.name.clone(),
+                bus: bus.to_owned(),
+                id: j.id,
+                model: j.model.clone(),
+                answer: format!("model {number} ({found})"),
+                firmware: Some(firmware),
+                current_limit_a,
+                torque_limit_nm: model.map_or(0.0, |m| m.stall_torque),
+            });
+        }
         Ok(())
     }
 }
@@ -383,6 +439,7 @@ pub struct BusRobot<S: ByteStream> {
     /// IMU mounting (IMU axes to base axes) and gyro bias, from the robot's calibration.
     imu_mount: [f64; 4],
     gyro_bias: [f64; 3],
+    accel_bias: [f64; 3],
     n: usize,
     names: Vec<String>,
     times: Vec<Duration>,
@@ -453,6 +510,7 @@ impl<S: ByteStream> BusRobot<S> {
                 sim2real::mirror::quat_rpy(r, p, y)
             },
             gyro_bias: robot.config.imu.gyro_bias,
+            accel_bias: robot.config.imu.accel_bias,
             n,
             times: vec![Duration::ZERO; names.len()],
             names,
@@ -501,6 +559,21 @@ impl<S: ByteStream> BusRobot<S> {
         self.fan_out(Op::Identify)
     }
 
+    /// Who each device says it is, robot bus order (after [`Self::identify`]). Buses moved onto
+    /// threads by [`Self::parallel`] are not asked.
+    pub fn identities(&mut self) -> Result<Vec<DeviceIdentity>, IoError> {
+        if !self.workers.is_empty() {
+            return Err(IoError::Setup(
+                "identities are read before the buses get their threads".into(),
+            ));
+        }
+        let mut out = Vec::new();
+        for ((b, _), name) in self.buses.iter_mut().zip(&self.names) {
+            b.identities(name, &mut out)?;
+        }
+        Ok(out)
+    }
+
     /// Reads every bus and the IMU into `state`.
     pub fn read(&mut self, state: &mut RobotState) -> Result<(), IoError> {
         for ((b, _), t) in self.buses.iter_mut().zip(&mut self.times) {
@@ -528,16 +601,9 @@ impl<S: ByteStream> BusRobot<S> {
                 self.last_imu = Some(r.received_at);
                 // Into the base's axes: bias off, then the mounting rotation.
                 let m = self.imu_mount;
-                let g = r.sample.gyro;
-                state.gyro = sim2real::mirror::rotate(
-                    m,
-                    [
-                        g[0] - self.gyro_bias[0],
-                        g[1] - self.gyro_bias[1],
-                        g[2] - self.gyro_bias[2],
-                    ],
-                );
-                state.accel = sim2real::mirror::rotate(m, r.sample.accel);
+                let minus = |v: [f64; 3], b: [f64; 3]| [v[0] - b[0], v[1] - b[1], v[2] - b[2]];
+                state.gyro = sim2real::mirror::rotate(m, minus(r.sample.gyro, self.gyro_bias));
+                state.accel = sim2real::mirror::rotate(m, minus(r.sample.accel, self.accel_bias));
                 state.quat = firmware_bridge::imu::emulator::mul(r.sample.quat, [m[0], -m[1], -m[2], -m[3]]);
                 state.imu_missed = 0;
             }

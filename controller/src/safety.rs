@@ -190,6 +190,7 @@ mod tests {
             model: "AK10-9".into(),
             direction: 1.0,
             zero_offset: 0.0,
+            homing_offset_ticks: 0,
             gear: 1.0,
             position_limits: [0.0, 2.0],
             velocity_limit: 10.0,

@@ -14,6 +14,9 @@ pub struct JointCalibration {
     pub zero_offset: f64,
     /// +1 or -1.
     pub direction: f64,
+    /// Dynamixel Homing Offset, ticks (0 for other actuators).
+    #[serde(default)]
+    pub homing_offset_ticks: i32,
 }
 
 /// The IMU's measured mounting and bias.
@@ -24,6 +27,9 @@ pub struct ImuCalibration {
     pub mounting_rpy_deg: [f64; 3],
     /// Gyro bias to subtract, rad/s.
     pub gyro_bias: [f64; 3],
+    /// Accelerometer bias to subtract, m/s².
+    #[serde(default)]
+    pub accel_bias: [f64; 3],
 }
 
 /// A calibration file.

@@ -52,6 +52,10 @@ pub struct JointConfig {
     pub direction: f64,
     /// Actuator angle at joint zero, rad (MIT: motor angle; Dynamixel: converted to ticks).
     pub zero_offset: f64,
+    /// Dynamixel only: Homing Offset (ticks) the driver programs, keeping the encoder's wrap
+    /// point outside the joint's range. Calibration sets it.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub homing_offset_ticks: i32,
     /// Actuator turns per joint turn (1 for direct drive).
     pub gear: f64,
     /// Joint position limits, rad.
@@ -83,6 +87,9 @@ pub struct ImuConfig {
     /// Gyro bias to subtract, rad/s (from calibration).
     #[serde(default)]
     pub gyro_bias: [f64; 3],
+    /// Accelerometer bias to subtract, m/s² (from calibration).
+    #[serde(default)]
+    pub accel_bias: [f64; 3],
 }
 
 /// A robot description.
@@ -175,10 +182,12 @@ impl Robot {
                     })?;
                 j.zero_offset = c.zero_offset;
                 j.direction = c.direction;
+                j.homing_offset_ticks = c.homing_offset_ticks;
             }
             if let Some(imu) = cal.imu {
                 config.imu.mounting_rpy_deg = imu.mounting_rpy_deg;
                 config.imu.gyro_bias = imu.gyro_bias;
+                config.imu.accel_bias = imu.accel_bias;
             }
         }
         let mjcf_path = path.parent().unwrap_or(Path::new(".")).join(&config.mjcf);
@@ -191,6 +200,13 @@ impl Robot {
         };
         robot.check().map_err(|(place, message)| err(&place, message))?;
         Ok(robot)
+    }
+
+    /// The MJCF range of joint `joint` (robot order), rad: where its mechanical stops are.
+    pub fn mjcf_range(&self, joint: usize) -> Option<[f64; 2]> {
+        let j = self.config.joints.get(joint)?;
+        let (lo, hi) = self.mjcf.joints.get(&j.mjcf_joint)?.range?;
+        Some([lo, hi])
     }
 
     /// The bus called `name`.
@@ -445,4 +461,8 @@ fn check_actuator(j: &JointConfig, kind: BusKind) -> Result<(), (&'static str, S
 
 fn line_of(text: &str, offset: usize) -> usize {
     text[..offset.min(text.len())].matches('\n').count() + 1
+}
+
+fn is_zero(v: &i32) -> bool {
+    *v == 0
 }

@@ -31,6 +31,7 @@ pub fn dxl_joint(j: &JointConfig) -> DxlJointConfig {
     let mut c = DxlJointConfig::new(&j.name, j.id, &model.name);
     c.direction = j.direction;
     c.zero_ticks = 2048.0 + j.zero_offset / dxl_models::rad_per_tick();
+    c.homing_offset = j.homing_offset_ticks;
     c.position_gains = Some(position_gains_for(j.kp, j.kd, model));
     c
 }

@@ -207,7 +207,12 @@ impl Mirror {
                 dof: model.jnt_dofadr()[id] as usize,
                 direction: truth.map_or(j.direction, |t| t.direction),
                 gear: j.gear,
-                zero_offset: truth.map_or(j.zero_offset, |t| t.zero_offset),
+                // A description's Dynamixel zero counts the Homing Offset the driver programs;
+                // the horn's physical angle does not.
+                zero_offset: truth.map_or(
+                    j.zero_offset - f64::from(j.homing_offset_ticks) * dxl::models::rad_per_tick(),
+                    |t| t.zero_offset,
+                ),
                 strength: draw(rnd.strength_scale),
                 actuator,
             });
@@ -584,6 +589,14 @@ impl Mirror {
         }
         if let Some(g) = self.gantry {
             self.hold_on_gantry(g);
+        }
+        if self.jig.is_some() {
+            // The clamp carries the joints' load (gravity, Coriolis; the motors push against it),
+            // so the limbs do not swing inside the step and shake the base.
+            for j in &self.joints {
+                let bias = self.data.qfrc_bias()[j.dof];
+                self.data.qfrc_applied_mut()[j.dof] = bias;
+            }
         }
         self.data.step();
         if let Some(jig) = &self.jig {

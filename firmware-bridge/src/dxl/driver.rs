@@ -99,9 +99,13 @@ pub struct DxlJointConfig {
     /// +1 or -1: joint angle sign relative to the servo's positive direction.
     #[serde(default = "default_direction")]
     pub direction: f64,
-    /// Present Position (ticks) at joint angle zero.
+    /// Present Position (ticks) at joint angle zero, Homing Offset included.
     #[serde(default = "default_zero_ticks")]
     pub zero_ticks: f64,
+    /// Homing Offset to program (EEPROM, ticks): shifts Present Position so the joint's range
+    /// stays clear of the encoder's 0/4095 wrap point. Calibration chooses it.
+    #[serde(default)]
+    pub homing_offset: i32,
     /// Operating mode.
     #[serde(default)]
     pub mode: DxlMode,
@@ -122,6 +126,7 @@ impl DxlJointConfig {
             model: model.to_owned(),
             direction: 1.0,
             zero_ticks: 2048.0,
+            homing_offset: 0,
             mode: DxlMode::Position,
             position_gains: None,
             current_limit: None,
@@ -617,6 +622,9 @@ impl<T: DxlTransport> DxlBusDriver<T> {
             let units = (delay.as_micros() / 2).min(254) as u8;
             self.write(id, addr::RETURN_DELAY_TIME, &[units])?;
         }
+        // Homing Offset before the mode: writing the mode restarts the turn count from the
+        // encoder's single-turn reading, now shifted by the offset.
+        self.write(id, addr::HOMING_OFFSET, &j.homing_offset.to_le_bytes())?;
         self.write(id, addr::OPERATING_MODE, &[j.mode.code()])?;
         if let Some(limit) = j.current_limit {
             let units = (limit / models::CURRENT_UNIT_A).round() as u16;

@@ -147,6 +147,9 @@ pub struct XSeriesServo {
     velocity_integral: f64,
     previous_error: f64,
     multi_turn_base: i64,
+    /// Set at power-up and reboot: the next sample starts Present Position within one turn
+    /// (0–4095), as the absolute single-turn encoder reads it; it counts turns from there.
+    boot_turn_pending: bool,
     temperature: f64,
     overload_seconds: f64,
     last_instruction_at: SimInstant,
@@ -170,6 +173,7 @@ impl XSeriesServo {
             velocity_integral: 0.0,
             previous_error: 0.0,
             multi_turn_base: 0,
+            boot_turn_pending: true,
             overload_seconds: 0.0,
             last_instruction_at: SimInstant::ZERO,
             offline_until: None,
@@ -498,6 +502,7 @@ impl XSeriesServo {
                 self.offline_until = Some(now + self.config.boot_time);
                 self.table[usize::from(addr::HARDWARE_ERROR_STATUS)] = 0;
                 self.reset_ram();
+                self.boot_turn_pending = true;
                 Ok(0)
             }
             inst::FACTORY_RESET => {
@@ -611,7 +616,13 @@ impl XSeriesServo {
         let staged = self.check_write(address, data)?;
         let was_on = self.torque_enabled();
         let old_watchdog = self.table[usize::from(addr::BUS_WATCHDOG)];
+        let mode_written = (address..address + data.len() as u16).contains(&addr::OPERATING_MODE);
         self.table = staged;
+        if mode_written {
+            // A change of Operating Mode resets the turn count: Present Position (Homing Offset
+            // included) comes back within one turn at the next sample.
+            self.boot_turn_pending = true;
+        }
         self.persist_side_effects(was_on, old_watchdog);
         Ok(())
     }
@@ -770,7 +781,13 @@ impl XSeriesServo {
         let shaft = reverse * plant.position();
         let omega = reverse * plant.velocity();
         let ticks_exact = f64::from(self.config.mount_offset_ticks) + shaft / models::rad_per_tick();
-        let present = ticks_exact.round() as i64 + self.reg(addr::HOMING_OFFSET) + self.multi_turn_base;
+        let homed = ticks_exact.round() as i64 + self.reg(addr::HOMING_OFFSET);
+        if std::mem::take(&mut self.boot_turn_pending) {
+            // A joint whose range crosses this wrap point reads a turn off after power-up:
+            // calibration sets the Homing Offset to keep it outside the range.
+            self.multi_turn_base = -homed.div_euclid(4096) * 4096;
+        }
+        let present = homed + self.multi_turn_base;
         let velocity_units = omega / models::rad_s_per_velocity_unit();
         self.set_reg(addr::PRESENT_POSITION, present);
         self.set_reg(addr::PRESENT_VELOCITY, velocity_units.round() as i64);

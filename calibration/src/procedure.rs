@@ -1,0 +1,661 @@
+//! The guided calibration: identity check, joint zero and direction from two jig settings (torque
+//! off throughout), IMU gyro bias, gravity check and mounting from two static poses. Every step is
+//! announced and confirmed; an abort (the operator, or the `abort` flag at any tick) puts the robot
+//! into damping and returns without a result, so nothing is written.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use firmware_bridge::dxl::models as dxl_models;
+use firmware_bridge::mit::models as mit_models;
+use robots::calibration::{Calibration, ImuCalibration, JointCalibration};
+use robots::{BusKind, Robot};
+
+use crate::log::CommandLog;
+use crate::operator::{Aborted, Operator, Request};
+use crate::rig::{DeviceIdentity, Rig, RigError, Sample, Target};
+use crate::solve::{self, JointMapping};
+
+/// Standard gravity, m/s².
+pub const GRAVITY: f64 = 9.806_65;
+
+/// How the procedure runs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Options {
+    /// How far the second jig setting turns each joint from the first, rad.
+    pub jig_step: f64,
+    /// Kept between a jig setting and the joint's limits, rad.
+    pub limit_margin: f64,
+    /// Wait after each new pose before measuring.
+    pub settle: Duration,
+    /// Averaging window per pose.
+    pub average: Duration,
+    /// Still period for the gyro bias and the gravity check.
+    pub imu_still: Duration,
+    /// Forward tilt of the second IMU pose, deg.
+    pub imu_tilt_deg: f64,
+    /// Measured ratio vs gear, relative.
+    pub gear_tolerance: f64,
+    /// |measured gravity| vs standard, relative (uncalibrated accelerometers are off by up to
+    /// ~0.05 g per axis).
+    pub gravity_tolerance: f64,
+    /// Largest angle between the accelerometer's and the AHRS's vertical, deg.
+    pub gravity_direction_deg: f64,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Self {
+            jig_step: 0.15,
+            limit_margin: 0.05,
+            settle: Duration::from_millis(500),
+            average: Duration::from_millis(500),
+            imu_still: Duration::from_secs(2),
+            imu_tilt_deg: 30.0,
+            gear_tolerance: 0.1,
+            gravity_tolerance: 0.1,
+            gravity_direction_deg: 6.0,
+        }
+    }
+}
+
+/// Why calibration stopped without a result.
+#[derive(Debug, thiserror::Error)]
+pub enum CalibrationError {
+    /// The operator or the abort flag stopped it; the robot was put into damping.
+    #[error("aborted: the robot was put into damping and nothing was written")]
+    Aborted,
+    /// The robot's buses failed.
+    #[error(transparent)]
+    Rig(#[from] RigError),
+    /// A joint could not be calibrated.
+    #[error("{joint}: {message}")]
+    Joint {
+        /// The joint.
+        joint: String,
+        /// What went wrong.
+        message: String,
+    },
+    /// The IMU could not be calibrated.
+    #[error("IMU: {0}")]
+    Imu(String),
+    /// The results could not be saved.
+    #[error("{0}")]
+    Save(String),
+}
+
+impl From<Aborted> for CalibrationError {
+    fn from(_: Aborted) -> Self {
+        Self::Aborted
+    }
+}
+
+/// A joint's result.
+#[derive(Debug, Clone, PartialEq)]
+pub struct JointResult {
+    /// Joint name.
+    pub name: String,
+    /// Measured mapping (Homing Offset included for Dynamixel joints).
+    pub calibration: JointCalibration,
+    /// What robot.toml (or the previous calibration) said.
+    pub before: JointCalibration,
+}
+
+/// The IMU's result.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ImuResult {
+    /// Mounting and gyro bias.
+    pub calibration: ImuCalibration,
+    /// |mean specific force| while still, m/s².
+    pub gravity: f64,
+    /// Gyro noise while still (standard deviation, largest axis), rad/s.
+    pub gyro_noise: f64,
+    /// Tilt between the two poses as measured, deg.
+    pub tilt_deg: f64,
+}
+
+/// What a calibration found.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Outcome {
+    /// Who answered.
+    pub identities: Vec<DeviceIdentity>,
+    /// Per joint, robot order.
+    pub joints: Vec<JointResult>,
+    /// The IMU.
+    pub imu: ImuResult,
+}
+
+impl Outcome {
+    /// The calibration file's content.
+    pub fn calibration(&self, note: &str) -> Calibration {
+        Calibration {
+            note: note.to_owned(),
+            joints: self
+                .joints
+                .iter()
+                .map(|j| (j.name.clone(), j.calibration))
+                .collect(),
+            imu: Some(self.imu.calibration),
+        }
+    }
+}
+
+/// The robot as a raw rig sees it: every joint in actuator units (direction +1, zero 0, gear 1, no
+/// Homing Offset) and the IMU in its own axes without bias correction. Calibration measures on
+/// this, so nothing it finds depends on what robot.toml guessed.
+pub fn raw_robot(robot: &Robot) -> Robot {
+    let mut raw = robot.clone();
+    for j in &mut raw.config.joints {
+        j.direction = 1.0;
+        j.zero_offset = 0.0;
+        j.gear = 1.0;
+        j.homing_offset_ticks = 0;
+    }
+    raw.config.imu.mounting_rpy_deg = [0.0; 3];
+    raw.config.imu.gyro_bias = [0.0; 3];
+    raw.config.imu.accel_bias = [0.0; 3];
+    raw
+}
+
+/// One run of the procedure.
+#[derive(Debug)]
+pub struct Session<'a, R: ?Sized, O: ?Sized> {
+    robot: &'a Robot,
+    rig: &'a mut R,
+    operator: &'a mut O,
+    abort: &'a AtomicBool,
+    /// Every tick, as sent and measured.
+    pub log: CommandLog,
+    sample: Sample,
+    options: Options,
+}
+
+/// Means over a still window.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Window {
+    /// Joint positions, rad.
+    pub q: Vec<f64>,
+    /// Angular velocity, rad/s.
+    pub gyro: [f64; 3],
+    gyro_sq: [f64; 3],
+    /// Specific force, m/s².
+    pub accel: [f64; 3],
+    /// "Up" in the IMU's axes by the AHRS's attitude (unit length after the window).
+    pub up: [f64; 3],
+    /// Fresh IMU samples in the window.
+    pub imu_samples: usize,
+    ticks: usize,
+}
+
+impl Window {
+    fn new(n: usize) -> Self {
+        Self {
+            q: vec![0.0; n],
+            gyro: [0.0; 3],
+            gyro_sq: [0.0; 3],
+            accel: [0.0; 3],
+            up: [0.0; 3],
+            imu_samples: 0,
+            ticks: 0,
+        }
+    }
+
+    fn add(&mut self, s: &Sample) {
+        self.ticks += 1;
+        for (m, q) in self.q.iter_mut().zip(&s.q) {
+            *m += q;
+        }
+        if s.imu_missed == 0 {
+            self.imu_samples += 1;
+            for i in 0..3 {
+                self.gyro[i] += s.gyro[i];
+                self.gyro_sq[i] += s.gyro[i] * s.gyro[i];
+                self.accel[i] += s.accel[i];
+            }
+            // The AHRS's world z in its own axes: Rᵀ·ẑ of its attitude quaternion.
+            let [w, x, y, z] = s.quat;
+            let up = [
+                2.0 * (x * z - w * y),
+                2.0 * (y * z + w * x),
+                1.0 - 2.0 * (x * x + y * y),
+            ];
+            for (sum, u) in self.up.iter_mut().zip(up) {
+                *sum += u;
+            }
+        }
+    }
+
+    fn finish(&mut self) {
+        let t = self.ticks.max(1) as f64;
+        self.q.iter_mut().for_each(|q| *q /= t);
+        let k = self.imu_samples.max(1) as f64;
+        for i in 0..3 {
+            self.gyro[i] /= k;
+            self.gyro_sq[i] /= k;
+            self.accel[i] /= k;
+        }
+        if self.imu_samples > 0 {
+            self.up = solve::unit(self.up);
+        }
+    }
+
+    /// Gyro standard deviation, largest axis, rad/s.
+    pub fn gyro_noise(&self) -> f64 {
+        (0..3)
+            .map(|i| (self.gyro_sq[i] - self.gyro[i] * self.gyro[i]).max(0.0).sqrt())
+            .fold(0.0, f64::max)
+    }
+}
+
+impl<'a, R: Rig + ?Sized, O: Operator + ?Sized> Session<'a, R, O> {
+    /// A session on `rig` (built from [`raw_robot`] for [`Self::calibrate`]).
+    pub fn new(
+        robot: &'a Robot,
+        rig: &'a mut R,
+        operator: &'a mut O,
+        abort: &'a AtomicBool,
+        options: Options,
+    ) -> Self {
+        let n = robot.config.joints.len();
+        Self {
+            robot,
+            rig,
+            operator,
+            abort,
+            log: CommandLog::new(robot.config.joints.iter().map(|j| j.name.clone()).collect()),
+            sample: Sample::new(n),
+            options,
+        }
+    }
+
+    /// The last reading.
+    pub fn sample(&self) -> &Sample {
+        &self.sample
+    }
+
+    /// Runs every step. On any error after the identity check the robot is put into damping.
+    pub fn calibrate(&mut self) -> Result<Outcome, CalibrationError> {
+        let identities = self.identify()?;
+        let result = self.joints_and_imu();
+        if result.is_err() {
+            self.rig.damp()?;
+        }
+        let (joints, imu) = result?;
+        Ok(Outcome {
+            identities,
+            joints,
+            imu,
+        })
+    }
+
+    fn joints_and_imu(&mut self) -> Result<(Vec<JointResult>, ImuResult), CalibrationError> {
+        let joints = self.joints_from_jig()?;
+        let imu = self.imu()?;
+        self.operator.request(Request::ReleaseJig)?;
+        self.ticks("release", 5, None)?;
+        Ok((joints, imu))
+    }
+
+    /// Step 1: every device answers with its configured model; torque stays off.
+    pub fn identify(&mut self) -> Result<Vec<DeviceIdentity>, CalibrationError> {
+        self.operator.request(Request::Confirm {
+            what: "Step 1/3 identity: ping every device, read model, firmware and current limit (no torque)",
+        })?;
+        let ids = self.rig.identify()?;
+        self.operator.say(&format!(
+            "  {:<20} {:<5} {:>3}  {:<11} {:<34} {:>5} {:>9} {:>9}",
+            "joint", "bus", "id", "model", "answer", "fw", "I lim A", "τ lim N·m"
+        ));
+        for d in &ids {
+            self.operator.say(&format!(
+                "  {:<20} {:<5} {:>3}  {:<11} {:<34} {:>5} {:>9} {:>9.1}",
+                d.joint,
+                d.bus,
+                d.id,
+                d.model,
+                d.answer,
+                d.firmware.map_or("-".into(), |f| f.to_string()),
+                d.current_limit_a.map_or("-".into(), |a| format!("{a:.2}")),
+                d.torque_limit_nm
+            ));
+        }
+        Ok(ids)
+    }
+
+    /// Runs `count` ticks sending `targets` (limp when `None`).
+    fn ticks(
+        &mut self,
+        step: &'static str,
+        count: usize,
+        targets: Option<&[Target]>,
+    ) -> Result<(), CalibrationError> {
+        for _ in 0..count {
+            self.tick(step, targets)?;
+        }
+        Ok(())
+    }
+
+    fn tick(&mut self, step: &'static str, targets: Option<&[Target]>) -> Result<(), CalibrationError> {
+        if self.abort.load(Ordering::Relaxed) {
+            return Err(CalibrationError::Aborted);
+        }
+        self.log.record(step, &self.sample, targets);
+        self.rig.tick(targets, &mut self.sample)?;
+        Ok(())
+    }
+
+    fn ticks_in(&self, d: Duration) -> usize {
+        (d.as_secs_f64() / self.rig.period().as_secs_f64()).ceil() as usize
+    }
+
+    /// Waits `settle`, then averages joints and IMU over `window` (all limp).
+    fn measure(&mut self, step: &'static str, window: Duration) -> Result<Window, CalibrationError> {
+        let settle = self.ticks_in(self.options.settle);
+        self.ticks(step, settle, None)?;
+        let mut w = Window::new(self.robot.config.joints.len());
+        let count = self.ticks_in(window).max(1);
+        for k in 0..count {
+            self.tick(step, None)?;
+            self.operator.progress(step, (k + 1) as f64 / count as f64);
+            self.check_feedback()?;
+            w.add(&self.sample);
+        }
+        w.finish();
+        Ok(w)
+    }
+
+    fn check_feedback(&self) -> Result<(), CalibrationError> {
+        for (j, joint) in self.robot.config.joints.iter().enumerate() {
+            if self.sample.missed[j] > 2 {
+                return Err(CalibrationError::Joint {
+                    joint: joint.name.clone(),
+                    message: format!("no feedback for {} ticks", self.sample.missed[j]),
+                });
+            }
+            if self.sample.faulted[j] {
+                return Err(CalibrationError::Joint {
+                    joint: joint.name.clone(),
+                    message: "the device reports a fault".into(),
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// The two jig settings: A = the default pose, B = A turned by `jig_step` per joint (away from
+    /// the nearer limit).
+    pub fn jig_settings(&self) -> [Vec<f64>; 2] {
+        let joints = &self.robot.config.joints;
+        let a: Vec<f64> = joints.iter().map(|j| j.default_position).collect();
+        let b = joints
+            .iter()
+            .map(|j| {
+                let [lo, hi] = j.position_limits;
+                let (step, margin) = (self.options.jig_step, self.options.limit_margin);
+                let up = j.default_position + step;
+                if up <= hi - margin {
+                    up
+                } else {
+                    (j.default_position - step).max(lo + margin)
+                }
+            })
+            .collect();
+        [a, b]
+    }
+
+    /// Step 2: directions and zeros from two jig settings, torque off on every joint.
+    pub fn joints_from_jig(&mut self) -> Result<Vec<JointResult>, CalibrationError> {
+        self.operator.request(Request::Confirm {
+            what: "Step 2/3 joints: torque stays OFF; clamp the robot in jig setting A, then B; \
+                   each joint's encoder is read in both",
+        })?;
+        let names: Vec<String> = self.robot.config.joints.iter().map(|j| j.name.clone()).collect();
+        let settings = self.jig_settings();
+        let mut theta = [Vec::new(), Vec::new()];
+        for (k, (label, pose)) in ["A", "B"].iter().zip(&settings).enumerate() {
+            self.operator.request(Request::ClampJig {
+                label,
+                joints: &names,
+                pose,
+            })?;
+            theta[k] = self.measure("jig", self.options.average)?.q;
+        }
+        let mut results = Vec::new();
+        for (j, joint) in self.robot.config.joints.iter().enumerate() {
+            let fail = |message: String| CalibrationError::Joint {
+                joint: joint.name.clone(),
+                message,
+            };
+            let mapping = solve::joint_from_two_poses(
+                [settings[0][j], settings[1][j]],
+                [theta[0][j], theta[1][j]],
+                joint.gear,
+                self.options.gear_tolerance,
+            )
+            .map_err(fail)?;
+            let range = self.robot.mjcf_range(j).unwrap_or(joint.position_limits);
+            let calibration = match self.robot.bus(&joint.bus).map(|b| b.kind) {
+                Some(BusKind::Dynamixel) => {
+                    let (homing, zero) = solve::dynamixel_homing(mapping, range).map_err(fail)?;
+                    JointCalibration {
+                        zero_offset: zero,
+                        direction: mapping.direction,
+                        homing_offset_ticks: homing,
+                    }
+                }
+                _ => {
+                    let p_max = mit_models::find(&joint.model).map_or(f64::INFINITY, |m| m.p_max);
+                    solve::check_mit_range(mapping, joint.gear, range, p_max).map_err(fail)?;
+                    JointCalibration {
+                        zero_offset: mapping.zero,
+                        direction: mapping.direction,
+                        homing_offset_ticks: 0,
+                    }
+                }
+            };
+            results.push(JointResult {
+                name: joint.name.clone(),
+                calibration,
+                before: JointCalibration {
+                    zero_offset: joint.zero_offset,
+                    direction: joint.direction,
+                    homing_offset_ticks: joint.homing_offset_ticks,
+                },
+            });
+        }
+        self.report_joints(&results);
+        Ok(results)
+    }
+
+    fn report_joints(&mut self, results: &[JointResult]) {
+        self.operator.say(&format!(
+            "  {:<20} {:>4} {:>11} {:>8}   (before: {:>4} {:>11} {:>8})",
+            "joint", "dir", "zero rad", "homing", "dir", "zero rad", "homing"
+        ));
+        for r in results {
+            let (c, b) = (r.calibration, r.before);
+            self.operator.say(&format!(
+                "  {:<20} {:>+4.0} {:>11.5} {:>8}   (before: {:>+4.0} {:>11.5} {:>8})",
+                r.name,
+                c.direction,
+                c.zero_offset,
+                c.homing_offset_ticks,
+                b.direction,
+                b.zero_offset,
+                b.homing_offset_ticks
+            ));
+        }
+    }
+
+    /// Step 3: gyro bias and gravity from a still period upright, mounting from upright and tilted
+    /// forward. The jig stays on (setting A), so the robot is one rigid body on its stand.
+    pub fn imu(&mut self) -> Result<ImuResult, CalibrationError> {
+        let tilt = self.options.imu_tilt_deg;
+        self.operator.request(Request::Confirm {
+            what: &format!(
+                "Step 3/3 IMU: hold the robot still and upright on its stand, then tilted about \
+                 {tilt:.0}° forward (nose down); torque stays OFF"
+            ),
+        })?;
+        let settings = self.jig_settings();
+        let names: Vec<String> = self.robot.config.joints.iter().map(|j| j.name.clone()).collect();
+        self.operator.request(Request::ClampJig {
+            label: "A",
+            joints: &names,
+            pose: &settings[0],
+        })?;
+        self.operator.request(Request::HoldBase {
+            label: "upright",
+            rpy_deg: [0.0; 3],
+        })?;
+        let upright = self.measure("imu upright", self.options.imu_still)?;
+        self.operator.request(Request::HoldBase {
+            label: "tilted forward",
+            rpy_deg: [0.0, tilt, 0.0],
+        })?;
+        let tilted = self.measure("imu tilted", self.options.average.max(Duration::from_secs(1)))?;
+        self.operator.request(Request::HoldBase {
+            label: "upright",
+            rpy_deg: [0.0; 3],
+        })?;
+        if upright.imu_samples < 10 || tilted.imu_samples < 10 {
+            return Err(CalibrationError::Imu(format!(
+                "only {} and {} samples arrived while still: is the IMU streaming?",
+                upright.imu_samples, tilted.imu_samples
+            )));
+        }
+        // Gravity check: the accelerometer agrees with the AHRS attitude, in size and direction.
+        let gravity = norm(upright.accel);
+        let disagreement = solve::angle_between(upright.accel, upright.up).to_degrees();
+        if ((gravity - GRAVITY) / GRAVITY).abs() > self.options.gravity_tolerance
+            || disagreement > self.options.gravity_direction_deg
+        {
+            return Err(CalibrationError::Imu(format!(
+                "gravity check: |a| = {gravity:.3} m/s² ({disagreement:.1}° from the AHRS's vertical) \
+                 while still, expected {GRAVITY:.3} ± {:.0} % within {}°: accelerometer fault, or \
+                 the robot was moving",
+                self.options.gravity_tolerance * 100.0,
+                self.options.gravity_direction_deg
+            )));
+        }
+        let accel_bias = [0, 1, 2].map(|i| upright.accel[i] - GRAVITY * upright.up[i]);
+        let gyro_noise = upright.gyro_noise();
+        // Mounting from the attitude's vertical (the fused attitude does not carry the
+        // accelerometer's bias).
+        let (mounting, tilt_measured) =
+            solve::imu_mounting(upright.up, tilted.up).map_err(CalibrationError::Imu)?;
+        let rpy = solve::rpy_of(&mounting).map(f64::to_degrees);
+        let result = ImuResult {
+            calibration: ImuCalibration {
+                mounting_rpy_deg: rpy,
+                gyro_bias: upright.gyro,
+                accel_bias,
+            },
+            gravity,
+            gyro_noise,
+            tilt_deg: tilt_measured.to_degrees(),
+        };
+        self.operator.say(&format!(
+            "  IMU: |g| = {gravity:.3} m/s², accel bias [{:+.3} {:+.3} {:+.3}] m/s², gyro bias \
+             [{:+.4} {:+.4} {:+.4}] rad/s (noise {gyro_noise:.4}), tilt {:.1}°, mounting roll {:.2}° \
+             pitch {:.2}° yaw {:.2}°",
+            accel_bias[0],
+            accel_bias[1],
+            accel_bias[2],
+            upright.gyro[0],
+            upright.gyro[1],
+            upright.gyro[2],
+            result.tilt_deg,
+            rpy[0],
+            rpy[1],
+            rpy[2]
+        ));
+        Ok(result)
+    }
+
+    /// Moves to `goal` (robot order) within `limits`, starting from where the joints are: the
+    /// target advances at most `limits.speed` per second and never leads the measured position by
+    /// more than the torque limit allows at the given gains; then holds for `hold` and returns the
+    /// means over the hold.
+    pub fn move_to(
+        &mut self,
+        step: &'static str,
+        goal: &[f64],
+        gains: &[(f64, f64)],
+        limits: &crate::log::MotionLimits,
+        hold: Duration,
+    ) -> Result<Window, CalibrationError> {
+        let dt = self.rig.period().as_secs_f64();
+        let n = goal.len();
+        self.tick(step, None)?;
+        let mut target: Vec<f64> = self.sample.q.clone();
+        let mut cmd = vec![Target::default(); n];
+        let hold_ticks = self.ticks_in(hold).max(1);
+        let mut window = Window::new(n);
+        let max_ticks = self.ticks_in(Duration::from_secs(60));
+        for _ in 0..max_ticks {
+            self.check_feedback()?;
+            let mut arrived = true;
+            for j in 0..n {
+                let (kp, kd) = gains[j];
+                let step_max = limits.speed * dt;
+                let wanted = target[j] + (goal[j] - target[j]).clamp(-step_max, step_max);
+                // The PD torque kp·(target − q) − kd·qd stays within the limit on the measured state.
+                let q = self.sample.q[j];
+                let damping = kd * self.sample.qd[j];
+                let above = (limits.torque[j] + damping).max(0.0) / kp.max(1e-9);
+                let below = (limits.torque[j] - damping).max(0.0) / kp.max(1e-9);
+                let next = wanted.clamp(q - below, q + above);
+                target[j] = next.clamp(target[j] - step_max, target[j] + step_max);
+                arrived &= (target[j] - goal[j]).abs() < 1e-9;
+                cmd[j] = Target { q: target[j], kp, kd };
+            }
+            self.log.record(step, &self.sample, Some(&cmd));
+            if self.abort.load(Ordering::Relaxed) {
+                return Err(CalibrationError::Aborted);
+            }
+            self.rig.tick(Some(&cmd), &mut self.sample)?;
+            if arrived {
+                window.add(&self.sample);
+                self.operator
+                    .progress(step, window.ticks as f64 / hold_ticks as f64);
+                if window.ticks >= hold_ticks {
+                    window.finish();
+                    return Ok(window);
+                }
+            }
+        }
+        Err(CalibrationError::Joint {
+            joint: "(all)".into(),
+            message: format!("did not reach the pose within 60 s ({step})"),
+        })
+    }
+
+    /// Puts the robot into damping (the safe end of a verification or an abort).
+    pub fn damp(&mut self) -> Result<(), CalibrationError> {
+        self.rig.damp()?;
+        Ok(())
+    }
+
+    /// The operator.
+    pub fn operator(&mut self) -> &mut O {
+        self.operator
+    }
+}
+
+fn norm(a: [f64; 3]) -> f64 {
+    (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt()
+}
+
+/// The calibrated joint's mapping, for comparisons.
+pub fn mapping_of(c: &JointCalibration) -> JointMapping {
+    JointMapping {
+        direction: c.direction,
+        zero: c.zero_offset,
+    }
+}
+
+/// Encoder ticks per radian of a Dynamixel servo.
+pub fn dxl_ticks_per_rad() -> f64 {
+    1.0 / dxl_models::rad_per_tick()
+}
