@@ -12,6 +12,7 @@ pub mod operator;
 pub mod procedure;
 pub mod rig;
 pub mod solve;
+pub mod stops;
 pub mod verify;
 
 pub use procedure::raw_robot;

@@ -12,7 +12,7 @@ pub struct MotionLimits {
     /// Largest torque a command may ask for (PD law on the measured state), N·m.
     pub torque: Vec<f64>,
     /// Largest speed of a commanded target, rad/s.
-    pub speed: f64,
+    pub speed: Vec<f64>,
 }
 
 /// One tick: what was measured before the command, and the command.
@@ -81,10 +81,10 @@ impl CommandLog {
                 }
                 if let Some(p) = previous {
                     let speed = (t.q - p[j].q).abs() / period;
-                    if speed > limits.speed * (1.0 + 1e-9) {
+                    if speed > limits.speed[j] * (1.0 + 1e-9) {
                         return Err(format!(
                             "t = {:.3} s ({}): {} target moved at {speed:.3} rad/s, limit {:.3}",
-                            row.t, row.step, self.joints[j], limits.speed
+                            row.t, row.step, self.joints[j], limits.speed[j]
                         ));
                     }
                 }
@@ -134,7 +134,7 @@ mod tests {
     fn commands_beyond_the_limits_are_found() {
         let limits = MotionLimits {
             torque: vec![1.0],
-            speed: 0.5,
+            speed: vec![0.5],
         };
         let mut log = CommandLog::new(vec!["knee".into()]);
         let t = |q| Target { q, kp: 10.0, kd: 0.0 };

@@ -29,6 +29,13 @@ pub enum Request<'a> {
     },
     /// Take the robot out of the jig (it hangs on its stand).
     ReleaseJig,
+    /// Watch joint `index` (robot order): it is about to move under its own power.
+    Watch {
+        /// Robot index.
+        index: usize,
+        /// Joint name.
+        joint: &'a str,
+    },
     /// Hold the base still at roll/pitch/yaw (deg) on the stand.
     HoldBase {
         /// What the pose is for.
@@ -42,6 +49,10 @@ pub enum Request<'a> {
 pub trait Operator {
     /// Carries out (or confirms) a request; `Err` stops the procedure into damping.
     fn request(&mut self, request: Request<'_>) -> Result<(), Aborted>;
+    /// Since the last [`Request::Watch`] of this joint, did it turn in its positive direction (as
+    /// the robot model's axis defines it: +1) or its negative one (−1)? Encoders cannot tell a
+    /// flipped motor from a flipped joint; a person looking at the robot can.
+    fn direction_seen(&mut self, index: usize, joint: &str) -> Result<f64, Aborted>;
     /// A line of output for the person.
     fn say(&mut self, line: &str);
     /// Progress of the current step, 0–1.
@@ -51,6 +62,9 @@ pub trait Operator {
 impl<O: Operator + ?Sized> Operator for &mut O {
     fn request(&mut self, request: Request<'_>) -> Result<(), Aborted> {
         (**self).request(request)
+    }
+    fn direction_seen(&mut self, index: usize, joint: &str) -> Result<f64, Aborted> {
+        (**self).direction_seen(index, joint)
     }
     fn say(&mut self, line: &str) {
         (**self).say(line);
@@ -71,6 +85,10 @@ impl Operator for Silent {
     fn request(&mut self, _request: Request<'_>) -> Result<(), Aborted> {
         Ok(())
     }
+    /// Nobody is looking: a step that needs eyes on the robot cannot go on.
+    fn direction_seen(&mut self, _index: usize, _joint: &str) -> Result<f64, Aborted> {
+        Err(Aborted)
+    }
     fn say(&mut self, line: &str) {
         self.lines.push(line.to_owned());
     }
@@ -81,6 +99,8 @@ impl Operator for Silent {
 #[derive(Debug)]
 pub struct MirrorHands<O> {
     world: Arc<Mutex<Mirror>>,
+    /// Joint angle (truth) when the watch began.
+    watched: Option<(usize, f64)>,
     /// Who confirms and reads.
     pub inner: O,
 }
@@ -88,7 +108,11 @@ pub struct MirrorHands<O> {
 impl<O> MirrorHands<O> {
     /// Hands on `world` (built with a gantry, so the stand can be tilted).
     pub fn new(world: Arc<Mutex<Mirror>>, inner: O) -> Self {
-        Self { world, inner }
+        Self {
+            world,
+            watched: None,
+            inner,
+        }
     }
 
     fn world(&self) -> std::sync::MutexGuard<'_, Mirror> {
@@ -105,6 +129,10 @@ impl<O: Operator> Operator for MirrorHands<O> {
                 self.inner
                     .say(&format!("  [mirror] robot clamped in jig setting {label}"));
             }
+            Request::Watch { index, .. } => {
+                let q = self.world().joint_positions().nth(index).unwrap_or(0.0);
+                self.watched = Some((index, q));
+            }
             Request::ReleaseJig => {
                 self.world().set_jig(None);
                 self.inner.say("  [mirror] jig released");
@@ -118,6 +146,22 @@ impl<O: Operator> Operator for MirrorHands<O> {
             }
         }
         Ok(())
+    }
+
+    /// The person looks at the simulated robot: the sign of the joint's true motion.
+    fn direction_seen(&mut self, index: usize, joint: &str) -> Result<f64, Aborted> {
+        let q = self.world().joint_positions().nth(index).unwrap_or(0.0);
+        match self.watched {
+            Some((i, before)) if i == index && (q - before).abs() > 0.02 => {
+                let sign = (q - before).signum();
+                self.inner.say(&format!(
+                    "  [mirror] {joint} turned {}",
+                    if sign > 0.0 { "positive" } else { "negative" }
+                ));
+                Ok(sign)
+            }
+            _ => Err(Aborted),
+        }
     }
 
     fn say(&mut self, line: &str) {

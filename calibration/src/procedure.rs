@@ -119,23 +119,51 @@ pub struct ImuResult {
 pub struct Outcome {
     /// Who answered.
     pub identities: Vec<DeviceIdentity>,
-    /// Per joint, robot order.
+    /// The joints calibrated, robot order.
     pub joints: Vec<JointResult>,
-    /// The IMU.
-    pub imu: ImuResult,
+    /// The IMU, when it was calibrated.
+    pub imu: Option<ImuResult>,
 }
 
 impl Outcome {
-    /// The calibration file's content.
-    pub fn calibration(&self, note: &str) -> Calibration {
-        Calibration {
-            note: note.to_owned(),
-            joints: self
-                .joints
-                .iter()
-                .map(|j| (j.name.clone(), j.calibration))
-                .collect(),
-            imu: Some(self.imu.calibration),
+    /// The calibration file's content: what this run measured over what `previous` held.
+    pub fn calibration(&self, note: &str, previous: Option<Calibration>) -> Calibration {
+        let mut c = previous.unwrap_or_default();
+        c.note = note.to_owned();
+        for j in &self.joints {
+            c.joints.insert(j.name.clone(), j.calibration);
+        }
+        if let Some(imu) = &self.imu {
+            c.imu = Some(imu.calibration);
+        }
+        c
+    }
+}
+
+/// How joints find their zero and direction.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Method {
+    /// Two jig settings, torque off throughout.
+    Jig,
+    /// Each joint driven slowly onto both its mechanical stops at low torque; the operator says
+    /// which way it turned.
+    Stops(crate::stops::StopOptions),
+}
+
+/// What a run calibrates.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Plan {
+    /// How.
+    pub method: Method,
+    /// Only these joints (by name), and no IMU; `None`: every joint and the IMU.
+    pub joints: Option<Vec<String>>,
+}
+
+impl Default for Plan {
+    fn default() -> Self {
+        Self {
+            method: Method::Jig,
+            joints: None,
         }
     }
 }
@@ -160,14 +188,18 @@ pub fn raw_robot(robot: &Robot) -> Robot {
 /// One run of the procedure.
 #[derive(Debug)]
 pub struct Session<'a, R: ?Sized, O: ?Sized> {
-    robot: &'a Robot,
-    rig: &'a mut R,
-    operator: &'a mut O,
-    abort: &'a AtomicBool,
+    pub(crate) robot: &'a Robot,
+    pub(crate) rig: &'a mut R,
+    pub(crate) operator: &'a mut O,
+    pub(crate) abort: &'a AtomicBool,
     /// Every tick, as sent and measured.
     pub log: CommandLog,
-    sample: Sample,
-    options: Options,
+    pub(crate) sample: Sample,
+    pub(crate) options: Options,
+    /// The joints this run calibrates.
+    pub(crate) selected: Vec<bool>,
+    /// The targets of the last tick, if it commanded any: the next move starts from them.
+    pub(crate) last_targets: Option<Vec<f64>>,
 }
 
 /// Means over a still window.
@@ -265,6 +297,8 @@ impl<'a, R: Rig + ?Sized, O: Operator + ?Sized> Session<'a, R, O> {
             log: CommandLog::new(robot.config.joints.iter().map(|j| j.name.clone()).collect()),
             sample: Sample::new(n),
             options,
+            selected: vec![true; n],
+            last_targets: None,
         }
     }
 
@@ -273,10 +307,21 @@ impl<'a, R: Rig + ?Sized, O: Operator + ?Sized> Session<'a, R, O> {
         &self.sample
     }
 
-    /// Runs every step. On any error after the identity check the robot is put into damping.
-    pub fn calibrate(&mut self) -> Result<Outcome, CalibrationError> {
+    /// Runs every step of `plan`. On any error after the identity check the robot is put into
+    /// damping.
+    pub fn calibrate(&mut self, plan: &Plan) -> Result<Outcome, CalibrationError> {
+        if let Some(names) = &plan.joints {
+            let joints = &self.robot.config.joints;
+            if let Some(unknown) = names.iter().find(|n| !joints.iter().any(|j| &j.name == *n)) {
+                return Err(CalibrationError::Joint {
+                    joint: unknown.clone(),
+                    message: format!("not a joint of {}", self.robot.config.name),
+                });
+            }
+            self.selected = joints.iter().map(|j| names.contains(&j.name)).collect();
+        }
         let identities = self.identify()?;
-        let result = self.joints_and_imu();
+        let result = self.joints_and_imu(plan);
         if result.is_err() {
             self.rig.damp()?;
         }
@@ -288,9 +333,18 @@ impl<'a, R: Rig + ?Sized, O: Operator + ?Sized> Session<'a, R, O> {
         })
     }
 
-    fn joints_and_imu(&mut self) -> Result<(Vec<JointResult>, ImuResult), CalibrationError> {
-        let joints = self.joints_from_jig()?;
-        let imu = self.imu()?;
+    fn joints_and_imu(
+        &mut self,
+        plan: &Plan,
+    ) -> Result<(Vec<JointResult>, Option<ImuResult>), CalibrationError> {
+        let joints = match &plan.method {
+            Method::Jig => self.joints_from_jig()?,
+            Method::Stops(options) => self.joints_from_stops(options)?,
+        };
+        let imu = match plan.joints {
+            None => Some(self.imu(matches!(plan.method, Method::Jig))?),
+            Some(_) => None,
+        };
         self.operator.request(Request::ReleaseJig)?;
         self.ticks("release", 5, None)?;
         Ok((joints, imu))
@@ -335,16 +389,32 @@ impl<'a, R: Rig + ?Sized, O: Operator + ?Sized> Session<'a, R, O> {
         Ok(())
     }
 
-    fn tick(&mut self, step: &'static str, targets: Option<&[Target]>) -> Result<(), CalibrationError> {
+    pub(crate) fn tick(
+        &mut self,
+        step: &'static str,
+        targets: Option<&[Target]>,
+    ) -> Result<(), CalibrationError> {
         if self.abort.load(Ordering::Relaxed) {
             return Err(CalibrationError::Aborted);
         }
         self.log.record(step, &self.sample, targets);
+        self.last_targets = targets.map(|t| t.iter().map(|t| t.q).collect());
         self.rig.tick(targets, &mut self.sample)?;
         Ok(())
     }
 
-    fn ticks_in(&self, d: Duration) -> usize {
+    /// Where a move starts: the last commanded targets, or (after a limp tick) where the joints are.
+    pub(crate) fn move_start(&mut self, step: &'static str) -> Result<Vec<f64>, CalibrationError> {
+        match self.last_targets.clone() {
+            Some(t) => Ok(t),
+            None => {
+                self.tick(step, None)?;
+                Ok(self.sample.q.clone())
+            }
+        }
+    }
+
+    pub(crate) fn ticks_in(&self, d: Duration) -> usize {
         (d.as_secs_f64() / self.rig.period().as_secs_f64()).ceil() as usize
     }
 
@@ -364,7 +434,7 @@ impl<'a, R: Rig + ?Sized, O: Operator + ?Sized> Session<'a, R, O> {
         Ok(w)
     }
 
-    fn check_feedback(&self) -> Result<(), CalibrationError> {
+    pub(crate) fn check_feedback(&self) -> Result<(), CalibrationError> {
         for (j, joint) in self.robot.config.joints.iter().enumerate() {
             if self.sample.missed[j] > 2 {
                 return Err(CalibrationError::Joint {
@@ -389,7 +459,11 @@ impl<'a, R: Rig + ?Sized, O: Operator + ?Sized> Session<'a, R, O> {
         let a: Vec<f64> = joints.iter().map(|j| j.default_position).collect();
         let b = joints
             .iter()
-            .map(|j| {
+            .zip(&self.selected)
+            .map(|(j, &selected)| {
+                if !selected {
+                    return j.default_position;
+                }
                 let [lo, hi] = j.position_limits;
                 let (step, margin) = (self.options.jig_step, self.options.limit_margin);
                 let up = j.default_position + step;
@@ -422,52 +496,69 @@ impl<'a, R: Rig + ?Sized, O: Operator + ?Sized> Session<'a, R, O> {
         }
         let mut results = Vec::new();
         for (j, joint) in self.robot.config.joints.iter().enumerate() {
-            let fail = |message: String| CalibrationError::Joint {
-                joint: joint.name.clone(),
-                message,
-            };
+            if !self.selected[j] {
+                continue;
+            }
             let mapping = solve::joint_from_two_poses(
                 [settings[0][j], settings[1][j]],
                 [theta[0][j], theta[1][j]],
                 joint.gear,
                 self.options.gear_tolerance,
             )
-            .map_err(fail)?;
-            let range = self.robot.mjcf_range(j).unwrap_or(joint.position_limits);
-            let calibration = match self.robot.bus(&joint.bus).map(|b| b.kind) {
-                Some(BusKind::Dynamixel) => {
-                    let (homing, zero) = solve::dynamixel_homing(mapping, range).map_err(fail)?;
-                    JointCalibration {
-                        zero_offset: zero,
-                        direction: mapping.direction,
-                        homing_offset_ticks: homing,
-                    }
-                }
-                _ => {
-                    let p_max = mit_models::find(&joint.model).map_or(f64::INFINITY, |m| m.p_max);
-                    solve::check_mit_range(mapping, joint.gear, range, p_max).map_err(fail)?;
-                    JointCalibration {
-                        zero_offset: mapping.zero,
-                        direction: mapping.direction,
-                        homing_offset_ticks: 0,
-                    }
-                }
-            };
-            results.push(JointResult {
-                name: joint.name.clone(),
-                calibration,
-                before: JointCalibration {
-                    zero_offset: joint.zero_offset,
-                    direction: joint.direction,
-                    homing_offset_ticks: joint.homing_offset_ticks,
-                },
-            });
+            .map_err(|message| CalibrationError::Joint {
+                joint: joint.name.clone(),
+                message,
+            })?;
+            results.push(self.result_for(j, mapping)?);
         }
         self.report_joints(&results);
         Ok(results)
     }
 
-    fn report_joints(&mut self, results: &[JointResult]) {
+    /// A joint's result from its measured mapping: Dynamixel joints get the Homing Offset that
+    /// keeps the encoder's wrap outside their range; MIT joints must fit the position field.
+    pub(crate) fn result_for(
+        &self,
+        j: usize,
+        mapping: JointMapping,
+    ) -> Result<JointResult, CalibrationError> {
+        let joint = &self.robot.config.joints[j];
+        let fail = |message: String| CalibrationError::Joint {
+            joint: joint.name.clone(),
+            message,
+        };
+        let range = self.robot.mjcf_range(j).unwrap_or(joint.position_limits);
+        let calibration = match self.robot.bus(&joint.bus).map(|b| b.kind) {
+            Some(BusKind::Dynamixel) => {
+                let (homing, zero) = solve::dynamixel_homing(mapping, range).map_err(fail)?;
+                JointCalibration {
+                    zero_offset: zero,
+                    direction: mapping.direction,
+                    homing_offset_ticks: homing,
+                }
+            }
+            _ => {
+                let p_max = mit_models::find(&joint.model).map_or(f64::INFINITY, |m| m.p_max);
+                solve::check_mit_range(mapping, joint.gear, range, p_max).map_err(fail)?;
+                JointCalibration {
+                    zero_offset: mapping.zero,
+                    direction: mapping.direction,
+                    homing_offset_ticks: 0,
+                }
+            }
+        };
+        Ok(JointResult {
+            name: joint.name.clone(),
+            calibration,
+            before: JointCalibration {
+                zero_offset: joint.zero_offset,
+                direction: joint.direction,
+                homing_offset_ticks: joint.homing_offset_ticks,
+            },
+        })
+    }
+
+    pub(crate) fn report_joints(&mut self, results: &[JointResult]) {
         self.operator.say(&format!(
             "  {:<20} {:>4} {:>11} {:>8}   (before: {:>4} {:>11} {:>8})",
             "joint", "dir", "zero rad", "homing", "dir", "zero rad", "homing"
@@ -488,8 +579,8 @@ impl<'a, R: Rig + ?Sized, O: Operator + ?Sized> Session<'a, R, O> {
     }
 
     /// Step 3: gyro bias and gravity from a still period upright, mounting from upright and tilted
-    /// forward. The jig stays on (setting A), so the robot is one rigid body on its stand.
-    pub fn imu(&mut self) -> Result<ImuResult, CalibrationError> {
+    /// forward. With `in_jig` the robot is clamped at setting A, one rigid body on its stand.
+    pub fn imu(&mut self, in_jig: bool) -> Result<ImuResult, CalibrationError> {
         let tilt = self.options.imu_tilt_deg;
         self.operator.request(Request::Confirm {
             what: &format!(
@@ -499,11 +590,13 @@ impl<'a, R: Rig + ?Sized, O: Operator + ?Sized> Session<'a, R, O> {
         })?;
         let settings = self.jig_settings();
         let names: Vec<String> = self.robot.config.joints.iter().map(|j| j.name.clone()).collect();
-        self.operator.request(Request::ClampJig {
-            label: "A",
-            joints: &names,
-            pose: &settings[0],
-        })?;
+        if in_jig {
+            self.operator.request(Request::ClampJig {
+                label: "A",
+                joints: &names,
+                pose: &settings[0],
+            })?;
+        }
         self.operator.request(Request::HoldBase {
             label: "upright",
             rpy_deg: [0.0; 3],
@@ -574,7 +667,7 @@ impl<'a, R: Rig + ?Sized, O: Operator + ?Sized> Session<'a, R, O> {
     }
 
     /// Moves to `goal` (robot order) within `limits`, starting from where the joints are: the
-    /// target advances at most `limits.speed` per second and never leads the measured position by
+    /// target advances at most `limits.speed[j]` per second and never leads the measured position by
     /// more than the torque limit allows at the given gains; then holds for `hold` and returns the
     /// means over the hold.
     pub fn move_to(
@@ -587,8 +680,7 @@ impl<'a, R: Rig + ?Sized, O: Operator + ?Sized> Session<'a, R, O> {
     ) -> Result<Window, CalibrationError> {
         let dt = self.rig.period().as_secs_f64();
         let n = goal.len();
-        self.tick(step, None)?;
-        let mut target: Vec<f64> = self.sample.q.clone();
+        let mut target = self.move_start(step)?;
         let mut cmd = vec![Target::default(); n];
         let hold_ticks = self.ticks_in(hold).max(1);
         let mut window = Window::new(n);
@@ -597,24 +689,11 @@ impl<'a, R: Rig + ?Sized, O: Operator + ?Sized> Session<'a, R, O> {
             self.check_feedback()?;
             let mut arrived = true;
             for j in 0..n {
-                let (kp, kd) = gains[j];
-                let step_max = limits.speed * dt;
-                let wanted = target[j] + (goal[j] - target[j]).clamp(-step_max, step_max);
-                // The PD torque kp·(target − q) − kd·qd stays within the limit on the measured state.
-                let q = self.sample.q[j];
-                let damping = kd * self.sample.qd[j];
-                let above = (limits.torque[j] + damping).max(0.0) / kp.max(1e-9);
-                let below = (limits.torque[j] - damping).max(0.0) / kp.max(1e-9);
-                let next = wanted.clamp(q - below, q + above);
-                target[j] = next.clamp(target[j] - step_max, target[j] + step_max);
+                cmd[j] = capped_step(target[j], goal[j], &self.sample, j, gains[j], limits, dt);
+                target[j] = cmd[j].q;
                 arrived &= (target[j] - goal[j]).abs() < 1e-9;
-                cmd[j] = Target { q: target[j], kp, kd };
             }
-            self.log.record(step, &self.sample, Some(&cmd));
-            if self.abort.load(Ordering::Relaxed) {
-                return Err(CalibrationError::Aborted);
-            }
-            self.rig.tick(Some(&cmd), &mut self.sample)?;
+            self.tick(step, Some(&cmd))?;
             if arrived {
                 window.add(&self.sample);
                 self.operator
@@ -640,6 +719,37 @@ impl<'a, R: Rig + ?Sized, O: Operator + ?Sized> Session<'a, R, O> {
     /// The operator.
     pub fn operator(&mut self) -> &mut O {
         self.operator
+    }
+}
+
+/// One tick of a capped move of joint `j` from its last target `previous` towards `goal`: the
+/// target moves at most the speed limit, leads the measured position by no more than the torque
+/// cap allows (PD law `kp·(target − q) − kd·qd` on the measured state), and where the joint is
+/// pushed away faster than the target may follow, the gains of this tick are scaled down instead,
+/// so both limits hold for every command.
+pub(crate) fn capped_step(
+    previous: f64,
+    goal: f64,
+    state: &Sample,
+    j: usize,
+    (kp, kd): (f64, f64),
+    limits: &crate::log::MotionLimits,
+    dt: f64,
+) -> Target {
+    let (cap, step_max) = (limits.torque[j], limits.speed[j] * dt);
+    let (q, qd) = (state.q[j], state.qd[j]);
+    let wanted = previous + (goal - previous).clamp(-step_max, step_max);
+    let above = (cap + kd * qd).max(0.0) / kp.max(1e-9);
+    let below = (cap - kd * qd).max(0.0) / kp.max(1e-9);
+    let target = wanted
+        .clamp(q - below, q + above)
+        .clamp(previous - step_max, previous + step_max);
+    let torque = (kp * (target - q) - kd * qd).abs();
+    let scale = if torque > cap { cap / torque } else { 1.0 };
+    Target {
+        q: target,
+        kp: kp * scale,
+        kd: kd * scale,
     }
 }
 

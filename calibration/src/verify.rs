@@ -46,7 +46,7 @@ impl VerifyOptions {
                 .iter()
                 .map(|j| self.torque_fraction * j.torque_limit)
                 .collect(),
-            speed: self.speed,
+            speed: vec![self.speed; robot.config.joints.len()],
         }
     }
 

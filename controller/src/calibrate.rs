@@ -7,7 +7,7 @@ use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
 use calibration::operator::{Aborted, Operator, Request};
-use calibration::procedure::{CalibrationError, Options, Outcome, Session};
+use calibration::procedure::{CalibrationError, Options, Outcome, Plan, Session};
 use calibration::rig::{DeviceIdentity, Rig, RigError, Sample, Target};
 use firmware_bridge::serial::ByteStream;
 use robots::Robot;
@@ -187,10 +187,35 @@ impl Operator for ConsoleOperator {
                 self.ask(&format!("{text}\nEvery joint clamped?"))
             }
             Request::ReleaseJig => self.ask("Take the robot out of the jig; it hangs on its stand. Done?"),
+            Request::Watch { joint, .. } => self.ask(&format!(
+                "Watch {joint}: it will move slowly under low torque until it rests on its stops. Ready?"
+            )),
             Request::HoldBase { label, rpy_deg } => self.ask(&format!(
                 "Hold the robot's base still {label} (roll {:.0}°, pitch {:.0}°, yaw {:.0}°). Still?",
                 rpy_deg[0], rpy_deg[1], rpy_deg[2]
             )),
+        }
+    }
+
+    fn direction_seen(&mut self, _index: usize, joint: &str) -> Result<f64, Aborted> {
+        self.finish_bar();
+        if self.yes {
+            // Nobody answers for the person here: only the mirror's hands can see.
+            return Err(Aborted);
+        }
+        loop {
+            print!("Did {joint} turn in its positive direction (the model's axis)? [+/-, q: abort] ");
+            let _ = std::io::stdout().flush();
+            let mut line = String::new();
+            match std::io::stdin().lock().read_line(&mut line) {
+                Ok(n) if n > 0 => match line.trim() {
+                    "+" | "y" | "yes" => return Ok(1.0),
+                    "-" | "n" | "no" => return Ok(-1.0),
+                    "q" | "abort" => return Err(Aborted),
+                    _ => continue,
+                },
+                _ => return Err(Aborted),
+            }
         }
     }
 
@@ -224,29 +249,43 @@ pub struct Written {
     pub previous: Option<PathBuf>,
 }
 
-/// Runs the whole calibration of `robot` on `rig` (built from [`calibration::raw_robot`]) and,
-/// only when every step succeeded, writes `calibration.toml` beside robot.toml (the previous
-/// file kept as `calibration.previous.toml`). The tick log goes to `log` in every case.
+/// The robot a calibration rig for `plan` is built from: actuator units ([`calibration::raw_robot`]),
+/// at the low gains the stop method moves with.
+pub fn rig_robot(robot: &Robot, plan: &Plan) -> Robot {
+    match &plan.method {
+        calibration::procedure::Method::Jig => calibration::raw_robot(robot),
+        calibration::procedure::Method::Stops(o) => calibration::raw_robot(&o.low_gain_robot(robot)),
+    }
+}
+
+/// Runs `plan` on `robot` with `rig` (built from [`rig_robot`]) and, only when every step
+/// succeeded, writes `calibration.toml` beside robot.toml: this run's results over what the file
+/// held (the previous file kept as `calibration.previous.toml`). The tick log goes to `log` in
+/// every case.
+#[allow(clippy::too_many_arguments)]
 pub fn run_calibration<R: Rig + ?Sized, O: Operator + ?Sized>(
     robot: &Robot,
     rig: &mut R,
     operator: &mut O,
     abort: &AtomicBool,
+    plan: &Plan,
     options: Options,
     log: Option<&Path>,
     note: &str,
 ) -> Result<(Outcome, Written), CalibrationError> {
     let mut session = Session::new(robot, rig, operator, abort, options);
-    let outcome = session.calibrate();
+    let outcome = session.calibrate(plan);
     if let Some(Err(e)) = log.map(|path| session.log.write_csv(path)) {
         session.operator().say(&format!("cannot write the tick log: {e}"));
     }
     let outcome = outcome?;
-    let previous = robots::calibration::path_for(&robot.path)
-        .exists()
+    let path = robots::calibration::path_for(&robot.path);
+    let old = robots::calibration::Calibration::read(&path).map_err(CalibrationError::Save)?;
+    let previous = old
+        .is_some()
         .then(|| robots::calibration::previous_path_for(&robot.path));
     let calibration = outcome
-        .calibration(note)
+        .calibration(note, old)
         .write_beside(&robot.path)
         .map_err(|m| CalibrationError::Save(format!("cannot write the calibration: {m}")))?;
     Ok((

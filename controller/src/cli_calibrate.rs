@@ -8,12 +8,13 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use calibration::operator::{MirrorHands, Operator};
-use calibration::procedure::{Options, Outcome, Session};
+use calibration::procedure::{Method, Options, Outcome, Plan, Session};
 use calibration::rig::Rig;
 use calibration::solve;
+use calibration::stops::StopOptions;
 use calibration::verify::{VerifyOptions, VerifyReport, verify};
 use clap::{Args, Subcommand};
-use controller::calibrate::{BusRig, ConsoleOperator, run_calibration};
+use controller::calibrate::{BusRig, ConsoleOperator, rig_robot, run_calibration};
 use controller::player::WallClock;
 use controller::sim::{LockstepClock, lockstep_robot};
 use firmware_bridge::dxl::models as dxl_models;
@@ -28,12 +29,15 @@ use crate::cli_sim::load_mirror_config;
 pub enum CalibrateCommand {
     /// Ask every device who it is: model, firmware, current limit. Moves nothing, torque off.
     Identify(Target),
-    /// The whole procedure, torque off throughout: identity check; each joint's direction and
-    /// zero from two jig settings (A = the default pose, B = each joint turned 0.15 rad), with
-    /// Dynamixel Homing Offsets chosen so no encoder wraps inside its joint's range; the IMU's gyro
-    /// bias and gravity check from 2 s still, and its mounting from upright and tilted ~30°
-    /// forward. Writes calibration.toml beside robot.toml only when every step succeeded (the old
-    /// one becomes calibration.previous.toml) and a tick log (CSV). Ctrl-C aborts into damping.
+    /// The whole procedure: identity check (nothing enabled on a mismatch); each joint's direction
+    /// and zero, by the jig (default: torque off throughout; setting A = the default pose, B =
+    /// each joint turned 0.15 rad) or by the mechanical stops (each joint driven at 0.5 rad/s with
+    /// ≤ 30 % of its torque onto both stops; you say which way it turned); Dynamixel Homing
+    /// Offsets chosen so no encoder wraps inside its joint's range; the IMU's gyro and
+    /// accelerometer bias and gravity check from 2 s still, and its mounting from upright and
+    /// tilted ~30° forward. Writes calibration.toml beside robot.toml only when every step
+    /// succeeded (the old one becomes calibration.previous.toml), and a tick log (CSV). Ctrl-C
+    /// aborts into damping.
     Run(RunArgs),
     /// With the calibration in place, move to the default pose on the stand at 30 % stiffness,
     /// ≤ 0.3 rad/s and ≤ 25 % torque; report each joint's error and the IMU's tilt, then go limp.
@@ -67,6 +71,22 @@ pub struct RunArgs {
     /// The tick log (CSV: every command and reading).
     #[arg(long, default_value = "out/calibration/calibrate-log.csv")]
     log: PathBuf,
+    /// How joints find their zero: two jig settings (torque off), or the mechanical stops.
+    #[arg(long, value_enum, default_value_t = MethodArg::Jig)]
+    method: MethodArg,
+    /// Calibrate only this joint (repeat for more); the IMU and the other joints keep what the
+    /// calibration file holds.
+    #[arg(long = "joint", value_name = "NAME")]
+    joints: Vec<String>,
+}
+
+/// `--method`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum MethodArg {
+    /// Two jig settings, torque off throughout.
+    Jig,
+    /// Both mechanical stops at low torque and speed.
+    Stops,
 }
 
 /// Arguments of `calibrate verify`.
@@ -148,7 +168,14 @@ fn with_rig(
 fn calibrate(args: &RunArgs, abort: &AtomicBool) -> Result<()> {
     let t = &args.target;
     let robot = load(t)?;
-    let raw = calibration::raw_robot(&robot);
+    let plan = Plan {
+        method: match args.method {
+            MethodArg::Jig => Method::Jig,
+            MethodArg::Stops => Method::Stops(StopOptions::default()),
+        },
+        joints: (!args.joints.is_empty()).then(|| args.joints.clone()),
+    };
+    let raw = rig_robot(&robot, &plan);
     let place = if t.hardware { "hardware" } else { "mirror" };
     println!(
         "calibrating {} on the {place}: {}",
@@ -156,8 +183,18 @@ fn calibrate(args: &RunArgs, abort: &AtomicBool) -> Result<()> {
         robot.path.display()
     );
     with_rig(t, &raw, &robot, |rig, op, world| {
-        let note = format!("robodeploy calibrate run on the {place}, jig method");
-        let result = run_calibration(&robot, rig, op, abort, Options::default(), Some(&args.log), &note);
+        let method = format!("{:?}", args.method).to_lowercase();
+        let note = format!("robodeploy calibrate run on the {place}, {method} method");
+        let result = run_calibration(
+            &robot,
+            rig,
+            op,
+            abort,
+            &plan,
+            Options::default(),
+            Some(&args.log),
+            &note,
+        );
         println!("tick log: {}", args.log.display());
         let (outcome, written) = result?;
         println!("wrote {}", written.calibration.display());
@@ -177,9 +214,14 @@ fn print_against_truth(robot: &Robot, config: &MirrorConfig, outcome: &Outcome) 
     println!("against the mirror's hidden truth:");
     let mut worst = [0.0f64; 2];
     let mut flipped = 0;
-    for (j, r) in robot.config.joints.iter().zip(&outcome.joints) {
+    for r in &outcome.joints {
+        let Some(j) = robot.config.joints.iter().find(|j| j.name == r.name) else {
+            continue;
+        };
         let truth = config.hardware.joints.get(&j.name);
-        let (dir, zero) = truth.map_or((j.direction, j.zero_offset), |t| (t.direction, t.zero_offset));
+        // Without an entry the machine is as described (a Dynamixel zero counts its Homing Offset).
+        let described = j.zero_offset - f64::from(j.homing_offset_ticks) * per_tick;
+        let (dir, zero) = truth.map_or((j.direction, described), |t| (t.direction, t.zero_offset));
         let c = r.calibration;
         flipped += usize::from(c.direction != dir);
         match robot.bus(&j.bus).map(|b| b.kind) {
@@ -195,15 +237,17 @@ fn print_against_truth(robot: &Robot, config: &MirrorConfig, outcome: &Outcome) 
         "  directions wrong: {flipped}; worst zero error: {:.2} ticks (Dynamixel), {:.5} rad (MIT)",
         worst[0], worst[1]
     );
-    let truth = config
-        .hardware
-        .imu_mounting_rpy_deg
-        .unwrap_or(robot.config.imu.mounting_rpy_deg);
-    let err = solve::rotation_between(
-        &solve::matrix_of_rpy(truth.map(f64::to_radians)),
-        &solve::matrix_of_rpy(outcome.imu.calibration.mounting_rpy_deg.map(f64::to_radians)),
-    );
-    println!("  IMU mounting error: {:.3}°", err.to_degrees());
+    if let Some(imu) = &outcome.imu {
+        let truth = config
+            .hardware
+            .imu_mounting_rpy_deg
+            .unwrap_or(robot.config.imu.mounting_rpy_deg);
+        let err = solve::rotation_between(
+            &solve::matrix_of_rpy(truth.map(f64::to_radians)),
+            &solve::matrix_of_rpy(imu.calibration.mounting_rpy_deg.map(f64::to_radians)),
+        );
+        println!("  IMU mounting error: {:.3}°", err.to_degrees());
+    }
 }
 
 fn verify_pose(args: &VerifyArgs, abort: &AtomicBool) -> Result<()> {

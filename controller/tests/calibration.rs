@@ -9,10 +9,11 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
 use calibration::operator::{Aborted, MirrorHands, Operator, Request, Silent};
-use calibration::procedure::{CalibrationError, Options, Outcome, Session};
+use calibration::procedure::{CalibrationError, Method, Options, Outcome, Plan, Session};
 use calibration::solve;
+use calibration::stops::StopOptions;
 use calibration::verify::{VerifyOptions, verify};
-use controller::calibrate::{BusRig, run_calibration};
+use controller::calibrate::{BusRig, rig_robot, run_calibration};
 use controller::sim::{LockstepClock, lockstep_robot};
 use firmware_bridge::dxl::models as dxl_models;
 use robots::{BusKind, Robot};
@@ -93,12 +94,13 @@ fn lock(w: &World) -> std::sync::MutexGuard<'_, Mirror> {
 fn calibrate(
     path: &Path,
     truth: HardwareTruth,
+    plan: &Plan,
     abort_at: Option<AbortAt>,
     abort: &AtomicBool,
     log: &Path,
 ) -> (Result<Outcome, CalibrationError>, World) {
     let robot = Robot::load(path).unwrap();
-    let raw = calibration::raw_robot(&robot);
+    let raw = rig_robot(&robot, plan);
     let (mut rig, world) = rig_on(&robot, &raw, mirror_config(truth));
     let mut hands = Interrupted {
         at: abort_at,
@@ -109,6 +111,7 @@ fn calibrate(
         &mut rig,
         &mut hands,
         abort,
+        plan,
         Options::default(),
         Some(log),
         "test",
@@ -123,7 +126,8 @@ fn hidden_offsets_directions_and_imu_mounting_are_recovered_and_verified() {
     let truth = hidden_truth();
     let robot = Robot::load(&path).unwrap();
     let log = path.with_file_name("log.csv");
-    let (outcome, world) = calibrate(&path, truth.clone(), None, &AtomicBool::new(false), &log);
+    let jig = Plan::default();
+    let (outcome, world) = calibrate(&path, truth.clone(), &jig, None, &AtomicBool::new(false), &log);
     let outcome = outcome.unwrap();
     // Torque stayed off the whole time: no actuator ever pushed.
     assert_eq!(lock(&world).peak_actuator_torque(), 0.0);
@@ -163,7 +167,8 @@ fn hidden_offsets_directions_and_imu_mounting_are_recovered_and_verified() {
             );
         }
     }
-    let imu = outcome.imu.calibration.mounting_rpy_deg.map(f64::to_radians);
+    let imu_result = outcome.imu.clone().expect("a whole-robot run calibrates the IMU");
+    let imu = imu_result.calibration.mounting_rpy_deg.map(f64::to_radians);
     let true_imu = truth.imu_mounting_rpy_deg.unwrap().map(f64::to_radians);
     let err = solve::rotation_between(&solve::matrix_of_rpy(imu), &solve::matrix_of_rpy(true_imu));
     assert!(
@@ -171,7 +176,7 @@ fn hidden_offsets_directions_and_imu_mounting_are_recovered_and_verified() {
         "IMU mounting {:.3}° off",
         err.to_degrees()
     );
-    assert!((outcome.imu.gravity - 9.81).abs() < 1.0);
+    assert!((imu_result.gravity - 9.81).abs() < 1.0);
 
     // The file is beside robot.toml, and loading the robot merges it.
     let merged = Robot::load(&path).unwrap();
@@ -187,7 +192,7 @@ fn hidden_offsets_directions_and_imu_mounting_are_recovered_and_verified() {
     }
     assert_eq!(
         merged.config.imu.mounting_rpy_deg,
-        outcome.imu.calibration.mounting_rpy_deg
+        imu_result.calibration.mounting_rpy_deg
     );
     // The tick log has every tick, all of them limp.
     let text = std::fs::read_to_string(&log).unwrap();
@@ -261,6 +266,9 @@ impl<O: Operator> Operator for Interrupted<O> {
         }
         self.hands.request(r)
     }
+    fn direction_seen(&mut self, index: usize, joint: &str) -> Result<f64, Aborted> {
+        self.hands.direction_seen(index, joint)
+    }
     fn say(&mut self, line: &str) {
         self.hands.say(line);
     }
@@ -280,7 +288,7 @@ fn an_interrupted_calibration_keeps_the_previous_file_and_ends_limp() {
         let abort = flag.clone().unwrap_or_else(|| Arc::new(AtomicBool::new(false)));
         let at = AbortAt { label, flag };
         let log = path.with_file_name("abort-log.csv");
-        let (result, world) = calibrate(&path, hidden_truth(), Some(at), &abort, &log);
+        let (result, world) = calibrate(&path, hidden_truth(), &Plan::default(), Some(at), &abort, &log);
         assert!(
             matches!(result, Err(CalibrationError::Aborted)),
             "{label}: {result:?}"
@@ -322,6 +330,7 @@ fn a_wrong_model_stops_calibration_before_anything_is_enabled() {
         &mut rig,
         &mut hands,
         &abort,
+        &Plan::default(),
         Options::default(),
         None,
         "x",
@@ -331,6 +340,87 @@ fn a_wrong_model_stops_calibration_before_anything_is_enabled() {
     assert!(msg.contains("left_elbow") && msg.contains("XL430-W250"), "{msg}");
     assert!(!robots::calibration::path_for(&path).exists());
     assert_eq!(lock(&world).peak_actuator_torque(), 0.0);
+}
+
+#[test]
+fn the_stop_method_finds_zeros_and_directions_within_its_torque_and_speed_caps() {
+    let path = robot_copy("stops");
+    let truth = hidden_truth();
+    let robot = Robot::load(&path).unwrap();
+    // Joints free to reach both stops while the robot hangs on its stand (flipped and offset
+    // ones among them, on both bus kinds).
+    let names = [
+        "right_hip_yaw",
+        "left_knee",
+        "left_elbow",
+        "right_elbow",
+        "head_yaw",
+    ];
+    let options = StopOptions::default();
+    let plan = Plan {
+        method: Method::Stops(options.clone()),
+        joints: Some(names.iter().map(|n| (*n).to_owned()).collect()),
+    };
+    let log = path.with_file_name("stops-log.csv");
+    let abort = AtomicBool::new(false);
+    let raw = rig_robot(&robot, &plan);
+    let (mut rig, world) = rig_on(&robot, &raw, mirror_config(truth.clone()));
+    let mut hands = MirrorHands::new(Arc::clone(&world), Silent::default());
+    let mut session = Session::new(&robot, &mut rig, &mut hands, &abort, Options::default());
+    let outcome = session.calibrate(&plan).unwrap();
+    // Every command within the caps, checked over the log (actuator units of the raw rig).
+    let (limits, _) = options.actuator_limits(&robot);
+    session.log.check(&limits, PERIOD.as_secs_f64()).unwrap();
+    assert!(session.log.len() > 500);
+    drop(session);
+    let worst_cap = robot
+        .config
+        .joints
+        .iter()
+        .filter(|j| names.contains(&j.name.as_str()))
+        .map(|j| options.torque_fraction * j.torque_limit / j.gear)
+        .fold(0.0, f64::max);
+    assert!(lock(&world).peak_actuator_torque() <= worst_cap * 1.2);
+    assert_eq!(outcome.joints.len(), names.len());
+    assert!(outcome.imu.is_none());
+    let per_tick = dxl_models::rad_per_tick();
+    for r in &outcome.joints {
+        let j = robot.config.joints.iter().find(|j| j.name == r.name).unwrap();
+        let t = truth.joints.get(&j.name).copied().unwrap_or(TrueJoint {
+            zero_offset: j.zero_offset,
+            direction: j.direction,
+        });
+        let c = r.calibration;
+        assert_eq!(c.direction, t.direction, "{}", j.name);
+        if robot.bus(&j.bus).unwrap().kind == BusKind::Dynamixel {
+            let ticks =
+                (c.zero_offset - f64::from(c.homing_offset_ticks) * per_tick - t.zero_offset) / per_tick;
+            assert!(ticks.abs() <= 2.0, "{}: {ticks:.2} ticks off", j.name);
+        } else {
+            assert!((c.zero_offset - t.zero_offset).abs() <= 0.005, "{}", j.name);
+        }
+    }
+
+    // A limb that gravity holds below its stop is refused by name, not calibrated wrongly.
+    let plan = Plan {
+        method: Method::Stops(options),
+        joints: Some(vec!["left_hip_roll".into()]),
+    };
+    let (result, world) = calibrate(&path, truth, &plan, None, &abort, &log);
+    let msg = result.unwrap_err().to_string();
+    assert!(
+        msg.contains("left_hip_roll") && msg.contains("stopped the joint early"),
+        "{msg}"
+    );
+    assert!(!robots::calibration::path_for(&path).exists());
+    let mut w = lock(&world);
+    let k = robot
+        .config
+        .joints
+        .iter()
+        .position(|j| j.name == "left_hip_roll")
+        .unwrap();
+    assert!(!w.motor_mut(k).unwrap().enabled(), "the robot ends limp");
 }
 
 fn robodeploy() -> Command {
