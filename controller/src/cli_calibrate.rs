@@ -27,8 +27,10 @@ use crate::cli_sim::load_mirror_config;
 /// `calibrate` subcommands.
 #[derive(Debug, Subcommand)]
 pub enum CalibrateCommand {
-    /// Ask every device who it is: model, firmware, current limit. Moves nothing, torque off.
+    /// Ask every device who it is: model, firmware, current limit (torque off).
     Identify(Target),
+    /// Calibrate joints and IMU; writes calibration.toml beside robot.toml.
+    ///
     /// The whole procedure: identity check (nothing enabled on a mismatch); each joint's direction
     /// and zero, by the jig (default: torque off throughout; setting A = the default pose, B =
     /// each joint turned 0.15 rad) or by the mechanical stops (each joint driven at 0.5 rad/s with
@@ -39,6 +41,8 @@ pub enum CalibrateCommand {
     /// succeeded (the old one becomes calibration.previous.toml), and a tick log (CSV). Ctrl-C
     /// aborts into damping.
     Run(RunArgs),
+    /// Check a calibration: a gentle move to the default pose, errors reported.
+    ///
     /// With the calibration in place, move to the default pose on the stand at 30 % stiffness,
     /// ≤ 0.3 rad/s and ≤ 25 % torque; report each joint's error and the IMU's tilt, then go limp.
     Verify(VerifyArgs),

@@ -462,6 +462,14 @@ fn the_cli_calibrates_verifies_and_refuses_what_it_must() {
     assert!(!ok && text.contains("aborted"), "{text}");
     assert!(!robots::calibration::path_for(&path).exists());
 
+    // Uncalibrated, the machine (on its stand) cannot play the squat: it ends in damping early.
+    let play = ["play", "--mirror", truth, "--no-record"];
+    let (_, text) = run(&play, "");
+    assert!(
+        text.contains("→ Damped") && !text.contains("clip finished"),
+        "{text}"
+    );
+
     let (ok, text) = run(
         &["calibrate", "run", "--mirror", truth, "--yes", "--log", log],
         "",
@@ -469,6 +477,16 @@ fn the_cli_calibrates_verifies_and_refuses_what_it_must() {
     assert!(ok, "{text}");
     assert!(text.contains("directions wrong: 0"), "{text}");
     assert!(robots::calibration::path_for(&path).exists());
+
+    // Calibrated, the same machine plays it as well as the nominal robot does.
+    let (ok, text) = run(&play, "");
+    assert!(ok && text.contains("clip finished"), "{text}");
+    let rmse: f64 = text
+        .lines()
+        .find_map(|l| l.strip_prefix("joint tracking RMSE:"))
+        .and_then(|v| v.trim().trim_end_matches('°').parse().ok())
+        .unwrap_or(f64::NAN);
+    assert!(rmse < 3.0, "joint RMSE {rmse}°\n{text}");
 
     let (ok, text) = run(
         &["calibrate", "verify", "--mirror", truth, "--yes", "--log", log],

@@ -85,3 +85,65 @@ impl Calibration {
         Ok(path)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn scratch(name: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("robots-cal-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let src = crate::reference_robot_path();
+        for file in ["robot.toml", "biped.xml"] {
+            std::fs::copy(src.with_file_name(file), dir.join(file)).unwrap();
+        }
+        dir.join("robot.toml")
+    }
+
+    #[test]
+    fn a_written_calibration_is_merged_and_the_previous_one_kept() {
+        let robot_toml = scratch("merge");
+        let mut c = Calibration::default();
+        c.joints.insert(
+            "left_knee".into(),
+            JointCalibration {
+                zero_offset: 0.25,
+                direction: -1.0,
+                homing_offset_ticks: 0,
+            },
+        );
+        c.write_beside(&robot_toml).unwrap();
+        assert!(!previous_path_for(&robot_toml).exists());
+        let robot = crate::Robot::load(&robot_toml).unwrap();
+        let knee = robot
+            .config
+            .joints
+            .iter()
+            .find(|j| j.name == "left_knee")
+            .unwrap();
+        assert_eq!((knee.zero_offset, knee.direction), (0.25, -1.0));
+        let first = std::fs::read_to_string(path_for(&robot_toml)).unwrap();
+        c.note = "second".into();
+        c.write_beside(&robot_toml).unwrap();
+        assert_eq!(
+            std::fs::read_to_string(previous_path_for(&robot_toml)).unwrap(),
+            first
+        );
+    }
+
+    #[test]
+    fn a_bad_calibration_file_is_refused_with_its_place() {
+        let robot_toml = scratch("bad");
+        std::fs::write(
+            path_for(&robot_toml),
+            "[joints.tail]\nzero_offset = 0.1\ndirection = 1.0\n",
+        )
+        .unwrap();
+        let e = crate::Robot::load(&robot_toml).unwrap_err().to_string();
+        assert!(e.contains("calibration.toml") && e.contains("joints.tail"), "{e}");
+        std::fs::write(path_for(&robot_toml), "[joints.left_knee]\nzero_offset = \"x\"\n").unwrap();
+        let e = crate::Robot::load(&robot_toml).unwrap_err().to_string();
+        assert!(e.contains("calibration.toml"), "{e}");
+    }
+}
