@@ -7,10 +7,12 @@
 //! hardware or on the mirror) and to an [`operator::Operator`] (a console on hardware; in the
 //! mirror, [`operator::MirrorHands`] clamps the simulated jig and tilts the simulated stand).
 
+pub mod human;
 pub mod log;
 pub mod operator;
 pub mod procedure;
 pub mod rig;
+pub mod so3;
 pub mod solve;
 pub mod stops;
 pub mod verify;

@@ -83,26 +83,8 @@ pub fn check_mit_range(mapping: JointMapping, gear: f64, range: [f64; 2], p_max:
     Ok(())
 }
 
-/// A 3×3 rotation, rows.
-pub type Mat3 = [[f64; 3]; 3];
-
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
-fn norm(a: [f64; 3]) -> f64 {
-    (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt()
-}
-
-/// `a` scaled to length 1.
-pub fn unit(a: [f64; 3]) -> [f64; 3] {
-    let n = norm(a);
-    [a[0] / n, a[1] / n, a[2] / n]
-}
+pub use crate::so3::{Mat3, unit};
+use crate::so3::{cross, norm};
 
 /// Angle between two directions, rad.
 pub fn angle_between(a: [f64; 3], b: [f64; 3]) -> f64 {

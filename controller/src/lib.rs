@@ -8,6 +8,7 @@ pub mod compare;
 pub mod estop;
 pub mod fk;
 pub mod hardware;
+pub mod human;
 pub mod motion_check;
 pub mod native;
 pub mod npy;

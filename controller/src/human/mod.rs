@@ -1,0 +1,4 @@
+//! The human side: motion capture (BVH), the retargeting map onto the robot, inverse kinematics,
+//! and live VR trackers (VMC over OSC/UDP).
+
+pub mod bvh;
