@@ -12,6 +12,7 @@ mod cli_calibrate;
 mod cli_can;
 mod cli_dxl;
 mod cli_play;
+mod cli_retarget;
 mod cli_sim;
 
 /// Run motion-tracking policies on a real robot, or on its mirrored MuJoCo simulator.
@@ -51,6 +52,11 @@ enum Command {
     /// goes Off → Ready → SoftStart → Running → Stopping → Damped → Off; faults (stale feedback,
     /// device faults, NaN, tilt, overruns) and SIGINT/SIGTERM take the short way to Damped.
     Play(cli_play::PlayArgs),
+    /// Retarget a human BVH recording onto the robot: the retargeting map of robot.toml (scale
+    /// and nominal offsets from a T-pose or the first frame), inverse kinematics on the robot's
+    /// MuJoCo model within the joints' limits, soles kept out of the floor; writes a clip (CSV)
+    /// and checks it as `check --clip` does.
+    Retarget(cli_retarget::RetargetArgs),
     /// Run many clips × seeds on the mirror in lockstep, in parallel over the cores, and print one
     /// table per clip: success rate, tracking RMSE, governor saturation.
     Batch(cli_batch::BatchArgs),
@@ -130,6 +136,7 @@ fn run() -> Result<()> {
         Command::Play(args) => cli_play::play(&args),
         Command::Check(args) => cli_play::check(&args),
         Command::Batch(args) => cli_batch::run(&args),
+        Command::Retarget(args) => cli_retarget::run(&args),
         Command::Compare {
             run,
             other,

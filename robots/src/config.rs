@@ -112,6 +112,68 @@ pub struct RobotConfig {
     pub imu: ImuConfig,
     /// Joints in policy order.
     pub joints: Vec<JointConfig>,
+    /// How human motion maps onto this robot (retargeting, teleoperation).
+    #[serde(default)]
+    pub retarget: Option<RetargetConfig>,
+}
+
+/// A human body the retargeting map knows (BVH skeletons and VR trackers are mapped onto these).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum HumanBody {
+    /// The pelvis (the root pair).
+    Root,
+    /// Skull base.
+    Head,
+    /// Left wrist.
+    LeftHand,
+    /// Right wrist.
+    RightHand,
+    /// Left elbow.
+    LeftElbow,
+    /// Right elbow.
+    RightElbow,
+    /// Left ankle.
+    LeftFoot,
+    /// Right ankle.
+    RightFoot,
+    /// Left knee.
+    LeftKnee,
+    /// Right knee.
+    RightKnee,
+}
+
+/// One body pair of the retargeting map.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct BodyPair {
+    /// The human body.
+    pub human: HumanBody,
+    /// The robot frame: a body or a site of the MJCF.
+    pub frame: String,
+    /// Weight of its position in inverse kinematics (0: ignored).
+    #[serde(default)]
+    pub position_weight: f64,
+    /// Weight of its orientation in inverse kinematics (0: ignored).
+    #[serde(default)]
+    pub orientation_weight: f64,
+    /// Position tuning in nominal coordinates, m (|p_pos| ≤ 0.5).
+    #[serde(default)]
+    pub p_pos: [f64; 3],
+    /// Orientation tuning, rotation vector, rad (|p_ori| ≤ 0.5).
+    #[serde(default)]
+    pub p_ori: [f64; 3],
+}
+
+/// How human motion maps onto the robot.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct RetargetConfig {
+    /// The robot's pose matching a human T-pose, by joint name (joints not named: 0 rad).
+    #[serde(default)]
+    pub tpose: std::collections::BTreeMap<String, f64>,
+    /// Body pairs; exactly one has `human = "root"`.
+    pub pairs: Vec<BodyPair>,
 }
 
 /// A robot description that failed to load: the file, the place in it, and what is wrong.
@@ -224,6 +286,62 @@ impl Robot {
     }
 
     fn check(&self) -> Result<(), (String, String)> {
+        self.check_body()?;
+        self.check_retarget()
+    }
+
+    fn check_retarget(&self) -> Result<(), (String, String)> {
+        let Some(r) = &self.config.retarget else {
+            return Ok(());
+        };
+        for (name, &q) in &r.tpose {
+            let j = self
+                .config
+                .joints
+                .iter()
+                .find(|j| &j.name == name)
+                .ok_or_else(|| {
+                    (
+                        format!("retarget.tpose.{name}"),
+                        "not a joint of this robot".to_owned(),
+                    )
+                })?;
+            let [lo, hi] = j.position_limits;
+            if !(lo..=hi).contains(&q) {
+                return Err((
+                    format!("retarget.tpose.{name}"),
+                    format!("{q} rad is outside the joint's limits [{lo}, {hi}]"),
+                ));
+            }
+        }
+        let mut seen = BTreeSet::new();
+        for (i, p) in r.pairs.iter().enumerate() {
+            let at = format!("retarget.pairs[{i}]");
+            if !seen.insert(format!("{:?}", p.human)) {
+                return Err((format!("{at}.human"), format!("{:?} is paired twice", p.human)));
+            }
+            if !self.mjcf.bodies.contains(&p.frame) && !self.mjcf.sites.contains(&p.frame) {
+                return Err((
+                    format!("{at}.frame"),
+                    format!("{:?} is neither a body nor a site of the MJCF", p.frame),
+                ));
+            }
+            let weights = [p.position_weight, p.orientation_weight];
+            if weights.iter().any(|w| !(w.is_finite() && *w >= 0.0)) || weights == [0.0, 0.0] {
+                return Err((at.clone(), "weights must be ≥ 0 and not both 0".to_owned()));
+            }
+            let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            if norm(p.p_pos) > 0.5 || norm(p.p_ori) > 0.5 {
+                return Err((at.clone(), "|p_pos| and |p_ori| must be ≤ 0.5".to_owned()));
+            }
+        }
+        if !r.pairs.iter().any(|p| p.human == HumanBody::Root) {
+            return Err(("retarget.pairs".into(), "no pair has human = \"root\"".into()));
+        }
+        Ok(())
+    }
+
+    fn check_body(&self) -> Result<(), (String, String)> {
         let c = &self.config;
         let m = &self.mjcf;
         for file in &m.mesh_files {

@@ -9,7 +9,10 @@ pub mod config;
 pub mod drivers;
 pub mod mjcf;
 
-pub use config::{BusConfig, BusKind, ImuConfig, JointConfig, Robot, RobotConfig, RobotError};
+pub use config::{
+    BodyPair, BusConfig, BusKind, HumanBody, ImuConfig, JointConfig, RetargetConfig, Robot, RobotConfig,
+    RobotError,
+};
 
 /// The reference robot shipped with the project: `robots/biped/robot.toml`.
 pub fn reference_robot_path() -> std::path::PathBuf {

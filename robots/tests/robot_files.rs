@@ -127,3 +127,24 @@ fn unknown_models_and_buses_are_named() {
     let text = reference_text().replacen("bus = \"dxl0\"", "bus = \"dxl9\"", 1);
     expect_error(&text, &[".bus", "\"dxl9\" is not a bus"]);
 }
+
+#[test]
+fn a_bad_retargeting_map_is_named() {
+    let text = reference_text().replacen("frame = \"left_hand\"", "frame = \"left_paw\"", 1);
+    expect_error(
+        &text,
+        &[
+            "retarget.pairs[2].frame",
+            "\"left_paw\" is neither a body nor a site",
+        ],
+    );
+    let text = reference_text().replacen("human = \"root\"", "human = \"head\"", 1);
+    expect_error(&text, &["retarget.pairs[1].human", "paired twice"]);
+    let text = reference_text().replacen("left_shoulder_roll = 1.5708", "left_shoulder_roll = 2.5", 1);
+    expect_error(
+        &text,
+        &["retarget.tpose.left_shoulder_roll", "outside the joint's limits"],
+    );
+    let text = reference_text().replacen("human = \"left_hand\"", "human = \"left_paw\"", 1);
+    expect_error(&text, &["left_paw"]);
+}

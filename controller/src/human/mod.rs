@@ -2,3 +2,5 @@
 //! and live VR trackers (VMC over OSC/UDP).
 
 pub mod bvh;
+pub mod ik;
+pub mod retarget;
