@@ -3,4 +3,6 @@
 
 pub mod bvh;
 pub mod ik;
+pub mod osc;
 pub mod retarget;
+pub mod vmc;
