@@ -274,7 +274,6 @@ impl VmcReceiver {
             .name("vmc-receiver".into())
             .spawn(move || {
                 let mut buf = vec![0u8; MAX_PACKET + 1];
-                let mut scratch = Tracks::default();
                 while !s.load(Ordering::Relaxed) {
                     let Ok(n) = socket.recv(&mut buf) else { continue };
                     let at = Instant::now();
