@@ -286,6 +286,21 @@ impl Reference {
         &self.qd[k * self.n..(k + 1) * self.n]
     }
 
+    /// A one-frame reference holding `q` (robot order) at `root`: the frame a live source
+    /// overwrites every tick.
+    pub fn hold(q: &[f64], root: [f64; 7], rate_hz: f64) -> Self {
+        Self {
+            n: q.len(),
+            rate_hz,
+            q: q.to_vec(),
+            qd: vec![0.0; q.len()],
+            root: vec![root],
+            held_joints: Vec::new(),
+            bodies: Vec::new(),
+            body_pos: Vec::new(),
+        }
+    }
+
     /// Maps `clip` onto `robot` and resamples it to `rate_hz`; refuses a clip the robot cannot
     /// follow, naming the first offending frame.
     pub fn from_clip(clip: &Clip, robot: &Robot, rate_hz: f64) -> Result<Self, ClipError> {

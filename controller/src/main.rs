@@ -14,6 +14,7 @@ mod cli_dxl;
 mod cli_play;
 mod cli_retarget;
 mod cli_sim;
+mod cli_teleop;
 
 /// Run motion-tracking policies on a real robot, or on its mirrored MuJoCo simulator.
 ///
@@ -57,6 +58,15 @@ enum Command {
     /// MuJoCo model within the joints' limits, soles kept out of the floor; writes a clip (CSV)
     /// and checks it as `check --clip` does.
     Retarget(cli_retarget::RetargetArgs),
+    /// Drive the robot live from VR trackers: a headset and two controllers sending VMC (OSC over
+    /// UDP, 127.0.0.1:39539 by default). A T-pose calibrates the user; the head and hands are
+    /// mapped onto the robot and solved by inverse kinematics into the live reference of a
+    /// reference-tracking policy (legs standing). Late packets are forecast; a lost stream blends
+    /// back to the standby pose; malformed packets are dropped and counted. Mirror by default.
+    Teleop(cli_teleop::TeleopArgs),
+    /// VR tools: stream a recorded session as a headset and controllers.
+    #[command(subcommand)]
+    Vr(cli_teleop::VrCommand),
     /// Run many clips × seeds on the mirror in lockstep, in parallel over the cores, and print one
     /// table per clip: success rate, tracking RMSE, governor saturation.
     Batch(cli_batch::BatchArgs),
@@ -137,6 +147,8 @@ fn run() -> Result<()> {
         Command::Check(args) => cli_play::check(&args),
         Command::Batch(args) => cli_batch::run(&args),
         Command::Retarget(args) => cli_retarget::run(&args),
+        Command::Teleop(args) => cli_teleop::teleop(&args),
+        Command::Vr(cmd) => cli_teleop::vr(cmd),
         Command::Compare {
             run,
             other,

@@ -2,8 +2,8 @@
 //! under the state machine of [`crate::safety`]. Every buffer is sized before the first tick; a
 //! steady-state tick allocates nothing.
 
-use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, Instant};
 
 use robots::Robot;
@@ -219,6 +219,8 @@ pub struct PlaySummary {
     pub io: Histogram,
     /// How late each tick started after its deadline.
     pub jitter: Histogram,
+    /// With a live reference: from the arrival of the input a tick used to its bus write.
+    pub live_latency: Option<Histogram>,
     /// What the telemetry logger wrote, when recording.
     pub telemetry: Option<crate::telemetry::TelemetryReport>,
 }
@@ -243,6 +245,9 @@ impl std::fmt::Display for PlaySummary {
         writeln!(f, "compute per tick: {}", self.compute)?;
         writeln!(f, "bus I/O per tick: {}", self.io)?;
         writeln!(f, "tick start lateness: {}", self.jitter)?;
+        if let Some(l) = &self.live_latency {
+            writeln!(f, "tracker input → bus command: {l}")?;
+        }
         if let Some(t) = &self.telemetry {
             writeln!(f, "{t}")?;
         }
@@ -384,6 +389,24 @@ pub struct Player<L: RobotLink> {
     jitter: Histogram,
     telemetry: Option<crate::telemetry::TelemetrySink>,
     record: Box<crate::telemetry::TickRecord>,
+    live: Option<Arc<Mutex<LiveFrame>>>,
+    live_source: Option<Instant>,
+    live_used: Option<Instant>,
+    live_latency: Histogram,
+}
+
+/// A reference computed live by another thread (teleoperation): the frame to track now, robot
+/// joint order, and when the input it came from arrived.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LiveFrame {
+    /// Joint positions, rad.
+    pub q: Vec<f64>,
+    /// Joint velocities, rad/s.
+    pub qd: Vec<f64>,
+    /// Root pose `[x, y, z, w, qx, qy, qz]`.
+    pub root: [f64; 7],
+    /// Arrival of the newest input sample this frame used.
+    pub source: Option<Instant>,
 }
 
 /// Why a run could not start or continue.
@@ -522,6 +545,10 @@ impl<L: RobotLink> Player<L> {
             compute: Histogram::default(),
             io_time: Histogram::default(),
             jitter: Histogram::default(),
+            live: None,
+            live_source: None,
+            live_used: None,
+            live_latency: Histogram::default(),
             telemetry: None,
             record: Box::default(),
             robot,
@@ -538,6 +565,15 @@ impl<L: RobotLink> Player<L> {
     }
 
     /// Records every tick into `sink` (see [`crate::telemetry`]).
+    /// Tracks a reference another thread computes live (teleoperation) instead of the clip's
+    /// frames: each tick copies `live` into the reference's one frame (no allocation). Pair it with
+    /// a one-frame reference and [`EndMode::Loop`].
+    pub fn with_live(mut self, live: Arc<Mutex<LiveFrame>>) -> Self {
+        self.live = Some(live);
+        self
+    }
+
+    /// Records every tick as MCAP through `sink`.
     pub fn with_telemetry(mut self, sink: crate::telemetry::TelemetrySink) -> Self {
         self.telemetry = Some(sink);
         self
@@ -680,6 +716,10 @@ impl<L: RobotLink> Player<L> {
         let write = self.io.write(&self.targets);
         let io = t_read + w0.elapsed();
         self.io_time.record(io);
+        if let Some(source) = self.live_source.take() {
+            self.live_latency.record(source.elapsed());
+            self.live_used = Some(source);
+        }
         if self.telemetry.is_some() {
             self.fill_record(clock.elapsed(), io, compute, has_truth);
             if let Some(t) = &mut self.telemetry {
@@ -946,6 +986,15 @@ impl<L: RobotLink> Player<L> {
 
     /// Where the reference is at this tick: ramp (held first frame, ψ rising), clip, end.
     fn update_reference(&mut self) -> f64 {
+        if let Some(live) = &self.live {
+            let frame = live.lock().unwrap_or_else(PoisonError::into_inner);
+            let n = self.reference.n;
+            self.reference.q[..n].copy_from_slice(&frame.q);
+            self.reference.qd[..n].copy_from_slice(&frame.qd);
+            self.reference.root[0] = frame.root;
+            // Latency counts to the first command that uses an input, not the ones after it.
+            self.live_source = frame.source.filter(|s| Some(*s) != self.live_used);
+        }
         let ramp = (self.options.ramp_s / self.dt).round() as usize;
         let len = self.reference.len();
         let psi = if ramp == 0 {
@@ -1115,6 +1164,7 @@ impl<L: RobotLink> Player<L> {
             compute: self.compute.clone(),
             io: self.io_time.clone(),
             jitter: self.jitter.clone(),
+            live_latency: self.live.is_some().then(|| self.live_latency.clone()),
             telemetry: None,
         }
     }

@@ -187,3 +187,37 @@ impl TickClock for ServedClock {
         truth_of(&self.world, truth)
     }
 }
+
+/// The mirror in lockstep, paced by the wall clock: the mirror runs to each deadline, then the
+/// loop waits for the same deadline in real time. Live inputs (trackers) arrive in real time, so a
+/// teleoperated mirror must keep pace with them; the buses stay deterministic in-process.
+#[derive(Debug)]
+pub struct PacedLockstepClock {
+    sim: LockstepClock,
+    wall: WallClock,
+}
+
+impl PacedLockstepClock {
+    /// Starts now, at the mirror's current time.
+    pub fn new(world: Arc<Mutex<Mirror>>) -> Self {
+        Self {
+            sim: LockstepClock::new(world),
+            wall: WallClock::start(),
+        }
+    }
+}
+
+impl TickClock for PacedLockstepClock {
+    fn elapsed(&self) -> Duration {
+        self.wall.elapsed()
+    }
+
+    fn wait_until(&mut self, deadline: Duration) -> bool {
+        self.sim.wait_until(deadline);
+        self.wall.wait_until(deadline)
+    }
+
+    fn ground_truth(&self, truth: &mut GroundTruth) -> bool {
+        self.sim.ground_truth(truth)
+    }
+}

@@ -123,6 +123,36 @@ impl Ik {
         })
     }
 
+    /// The robot joints (policy order) on the kinematic chain of frame `k`.
+    pub fn joints_moving_frame(&self, k: usize) -> Vec<usize> {
+        let model = self.data.model();
+        let mut body = match self.frames[k] {
+            FrameRef::Body(b) => b,
+            FrameRef::Site { body, .. } => body,
+        };
+        let mut dofs = Vec::new();
+        while body != 0 {
+            let (first, count) = (model.body_dofadr()[body], model.body_dofnum()[body]);
+            if first >= 0 {
+                dofs.extend(first as usize..first as usize + count as usize);
+            }
+            body = model.body_parentid()[body] as usize;
+        }
+        (0..self.joints.len())
+            .filter(|&j| dofs.contains(&self.joints[j].dof))
+            .collect()
+    }
+
+    /// The robot joints (policy order) on the kinematic chain of any of the frames.
+    pub fn joints_moving_frames(&self) -> Vec<usize> {
+        let mut all: Vec<usize> = (0..self.frames.len())
+            .flat_map(|k| self.joints_moving_frame(k))
+            .collect();
+        all.sort_unstable();
+        all.dedup();
+        all
+    }
+
     /// Sets the root pose `[x, y, z, w, qx, qy, qz]` and the joints (policy order).
     pub fn set_pose(&mut self, root: [f64; 7], q: &[f64]) {
         if let Some((adr, _)) = self.root {
@@ -165,6 +195,39 @@ impl Ik {
     /// The model's data (after the last solve or pose).
     pub fn data(&self) -> &MjData<Box<MjModel>> {
         &self.data
+    }
+
+    /// The lowest point of the robot's colliding geoms (boxes: their corners; others: their
+    /// radius) in the current pose, m: below 0 the soles are in the floor.
+    pub fn lowest_point(&self) -> f64 {
+        let model = self.data.model();
+        let mut lowest = f64::INFINITY;
+        for g in 0..model.ffi().ngeom as usize {
+            if model.geom_contype()[g] == 0 || model.geom_bodyid()[g] == 0 {
+                continue;
+            }
+            let (c, m, s) = (
+                self.data.geom_xpos()[g],
+                self.data.geom_xmat()[g],
+                model.geom_size()[g],
+            );
+            // Half extent along world z: Σ |R_zk| · size_k for a box (type 6); the radius otherwise.
+            let extent = match model.geom_type()[g] as i32 {
+                6 => (0..3).map(|k| m[6 + k].abs() * s[k]).sum::<f64>(),
+                _ => s[0],
+            };
+            lowest = lowest.min(c[2] - extent);
+        }
+        lowest
+    }
+
+    /// The root pose that stands the robot in pose `q` with its lowest point on the floor, at the
+    /// origin, facing +x.
+    pub fn standing_root(&mut self, q: &[f64]) -> [f64; 7] {
+        self.set_pose([0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0], q);
+        let drop = self.lowest_point();
+        self.lift(-drop);
+        self.root()
     }
 
     /// Moves the root up by `dz` (to lift the feet out of the floor).

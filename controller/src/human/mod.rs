@@ -5,4 +5,6 @@ pub mod bvh;
 pub mod ik;
 pub mod osc;
 pub mod retarget;
+pub mod teleop;
 pub mod vmc;
+pub mod vr_send;

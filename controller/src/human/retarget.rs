@@ -103,26 +103,6 @@ pub struct Retargeted {
     pub pair_errors: Vec<(String, f64, f64)>,
 }
 
-/// The lowest point of the bodies' colliding geoms (boxes and spheres) in `ik`'s current pose.
-fn lowest_sole(ik: &Ik) -> f64 {
-    let data = ik.data();
-    let model = data.model();
-    let mut lowest = f64::INFINITY;
-    for g in 0..model.ffi().ngeom as usize {
-        if model.geom_contype()[g] == 0 || model.geom_bodyid()[g] == 0 {
-            continue;
-        }
-        let (c, m, s) = (data.geom_xpos()[g], data.geom_xmat()[g], model.geom_size()[g]);
-        // Half extent along world z: Σ |R_zk| · size_k for a box; the radius for a sphere.
-        let extent = match model.geom_type()[g] as i32 {
-            6 => (0..3).map(|k| m[6 + k].abs() * s[k]).sum::<f64>(),
-            _ => s[0],
-        };
-        lowest = lowest.min(c[2] - extent);
-    }
-    lowest
-}
-
 /// Retargets `bvh` onto `robot`.
 pub fn retarget(robot: &Robot, bvh: &Bvh, options: &RetargetOptions) -> Result<Retargeted, String> {
     let config = robot.config.retarget.as_ref().ok_or_else(|| {
@@ -189,7 +169,7 @@ pub fn retarget(robot: &Robot, bvh: &Bvh, options: &RetargetOptions) -> Result<R
         })
         .collect();
     ik.set_pose([0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0], &q);
-    let drop = lowest_sole(&ik);
+    let drop = ik.lowest_point();
     ik.lift(-drop);
     let target: Vec<Frame> = (0..frames.len()).map(|k| ik.frame(k)).collect();
     // Position-only pairs (hands) carry their nominal offset in the pelvis' frame: the offset
@@ -277,7 +257,7 @@ pub fn retarget(robot: &Robot, bvh: &Bvh, options: &RetargetOptions) -> Result<R
             ik.set_pose(root, &q);
         }
         // Feet out of the floor: lift the whole robot by what its lowest sole sinks in.
-        let sink = lowest_sole(&ik);
+        let sink = ik.lowest_point();
         if sink < 0.0 {
             ik.lift(-sink);
         }
@@ -305,7 +285,7 @@ pub fn retarget(robot: &Robot, bvh: &Bvh, options: &RetargetOptions) -> Result<R
     // Smoothing may lower a sole a little: lift those frames back out of the floor.
     for (root, q) in out.root.iter_mut().zip(&out.q) {
         ik.set_pose(*root, q);
-        let sink = lowest_sole(&ik);
+        let sink = ik.lowest_point();
         if sink < 0.0 {
             root[2] -= sink;
         }
