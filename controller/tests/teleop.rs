@@ -373,3 +373,69 @@ fn a_recorded_vr_session_drives_the_robot_and_losing_it_blends_to_standby() {
         assert!((q - s).abs() < 0.1, "{} at {q:.3}, standby {s:.3}", j.name);
     }
 }
+
+#[test]
+fn an_independent_sender_python_osc_drives_teleop() {
+    let script = test_support::fixtures::workspace_root().join("controller/tests/python/vmc_send.py");
+    let python = test_support::fixtures::venv_python();
+    let run = teleoperate(4.0, TeleopOptions::default(), move |addr| {
+        let out = std::process::Command::new(python)
+            .arg(script)
+            .arg(addr.port().to_string())
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    });
+    let [packets, poses, malformed, oversized, range, ignored] = run.counters;
+    assert!(packets > 150 && poses == packets, "{:?}", run.counters);
+    assert_eq!((malformed, oversized, range, ignored), (0, 0, 0, 0));
+    let tracking = at(&run, Phase::Tracking).expect("the T-pose was taken");
+    let (user, _) = run.status.user.unwrap();
+    assert!((user.stature - 1.70).abs() < 0.05, "stature {}", user.stature);
+    // Reaching forward: the right shoulder pitches forward (negative), the left arm stays out.
+    let first = run.ticks[0].0;
+    let q = &run
+        .ticks
+        .iter()
+        .find(|(t, _)| (*t - first).as_secs_f64() > tracking + 2.2)
+        .unwrap()
+        .1;
+    let joint = |name: &str| {
+        run.robot
+            .config
+            .joints
+            .iter()
+            .position(|j| j.name == name)
+            .unwrap()
+    };
+    assert!(
+        q[joint("right_shoulder_pitch")] < -0.6,
+        "right shoulder pitch {}",
+        q[joint("right_shoulder_pitch")]
+    );
+    assert!(
+        q[joint("left_shoulder_roll")] > 1.2,
+        "left shoulder roll {}",
+        q[joint("left_shoulder_roll")]
+    );
+}
+
+#[test]
+fn the_cli_names_bad_input() {
+    let run = |args: &[&str]| {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_robodeploy"))
+            .args(args)
+            .output()
+            .unwrap();
+        (
+            o.status.success(),
+            String::from_utf8_lossy(&o.stderr).into_owned(),
+        )
+    };
+    let (ok, e) = run(&["vr", "send", "--bvh", "no/such.bvh"]);
+    assert!(!ok && e.contains("no/such.bvh"), "{e}");
+    let (ok, e) = run(&["teleop", "--listen", "127.0.0.1:0", "--blend=-1"]);
+    assert!(!ok && e.contains("--blend -1 is not a duration"), "{e}");
+    let (ok, e) = run(&["vr", "send", "--bvh", "x.bvh", "--to", "not-an-address"]);
+    assert!(!ok && e.contains("not-an-address"), "{e}");
+}
