@@ -73,6 +73,12 @@ def main() -> None:
     (args.out / "mlp_obs96_act20.io.json").write_text(json.dumps(reference_io(path, 96, seed=11)))
     print(f"wrote {path}")
 
+    # An untrained MLP with the sparse-input paper's observation size for rd-biped: tracker poses
+    # at t and t−1 (2 × 27), joint positions, velocities and last actions (3 × 20) → 114.
+    path = args.out / "sparse_input_obs114_act20.onnx"
+    onnx.save(mlp("sparse_input_obs114_act20", [114, 128, 64, 20], seed=13, input_name="obs", output_name="actions"), path)
+    print(f"wrote {path}")
+
 
 if __name__ == "__main__":
     main()

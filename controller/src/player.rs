@@ -393,6 +393,7 @@ pub struct Player<L: RobotLink> {
     live_source: Option<Instant>,
     live_used: Option<Instant>,
     live_latency: Histogram,
+    live_trackers: [f64; crate::policy::TRACKER_VALUES],
 }
 
 /// A reference computed live by another thread (teleoperation): the frame to track now, robot
@@ -407,6 +408,8 @@ pub struct LiveFrame {
     pub root: [f64; 7],
     /// Arrival of the newest input sample this frame used.
     pub source: Option<Instant>,
+    /// The input devices' poses, as the `tracker_poses` observation term wants them.
+    pub trackers: [f64; crate::policy::TRACKER_VALUES],
 }
 
 /// Why a run could not start or continue.
@@ -548,6 +551,7 @@ impl<L: RobotLink> Player<L> {
             live: None,
             live_source: None,
             live_used: None,
+            live_trackers: [0.0; crate::policy::TRACKER_VALUES],
             live_latency: Histogram::default(),
             telemetry: None,
             record: Box::default(),
@@ -992,6 +996,7 @@ impl<L: RobotLink> Player<L> {
             self.reference.q[..n].copy_from_slice(&frame.q);
             self.reference.qd[..n].copy_from_slice(&frame.qd);
             self.reference.root[0] = frame.root;
+            self.live_trackers = frame.trackers;
             // Latency counts to the first command that uses an input, not the ones after it.
             self.live_source = frame.source.filter(|s| Some(*s) != self.live_used);
         }
@@ -1059,6 +1064,7 @@ impl<L: RobotLink> Player<L> {
             ramp: psi,
             reference: &self.cursor,
             truth: has_truth.then_some(&self.truth),
+            trackers: self.live.is_some().then_some(&self.live_trackers),
         };
         self.obs_builder.build(&inputs, &mut self.obs);
         if !self.obs.iter().all(|x| x.is_finite()) {

@@ -98,6 +98,18 @@ pub enum Term {
         #[serde(flatten)]
         shaping: Shaping,
     },
+    /// VR tracker poses (the sparse-input policy's `o_user`): headset, left and right controller,
+    /// each position (3) and the first two columns of its rotation (6), in the robot's heading
+    /// frame at the map's scale; zeros for a missing device. Teleoperation only. With
+    /// `history = 2` the policy sees them at t and t − 1.
+    TrackerPoses {
+        /// Only the headset (9 values instead of 27).
+        #[serde(default)]
+        headset_only: bool,
+        /// Scaling.
+        #[serde(flatten)]
+        shaping: Shaping,
+    },
     /// Positions of the reference's bodies (forward kinematics of the robot model at the
     /// reference pose) relative to the reference root, in the reference's heading frame: 3 per
     /// body per frame.
@@ -180,7 +192,8 @@ impl Term {
             | Self::RefJointPos { shaping, .. }
             | Self::RefJointVel { shaping, .. }
             | Self::RefRootPose { shaping, .. }
-            | Self::RefBodyPos { shaping, .. } => shaping,
+            | Self::RefBodyPos { shaping, .. }
+            | Self::TrackerPoses { shaping, .. } => shaping,
         }
     }
 
@@ -205,6 +218,7 @@ impl Term {
             Self::RefJointVel { .. } => "ref_joint_vel",
             Self::RefRootPose { .. } => "ref_root_pose",
             Self::RefBodyPos { .. } => "ref_body_pos",
+            Self::TrackerPoses { .. } => "tracker_poses",
         }
     }
 
@@ -222,6 +236,13 @@ impl Term {
             Self::RefJointPos { frames, .. } | Self::RefJointVel { frames, .. } => joints * frames.len(),
             Self::RefRootPose { frames, .. } => 9 * frames.len(),
             Self::RefBodyPos { bodies, frames, .. } => 3 * bodies.len() * frames.len(),
+            Self::TrackerPoses { headset_only, .. } => {
+                if *headset_only {
+                    9
+                } else {
+                    TRACKER_VALUES
+                }
+            }
         }
     }
 
@@ -233,6 +254,9 @@ impl Term {
         )
     }
 }
+
+/// Values of the `tracker_poses` term for three devices.
+pub const TRACKER_VALUES: usize = 27;
 
 /// How actions become joint commands.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
@@ -705,6 +729,8 @@ pub struct ObsInputs<'a> {
     pub reference: &'a dyn ReferenceView,
     /// Simulation ground truth, when the policy asks for it.
     pub truth: Option<&'a GroundTruth>,
+    /// VR tracker poses (teleoperation), see [`Term::TrackerPoses`].
+    pub trackers: Option<&'a [f64; TRACKER_VALUES]>,
 }
 
 /// Reference frames the observation can look at.
@@ -798,6 +824,10 @@ fn fill_term(term: &Term, x: &ObsInputs<'_>, v: &mut [f64]) {
             }
         }
         Term::LastTargets(_) => v.copy_from_slice(x.last_targets),
+        Term::TrackerPoses { .. } => match x.trackers {
+            Some(t) => v.copy_from_slice(&t[..v.len()]),
+            None => v.fill(0.0),
+        },
         Term::FootContacts(_) => {
             for (o, c) in v
                 .iter_mut()

@@ -471,6 +471,7 @@ fn command_values_from_the_command_line_reach_the_observation() {
             ramp: 1.0,
             reference: &still,
             truth: None,
+            trackers: None,
         },
         &mut obs,
     );

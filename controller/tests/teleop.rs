@@ -28,6 +28,8 @@ struct Recording {
     inner: PacedLockstepClock,
     world: Arc<Mutex<Mirror>>,
     ticks: Vec<(Instant, Vec<f64>)>,
+    live: Arc<Mutex<controller::player::LiveFrame>>,
+    trackers: Vec<[f64; controller::policy::TRACKER_VALUES]>,
 }
 
 impl TickClock for Recording {
@@ -43,6 +45,8 @@ impl TickClock for Recording {
             .joint_positions()
             .collect();
         self.ticks.push((Instant::now(), q));
+        self.trackers
+            .push(self.live.lock().unwrap_or_else(PoisonError::into_inner).trackers);
         late
     }
     fn ground_truth(&self, truth: &mut GroundTruth) -> bool {
@@ -51,6 +55,7 @@ impl TickClock for Recording {
 }
 
 struct Run {
+    trackers: Vec<[f64; controller::policy::TRACKER_VALUES]>,
     summary: PlaySummary,
     status: TeleopStatus,
     counters: [u64; 6],
@@ -58,14 +63,22 @@ struct Run {
     robot: Robot,
 }
 
-/// Teleoperates the mirror for `seconds` while `feed` sends to the receiver's address.
+/// Teleoperates the mirror for `seconds` with the reference follower while `feed` sends to the
+/// receiver's address.
 fn teleoperate(seconds: f64, options: TeleopOptions, feed: impl FnOnce(SocketAddr) + Send + 'static) -> Run {
+    let follower = robots::reference_robot_path().with_file_name("policies/reference_follower.toml");
+    teleoperate_with(&follower, seconds, options, feed)
+}
+
+/// The same with the policy at `policy`.
+fn teleoperate_with(
+    policy: &std::path::Path,
+    seconds: f64,
+    options: TeleopOptions,
+    feed: impl FnOnce(SocketAddr) + Send + 'static,
+) -> Run {
     let robot = Robot::load(&robots::reference_robot_path()).unwrap();
-    let mut layout = PolicyLayout::load(
-        &robots::reference_robot_path().with_file_name("policies/reference_follower.toml"),
-        &robot,
-    )
-    .unwrap();
+    let mut layout = PolicyLayout::load(policy, &robot).unwrap();
     let model = controller::onnx::OnnxModel::load(&layout.onnx_path).unwrap();
     layout.bind_model(model.inputs(), model.output().1).unwrap();
     let receiver = VmcReceiver::start("127.0.0.1:0".parse().unwrap(), Serials::default()).unwrap();
@@ -102,10 +115,13 @@ fn teleoperate(seconds: f64, options: TeleopOptions, feed: impl FnOnce(SocketAdd
         inner: PacedLockstepClock::new(Arc::clone(&world)),
         world,
         ticks: Vec::new(),
+        live: Arc::clone(&teleop.frame),
+        trackers: Vec::new(),
     };
     let summary = player.run(&mut clock).unwrap();
     feeder.join().unwrap();
     Run {
+        trackers: clock.trackers,
         summary,
         status: teleop.status(),
         counters: receiver.counters.snapshot(),
@@ -438,4 +454,121 @@ fn the_cli_names_bad_input() {
     assert!(!ok && e.contains("--blend -1 is not a duration"), "{e}");
     let (ok, e) = run(&["vr", "send", "--bvh", "x.bvh", "--to", "not-an-address"]);
     assert!(!ok && e.contains("not-an-address"), "{e}");
+}
+
+#[test]
+fn a_sparse_input_policy_sees_the_trackers_at_t_and_t_minus_one() {
+    let robot = Robot::load(&robots::reference_robot_path()).unwrap();
+    let dir = std::env::temp_dir().join(format!("sparse-policy-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let names: Vec<String> = robot
+        .config
+        .joints
+        .iter()
+        .map(|j| format!("{:?}", j.name))
+        .collect();
+    let manifest = format!(
+        "description = \"untrained MLP with the sparse-input observation (plumbing fixture)\"\n\
+         onnx = {:?}\nrate_hz = 50.0\njoints = [{}]\n\
+         [action]\nkind = \"position\"\nscale = 0.01\n\
+         [[observation]]\nterm = \"tracker_poses\"\nhistory = 2\n\
+         [[observation]]\nterm = \"joint_pos\"\nrelative = true\n\
+         [[observation]]\nterm = \"joint_vel\"\n\
+         [[observation]]\nterm = \"last_actions\"\nk = 1\n",
+        test_support::fixtures::fixture("sparse_input_obs114_act20.onnx")
+            .display()
+            .to_string(),
+        names.join(", ")
+    );
+    let path = dir.join("sparse.toml");
+    std::fs::write(&path, manifest).unwrap();
+    let layout = PolicyLayout::load(&path, &robot).unwrap();
+    assert_eq!(layout.obs_len, 114);
+
+    // The observation stacks the newest tracker poses first, then the previous tick's.
+    let mut builder = controller::policy::ObservationBuilder::new(&layout);
+    let zeros = vec![0.0; 20];
+    let past = vec![0.0f32; 20];
+    #[derive(Debug)]
+    struct Still(Vec<f64>);
+    impl controller::policy::ReferenceView for Still {
+        fn joint_pos(&self, _: usize) -> &[f64] {
+            &self.0
+        }
+        fn joint_vel(&self, _: usize) -> &[f64] {
+            &self.0
+        }
+        fn root_pose(&self, _: usize) -> [f64; 7] {
+            [0.0, 0.0, 0.5, 1.0, 0.0, 0.0, 0.0]
+        }
+        fn body_pos(&self, _: usize) -> &[f64] {
+            &[]
+        }
+    }
+    let still = Still(zeros.clone());
+    let mut obs = vec![0.0f32; 114];
+    for k in 0..2 {
+        let trackers: [f64; 27] = std::array::from_fn(|i| (10 * k + i) as f64 * 0.01);
+        builder.build(
+            &controller::policy::ObsInputs {
+                gyro: [0.0; 3],
+                accel: [0.0; 3],
+                quat: [1.0, 0.0, 0.0, 0.0],
+                q: &zeros,
+                qd: &zeros,
+                default_q: &zeros,
+                past_actions: &past,
+                last_targets: &zeros,
+                time_s: 0.0,
+                ramp: 1.0,
+                reference: &still,
+                truth: None,
+                trackers: Some(&trackers),
+            },
+            &mut obs,
+        );
+    }
+    assert!(
+        (obs[0] - 0.10).abs() < 1e-6 && (obs[27] - 0.0).abs() < 1e-6,
+        "{:?}",
+        &obs[..30]
+    );
+    assert!((obs[26] - 0.36).abs() < 1e-6 && (obs[53] - 0.26).abs() < 1e-6);
+
+    // Live: python-osc's user drives teleop with this policy; the frame carries the devices in the
+    // heading frame at the map's scale (identity rotations: columns x and y).
+    let script = test_support::fixtures::workspace_root().join("controller/tests/python/vmc_send.py");
+    let python = test_support::fixtures::venv_python();
+    let run = teleoperate_with(&path, 4.0, TeleopOptions::default(), move |addr| {
+        let out = std::process::Command::new(python)
+            .arg(script)
+            .arg(addr.port().to_string())
+            .output()
+            .unwrap();
+        assert!(out.status.success());
+    });
+    let scale = run.status.map.as_ref().unwrap().scale;
+    // Two seconds into tracking the reach is done.
+    let tracking = at(&run, Phase::Tracking).unwrap();
+    let first = run.ticks[0].0;
+    let k = run
+        .ticks
+        .iter()
+        .position(|(t, _)| (*t - first).as_secs_f64() > tracking + 1.9)
+        .unwrap();
+    let t = run.trackers[k];
+    assert!((t[2] - scale * 1.59).abs() < 0.02, "headset {:?}", &t[..9]);
+    assert!(
+        (t[3] - 1.0).abs() < 0.05 && (t[7] - 1.0).abs() < 0.05,
+        "headset axes {:?}",
+        &t[..9]
+    );
+    // The right controller ended straight ahead (Unity z 0.55 → robot x), a little right.
+    assert!(
+        (t[18] - scale * 0.55).abs() < 0.03 && (t[19] + scale * 0.20).abs() < 0.03,
+        "right {:?}",
+        &t[18..27]
+    );
+    assert!(run.summary.ticks > 150 && !run.summary.fell);
+    std::fs::remove_dir_all(&dir).unwrap();
 }

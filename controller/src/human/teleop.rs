@@ -20,6 +20,7 @@ use robots::{HumanBody, Robot};
 use super::ik::{Ik, IkGoal};
 use super::vmc::{Device, Estimate, Resampler, Tracks, VmcReceiver};
 use crate::player::LiveFrame;
+use crate::policy::TRACKER_VALUES;
 
 /// How teleoperation runs.
 #[derive(Debug, Clone, PartialEq)]
@@ -236,6 +237,7 @@ impl Teleop {
             qd: vec![0.0; standby.len()],
             root,
             source: None,
+            trackers: [0.0; TRACKER_VALUES],
         }));
         let status = Arc::new(Mutex::new(TeleopStatus {
             phase: Phase::WaitingForTpose,
@@ -394,8 +396,34 @@ impl Worker {
             }
             Phase::Standby => (self.standby.clone(), None),
         };
+        let trackers = self.tracker_values(&frames);
         self.publish(q, source, now, frame);
+        frame.lock().unwrap_or_else(PoisonError::into_inner).trackers = trackers;
         status.lock().unwrap_or_else(PoisonError::into_inner).updates += 1;
+    }
+
+    /// The devices as the sparse-input observation wants them: in the user's heading frame (origin
+    /// on the floor under the headset), at the map's scale, position and the rotation's first two
+    /// columns; zeros for a missing device or before the T-pose.
+    fn tracker_values(&self, devices: &[Option<Frame>; 3]) -> [f64; TRACKER_VALUES] {
+        let mut out = [0.0; TRACKER_VALUES];
+        let (Some((_, heading)), Some(map), Some(hmd)) = (&self.user, &self.map, devices[0]) else {
+            return out;
+        };
+        let turn = so3::yaw(-heading);
+        for (k, d) in devices.iter().enumerate() {
+            let Some(d) = d else { continue };
+            let rel = [d.pos[0] - hmd.pos[0], d.pos[1] - hmd.pos[1], d.pos[2]];
+            let p = so3::scale(so3::apply(&turn, rel), map.scale);
+            let r = so3::mul(&turn, &d.rot);
+            let v = &mut out[9 * k..9 * k + 9];
+            v[..3].copy_from_slice(&p);
+            for row in 0..3 {
+                v[3 + row] = r[row][0];
+                v[6 + row] = r[row][1];
+            }
+        }
+        out
     }
 
     /// Averages the T-pose samples, calibrates the user and builds the map.
