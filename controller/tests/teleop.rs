@@ -572,3 +572,53 @@ fn a_sparse_input_policy_sees_the_trackers_at_t_and_t_minus_one() {
     assert!(run.summary.ticks > 150 && !run.summary.fell);
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn headset_only_turns_the_head_and_keeps_the_arms_at_standby() {
+    let script = test_support::fixtures::workspace_root().join("controller/tests/python/vmc_send.py");
+    let python = test_support::fixtures::venv_python();
+    let options = TeleopOptions {
+        headset_only: true,
+        ..TeleopOptions::default()
+    };
+    let run = teleoperate(3.0, options, move |addr| {
+        let out = std::process::Command::new(python)
+            .arg(script)
+            .arg(addr.port().to_string())
+            .arg("headset-only")
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    });
+    let tracking = at(&run, Phase::Tracking).expect("a headset alone calibrates");
+    let first = run.ticks[0].0;
+    let q = &run
+        .ticks
+        .iter()
+        .find(|(t, _)| (*t - first).as_secs_f64() > tracking + 1.6)
+        .unwrap()
+        .1;
+    let joint = |name: &str| {
+        run.robot
+            .config
+            .joints
+            .iter()
+            .position(|j| j.name == name)
+            .unwrap()
+    };
+    // The head follows the headset's turn (the policy's speed limit lags it a little).
+    let yaw = run.ticks.iter().map(|(_, q)| q[joint("head_yaw")]).fold(f64::MIN, f64::max);
+    assert!((yaw - 30f64.to_radians()).abs() < 0.08, "head yaw {yaw}");
+    for (k, j) in run
+        .robot
+        .config
+        .joints
+        .iter()
+        .enumerate()
+        .filter(|(_, j)| j.name.contains("shoulder") || j.name.contains("elbow"))
+    {
+        assert!((q[k] - j.default_position).abs() < 0.1, "{} at {}", j.name, q[k]);
+    }
+    // Controllers never sent: no hand in the observation either.
+    assert!(run.trackers.iter().all(|t| t[9..].iter().all(|v| *v == 0.0)));
+}
