@@ -607,7 +607,11 @@ fn headset_only_turns_the_head_and_keeps_the_arms_at_standby() {
             .unwrap()
     };
     // The head follows the headset's turn (the policy's speed limit lags it a little).
-    let yaw = run.ticks.iter().map(|(_, q)| q[joint("head_yaw")]).fold(f64::MIN, f64::max);
+    let yaw = run
+        .ticks
+        .iter()
+        .map(|(_, q)| q[joint("head_yaw")])
+        .fold(f64::MIN, f64::max);
     assert!((yaw - 30f64.to_radians()).abs() < 0.08, "head yaw {yaw}");
     for (k, j) in run
         .robot

@@ -163,6 +163,31 @@ pub struct BodyPair {
     /// Orientation tuning, rotation vector, rad (|p_ori| ≤ 0.5).
     #[serde(default)]
     pub p_ori: [f64; 3],
+    /// Which part of the orientation error counts, for frames with fewer rotational DoF than
+    /// the human body: all of it, only the swing (twist about `twist_axis` ignored), or only the
+    /// twist.
+    #[serde(default)]
+    pub orientation_compare: OrientationCompare,
+    /// The twist axis in the robot frame's own coordinates.
+    #[serde(default = "x_axis")]
+    pub twist_axis: [f64; 3],
+}
+
+fn x_axis() -> [f64; 3] {
+    [1.0, 0.0, 0.0]
+}
+
+/// Which part of an orientation error inverse kinematics compares (swing–twist decomposition).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum OrientationCompare {
+    /// The whole rotation.
+    #[default]
+    Full,
+    /// Everything but the twist about the axis.
+    Swing,
+    /// Only the twist about the axis.
+    Twist,
 }
 
 /// How human motion maps onto the robot.
@@ -331,6 +356,12 @@ impl Robot {
                 return Err((at.clone(), "weights must be ≥ 0 and not both 0".to_owned()));
             }
             let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            if !(norm(p.twist_axis) > 1e-6) {
+                return Err((
+                    format!("{at}.twist_axis"),
+                    format!("{:?} is not a direction", p.twist_axis),
+                ));
+            }
             if norm(p.p_pos) > 0.5 || norm(p.p_ori) > 0.5 {
                 return Err((at.clone(), "|p_pos| and |p_ori| must be ≤ 0.5".to_owned()));
             }

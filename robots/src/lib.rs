@@ -10,8 +10,8 @@ pub mod drivers;
 pub mod mjcf;
 
 pub use config::{
-    BodyPair, BusConfig, BusKind, HumanBody, ImuConfig, JointConfig, RetargetConfig, Robot, RobotConfig,
-    RobotError,
+    BodyPair, BusConfig, BusKind, HumanBody, ImuConfig, JointConfig, OrientationCompare, RetargetConfig,
+    Robot, RobotConfig, RobotError,
 };
 
 /// The reference robot shipped with the project: `robots/biped/robot.toml`.

@@ -6,7 +6,7 @@ use calibration::human::Frame;
 use calibration::so3;
 use mujoco_rs::prelude::{MjData, MjModel};
 use mujoco_rs::wrappers::mj_model::MjtObjBase;
-use robots::Robot;
+use robots::{OrientationCompare, Robot};
 
 /// Where a frame is on the model.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -41,6 +41,7 @@ pub struct Ik {
     root: Option<(usize, usize)>,
     joints: Vec<Slot>,
     active: Vec<bool>,
+    compare: Vec<(OrientationCompare, [f64; 3])>,
     /// Damping λ of the least squares.
     pub damping: f64,
     /// Largest joint step per iteration, rad.
@@ -114,6 +115,7 @@ impl Ik {
             root,
             joints,
             active,
+            compare: vec![(OrientationCompare::Full, [1.0, 0.0, 0.0]); rows / 6],
             damping: 0.05,
             max_step: 0.2,
             jac: vec![0.0; rows * nv],
@@ -151,6 +153,13 @@ impl Ik {
         all.sort_unstable();
         all.dedup();
         all
+    }
+
+    /// Compares only part of frame `k`'s orientation error: the swing (ignoring the twist about
+    /// `axis`, in the frame's coordinates) or the twist — for robot frames with fewer rotational
+    /// DoF than the human body they follow.
+    pub fn set_compare(&mut self, k: usize, mode: OrientationCompare, axis: [f64; 3]) {
+        self.compare[k] = (mode, so3::unit(axis));
     }
 
     /// Sets the root pose `[x, y, z, w, qx, qy, qz]` and the joints (policy order).
@@ -257,14 +266,34 @@ impl Ik {
                 let (jp, jr) = self.data.jac(true, true, &now.pos, body);
                 let rows = 6 * k;
                 let e_pos = so3::sub(g.frame.pos, now.pos);
-                let e_rot = so3::log(&so3::mul(&g.frame.rot, &so3::transpose(&now.rot)));
+                let mut e_rot = so3::log(&so3::mul(&g.frame.rot, &so3::transpose(&now.rot)));
+                // Swing or twist only: project error and Jacobian on (or off) the twist axis.
+                let project: Option<[[f64; 3]; 3]> = match self.compare[k] {
+                    (OrientationCompare::Full, _) => None,
+                    (mode, axis) => {
+                        let a = so3::apply(&now.rot, axis);
+                        let along = [0, 1, 2].map(|i| [0, 1, 2].map(|j| a[i] * a[j]));
+                        Some(match mode {
+                            OrientationCompare::Twist => along,
+                            _ => [0, 1, 2]
+                                .map(|i| [0, 1, 2].map(|j| f64::from(u8::from(i == j)) - along[i][j])),
+                        })
+                    }
+                };
+                if let Some(p) = &project {
+                    e_rot = so3::apply(p, e_rot);
+                }
                 for i in 0..3 {
                     self.err[rows + i] = g.position_weight * e_pos[i];
                     self.err[rows + 3 + i] = g.orientation_weight * e_rot[i];
                     for c in 0..nv {
                         if self.active[c] {
                             self.jac[(rows + i) * nv + c] = g.position_weight * jp[i * nv + c];
-                            self.jac[(rows + 3 + i) * nv + c] = g.orientation_weight * jr[i * nv + c];
+                            let r = match &project {
+                                Some(p) => (0..3).map(|m| p[i][m] * jr[m * nv + c]).sum(),
+                                None => jr[i * nv + c],
+                            };
+                            self.jac[(rows + 3 + i) * nv + c] = g.orientation_weight * r;
                         }
                     }
                 }
@@ -339,6 +368,46 @@ fn cholesky_solve(a: &mut [f64], n: usize, b: &mut [f64]) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn swing_only_ignores_the_twist_the_head_cannot_make() {
+        let robot = Robot::load(&robots::reference_robot_path()).unwrap();
+        let mut ik = Ik::new(&robot, &["head".to_owned()], false, &[]).unwrap();
+        let q0: Vec<f64> = robot.config.joints.iter().map(|j| j.default_position).collect();
+        ik.set_pose([0.0, 0.0, 0.46, 1.0, 0.0, 0.0, 0.0], &q0);
+        ik.set_compare(0, OrientationCompare::Swing, [1.0, 0.0, 0.0]);
+        let goal = |rot| IkGoal {
+            frame: Frame { pos: [0.0; 3], rot },
+            position_weight: 0.0,
+            orientation_weight: 1.0,
+        };
+        // A pure roll (twist about the face's forward axis): nothing to do, nothing moves.
+        let residual = ik.solve(&[goal(so3::exp([0.4, 0.0, 0.0]))], 20);
+        assert!(residual < 1e-9, "{residual}");
+        let mut q = q0.clone();
+        ik.joints(&mut q);
+        assert_eq!(q, q0);
+        // Roll plus a turn to the left: the yaw is followed, the roll ignored.
+        let residual = ik.solve(
+            &[goal(so3::mul(
+                &so3::exp([0.0, 0.0, 0.5]),
+                &so3::exp([0.4, 0.0, 0.0]),
+            ))],
+            50,
+        );
+        ik.joints(&mut q);
+        let yaw = robot
+            .config
+            .joints
+            .iter()
+            .position(|j| j.name == "head_yaw")
+            .unwrap();
+        assert!(
+            (q[yaw] - 0.5).abs() < 0.02 && residual < 1e-3,
+            "yaw {} residual {residual}",
+            q[yaw]
+        );
+    }
 
     #[test]
     fn cholesky_solves_a_small_system() {

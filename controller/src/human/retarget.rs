@@ -159,6 +159,9 @@ pub fn retarget(robot: &Robot, bvh: &Bvh, options: &RetargetOptions) -> Result<R
     // The robot in its nominal pose, soles on the floor.
     let frames: Vec<String> = config.pairs.iter().map(|p| p.frame.clone()).collect();
     let mut ik = Ik::new(robot, &frames, true, &[])?;
+    for (k, p) in config.pairs.iter().enumerate() {
+        ik.set_compare(k, p.orientation_compare, p.twist_axis);
+    }
     let mut q: Vec<f64> = robot
         .config
         .joints

@@ -186,6 +186,9 @@ impl Teleop {
             .filter(|j| !movers.contains(j))
             .collect();
         let mut ik = Ik::new(robot, &frames, false, &locked)?;
+        for (k, p) in pairs.iter().enumerate() {
+            ik.set_compare(k, p.orientation_compare, p.twist_axis);
+        }
         let standby: Vec<f64> = robot.config.joints.iter().map(|j| j.default_position).collect();
         let root = ik.standing_root(&standby);
         let tpose_q: Vec<f64> = robot
