@@ -356,7 +356,7 @@ impl Robot {
                 return Err((at.clone(), "weights must be ≥ 0 and not both 0".to_owned()));
             }
             let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-            if !(norm(p.twist_axis) > 1e-6) {
+            if norm(p.twist_axis).is_nan() || norm(p.twist_axis) <= 1e-6 {
                 return Err((
                     format!("{at}.twist_axis"),
                     format!("{:?} is not a direction", p.twist_axis),
