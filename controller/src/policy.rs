@@ -885,36 +885,15 @@ pub fn projected_gravity(q: [f64; 4]) -> [f64; 3] {
     ]
 }
 
-fn quat_to_matrix(q: [f64; 4]) -> [[f64; 3]; 3] {
-    let [w, x, y, z] = q;
-    [
-        [
-            1.0 - 2.0 * (y * y + z * z),
-            2.0 * (x * y - w * z),
-            2.0 * (x * z + w * y),
-        ],
-        [
-            2.0 * (x * y + w * z),
-            1.0 - 2.0 * (x * x + z * z),
-            2.0 * (y * z - w * x),
-        ],
-        [
-            2.0 * (x * z - w * y),
-            2.0 * (y * z + w * x),
-            1.0 - 2.0 * (x * x + y * y),
-        ],
-    ]
-}
-
 /// Target pose relative to the robot, expressed in the robot's heading frame (yaw only):
 /// position (3) and the first two columns of the relative rotation (6).
 pub fn relative_pose_in_heading(robot: [f64; 7], target: [f64; 7]) -> [f64; 9] {
-    let rr = quat_to_matrix([robot[3], robot[4], robot[5], robot[6]]);
+    let rr = calibration::so3::mat_of_quat([robot[3], robot[4], robot[5], robot[6]]);
     let yaw = rr[1][0].atan2(rr[0][0]);
     let (c, s) = (yaw.cos(), yaw.sin());
     let d = [target[0] - robot[0], target[1] - robot[1], target[2] - robot[2]];
     let p = [c * d[0] + s * d[1], -s * d[0] + c * d[1], d[2]];
-    let rt = quat_to_matrix([target[3], target[4], target[5], target[6]]);
+    let rt = calibration::so3::mat_of_quat([target[3], target[4], target[5], target[6]]);
     // R_rel = R_robotᵀ R_target.
     let mut rel = [[0.0; 3]; 3];
     for (i, row) in rel.iter_mut().enumerate() {

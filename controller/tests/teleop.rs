@@ -135,6 +135,21 @@ fn mocap() -> Bvh {
         .unwrap()
 }
 
+/// A feed that runs the python-osc sender (`controller/tests/python/vmc_send.py`) at the address.
+fn python_osc(mode: Option<&'static str>) -> impl FnOnce(SocketAddr) + Send + 'static {
+    let script = test_support::fixtures::workspace_root().join("controller/tests/python/vmc_send.py");
+    let python = test_support::fixtures::venv_python();
+    move |addr| {
+        let out = std::process::Command::new(python)
+            .arg(script)
+            .arg(addr.port().to_string())
+            .args(mode)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    }
+}
+
 fn at(run: &Run, phase: Phase) -> Option<f64> {
     run.status
         .changes
@@ -392,16 +407,7 @@ fn a_recorded_vr_session_drives_the_robot_and_losing_it_blends_to_standby() {
 
 #[test]
 fn an_independent_sender_python_osc_drives_teleop() {
-    let script = test_support::fixtures::workspace_root().join("controller/tests/python/vmc_send.py");
-    let python = test_support::fixtures::venv_python();
-    let run = teleoperate(4.0, TeleopOptions::default(), move |addr| {
-        let out = std::process::Command::new(python)
-            .arg(script)
-            .arg(addr.port().to_string())
-            .output()
-            .unwrap();
-        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    });
+    let run = teleoperate(4.0, TeleopOptions::default(), python_osc(None));
     let [packets, poses, malformed, oversized, range, ignored] = run.counters;
     assert!(packets > 150 && poses == packets, "{:?}", run.counters);
     assert_eq!((malformed, oversized, range, ignored), (0, 0, 0, 0));
@@ -537,16 +543,7 @@ fn a_sparse_input_policy_sees_the_trackers_at_t_and_t_minus_one() {
 
     // Live: python-osc's user drives teleop with this policy; the frame carries the devices in the
     // heading frame at the map's scale (identity rotations: columns x and y).
-    let script = test_support::fixtures::workspace_root().join("controller/tests/python/vmc_send.py");
-    let python = test_support::fixtures::venv_python();
-    let run = teleoperate_with(&path, 4.0, TeleopOptions::default(), move |addr| {
-        let out = std::process::Command::new(python)
-            .arg(script)
-            .arg(addr.port().to_string())
-            .output()
-            .unwrap();
-        assert!(out.status.success());
-    });
+    let run = teleoperate_with(&path, 4.0, TeleopOptions::default(), python_osc(None));
     let scale = run.status.map.as_ref().unwrap().scale;
     // Two seconds into tracking the reach is done.
     let tracking = at(&run, Phase::Tracking).unwrap();
@@ -575,21 +572,11 @@ fn a_sparse_input_policy_sees_the_trackers_at_t_and_t_minus_one() {
 
 #[test]
 fn headset_only_turns_the_head_and_keeps_the_arms_at_standby() {
-    let script = test_support::fixtures::workspace_root().join("controller/tests/python/vmc_send.py");
-    let python = test_support::fixtures::venv_python();
     let options = TeleopOptions {
         headset_only: true,
         ..TeleopOptions::default()
     };
-    let run = teleoperate(3.0, options, move |addr| {
-        let out = std::process::Command::new(python)
-            .arg(script)
-            .arg(addr.port().to_string())
-            .arg("headset-only")
-            .output()
-            .unwrap();
-        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    });
+    let run = teleoperate(3.0, options, python_osc(Some("headset-only")));
     let tracking = at(&run, Phase::Tracking).expect("a headset alone calibrates");
     let first = run.ticks[0].0;
     let q = &run
