@@ -224,14 +224,13 @@ fn print_against_truth(robot: &Robot, config: &MirrorConfig, outcome: &Outcome) 
         };
         let truth = config.hardware.joints.get(&j.name);
         // Without an entry the machine is as described (a Dynamixel zero counts its Homing Offset).
-        let described = j.zero_offset - f64::from(j.homing_offset_ticks) * per_tick;
+        let described = robots::calibration::physical_zero(j.zero_offset, j.homing_offset_ticks);
         let (dir, zero) = truth.map_or((j.direction, described), |t| (t.direction, t.zero_offset));
         let c = r.calibration;
         flipped += usize::from(c.direction != dir);
         match robot.bus(&j.bus).map(|b| b.kind) {
             Some(BusKind::Dynamixel) => {
-                let ticks =
-                    ((c.zero_offset - f64::from(c.homing_offset_ticks) * per_tick - zero) / per_tick).abs();
+                let ticks = ((c.physical_zero() - zero) / per_tick).abs();
                 worst[0] = worst[0].max(ticks);
             }
             _ => worst[1] = worst[1].max((c.zero_offset - zero).abs()),

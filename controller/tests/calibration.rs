@@ -142,8 +142,7 @@ fn hidden_offsets_directions_and_imu_mounting_are_recovered_and_verified() {
         assert_eq!(c.direction, t.direction, "{}", j.name);
         if robot.bus(&j.bus).unwrap().kind == BusKind::Dynamixel {
             // The servo reads zero_ticks at joint zero once the Homing Offset is programmed.
-            let ticks =
-                (c.zero_offset - f64::from(c.homing_offset_ticks) * per_tick - t.zero_offset) / per_tick;
+            let ticks = (c.physical_zero() - t.zero_offset) / per_tick;
             assert!(ticks.abs() <= 2.0, "{}: {ticks:.2} ticks off", j.name);
             // The wrap point is outside the joint's range (with the margin).
             let range = robot
@@ -393,8 +392,7 @@ fn the_stop_method_finds_zeros_and_directions_within_its_torque_and_speed_caps()
         let c = r.calibration;
         assert_eq!(c.direction, t.direction, "{}", j.name);
         if robot.bus(&j.bus).unwrap().kind == BusKind::Dynamixel {
-            let ticks =
-                (c.zero_offset - f64::from(c.homing_offset_ticks) * per_tick - t.zero_offset) / per_tick;
+            let ticks = (c.physical_zero() - t.zero_offset) / per_tick;
             assert!(ticks.abs() <= 2.0, "{}: {ticks:.2} ticks off", j.name);
         } else {
             assert!((c.zero_offset - t.zero_offset).abs() <= 0.005, "{}", j.name);

@@ -150,6 +150,20 @@ fn python_osc(mode: Option<&'static str>) -> impl FnOnce(SocketAddr) + Send + 's
     }
 }
 
+/// The true joint angles of the first tick later than `seconds` into the run.
+fn tick_after(run: &Run, seconds: f64) -> &Vec<f64> {
+    let first = run.ticks[0].0;
+    &run.ticks
+        .iter()
+        .find(|(t, _)| (*t - first).as_secs_f64() > seconds)
+        .unwrap()
+        .1
+}
+
+fn joint_index(robot: &Robot, name: &str) -> usize {
+    robot.config.joints.iter().position(|j| j.name == name).unwrap()
+}
+
 fn at(run: &Run, phase: Phase) -> Option<f64> {
     run.status
         .changes
@@ -415,21 +429,8 @@ fn an_independent_sender_python_osc_drives_teleop() {
     let (user, _) = run.status.user.unwrap();
     assert!((user.stature - 1.70).abs() < 0.05, "stature {}", user.stature);
     // Reaching forward: the right shoulder pitches forward (negative), the left arm stays out.
-    let first = run.ticks[0].0;
-    let q = &run
-        .ticks
-        .iter()
-        .find(|(t, _)| (*t - first).as_secs_f64() > tracking + 2.2)
-        .unwrap()
-        .1;
-    let joint = |name: &str| {
-        run.robot
-            .config
-            .joints
-            .iter()
-            .position(|j| j.name == name)
-            .unwrap()
-    };
+    let q = tick_after(&run, tracking + 2.2);
+    let joint = |name: &str| joint_index(&run.robot, name);
     assert!(
         q[joint("right_shoulder_pitch")] < -0.6,
         "right shoulder pitch {}",
@@ -578,21 +579,8 @@ fn headset_only_turns_the_head_and_keeps_the_arms_at_standby() {
     };
     let run = teleoperate(3.0, options, python_osc(Some("headset-only")));
     let tracking = at(&run, Phase::Tracking).expect("a headset alone calibrates");
-    let first = run.ticks[0].0;
-    let q = &run
-        .ticks
-        .iter()
-        .find(|(t, _)| (*t - first).as_secs_f64() > tracking + 1.6)
-        .unwrap()
-        .1;
-    let joint = |name: &str| {
-        run.robot
-            .config
-            .joints
-            .iter()
-            .position(|j| j.name == name)
-            .unwrap()
-    };
+    let q = tick_after(&run, tracking + 1.6);
+    let joint = |name: &str| joint_index(&run.robot, name);
     // The head follows the headset's turn (the policy's speed limit lags it a little).
     let yaw = run
         .ticks

@@ -19,6 +19,19 @@ pub struct JointCalibration {
     pub homing_offset_ticks: i32,
 }
 
+impl JointCalibration {
+    /// The actuator's physical angle at joint zero, rad: the zero with the Homing Offset (which
+    /// only shifts what a Dynamixel reports) taken out.
+    pub fn physical_zero(&self) -> f64 {
+        physical_zero(self.zero_offset, self.homing_offset_ticks)
+    }
+}
+
+/// `zero_offset` with a Dynamixel Homing Offset of `homing_ticks` taken out, rad.
+pub fn physical_zero(zero_offset: f64, homing_ticks: i32) -> f64 {
+    zero_offset - f64::from(homing_ticks) * firmware_bridge::dxl::models::rad_per_tick()
+}
+
 /// The IMU's measured mounting and bias.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields)]

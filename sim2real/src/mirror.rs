@@ -210,7 +210,7 @@ impl Mirror {
                 // A description's Dynamixel zero counts the Homing Offset the driver programs;
                 // the horn's physical angle does not.
                 zero_offset: truth.map_or(
-                    j.zero_offset - f64::from(j.homing_offset_ticks) * dxl::models::rad_per_tick(),
+                    robots::calibration::physical_zero(j.zero_offset, j.homing_offset_ticks),
                     |t| t.zero_offset,
                 ),
                 strength: draw(rnd.strength_scale),
