@@ -3,16 +3,15 @@
 //! that moves to the default pose within low torque and speed limits. Results go to
 //! `calibration.toml` beside robot.toml (the previous file is kept), which loading a robot merges.
 //!
-//! The procedure talks to a [`rig::Rig`] (the controller provides one over the real bus drivers, on
-//! hardware or on the mirror) and to an [`operator::Operator`] (a console on hardware; in the
-//! mirror, [`operator::MirrorHands`] clamps the simulated jig and tilts the simulated stand).
+//! The procedure talks to a [`rig::Rig`] (the robot link and its tick clock: the real bus drivers,
+//! on hardware or on the mirror) and to an [`operator::Operator`] (a console on hardware; in the
+//! mirror, `sim2real`'s hands clamp the simulated jig and tilt the simulated stand).
 
-pub mod human;
 pub mod log;
 pub mod operator;
 pub mod procedure;
 pub mod rig;
-pub mod so3;
+pub mod run;
 pub mod solve;
 pub mod stops;
 pub mod verify;

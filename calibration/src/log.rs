@@ -4,7 +4,9 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
-use crate::rig::{Sample, Target};
+use std::time::Duration;
+
+use robot_link::{JointTarget, RobotState};
 
 /// The motion limits of a calibration, per joint in the rig's units.
 #[derive(Debug, Clone, PartialEq)]
@@ -22,7 +24,7 @@ struct Row {
     step: &'static str,
     q: Vec<f64>,
     qd: Vec<f64>,
-    targets: Option<Vec<Target>>,
+    targets: Option<Vec<JointTarget>>,
 }
 
 /// The ticks of a calibration.
@@ -42,13 +44,19 @@ impl CommandLog {
     }
 
     /// Records a tick: the state the command was computed from, and the command (`None`: limp).
-    pub fn record(&mut self, step: &'static str, state: &Sample, targets: Option<&[Target]>) {
+    pub fn record(
+        &mut self,
+        step: &'static str,
+        t: Duration,
+        state: &RobotState,
+        targets: Option<&[JointTarget]>,
+    ) {
         self.rows.push(Row {
-            t: state.t.as_secs_f64(),
+            t: t.as_secs_f64(),
             step,
             q: state.q.clone(),
             qd: state.qd.clone(),
-            targets: targets.map(<[Target]>::to_vec),
+            targets: targets.map(<[JointTarget]>::to_vec),
         });
     }
 
@@ -65,7 +73,7 @@ impl CommandLog {
     /// The first command beyond `limits`, if any: the torque its PD law asks for on the state it
     /// was computed from, and the speed of its target against the previous one.
     pub fn check(&self, limits: &MotionLimits, period: f64) -> Result<(), String> {
-        let mut previous: Option<&[Target]> = None;
+        let mut previous: Option<&[JointTarget]> = None;
         for row in &self.rows {
             let Some(targets) = &row.targets else {
                 previous = None;
@@ -123,8 +131,8 @@ impl CommandLog {
 mod tests {
     use super::*;
 
-    fn sample(q: f64) -> Sample {
-        let mut s = Sample::new(1);
+    fn sample(q: f64) -> RobotState {
+        let mut s = RobotState::new(1);
         s.q[0] = q;
         s.qd[0] = 0.0;
         s
@@ -137,16 +145,21 @@ mod tests {
             speed: vec![0.5],
         };
         let mut log = CommandLog::new(vec!["knee".into()]);
-        let t = |q| Target { q, kp: 10.0, kd: 0.0 };
-        log.record("move", &sample(0.0), Some(&[t(0.05)]));
-        log.record("move", &sample(0.0), Some(&[t(0.06)]));
-        log.record("hold", &sample(0.0), None);
+        let t = |q| JointTarget {
+            q,
+            kp: 10.0,
+            enabled: true,
+            ..JointTarget::default()
+        };
+        log.record("move", Duration::ZERO, &sample(0.0), Some(&[t(0.05)]));
+        log.record("move", Duration::ZERO, &sample(0.0), Some(&[t(0.06)]));
+        log.record("hold", Duration::ZERO, &sample(0.0), None);
         assert!(log.check(&limits, 0.02).is_ok());
-        log.record("move", &sample(0.0), Some(&[t(0.2)]));
+        log.record("move", Duration::ZERO, &sample(0.0), Some(&[t(0.2)]));
         assert!(log.check(&limits, 0.02).unwrap_err().contains("2.000 N·m"));
         let mut fast = CommandLog::new(vec!["knee".into()]);
-        fast.record("move", &sample(0.0), Some(&[t(0.0)]));
-        fast.record("move", &sample(0.0), Some(&[t(0.02)]));
+        fast.record("move", Duration::ZERO, &sample(0.0), Some(&[t(0.0)]));
+        fast.record("move", Duration::ZERO, &sample(0.0), Some(&[t(0.02)]));
         assert!(fast.check(&limits, 0.02).unwrap_err().contains("1.000 rad/s"));
     }
 }

@@ -9,11 +9,13 @@ use std::time::Duration;
 use firmware_bridge::dxl::models as dxl_models;
 use firmware_bridge::mit::models as mit_models;
 use robots::calibration::{Calibration, ImuCalibration, JointCalibration};
-use robots::{BusKind, Robot};
+use robots::{BusKind, Robot, spatial};
 
 use crate::log::CommandLog;
 use crate::operator::{Aborted, Operator, Request};
-use crate::rig::{DeviceIdentity, Rig, RigError, Sample, Target};
+use robot_link::{DeviceIdentity, JointTarget, RobotState};
+
+use crate::rig::{Rig, RigError};
 use crate::solve::{self, JointMapping};
 
 /// Standard gravity, m/s².
@@ -194,7 +196,9 @@ pub struct Session<'a, R: ?Sized, O: ?Sized> {
     pub(crate) abort: &'a AtomicBool,
     /// Every tick, as sent and measured.
     pub log: CommandLog,
-    pub(crate) sample: Sample,
+    pub(crate) sample: RobotState,
+    /// Time of [`Self::sample`] since the rig started.
+    pub(crate) sample_time: Duration,
     pub(crate) options: Options,
     /// The joints this run calibrates.
     pub(crate) selected: Vec<bool>,
@@ -232,7 +236,7 @@ impl Window {
         }
     }
 
-    fn add(&mut self, s: &Sample) {
+    fn add(&mut self, s: &RobotState) {
         self.ticks += 1;
         for (m, q) in self.q.iter_mut().zip(&s.q) {
             *m += q;
@@ -267,7 +271,7 @@ impl Window {
             self.accel[i] /= k;
         }
         if self.imu_samples > 0 {
-            self.up = solve::unit(self.up);
+            self.up = spatial::unit(self.up);
         }
     }
 
@@ -295,7 +299,8 @@ impl<'a, R: Rig + ?Sized, O: Operator + ?Sized> Session<'a, R, O> {
             operator,
             abort,
             log: CommandLog::new(robot.config.joints.iter().map(|j| j.name.clone()).collect()),
-            sample: Sample::new(n),
+            sample: RobotState::new(n),
+            sample_time: Duration::ZERO,
             options,
             selected: vec![true; n],
             last_targets: None,
@@ -303,7 +308,7 @@ impl<'a, R: Rig + ?Sized, O: Operator + ?Sized> Session<'a, R, O> {
     }
 
     /// The last reading.
-    pub fn sample(&self) -> &Sample {
+    pub fn sample(&self) -> &RobotState {
         &self.sample
     }
 
@@ -381,7 +386,7 @@ impl<'a, R: Rig + ?Sized, O: Operator + ?Sized> Session<'a, R, O> {
         &mut self,
         step: &'static str,
         count: usize,
-        targets: Option<&[Target]>,
+        targets: Option<&[JointTarget]>,
     ) -> Result<(), CalibrationError> {
         for _ in 0..count {
             self.tick(step, targets)?;
@@ -392,14 +397,14 @@ impl<'a, R: Rig + ?Sized, O: Operator + ?Sized> Session<'a, R, O> {
     pub(crate) fn tick(
         &mut self,
         step: &'static str,
-        targets: Option<&[Target]>,
+        targets: Option<&[JointTarget]>,
     ) -> Result<(), CalibrationError> {
         if self.abort.load(Ordering::Relaxed) {
             return Err(CalibrationError::Aborted);
         }
-        self.log.record(step, &self.sample, targets);
+        self.log.record(step, self.sample_time, &self.sample, targets);
         self.last_targets = targets.map(|t| t.iter().map(|t| t.q).collect());
-        self.rig.tick(targets, &mut self.sample)?;
+        self.sample_time = self.rig.tick(targets, &mut self.sample)?;
         Ok(())
     }
 
@@ -618,8 +623,8 @@ impl<'a, R: Rig + ?Sized, O: Operator + ?Sized> Session<'a, R, O> {
             )));
         }
         // Gravity check: the accelerometer agrees with the AHRS attitude, in size and direction.
-        let gravity = norm(upright.accel);
-        let disagreement = solve::angle_between(upright.accel, upright.up).to_degrees();
+        let gravity = spatial::norm(upright.accel);
+        let disagreement = spatial::angle_between(upright.accel, upright.up).to_degrees();
         if ((gravity - GRAVITY) / GRAVITY).abs() > self.options.gravity_tolerance
             || disagreement > self.options.gravity_direction_deg
         {
@@ -637,7 +642,7 @@ impl<'a, R: Rig + ?Sized, O: Operator + ?Sized> Session<'a, R, O> {
         // accelerometer's bias).
         let (mounting, tilt_measured) =
             solve::imu_mounting(upright.up, tilted.up).map_err(CalibrationError::Imu)?;
-        let rpy = solve::rpy_of(&mounting).map(f64::to_degrees);
+        let rpy = spatial::rpy_of_mat(&mounting).map(f64::to_degrees);
         let result = ImuResult {
             calibration: ImuCalibration {
                 mounting_rpy_deg: rpy,
@@ -681,7 +686,7 @@ impl<'a, R: Rig + ?Sized, O: Operator + ?Sized> Session<'a, R, O> {
         let dt = self.rig.period().as_secs_f64();
         let n = goal.len();
         let mut target = self.move_start(step)?;
-        let mut cmd = vec![Target::default(); n];
+        let mut cmd = vec![JointTarget::default(); n];
         let hold_ticks = self.ticks_in(hold).max(1);
         let mut window = Window::new(n);
         let max_ticks = self.ticks_in(Duration::from_secs(60));
@@ -730,12 +735,12 @@ impl<'a, R: Rig + ?Sized, O: Operator + ?Sized> Session<'a, R, O> {
 pub(crate) fn capped_step(
     previous: f64,
     goal: f64,
-    state: &Sample,
+    state: &RobotState,
     j: usize,
     (kp, kd): (f64, f64),
     limits: &crate::log::MotionLimits,
     dt: f64,
-) -> Target {
+) -> JointTarget {
     let (cap, step_max) = (limits.torque[j], limits.speed[j] * dt);
     let (q, qd) = (state.q[j], state.qd[j]);
     let wanted = previous + (goal - previous).clamp(-step_max, step_max);
@@ -746,15 +751,13 @@ pub(crate) fn capped_step(
         .clamp(previous - step_max, previous + step_max);
     let torque = (kp * (target - q) - kd * qd).abs();
     let scale = if torque > cap { cap / torque } else { 1.0 };
-    Target {
+    JointTarget {
         q: target,
         kp: kp * scale,
         kd: kd * scale,
+        enabled: true,
+        ..JointTarget::default()
     }
-}
-
-fn norm(a: [f64; 3]) -> f64 {
-    (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt()
 }
 
 /// The calibrated joint's mapping, for comparisons.

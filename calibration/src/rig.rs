@@ -1,103 +1,119 @@
-//! What a calibration needs from the robot, whatever carries it (hardware buses or a mirror):
-//! device identities, one tick of commands and readings, and the damped safe state.
+//! What a calibration needs from the robot, whatever carries it (hardware buses or a mirror): the
+//! robot link and its tick clock, stepped one tick at a time, and the damped safe state.
 
 use std::time::Duration;
 
-/// A joint command during calibration: PD towards `q`.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct Target {
-    /// Position, rad.
-    pub q: f64,
-    /// Stiffness, N·m/rad.
-    pub kp: f64,
-    /// Damping, N·m·s/rad.
-    pub kd: f64,
-}
+use robot_link::{DeviceIdentity, IoError, JointTarget, RobotLink, RobotState, TickClock, message_chain};
+use robots::Robot;
 
-/// One tick of readings, robot joint order. Joint values are in the units of the robot the rig
-/// was built for: actuator angles for a raw rig (see [`crate::raw_robot`]).
-#[derive(Debug, Clone, PartialEq)]
-pub struct Sample {
-    /// Time since the rig started.
-    pub t: Duration,
-    /// Positions, rad.
-    pub q: Vec<f64>,
-    /// Velocities, rad/s.
-    pub qd: Vec<f64>,
-    /// Torque estimates, N·m.
-    pub tau: Vec<f64>,
-    /// Consecutive reads without fresh feedback.
-    pub missed: Vec<u32>,
-    /// The device reports a fault.
-    pub faulted: Vec<bool>,
-    /// Angular velocity, rad/s.
-    pub gyro: [f64; 3],
-    /// Specific force, m/s².
-    pub accel: [f64; 3],
-    /// The AHRS's attitude `[w, x, y, z]` (its own world frame; yaw drifts).
-    pub quat: [f64; 4],
-    /// Consecutive reads without a new IMU sample.
-    pub imu_missed: u32,
-}
-
-impl Sample {
-    /// Nothing read yet, `n` joints.
-    pub fn new(n: usize) -> Self {
-        Self {
-            t: Duration::ZERO,
-            q: vec![0.0; n],
-            qd: vec![0.0; n],
-            tau: vec![0.0; n],
-            missed: vec![u32::MAX; n],
-            faulted: vec![false; n],
-            gyro: [0.0; 3],
-            accel: [0.0; 3],
-            quat: [1.0, 0.0, 0.0, 0.0],
-            imu_missed: u32::MAX,
-        }
-    }
-}
-
-/// Who a device said it is.
-#[derive(Debug, Clone, PartialEq)]
-pub struct DeviceIdentity {
-    /// Joint it drives.
-    pub joint: String,
-    /// Bus name.
-    pub bus: String,
-    /// ID on the bus.
-    pub id: u8,
-    /// Configured model.
-    pub model: String,
-    /// What the device answered (model number, reply format).
-    pub answer: String,
-    /// Firmware version, where the protocol reports one.
-    pub firmware: Option<u8>,
-    /// Current limit programmed in the device, A, where it has one.
-    pub current_limit_a: Option<f64>,
-    /// The actuator's torque limit, N·m (actuator side).
-    pub torque_limit_nm: f64,
-}
-
-/// Why the rig failed.
+/// Why the rig failed. The message carries the whole chain of the bus error: calibration reports
+/// it to a person as one line.
 #[derive(Debug, thiserror::Error)]
 pub enum RigError {
     /// A device is missing or is not the configured model; nothing was enabled.
-    #[error("identity check failed: {0}")]
-    Identity(String),
+    #[error("identity check failed: {}", message_chain(.0))]
+    Identity(IoError),
     /// A bus failed.
-    #[error("{0}")]
-    Bus(String),
+    #[error("{}", message_chain(.0))]
+    Bus(IoError),
 }
 
-/// The robot during calibration.
+/// The robot during calibration: a [`RobotLink`] ticked on a [`TickClock`].
 pub trait Rig {
     /// The tick period.
     fn period(&self) -> Duration;
     /// Asks every device who it is; torque stays off everywhere.
     fn identify(&mut self) -> Result<Vec<DeviceIdentity>, RigError>;
-    /// Sends `targets` (robot order; `None`: every joint limp), waits for the next tick and reads.
-    fn tick(&mut self, targets: Option<&[Target]>, sample: &mut Sample) -> Result<(), RigError>;
+    /// Sends `targets` (robot order; `None`: every joint limp), waits for the next tick and reads
+    /// into `state`. Returns the time of the reading since the rig started.
+    fn tick(&mut self, targets: Option<&[JointTarget]>, state: &mut RobotState)
+    -> Result<Duration, RigError>;
     /// The safe state: motors damping (no stiffness), servos limp, then torque off.
     fn damp(&mut self) -> Result<(), RigError>;
+}
+
+/// A calibration rig on any robot link: the hardware's buses, or the mirror's in lockstep.
+#[derive(Debug)]
+pub struct LinkRig<L: RobotLink, C: TickClock> {
+    link: L,
+    clock: C,
+    period: Duration,
+    deadline: Duration,
+    targets: Vec<JointTarget>,
+    damping: Vec<f64>,
+    torque_used: bool,
+}
+
+impl<L: RobotLink, C: TickClock> LinkRig<L, C> {
+    /// A rig for `robot` (the robot `link` was built for) ticking at `period` on `clock`.
+    pub fn new(link: L, clock: C, period: Duration, robot: &Robot) -> Self {
+        let n = robot.config.joints.len();
+        Self {
+            link,
+            clock,
+            period,
+            deadline: Duration::ZERO,
+            targets: vec![JointTarget::default(); n],
+            damping: robot.config.joints.iter().map(|j| j.kd).collect(),
+            torque_used: false,
+        }
+    }
+
+    fn exchange(&mut self, state: &mut RobotState) -> Result<(), RigError> {
+        self.link.write(&self.targets).map_err(RigError::Bus)?;
+        self.deadline = self.deadline.max(self.clock.elapsed()) + self.period;
+        self.clock.wait_until(self.deadline);
+        self.link.read(state).map_err(RigError::Bus)
+    }
+}
+
+impl<L: RobotLink, C: TickClock> Rig for LinkRig<L, C> {
+    fn period(&self) -> Duration {
+        self.period
+    }
+
+    fn identify(&mut self) -> Result<Vec<DeviceIdentity>, RigError> {
+        self.link.identify().map_err(RigError::Identity)?;
+        self.link.identities().map_err(RigError::Identity)
+    }
+
+    fn tick(
+        &mut self,
+        targets: Option<&[JointTarget]>,
+        state: &mut RobotState,
+    ) -> Result<Duration, RigError> {
+        match targets {
+            Some(t) => {
+                self.torque_used = true;
+                for (out, t) in self.targets.iter_mut().zip(t) {
+                    *out = JointTarget { enabled: true, ..*t };
+                }
+            }
+            None => self.targets.fill(JointTarget::default()),
+        }
+        self.exchange(state)?;
+        Ok(self.clock.elapsed())
+    }
+
+    fn damp(&mut self) -> Result<(), RigError> {
+        if self.torque_used {
+            // Damping for half a second (MIT: kp = 0, kd > 0; servos limp), then torque off.
+            for (t, &kd) in self.targets.iter_mut().zip(&self.damping) {
+                *t = JointTarget {
+                    kd,
+                    enabled: true,
+                    ..JointTarget::default()
+                };
+            }
+            let mut scratch = RobotState::new(self.targets.len());
+            let ticks = (0.5 / self.period.as_secs_f64()).ceil() as usize;
+            for _ in 0..ticks {
+                if self.exchange(&mut scratch).is_err() {
+                    break;
+                }
+            }
+        }
+        self.targets.fill(JointTarget::default());
+        self.link.torque_off().map_err(RigError::Bus)
+    }
 }

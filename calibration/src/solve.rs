@@ -83,14 +83,7 @@ pub fn check_mit_range(mapping: JointMapping, gear: f64, range: [f64; 2], p_max:
     Ok(())
 }
 
-pub use crate::so3::{Mat3, unit};
-use crate::so3::{cross, norm};
-
-/// Angle between two directions, rad.
-pub fn angle_between(a: [f64; 3], b: [f64; 3]) -> f64 {
-    let (a, b) = (unit(a), unit(b));
-    norm(cross(a, b)).atan2(a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
-}
+use robots::spatial::{self, Mat3, angle_between, cross, unit};
 
 /// TRIAD: the rotation R with `R·u1 = r1` exactly and `R·u2` as close to `r2` as the angle
 /// between them allows (`u` measured in one frame, `r` the same directions in the other).
@@ -111,34 +104,9 @@ pub fn triad(u1: [f64; 3], u2: [f64; 3], r1: [f64; 3], r2: [f64; 3]) -> Mat3 {
     r
 }
 
-/// Roll, pitch, yaw (rad) of a rotation, Z-Y-X intrinsic (the convention of `mounting_rpy_deg`).
-pub fn rpy_of(r: &Mat3) -> [f64; 3] {
-    [
-        r[2][1].atan2(r[2][2]),
-        (-r[2][0]).clamp(-1.0, 1.0).asin(),
-        r[1][0].atan2(r[0][0]),
-    ]
-}
-
-/// The rotation of roll, pitch, yaw (rad), Z-Y-X intrinsic.
-pub fn matrix_of_rpy(rpy: [f64; 3]) -> Mat3 {
-    let (sr, cr) = rpy[0].sin_cos();
-    let (sp, cp) = rpy[1].sin_cos();
-    let (sy, cy) = rpy[2].sin_cos();
-    [
-        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-        [-sp, cp * sr, cp * cr],
-    ]
-}
-
 /// The angle of the rotation taking `a` to `b`, rad.
 pub fn rotation_between(a: &Mat3, b: &Mat3) -> f64 {
-    // trace(aᵀ b) = 1 + 2 cos θ
-    let trace: f64 = (0..3)
-        .map(|i| (0..3).map(|k| a[k][i] * b[k][i]).sum::<f64>())
-        .sum();
-    ((trace - 1.0) / 2.0).clamp(-1.0, 1.0).acos()
+    spatial::norm(spatial::log(&spatial::mat_mul(&spatial::transpose(a), b)))
 }
 
 /// The IMU's mounting (IMU axes → base axes) from the mean specific force (the "up" direction in
@@ -161,13 +129,7 @@ pub fn imu_mounting(up_upright: [f64; 3], up_pitched: [f64; 3]) -> Result<(Mat3,
 mod tests {
     use super::*;
 
-    fn apply(r: &Mat3, v: [f64; 3]) -> [f64; 3] {
-        [0, 1, 2].map(|i| (0..3).map(|k| r[i][k] * v[k]).sum())
-    }
-
-    fn transpose(r: &Mat3) -> Mat3 {
-        [0, 1, 2].map(|i| [0, 1, 2].map(|j| r[j][i]))
-    }
+    use robots::spatial::{mat_apply as apply, transpose};
 
     #[test]
     fn two_poses_give_direction_and_zero_for_both_signs() {
@@ -229,22 +191,8 @@ mod tests {
     }
 
     #[test]
-    fn rpy_round_trips() {
-        for rpy in [[0.1, -0.4, 2.0], [3.0, 0.2, -1.0], [0.0, 0.0, 0.0]] {
-            let back = rpy_of(&matrix_of_rpy(rpy));
-            assert!(rotation_between(&matrix_of_rpy(rpy), &matrix_of_rpy(back)) < 1e-12);
-        }
-        // Agrees with the mirror's quaternion convention.
-        let q = sim2real::mirror::quat_rpy(0.3, -0.2, 1.1);
-        let v = [0.2, -0.5, 0.9];
-        let a = sim2real::mirror::rotate(q, v);
-        let b = apply(&matrix_of_rpy([0.3, -0.2, 1.1]), v);
-        assert!((0..3).all(|i| (a[i] - b[i]).abs() < 1e-12));
-    }
-
-    #[test]
     fn mounting_is_recovered_from_two_gravity_directions() {
-        let truth = matrix_of_rpy([0.4, -1.0, 2.5]); // IMU → base
+        let truth = spatial::mat_of_rpy([0.4, -1.0, 2.5]); // IMU → base
         let to_imu = transpose(&truth);
         let alpha = 0.5_f64;
         let up1 = apply(&to_imu, [0.0, 0.0, 1.0]);

@@ -9,7 +9,9 @@ use std::time::Duration;
 use crate::log::MotionLimits;
 use crate::operator::{Operator, Request};
 use crate::procedure::{CalibrationError, JointResult, Session, capped_step};
-use crate::rig::{Rig, Target};
+use robot_link::JointTarget;
+
+use crate::rig::Rig;
 use crate::solve::JointMapping;
 
 /// How gently the stops are found.
@@ -161,7 +163,7 @@ impl<R: Rig + ?Sized, O: Operator + ?Sized> Session<'_, R, O> {
             ((1.5 * span / limits.speed[j]) / dt) as usize + self.ticks_in(Duration::from_secs(3));
         let stall_ticks = self.ticks_in(options.stall).max(1);
         let mut target = self.move_start("stops")?;
-        let mut cmd = vec![Target::default(); target.len()];
+        let mut cmd = vec![JointTarget::default(); target.len()];
         let mut stalled = 0;
         for _ in 0..max_ticks {
             self.check_feedback()?;

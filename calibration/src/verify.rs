@@ -4,13 +4,12 @@
 
 use std::time::Duration;
 
-use robots::Robot;
+use robots::{Robot, spatial};
 
 use crate::log::MotionLimits;
 use crate::operator::{Operator, Request};
 use crate::procedure::{CalibrationError, Session};
 use crate::rig::Rig;
-use crate::solve;
 
 /// How gently verification moves.
 #[derive(Debug, Clone, PartialEq)]
@@ -151,7 +150,7 @@ pub fn verify<R: Rig + ?Sized, O: Operator + ?Sized>(
         .collect();
     Ok(VerifyReport {
         joints,
-        imu_tilt_deg: solve::angle_between(window.accel, [0.0, 0.0, 1.0]).to_degrees(),
+        imu_tilt_deg: spatial::angle_between(window.accel, [0.0, 0.0, 1.0]).to_degrees(),
     })
 }
 

@@ -8,6 +8,7 @@ pub mod calibration;
 pub mod config;
 pub mod drivers;
 pub mod mjcf;
+pub mod spatial;
 
 pub use config::{
     BodyPair, BusConfig, BusKind, HumanBody, ImuConfig, JointConfig, OrientationCompare, RetargetConfig,

@@ -2,7 +2,9 @@
 //! firmware driving MuJoCo behind mock wires.
 
 pub mod config;
+pub mod hands;
 pub mod host;
+pub mod link;
 pub mod mirror;
 pub mod mujoco;
 pub mod render;

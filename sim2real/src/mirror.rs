@@ -15,7 +15,7 @@ use firmware_bridge::dxl::servo::{ReplyFault, ServoConfig, XSeriesServo};
 use firmware_bridge::dxl::table::hw;
 use firmware_bridge::dxl::transport::LockstepDxlPort;
 use firmware_bridge::dxl::wire::{ServoChain, SimDxlWire, WireTiming};
-use firmware_bridge::imu::emulator::{ImuEmulatorConfig, ImuTruth, WitImuEmulator, mul};
+use firmware_bridge::imu::emulator::{ImuEmulatorConfig, ImuTruth, WitImuEmulator};
 use firmware_bridge::mit::codec::MotorFault;
 use firmware_bridge::mit::firmware::{InjectedFaults, MitFirmwareConfig, MitMotorFirmware};
 use firmware_bridge::plant::MotorPlant;
@@ -24,6 +24,7 @@ use firmware_bridge::time::{SimInstant, SimRng};
 use firmware_bridge::{dxl, mit};
 use mujoco_rs::prelude::*;
 use mujoco_rs::wrappers::mj_model::MjtObjBase;
+use robots::spatial::{quat_conj, quat_mul, quat_of_rpy, quat_rotate};
 use robots::{BusKind, Robot};
 
 use crate::config::{FaultKind, MirrorConfig, Range};
@@ -321,7 +322,7 @@ impl Mirror {
             .imu_mounting_rpy_deg
             .unwrap_or(imu_cfg.mounting_rpy_deg)
             .map(f64::to_radians);
-        let mounting = quat_rpy(r, p, y);
+        let mounting = quat_of_rpy(r, p, y);
         let imu = Imu {
             emulator,
             line: StreamLine::new(imu_bus.rate),
@@ -451,7 +452,7 @@ impl Mirror {
     /// tilting the robot on its stand would. No effect without a gantry.
     pub fn set_gantry_rpy(&mut self, rpy: [f64; 3]) {
         if let Some(g) = &mut self.gantry {
-            g.quat = quat_rpy(rpy[0], rpy[1], rpy[2]);
+            g.quat = quat_of_rpy(rpy[0], rpy[1], rpy[2]);
         }
     }
 
@@ -491,7 +492,7 @@ impl Mirror {
         let dof = self.root_dof;
         let world = [v[dof], v[dof + 1], v[dof + 2]];
         let q = [root_pose[3], -root_pose[4], -root_pose[5], -root_pose[6]];
-        *base_lin_vel = rotate(q, world);
+        *base_lin_vel = quat_rotate(q, world);
         feet.fill(false);
         let model = self.data.model();
         for c in self.data.contact() {
@@ -616,10 +617,10 @@ impl Mirror {
         let force: [f64; 3] = std::array::from_fn(|i| k * (g.pos[i] - q[r + i]) - c * v[i]);
         // Orientation error as a rotation vector (world frame), angular velocity is body-frame.
         let cur = [q[r + 3], q[r + 4], q[r + 5], q[r + 6]];
-        let err = mul(g.quat, [cur[0], -cur[1], -cur[2], -cur[3]]);
+        let err = quat_mul(g.quat, quat_conj(cur));
         let s = if err[0] < 0.0 { -2.0 } else { 2.0 };
         let w_body = [v[3], v[4], v[5]];
-        let w_world = rotate(cur, w_body);
+        let w_world = quat_rotate(cur, w_body);
         let torque: [f64; 3] = std::array::from_fn(|i| kr * s * err[i + 1] - cr * w_world[i]);
         let body = self
             .data
@@ -638,9 +639,9 @@ impl Mirror {
         let site_accel = [s[i.accel], s[i.accel + 1], s[i.accel + 2]];
         let site_quat = [s[i.quat], s[i.quat + 1], s[i.quat + 2], s[i.quat + 3]];
         let truth = ImuTruth {
-            gyro: rotate(i.mount, site_gyro),
-            accel: rotate(i.mount, site_accel),
-            quat: mul(site_quat, [i.mount[0], -i.mount[1], -i.mount[2], -i.mount[3]]),
+            gyro: quat_rotate(i.mount, site_gyro),
+            accel: quat_rotate(i.mount, site_accel),
+            quat: quat_mul(site_quat, quat_conj(i.mount)),
         };
         let mut bytes = [0u8; 44];
         self.imu.emulator.output(t, &truth, &mut bytes);
@@ -800,23 +801,4 @@ impl SerialSimWorld for Mirror {
             None => self.imu.line.host_receive(self.now, out),
         }
     }
-}
-
-/// `[w, x, y, z]` of roll/pitch/yaw (Z-Y-X intrinsic).
-pub fn quat_rpy(roll: f64, pitch: f64, yaw: f64) -> [f64; 4] {
-    let (cr, sr) = ((roll / 2.0).cos(), (roll / 2.0).sin());
-    let (cp, sp) = ((pitch / 2.0).cos(), (pitch / 2.0).sin());
-    let (cy, sy) = ((yaw / 2.0).cos(), (yaw / 2.0).sin());
-    [
-        cr * cp * cy + sr * sp * sy,
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-    ]
-}
-
-/// Rotates `v` by the unit quaternion `q` (`[w, x, y, z]`).
-pub fn rotate(q: [f64; 4], v: [f64; 3]) -> [f64; 3] {
-    let p = mul(mul(q, [0.0, v[0], v[1], v[2]]), [q[0], -q[1], -q[2], -q[3]]);
-    [p[1], p[2], p[3]]
 }

@@ -93,41 +93,27 @@ impl WitImuEmulator {
         let gyro = [0, 1, 2].map(|i| truth.gyro[i] + self.gyro_bias[i] + noise(c.gyro_noise));
         let accel = [0, 1, 2].map(|i| truth.accel[i] + self.accel_bias[i] + noise(c.accel_noise));
         let tilt = [0; 3].map(|_| noise(c.attitude_noise) / 2.0);
-        let quat = normalize(mul(truth.quat, [1.0, tilt[0], tilt[1], tilt[2]]));
+        let (quat, rpy) = reported_attitude(truth.quat, tilt);
         let sample = ImuSample {
             accel,
             gyro,
             quat,
-            rpy: rpy_of(quat),
+            rpy,
             temperature: 35.0,
         };
         wit::encode_cycle(&sample, out);
     }
 }
 
-/// Hamilton product `a ⊗ b` of `[w, x, y, z]` quaternions.
-pub fn mul(a: [f64; 4], b: [f64; 4]) -> [f64; 4] {
-    [
-        a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
-        a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
-        a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
-        a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0],
-    ]
-}
-
-fn normalize(q: [f64; 4]) -> [f64; 4] {
-    let n = q.iter().map(|x| x * x).sum::<f64>().sqrt();
-    let s = if q[0] < 0.0 { -1.0 / n } else { 1.0 / n };
-    q.map(|x| x * s)
-}
-
-/// Roll, pitch, yaw (Z-Y-X intrinsic) of a `[w, x, y, z]` quaternion.
-pub fn rpy_of(q: [f64; 4]) -> [f64; 3] {
-    let [w, x, y, z] = q;
-    let roll = (2.0 * (w * x + y * z)).atan2(1.0 - 2.0 * (x * x + y * y));
-    let pitch = (2.0 * (w * y - z * x)).clamp(-1.0, 1.0).asin();
-    let yaw = (2.0 * (w * z + x * y)).atan2(1.0 - 2.0 * (y * y + z * z));
-    [roll, pitch, yaw]
+/// The attitude the AHRS reports: `truth` turned by a small error rotation (first-order
+/// quaternion `[1, tilt]`), unit length, `w ≥ 0`; and its roll, pitch, yaw (Z-Y-X intrinsic).
+fn reported_attitude(truth: [f64; 4], tilt: [f64; 3]) -> ([f64; 4], [f64; 3]) {
+    let q = glam::DQuat::from_xyzw(truth[1], truth[2], truth[3], truth[0])
+        * glam::DQuat::from_xyzw(tilt[0], tilt[1], tilt[2], 1.0);
+    let q = q.normalize();
+    let q = if q.w < 0.0 { -q } else { q };
+    let (yaw, pitch, roll) = q.to_euler(glam::EulerRot::ZYX);
+    ([q.w, q.x, q.y, q.z], [roll, pitch, yaw])
 }
 
 #[cfg(test)]

@@ -1,0 +1,167 @@
+//! The observation contract diff: two observation traces (from runs, or a training export) compared
+//! term by term, to find where and by how much the policy's inputs first diverge — the usual reason
+//! a policy that works in training fails on the robot.
+
+use std::path::Path;
+
+use controller::npy::NpyArray;
+use controller::policy::PolicyLayout;
+
+/// Observations per policy step (running ticks only), and where they came from.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ObsTrace {
+    /// One observation per step.
+    pub steps: Vec<Vec<f32>>,
+    /// The control tick of each step (runs), or the step index (exports).
+    pub ticks: Vec<u64>,
+}
+
+/// Reads the observations of a recorded run's Running ticks, and the run's recorded metadata.
+pub fn trace_from_run(path: &Path) -> Result<(ObsTrace, std::collections::BTreeMap<String, String>), String> {
+    let bytes = std::fs::read(path).map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
+    let stream =
+        mcap::MessageStream::new(&bytes).map_err(|e| format!("{}: not an MCAP file: {e}", path.display()))?;
+    let mut trace = ObsTrace {
+        steps: Vec::new(),
+        ticks: Vec::new(),
+    };
+    let mut run = std::collections::BTreeMap::new();
+    for message in stream {
+        let m = message.map_err(|e| format!("{}: {e}", path.display()))?;
+        if m.channel.topic == "/replay" && run.is_empty() {
+            run = m.channel.metadata.clone();
+        }
+        if m.channel.topic != "/policy" {
+            continue;
+        }
+        let v: serde_json::Value =
+            serde_json::from_slice(&m.data).map_err(|e| format!("{}: /policy: {e}", path.display()))?;
+        if v["running"].as_bool() != Some(true) {
+            continue;
+        }
+        let obs = v["obs"]
+            .as_array()
+            .ok_or_else(|| format!("{}: /policy without obs", path.display()))?
+            .iter()
+            .map(|x| x.as_f64().map_or(f32::NAN, |x| x as f32))
+            .collect();
+        trace.steps.push(obs);
+        trace.ticks.push(v["tick"].as_u64().unwrap_or(0));
+    }
+    if trace.steps.is_empty() {
+        return Err(format!("{}: no Running ticks with observations", path.display()));
+    }
+    Ok((trace, run))
+}
+
+/// Reads an observation export: `.npz` with an `obs` array (steps × values), or CSV with one
+/// observation per row (a header row is skipped).
+pub fn trace_from_export(path: &Path) -> Result<ObsTrace, String> {
+    let steps: Vec<Vec<f32>> = if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("npz")) {
+        let arrays = controller::npy::read_npz(path).map_err(|e| format!("{}: {e}", path.display()))?;
+        match arrays.get("obs") {
+            Some(NpyArray::Numbers { shape, data }) if shape.len() == 2 => data
+                .chunks(shape[1])
+                .map(|r| r.iter().map(|&x| x as f32).collect())
+                .collect(),
+            Some(_) => {
+                return Err(format!(
+                    "{}: obs must be a steps × values number array",
+                    path.display()
+                ));
+            }
+            None => return Err(format!("{}: no obs array", path.display())),
+        }
+    } else {
+        let text =
+            std::fs::read_to_string(path).map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
+        let mut rows = Vec::new();
+        for (i, line) in text
+            .lines()
+            .enumerate()
+            .filter(|(_, l)| !l.trim().is_empty() && !l.starts_with('#'))
+        {
+            let parsed: Result<Vec<f32>, _> = line.split(',').map(|x| x.trim().parse::<f32>()).collect();
+            match parsed {
+                Ok(row) => rows.push(row),
+                Err(_) if rows.is_empty() => {} // a header
+                Err(_) => return Err(format!("{}: line {}: not numbers", path.display(), i + 1)),
+            }
+        }
+        rows
+    };
+    let n = steps.len() as u64;
+    Ok(ObsTrace {
+        steps,
+        ticks: (0..n).collect(),
+    })
+}
+
+/// How one term compares.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TermDiff {
+    /// Term name.
+    pub term: String,
+    /// Its observation index range.
+    pub range: std::ops::Range<usize>,
+    /// First step where some value differs by more than the tolerance.
+    pub first_step: Option<usize>,
+    /// Largest difference over all steps.
+    pub max_abs: f64,
+    /// RMS difference over all steps and values.
+    pub rms: f64,
+}
+
+/// Compares `a` and `b` step by step over their common length, term by term; terms in the order
+/// they first diverge (never-diverging terms last).
+pub fn compare(
+    a: &ObsTrace,
+    b: &ObsTrace,
+    layout: &PolicyLayout,
+    tolerance: f64,
+) -> Result<Vec<TermDiff>, String> {
+    let steps = a.steps.len().min(b.steps.len());
+    for (name, t) in [("first", a), ("second", b)] {
+        if let Some(s) = t.steps.iter().take(steps).find(|s| s.len() != layout.obs_len) {
+            return Err(format!(
+                "the {name} trace has {} values per step; the policy's observation has {}",
+                s.len(),
+                layout.obs_len
+            ));
+        }
+    }
+    let mut out: Vec<TermDiff> = layout
+        .slots
+        .iter()
+        .map(|slot| {
+            let mut first = None;
+            let (mut max_abs, mut sq, mut count) = (0.0f64, 0.0f64, 0usize);
+            for k in 0..steps {
+                let (x, y) = (&a.steps[k][slot.range.clone()], &b.steps[k][slot.range.clone()]);
+                for (p, q) in x.iter().zip(y) {
+                    let d = (f64::from(*p) - f64::from(*q)).abs();
+                    let d = if d.is_nan() { f64::INFINITY } else { d };
+                    max_abs = max_abs.max(d);
+                    sq += if d.is_finite() { d * d } else { 0.0 };
+                    count += 1;
+                    if d > tolerance && first.is_none() {
+                        first = Some(k);
+                    }
+                }
+            }
+            TermDiff {
+                term: slot.term.name().to_owned(),
+                range: slot.range.clone(),
+                first_step: first,
+                max_abs,
+                rms: if count > 0 {
+                    (sq / count as f64).sqrt()
+                } else {
+                    0.0
+                },
+            }
+        })
+        .collect();
+    out.sort_by_key(|d| d.first_step.unwrap_or(usize::MAX));
+    Ok(out)
+}

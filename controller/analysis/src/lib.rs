@@ -1,0 +1,8 @@
+//! What reads a run after it ran: replay through the same loop, observation-contract comparison,
+//! run reports, batch runs on the mirror, and the motion checker for clips.
+
+pub mod batch;
+pub mod compare;
+pub mod motion_check;
+pub mod replay;
+pub mod report;

@@ -1,0 +1,350 @@
+//! Replay: a recorded run's inputs (every bus reading, the IMU, the simulator's ground truth, stop
+//! requests) fed through the same controller code, tick by tick, with every command it sends
+//! compared bit for bit against the recording. The run's files and options come from the
+//! recording's `/replay` channel metadata.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::time::Duration;
+
+use robots::Robot;
+
+use controller::clip::{Clip, Reference};
+use controller::player::{PlayError, PlayOptions, Player};
+use controller::policy::PolicyLayout;
+use robot_link::GroundTruth;
+use robot_link::TickClock;
+use robot_link::{IoError, JointTarget, RobotLink, RobotState};
+
+/// One recorded tick: what the loop read, and what it sent.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RecordedTick {
+    /// Run time, ns.
+    pub time_ns: u64,
+    /// The state the buses and IMU delivered.
+    pub state: RobotState,
+    /// Simulator ground truth, when there was one.
+    pub truth: Option<GroundTruth>,
+    /// Whether a stop had been requested.
+    pub stop: bool,
+    /// The targets sent.
+    pub targets: Vec<JointTarget>,
+}
+
+/// A recording read back.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Recording {
+    /// How to rebuild the run: file paths and options.
+    pub run: BTreeMap<String, String>,
+    /// The ticks, in order.
+    pub ticks: Vec<RecordedTick>,
+}
+
+fn numbers(v: &serde_json::Value, key: &str) -> Result<Vec<f64>, String> {
+    v[key]
+        .as_array()
+        .ok_or_else(|| format!("/replay message without {key:?}"))?
+        .iter()
+        .map(|x| {
+            if x.is_null() {
+                Ok(f64::NAN)
+            } else {
+                x.as_f64().ok_or_else(|| format!("{key}: {x} is not a number"))
+            }
+        })
+        .collect()
+}
+
+/// Reads the `/replay` channel of an MCAP file written by `play`.
+pub fn read_recording(path: &Path) -> Result<Recording, String> {
+    let bytes = std::fs::read(path).map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
+    let stream =
+        mcap::MessageStream::new(&bytes).map_err(|e| format!("{}: not an MCAP file: {e}", path.display()))?;
+    let mut run = BTreeMap::new();
+    let mut ticks = Vec::new();
+    for message in stream {
+        let m = message.map_err(|e| format!("{}: {e}", path.display()))?;
+        if m.channel.topic != "/replay" {
+            continue;
+        }
+        if run.is_empty() {
+            run = m.channel.metadata.clone();
+        }
+        let v: serde_json::Value = serde_json::from_slice(&m.data)
+            .map_err(|e| format!("{}: /replay message: {e}", path.display()))?;
+        let (q, qd, tau) = (numbers(&v, "q")?, numbers(&v, "qd")?, numbers(&v, "tau")?);
+        let n = q.len();
+        let mut state = RobotState::new(n);
+        state.q = q;
+        state.qd = qd;
+        state.tau = tau;
+        state.missed = numbers(&v, "missed")?.iter().map(|&m| m as u32).collect();
+        state.faulted = numbers(&v, "faulted")?.iter().map(|&f| f != 0.0).collect();
+        let imu = numbers(&v, "imu")?;
+        if imu.len() != 10 {
+            return Err(format!(
+                "{}: /replay imu has {} values",
+                path.display(),
+                imu.len()
+            ));
+        }
+        state.gyro = [imu[0], imu[1], imu[2]];
+        state.accel = [imu[3], imu[4], imu[5]];
+        state.quat = [imu[6], imu[7], imu[8], imu[9]];
+        state.imu_missed = v["imu_missed"].as_u64().unwrap_or(0) as u32;
+        let pose = numbers(&v, "base_pose")?;
+        let truth = (!pose[0].is_nan()).then(|| -> Result<GroundTruth, String> {
+            let lin = numbers(&v, "base_lin_vel")?;
+            Ok(GroundTruth {
+                root_pose: std::array::from_fn(|i| pose[i]),
+                base_lin_vel: [lin[0], lin[1], lin[2]],
+                foot_contacts: numbers(&v, "feet")?.iter().map(|&f| f != 0.0).collect(),
+            })
+        });
+        let t = numbers(&v, "target")?;
+        let enabled = numbers(&v, "enabled")?;
+        let targets = (0..n)
+            .map(|i| JointTarget {
+                q: t[5 * i],
+                qd: t[5 * i + 1],
+                kp: t[5 * i + 2],
+                kd: t[5 * i + 3],
+                tau: t[5 * i + 4],
+                enabled: enabled[i] != 0.0,
+            })
+            .collect();
+        ticks.push(RecordedTick {
+            time_ns: m.log_time,
+            state,
+            truth: truth.transpose()?,
+            stop: v["stop"].as_bool().unwrap_or(false),
+            targets,
+        });
+    }
+    if ticks.is_empty() {
+        return Err(format!(
+            "{}: no /replay messages (record with robodeploy play)",
+            path.display()
+        ));
+    }
+    Ok(Recording { run, ticks })
+}
+
+/// The first place a replayed command differs from the recording.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Difference {
+    /// Tick.
+    pub tick: usize,
+    /// Robot joint index.
+    pub joint: usize,
+    /// Which command field.
+    pub field: &'static str,
+    /// What the replay sent.
+    pub replayed: f64,
+    /// What the recording says was sent.
+    pub recorded: f64,
+}
+
+/// Feeds recorded readings to the loop and checks what it writes.
+#[derive(Debug)]
+pub struct ReplayLink {
+    ticks: Arc<Vec<RecordedTick>>,
+    reads: Arc<AtomicUsize>,
+    writes: usize,
+    skip_count: bool,
+    first_difference: Option<Difference>,
+}
+
+impl RobotLink for ReplayLink {
+    fn identify(&mut self) -> Result<(), IoError> {
+        // The read that follows identification is not a tick's read.
+        self.skip_count = true;
+        Ok(())
+    }
+
+    fn read(&mut self, state: &mut RobotState) -> Result<(), IoError> {
+        let k = self.reads.load(Ordering::Relaxed);
+        let tick = self
+            .ticks
+            .get(k)
+            .ok_or_else(|| IoError::Setup(format!("the recording ends at tick {k}")))?;
+        state.clone_from(&tick.state);
+        if self.skip_count {
+            self.skip_count = false;
+        } else {
+            self.reads.fetch_add(1, Ordering::Relaxed);
+        }
+        Ok(())
+    }
+
+    fn write(&mut self, targets: &[JointTarget]) -> Result<(), IoError> {
+        let k = self.writes;
+        self.writes += 1;
+        let Some(recorded) = self.ticks.get(k) else {
+            return Ok(());
+        };
+        if self.first_difference.is_some() {
+            return Ok(());
+        }
+        for (j, (a, b)) in targets.iter().zip(&recorded.targets).enumerate() {
+            let fields = [
+                ("q", a.q, b.q),
+                ("qd", a.qd, b.qd),
+                ("kp", a.kp, b.kp),
+                ("kd", a.kd, b.kd),
+                ("tau", a.tau, b.tau),
+            ];
+            let enabled = (
+                "enabled",
+                f64::from(u8::from(a.enabled)),
+                f64::from(u8::from(b.enabled)),
+            );
+            if let Some(&(field, replayed, rec)) = fields
+                .iter()
+                .chain(std::iter::once(&enabled))
+                .find(|(_, x, y)| x.to_bits() != y.to_bits())
+            {
+                self.first_difference = Some(Difference {
+                    tick: k,
+                    joint: j,
+                    field,
+                    replayed,
+                    recorded: rec,
+                });
+                break;
+            }
+        }
+        Ok(())
+    }
+
+    fn torque_off(&mut self) -> Result<(), IoError> {
+        Ok(())
+    }
+}
+
+/// The recording's clock and ground truth.
+#[derive(Debug)]
+struct ReplayClock {
+    ticks: Arc<Vec<RecordedTick>>,
+    reads: Arc<AtomicUsize>,
+}
+
+impl TickClock for ReplayClock {
+    fn elapsed(&self) -> Duration {
+        let k = self.reads.load(Ordering::Relaxed).saturating_sub(1);
+        Duration::from_nanos(self.ticks.get(k).map_or(0, |t| t.time_ns))
+    }
+
+    fn wait_until(&mut self, _deadline: Duration) -> bool {
+        false
+    }
+
+    fn ground_truth(&self, truth: &mut GroundTruth) -> bool {
+        // Called after the tick's read: the tick is the one just read.
+        let k = self.reads.load(Ordering::Relaxed).saturating_sub(1);
+        match self.ticks.get(k).and_then(|t| t.truth.as_ref()) {
+            Some(t) => {
+                truth.clone_from(t);
+                true
+            }
+            None => false,
+        }
+    }
+}
+
+/// What a replay found.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReplayReport {
+    /// The recording.
+    pub path: PathBuf,
+    /// Ticks replayed.
+    pub ticks: usize,
+    /// The first command that differs, if any.
+    pub first_difference: Option<Difference>,
+    /// Joint names, robot order (for messages).
+    pub joints: Vec<String>,
+}
+
+impl std::fmt::Display for ReplayReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match &self.first_difference {
+            None => write!(
+                f,
+                "replayed {} ticks of {}: every command matches the recording bit for bit",
+                self.ticks,
+                self.path.display()
+            ),
+            Some(d) => write!(
+                f,
+                "replayed {} ticks of {}: first difference at tick {}, joint {} ({}) {}: replayed {:?}, recorded {:?}",
+                self.ticks,
+                self.path.display(),
+                d.tick,
+                d.joint,
+                self.joints.get(d.joint).map_or("?", String::as_str),
+                d.field,
+                d.replayed,
+                d.recorded
+            ),
+        }
+    }
+}
+
+/// Replays `path` through the controller.
+pub fn replay(path: &Path) -> Result<ReplayReport, PlayError> {
+    let rec = read_recording(path).map_err(PlayError::Setup)?;
+    let get = |k: &str| rec.run.get(k).cloned();
+    let file = |k: &str| {
+        get(k).map(PathBuf::from).ok_or_else(|| {
+            PlayError::Setup(format!(
+                "{}: the recording does not say which {k} it ran",
+                path.display()
+            ))
+        })
+    };
+    let robot = Robot::load(&file("robot")?).map_err(|e| PlayError::Setup(e.to_string()))?;
+    let mut layout = PolicyLayout::load(&file("policy")?, &robot)?;
+    if let Some(c) = get("command") {
+        let values: Vec<f64> = c
+            .split(',')
+            .map(|v| {
+                v.parse()
+                    .map_err(|_| PlayError::Setup(format!("recorded command {c:?}")))
+            })
+            .collect::<Result<_, _>>()?;
+        layout.set_command(&values)?;
+    }
+    let clip = Clip::load(&file("clip")?).map_err(|e| PlayError::Setup(e.to_string()))?;
+    let reference = Reference::from_clip(&clip, &robot, layout.manifest.rate_hz)
+        .map_err(|e| PlayError::Setup(e.to_string()))?;
+    let options = PlayOptions::from_pairs(|k| get(k)).map_err(PlayError::Setup)?;
+    let joints = robot.config.joints.iter().map(|j| j.name.clone()).collect();
+    let ticks = Arc::new(rec.ticks);
+    let reads = Arc::new(AtomicUsize::new(0));
+    let link = ReplayLink {
+        ticks: Arc::clone(&ticks),
+        reads: Arc::clone(&reads),
+        writes: 0,
+        skip_count: false,
+        first_difference: None,
+    };
+    let stop = Arc::new(AtomicBool::new(false));
+    let mut player = Player::new(robot, layout, reference, options, link, Arc::clone(&stop))?;
+    let clock = ReplayClock {
+        ticks: Arc::clone(&ticks),
+        reads,
+    };
+    player.identify()?;
+    for t in ticks.iter() {
+        stop.store(t.stop, Ordering::Relaxed);
+        player.step(&clock)?;
+    }
+    Ok(ReplayReport {
+        path: path.to_path_buf(),
+        ticks: ticks.len(),
+        first_difference: player.link().first_difference.clone(),
+        joints,
+    })
+}

@@ -1,0 +1,114 @@
+//! Argument parsers the bus tools share: `ID:MODEL` device specs and `FIRST-LAST` ID ranges.
+
+/// Parses `ID:MODEL` with the ID in `ids` and the model among `known`; `what` names the device
+/// kind in messages ("motor", "servo").
+pub fn id_and_model(
+    s: &str,
+    what: &str,
+    ids: std::ops::RangeInclusive<u8>,
+    known: &[&str],
+) -> Result<(u8, String), String> {
+    let example = format!("{}:{}", ids.start().max(&1), known.first().unwrap_or(&"MODEL"));
+    let (id, model) = s
+        .split_once(':')
+        .ok_or_else(|| format!("'{s}': expected ID:MODEL, e.g. {example}"))?;
+    let id: u8 = id.parse().ok().filter(|id| ids.contains(id)).ok_or_else(|| {
+        format!(
+            "'{s}': {what} ID '{id}' is not a number {}-{}",
+            ids.start(),
+            ids.end()
+        )
+    })?;
+    if !known.contains(&model) {
+        return Err(format!(
+            "'{s}': unknown {what} model '{model}' (known: {})",
+            known.join(", ")
+        ));
+    }
+    Ok((id, model.to_owned()))
+}
+
+/// Parses `FIRST-LAST` (or one ID) with `LAST <= max`.
+pub fn id_range(s: &str, max: u8) -> Result<(u8, u8), String> {
+    let (a, b) = s.split_once('-').unwrap_or((s, s));
+    let parse = |x: &str| {
+        x.trim()
+            .parse::<u8>()
+            .map_err(|_| format!("'{s}': expected FIRST-LAST, e.g. 1-{max}"))
+    };
+    let (a, b) = (parse(a)?, parse(b)?);
+    if a > b || b > max {
+        return Err(format!("'{s}': need FIRST <= LAST <= {max}"));
+    }
+    Ok((a, b))
+}
+
+/// What happens when the clip ends (`--end`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum EndArg {
+    /// Hold the last frame for a moment, then stop.
+    Hold,
+    /// Blend back to the default pose, then stop.
+    Blend,
+    /// Start the clip again (until stopped).
+    Loop,
+}
+
+impl From<EndArg> for controller::player::EndMode {
+    fn from(a: EndArg) -> Self {
+        match a {
+            EndArg::Hold => Self::Hold,
+            EndArg::Blend => Self::Blend,
+            EndArg::Loop => Self::Loop,
+        }
+    }
+}
+
+/// The robot's pose matching the human's nominal frame (`--nominal`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum NominalArg {
+    /// robot.toml's `[retarget] tpose` (the human's nominal frame is a T-pose).
+    Tpose,
+    /// The default standing pose (the human's nominal frame stands with the arms down).
+    Default,
+}
+
+impl From<NominalArg> for human::retarget::Nominal {
+    fn from(a: NominalArg) -> Self {
+        match a {
+            NominalArg::Tpose => Self::Tpose,
+            NominalArg::Default => Self::Default,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn specs_and_ranges_parse_or_say_why_not() {
+        assert_eq!(
+            id_and_model("3:AK80-9", "motor", 1..=127, &["AK80-9"]),
+            Ok((3, "AK80-9".into()))
+        );
+        assert!(
+            id_and_model("0:AK80-9", "motor", 1..=127, &["AK80-9"])
+                .unwrap_err()
+                .contains("not a number 1-127")
+        );
+        assert!(
+            id_and_model("3:AK99", "motor", 1..=127, &["AK80-9"])
+                .unwrap_err()
+                .contains("unknown motor model 'AK99'")
+        );
+        assert!(
+            id_and_model("3", "servo", 0..=252, &["XM430-W350"])
+                .unwrap_err()
+                .contains("e.g. 1:XM430-W350")
+        );
+        assert_eq!(id_range("1-16", 127), Ok((1, 16)));
+        assert_eq!(id_range("5", 127), Ok((5, 5)));
+        assert!(id_range("9-3", 127).unwrap_err().contains("FIRST <= LAST <= 127"));
+    }
+}

@@ -1,0 +1,101 @@
+//! `robodeploy batch`: many clips × seeds on the mirror, in parallel, one table at the end.
+
+use std::path::PathBuf;
+
+use analysis::batch::{BatchSpec, run_batch};
+use anyhow::Result;
+use clap::Args;
+use controller::player::PlayOptions;
+use robots::Robot;
+
+use crate::sim::load_mirror_config;
+
+/// Arguments of `batch`.
+#[derive(Debug, Args)]
+pub struct BatchArgs {
+    /// The robot description.
+    #[arg(long, default_value_os_t = robots::reference_robot_path())]
+    robot: PathBuf,
+    /// The policy manifest.
+    #[arg(long, default_value_os_t = robots::reference_robot_path().with_file_name("policies/reference_follower.toml"))]
+    policy: PathBuf,
+    /// Clips to run (CSV or NPZ).
+    #[arg(long, num_args = 1.., required = true)]
+    clips: Vec<PathBuf>,
+    /// Seeds, as FIRST-LAST (each seed randomises the mirror per --mirror).
+    #[arg(long, default_value = "0-3", value_parser = parse_seeds)]
+    seeds: (u64, u64),
+    /// Mirror settings (randomisation, faults, gantry), TOML.
+    #[arg(long)]
+    mirror: Option<PathBuf>,
+    /// Parallel runs (default: the number of cores).
+    #[arg(long)]
+    jobs: Option<usize>,
+}
+
+fn parse_seeds(s: &str) -> Result<(u64, u64), String> {
+    let (a, b) = s.split_once('-').unwrap_or((s, s));
+    let parse = |x: &str| {
+        x.trim()
+            .parse::<u64>()
+            .map_err(|_| format!("'{s}': expected FIRST-LAST, e.g. 0-7"))
+    };
+    let (a, b) = (parse(a)?, parse(b)?);
+    if a > b || b - a >= 10_000 {
+        return Err(format!("'{s}': need FIRST <= LAST and at most 10000 seeds"));
+    }
+    Ok((a, b))
+}
+
+/// Runs `batch`.
+pub fn run(args: &BatchArgs) -> Result<()> {
+    let robot = Robot::load(&args.robot)?;
+    let mirror = match &args.mirror {
+        Some(p) => load_mirror_config(p)?,
+        None => sim2real::config::MirrorConfig::default(),
+    };
+    let seeds: Vec<u64> = (args.seeds.0..=args.seeds.1).collect();
+    let jobs = args
+        .jobs
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, std::num::NonZero::get));
+    let total = (args.clips.len() * seeds.len()) as u64;
+    let bar = indicatif::ProgressBar::new(total).with_message("runs");
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} {elapsed}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let spec = BatchSpec {
+        robot: &robot,
+        policy: &args.policy,
+        clips: &args.clips,
+        seeds: &seeds,
+        mirror: &mirror,
+        options: PlayOptions::default(),
+        jobs,
+    };
+    let (totals, _) =
+        run_batch(&spec, &|done, _| bar.set_position(done as u64)).map_err(anyhow::Error::msg)?;
+    bar.finish_and_clear();
+    println!(
+        "{:<28} {:>6} {:>9} {:>13} {:>12} {:>14}",
+        "clip", "runs", "success", "joint RMSE °", "root RMSE cm", "limited ticks"
+    );
+    for t in &totals {
+        let name = t.clip.file_name().map_or_else(
+            || t.clip.display().to_string(),
+            |n| n.to_string_lossy().into_owned(),
+        );
+        println!(
+            "{name:<28} {:>6} {:>8.0}% {:>13.2} {:>12.1} {:>14}",
+            t.runs,
+            100.0 * t.successes as f64 / t.runs.max(1) as f64,
+            t.joint_rmse_deg,
+            t.root_rmse_cm,
+            t.limited_ticks
+        );
+        for e in t.errors.iter().take(3) {
+            println!("    error: {e}");
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,198 @@
+//! `robodeploy bus scan`: every bus of a robot, compared with its robot.toml.
+
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result};
+use clap::{Args, Subcommand};
+use firmware_bridge::can::CanBus;
+use firmware_bridge::can::socketcan::SocketCanBus;
+use firmware_bridge::can::socketcand::SocketcandClient;
+use firmware_bridge::dxl::transport::{DxlTransport, SerialDxlPort};
+use firmware_bridge::imu::reader::ImuReader;
+use firmware_bridge::serial::{ByteStream, DeviceStream};
+use firmware_bridge::{dxl, mit};
+use robots::{BusKind, Robot};
+
+/// Bus tools across a whole robot.
+#[derive(Debug, Subcommand)]
+pub enum BusCommand {
+    /// List the devices on every bus of a robot and compare them with robot.toml: missing,
+    /// unexpected and wrong-model devices, and the IMU's sample rate. Only asks (MIT motors get a
+    /// torque-off frame, servos pings and reads); nothing moves.
+    ///
+    /// By default it opens the devices robot.toml names (the hardware); --sim serves the robot's
+    /// mirror locally and scans that, over the same wires.
+    Scan(ScanArgs),
+}
+
+/// Arguments of `bus scan`.
+#[derive(Debug, Args)]
+pub struct ScanArgs {
+    /// The robot description.
+    #[arg(long, default_value_os_t = robots::reference_robot_path())]
+    robot: std::path::PathBuf,
+    /// Scan the robot's mirror, served locally, instead of the hardware.
+    #[arg(long)]
+    sim: bool,
+    /// How long to wait for each answer, ms.
+    #[arg(long, default_value_t = 20)]
+    timeout_ms: u64,
+}
+
+/// Runs a `bus` subcommand.
+pub fn run(cmd: BusCommand) -> Result<()> {
+    match cmd {
+        BusCommand::Scan(args) => scan(&args),
+    }
+}
+
+fn scan(args: &ScanArgs) -> Result<()> {
+    let robot = Robot::load(&args.robot)?;
+    let timeout = Duration::from_millis(args.timeout_ms);
+    let served = if args.sim {
+        let mirror = sim2real::mirror::Mirror::new(robot.clone(), sim2real::config::MirrorConfig::default())?;
+        Some(sim2real::link::serve_locally(mirror).context("cannot serve the mirror")?)
+    } else {
+        None
+    };
+    let mut problems = 0;
+    for bus in &robot.config.buses {
+        let endpoint = served.as_ref().map(|s| s.endpoints());
+        match bus.kind {
+            BusKind::MitCan => {
+                let found = match endpoint.and_then(|e| e.can.iter().find(|c| c.0 == bus.name)) {
+                    Some((_, addr)) => scan_mit(
+                        &robot,
+                        &bus.name,
+                        &mut SocketcandClient::connect(addr, &bus.name, Duration::from_secs(2))?,
+                        timeout,
+                    )?,
+                    None => scan_mit(&robot, &bus.name, &mut SocketCanBus::open(&bus.device)?, timeout)?,
+                };
+                problems += found;
+            }
+            BusKind::Dynamixel => {
+                let path = endpoint
+                    .and_then(|e| e.dxl.iter().find(|d| d.0 == bus.name))
+                    .map_or(bus.device.clone(), |d| d.1.clone());
+                let mut port = SerialDxlPort::open(&path, bus.rate)
+                    .with_context(|| format!("bus {}: cannot open {path}", bus.name))?;
+                problems += scan_dxl(&robot, &bus.name, &mut port, timeout)?;
+            }
+            BusKind::ImuSerial => {
+                let path = endpoint.map_or(bus.device.clone(), |e| e.imu.clone());
+                let stream = DeviceStream::open(&path, bus.rate)
+                    .with_context(|| format!("bus {}: cannot open {path}", bus.name))?;
+                problems += scan_imu(&bus.name, stream, robot.config.imu.rate_hz)?;
+            }
+        }
+    }
+    if problems == 0 {
+        println!("every device of {} answered as configured", robot.config.name);
+        Ok(())
+    } else {
+        anyhow::bail!("{problems} device(s) differ from {}", robot.path.display())
+    }
+}
+
+fn scan_mit<B: CanBus>(robot: &Robot, bus: &str, port: &mut B, timeout: Duration) -> Result<usize> {
+    let joints: Vec<_> = robot.joints_on(bus).map(|(_, j)| j).collect();
+    let model = mit::models::find(&joints[0].model).context("model checked at load")?;
+    let last = joints
+        .iter()
+        .map(|j| j.id)
+        .max()
+        .unwrap_or(0)
+        .saturating_add(2)
+        .min(127);
+    let hits = mit::driver::scan(port, model, 1..=last, timeout)?;
+    println!("can  {bus}: {} motor(s) answered among IDs 1-{last}", hits.len());
+    let mut problems = 0;
+    for j in &joints {
+        match hits.iter().find(|h| h.motor_id == j.id) {
+            Some(h) => println!(
+                "  id {:>3}  {:<20} {:<9} pos {:>7.3} rad  temp {}",
+                j.id,
+                j.name,
+                j.model,
+                h.reply.p,
+                h.reply.temperature.map_or("-".into(), |t| format!("{t:.0} °C"))
+            ),
+            None => {
+                problems += 1;
+                println!("  id {:>3}  {:<20} MISSING", j.id, j.name);
+            }
+        }
+    }
+    for h in hits.iter().filter(|h| !joints.iter().any(|j| j.id == h.motor_id)) {
+        problems += 1;
+        println!("  id {:>3}  not in robot.toml", h.motor_id);
+    }
+    Ok(problems)
+}
+
+fn scan_dxl<T: DxlTransport>(robot: &Robot, bus: &str, port: &mut T, timeout: Duration) -> Result<usize> {
+    let joints: Vec<_> = robot.joints_on(bus).map(|(_, j)| j).collect();
+    let last = joints
+        .iter()
+        .map(|j| j.id)
+        .max()
+        .unwrap_or(0)
+        .saturating_add(2)
+        .min(252);
+    let hits = dxl::driver::scan(port, 1..=last, timeout)?;
+    println!("dxl  {bus}: {} servo(s) answered among IDs 1-{last}", hits.len());
+    let mut problems = 0;
+    for j in &joints {
+        let expected = dxl::models::find(&j.model).map_or(0, |m| m.model_number);
+        match hits.iter().find(|h| h.id == j.id) {
+            Some(h) if h.model_number == expected => {
+                println!(
+                    "  id {:>3}  {:<20} {:<11} pos {:>5} ticks  {} °C  hw error {:#04x}",
+                    j.id, j.name, j.model, h.position, h.temperature, h.hardware_error
+                );
+            }
+            Some(h) => {
+                problems += 1;
+                println!(
+                    "  id {:>3}  {:<20} WRONG MODEL: configured {}, answers model {}",
+                    j.id, j.name, j.model, h.model_number
+                );
+            }
+            None => {
+                problems += 1;
+                println!("  id {:>3}  {:<20} MISSING", j.id, j.name);
+            }
+        }
+    }
+    for h in hits.iter().filter(|h| !joints.iter().any(|j| j.id == h.id)) {
+        problems += 1;
+        println!("  id {:>3}  not in robot.toml (model {})", h.id, h.model_number);
+    }
+    Ok(problems)
+}
+
+fn scan_imu<S: ByteStream>(bus: &str, stream: S, rate_hz: f64) -> Result<usize> {
+    let mut reader = ImuReader::new(stream);
+    let start = Instant::now();
+    let mut last = None;
+    let mut samples = 0u32;
+    while start.elapsed() < Duration::from_millis(500) {
+        if let Some(r) = reader.poll()?
+            && Some(r.received_at) != last
+        {
+            last = Some(r.received_at);
+            samples += 1;
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    let stats = reader.stats();
+    println!(
+        "imu  {bus}: {} samples in 0.5 s ({} packets, {} checksum errors)",
+        stats.samples, stats.packets, stats.checksum_errors
+    );
+    let expected = rate_hz * 0.5;
+    Ok(usize::from(
+        (stats.samples as f64) < 0.5 * expected || samples == 0,
+    ))
+}

@@ -1,0 +1,277 @@
+//! `robodeploy`: run motion-tracking policies on a robot or its mirrored simulator.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use clap::{Parser, Subcommand};
+
+mod args;
+mod batch;
+mod bus;
+mod calibrate;
+mod can;
+mod console;
+mod dxl;
+mod play;
+mod retarget;
+mod sim;
+mod teleop;
+
+/// Run motion-tracking policies on a real robot, or on its mirrored MuJoCo simulator.
+///
+/// The controller reads the robot's state over its CAN and serial buses, builds the policy's
+/// observation exactly as in training, runs the ONNX policy, limits the commands and writes them
+/// back to the servos, at the policy rate.
+#[derive(Debug, Parser)]
+#[command(name = "robodeploy", version, about, long_about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// CAN bus tools: emulated MIT-mode motors behind socketcand, and bus scans.
+    #[command(subcommand)]
+    Can(can::CanCommand),
+    /// Calibrate a robot without risking it: identity check, joint zeros and directions from a
+    /// jig (torque off), IMU bias and mounting, and a gentle verification. Results go to
+    /// calibration.toml beside robot.toml, which every later run merges.
+    #[command(subcommand)]
+    Calibrate(calibrate::CalibrateCommand),
+    /// Tools over every bus of a robot: scan and compare with robot.toml.
+    #[command(subcommand)]
+    Bus(bus::BusCommand),
+    /// Dynamixel serial bus tools: emulated X-series servos on a pseudo-terminal, and bus scans.
+    #[command(subcommand)]
+    Dxl(dxl::DxlCommand),
+    /// Play a clip through a policy: on the mirrored robot (default, lockstep), in real time over
+    /// real wires (--wall), or on the hardware (--hardware).
+    ///
+    /// The loop reads every bus and the IMU, builds the observation the policy manifest declares,
+    /// runs the ONNX policy, maps actions to joint targets, passes them through the safety governor
+    /// (position limits with margin, speed limits, torque bounds) and writes them. The state machine
+    /// goes Off → Ready → SoftStart → Running → Stopping → Damped → Off; faults (stale feedback,
+    /// device faults, NaN, tilt, overruns) and SIGINT/SIGTERM take the short way to Damped.
+    Play(play::PlayArgs),
+    /// Retarget a human BVH recording onto the robot: the retargeting map of robot.toml (scale
+    /// and nominal offsets from a T-pose or the first frame), inverse kinematics on the robot's
+    /// MuJoCo model within the joints' limits, soles kept out of the floor; writes a clip (CSV)
+    /// and checks it as `check --clip` does.
+    Retarget(retarget::RetargetArgs),
+    /// Drive the robot live from VR trackers: a headset and two controllers sending VMC (OSC over
+    /// UDP, 127.0.0.1:39539 by default). A T-pose calibrates the user; the head and hands are
+    /// mapped onto the robot and solved by inverse kinematics into the live reference of a
+    /// reference-tracking policy (legs standing). Late packets are forecast; a lost stream blends
+    /// back to the standby pose; malformed packets are dropped and counted. Mirror by default.
+    Teleop(teleop::TeleopArgs),
+    /// VR tools: stream a recorded session as a headset and controllers.
+    #[command(subcommand)]
+    Vr(teleop::VrCommand),
+    /// Run many clips × seeds on the mirror in lockstep, in parallel over the cores, and print one
+    /// table per clip: success rate, tracking RMSE, governor saturation.
+    Batch(batch::BatchArgs),
+    /// Validate a robot, a policy manifest with its ONNX file, and a clip, moving nothing: prints
+    /// the resolved observation layout and the clip's length, or the first problem with its place.
+    Check(play::CheckArgs),
+    /// Replay a recorded run (the MCAP `play` writes) through the same controller code: feeds the
+    /// recorded bus readings, IMU, ground truth and stop requests tick by tick and reports the first
+    /// command that differs from the recording, bit for bit.
+    Replay {
+        /// The recording.
+        log: PathBuf,
+    },
+    /// Compare the observations of two runs, or of a run and an export from training (NPZ with an
+    /// `obs` array, or CSV rows), term by term: which term diverges first, at which step, by how
+    /// much. The first file must be a run (its manifest names the terms).
+    Compare {
+        /// A recorded run (MCAP from `play`).
+        run: PathBuf,
+        /// Another run, or a training export (.npz / .csv).
+        other: PathBuf,
+        /// Differences up to this are equal.
+        #[arg(long, default_value_t = 1e-3)]
+        tolerance: f64,
+    },
+    /// Write the report of a recorded run: tracking plots, root error, success, RMSE, jitter,
+    /// timing, bus misses, safety events (report.html with plots, summary.md, summary.json).
+    Report {
+        /// A recorded run (MCAP from `play`).
+        run: PathBuf,
+        /// Folder to write into.
+        #[arg(long, default_value = "out/report")]
+        out: PathBuf,
+    },
+    /// The mirrored simulator: a robot's MuJoCo model behind emulated firmware on its buses.
+    #[command(subcommand)]
+    Sim(sim::SimCommand),
+    /// Check the native libraries and load a MuJoCo model and an ONNX model, moving nothing.
+    ///
+    /// Prints the versions of MuJoCo and ONNX Runtime this build loads, the sizes of the MuJoCo
+    /// model, and the input/output of the ONNX model with one timed inference on zeros.
+    Doctor {
+        /// MJCF model to load.
+        #[arg(long)]
+        mjcf: PathBuf,
+        /// ONNX policy to load.
+        #[arg(long)]
+        onnx: PathBuf,
+    },
+}
+
+fn main() -> std::process::ExitCode {
+    // Errors are for the person at the terminal: the message chain, not a backtrace.
+    match run() {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run() -> Result<()> {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info,ort=warn".into()),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    match Cli::parse().command {
+        Command::Doctor { mjcf, onnx } => doctor(&mjcf, &onnx),
+        Command::Can(cmd) => can::run(cmd),
+        Command::Dxl(cmd) => dxl::run(cmd),
+        Command::Bus(cmd) => bus::run(cmd),
+        Command::Calibrate(cmd) => calibrate::run(cmd),
+        Command::Sim(cmd) => sim::run(cmd),
+        Command::Play(args) => play::play(&args),
+        Command::Check(args) => play::check(&args),
+        Command::Batch(args) => batch::run(&args),
+        Command::Retarget(args) => retarget::run(&args),
+        Command::Teleop(args) => teleop::teleop(&args),
+        Command::Vr(cmd) => teleop::vr(cmd),
+        Command::Compare {
+            run,
+            other,
+            tolerance,
+        } => compare(&run, &other, tolerance),
+        Command::Report { run, out } => {
+            let s = analysis::report::write_report(&run, &out).map_err(anyhow::Error::msg)?;
+            println!(
+                "report in {}: joint RMSE {:.2}°, {} safety events",
+                out.display(),
+                s.joints_rmse_deg,
+                s.safety_events.len()
+            );
+            Ok(())
+        }
+        Command::Replay { log } => {
+            let report = analysis::replay::replay(&log)?;
+            println!("{report}");
+            if report.first_difference.is_some() {
+                anyhow::bail!("the replay does not reproduce the recording");
+            }
+            Ok(())
+        }
+    }
+}
+
+fn compare(run: &std::path::Path, other: &std::path::Path, tolerance: f64) -> Result<()> {
+    use analysis::compare::{compare, trace_from_export, trace_from_run};
+    let (a, meta) = trace_from_run(run).map_err(anyhow::Error::msg)?;
+    let file = |k: &str| {
+        meta.get(k)
+            .map(PathBuf::from)
+            .ok_or_else(|| anyhow::anyhow!("{}: the recording does not say which {k} it ran", run.display()))
+    };
+    let robot = robots::Robot::load(&file("robot")?)?;
+    let mut layout = controller::policy::PolicyLayout::load(&file("policy")?, &robot)?;
+    let model = controller::onnx::OnnxModel::load(&layout.onnx_path)?;
+    layout.bind_model(model.inputs(), model.output().1)?;
+    let is_run = other.extension().is_some_and(|e| e.eq_ignore_ascii_case("mcap"));
+    let b = if is_run {
+        trace_from_run(other).map_err(anyhow::Error::msg)?.0
+    } else {
+        trace_from_export(other).map_err(anyhow::Error::msg)?
+    };
+    let diffs = compare(&a, &b, &layout, tolerance).map_err(anyhow::Error::msg)?;
+    let steps = a.steps.len().min(b.steps.len());
+    match diffs.first().filter(|d| d.first_step.is_some()) {
+        Some(d) => {
+            let step = d.first_step.unwrap_or(0);
+            println!(
+                "first divergence: term {} (obs[{}..{}]) at step {step} (tick {} of {}), max |Δ| {:.4}",
+                d.term,
+                d.range.start,
+                d.range.end,
+                a.ticks.get(step).copied().unwrap_or(0),
+                run.display(),
+                d.max_abs
+            );
+        }
+        None => println!("no term differs by more than {tolerance} over {steps} steps"),
+    }
+    println!(
+        "{:<18} {:>11} {:>12} {:>12}",
+        "term", "first step", "max |Δ|", "RMS Δ"
+    );
+    for d in &diffs {
+        let first = d.first_step.map_or("-".to_owned(), |s| s.to_string());
+        println!("{:<18} {first:>11} {:>12.5} {:>12.5}", d.term, d.max_abs, d.rms);
+    }
+    Ok(())
+}
+
+fn doctor(mjcf: &std::path::Path, onnx: &std::path::Path) -> Result<()> {
+    sim2real::mujoco::check_version()?;
+    println!(
+        "MuJoCo        {} (mj_version {})",
+        sim2real::mujoco::loaded_version_string(),
+        sim2real::mujoco::loaded_version()
+    );
+    let info = controller::onnx::runtime_info()?;
+    println!("ONNX Runtime  {info}");
+
+    let model = sim2real::mujoco::load_model(mjcf)?;
+    let s = sim2real::mujoco::sizes(&model);
+    println!(
+        "MJCF          {}: nq {} nv {} nu {} bodies {} joints {} timestep {} s",
+        mjcf.display(),
+        s.nq,
+        s.nv,
+        s.nu,
+        s.nbody,
+        s.njnt,
+        s.timestep
+    );
+    let mut data = model.make_data();
+    let steps = (1.0 / s.timestep).round() as usize;
+    let t0 = std::time::Instant::now();
+    for _ in 0..steps {
+        data.step();
+    }
+    println!(
+        "              simulated 1 s ({steps} steps) in {:.1} ms",
+        t0.elapsed().as_secs_f64() * 1e3
+    );
+
+    let mut policy =
+        controller::onnx::OnnxModel::load(onnx).with_context(|| format!("loading {}", onnx.display()))?;
+    let (in_name, in_len) = policy.input();
+    let (out_name, out_len) = policy.output();
+    println!(
+        "ONNX          {}: input '{in_name}' [{in_len}] -> output '{out_name}' [{out_len}]",
+        onnx.display()
+    );
+    let obs = vec![0.0f32; in_len];
+    let mut act = vec![0.0f32; out_len];
+    let t0 = std::time::Instant::now();
+    policy.run(&obs, &mut act)?;
+    println!(
+        "              one inference on zeros in {:.1} µs; first actions {:?}",
+        t0.elapsed().as_secs_f64() * 1e6,
+        &act[..act.len().min(4)]
+    );
+    println!("doctor: all checks passed");
+    Ok(())
+}

@@ -1,0 +1,342 @@
+//! `robodeploy play` and `robodeploy check`: run a policy on a clip, or validate the three files.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use robots::Robot;
+use sim2real::mirror::Mirror;
+
+use crate::sim::load_mirror_config;
+use controller::clip::{Clip, Reference};
+use controller::onnx::OnnxModel;
+use controller::player::{PlayOptions, PlaySummary, Player};
+use controller::policy::PolicyLayout;
+use controller::sim::lockstep_player;
+use controller::telemetry::{Backpressure, TelemetrySink};
+use robot_link::RobotLink;
+use sim2real::link::{ServedClock, serve_locally, wired_robot};
+
+/// Arguments of `play`.
+#[derive(Debug, Args)]
+pub struct PlayArgs {
+    #[command(flatten)]
+    files: Files,
+    /// Run on the robot's own buses (robot.toml devices) instead of the mirror.
+    #[arg(long, conflicts_with = "wall")]
+    hardware: bool,
+    /// Run the mirror in real time behind real wires (socketcand, pseudo-terminals) and connect
+    /// to it as to hardware.
+    #[arg(long)]
+    wall: bool,
+    /// Mirror settings (seed, gantry, randomisation, faults), TOML.
+    #[arg(long)]
+    mirror: Option<PathBuf>,
+    /// Hold the mirrored robot on a gantry.
+    #[arg(long)]
+    gantry: bool,
+    /// What to do when the clip ends.
+    #[arg(long, value_enum, default_value_t = crate::args::EndArg::Hold)]
+    end: crate::args::EndArg,
+    /// Seconds of the start-up ramp ψ (clip held at its first frame).
+    #[arg(long, default_value_t = 1.5)]
+    ramp: f64,
+    /// Stop (softly) after this many seconds of the run, whatever the clip.
+    #[arg(long)]
+    max_seconds: Option<f64>,
+    /// Real-time set-up of the loop thread: SCHED_FIFO, mlockall, pinned to the last CPU. Steps
+    /// the system refuses are reported and skipped.
+    #[arg(long)]
+    realtime: bool,
+    /// Listen for an e-stop on this UDP address (a datagram `ESTOP` damps the robot at once).
+    #[arg(long)]
+    estop_udp: Option<std::net::SocketAddr>,
+    /// Values of the policy's `command` term (e.g. a velocity command `0.3,0,0`), replacing the
+    /// manifest's constants.
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+    command: Option<Vec<f64>>,
+    /// Record the run as MCAP here (default: out/runs/ROBOT-CLIP.mcap; opens in Foxglove).
+    #[arg(long)]
+    record: Option<PathBuf>,
+    /// Do not record the run.
+    #[arg(long, conflicts_with = "record")]
+    no_record: bool,
+    /// After the run, write its report (plots, summary) into this folder.
+    #[arg(long, conflicts_with = "no_record")]
+    report: Option<PathBuf>,
+}
+
+/// Arguments of `check`.
+#[derive(Debug, Args)]
+pub struct CheckArgs {
+    #[command(flatten)]
+    files: Files,
+}
+
+#[derive(Debug, Args)]
+struct Files {
+    /// The robot description.
+    #[arg(long, default_value_os_t = robots::reference_robot_path())]
+    robot: PathBuf,
+    /// The policy manifest (TOML beside its ONNX file).
+    #[arg(long, default_value_os_t = robots::reference_robot_path().with_file_name("policies/reference_follower.toml"))]
+    policy: PathBuf,
+    /// The clip (CSV: time, root pose, joint columns named as in robot.toml).
+    #[arg(long, default_value_os_t = robots::reference_robot_path().with_file_name("clips/squat.csv"))]
+    clip: PathBuf,
+}
+
+struct Loaded {
+    robot: Robot,
+    layout: PolicyLayout,
+    reference: Reference,
+    clip: Clip,
+}
+
+fn load(files: &Files) -> Result<Loaded> {
+    let robot = Robot::load(&files.robot)?;
+    let mut layout = PolicyLayout::load(&files.policy, &robot)?;
+    let model = OnnxModel::load(&layout.onnx_path)?;
+    layout.bind_model(model.inputs(), model.output().1)?;
+    let clip = Clip::load(&files.clip)?;
+    let reference = Reference::from_clip(&clip, &robot, layout.manifest.rate_hz)?;
+    Ok(Loaded {
+        robot,
+        layout,
+        reference,
+        clip,
+    })
+}
+
+/// Runs `check`.
+pub fn check(args: &CheckArgs) -> Result<()> {
+    let l = load(&args.files)?;
+    println!(
+        "robot  {} ({} joints) — {}",
+        l.robot.config.name,
+        l.robot.config.joints.len(),
+        l.robot.path.display()
+    );
+    println!("policy {}", l.layout.path.display());
+    println!(
+        "       {}",
+        l.layout
+            .manifest
+            .description
+            .split_whitespace()
+            .collect::<Vec<_>>()
+            .join(" ")
+    );
+    println!(
+        "       {} Hz, {:?} actions, observation of {} values:",
+        l.layout.manifest.rate_hz, l.layout.manifest.action.kind, l.layout.obs_len
+    );
+    print!("{}", l.layout.describe());
+    if l.layout.needs_ground_truth() {
+        println!(
+            "       note: some terms need simulation ground truth; on hardware they need a state estimator"
+        );
+    }
+    println!(
+        "clip   {}: {:.2} s at {} frames → {} ticks at {} Hz, within every joint and speed limit",
+        l.clip.path.display(),
+        l.clip.duration(),
+        l.clip.times.len(),
+        l.reference.len(),
+        l.reference.rate_hz
+    );
+    if !l.reference.held_joints.is_empty() {
+        println!(
+            "       joints not in the clip, held at the default pose: {}",
+            l.reference.held_joints.join(", ")
+        );
+    }
+    let quality = analysis::motion_check::analyze(&l.robot, &l.reference).map_err(anyhow::Error::msg)?;
+    println!("clip quality on the robot model:");
+    print!("{quality}");
+    let problems = quality.problems();
+    if !problems.is_empty() {
+        bail!(
+            "{}: the robot should not play this clip:\n  {}",
+            l.clip.path.display(),
+            problems.join("\n  ")
+        );
+    }
+    println!("ok: nothing moved");
+    Ok(())
+}
+
+/// Adds the recorder and the e-stop a run asked for.
+fn with_estop<L: RobotLink>(player: Player<L>, args: &PlayArgs, options: &PlayOptions) -> Result<Player<L>> {
+    let player = with_recorder(player, args, options)?;
+    let Some(addr) = args.estop_udp else {
+        return Ok(player);
+    };
+    let (flag, local) =
+        controller::estop::listen(addr).with_context(|| format!("cannot listen for the e-stop on {addr}"))?;
+    println!("e-stop: send ESTOP to udp://{local}");
+    Ok(player.with_estop(flag))
+}
+
+fn with_recorder<L: RobotLink>(
+    player: Player<L>,
+    args: &PlayArgs,
+    options: &PlayOptions,
+) -> Result<Player<L>> {
+    if args.no_record {
+        return Ok(player);
+    }
+    let robot = player.robot_name().to_owned();
+    let path = args.record.clone().unwrap_or_else(|| {
+        let clip = args
+            .files
+            .clip
+            .file_stem()
+            .map_or("run".into(), |s| s.to_string_lossy().into_owned());
+        PathBuf::from("out/runs").join(format!("{robot}-{clip}.mcap"))
+    });
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    }
+    // Lockstep runs can wait for the disk; real-time runs drop (and count) instead.
+    let backpressure = if args.wall || args.hardware {
+        Backpressure::Drop
+    } else {
+        Backpressure::Block
+    };
+    let mut run: std::collections::BTreeMap<String, String> = options.to_pairs().into_iter().collect();
+    let absolute = |p: &PathBuf| {
+        std::fs::canonicalize(p)
+            .unwrap_or_else(|_| p.clone())
+            .display()
+            .to_string()
+    };
+    run.insert("robot".into(), absolute(&args.files.robot));
+    run.insert("policy".into(), absolute(&args.files.policy));
+    run.insert("clip".into(), absolute(&args.files.clip));
+    if let Some(c) = &args.command {
+        run.insert(
+            "command".into(),
+            c.iter().map(|v| format!("{v:?}")).collect::<Vec<_>>().join(","),
+        );
+    }
+    let robot = player.robot();
+    let info = controller::telemetry::RecordingInfo {
+        joint_names: player.joint_names(),
+        root_frame: player.root_frame(),
+        run,
+        bus_names: player.link().bus_names().to_vec(),
+        kinematics: Some((
+            robot.mjcf_path.clone(),
+            robot.config.joints.iter().map(|j| j.mjcf_joint.clone()).collect(),
+        )),
+    };
+    let sink = TelemetrySink::start(&path, 1024, backpressure, &info).map_err(anyhow::Error::msg)?;
+    Ok(player.with_telemetry(sink))
+}
+
+/// Runs `play`.
+pub fn play(args: &PlayArgs) -> Result<()> {
+    let mut l = load(&args.files)?;
+    if let Some(values) = &args.command {
+        l.layout.set_command(values)?;
+    }
+    if !(args.ramp.is_finite() && args.ramp >= 0.0) {
+        bail!("--ramp {} is not a duration", args.ramp);
+    }
+    let rate = l.layout.manifest.rate_hz;
+    let max_ticks = match args.max_seconds {
+        Some(s) if s.is_finite() && s > 0.0 => Some((s * rate).round() as u64),
+        Some(s) => bail!("--max-seconds {s} is not a duration"),
+        None => None,
+    };
+    let options = PlayOptions {
+        ramp_s: args.ramp,
+        end: args.end.into(),
+        max_ticks,
+        ..PlayOptions::default()
+    };
+    if args.realtime {
+        let cpus = std::thread::available_parallelism().map_or(1, std::num::NonZero::get);
+        for step in controller::realtime::setup(80, Some(cpus - 1)).steps {
+            eprintln!("realtime: {step}");
+        }
+    }
+    let stop = Arc::new(AtomicBool::new(false));
+    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(signal, Arc::clone(&stop))
+            .context("cannot install the stop signal handlers")?;
+    }
+    if args.hardware {
+        if l.layout.needs_ground_truth() {
+            bail!(
+                "{}: this policy reads simulation ground truth; the hardware has no state estimator yet",
+                l.layout.path.display()
+            );
+        }
+        println!(
+            "{}: {} ({} ticks) on the hardware",
+            l.robot.config.name,
+            l.clip.path.display(),
+            l.reference.len()
+        );
+        let io = robot_link::hardware::open(&l.robot)?;
+        let mut clock = robot_link::WallClock::start();
+        let mut player = with_estop(
+            Player::new(l.robot, l.layout, l.reference, options, io, stop)?,
+            args,
+            &options,
+        )?;
+        let summary = player.run(&mut clock)?;
+        print!("{summary}");
+        return Ok(());
+    }
+    let mut config = match &args.mirror {
+        Some(p) => load_mirror_config(p)?,
+        None => sim2real::config::MirrorConfig::default(),
+    };
+    config.gantry |= args.gantry;
+    if l.layout.needs_ground_truth() {
+        eprintln!("note: the policy reads simulation ground truth (no state estimator yet)");
+    }
+    println!(
+        "{}: {} ({} ticks) on the mirror{}",
+        l.robot.config.name,
+        l.clip.path.display(),
+        l.reference.len(),
+        if args.wall {
+            " in real time over socketcand and pseudo-terminals"
+        } else {
+            " in lockstep"
+        }
+    );
+    let summary: PlaySummary = if args.wall {
+        let mirror = Mirror::new(l.robot.clone(), config).context("cannot build the mirror")?;
+        let served = serve_locally(mirror).context("cannot serve the mirror")?;
+        let io = wired_robot(&l.robot, &served)?;
+        let mut clock = ServedClock::new(Arc::clone(&served.world));
+        let mut player = with_estop(
+            Player::new(l.robot, l.layout, l.reference, options, io, stop)?,
+            args,
+            &options,
+        )?;
+        player.run(&mut clock)?
+    } else {
+        let (player, mut clock, _world) =
+            lockstep_player(l.robot, l.layout, l.reference, options, config, stop)?;
+        let mut player = with_estop(player, args, &options)?;
+        player.run(&mut clock)?
+    };
+    print!("{summary}");
+    if let (Some(dir), Some(t)) = (&args.report, &summary.telemetry) {
+        let r = analysis::report::write_report(&t.path, dir).map_err(anyhow::Error::msg)?;
+        println!(
+            "report: {} (joint RMSE {:.2}°)",
+            dir.join("report.html").display(),
+            r.joints_rmse_deg
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,116 @@
+//! `robodeploy retarget`: a human BVH recording onto the robot, as a clip, checked.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use controller::clip::{Clip, Reference};
+use human::bvh::Bvh;
+use human::retarget::{RetargetOptions, retarget};
+use robots::Robot;
+
+/// Arguments of `retarget`.
+#[derive(Debug, Args)]
+pub struct RetargetArgs {
+    /// The human recording (BVH; CMU and Bandai-Namco skeletons are known).
+    #[arg(long)]
+    bvh: PathBuf,
+    /// The robot (its robot.toml's [retarget] section pairs human and robot bodies).
+    #[arg(long, default_value_os_t = robots::reference_robot_path())]
+    robot: PathBuf,
+    /// Where to write the clip (CSV).
+    #[arg(long, default_value = "out/clips/retargeted.csv")]
+    out: PathBuf,
+    /// Clip rate, Hz.
+    #[arg(long, default_value_t = 50.0)]
+    rate: f64,
+    /// The recording's frame that matches the robot's nominal pose (CMU trials start in a T-pose).
+    #[arg(long, default_value_t = 0)]
+    nominal_frame: usize,
+    /// The recording's first frame in the clip (CMU trials start with a one-frame T-pose: 1).
+    #[arg(long, default_value_t = 0)]
+    start_frame: usize,
+    /// The robot's nominal pose: robot.toml's T-pose, or its default standing pose (for
+    /// recordings that start standing with the arms down).
+    #[arg(long, value_enum, default_value_t = crate::args::NominalArg::Tpose)]
+    nominal: crate::args::NominalArg,
+    /// Inverse-kinematics iterations per frame.
+    #[arg(long, default_value_t = 12)]
+    iterations: usize,
+    /// Gaussian smoothing of the result, σ in seconds (0: none): mocap jitter would otherwise
+    /// ask the motors for accelerations they do not have.
+    #[arg(long, default_value_t = 0.08)]
+    smoothing: f64,
+}
+
+/// Runs `retarget`.
+pub fn run(args: &RetargetArgs) -> Result<()> {
+    let robot = Robot::load(&args.robot)?;
+    let bvh = Bvh::load(&args.bvh).map_err(anyhow::Error::msg)?;
+    println!(
+        "{}: {:?} skeleton, {} joints, {} frames at {:.0} Hz ({:.1} s)",
+        args.bvh.display(),
+        bvh.dialect,
+        bvh.joints.len(),
+        bvh.frames(),
+        1.0 / bvh.frame_time,
+        (bvh.frames() - 1) as f64 * bvh.frame_time
+    );
+    let options = RetargetOptions {
+        rate_hz: args.rate,
+        nominal_frame: args.nominal_frame,
+        start_frame: args.start_frame,
+        nominal: args.nominal.into(),
+        iterations: args.iterations,
+        smoothing_s: args.smoothing,
+    };
+    let bar = indicatif::ProgressBar::new_spinner().with_message("retargeting");
+    let started = std::time::Instant::now();
+    let motion = retarget(&robot, &bvh, &options).map_err(anyhow::Error::msg)?;
+    bar.finish_and_clear();
+    println!(
+        "retargeted onto {}: scale {:.3}, {} frames at {} Hz in {:.1} s; paired frames off their targets by {:.1} cm on average, {:.1} cm at worst",
+        robot.config.name,
+        motion.scale,
+        motion.times.len(),
+        args.rate,
+        started.elapsed().as_secs_f64(),
+        motion.mean_position_error * 100.0,
+        motion.worst_position_error * 100.0
+    );
+    let header = [
+        format!(
+            "{}: retargeted by `robodeploy retarget` from {}",
+            robot.config.name,
+            args.bvh
+                .file_name()
+                .map_or_else(String::new, |f| f.to_string_lossy().into_owned())
+        ),
+        format!(
+            "nominal frame {} ↔ robot {:?} pose, scale {:.4}; root quaternion is w, x, y, z",
+            args.nominal_frame, args.nominal, motion.scale
+        ),
+    ];
+    if let Some(dir) = args.out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    }
+    std::fs::write(&args.out, motion.to_csv(&robot, &header))
+        .with_context(|| format!("cannot write {}", args.out.display()))?;
+    println!("wrote {}", args.out.display());
+
+    // The clip checker, as `check --clip` runs it.
+    let clip = Clip::load(&args.out)?;
+    let reference = Reference::from_clip(&clip, &robot, args.rate)?;
+    let quality = analysis::motion_check::analyze(&robot, &reference).map_err(anyhow::Error::msg)?;
+    println!("clip quality on the robot model:");
+    print!("{quality}");
+    let problems = quality.problems();
+    if !problems.is_empty() {
+        bail!(
+            "{}: the clip has problems:\n  {}",
+            args.out.display(),
+            problems.join("\n  ")
+        );
+    }
+    Ok(())
+}

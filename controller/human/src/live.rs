@@ -1,0 +1,168 @@
+//! Live references from another thread (teleoperation) into the control loop, lock-free.
+//!
+//! One writer (the teleop thread) and one reader (the control tick) share three preallocated
+//! frames that circulate through two bounded lock-free queues: the writer fills its own frame and
+//! swaps it in as the newest (taking back an unread one), the reader swaps the newest for the one it
+//! held. Neither side ever waits for the other, nothing is allocated after [`live_channel`], and
+//! the reader always sees a whole frame (never half of one write and half of the next).
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use crossbeam::queue::ArrayQueue;
+
+/// Values of the `tracker_poses` observation term for three devices (headset, left and right
+/// controller): position (3) and the first two columns of the rotation (6) each.
+pub const TRACKER_VALUES: usize = 27;
+
+/// A reference computed live by another thread: the frame to track now, robot joint order, and
+/// when the input it came from arrived.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LiveFrame {
+    /// Joint positions, rad.
+    pub q: Vec<f64>,
+    /// Joint velocities, rad/s.
+    pub qd: Vec<f64>,
+    /// Root pose `[x, y, z, w, qx, qy, qz]`.
+    pub root: [f64; 7],
+    /// Arrival of the newest input sample this frame used.
+    pub source: Option<Instant>,
+    /// The input devices' poses, as the `tracker_poses` observation term wants them.
+    pub trackers: [f64; TRACKER_VALUES],
+}
+
+impl LiveFrame {
+    /// `q` held still at `root`, no input yet.
+    pub fn still(q: Vec<f64>, root: [f64; 7]) -> Self {
+        Self {
+            qd: vec![0.0; q.len()],
+            q,
+            root,
+            source: None,
+            trackers: [0.0; TRACKER_VALUES],
+        }
+    }
+}
+
+#[derive(Debug)]
+struct Shared {
+    /// The newest published frame, if the reader has not taken it yet.
+    newest: ArrayQueue<Box<LiveFrame>>,
+    /// Frames the reader gave back for the writer to fill again.
+    spare: ArrayQueue<Box<LiveFrame>>,
+}
+
+/// The writing half: owned by the thread that computes the live reference.
+#[derive(Debug)]
+pub struct LiveWriter {
+    shared: Arc<Shared>,
+    draft: Option<Box<LiveFrame>>,
+    published: u64,
+}
+
+/// The reading half: owned by the control loop.
+#[derive(Debug)]
+pub struct LiveReader {
+    shared: Arc<Shared>,
+    current: Box<LiveFrame>,
+}
+
+/// A writer and a reader sharing frames shaped like `initial`; the reader starts on `initial`.
+pub fn live_channel(initial: LiveFrame) -> (LiveWriter, LiveReader) {
+    let shared = Arc::new(Shared {
+        newest: ArrayQueue::new(1),
+        spare: ArrayQueue::new(2),
+    });
+    let _ = shared.spare.push(Box::new(initial.clone()));
+    let writer = LiveWriter {
+        shared: Arc::clone(&shared),
+        draft: Some(Box::new(initial.clone())),
+        published: 0,
+    };
+    let reader = LiveReader {
+        shared,
+        current: Box::new(initial),
+    };
+    (writer, reader)
+}
+
+impl LiveWriter {
+    /// Fills the next frame with `fill` (given the frame last written from this writer's buffers,
+    /// possibly older) and makes it the newest. Never blocks the reader.
+    pub fn publish(&mut self, fill: impl FnOnce(&mut LiveFrame)) {
+        let mut draft = match self.draft.take() {
+            Some(d) => d,
+            // Three frames circulate: with none in hand, the reader is between taking the newest
+            // and giving its old one back, a few instructions away.
+            None => loop {
+                if let Some(d) = self.shared.spare.pop() {
+                    break d;
+                }
+                std::hint::spin_loop();
+            },
+        };
+        fill(&mut draft);
+        // An unread older frame comes back to be filled next time.
+        self.draft = self.shared.newest.force_push(draft);
+        self.published += 1;
+    }
+
+    /// Frames published so far.
+    pub fn published(&self) -> u64 {
+        self.published
+    }
+}
+
+impl LiveReader {
+    /// The newest whole frame (the one read before, if nothing new was published).
+    pub fn latest(&mut self) -> &LiveFrame {
+        if let Some(newest) = self.shared.newest.pop() {
+            let old = std::mem::replace(&mut self.current, newest);
+            // Capacity 2 holds every frame the reader can give back; a full queue cannot happen.
+            let _ = self.shared.spare.push(old);
+        }
+        &self.current
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_reader_sees_the_newest_whole_frame() {
+        let (mut w, mut r) = live_channel(LiveFrame::still(vec![0.0; 4], [0.0; 7]));
+        assert_eq!(r.latest().q, vec![0.0; 4]);
+        for k in 1..=5 {
+            w.publish(|f| f.q.fill(f64::from(k)));
+        }
+        assert_eq!(r.latest().q, vec![5.0; 4]);
+        assert_eq!(r.latest().q, vec![5.0; 4], "no new frame: the last one again");
+        w.publish(|f| f.q.fill(6.0));
+        assert_eq!(r.latest().q, vec![6.0; 4]);
+        assert_eq!(w.published(), 6);
+    }
+
+    #[test]
+    fn frames_stay_whole_under_a_concurrent_writer() {
+        let (mut w, mut r) = live_channel(LiveFrame::still(vec![0.0; 64], [0.0; 7]));
+        let writer = std::thread::Builder::new()
+            .name("live-writer".into())
+            .spawn(move || {
+                for k in 0..20_000u32 {
+                    w.publish(|f| f.q.fill(f64::from(k)));
+                }
+            })
+            .unwrap();
+        let mut last = 0.0;
+        while !writer.is_finished() {
+            let f = r.latest();
+            let first = f.q[0];
+            assert!(f.q.iter().all(|&v| v == first), "torn frame");
+            assert!(first >= last, "frames went back in time");
+            last = first;
+        }
+        writer.join().unwrap();
+        assert_eq!(r.latest().q[0], 19_999.0);
+    }
+}

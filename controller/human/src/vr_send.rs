@@ -1,0 +1,198 @@
+//! A recorded VR session as a sender: headset and controller poses synthesised from a BVH's head
+//! and hands (fixed device offsets, sensor noise, the headset's rate) and streamed as VMC over UDP,
+//! so teleoperation can be tested and shown without a headset. The session starts with the
+//! recording's first frame held as the T-pose the receiver calibrates from.
+
+use std::net::{SocketAddr, UdpSocket};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use crate::body_map::Frame;
+use firmware_bridge::time::SimRng;
+use robots::spatial::{self, Mat3};
+
+use super::bvh::Bvh;
+use super::osc::{self, Arg};
+use super::retarget::bvh_joint;
+use super::vmc::{robot_to_unity_position, robot_to_unity_quat};
+use robots::HumanBody;
+
+/// How the session is sent.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SendOptions {
+    /// Packets per second (VR runtimes: 30–90 Hz).
+    pub rate_hz: f64,
+    /// Hold the first frame (a T-pose) this long before the motion, s.
+    pub tpose_s: f64,
+    /// First frame of the motion after the T-pose.
+    pub start_frame: usize,
+    /// Stop after this many seconds (T-pose included); `None`: at the end of the recording.
+    pub seconds: Option<f64>,
+    /// Position noise, standard deviation, m.
+    pub noise_m: f64,
+    /// Orientation noise, standard deviation, rad.
+    pub noise_rad: f64,
+    /// Noise seed.
+    pub seed: u64,
+}
+
+impl Default for SendOptions {
+    fn default() -> Self {
+        Self {
+            rate_hz: 72.0,
+            tpose_s: 1.5,
+            start_frame: 1,
+            seconds: None,
+            noise_m: 0.002,
+            noise_rad: 0.004,
+            seed: 1,
+        }
+    }
+}
+
+/// Where the devices sit on the body: the headset 8 cm in front of and 7 cm above the head joint,
+/// each controller's grip 9 cm beyond the wrist along the forearm. Device axes: x forward, z up in
+/// the T-pose, turning with the head or hand after.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Rig {
+    joints: [usize; 3],
+    offsets: [[f64; 3]; 3],
+    turn: [Mat3; 3],
+}
+
+impl Rig {
+    /// The device rig of `bvh`, measured on its first frame (a T-pose).
+    pub fn new(bvh: &Bvh) -> Result<Self, String> {
+        let find = |b: HumanBody| {
+            let name = bvh_joint(bvh.dialect, b);
+            bvh.joint(name)
+                .ok_or_else(|| format!("the recording has no {name} joint"))
+        };
+        let joints = [
+            find(HumanBody::Head)?,
+            find(HumanBody::LeftHand)?,
+            find(HumanBody::RightHand)?,
+        ];
+        let elbows = [find(HumanBody::LeftElbow)?, find(HumanBody::RightElbow)?];
+        let p = bvh.pose(0);
+        let lateral = spatial::sub(p.pos[joints[1]], p.pos[joints[2]]);
+        let body = spatial::yaw(lateral[1].atan2(lateral[0]) - std::f64::consts::FRAC_PI_2);
+        let forward = spatial::mat_apply(&body, [1.0, 0.0, 0.0]);
+        let local = |j: usize, v: [f64; 3]| spatial::mat_apply(&spatial::transpose(&p.rot[j]), v);
+        let grip = |side: usize| {
+            let along = spatial::unit(spatial::sub(p.pos[joints[side + 1]], p.pos[elbows[side]]));
+            local(joints[side + 1], spatial::scale(along, 0.09))
+        };
+        Ok(Self {
+            joints,
+            offsets: [
+                local(
+                    joints[0],
+                    spatial::add(spatial::scale(forward, 0.08), [0.0, 0.0, 0.07]),
+                ),
+                grip(0),
+                grip(1),
+            ],
+            turn: joints.map(|j| spatial::mat_mul(&spatial::transpose(&p.rot[j]), &body)),
+        })
+    }
+
+    /// Headset, left and right controller at `frame`, robot axes, without noise.
+    pub fn devices(&self, bvh: &Bvh, frame: usize) -> [Frame; 3] {
+        let p = bvh.pose(frame);
+        [0, 1, 2].map(|k| {
+            let j = self.joints[k];
+            Frame {
+                pos: spatial::add(p.pos[j], spatial::mat_apply(&p.rot[j], self.offsets[k])),
+                rot: spatial::mat_mul(&p.rot[j], &self.turn[k]),
+            }
+        })
+    }
+}
+
+/// Which recording frame is sent at time `t` since the start.
+pub fn frame_at(bvh: &Bvh, options: &SendOptions, t: f64) -> Option<usize> {
+    if t < options.tpose_s {
+        return Some(0);
+    }
+    let f = options.start_frame + ((t - options.tpose_s) / bvh.frame_time).round() as usize;
+    (f < bvh.frames()).then_some(f)
+}
+
+/// The VMC packet (one bundle: headset, left and right controller) for `devices`.
+pub fn packet(devices: &[Frame; 3], out: &mut Vec<u8>) {
+    out.clear();
+    let names = [
+        ("/VMC/Ext/Hmd/Pos", "HMD"),
+        ("/VMC/Ext/Con/Pos", "LeftController"),
+        ("/VMC/Ext/Con/Pos", "RightController"),
+    ];
+    let mut messages: [Vec<u8>; 3] = Default::default();
+    for ((m, (address, serial)), d) in messages.iter_mut().zip(names).zip(devices) {
+        let p = robot_to_unity_position(d.pos);
+        let q = robot_to_unity_quat(spatial::quat_of_mat(&d.rot));
+        let args = [
+            Arg::Str(serial),
+            Arg::Float(p[0] as f32),
+            Arg::Float(p[1] as f32),
+            Arg::Float(p[2] as f32),
+            Arg::Float(q[0] as f32),
+            Arg::Float(q[1] as f32),
+            Arg::Float(q[2] as f32),
+            Arg::Float(q[3] as f32),
+        ];
+        osc::encode_message(m, address, &args);
+    }
+    osc::encode_bundle(out, &[&messages[0], &messages[1], &messages[2]]);
+}
+
+/// Sends the session to `to` in real time until it ends or `stop` is set; `sent` hears the time
+/// and recording frame of each packet. Returns the packets sent.
+pub fn send(
+    bvh: &Bvh,
+    to: SocketAddr,
+    options: &SendOptions,
+    stop: &AtomicBool,
+    sent: &mut dyn FnMut(Duration, usize),
+) -> Result<u64, String> {
+    let rig = Rig::new(bvh)?;
+    let local: SocketAddr = if to.is_ipv4() { "127.0.0.1:0" } else { "[::1]:0" }
+        .parse()
+        .map_err(|e| format!("{e}"))?;
+    let socket = UdpSocket::bind(local).map_err(|e| format!("cannot open a UDP socket: {e}"))?;
+    let mut rng = SimRng::new(options.seed);
+    let period = Duration::try_from_secs_f64(1.0 / options.rate_hz)
+        .map_err(|_| format!("{} Hz is not a sending rate", options.rate_hz))?;
+    let start = Instant::now();
+    let mut buf = Vec::with_capacity(512);
+    let mut count = 0u64;
+    for k in 0u32.. {
+        if stop.load(Ordering::Relaxed) {
+            break;
+        }
+        let t = (period * k).as_secs_f64();
+        if options.seconds.is_some_and(|s| t >= s) {
+            break;
+        }
+        let Some(frame) = frame_at(bvh, options, t) else {
+            break;
+        };
+        let mut devices = rig.devices(bvh, frame);
+        for d in &mut devices {
+            let n = [0; 3].map(|_| options.noise_m * rng.gaussian());
+            d.pos = spatial::add(d.pos, n);
+            let w = [0; 3].map(|_| options.noise_rad * rng.gaussian());
+            d.rot = spatial::mat_mul(&spatial::exp(w), &d.rot);
+        }
+        packet(&devices, &mut buf);
+        if let Some(wait) = (start + period * k).checked_duration_since(Instant::now()) {
+            std::thread::sleep(wait);
+        }
+        socket
+            .send_to(&buf, to)
+            .map_err(|e| format!("cannot send to {to}: {e}"))?;
+        sent(start.elapsed(), frame);
+        count += 1;
+    }
+    Ok(count)
+}

@@ -1,0 +1,57 @@
+//! Forward kinematics of a reference on the robot's own model: where each named body is when the
+//! robot stands in the reference's pose, for policies that observe reference body positions.
+
+use mujoco_rs::wrappers::mj_model::MjtObjBase;
+use robots::{Robot, spatial};
+
+use crate::clip::Reference;
+
+/// Positions of `bodies` at every tick of `reference`, relative to the reference root in its
+/// heading frame (yaw only): `ticks × bodies × 3` values.
+pub fn body_positions(robot: &Robot, reference: &Reference, bodies: &[String]) -> Result<Vec<f64>, String> {
+    let model = sim2real::mujoco::load_model(&robot.mjcf_path).map_err(|e| e.to_string())?;
+    let find = |kind, name: &str| model.name_to_id(kind, name);
+    let body_ids = bodies
+        .iter()
+        .map(|b| {
+            find(MjtObjBase::mjOBJ_BODY, b)
+                .ok_or_else(|| format!("body {b:?} is not in {}", robot.mjcf_path.display()))
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let root = find(MjtObjBase::mjOBJ_BODY, &robot.config.root_body).ok_or("root body missing")?;
+    let root_joint = model.body_jntadr()[root];
+    if root_joint < 0 {
+        return Err(format!(
+            "root body {:?} has no free joint",
+            robot.config.root_body
+        ));
+    }
+    let root_qpos = model.jnt_qposadr()[root_joint as usize] as usize;
+    let joint_qpos = robot
+        .config
+        .joints
+        .iter()
+        .map(|j| {
+            find(MjtObjBase::mjOBJ_JOINT, &j.mjcf_joint)
+                .map(|id| model.jnt_qposadr()[id] as usize)
+                .ok_or_else(|| format!("joint {:?} missing", j.mjcf_joint))
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let mut data = model.make_data();
+    let mut out = Vec::with_capacity(reference.len() * bodies.len() * 3);
+    for k in 0..reference.len() {
+        let r = reference.root[k];
+        data.qpos_mut()[root_qpos..root_qpos + 7].copy_from_slice(&r);
+        for (&adr, &q) in joint_qpos.iter().zip(reference.q_at(k)) {
+            data.qpos_mut()[adr] = q;
+        }
+        data.kinematics();
+        // Into the root's heading frame (yaw only).
+        let unturn = spatial::yaw(-spatial::heading_of_quat([r[3], r[4], r[5], r[6]]));
+        for &b in &body_ids {
+            let d = spatial::sub(data.xpos()[b], [r[0], r[1], r[2]]);
+            out.extend_from_slice(&spatial::mat_apply(&unturn, d));
+        }
+    }
+    Ok(out)
+}

@@ -1,0 +1,25 @@
+//! The realtime controller: the loop that reads the robot through its link, builds the policy's
+//! observation, runs the ONNX policy, maps and limits its actions and writes them back.
+//!
+//! The tick path: [`player`] (the loop and its modes) over [`reference`] (where the reference is
+//! this tick), [`policy`] (the contract: observation layout and action mapping), [`onnx`],
+//! [`safety`] (governor, faults) and [`metrics`]; around it [`estop`], [`realtime`], [`telemetry`]
+//! (the recording sink) and the inputs: [`clip`] files and live references.
+
+pub mod clip;
+pub mod estop;
+pub mod fk;
+pub mod native;
+pub mod npy;
+pub mod onnx;
+pub mod player;
+pub mod policy;
+pub mod realtime;
+pub mod safety;
+pub mod sim;
+pub mod telemetry;
+
+/// Loads a robot model with the pinned MuJoCo (for kinematics inside the controller's tools).
+pub(crate) fn sim_model(mjcf: &std::path::Path) -> Result<mujoco_rs::prelude::MjModel, String> {
+    sim2real::mujoco::load_model(mjcf).map_err(|e| e.to_string())
+}

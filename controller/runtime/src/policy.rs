@@ -1,0 +1,914 @@
+//! The policy contract as data: a manifest (TOML beside the ONNX file) declares the joint order,
+//! the observation terms in order with their scaling and history, and how actions become joint
+//! targets. [`PolicyLayout`] resolves it against a robot and checks it against the ONNX shapes;
+//! [`ObservationBuilder`] fills the observation each tick without allocating.
+
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+
+use human::live::TRACKER_VALUES;
+use robot_link::GroundTruth;
+use robots::{Robot, spatial};
+
+/// One observation term, as trainers name them.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(tag = "term", rename_all = "snake_case", deny_unknown_fields)]
+pub enum Term {
+    /// IMU angular velocity, rad/s (IMU axes).
+    Gyro(#[serde(default)] Shaping),
+    /// IMU specific force, m/s².
+    Accelerometer(#[serde(default)] Shaping),
+    /// Gravity direction in the base frame (unit vector), from the IMU orientation.
+    ProjectedGravity(#[serde(default)] Shaping),
+    /// Base orientation quaternion `[w, x, y, z]`.
+    BaseOrientation(#[serde(default)] Shaping),
+    /// Base height above the floor, m (simulation ground truth only).
+    BaseHeight(#[serde(default)] Shaping),
+    /// Base linear velocity in the base frame, m/s (simulation ground truth only).
+    BaseLinVel(#[serde(default)] Shaping),
+    /// Joint positions, rad, in policy order (minus the default pose when `relative`).
+    JointPos {
+        /// Subtract the default pose.
+        #[serde(default)]
+        relative: bool,
+        /// Scaling.
+        #[serde(flatten)]
+        shaping: Shaping,
+    },
+    /// Joint velocities, rad/s.
+    JointVel(#[serde(default)] Shaping),
+    /// The last `k` raw actions, newest first.
+    LastActions {
+        /// How many steps.
+        #[serde(default = "one")]
+        k: usize,
+        /// Scaling.
+        #[serde(flatten)]
+        shaping: Shaping,
+    },
+    /// The joint targets applied last tick, rad.
+    LastTargets(#[serde(default)] Shaping),
+    /// Foot contact flags (simulation ground truth only).
+    FootContacts(#[serde(default)] Shaping),
+    /// Constant commands (e.g. velocity commands of a locomotion policy).
+    Command {
+        /// The values.
+        values: Vec<f64>,
+        /// Scaling.
+        #[serde(flatten)]
+        shaping: Shaping,
+    },
+    /// `[cos, sin]` of a phase with this period.
+    Phase {
+        /// Period, s.
+        period_s: f64,
+        /// Scaling.
+        #[serde(flatten)]
+        shaping: Shaping,
+    },
+    /// The start-up ramp ψ, 0 → 1.
+    Ramp(#[serde(default)] Shaping),
+    /// Reference joint positions at the current and future frames (offsets in ticks).
+    RefJointPos {
+        /// Frame offsets, in control ticks.
+        #[serde(default = "current_frame")]
+        frames: Vec<usize>,
+        /// Subtract the default pose.
+        #[serde(default)]
+        relative: bool,
+        /// Scaling.
+        #[serde(flatten)]
+        shaping: Shaping,
+    },
+    /// Reference joint velocities at the given frames.
+    RefJointVel {
+        /// Frame offsets, in control ticks.
+        #[serde(default = "current_frame")]
+        frames: Vec<usize>,
+        /// Scaling.
+        #[serde(flatten)]
+        shaping: Shaping,
+    },
+    /// Reference root pose relative to the robot's root in its heading frame: position (3) and
+    /// the first two columns of the relative rotation (6), per frame (ground truth of the robot's
+    /// root needed).
+    RefRootPose {
+        /// Frame offsets, in control ticks.
+        #[serde(default = "current_frame")]
+        frames: Vec<usize>,
+        /// Scaling.
+        #[serde(flatten)]
+        shaping: Shaping,
+    },
+    /// VR tracker poses (the sparse-input policy's `o_user`): headset, left and right controller,
+    /// each position (3) and the first two columns of its rotation (6), in the robot's heading
+    /// frame at the map's scale; zeros for a missing device. Teleoperation only. With
+    /// `history = 2` the policy sees them at t and t − 1.
+    TrackerPoses {
+        /// Only the headset (9 values instead of 27).
+        #[serde(default)]
+        headset_only: bool,
+        /// Scaling.
+        #[serde(flatten)]
+        shaping: Shaping,
+    },
+    /// Positions of the reference's bodies (forward kinematics of the robot model at the
+    /// reference pose) relative to the reference root, in the reference's heading frame: 3 per
+    /// body per frame.
+    RefBodyPos {
+        /// MJCF body names.
+        bodies: Vec<String>,
+        /// Frame offsets, in control ticks.
+        #[serde(default = "current_frame")]
+        frames: Vec<usize>,
+        /// Scaling.
+        #[serde(flatten)]
+        shaping: Shaping,
+    },
+}
+
+fn one() -> usize {
+    1
+}
+
+fn current_frame() -> Vec<usize> {
+    vec![0]
+}
+
+/// `(value − offset) · scale`, then clipped, with `history` stacked copies (newest first).
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Shaping {
+    /// Multiplier.
+    #[serde(default = "unit")]
+    pub scale: f64,
+    /// Subtracted before scaling.
+    #[serde(default)]
+    pub offset: f64,
+    /// Symmetric clip after scaling.
+    #[serde(default)]
+    pub clip: Option<f64>,
+    /// Stacked past values (1: current only).
+    #[serde(default = "one")]
+    pub history: usize,
+    /// The ONNX input this term goes to, for models with several named inputs (default: the
+    /// model's first input).
+    #[serde(default)]
+    pub input: Option<String>,
+}
+
+fn unit() -> f64 {
+    1.0
+}
+
+impl Default for Shaping {
+    fn default() -> Self {
+        Self {
+            scale: 1.0,
+            offset: 0.0,
+            clip: None,
+            history: 1,
+            input: None,
+        }
+    }
+}
+
+impl Term {
+    /// The term's scaling.
+    pub fn shaping(&self) -> &Shaping {
+        match self {
+            Self::Gyro(s)
+            | Self::Accelerometer(s)
+            | Self::ProjectedGravity(s)
+            | Self::BaseOrientation(s)
+            | Self::BaseHeight(s)
+            | Self::BaseLinVel(s)
+            | Self::JointVel(s)
+            | Self::LastTargets(s)
+            | Self::FootContacts(s)
+            | Self::Ramp(s) => s,
+            Self::JointPos { shaping, .. }
+            | Self::LastActions { shaping, .. }
+            | Self::Command { shaping, .. }
+            | Self::Phase { shaping, .. }
+            | Self::RefJointPos { shaping, .. }
+            | Self::RefJointVel { shaping, .. }
+            | Self::RefRootPose { shaping, .. }
+            | Self::RefBodyPos { shaping, .. }
+            | Self::TrackerPoses { shaping, .. } => shaping,
+        }
+    }
+
+    /// The term's name in the manifest.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Self::Gyro(_) => "gyro",
+            Self::Accelerometer(_) => "accelerometer",
+            Self::ProjectedGravity(_) => "projected_gravity",
+            Self::BaseOrientation(_) => "base_orientation",
+            Self::BaseHeight(_) => "base_height",
+            Self::BaseLinVel(_) => "base_lin_vel",
+            Self::JointPos { .. } => "joint_pos",
+            Self::JointVel(_) => "joint_vel",
+            Self::LastActions { .. } => "last_actions",
+            Self::LastTargets(_) => "last_targets",
+            Self::FootContacts(_) => "foot_contacts",
+            Self::Command { .. } => "command",
+            Self::Phase { .. } => "phase",
+            Self::Ramp(_) => "ramp",
+            Self::RefJointPos { .. } => "ref_joint_pos",
+            Self::RefJointVel { .. } => "ref_joint_vel",
+            Self::RefRootPose { .. } => "ref_root_pose",
+            Self::RefBodyPos { .. } => "ref_body_pos",
+            Self::TrackerPoses { .. } => "tracker_poses",
+        }
+    }
+
+    /// Values per history step, for `joints` joints and `feet` feet.
+    pub fn width(&self, joints: usize, feet: usize) -> usize {
+        match self {
+            Self::Gyro(_) | Self::Accelerometer(_) | Self::ProjectedGravity(_) | Self::BaseLinVel(_) => 3,
+            Self::BaseOrientation(_) => 4,
+            Self::BaseHeight(_) | Self::Ramp(_) => 1,
+            Self::JointPos { .. } | Self::JointVel(_) | Self::LastTargets(_) => joints,
+            Self::LastActions { k, .. } => joints * k,
+            Self::FootContacts(_) => feet,
+            Self::Command { values, .. } => values.len(),
+            Self::Phase { .. } => 2,
+            Self::RefJointPos { frames, .. } | Self::RefJointVel { frames, .. } => joints * frames.len(),
+            Self::RefRootPose { frames, .. } => 9 * frames.len(),
+            Self::RefBodyPos { bodies, frames, .. } => 3 * bodies.len() * frames.len(),
+            Self::TrackerPoses { headset_only, .. } => {
+                if *headset_only {
+                    9
+                } else {
+                    TRACKER_VALUES
+                }
+            }
+        }
+    }
+
+    /// Whether the term needs state a real robot cannot measure without a state estimator.
+    pub fn needs_ground_truth(&self) -> bool {
+        matches!(
+            self,
+            Self::BaseHeight(_) | Self::BaseLinVel(_) | Self::FootContacts(_) | Self::RefRootPose { .. }
+        )
+    }
+}
+
+/// How actions become joint commands.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ActionKind {
+    /// Position setpoints: `default + scale · a`, sent with the robot's PD gains.
+    Position,
+    /// Normalised torques: `a · τ_max` per joint.
+    Torque,
+}
+
+/// The action side of the contract.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ActionSpec {
+    /// What an action means.
+    pub kind: ActionKind,
+    /// Scale of a position action, rad per unit (default: the ONNX metadata's `action_scale`,
+    /// else 1).
+    #[serde(default)]
+    pub scale: Option<f64>,
+    /// Clip of the raw action.
+    #[serde(default)]
+    pub clip: Option<f64>,
+    /// Largest change of a position target, rad/s.
+    #[serde(default)]
+    pub rate_limit: Option<f64>,
+    /// First-order low-pass cut-off on targets, Hz.
+    #[serde(default)]
+    pub lowpass_hz: Option<f64>,
+}
+
+/// A policy manifest.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct PolicyManifest {
+    /// What this policy is (shown by `check` and `play`).
+    pub description: String,
+    /// ONNX file, relative to the manifest.
+    pub onnx: PathBuf,
+    /// Control rate the policy was trained at, Hz.
+    pub rate_hz: f64,
+    /// Joint names in the policy's order, mapped to the robot's joints by name (default: the
+    /// ONNX metadata's `joint_names`).
+    #[serde(default)]
+    pub joints: Vec<String>,
+    /// The pose actions are relative to, policy order (default: metadata `default_joint_pos`,
+    /// else the robot's default pose).
+    #[serde(default)]
+    pub default_pose: Option<Vec<f64>>,
+    /// PD stiffness per joint, policy order (default: metadata `joint_stiffness`, else robot.toml).
+    #[serde(default)]
+    pub stiffness: Option<Vec<f64>>,
+    /// PD damping per joint, policy order (default: metadata `joint_damping`, else robot.toml).
+    #[serde(default)]
+    pub damping: Option<Vec<f64>>,
+    /// Action mapping.
+    pub action: ActionSpec,
+    /// Observation terms, in order.
+    pub observation: Vec<Term>,
+}
+
+/// A manifest that does not fit: the file, the place, what is wrong.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{file}: {place}: {message}")]
+pub struct PolicyError {
+    /// The manifest.
+    pub file: PathBuf,
+    /// Field path.
+    pub place: String,
+    /// What is wrong.
+    pub message: String,
+}
+
+/// Fills what the manifest leaves out from the ONNX file's metadata properties, as training
+/// frameworks export them (comma-separated `joint_names`, `action_scale`, `default_joint_pos`,
+/// `joint_stiffness`, `joint_damping`).
+fn fill_from_metadata(m: &mut PolicyManifest, onnx: &Path) -> Result<(), (String, String)> {
+    let needs = m.joints.is_empty()
+        || m.action.scale.is_none()
+        || m.default_pose.is_none()
+        || m.stiffness.is_none()
+        || m.damping.is_none();
+    if !needs {
+        return Ok(());
+    }
+    let meta = crate::onnx::read_metadata(onnx).map_err(|e| ("onnx".to_owned(), e.to_string()))?;
+    let numbers = |key: &str| -> Result<Option<Vec<f64>>, (String, String)> {
+        meta.get(key)
+            .map(|text| {
+                text.split(',')
+                    .map(|v| {
+                        v.trim()
+                            .parse::<f64>()
+                            .map_err(|_| (format!("ONNX metadata {key}"), format!("{v:?} is not a number")))
+                    })
+                    .collect()
+            })
+            .transpose()
+    };
+    if m.joints.is_empty() {
+        let names = meta.get("joint_names").ok_or((
+            "joints".to_owned(),
+            "missing, and the ONNX file has no joint_names metadata".to_owned(),
+        ))?;
+        m.joints = names.split(',').map(|s| s.trim().to_owned()).collect();
+    }
+    if m.action.scale.is_none()
+        && let Some(v) = numbers("action_scale")?
+    {
+        // One scale for every joint is what this loop applies.
+        match v.as_slice() {
+            [s] => m.action.scale = Some(*s),
+            many if many.iter().all(|x| (x - many[0]).abs() < 1e-12) && !many.is_empty() => {
+                m.action.scale = Some(many[0]);
+            }
+            _ => {
+                return Err((
+                    "ONNX metadata action_scale".into(),
+                    "per-joint scales differ; give action.scale in the manifest".into(),
+                ));
+            }
+        }
+    }
+    if m.default_pose.is_none() {
+        m.default_pose = numbers("default_joint_pos")?;
+    }
+    if m.stiffness.is_none() {
+        m.stiffness = numbers("joint_stiffness")?;
+    }
+    if m.damping.is_none() {
+        m.damping = numbers("joint_damping")?;
+    }
+    Ok(())
+}
+
+/// One term's slot in the observation vector.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TermSlot {
+    /// The term.
+    pub term: Term,
+    /// Its index range in the observation.
+    pub range: Range<usize>,
+    /// Values per history step.
+    pub width: usize,
+}
+
+/// A manifest resolved against a robot.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PolicyLayout {
+    /// The manifest.
+    pub manifest: PolicyManifest,
+    /// The manifest file.
+    pub path: PathBuf,
+    /// The ONNX file (resolved).
+    pub onnx_path: PathBuf,
+    /// For each policy joint, the robot joint index.
+    pub robot_index: Vec<usize>,
+    /// Terms with their ranges, in order.
+    pub slots: Vec<TermSlot>,
+    /// Observation length.
+    pub obs_len: usize,
+    /// The pose actions and relative terms refer to, robot order.
+    pub default_q: Vec<f64>,
+    /// Stiffness per joint, robot order.
+    pub kp: Vec<f64>,
+    /// Damping per joint, robot order.
+    pub kd: Vec<f64>,
+}
+
+impl PolicyLayout {
+    /// Loads `path` and resolves it against `robot`.
+    pub fn load(path: &Path, robot: &Robot) -> Result<Self, PolicyError> {
+        let err = |place: &str, message: String| PolicyError {
+            file: path.to_path_buf(),
+            place: place.to_owned(),
+            message,
+        };
+        let text = std::fs::read_to_string(path).map_err(|e| err("file", format!("cannot read: {e}")))?;
+        let mut manifest: PolicyManifest = toml::from_str(&text).map_err(|e| {
+            let line = e
+                .span()
+                .map_or(0, |s| text[..s.start.min(text.len())].matches('\n').count() + 1);
+            err(&format!("line {line}"), e.message().to_owned())
+        })?;
+        let onnx_path = path.parent().unwrap_or(Path::new(".")).join(&manifest.onnx);
+        fill_from_metadata(&mut manifest, &onnx_path).map_err(|(place, m)| err(&place, m))?;
+        let names: Vec<&str> = robot.config.joints.iter().map(|j| j.name.as_str()).collect();
+        let mut robot_index = Vec::with_capacity(manifest.joints.len());
+        for (i, name) in manifest.joints.iter().enumerate() {
+            let Some(r) = names.iter().position(|n| n == name) else {
+                return Err(err(
+                    &format!("joints[{i}]"),
+                    format!("{name:?} is not a joint of robot {}", robot.config.name),
+                ));
+            };
+            if robot_index.contains(&r) {
+                return Err(err(&format!("joints[{i}]"), format!("{name:?} is listed twice")));
+            }
+            robot_index.push(r);
+        }
+        if robot_index.len() != names.len() {
+            let missing: Vec<_> = names
+                .iter()
+                .enumerate()
+                .filter(|(r, _)| !robot_index.contains(r))
+                .map(|(_, n)| *n)
+                .collect();
+            return Err(err(
+                "joints",
+                format!("robot joints not driven by the policy: {}", missing.join(", ")),
+            ));
+        }
+        if !(manifest.rate_hz > 0.0 && manifest.rate_hz <= 1000.0) {
+            return Err(err(
+                "rate_hz",
+                format!("{} is outside (0, 1000]", manifest.rate_hz),
+            ));
+        }
+        let a = &manifest.action;
+        for (field, v) in [
+            ("action.scale", a.scale),
+            ("action.clip", a.clip),
+            ("action.rate_limit", a.rate_limit),
+            ("action.lowpass_hz", a.lowpass_hz),
+        ] {
+            if let Some(v) = v
+                && !(v.is_finite() && v > 0.0)
+            {
+                return Err(err(field, format!("{v} must be a positive number")));
+            }
+        }
+        let n = names.len();
+        let feet = robot.config.feet.len();
+        let mut slots = Vec::with_capacity(manifest.observation.len());
+        let mut at = 0;
+        for (i, term) in manifest.observation.iter().enumerate() {
+            let s = term.shaping();
+            let place = format!("observation[{i}] ({})", term.name());
+            if s.history == 0 || s.history > 64 || !(s.scale.is_finite() && s.offset.is_finite()) {
+                return Err(err(
+                    &place,
+                    format!(
+                        "history {} / scale {} / offset {} not allowed",
+                        s.history, s.scale, s.offset
+                    ),
+                ));
+            }
+            if let Term::Phase { period_s, .. } = term
+                && !(period_s.is_finite() && *period_s > 0.0)
+            {
+                return Err(err(&place, format!("period_s = {period_s} is not a period")));
+            }
+            let width = term.width(n, feet);
+            if width == 0 {
+                return Err(err(&place, "the term has no values".into()));
+            }
+            slots.push(TermSlot {
+                term: term.clone(),
+                range: at..at + width * s.history,
+                width,
+            });
+            at += width * s.history;
+        }
+        // Per-joint vectors in robot order: the policy's where it declares them, else the robot's.
+        let joints = &robot.config.joints;
+        let per_joint = |field: &str, given: &Option<Vec<f64>>, robot_value: &dyn Fn(usize) -> f64| {
+            let mut out: Vec<f64> = (0..joints.len()).map(robot_value).collect();
+            if let Some(values) = given {
+                if values.len() != robot_index.len() {
+                    return Err(err(
+                        field,
+                        format!("{} values for {} joints", values.len(), robot_index.len()),
+                    ));
+                }
+                for (p, (&r, &v)) in robot_index.iter().zip(values).enumerate() {
+                    if !v.is_finite() {
+                        return Err(err(&format!("{field}[{p}]"), format!("{v} is not finite")));
+                    }
+                    out[r] = v;
+                }
+            }
+            Ok(out)
+        };
+        let default_q = per_joint("default_pose", &manifest.default_pose, &|r| {
+            joints[r].default_position
+        })?;
+        let kp = per_joint("stiffness", &manifest.stiffness, &|r| joints[r].kp)?;
+        let kd = per_joint("damping", &manifest.damping, &|r| joints[r].kd)?;
+        for (r, j) in joints.iter().enumerate() {
+            let [lo, hi] = j.position_limits;
+            if !(lo..=hi).contains(&default_q[r]) {
+                return Err(err(
+                    "default_pose",
+                    format!("{} = {} is outside its limits [{lo}, {hi}]", j.name, default_q[r]),
+                ));
+            }
+            if kp[r] < 0.0 || kd[r] < 0.0 {
+                return Err(err(
+                    "stiffness",
+                    format!("{}: kp {} / kd {} must not be negative", j.name, kp[r], kd[r]),
+                ));
+            }
+        }
+        Ok(Self {
+            manifest,
+            path: path.to_path_buf(),
+            onnx_path,
+            robot_index,
+            slots,
+            obs_len: at,
+            default_q,
+            kp,
+            kd,
+        })
+    }
+
+    /// Replaces the values of the (first) `command` term, e.g. from the command line. The count
+    /// must match the manifest's.
+    pub fn set_command(&mut self, values: &[f64]) -> Result<(), PolicyError> {
+        let err = |message: String| PolicyError {
+            file: self.path.clone(),
+            place: "command".into(),
+            message,
+        };
+        let slot = self
+            .slots
+            .iter_mut()
+            .find(|s| matches!(s.term, Term::Command { .. }))
+            .ok_or_else(|| err("the policy has no `command` term to set".into()))?;
+        let Term::Command { values: current, .. } = &mut slot.term else {
+            unreachable!("matched above")
+        };
+        if current.len() != values.len() || values.iter().any(|v| !v.is_finite()) {
+            return Err(err(format!(
+                "{} finite values needed, got {values:?}",
+                current.len()
+            )));
+        }
+        current.copy_from_slice(values);
+        Ok(())
+    }
+
+    /// Whether any term needs simulation ground truth.
+    pub fn needs_ground_truth(&self) -> bool {
+        self.slots.iter().any(|s| s.term.needs_ground_truth())
+    }
+
+    /// Fits the layout to the model: the terms of each ONNX input (by the terms' `input`, default
+    /// the first) are laid out contiguously in the model's input order; each input's size and the
+    /// action count must match.
+    pub fn bind_model(&mut self, inputs: &[(String, usize)], output: usize) -> Result<(), PolicyError> {
+        let err = |place: &str, message: String| PolicyError {
+            file: self.path.clone(),
+            place: place.to_owned(),
+            message,
+        };
+        let names: Vec<&str> = inputs.iter().map(|i| i.0.as_str()).collect();
+        for (k, s) in self.slots.iter().enumerate() {
+            if let Some(name) = &s.term.shaping().input
+                && !names.contains(&name.as_str())
+            {
+                return Err(err(
+                    &format!("observation[{k}] ({})", s.term.name()),
+                    format!(
+                        "input {name:?} is not an input of {} (inputs: {})",
+                        self.onnx_path.display(),
+                        names.join(", ")
+                    ),
+                ));
+            }
+        }
+        if inputs.len() > 1 && self.slots.iter().all(|s| s.term.shaping().input.is_none()) {
+            return Err(err(
+                "observation",
+                format!(
+                    "{} has inputs {}: give each term its `input`",
+                    self.onnx_path.display(),
+                    names.join(", ")
+                ),
+            ));
+        }
+        let mut at = 0;
+        let mut ranges = vec![0..0; self.slots.len()];
+        for (i, (name, len)) in inputs.iter().enumerate() {
+            let start = at;
+            for (k, s) in self.slots.iter().enumerate() {
+                if s.term.shaping().input.as_deref().map_or(i == 0, |n| n == name) {
+                    let n = s.range.len();
+                    ranges[k] = at..at + n;
+                    at += n;
+                }
+            }
+            if at - start != *len {
+                return Err(err(
+                    "observation",
+                    format!(
+                        "the terms of input {name:?} add up to {} values but {} takes {len}",
+                        at - start,
+                        self.onnx_path.display()
+                    ),
+                ));
+            }
+        }
+        for (s, r) in self.slots.iter_mut().zip(ranges) {
+            s.range = r;
+        }
+        if output != self.robot_index.len() {
+            return Err(err(
+                "joints",
+                format!(
+                    "{} joints but {} outputs {output} actions",
+                    self.robot_index.len(),
+                    self.onnx_path.display()
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// The resolved layout, one line per term.
+    pub fn describe(&self) -> String {
+        let mut out = String::new();
+        for s in &self.slots {
+            let sh = s.term.shaping();
+            out.push_str(&format!(
+                "  [{:>4}..{:<4}) {:<18} {:>3} × {} history  scale {} offset {}{}\n",
+                s.range.start,
+                s.range.end,
+                s.term.name(),
+                s.width,
+                sh.history,
+                sh.scale,
+                sh.offset,
+                sh.clip.map_or(String::new(), |c| format!(" clip ±{c}"))
+                    + &sh
+                        .input
+                        .as_ref()
+                        .map_or(String::new(), |i| format!("  → input {i:?}"))
+            ));
+        }
+        out
+    }
+}
+
+/// What the observation is built from at one tick, in policy joint order.
+#[derive(Debug, Clone, Copy)]
+pub struct ObsInputs<'a> {
+    /// IMU angular velocity.
+    pub gyro: [f64; 3],
+    /// IMU specific force.
+    pub accel: [f64; 3],
+    /// Base orientation `[w, x, y, z]`.
+    pub quat: [f64; 4],
+    /// Joint positions.
+    pub q: &'a [f64],
+    /// Joint velocities.
+    pub qd: &'a [f64],
+    /// Default pose.
+    pub default_q: &'a [f64],
+    /// Raw actions of past ticks, newest first, `k × n` values.
+    pub past_actions: &'a [f32],
+    /// Targets applied last tick.
+    pub last_targets: &'a [f64],
+    /// Seconds since tracking began.
+    pub time_s: f64,
+    /// Start-up ramp.
+    pub ramp: f64,
+    /// Reference joint positions per frame offset: `ref_q(offset)` → n values.
+    pub reference: &'a dyn ReferenceView,
+    /// Simulation ground truth, when the policy asks for it.
+    pub truth: Option<&'a GroundTruth>,
+    /// VR tracker poses (teleoperation), see [`Term::TrackerPoses`].
+    pub trackers: Option<&'a [f64; TRACKER_VALUES]>,
+}
+
+/// Reference frames the observation can look at.
+pub trait ReferenceView: std::fmt::Debug {
+    /// Joint positions `offset` ticks ahead (policy order).
+    fn joint_pos(&self, offset: usize) -> &[f64];
+    /// Joint velocities `offset` ticks ahead (policy order).
+    fn joint_vel(&self, offset: usize) -> &[f64];
+    /// Root pose `offset` ticks ahead: `[x, y, z, w, qx, qy, qz]`.
+    fn root_pose(&self, offset: usize) -> [f64; 7];
+    /// Positions of the reference bodies `offset` ticks ahead, 3 per body, relative to the
+    /// reference root in its heading frame (bodies in the order the reference was built with).
+    fn body_pos(&self, offset: usize) -> &[f64];
+}
+
+/// Fills observations for one layout; histories live in buffers made once.
+#[derive(Debug)]
+pub struct ObservationBuilder {
+    slots: Vec<TermSlot>,
+    scratch: Vec<f64>,
+    filled: bool,
+}
+
+impl ObservationBuilder {
+    /// A builder for `layout`.
+    pub fn new(layout: &PolicyLayout) -> Self {
+        let widest = layout.slots.iter().map(|s| s.width).max().unwrap_or(0);
+        Self {
+            slots: layout.slots.clone(),
+            scratch: vec![0.0; widest],
+            filled: false,
+        }
+    }
+
+    /// Writes the observation for `inputs` into `obs` (the layout's length).
+    pub fn build(&mut self, inputs: &ObsInputs<'_>, obs: &mut [f32]) {
+        for slot in &self.slots {
+            let w = slot.width;
+            let sh = slot.term.shaping();
+            // Age the history: shift older copies back by one step.
+            let r = slot.range.clone();
+            if sh.history > 1 {
+                obs.copy_within(r.start..r.end - w, r.start + w);
+            }
+            let v = &mut self.scratch[..w];
+            fill_term(&slot.term, inputs, v);
+            for (o, &x) in obs[r.start..r.start + w].iter_mut().zip(v.iter()) {
+                let y = (x - sh.offset) * sh.scale;
+                *o = sh.clip.map_or(y, |c| y.clamp(-c, c)) as f32;
+            }
+            if !self.filled && sh.history > 1 {
+                // First tick: the history starts full of the current value.
+                for k in 1..sh.history {
+                    obs.copy_within(r.start..r.start + w, r.start + k * w);
+                }
+            }
+        }
+        self.filled = true;
+    }
+}
+
+fn fill_term(term: &Term, x: &ObsInputs<'_>, v: &mut [f64]) {
+    let n = x.q.len();
+    match term {
+        Term::Gyro(_) => v.copy_from_slice(&x.gyro),
+        Term::Accelerometer(_) => v.copy_from_slice(&x.accel),
+        Term::ProjectedGravity(_) => v.copy_from_slice(&projected_gravity(x.quat)),
+        Term::BaseOrientation(_) => v.copy_from_slice(&x.quat),
+        Term::BaseHeight(_) => v[0] = x.truth.map_or(0.0, |t| t.root_pose[2]),
+        Term::BaseLinVel(_) => v.copy_from_slice(&x.truth.map_or([0.0; 3], |t| t.base_lin_vel)),
+        Term::JointPos { relative, .. } => {
+            for ((o, q), d) in v.iter_mut().zip(x.q).zip(x.default_q) {
+                *o = q - if *relative { *d } else { 0.0 };
+            }
+        }
+        Term::JointVel(_) => v.copy_from_slice(x.qd),
+        Term::LastActions { k, .. } => {
+            for (o, a) in v.iter_mut().zip(x.past_actions.iter().take(k * n)) {
+                *o = f64::from(*a);
+            }
+        }
+        Term::LastTargets(_) => v.copy_from_slice(x.last_targets),
+        Term::TrackerPoses { .. } => match x.trackers {
+            Some(t) => v.copy_from_slice(&t[..v.len()]),
+            None => v.fill(0.0),
+        },
+        Term::FootContacts(_) => {
+            for (o, c) in v
+                .iter_mut()
+                .zip(x.truth.map_or(&[][..], |t| &t.foot_contacts[..]))
+            {
+                *o = f64::from(u8::from(*c));
+            }
+        }
+        Term::Command { values, .. } => v.copy_from_slice(values),
+        Term::Phase { period_s, .. } => {
+            let a = std::f64::consts::TAU * x.time_s / period_s;
+            v[0] = a.cos();
+            v[1] = a.sin();
+        }
+        Term::Ramp(_) => v[0] = x.ramp,
+        Term::RefJointPos { frames, relative, .. } => {
+            for (f, &offset) in frames.iter().enumerate() {
+                let r = x.reference.joint_pos(offset);
+                for i in 0..n {
+                    v[f * n + i] = r[i] - if *relative { x.default_q[i] } else { 0.0 };
+                }
+            }
+        }
+        Term::RefJointVel { frames, .. } => {
+            for (f, &offset) in frames.iter().enumerate() {
+                v[f * n..(f + 1) * n].copy_from_slice(x.reference.joint_vel(offset));
+            }
+        }
+        Term::RefRootPose { frames, .. } => {
+            let robot = x
+                .truth
+                .map_or([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0], |t| t.root_pose);
+            for (f, &offset) in frames.iter().enumerate() {
+                v[f * 9..(f + 1) * 9]
+                    .copy_from_slice(&relative_pose_in_heading(robot, x.reference.root_pose(offset)));
+            }
+        }
+        Term::RefBodyPos { bodies, frames, .. } => {
+            let w = 3 * bodies.len();
+            for (f, &offset) in frames.iter().enumerate() {
+                v[f * w..(f + 1) * w].copy_from_slice(&x.reference.body_pos(offset)[..w]);
+            }
+        }
+    }
+}
+
+/// Gravity's direction in the base frame for orientation `q` (`[w, x, y, z]`, base to world).
+pub fn projected_gravity(q: [f64; 4]) -> [f64; 3] {
+    spatial::quat_rotate(spatial::quat_conj(q), [0.0, 0.0, -1.0])
+}
+
+/// Target pose relative to the robot, expressed in the robot's heading frame (yaw only):
+/// position (3) and the first two columns of the relative rotation (6).
+pub fn relative_pose_in_heading(robot: [f64; 7], target: [f64; 7]) -> [f64; 9] {
+    let rr = spatial::mat_of_quat([robot[3], robot[4], robot[5], robot[6]]);
+    let unturn = spatial::yaw(-spatial::heading(&rr));
+    let p = spatial::mat_apply(
+        &unturn,
+        spatial::sub([target[0], target[1], target[2]], [robot[0], robot[1], robot[2]]),
+    );
+    let rt = spatial::mat_of_quat([target[3], target[4], target[5], target[6]]);
+    // R_rel = R_robotᵀ R_target.
+    let rel = spatial::mat_mul(&spatial::transpose(&rr), &rt);
+    [
+        p[0], p[1], p[2], rel[0][0], rel[1][0], rel[2][0], rel[0][1], rel[1][1], rel[2][1],
+    ]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn projected_gravity_points_down_when_level_and_sideways_when_rolled() {
+        let g = projected_gravity([1.0, 0.0, 0.0, 0.0]);
+        assert_eq!(g, [0.0, 0.0, -1.0]);
+        // Rolled 90° about x: gravity appears along -y of the base.
+        let h = std::f64::consts::FRAC_1_SQRT_2;
+        let g = projected_gravity([h, h, 0.0, 0.0]);
+        assert!((g[1] + 1.0).abs() < 1e-12 && g[2].abs() < 1e-12, "{g:?}");
+    }
+
+    #[test]
+    fn a_target_ahead_of_a_turned_robot_is_ahead_in_its_heading_frame() {
+        let h = std::f64::consts::FRAC_1_SQRT_2;
+        // Robot at origin facing +y (yaw 90°); target 1 m along +y, same orientation.
+        let robot = [0.0, 0.0, 0.5, h, 0.0, 0.0, h];
+        let target = [0.0, 1.0, 0.5, h, 0.0, 0.0, h];
+        let r = relative_pose_in_heading(robot, target);
+        assert!((r[0] - 1.0).abs() < 1e-12 && r[1].abs() < 1e-12);
+        assert!(
+            (r[3] - 1.0).abs() < 1e-12 && (r[7] - 1.0).abs() < 1e-12,
+            "identity rotation: {r:?}"
+        );
+    }
+}

@@ -1,0 +1,224 @@
+//! The safety side of the loop: the state machine's modes and causes, the checks that trip it, and
+//! the governor every command passes (position limits with margin, rate limit, torque bounds).
+
+use robots::JointConfig;
+
+/// Where the controller is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Mode {
+    /// Torque off, nothing commanded.
+    Off,
+    /// Every device answered with the right identity.
+    Ready,
+    /// Ramping to the default pose at reduced gains.
+    SoftStart,
+    /// The policy is in command.
+    Running,
+    /// Holding (after a fault) or blending to the default pose (after a stop request).
+    Stopping,
+    /// kp = 0, kd > 0: the joints are damped, then torque goes off.
+    Damped,
+}
+
+/// Why a transition happened.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Cause {
+    /// All devices answered with the configured identities.
+    DevicesIdentified,
+    /// The run starts.
+    Start,
+    /// Start-up ramp finished.
+    SoftStartDone,
+    /// The clip (and its end hold or blend) finished.
+    ClipFinished,
+    /// SIGINT, SIGTERM or an e-stop input asked to stop.
+    StopRequested,
+    /// A joint's feedback was stale for more than the allowed ticks.
+    StaleFeedback {
+        /// Robot joint index.
+        joint: usize,
+        /// Consecutive misses.
+        ticks: u32,
+    },
+    /// The IMU stopped delivering samples.
+    StaleImu {
+        /// Consecutive reads without a sample.
+        ticks: u32,
+    },
+    /// A device reports a fault bit.
+    DeviceFault {
+        /// Robot joint index.
+        joint: usize,
+    },
+    /// NaN or infinity in the state, observation or action.
+    NonFinite {
+        /// Where.
+        what: &'static str,
+    },
+    /// The base tilted beyond the limit.
+    Tilt {
+        /// Angle from upright, rad.
+        angle: f64,
+    },
+    /// Too many consecutive deadline overruns.
+    Overruns {
+        /// How many in a row.
+        count: u32,
+    },
+    /// An e-stop input fired.
+    EStop,
+    /// A bus failed as a whole.
+    BusFailure,
+    /// The hold before damping ended.
+    HoldDone,
+    /// Damping ended; torque goes off.
+    DampingDone,
+}
+
+impl std::fmt::Display for Cause {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::DevicesIdentified => write!(f, "all devices answered"),
+            Self::Start => write!(f, "start"),
+            Self::SoftStartDone => write!(f, "soft start done"),
+            Self::ClipFinished => write!(f, "clip finished"),
+            Self::StopRequested => write!(f, "stop requested"),
+            Self::StaleFeedback { joint, ticks } => write!(f, "joint {joint}: no feedback for {ticks} ticks"),
+            Self::StaleImu { ticks } => write!(f, "IMU: no sample for {ticks} ticks"),
+            Self::DeviceFault { joint } => write!(f, "joint {joint}: device fault"),
+            Self::NonFinite { what } => write!(f, "non-finite {what}"),
+            Self::Tilt { angle } => write!(f, "base tilted {:.0}°", angle.to_degrees()),
+            Self::Overruns { count } => write!(f, "{count} deadline overruns in a row"),
+            Self::EStop => write!(f, "e-stop"),
+            Self::BusFailure => write!(f, "bus failure"),
+            Self::HoldDone => write!(f, "hold or blend done"),
+            Self::DampingDone => write!(f, "damping done"),
+        }
+    }
+}
+
+impl Cause {
+    /// Whether this is a fault (as opposed to the normal course of a run).
+    pub fn is_fault(&self) -> bool {
+        !matches!(
+            self,
+            Self::DevicesIdentified
+                | Self::Start
+                | Self::SoftStartDone
+                | Self::ClipFinished
+                | Self::StopRequested
+                | Self::HoldDone
+                | Self::DampingDone
+        )
+    }
+}
+
+/// One transition of the state machine.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Transition {
+    /// Control tick.
+    pub tick: u64,
+    /// From.
+    pub from: Mode,
+    /// To.
+    pub to: Mode,
+    /// Why.
+    pub cause: Cause,
+}
+
+/// Thresholds of the safety checks.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SafetyLimits {
+    /// Largest tolerated run of stale feedback, ticks.
+    pub stale_ticks: u32,
+    /// Largest base tilt from upright, rad.
+    pub tilt: f64,
+    /// Overruns in a row that stop the robot.
+    pub overruns: u32,
+    /// Margin inside the joint position limits, rad.
+    pub position_margin: f64,
+}
+
+impl Default for SafetyLimits {
+    fn default() -> Self {
+        Self {
+            stale_ticks: 2,
+            tilt: 0.8,
+            overruns: 5,
+            position_margin: 0.02,
+        }
+    }
+}
+
+/// Angle between the base's z axis and the vertical, from the IMU orientation `[w, x, y, z]`.
+pub fn tilt_of(q: [f64; 4]) -> f64 {
+    robots::spatial::angle_between(robots::spatial::quat_rotate(q, [0.0, 0.0, 1.0]), [0.0, 0.0, 1.0])
+}
+
+/// Clamps a position target into the joint's limits (with margin) and its speed limit from the
+/// previous target over `dt`; returns the target sent.
+pub fn govern_position(
+    j: &JointConfig,
+    previous: f64,
+    wanted: f64,
+    dt: f64,
+    margin: f64,
+    rate_limit: Option<f64>,
+) -> f64 {
+    let [lo, hi] = j.position_limits;
+    let max_step = rate_limit.unwrap_or(j.velocity_limit).min(j.velocity_limit) * dt;
+    let stepped = wanted.clamp(previous - max_step, previous + max_step);
+    stepped.clamp(lo + margin, hi - margin)
+}
+
+/// Clamps a feed-forward torque into the joint's torque limit.
+pub fn govern_torque(j: &JointConfig, tau: f64) -> f64 {
+    tau.clamp(-j.torque_limit, j.torque_limit)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn joint() -> JointConfig {
+        JointConfig {
+            name: "knee".into(),
+            mjcf_joint: "knee".into(),
+            bus: "can0".into(),
+            id: 1,
+            model: "AK10-9".into(),
+            direction: 1.0,
+            zero_offset: 0.0,
+            homing_offset_ticks: 0,
+            gear: 1.0,
+            position_limits: [0.0, 2.0],
+            velocity_limit: 10.0,
+            torque_limit: 30.0,
+            default_position: 0.5,
+            kp: 100.0,
+            kd: 2.0,
+        }
+    }
+
+    #[test]
+    fn targets_stay_inside_limits_and_speed() {
+        let j = joint();
+        // Beyond the upper limit: clamped to limit − margin.
+        assert_eq!(govern_position(&j, 1.97, 5.0, 0.02, 0.02, None), 1.98);
+        // A jump of 1 rad in one 20 ms tick at 10 rad/s: 0.2 rad.
+        assert!((govern_position(&j, 1.0, 0.0, 0.02, 0.02, None) - 0.8).abs() < 1e-12);
+        // A tighter policy rate limit wins.
+        assert!((govern_position(&j, 1.0, 0.0, 0.02, 0.02, Some(5.0)) - 0.9).abs() < 1e-12);
+        assert_eq!(govern_torque(&j, -100.0), -30.0);
+    }
+
+    #[test]
+    fn tilt_is_the_angle_from_upright() {
+        assert_eq!(tilt_of([1.0, 0.0, 0.0, 0.0]), 0.0);
+        let a: f64 = 0.3;
+        let t = tilt_of([(a / 2.0).cos(), (a / 2.0).sin(), 0.0, 0.0]);
+        assert!((t - a).abs() < 1e-12);
+        // Yaw is not tilt.
+        assert!(tilt_of([(a / 2.0).cos(), 0.0, 0.0, (a / 2.0).sin()]) < 1e-12);
+    }
+}

@@ -1,0 +1,625 @@
+//! Run telemetry as MCAP: the loop fills a fixed-size [`TickRecord`] and pushes it into a
+//! preallocated ring (a bounded channel); a logger thread encodes JSON messages and writes an
+//! lz4-compressed MCAP file that Foxglove, Rerun and Python's `mcap` read.
+//!
+//! In wall-clock runs the loop never waits for the logger: a full ring drops the record and counts
+//! it. In lockstep runs simulated time can wait, so the loop blocks instead and nothing is dropped.
+
+use robots::spatial;
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// Most joints a record carries.
+pub const MAX_JOINTS: usize = 48;
+/// Most observation values a record carries (longer observations are truncated in the log).
+pub const MAX_OBS: usize = 512;
+
+/// Most feet a record carries.
+pub const MAX_FEET: usize = 8;
+
+/// Everything the loop knows at the end of one tick, in fixed-size arrays (robot joint order).
+/// Inputs (what the buses, the IMU and the simulator said) and outputs (the targets sent) are kept
+/// at full precision, so a replay can feed the same inputs and compare outputs bit for bit.
+#[derive(Debug, Clone, Copy)]
+pub struct TickRecord {
+    /// Tick number.
+    pub tick: u64,
+    /// Run time at the tick, ns.
+    pub time_ns: u64,
+    /// Safety mode (as its name's index in [`MODE_NAMES`]).
+    pub mode: u8,
+    /// Joints in use.
+    pub joints: u16,
+    /// Feet in use.
+    pub feet: u8,
+    /// Observation values in use.
+    pub obs_len: u16,
+    /// Measured positions, rad.
+    pub q: [f64; MAX_JOINTS],
+    /// Measured velocities, rad/s.
+    pub qd: [f64; MAX_JOINTS],
+    /// Measured torques, N·m.
+    pub tau: [f64; MAX_JOINTS],
+    /// Consecutive missed reads per joint.
+    pub missed: [u32; MAX_JOINTS],
+    /// Device fault flags per joint.
+    pub faulted: [bool; MAX_JOINTS],
+    /// IMU gyro, accelerometer, orientation `[w, x, y, z]`.
+    pub imu: [f64; 10],
+    /// Consecutive reads without an IMU sample.
+    pub imu_missed: u32,
+    /// Ground-truth base pose `[x, y, z, w, qx, qy, qz]` (simulation), NaN when unknown.
+    pub base_pose: [f64; 7],
+    /// Ground-truth base linear velocity in the base frame.
+    pub base_lin_vel: [f64; 3],
+    /// Ground-truth foot contacts.
+    pub foot_contacts: [bool; MAX_FEET],
+    /// Whether a stop had been requested when the tick ran.
+    pub stop_requested: bool,
+    /// Commanded targets: q, qd, kp, kd, tau.
+    pub target: [[f64; 5]; MAX_JOINTS],
+    /// Commanded torque on/off.
+    pub enabled: [bool; MAX_JOINTS],
+    /// Reference positions, rad.
+    pub reference_q: [f32; MAX_JOINTS],
+    /// Reference root pose `[x, y, z, w, qx, qy, qz]`.
+    pub reference_root: [f64; 7],
+    /// Whether the reference is the clip itself (not the start-up ramp or the end).
+    pub tracking: bool,
+    /// Raw policy actions (policy order).
+    pub action: [f32; MAX_JOINTS],
+    /// The observation the policy saw.
+    pub obs: [f32; MAX_OBS],
+    /// Bus I/O time of the tick, µs.
+    pub io_us: f32,
+    /// Compute time, µs.
+    pub compute_us: f32,
+    /// Time each bus took (read + write), µs, in [`RecordingInfo::bus_names`] order.
+    pub bus_us: [f32; 8],
+    /// Buses in use.
+    pub buses: u8,
+    /// The cause of the latest transition, UTF-8, `cause_len` bytes.
+    pub cause: [u8; 64],
+    /// Bytes of `cause` in use.
+    pub cause_len: u8,
+}
+
+impl Default for TickRecord {
+    fn default() -> Self {
+        Self {
+            tick: 0,
+            time_ns: 0,
+            mode: 0,
+            joints: 0,
+            feet: 0,
+            obs_len: 0,
+            q: [0.0; MAX_JOINTS],
+            qd: [0.0; MAX_JOINTS],
+            tau: [0.0; MAX_JOINTS],
+            missed: [0; MAX_JOINTS],
+            faulted: [false; MAX_JOINTS],
+            imu: [0.0; 10],
+            imu_missed: 0,
+            base_pose: [f64::NAN; 7],
+            base_lin_vel: [0.0; 3],
+            foot_contacts: [false; MAX_FEET],
+            stop_requested: false,
+            target: [[0.0; 5]; MAX_JOINTS],
+            enabled: [false; MAX_JOINTS],
+            reference_q: [0.0; MAX_JOINTS],
+            reference_root: [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
+            tracking: false,
+            action: [0.0; MAX_JOINTS],
+            obs: [0.0; MAX_OBS],
+            io_us: 0.0,
+            compute_us: 0.0,
+            bus_us: [0.0; 8],
+            buses: 0,
+            cause: [0; 64],
+            cause_len: 0,
+        }
+    }
+}
+
+/// Names of the modes, by [`TickRecord::mode`].
+pub const MODE_NAMES: [&str; 6] = ["Off", "Ready", "SoftStart", "Running", "Stopping", "Damped"];
+
+/// What the ring does when the logger falls behind.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Backpressure {
+    /// Wait (lockstep: simulated time can wait).
+    Block,
+    /// Drop the record and count it (wall clock: the loop never waits for the disk).
+    Drop,
+}
+
+/// What the logger wrote.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TelemetryReport {
+    /// The MCAP file.
+    pub path: PathBuf,
+    /// Records pushed by the loop.
+    pub pushed: u64,
+    /// Records written.
+    pub written: u64,
+    /// Records dropped because the ring was full.
+    pub dropped: u64,
+    /// Messages per topic.
+    pub messages: BTreeMap<String, u64>,
+}
+
+impl std::fmt::Display for TelemetryReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "telemetry: {} ({} ticks written, {} dropped, {} topics)",
+            self.path.display(),
+            self.written,
+            self.dropped,
+            self.messages.len()
+        )
+    }
+}
+
+/// Records written and messages per topic, as the logger thread returns them.
+type Written = (u64, BTreeMap<String, u64>);
+
+/// What a recording says about itself.
+#[derive(Debug, Clone, Default)]
+pub struct RecordingInfo {
+    /// Joint names, robot order.
+    pub joint_names: Vec<String>,
+    /// The base frame's name.
+    pub root_frame: String,
+    /// How to rebuild the run (files, options), for replays.
+    pub run: BTreeMap<String, String>,
+    /// Bus names, in the order of [`TickRecord::bus_us`].
+    pub bus_names: Vec<String>,
+    /// The robot's MJCF and its joint names in robot order: with them the logger also writes a
+    /// `foxglove.FrameTransform` per link (forward kinematics of the measured joints).
+    pub kinematics: Option<(PathBuf, Vec<String>)>,
+}
+
+/// The loop's end of the telemetry ring.
+#[derive(Debug)]
+pub struct TelemetrySink {
+    tx: Option<crossbeam::channel::Sender<TickRecord>>,
+    backpressure: Backpressure,
+    pushed: u64,
+    dropped: Arc<AtomicU64>,
+    logger: Option<std::thread::JoinHandle<Result<Written, String>>>,
+    path: PathBuf,
+}
+
+/// Topics, their JSON schemas, and how a record becomes their messages.
+const TOPICS: [(&str, &str); 8] = [
+    (
+        "/joint_state",
+        r#"{"type":"object","properties":{"q":{"type":"array","items":{"type":"number"}},"qd":{"type":"array","items":{"type":"number"}},"tau":{"type":"array","items":{"type":"number"}},"missed":{"type":"array","items":{"type":"number"}}}}"#,
+    ),
+    (
+        "/command",
+        r#"{"type":"object","properties":{"q":{"type":"array","items":{"type":"number"}},"kp":{"type":"array","items":{"type":"number"}},"reference_q":{"type":"array","items":{"type":"number"}}}}"#,
+    ),
+    (
+        "/policy",
+        r#"{"type":"object","properties":{"obs":{"type":"array","items":{"type":"number"}},"action":{"type":"array","items":{"type":"number"}}}}"#,
+    ),
+    (
+        "/safety",
+        r#"{"type":"object","properties":{"tick":{"type":"integer"},"mode":{"type":"string"},"cause":{"type":"string"}}}"#,
+    ),
+    (
+        "/imu",
+        r#"{"type":"object","properties":{"gyro":{"type":"array","items":{"type":"number"}},"accel":{"type":"array","items":{"type":"number"}},"quat":{"type":"array","items":{"type":"number"}}}}"#,
+    ),
+    (
+        "/timing",
+        r#"{"type":"object","properties":{"io_us":{"type":"number"},"compute_us":{"type":"number"},"bus_us":{"type":"array","items":{"type":"number"}}}}"#,
+    ),
+    ("/tf", FRAME_TRANSFORM_SCHEMA),
+    (
+        "/replay",
+        r#"{"type":"object","description":"full-precision loop inputs and outputs of one tick, for robodeploy replay"}"#,
+    ),
+];
+
+/// `foxglove.FrameTransform` as a JSON schema (the names Foxglove's 3D panel matches).
+const FRAME_TRANSFORM_SCHEMA: &str = r#"{"title":"foxglove.FrameTransform","type":"object","properties":{"timestamp":{"type":"object","properties":{"sec":{"type":"integer"},"nsec":{"type":"integer"}}},"parent_frame_id":{"type":"string"},"child_frame_id":{"type":"string"},"translation":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}}},"rotation":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"},"w":{"type":"number"}}}}}"#;
+
+impl TelemetrySink {
+    /// Creates `path` and starts the logger with a ring of `capacity` records. `joint_names`
+    /// (robot order) go into the channels' metadata; `root_frame` names the base frame.
+    pub fn start(
+        path: &Path,
+        capacity: usize,
+        backpressure: Backpressure,
+        info: &RecordingInfo,
+    ) -> Result<Self, String> {
+        let (joint_names, root_frame, run) = (&info.joint_names, info.root_frame.as_str(), &info.run);
+        let file =
+            std::fs::File::create(path).map_err(|e| format!("cannot create {}: {e}", path.display()))?;
+        let (tx, rx) = crossbeam::channel::bounded::<TickRecord>(capacity.max(1));
+        let mut writer = mcap::WriteOptions::new()
+            .compression(Some(mcap::Compression::Lz4))
+            .profile("")
+            .create(BufWriter::new(file))
+            .map_err(|e| e.to_string())?;
+        let meta: BTreeMap<String, String> = [("joint_names".to_owned(), joint_names.join(","))].into();
+        // The replay channel also says how to rebuild the run: files and options.
+        let mut timing_meta = meta.clone();
+        timing_meta.insert("bus_names".into(), info.bus_names.join(","));
+        let mut replay_meta = meta.clone();
+        replay_meta.extend(run.iter().map(|(k, v)| (k.clone(), v.clone())));
+        let mut channels = Vec::with_capacity(TOPICS.len());
+        for (topic, schema) in TOPICS {
+            let name = if topic == "/tf" {
+                "foxglove.FrameTransform"
+            } else {
+                topic.trim_start_matches('/')
+            };
+            let schema_id = writer
+                .add_schema(name, "jsonschema", schema.as_bytes())
+                .map_err(|e| e.to_string())?;
+            let m = match topic {
+                "/replay" => &replay_meta,
+                "/timing" => &timing_meta,
+                _ => &meta,
+            };
+            channels.push(
+                writer
+                    .add_channel(schema_id, topic, "json", m)
+                    .map_err(|e| e.to_string())?,
+            );
+        }
+        let root = root_frame.to_owned();
+        let kinematics = info.kinematics.clone();
+        let logger = std::thread::Builder::new()
+            .name("telemetry".into())
+            .spawn(move || {
+                let mut links = match &kinematics {
+                    Some((mjcf, joints)) => Some(Links::new(mjcf, joints, &root)?),
+                    None => None,
+                };
+                let tf = channels[TOPICS.len() - 2];
+                let mut counts: BTreeMap<String, u64> = BTreeMap::new();
+                let mut written = 0u64;
+                let mut text = String::with_capacity(16 * 1024);
+                let mut sequence = 0u32;
+                let mut last_mode = u8::MAX;
+                while let Ok(r) = rx.recv() {
+                    for (k, (topic, _)) in TOPICS.iter().enumerate() {
+                        text.clear();
+                        let wrote = encode(&mut text, k, &r, &root, &mut last_mode);
+                        if !wrote {
+                            continue;
+                        }
+                        sequence = sequence.wrapping_add(1);
+                        let header = mcap::records::MessageHeader {
+                            channel_id: channels[k],
+                            sequence,
+                            log_time: r.time_ns,
+                            publish_time: r.time_ns,
+                        };
+                        writer
+                            .write_to_known_channel(&header, text.as_bytes())
+                            .map_err(|e| e.to_string())?;
+                        *counts.entry((*topic).to_owned()).or_default() += 1;
+                    }
+                    if let Some(links) = &mut links
+                        && !r.base_pose[0].is_nan()
+                    {
+                        for i in 0..links.update(&r) {
+                            text.clear();
+                            links.encode(&mut text, i, r.time_ns);
+                            sequence = sequence.wrapping_add(1);
+                            let header = mcap::records::MessageHeader {
+                                channel_id: tf,
+                                sequence,
+                                log_time: r.time_ns,
+                                publish_time: r.time_ns,
+                            };
+                            writer
+                                .write_to_known_channel(&header, text.as_bytes())
+                                .map_err(|e| e.to_string())?;
+                            *counts.entry("/tf".to_owned()).or_default() += 1;
+                        }
+                    }
+                    written += 1;
+                }
+                writer.finish().map_err(|e| e.to_string())?;
+                Ok((written, counts))
+            })
+            .map_err(|e| e.to_string())?;
+        Ok(Self {
+            tx: Some(tx),
+            backpressure,
+            pushed: 0,
+            dropped: Arc::new(AtomicU64::new(0)),
+            logger: Some(logger),
+            path: path.to_path_buf(),
+        })
+    }
+
+    /// Hands a record to the logger (no allocation; blocks or drops per the backpressure).
+    pub fn push(&mut self, record: &TickRecord) {
+        let Some(tx) = &self.tx else { return };
+        self.pushed += 1;
+        let full = match self.backpressure {
+            Backpressure::Block => tx.send(*record).is_err(),
+            Backpressure::Drop => tx.try_send(*record).is_err(),
+        };
+        if full {
+            self.dropped.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// Closes the ring, waits for the logger to write everything, finishes the file.
+    pub fn finish(mut self) -> Result<TelemetryReport, String> {
+        self.tx.take();
+        let (written, messages) = self.logger.take().map_or(Ok((0, BTreeMap::new())), |h| {
+            h.join().map_err(|_| "the telemetry thread panicked".to_owned())?
+        })?;
+        Ok(TelemetryReport {
+            path: self.path.clone(),
+            pushed: self.pushed,
+            written,
+            dropped: self.dropped.load(Ordering::Relaxed),
+            messages,
+        })
+    }
+}
+
+/// A JSON array named `name`; non-finite values as null. `{:?}` prints the shortest text that
+/// reads back to the same bits (for f32 and f64 alike).
+fn json_array<T: Copy + Into<f64> + std::fmt::Debug>(
+    out: &mut String,
+    name: &str,
+    values: impl IntoIterator<Item = T>,
+) {
+    let _ = write!(out, "\"{name}\":[");
+    for (i, v) in values.into_iter().enumerate() {
+        if i > 0 {
+            out.push(',');
+        }
+        if v.into().is_finite() {
+            let _ = write!(out, "{v:?}");
+        } else {
+            out.push_str("null");
+        }
+    }
+    out.push(']');
+}
+
+fn array64(out: &mut String, name: &str, values: impl IntoIterator<Item = f64>) {
+    json_array(out, name, values);
+}
+
+fn array(out: &mut String, name: &str, values: &[f32]) {
+    json_array(out, name, values.iter().copied());
+}
+
+/// Encodes topic `k` of `r` as JSON into `out`; false when the topic has nothing this tick.
+fn encode(out: &mut String, k: usize, r: &TickRecord, root: &str, last_mode: &mut u8) -> bool {
+    let n = usize::from(r.joints);
+    out.push('{');
+    match k {
+        0 => {
+            array64(out, "q", r.q[..n].iter().copied());
+            out.push(',');
+            array64(out, "qd", r.qd[..n].iter().copied());
+            out.push(',');
+            array64(out, "tau", r.tau[..n].iter().copied());
+            out.push(',');
+            array64(out, "missed", r.missed[..n].iter().map(|&m| f64::from(m)));
+        }
+        1 => {
+            array64(out, "q", r.target[..n].iter().map(|t| t[0]));
+            out.push(',');
+            array64(out, "kp", r.target[..n].iter().map(|t| t[2]));
+            out.push(',');
+            array(out, "reference_q", &r.reference_q[..n]);
+            out.push(',');
+            array64(out, "reference_root", r.reference_root.iter().copied());
+            let _ = write!(out, ",\"tracking\":{}", r.tracking);
+        }
+        2 => {
+            let _ = write!(out, "\"tick\":{},\"running\":{},", r.tick, r.mode == 3);
+            array(out, "obs", &r.obs[..usize::from(r.obs_len)]);
+            out.push(',');
+            array(out, "action", &r.action[..n]);
+        }
+        3 => {
+            if r.mode == *last_mode {
+                out.clear();
+                return false;
+            }
+            *last_mode = r.mode;
+            let name = MODE_NAMES.get(usize::from(r.mode)).copied().unwrap_or("?");
+            let cause = std::str::from_utf8(&r.cause[..usize::from(r.cause_len)]).unwrap_or("?");
+            let _ = write!(out, "\"tick\":{},\"mode\":\"{name}\",\"cause\":{cause:?}", r.tick);
+        }
+        4 => {
+            array64(out, "gyro", r.imu[..3].iter().copied());
+            out.push(',');
+            array64(out, "accel", r.imu[3..6].iter().copied());
+            out.push(',');
+            array64(out, "quat", r.imu[6..10].iter().copied());
+        }
+        5 => {
+            let _ = write!(out, "\"io_us\":{},\"compute_us\":{},", r.io_us, r.compute_us);
+            array(out, "bus_us", &r.bus_us[..usize::from(r.buses)]);
+        }
+        7 => {
+            let f = usize::from(r.feet);
+            let _ = write!(
+                out,
+                "\"tick\":{},\"imu_missed\":{},\"stop\":{},",
+                r.tick, r.imu_missed, r.stop_requested
+            );
+            array64(out, "q", r.q[..n].iter().copied());
+            out.push(',');
+            array64(out, "qd", r.qd[..n].iter().copied());
+            out.push(',');
+            array64(out, "tau", r.tau[..n].iter().copied());
+            out.push(',');
+            array64(out, "missed", r.missed[..n].iter().map(|&m| f64::from(m)));
+            out.push(',');
+            array64(
+                out,
+                "faulted",
+                r.faulted[..n].iter().map(|&b| f64::from(u8::from(b))),
+            );
+            out.push(',');
+            array64(out, "imu", r.imu.iter().copied());
+            out.push(',');
+            array64(out, "base_pose", r.base_pose.iter().copied());
+            out.push(',');
+            array64(out, "base_lin_vel", r.base_lin_vel.iter().copied());
+            out.push(',');
+            array64(
+                out,
+                "feet",
+                r.foot_contacts[..f].iter().map(|&b| f64::from(u8::from(b))),
+            );
+            out.push(',');
+            array64(
+                out,
+                "target",
+                r.target[..n].iter().flat_map(|t| t.iter().copied()),
+            );
+            out.push(',');
+            array64(
+                out,
+                "enabled",
+                r.enabled[..n].iter().map(|&b| f64::from(u8::from(b))),
+            );
+        }
+        _ => {
+            if r.base_pose[0].is_nan() {
+                out.clear();
+                return false;
+            }
+            let p = r.base_pose;
+            let _ = write!(
+                out,
+                "\"timestamp\":{{\"sec\":{},\"nsec\":{}}},\"parent_frame_id\":\"world\",\"child_frame_id\":\"{root}\",\
+                 \"translation\":{{\"x\":{},\"y\":{},\"z\":{}}},\"rotation\":{{\"x\":{},\"y\":{},\"z\":{},\"w\":{}}}",
+                r.time_ns / 1_000_000_000,
+                r.time_ns % 1_000_000_000,
+                p[0],
+                p[1],
+                p[2],
+                p[4],
+                p[5],
+                p[6],
+                p[3]
+            );
+        }
+    }
+    out.push('}');
+    true
+}
+
+/// Forward kinematics of the recorded joints for per-link frame transforms.
+struct Links {
+    data: mujoco_rs::prelude::MjData<Box<mujoco_rs::prelude::MjModel>>,
+    root_qpos: usize,
+    joint_qpos: Vec<usize>,
+    /// (parent name, child name, parent body, child body) for every body but the world and root.
+    pairs: Vec<(String, String, usize, usize)>,
+    poses: Vec<([f64; 3], [f64; 4])>,
+}
+
+impl Links {
+    fn new(mjcf: &Path, joints: &[String], root: &str) -> Result<Self, String> {
+        use mujoco_rs::wrappers::mj_model::MjtObjBase;
+        let model = crate::sim_model(mjcf)?;
+        let id = |kind, name: &str| {
+            model
+                .name_to_id(kind, name)
+                .ok_or_else(|| format!("{name:?} is not in {}", mjcf.display()))
+        };
+        let root_body = id(MjtObjBase::mjOBJ_BODY, root)?;
+        let root_joint = model.body_jntadr()[root_body];
+        if root_joint < 0 {
+            return Err(format!("root body {root:?} has no free joint"));
+        }
+        let root_qpos = model.jnt_qposadr()[root_joint as usize] as usize;
+        let joint_qpos = joints
+            .iter()
+            .map(|j| id(MjtObjBase::mjOBJ_JOINT, j).map(|i| model.jnt_qposadr()[i] as usize))
+            .collect::<Result<Vec<_>, _>>()?;
+        let name = |b: usize| {
+            model
+                .id_to_name(MjtObjBase::mjOBJ_BODY, b)
+                .unwrap_or("world")
+                .to_owned()
+        };
+        let pairs: Vec<_> = (1..model.ffi().nbody as usize)
+            .filter(|&b| b != root_body)
+            .map(|b| {
+                let p = model.body_parentid()[b] as usize;
+                (name(p), name(b), p, b)
+            })
+            .collect();
+        let n = pairs.len();
+        Ok(Self {
+            data: mujoco_rs::prelude::MjData::new(Box::new(model)),
+            root_qpos,
+            joint_qpos,
+            pairs,
+            poses: vec![([0.0; 3], [1.0, 0.0, 0.0, 0.0]); n],
+        })
+    }
+
+    /// Computes every link's pose in its parent's frame; returns how many.
+    fn update(&mut self, r: &TickRecord) -> usize {
+        self.data.qpos_mut()[self.root_qpos..self.root_qpos + 7].copy_from_slice(&r.base_pose);
+        for (i, &adr) in self.joint_qpos.iter().enumerate().take(usize::from(r.joints)) {
+            self.data.qpos_mut()[adr] = r.q[i];
+        }
+        self.data.kinematics();
+        let (xpos, xquat) = (self.data.xpos(), self.data.xquat());
+        for (k, &(_, _, p, b)) in self.pairs.iter().enumerate() {
+            // The child in its parent's frame.
+            let inv = spatial::quat_conj(xquat[p]);
+            self.poses[k] = (
+                spatial::quat_rotate(inv, spatial::sub(xpos[b], xpos[p])),
+                spatial::quat_mul(inv, xquat[b]),
+            );
+        }
+        self.pairs.len()
+    }
+
+    fn encode(&self, out: &mut String, i: usize, time_ns: u64) {
+        let (parent, child, _, _) = &self.pairs[i];
+        let (t, q) = self.poses[i];
+        let _ = write!(
+            out,
+            "{{\"timestamp\":{{\"sec\":{},\"nsec\":{}}},\"parent_frame_id\":\"{parent}\",\"child_frame_id\":\"{child}\",\
+             \"translation\":{{\"x\":{},\"y\":{},\"z\":{}}},\"rotation\":{{\"x\":{},\"y\":{},\"z\":{},\"w\":{}}}}}",
+            time_ns / 1_000_000_000,
+            time_ns % 1_000_000_000,
+            t[0],
+            t[1],
+            t[2],
+            q[1],
+            q[2],
+            q[3],
+            q[0]
+        );
+    }
+}
+
+impl std::fmt::Debug for Links {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Links")
+            .field("links", &self.pairs.len())
+            .finish_non_exhaustive()
+    }
+}

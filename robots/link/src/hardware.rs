@@ -1,0 +1,62 @@
+//! The robot's own buses, opened from the devices robot.toml names: SocketCAN interfaces for the
+//! MIT motors, serial devices for the Dynamixel servos and the IMU.
+
+use std::time::Duration;
+
+use firmware_bridge::can::socketcan::SocketCanBus;
+use firmware_bridge::dxl::driver::DxlDriverOptions;
+use firmware_bridge::dxl::transport::SerialDxlPort;
+use firmware_bridge::serial::DeviceStream;
+use robots::{BusKind, Robot};
+
+use crate::bus_robot::{BusPorts, BusRobot};
+use crate::link::IoError;
+
+/// The hardware robot's buses.
+pub type HardwareRobot = BusRobot<DeviceStream>;
+
+/// Opens every bus of `robot` (nothing is sent yet), its buses on their own threads. Errors name
+/// the bus and device.
+pub fn open(robot: &Robot) -> Result<HardwareRobot, IoError> {
+    // Buses on their own threads: the tick's I/O costs the slowest bus, not the sum.
+    open_sequential(robot)?.parallel()
+}
+
+/// Opens every bus of `robot`, serviced one after another (tools that need the drivers themselves,
+/// such as calibration).
+pub fn open_sequential(robot: &Robot) -> Result<HardwareRobot, IoError> {
+    let mut can = Vec::new();
+    let mut dxl = Vec::new();
+    let mut imu = None;
+    for bus in &robot.config.buses {
+        let fail = |e: &dyn std::fmt::Display| {
+            IoError::Setup(format!("bus {} ({}): cannot open: {e}", bus.name, bus.device))
+        };
+        match bus.kind {
+            BusKind::MitCan => can.push((
+                bus.name.clone(),
+                SocketCanBus::open(&bus.device).map_err(|e| fail(&e))?,
+            )),
+            BusKind::Dynamixel => dxl.push((
+                bus.name.clone(),
+                SerialDxlPort::open(&bus.device, bus.rate).map_err(|e| fail(&e))?,
+            )),
+            BusKind::ImuSerial if bus.name == robot.config.imu.bus => {
+                imu = Some(DeviceStream::open(&bus.device, bus.rate).map_err(|e| fail(&e))?);
+            }
+            BusKind::ImuSerial => {}
+        }
+    }
+    let imu = imu.ok_or_else(|| IoError::Setup(format!("IMU bus {} not found", robot.config.imu.bus)))?;
+    // USB adapters: the FTDI latency timer should be 1 ms; leave margin for it.
+    let options = DxlDriverOptions {
+        reply_slack: Duration::from_millis(3),
+        ..DxlDriverOptions::default()
+    };
+    BusRobot::new(
+        robot,
+        BusPorts { can, dxl, imu },
+        Duration::from_millis(2),
+        options,
+    )
+}

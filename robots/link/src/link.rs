@@ -1,0 +1,64 @@
+//! The robot link: the one interface through which the loop, calibration and replay reach a robot.
+
+use std::time::Duration;
+
+use firmware_bridge::dxl::driver::DxlError;
+use firmware_bridge::mit::driver::MitError;
+
+use crate::state::{DeviceIdentity, JointTarget, RobotState};
+
+/// Why the buses failed as a whole (single-device trouble shows in [`RobotState`]).
+#[derive(Debug, thiserror::Error)]
+pub enum IoError {
+    /// A CAN bus failed.
+    #[error("CAN")]
+    Mit(#[from] MitError),
+    /// A Dynamixel bus failed.
+    #[error("Dynamixel")]
+    Dxl(#[from] DxlError),
+    /// The IMU stream failed.
+    #[error("IMU")]
+    Imu(#[from] std::io::Error),
+    /// The robot description and the ports do not fit.
+    #[error("{0}")]
+    Setup(String),
+}
+
+/// The robot as the loop drives it: identify, read, write, torque off. [`BusRobot`] is the real
+/// thing (on hardware or a mirror); a replay feeds a recording through the same loop.
+pub trait RobotLink: std::fmt::Debug {
+    /// Checks every device answers with the right identity; leaves them limp.
+    fn identify(&mut self) -> Result<(), IoError>;
+    /// Reads every bus and the IMU into `state`.
+    fn read(&mut self, state: &mut RobotState) -> Result<(), IoError>;
+    /// Sends every joint its target (robot order).
+    fn write(&mut self, targets: &[JointTarget]) -> Result<(), IoError>;
+    /// Torque off everywhere.
+    fn torque_off(&mut self) -> Result<(), IoError>;
+    /// Who each device says it is (after [`Self::identify`]), robot bus order.
+    fn identities(&mut self) -> Result<Vec<DeviceIdentity>, IoError> {
+        Err(IoError::Setup(
+            "this link cannot ask its devices who they are".into(),
+        ))
+    }
+    /// Bus names, in the order of [`Self::bus_times`].
+    fn bus_names(&self) -> &[String] {
+        &[]
+    }
+    /// Time each bus took in the last read + write.
+    fn bus_times(&self) -> &[Duration] {
+        &[]
+    }
+}
+
+/// The message of an error and of every error under it, joined by ": ".
+pub fn message_chain(e: &dyn std::error::Error) -> String {
+    let mut s = e.to_string();
+    let mut source = e.source();
+    while let Some(inner) = source {
+        s.push_str(": ");
+        s.push_str(&inner.to_string());
+        source = inner.source();
+    }
+    s
+}

@@ -1,0 +1,91 @@
+//! What passes between the robot and whoever drives it: measured state, joint targets, device
+//! identities, and the simulator's ground truth where there is one.
+
+/// A joint command in robot order: PD target and feed-forward torque.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct JointTarget {
+    /// Position target, rad.
+    pub q: f64,
+    /// Velocity target, rad/s.
+    pub qd: f64,
+    /// Stiffness, N·m/rad.
+    pub kp: f64,
+    /// Damping, N·m·s/rad.
+    pub kd: f64,
+    /// Feed-forward torque, N·m.
+    pub tau: f64,
+    /// Torque on. Off: the joint is limp.
+    pub enabled: bool,
+}
+
+/// The robot's measured state, robot joint order.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RobotState {
+    /// Joint positions, rad.
+    pub q: Vec<f64>,
+    /// Joint velocities, rad/s.
+    pub qd: Vec<f64>,
+    /// Joint torques (estimates), N·m.
+    pub tau: Vec<f64>,
+    /// Consecutive reads without fresh feedback, per joint.
+    pub missed: Vec<u32>,
+    /// A device reports a fault, per joint.
+    pub faulted: Vec<bool>,
+    /// IMU angular velocity, rad/s.
+    pub gyro: [f64; 3],
+    /// IMU specific force, m/s².
+    pub accel: [f64; 3],
+    /// IMU orientation `[w, x, y, z]`.
+    pub quat: [f64; 4],
+    /// Consecutive reads without a new IMU sample.
+    pub imu_missed: u32,
+}
+
+impl RobotState {
+    /// A state for `n` joints, nothing measured yet.
+    pub fn new(n: usize) -> Self {
+        Self {
+            q: vec![0.0; n],
+            qd: vec![0.0; n],
+            tau: vec![0.0; n],
+            missed: vec![u32::MAX; n],
+            faulted: vec![false; n],
+            gyro: [0.0; 3],
+            accel: [0.0; 3],
+            quat: [1.0, 0.0, 0.0, 0.0],
+            imu_missed: u32::MAX,
+        }
+    }
+}
+
+/// Who a device said it is.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DeviceIdentity {
+    /// Joint it drives.
+    pub joint: String,
+    /// Bus name.
+    pub bus: String,
+    /// ID on the bus.
+    pub id: u8,
+    /// Configured model.
+    pub model: String,
+    /// What the device answered (model number, reply format).
+    pub answer: String,
+    /// Firmware version, where the protocol reports one.
+    pub firmware: Option<u8>,
+    /// Current limit programmed in the device, A, where it has one.
+    pub current_limit_a: Option<f64>,
+    /// The actuator's torque limit, N·m (actuator side).
+    pub torque_limit_nm: f64,
+}
+
+/// What a simulator knows and a real robot does not: the root pose and velocity, foot contacts.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct GroundTruth {
+    /// Root pose `[x, y, z, w, qx, qy, qz]`.
+    pub root_pose: [f64; 7],
+    /// Root linear velocity in the base frame.
+    pub base_lin_vel: [f64; 3],
+    /// Foot contact flags.
+    pub foot_contacts: Vec<bool>,
+}

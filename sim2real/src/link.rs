@@ -1,0 +1,197 @@
+//! The robot link on the mirror: the robot's real bus drivers on the mirror's ports, in lockstep
+//! (simulated time advances only while the host waits on its buses or for its next tick) or served
+//! in real time over real wires, and the clocks that go with each.
+
+use std::net::{IpAddr, Ipv4Addr};
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::Duration;
+
+use firmware_bridge::can::socketcand::SocketcandClient;
+use firmware_bridge::can::virtual_bus::SimWorld;
+use firmware_bridge::dxl::driver::DxlDriverOptions;
+use firmware_bridge::dxl::transport::SerialDxlPort;
+use firmware_bridge::serial::{DeviceStream, LockstepStream};
+use firmware_bridge::time::SimInstant;
+use robot_link::{BusPorts, BusRobot, GroundTruth, IoError, TickClock, WallClock};
+use robots::Robot;
+
+use crate::mirror::Mirror;
+use crate::serve::ServedMirror;
+
+/// The robot's buses on a mirror in lockstep.
+pub type LockstepRobot = BusRobot<LockstepStream<Mirror>>;
+
+/// The robot's buses on a served mirror, over socketcand and pseudo-terminals.
+pub type WiredRobot = BusRobot<DeviceStream>;
+
+/// Reply timeout of MIT motors in lockstep (simulated time).
+const LOCKSTEP_REPLY: Duration = Duration::from_millis(2);
+
+/// Drivers on every bus of `world`, in lockstep.
+pub fn lockstep_robot(robot: &Robot, world: &Arc<Mutex<Mirror>>) -> Result<LockstepRobot, IoError> {
+    let ports = Mirror::host_ports(world);
+    let options = DxlDriverOptions {
+        expected_return_delay: Duration::ZERO,
+        ..DxlDriverOptions::default()
+    };
+    BusRobot::new(
+        robot,
+        BusPorts {
+            can: ports.can,
+            dxl: ports.dxl,
+            imu: ports.imu,
+        },
+        LOCKSTEP_REPLY,
+        options,
+    )
+}
+
+/// Drivers on every bus of a served mirror, connected as to hardware.
+pub fn wired_robot(robot: &Robot, served: &ServedMirror) -> Result<WiredRobot, IoError> {
+    let ep = served.endpoints();
+    let mut can = Vec::new();
+    for (name, addr) in &ep.can {
+        let client = SocketcandClient::connect(addr, name, Duration::from_secs(2))
+            .map_err(|e| IoError::Setup(format!("{name} at {addr}: {e}")))?;
+        can.push((name.clone(), client));
+    }
+    let mut dxl = Vec::new();
+    for (name, path) in &ep.dxl {
+        let rate = robot.bus(name).map_or(1_000_000, |b| b.rate);
+        dxl.push((
+            name.clone(),
+            SerialDxlPort::open(path, rate).map_err(|e| IoError::Setup(format!("{path}: {e}")))?,
+        ));
+    }
+    let imu_rate = robot.bus(&robot.config.imu.bus).map_or(921_600, |b| b.rate);
+    let imu =
+        DeviceStream::open(&ep.imu, imu_rate).map_err(|e| IoError::Setup(format!("{}: {e}", ep.imu)))?;
+    let options = DxlDriverOptions {
+        // A pseudo-terminal on a busy machine needs more margin than a USB adapter.
+        reply_slack: Duration::from_millis(5),
+        ..DxlDriverOptions::default()
+    };
+    // Buses on their own threads: the tick's I/O costs the slowest bus.
+    BusRobot::new(
+        robot,
+        BusPorts { can, dxl, imu },
+        Duration::from_millis(20),
+        options,
+    )?
+    .parallel()
+}
+
+/// Serves `mirror` on loopback (free ports) for a wired run.
+pub fn serve_locally(mirror: Mirror) -> std::io::Result<ServedMirror> {
+    ServedMirror::start(mirror, IpAddr::V4(Ipv4Addr::LOCALHOST), 0)
+}
+
+fn truth_of(world: &Arc<Mutex<Mirror>>, truth: &mut GroundTruth) -> bool {
+    let w = world.lock().unwrap_or_else(PoisonError::into_inner);
+    w.ground_truth(
+        &mut truth.root_pose,
+        &mut truth.base_lin_vel,
+        &mut truth.foot_contacts,
+    );
+    true
+}
+
+/// The mirror's clock, advanced by the loop.
+#[derive(Debug)]
+pub struct LockstepClock {
+    world: Arc<Mutex<Mirror>>,
+    start: SimInstant,
+}
+
+impl LockstepClock {
+    /// Starts at the mirror's current time.
+    pub fn new(world: Arc<Mutex<Mirror>>) -> Self {
+        let start = world.lock().unwrap_or_else(PoisonError::into_inner).now();
+        Self { world, start }
+    }
+}
+
+impl TickClock for LockstepClock {
+    fn elapsed(&self) -> Duration {
+        self.world.lock().unwrap_or_else(PoisonError::into_inner).now() - self.start
+    }
+
+    fn wait_until(&mut self, deadline: Duration) -> bool {
+        let mut w = self.world.lock().unwrap_or_else(PoisonError::into_inner);
+        let target = self.start + deadline;
+        let late = w.now() > target;
+        while w.now() < target {
+            w.step_until(target);
+        }
+        late
+    }
+
+    fn ground_truth(&self, truth: &mut GroundTruth) -> bool {
+        truth_of(&self.world, truth)
+    }
+}
+
+/// The wall clock of a served mirror, with the mirror's ground truth.
+#[derive(Debug)]
+pub struct ServedClock {
+    wall: WallClock,
+    world: Arc<Mutex<Mirror>>,
+}
+
+impl ServedClock {
+    /// Starts now.
+    pub fn new(world: Arc<Mutex<Mirror>>) -> Self {
+        Self {
+            wall: WallClock::start(),
+            world,
+        }
+    }
+}
+
+impl TickClock for ServedClock {
+    fn elapsed(&self) -> Duration {
+        self.wall.elapsed()
+    }
+
+    fn wait_until(&mut self, deadline: Duration) -> bool {
+        self.wall.wait_until(deadline)
+    }
+
+    fn ground_truth(&self, truth: &mut GroundTruth) -> bool {
+        truth_of(&self.world, truth)
+    }
+}
+
+/// The mirror in lockstep, paced by the wall clock: the mirror runs to each deadline, then the
+/// loop waits for the same deadline in real time. Live inputs (trackers) arrive in real time, so a
+/// teleoperated mirror must keep pace with them; the buses stay deterministic in-process.
+#[derive(Debug)]
+pub struct PacedLockstepClock {
+    sim: LockstepClock,
+    wall: WallClock,
+}
+
+impl PacedLockstepClock {
+    /// Starts now, at the mirror's current time.
+    pub fn new(world: Arc<Mutex<Mirror>>) -> Self {
+        Self {
+            sim: LockstepClock::new(world),
+            wall: WallClock::start(),
+        }
+    }
+}
+
+impl TickClock for PacedLockstepClock {
+    fn elapsed(&self) -> Duration {
+        self.wall.elapsed()
+    }
+
+    fn wait_until(&mut self, deadline: Duration) -> bool {
+        self.sim.wait_until(deadline);
+        self.wall.wait_until(deadline)
+    }
+
+    fn ground_truth(&self, truth: &mut GroundTruth) -> bool {
+        self.sim.ground_truth(truth)
+    }
+}

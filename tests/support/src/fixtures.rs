@@ -1,0 +1,41 @@
+//! Paths of the project-local environment that `scripts/setup` creates under `.local/`.
+
+use std::path::{Path, PathBuf};
+
+/// The workspace root (the folder holding the top-level `Cargo.toml`).
+pub fn workspace_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .ancestors()
+        .nth(2)
+        .expect("test-support lives two levels below the workspace root (tests/support)")
+        .to_path_buf()
+}
+
+/// `.local/fixtures/NAME`, checked to exist.
+///
+/// # Panics
+/// With the command that makes it when the fixture is missing.
+pub fn fixture(name: &str) -> PathBuf {
+    let path = workspace_root().join(".local/fixtures").join(name);
+    assert!(
+        path.is_file(),
+        "fixture {} is missing: run `scripts/setup` (it regenerates .local/fixtures)",
+        path.display()
+    );
+    path
+}
+
+/// The Python interpreter of the project's environment, with the independent third-party
+/// clients and readers the tests drive (`.local/venv/bin/python`).
+///
+/// # Panics
+/// With the command that makes it when the environment is missing.
+pub fn venv_python() -> PathBuf {
+    let path = workspace_root().join(".local/venv/bin/python");
+    assert!(
+        path.is_file(),
+        "{} is missing: run `scripts/setup`",
+        path.display()
+    );
+    path
+}

@@ -1,0 +1,858 @@
+//! The robodeploy binary as a user runs it.
+
+use std::process::Command;
+
+use test_support::bin::robodeploy;
+
+#[test]
+fn doctor_loads_both_native_libraries_and_models() {
+    let root = test_support::fixtures::workspace_root();
+    let out = robodeploy()
+        .args(["doctor", "--mjcf"])
+        .arg(root.join("robots/fixtures/pendulum.xml"))
+        .arg("--onnx")
+        .arg(test_support::fixtures::fixture("mlp_obs96_act20.onnx"))
+        // The binary must find its libraries with no help from the environment.
+        .env_remove("LD_LIBRARY_PATH")
+        .env_remove("ORT_DYLIB_PATH")
+        .env_remove("MUJOCO_DYNAMIC_LINK_DIR")
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "stdout:\n{stdout}\nstderr:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("MuJoCo        3.17.0 (mj_version 3017000)"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("nq 1 nv 1 nu 1"), "{stdout}");
+    assert!(
+        stdout.contains("input 'obs' [96] -> output 'actions' [20]"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("doctor: all checks passed"), "{stdout}");
+}
+
+#[test]
+fn doctor_rejects_a_bad_model_with_its_path() {
+    let bad = std::env::temp_dir().join(format!("robodeploy-bad-{}.xml", std::process::id()));
+    std::fs::write(
+        &bad,
+        "<mujoco><worldbody><geom type='nonsense'/></worldbody></mujoco>",
+    )
+    .unwrap();
+    let out = robodeploy()
+        .args(["doctor", "--mjcf"])
+        .arg(&bad)
+        .arg("--onnx")
+        .arg(test_support::fixtures::fixture("mlp_obs96_act20.onnx"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(stderr.contains(&bad.display().to_string()), "{stderr}");
+}
+
+#[test]
+fn help_teaches_the_commands() {
+    let out = robodeploy().arg("--help").output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success());
+    assert!(stdout.contains("doctor"), "{stdout}");
+}
+
+#[test]
+fn can_scan_finds_the_motors_can_emulate_serves() {
+    use std::io::BufRead;
+    let mut emulate = robodeploy()
+        .args([
+            "can",
+            "emulate",
+            "--listen",
+            "127.0.0.1:0",
+            "--motor",
+            "1:DM-J4310",
+            "--motor",
+            "4:DM-J4310",
+            "--seconds",
+            "20",
+        ])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut first = String::new();
+    let mut reader = std::io::BufReader::new(emulate.stdout.take().unwrap());
+    reader.read_line(&mut first).unwrap();
+    // Keep draining the server's output so it never writes into a closed pipe.
+    let drain = std::thread::Builder::new()
+        .name("drain".into())
+        .spawn(move || std::io::copy(&mut reader, &mut std::io::sink()))
+        .unwrap();
+    let addr = first.rsplit(' ').next().unwrap().trim().to_owned();
+    assert!(addr.starts_with("127.0.0.1:"), "{first}");
+    let out = robodeploy()
+        .args([
+            "can",
+            "scan",
+            "--socketcand",
+            &addr,
+            "--model",
+            "DM-J4310",
+            "--ids",
+            "1-5",
+        ])
+        .output()
+        .unwrap();
+    let _ = emulate.kill();
+    let _ = emulate.wait();
+    let _ = drain.join();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.contains("2 motor(s) answered out of 5 asked"), "{stdout}");
+    // DaMiao motors reply on their master ID (motor ID + 0x10).
+    assert!(
+        stdout.contains("   1     0x11") && stdout.contains("   4     0x14"),
+        "{stdout}"
+    );
+}
+
+#[test]
+fn can_emulate_rejects_unknown_models_by_name() {
+    let out = robodeploy()
+        .args(["can", "emulate", "--motor", "1:AK99-1"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("unknown motor model 'AK99-1'") && stderr.contains("AK80-9"),
+        "{stderr}"
+    );
+}
+
+#[test]
+fn dxl_scan_finds_the_servos_dxl_emulate_serves() {
+    use std::io::BufRead;
+    let mut emulate = robodeploy()
+        .args([
+            "dxl",
+            "emulate",
+            "--servo",
+            "1:XM430-W350",
+            "--servo",
+            "3:XL430-W250",
+            "--baud",
+            "4000000",
+            "--seconds",
+            "20",
+        ])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut first = String::new();
+    let mut reader = std::io::BufReader::new(emulate.stdout.take().unwrap());
+    reader.read_line(&mut first).unwrap();
+    let drain = std::thread::Builder::new()
+        .name("drain".into())
+        .spawn(move || std::io::copy(&mut reader, &mut std::io::sink()))
+        .unwrap();
+    let path = first
+        .split(" on ")
+        .nth(1)
+        .and_then(|s| s.split(' ').next())
+        .unwrap()
+        .to_owned();
+    assert!(path.starts_with("/dev/pts/"), "{first}");
+    let out = robodeploy()
+        .args([
+            "dxl", "scan", "--port", &path, "--baud", "4000000", "--ids", "1-4",
+        ])
+        .output()
+        .unwrap();
+    let _ = emulate.kill();
+    let _ = emulate.wait();
+    let _ = drain.join();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.contains("2 servo(s) answered out of 4 asked"), "{stdout}");
+    assert!(
+        stdout.contains("   1   XM430-W350") && stdout.contains("   3   XL430-W250"),
+        "{stdout}"
+    );
+}
+
+#[test]
+fn dxl_emulate_rejects_bad_servos_and_rates_by_name() {
+    let out = robodeploy()
+        .args(["dxl", "emulate", "--servo", "1:XM999"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && stderr.contains("unknown servo model 'XM999'"),
+        "{stderr}"
+    );
+    let out = robodeploy()
+        .args([
+            "dxl",
+            "emulate",
+            "--servo",
+            "1:XM430-W350",
+            "--baud",
+            "12345",
+            "--seconds",
+            "1",
+        ])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && stderr.contains("--baud 12345"),
+        "{stderr}"
+    );
+}
+
+#[test]
+fn sim_serve_exposes_the_biped_to_the_bus_scanners() {
+    use std::io::BufRead;
+    let mut serve = robodeploy()
+        .args(["sim", "serve", "--gantry", "--port", "0", "--seconds", "30"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut reader = std::io::BufReader::new(serve.stdout.take().unwrap());
+    let mut lines = Vec::new();
+    for _ in 0..5 {
+        let mut l = String::new();
+        reader.read_line(&mut l).unwrap();
+        lines.push(l);
+    }
+    let drain = std::thread::Builder::new()
+        .name("drain".into())
+        .spawn(move || std::io::copy(&mut reader, &mut std::io::sink()))
+        .unwrap();
+    let field = |prefix: &str| {
+        lines
+            .iter()
+            .find(|l| l.trim_start().starts_with(prefix))
+            .and_then(|l| l.split_whitespace().last())
+            .unwrap_or_else(|| panic!("no {prefix} line in {lines:?}"))
+            .to_owned()
+    };
+    let dxl_path = field("dxl");
+    let can_addr = field("can  can0");
+    let dxl = robodeploy()
+        .args([
+            "dxl", "scan", "--port", &dxl_path, "--baud", "4000000", "--ids", "1-10",
+        ])
+        .output()
+        .unwrap();
+    let can = robodeploy()
+        .args([
+            "can",
+            "scan",
+            "--socketcand",
+            &can_addr,
+            "--model",
+            "AK80-9",
+            "--ids",
+            "1-8",
+        ])
+        .output()
+        .unwrap();
+    let _ = serve.kill();
+    let _ = serve.wait();
+    let _ = drain.join();
+    let dxl = String::from_utf8_lossy(&dxl.stdout);
+    assert!(dxl.contains("8 servo(s) answered out of 10 asked"), "{dxl}");
+    assert!(dxl.contains("   7   XL430-W250"), "{dxl}");
+    let can = String::from_utf8_lossy(&can.stdout);
+    assert!(can.contains("6 motor(s) answered out of 8 asked"), "{can}");
+}
+
+#[test]
+fn sim_serve_names_a_broken_robot_file() {
+    let dir = std::env::temp_dir().join(format!("robodeploy-badrobot-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let src = robots::reference_robot_path();
+    std::fs::copy(src.with_file_name("biped.xml"), dir.join("biped.xml")).unwrap();
+    let text = std::fs::read_to_string(&src)
+        .unwrap()
+        .replacen("id = 2", "id = 1", 1);
+    std::fs::write(dir.join("robot.toml"), text).unwrap();
+    let out = robodeploy()
+        .args(["sim", "serve", "--robot"])
+        .arg(dir.join("robot.toml"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("robot.toml: joints[1] (left_hip_roll).id: 1 is used twice on bus can0"),
+        "{stderr}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn sim_stand_applies_scheduled_faults_and_writes_frames() {
+    let root = test_support::fixtures::workspace_root();
+    let frames = std::env::temp_dir().join(format!("robodeploy-frames-{}", std::process::id()));
+    let out = robodeploy()
+        .args([
+            "sim",
+            "stand",
+            "--seconds",
+            "2.5",
+            "--fps",
+            "2",
+            "--size",
+            "64x48",
+            "--mirror",
+        ])
+        .arg(root.join("sim2real/configs/randomized-with-faults.toml"))
+        .arg("--frames")
+        .arg(&frames)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.contains("2 faults applied"), "{stdout}");
+    assert!(stdout.contains("5 frames in"), "{stdout}");
+    let png = std::fs::read(frames.join("frame_0004.png")).unwrap();
+    assert_eq!(&png[1..4], b"PNG");
+    std::fs::remove_dir_all(&frames).unwrap();
+}
+
+#[test]
+fn sim_stand_names_a_broken_mirror_file() {
+    let path = std::env::temp_dir().join(format!("robodeploy-mirror-{}.toml", std::process::id()));
+    std::fs::write(
+        &path,
+        "seed = 1\n[[faults]]\nat_s = 1.0\njoint = \"left_elbow\"\nfault = { kind = \"explode\" }\n",
+    )
+    .unwrap();
+    let out = robodeploy()
+        .args(["sim", "stand", "--mirror"])
+        .arg(&path)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains(&path.display().to_string()) && stderr.contains("explode"),
+        "{stderr}"
+    );
+    std::fs::remove_file(&path).unwrap();
+}
+
+#[test]
+fn play_runs_the_default_clip_on_the_mirror_and_prints_a_summary() {
+    let out = robodeploy().args(["play", "--no-record"]).output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("joint tracking RMSE") && stdout.contains("fell: no"),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("Running → Stopping (clip finished)") && stdout.contains("Damped → Off"),
+        "{stdout}"
+    );
+}
+
+#[test]
+fn play_refuses_a_clip_beyond_the_limits_before_anything_moves() {
+    let clip = robots::reference_robot_path().with_file_name("clips/squat.csv");
+    let text = std::fs::read_to_string(clip)
+        .unwrap()
+        .replace("-0.25000,0.50000,-0.25000", "-0.25000,2.90000,-0.25000");
+    let path = std::env::temp_dir().join(format!("robodeploy-badclip-{}.csv", std::process::id()));
+    std::fs::write(&path, text).unwrap();
+    let out = robodeploy()
+        .args(["play", "--no-record", "--clip"])
+        .arg(&path)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("t = 0.000 s (tick 0): left_knee = 2.900 rad is outside its limits"),
+        "{stderr}"
+    );
+    assert!(
+        !String::from_utf8_lossy(&out.stdout).contains("on the mirror"),
+        "nothing may start"
+    );
+    std::fs::remove_file(&path).unwrap();
+}
+
+#[test]
+fn sigint_soft_stops_a_looping_play() {
+    use std::io::Read;
+    let mut child = robodeploy()
+        .args(["play", "--no-record", "--end", "loop", "--clip"])
+        .arg(robots::reference_robot_path().with_file_name("clips/wave_and_look.csv"))
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    let status = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let mut stdout = String::new();
+    child.stdout.take().unwrap().read_to_string(&mut stdout).unwrap();
+    assert!(child.wait().unwrap().success(), "{stdout}");
+    assert!(stdout.contains("Running → Stopping (stop requested)"), "{stdout}");
+    assert!(
+        stdout.contains("Stopping → Damped") && stdout.contains("Damped → Off"),
+        "{stdout}"
+    );
+}
+
+#[test]
+fn play_over_real_wires_tracks_in_real_time() {
+    let out = robodeploy()
+        .args([
+            "play",
+            "--no-record",
+            "--wall",
+            "--gantry",
+            "--max-seconds",
+            "3",
+            "--clip",
+        ])
+        .arg(robots::reference_robot_path().with_file_name("clips/wave_and_look.csv"))
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("in real time over socketcand and pseudo-terminals"),
+        "{stdout}"
+    );
+    let rmse: f64 = stdout
+        .lines()
+        .find_map(|l| l.strip_prefix("joint tracking RMSE: "))
+        .and_then(|v| v.trim_end_matches('°').parse().ok())
+        .unwrap();
+    assert!(rmse < 5.0, "{stdout}");
+}
+
+#[test]
+fn play_on_hardware_names_a_missing_bus_and_moves_nothing() {
+    let out = robodeploy()
+        .args(["play", "--no-record", "--hardware"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(stderr.contains("bus can0 (can0): cannot open"), "{stderr}");
+    assert!(
+        !String::from_utf8_lossy(&out.stdout).contains("ran "),
+        "nothing ran"
+    );
+}
+
+#[test]
+fn check_prints_the_layout_without_moving_anything() {
+    let out = robodeploy().arg("check").output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{stdout}");
+    assert!(stdout.contains("[  87..127 ) ref_joint_pos"), "{stdout}");
+    assert!(
+        stdout.contains("observation of 127 values") && stdout.contains("ok: nothing moved"),
+        "{stdout}"
+    );
+}
+
+#[test]
+fn a_udp_estop_damps_the_robot_at_once() {
+    use std::io::{BufRead, Read};
+    let mut child = robodeploy()
+        .args([
+            "play",
+            "--no-record",
+            "--end",
+            "loop",
+            "--estop-udp",
+            "127.0.0.1:0",
+        ])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut reader = std::io::BufReader::new(child.stdout.take().unwrap());
+    let mut line = String::new();
+    let addr = loop {
+        line.clear();
+        assert!(reader.read_line(&mut line).unwrap() > 0, "no e-stop line");
+        if let Some(a) = line.trim().strip_prefix("e-stop: send ESTOP to udp://") {
+            break a.to_owned();
+        }
+    };
+    std::thread::sleep(std::time::Duration::from_millis(800));
+    let socket = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    socket.send_to(b"hello", &addr).unwrap();
+    socket.send_to(b"ESTOP", &addr).unwrap();
+    let mut rest = String::new();
+    reader.read_to_string(&mut rest).unwrap();
+    assert!(child.wait().unwrap().success(), "{rest}");
+    let stop = rest
+        .lines()
+        .find(|l| l.contains("→ Stopping"))
+        .unwrap_or_else(|| panic!("{rest}"));
+    assert!(stop.contains("(e-stop)"), "{rest}");
+    let tick = |l: &str| {
+        l.split_whitespace()
+            .nth(1)
+            .unwrap()
+            .trim_end_matches(':')
+            .parse::<u64>()
+            .unwrap()
+    };
+    let damped = rest.lines().find(|l| l.contains("→ Damped")).unwrap();
+    assert!(tick(damped) - tick(stop) <= 2, "{rest}");
+}
+
+#[test]
+fn bus_scan_compares_every_bus_of_the_robot_with_its_file() {
+    let out = robodeploy().args(["bus", "scan", "--sim"]).output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("can  can0: 6 motor(s) answered")
+            && stdout.contains("can  can1: 6 motor(s) answered"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("dxl  dxl0: 8 servo(s) answered"), "{stdout}");
+    assert!(
+        stdout.contains("0 checksum errors")
+            && stdout.contains("every device of rd-biped answered as configured"),
+        "{stdout}"
+    );
+}
+
+#[test]
+fn check_flags_a_clip_that_pushes_a_foot_into_the_floor() {
+    let clip = robots::reference_robot_path().with_file_name("clips/squat.csv");
+    // Lower the root 3 cm from t = 2 s on: the soles go 3 cm into the floor.
+    let mut out = String::new();
+    for line in std::fs::read_to_string(clip).unwrap().lines() {
+        let mut cells: Vec<String> = line.split(',').map(str::to_owned).collect();
+        if let Ok(t) = cells[0].parse::<f64>()
+            && t >= 2.0
+        {
+            let z: f64 = cells[3].parse().unwrap();
+            cells[3] = format!("{:.5}", z - 0.03);
+        }
+        out.push_str(&cells.join(","));
+        out.push('\n');
+    }
+    let path = std::env::temp_dir().join(format!("robodeploy-sunk-{}.csv", std::process::id()));
+    std::fs::write(&path, out).unwrap();
+    let run = robodeploy()
+        .args(["check", "--clip"])
+        .arg(&path)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success());
+    assert!(stderr.contains("the robot should not play this clip"), "{stderr}");
+    // Resampled from 30 to 50 Hz, the tick at 1.98 s already lies 1.2 cm deep (interpolated).
+    assert!(
+        stderr.contains("ground penetration")
+            && stderr.contains("first at t = 1.980 s (tick 99, left_sole); deepest 3.0 cm"),
+        "{stderr}"
+    );
+    // The 3 cm drop in one frame also needs torques far beyond the knees' motors.
+    assert!(
+        stderr.contains("left_knee needs") && stderr.contains("the motor would saturate"),
+        "{stderr}"
+    );
+    std::fs::remove_file(&path).unwrap();
+}
+
+#[test]
+fn replay_reproduces_a_recorded_run_bit_for_bit_and_finds_where_a_changed_clip_departs() {
+    let dir = std::env::temp_dir().join(format!("robodeploy-replay-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let clip = dir.join("squat.csv");
+    std::fs::copy(
+        robots::reference_robot_path().with_file_name("clips/squat.csv"),
+        &clip,
+    )
+    .unwrap();
+    let log = dir.join("run.mcap");
+    let out = robodeploy()
+        .arg("play")
+        .arg("--clip")
+        .arg(&clip)
+        .arg("--record")
+        .arg(&log)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = robodeploy().arg("replay").arg(&log).output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("replayed 552 ticks")
+            && stdout.contains("every command matches the recording bit for bit"),
+        "{stdout}"
+    );
+
+    // Change the clip from t = 4 s on: the replay departs where the changed reference reaches a
+    // command: 50 soft-start ticks + 75 ramp ticks + clip tick 199 (t = 3.98 s, which the 30 → 50 Hz
+    // resampling already interpolates towards the changed 4.0 s frame) = tick 324.
+    let text = std::fs::read_to_string(&clip).unwrap();
+    let changed: Vec<String> = text
+        .lines()
+        .map(|l| {
+            let mut c: Vec<String> = l.split(',').map(str::to_owned).collect();
+            if c[0].parse::<f64>().is_ok_and(|t| t >= 4.0) {
+                let v: f64 = c[20].parse().unwrap();
+                c[20] = format!("{:.5}", v + 0.01);
+            }
+            c.join(",")
+        })
+        .collect();
+    std::fs::write(&clip, changed.join("\n") + "\n").unwrap();
+    let out = robodeploy().arg("replay").arg(&log).output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(!out.status.success());
+    assert!(
+        stdout.contains("first difference at tick 324, joint 12 (left_shoulder_pitch) q"),
+        "{stdout}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn compare_pinpoints_a_mis_scaled_observation_term() {
+    let dir = std::env::temp_dir().join(format!("robodeploy-compare-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let follower = robots::reference_robot_path().with_file_name("policies/reference_follower.toml");
+    let onnx = follower.with_file_name("reference_follower.onnx");
+    // The same policy with its gyro term scaled 0.5 instead of 0.25: what a typo in a deployment
+    // config does.
+    let text = std::fs::read_to_string(&follower)
+        .unwrap()
+        .replace(
+            "onnx = \"reference_follower.onnx\"",
+            &format!("onnx = {:?}", onnx.display().to_string()),
+        )
+        .replace("term = \"gyro\"\nscale = 0.25", "term = \"gyro\"\nscale = 0.5");
+    std::fs::write(dir.join("typo.toml"), text).unwrap();
+    let (a, b) = (dir.join("a.mcap"), dir.join("b.mcap"));
+    assert!(
+        robodeploy()
+            .args(["play", "--record"])
+            .arg(&a)
+            .output()
+            .unwrap()
+            .status
+            .success()
+    );
+    let out = robodeploy()
+        .args(["play", "--policy"])
+        .arg(dir.join("typo.toml"))
+        .arg("--record")
+        .arg(&b)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = robodeploy().arg("compare").arg(&a).arg(&b).output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("first divergence: term gyro (obs[3..6]) at step 0 (tick 50"),
+        "{stdout}"
+    );
+
+    // A training export: the run's observations written by NumPy, joint_vel doubled from step 100.
+    let script = format!(
+        r#"
+import json, numpy as np
+from mcap.reader import make_reader
+rows = [json.loads(m.data)["obs"] for s, c, m in make_reader(open({a:?}, "rb")).iter_messages(topics=["/policy"]) if json.loads(m.data)["running"]]
+obs = np.array(rows, dtype=np.float32)
+obs[100:, 26:46] *= 2.0
+np.savez({out:?}, obs=obs)
+"#,
+        a = a.display().to_string(),
+        out = dir.join("train.npz").display().to_string()
+    );
+    let py = Command::new(test_support::fixtures::venv_python())
+        .args(["-c", &script])
+        .output()
+        .unwrap();
+    assert!(py.status.success(), "{}", String::from_utf8_lossy(&py.stderr));
+    let out = robodeploy()
+        .arg("compare")
+        .arg(&a)
+        .arg(dir.join("train.npz"))
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        stdout.contains("first divergence: term joint_vel (obs[26..46]) at step 100"),
+        "{stdout}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn play_writes_a_report_with_plots_and_the_reactor_metrics() {
+    let dir = std::env::temp_dir().join(format!("robodeploy-report-{}", std::process::id()));
+    let out = robodeploy()
+        .args(["play", "--record"])
+        .arg(dir.join("run.mcap"))
+        .arg("--report")
+        .arg(&dir)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["success"], true);
+    assert_eq!(summary["tracking_ticks"], 351);
+    let rmse = summary["joints_rmse_deg"].as_f64().unwrap();
+    assert!(rmse > 0.1 && rmse < 3.0, "{summary}");
+    assert!(summary["root_position_rmse_cm"].as_f64().unwrap() < 3.0);
+    assert_eq!(summary["safety_events"].as_array().unwrap().len(), 5);
+    let html = std::fs::read_to_string(dir.join("report.html")).unwrap();
+    assert!(
+        html.matches("<svg").count() >= 9 && html.contains("left_knee tracking"),
+        "plots missing"
+    );
+    assert!(
+        std::fs::read_to_string(dir.join("summary.md"))
+            .unwrap()
+            .contains("| success (root within 1 m and 45°) | yes |")
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn batch_runs_clips_times_seeds_in_parallel_and_tabulates_them() {
+    let clips = robots::reference_robot_path().with_file_name("clips");
+    let out = robodeploy()
+        .args(["batch", "--seeds", "0-2", "--jobs", "2", "--clips"])
+        .arg(clips.join("squat.csv"))
+        .arg(clips.join("wave_and_look.csv"))
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let row = |name: &str| {
+        stdout
+            .lines()
+            .find(|l| l.starts_with(name))
+            .unwrap_or_else(|| panic!("{stdout}"))
+            .to_owned()
+    };
+    assert!(row("squat.csv").contains("     3      100%"), "{stdout}");
+    assert!(row("wave_and_look.csv").contains("     3      100%"), "{stdout}");
+    // With the elbow servo vanishing during start-up, no run succeeds.
+    let out = robodeploy()
+        .args(["batch", "--seeds", "0-1", "--mirror"])
+        .arg(test_support::fixtures::workspace_root().join("sim2real/configs/randomized-with-faults.toml"))
+        .arg("--clips")
+        .arg(clips.join("squat.csv"))
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        stdout.contains("squat.csv                         2        0%"),
+        "{stdout}"
+    );
+}
+
+#[test]
+fn check_flags_limbs_that_pass_through_each_other() {
+    let clip = robots::reference_robot_path().with_file_name("clips/squat.csv");
+    let text = std::fs::read_to_string(clip).unwrap();
+    let header: Vec<&str> = text
+        .lines()
+        .find(|l| l.starts_with("time,"))
+        .unwrap()
+        .split(',')
+        .collect();
+    let (l, r) = (
+        header.iter().position(|c| *c == "left_hip_roll").unwrap(),
+        header.iter().position(|c| *c == "right_hip_roll").unwrap(),
+    );
+    // Both hips rolled fully inwards (within their limits) from t = 1 s on, eased in over 1 s:
+    // the thighs cross.
+    let mut out = String::new();
+    for line in text.lines() {
+        let mut cells: Vec<String> = line.split(',').map(str::to_owned).collect();
+        if let Ok(t) = cells[0].parse::<f64>() {
+            let a = ((t - 1.0) / 1.0).clamp(0.0, 1.0);
+            cells[l] = format!("{:.5}", -0.28 * a);
+            cells[r] = format!("{:.5}", 0.28 * a);
+        }
+        out.push_str(&cells.join(","));
+        out.push('\n');
+    }
+    let path = std::env::temp_dir().join(format!("robodeploy-crossed-{}.csv", std::process::id()));
+    std::fs::write(&path, out).unwrap();
+    let run = robodeploy()
+        .args(["check", "--clip"])
+        .arg(&path)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success(), "{}", String::from_utf8_lossy(&run.stdout));
+    assert!(
+        stderr.contains("self-penetration:") && stderr.contains("limbs overlapping more than 1 cm"),
+        "{stderr}"
+    );
+    std::fs::remove_file(&path).unwrap();
+}

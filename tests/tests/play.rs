@@ -1,0 +1,481 @@
+//! The whole path in lockstep: policy manifest → ONNX policy → safety governor → real bus drivers →
+//! emulated MIT motors, Dynamixel servos and IMU → MuJoCo, and back.
+
+use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
+use std::sync::{Arc, Mutex};
+
+use controller::clip::{Clip, Reference};
+use controller::player::{PlayOptions, PlaySummary, Player};
+use controller::policy::PolicyLayout;
+use controller::safety::{Cause, Mode};
+use controller::sim::lockstep_player;
+use robots::{Robot, reference_robot_path};
+use sim2real::config::MirrorConfig;
+use sim2real::link::LockstepClock;
+use sim2real::mirror::Mirror;
+
+#[global_allocator]
+static ALLOC: test_support::alloc::CountingAllocator = test_support::alloc::CountingAllocator;
+
+type MirrorPlayer = Player<sim2real::link::LockstepRobot>;
+
+fn biped(file: &str) -> PathBuf {
+    reference_robot_path().with_file_name(file)
+}
+
+fn player(
+    policy: PathBuf,
+    clip: PathBuf,
+    mirror: MirrorConfig,
+    options: PlayOptions,
+) -> (MirrorPlayer, LockstepClock, Arc<Mutex<Mirror>>) {
+    let robot = Robot::load(&reference_robot_path()).unwrap();
+    let layout = PolicyLayout::load(&policy, &robot).unwrap();
+    let reference =
+        Reference::from_clip(&Clip::load(&clip).unwrap(), &robot, layout.manifest.rate_hz).unwrap();
+    lockstep_player(
+        robot,
+        layout,
+        reference,
+        options,
+        mirror,
+        Arc::new(AtomicBool::new(false)),
+    )
+    .unwrap()
+}
+
+fn follower() -> PathBuf {
+    biped("policies/reference_follower.toml")
+}
+
+fn modes(s: &PlaySummary) -> Vec<(Mode, Mode)> {
+    s.transitions.iter().map(|t| (t.from, t.to)).collect()
+}
+
+#[test]
+fn the_biped_squats_with_the_reference_follower_and_the_log_shows_the_state_machine() {
+    let (mut p, mut clock, _world) = player(
+        follower(),
+        biped("clips/squat.csv"),
+        MirrorConfig::default(),
+        PlayOptions::default(),
+    );
+    let s = p.run(&mut clock).unwrap();
+    assert!(!s.fell, "{s}");
+    assert!(s.joint_rmse.to_degrees() < 3.0, "{s}");
+    assert!(s.root_rmse.unwrap() < 0.03, "{s}");
+    assert_eq!(
+        modes(&s),
+        vec![
+            (Mode::Off, Mode::Ready),
+            (Mode::Ready, Mode::SoftStart),
+            (Mode::SoftStart, Mode::Running),
+            (Mode::Running, Mode::Stopping),
+            (Mode::Stopping, Mode::Damped),
+            (Mode::Damped, Mode::Off),
+        ],
+        "{s}"
+    );
+    assert_eq!(s.transitions[3].cause, Cause::ClipFinished);
+}
+
+fn transition(s: &PlaySummary, to: Mode) -> Option<&controller::safety::Transition> {
+    s.transitions.iter().find(|t| t.to == to)
+}
+
+#[test]
+fn a_servo_that_stops_answering_brings_damping_within_two_ticks() {
+    use sim2real::config::{FaultKind, ScheduledFault};
+    let mirror = MirrorConfig {
+        faults: vec![ScheduledFault {
+            at_s: 3.0,
+            joint: "left_elbow".into(),
+            fault: FaultKind::Vanish,
+        }],
+        ..MirrorConfig::default()
+    };
+    let (mut p, mut clock, _w) = player(
+        follower(),
+        biped("clips/wave_and_look.csv"),
+        mirror,
+        PlayOptions::default(),
+    );
+    let s = p.run(&mut clock).unwrap();
+    let stop = transition(&s, Mode::Stopping).expect("a stop");
+    assert!(
+        matches!(stop.cause, Cause::StaleFeedback { joint: 14, .. }),
+        "{s}"
+    );
+    // The servo vanished at 3.0 s = tick 150; stale for more than 2 ticks is detected by tick 153.
+    assert!(stop.tick <= 153, "{s}");
+    let damped = transition(&s, Mode::Damped).unwrap();
+    assert!(damped.tick - stop.tick <= 2, "{s}");
+    assert_eq!(s.transitions.last().unwrap().to, Mode::Off);
+}
+
+#[test]
+fn a_nan_action_leads_to_the_safe_state() {
+    let dir = std::env::temp_dir().join(format!("play-nan-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let onnx = test_support::fixtures::fixture("nan_after_half_ramp.onnx");
+    let manifest = std::fs::read_to_string(follower()).unwrap().replace(
+        "onnx = \"reference_follower.onnx\"",
+        &format!("onnx = {:?}", onnx.display().to_string()),
+    );
+    std::fs::write(dir.join("nan.toml"), manifest).unwrap();
+    let (mut p, mut clock, _w) = player(
+        dir.join("nan.toml"),
+        biped("clips/squat.csv"),
+        MirrorConfig {
+            gantry: true,
+            ..MirrorConfig::default()
+        },
+        PlayOptions::default(),
+    );
+    let s = p.run(&mut clock).unwrap();
+    let stop = transition(&s, Mode::Stopping).expect("a stop");
+    assert_eq!(stop.cause, Cause::NonFinite { what: "action" }, "{s}");
+    // ψ passes 0.5 half-way through the 1.5 s ramp, which starts after the 1 s soft start.
+    assert!((85..=90).contains(&stop.tick), "{s}");
+    assert!(transition(&s, Mode::Damped).unwrap().tick <= stop.tick + 2);
+    // Every target sent stayed finite.
+    assert!(p.targets().iter().all(|t| t.q.is_finite() && t.kp.is_finite()));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_clip_beyond_the_limits_is_refused_with_its_first_bad_frame() {
+    let robot = Robot::load(&reference_robot_path()).unwrap();
+    let text = std::fs::read_to_string(biped("clips/squat.csv")).unwrap();
+    // Push the left knee past its 2.2 rad limit from t = 1.0 s on.
+    let mut out = String::new();
+    for line in text.lines() {
+        let mut cells: Vec<String> = line.split(',').map(str::to_owned).collect();
+        if let Ok(t) = cells[0].parse::<f64>()
+            && t >= 1.0
+        {
+            cells[11] = "2.5".into();
+        }
+        out.push_str(&cells.join(","));
+        out.push('\n');
+    }
+    let path = std::env::temp_dir().join(format!("bad-clip-{}.csv", std::process::id()));
+    std::fs::write(&path, out).unwrap();
+    let e = Reference::from_clip(&Clip::load(&path).unwrap(), &robot, 50.0)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("t = 1.000 s (tick 50): left_knee = 2.500 rad is outside its limits [0, 2.2]"),
+        "{e}"
+    );
+    std::fs::remove_file(&path).unwrap();
+}
+
+#[test]
+fn a_stop_request_soft_stops_through_blend_and_damping() {
+    let options = PlayOptions {
+        end: controller::player::EndMode::Loop,
+        ..PlayOptions::default()
+    };
+    let (mut p, mut clock, _w) = player(
+        follower(),
+        biped("clips/wave_and_look.csv"),
+        MirrorConfig::default(),
+        options,
+    );
+    p.identify().unwrap();
+    use robot_link::TickClock;
+    let period = std::time::Duration::from_millis(20);
+    for k in 1..=200u32 {
+        if k == 150 {
+            p.request_stop();
+        }
+        p.step(&clock).unwrap();
+        clock.wait_until(period * k);
+    }
+    let t = p.transitions();
+    let stop = t.iter().find(|t| t.to == Mode::Stopping).unwrap();
+    assert_eq!((stop.cause, stop.tick), (Cause::StopRequested, 149));
+    let damped = t.iter().find(|t| t.to == Mode::Damped).unwrap();
+    // Soft: the blend to the default pose takes its 0.5 s before damping.
+    assert_eq!(damped.tick - stop.tick, 25);
+}
+
+#[test]
+fn a_steady_state_tick_allocates_nothing() {
+    use robot_link::TickClock;
+    use test_support::alloc::count_allocations;
+    let (p, mut clock, _w) = player(
+        follower(),
+        biped("clips/squat.csv"),
+        MirrorConfig::default(),
+        PlayOptions::default(),
+    );
+    // Recording too: the loop's side of telemetry is a copy into a preallocated ring.
+    let path = std::env::temp_dir().join(format!("alloc-{}.mcap", std::process::id()));
+    let names: Vec<String> = (0..20).map(|i| format!("j{i}")).collect();
+    let sink = controller::telemetry::TelemetrySink::start(
+        &path,
+        256,
+        controller::telemetry::Backpressure::Drop,
+        &controller::telemetry::RecordingInfo {
+            joint_names: names.clone(),
+            root_frame: "pelvis".into(),
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let mut p = p.with_telemetry(sink);
+    p.identify().unwrap();
+    let period = std::time::Duration::from_millis(20);
+    for k in 1..=80u32 {
+        p.step(&clock).unwrap();
+        clock.wait_until(period * k);
+    }
+    assert_eq!(p.mode(), Mode::Running);
+    let (_, stats) = count_allocations(|| {
+        for k in 81..=180u32 {
+            p.step(&clock).unwrap();
+            clock.wait_until(period * k);
+        }
+    });
+    assert_eq!(p.mode(), Mode::Running);
+    assert!(stats.is_zero(), "{stats:?}");
+}
+
+#[test]
+fn a_policy_with_two_named_inputs_gets_each_its_terms() {
+    let dir = std::env::temp_dir().join(format!("play-two-inputs-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    // The follower's graph with its observation split: "proprio" = joint_pos (20), "task" = ramp
+    // (1) + ref_joint_pos (20). The model lists "task" first, so the layout must reorder.
+    let script = format!(
+        r#"
+import onnx, numpy as np
+from onnx import helper, numpy_helper, TensorProto as T
+c = lambda n, v, t=np.int64: numpy_helper.from_array(np.array(v, dtype=t), n)
+nodes = [
+    helper.make_node("Slice", ["task", "p_lo", "p_hi"], ["psi"]),
+    helper.make_node("Slice", ["task", "r_lo", "r_hi"], ["ref"]),
+    helper.make_node("Sub", ["ref", "proprio"], ["gap"]),
+    helper.make_node("Mul", ["psi", "gap"], ["step"]),
+    helper.make_node("Add", ["proprio", "step"], ["actions"]),
+]
+g = helper.make_graph(nodes, "two_inputs",
+    [helper.make_tensor_value_info("task", T.FLOAT, [1, 21]), helper.make_tensor_value_info("proprio", T.FLOAT, [1, 20])],
+    [helper.make_tensor_value_info("actions", T.FLOAT, [1, 20])],
+    [c("p_lo", [0, 0]), c("p_hi", [1, 1]), c("r_lo", [0, 1]), c("r_hi", [1, 21])])
+m = helper.make_model(g, opset_imports=[helper.make_opsetid("", 17)]); m.ir_version = 8
+onnx.checker.check_model(m); onnx.save(m, {out:?})
+"#,
+        out = dir.join("two.onnx").display().to_string()
+    );
+    let out = std::process::Command::new(test_support::fixtures::venv_python())
+        .args(["-c", &script])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let follower_text = std::fs::read_to_string(follower()).unwrap();
+    let head = &follower_text[..follower_text.find("[[observation]]").unwrap()];
+    let manifest = head.replace("reference_follower.onnx", "two.onnx")
+        + "[[observation]]\nterm = \"joint_pos\"\nrelative = true\ninput = \"proprio\"\n\n\
+           [[observation]]\nterm = \"ramp\"\ninput = \"task\"\n\n\
+           [[observation]]\nterm = \"ref_joint_pos\"\nrelative = true\ninput = \"task\"\n";
+    std::fs::write(dir.join("two.toml"), manifest).unwrap();
+    let (mut p, mut clock, _w) = player(
+        dir.join("two.toml"),
+        biped("clips/squat.csv"),
+        MirrorConfig::default(),
+        PlayOptions::default(),
+    );
+    let s = p.run(&mut clock).unwrap();
+    assert!(!s.fell && s.joint_rmse.to_degrees() < 3.0, "{s}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn joint_order_defaults_and_gains_can_come_from_onnx_metadata() {
+    let robot = Robot::load(&reference_robot_path()).unwrap();
+    let dir = std::env::temp_dir().join(format!("play-meta-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    // The follower with metadata in the style training frameworks export, joints in reverse order.
+    let names: Vec<&str> = robot
+        .config
+        .joints
+        .iter()
+        .rev()
+        .map(|j| j.name.as_str())
+        .collect();
+    let defaults: Vec<String> = robot
+        .config
+        .joints
+        .iter()
+        .rev()
+        .map(|j| j.default_position.to_string())
+        .collect();
+    let kp: Vec<String> = robot
+        .config
+        .joints
+        .iter()
+        .rev()
+        .map(|j| (j.kp * 0.9).to_string())
+        .collect();
+    let script = format!(
+        r#"
+import onnx
+m = onnx.load({src:?})
+onnx.helper.set_model_props(m, dict(joint_names={names:?}, default_joint_pos={defaults:?}, joint_stiffness={kp:?}, action_scale="1.0"))
+onnx.save(m, {out:?})
+"#,
+        src = biped("policies/reference_follower.onnx").display().to_string(),
+        names = names.join(","),
+        defaults = defaults.join(","),
+        kp = kp.join(","),
+        out = dir.join("meta.onnx").display().to_string(),
+    );
+    let out = std::process::Command::new(test_support::fixtures::venv_python())
+        .args(["-c", &script])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = std::fs::read_to_string(follower()).unwrap();
+    let start = text.find("joints = [").unwrap();
+    let end = start + text[start..].find("]\n").unwrap() + 2;
+    let manifest = format!("{}{}", &text[..start], &text[end..])
+        .replace("reference_follower.onnx", "meta.onnx")
+        .replace("scale = 1.0\n", "");
+    std::fs::write(dir.join("meta.toml"), manifest).unwrap();
+    let layout = PolicyLayout::load(&dir.join("meta.toml"), &robot).unwrap();
+    assert_eq!(
+        layout.manifest.joints.first().map(String::as_str),
+        Some("head_pitch")
+    );
+    assert_eq!(layout.robot_index[0], 19);
+    assert!((layout.kp[3] - robot.config.joints[3].kp * 0.9).abs() < 1e-9);
+    assert_eq!(layout.manifest.action.scale, Some(1.0));
+    let (mut p, mut clock, _w) = player(
+        dir.join("meta.toml"),
+        biped("clips/squat.csv"),
+        MirrorConfig::default(),
+        PlayOptions::default(),
+    );
+    let s = p.run(&mut clock).unwrap();
+    assert!(!s.fell && s.joint_rmse.to_degrees() < 3.0, "{s}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn reference_body_positions_come_from_forward_kinematics_on_the_robot_model() {
+    let robot = Robot::load(&reference_robot_path()).unwrap();
+    let reference =
+        Reference::from_clip(&Clip::load(&biped("clips/squat.csv")).unwrap(), &robot, 50.0).unwrap();
+    let bodies = vec!["left_foot".to_owned(), "right_foot".to_owned(), "head".to_owned()];
+    let p = controller::fk::body_positions(&robot, &reference, &bodies).unwrap();
+    assert_eq!(p.len(), reference.len() * 9);
+    // Standing: the ankles are under the hips (±7 cm sideways), 0.41 m below the pelvis; the head
+    // joint is above it.
+    let first = &p[..9];
+    assert!(
+        first[0].abs() < 1e-3 && (first[1] - 0.07).abs() < 1e-3 && (first[2] + 0.409).abs() < 2e-3,
+        "{first:?}"
+    );
+    assert!((first[4] + 0.07).abs() < 1e-3);
+    assert!(first[8] > 0.2);
+    // Deepest squat (t = 1.5 s): the feet stay under the hips, the pelvis comes down to them.
+    let deep = &p[75 * 9..75 * 9 + 9];
+    assert!(deep[0].abs() < 0.01 && deep[2] > -0.35, "{deep:?}");
+
+    // And a policy that observes them runs: the follower regenerated for a layout with the term.
+    let dir = std::env::temp_dir().join(format!("play-fk-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let manifest = std::fs::read_to_string(follower()).unwrap()
+        + "\n[[observation]]\nterm = \"ref_body_pos\"\nbodies = [\"left_foot\", \"right_foot\", \"head\"]\nframes = [0, 10]\n";
+    std::fs::write(dir.join("reference_follower.toml"), manifest).unwrap();
+    let generator = test_support::fixtures::workspace_root().join("scripts/gen_reference_policy.py");
+    let out = std::process::Command::new(test_support::fixtures::venv_python())
+        .arg(generator)
+        .arg(dir.join("reference_follower.toml"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let (mut pl, mut clock, _w) = player(
+        dir.join("reference_follower.toml"),
+        biped("clips/squat.csv"),
+        MirrorConfig::default(),
+        PlayOptions::default(),
+    );
+    let s = pl.run(&mut clock).unwrap();
+    assert!(!s.fell && s.joint_rmse.to_degrees() < 3.0, "{s}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn command_values_from_the_command_line_reach_the_observation() {
+    use controller::policy::{ObsInputs, ObservationBuilder, ReferenceView};
+    #[derive(Debug)]
+    struct Still(Vec<f64>);
+    impl ReferenceView for Still {
+        fn joint_pos(&self, _: usize) -> &[f64] {
+            &self.0
+        }
+        fn joint_vel(&self, _: usize) -> &[f64] {
+            &self.0
+        }
+        fn root_pose(&self, _: usize) -> [f64; 7] {
+            [0.0, 0.0, 0.45, 1.0, 0.0, 0.0, 0.0]
+        }
+        fn body_pos(&self, _: usize) -> &[f64] {
+            &[]
+        }
+    }
+    let robot = Robot::load(&reference_robot_path()).unwrap();
+    let dir = std::env::temp_dir().join(format!("play-cmd-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let manifest = std::fs::read_to_string(follower()).unwrap().replace(
+        "reference_follower.onnx",
+        biped("policies/reference_follower.onnx").to_str().unwrap(),
+    ) + "\n[[observation]]\nterm = \"command\"\nvalues = [0.0, 0.0]\nscale = 2.0\n";
+    std::fs::write(dir.join("cmd.toml"), manifest).unwrap();
+    let mut layout = PolicyLayout::load(&dir.join("cmd.toml"), &robot).unwrap();
+    assert!(
+        layout
+            .set_command(&[0.3])
+            .unwrap_err()
+            .to_string()
+            .contains("2 finite values needed")
+    );
+    layout.set_command(&[0.3, -0.1]).unwrap();
+    let slot = layout
+        .slots
+        .iter()
+        .find(|s| s.term.name() == "command")
+        .unwrap()
+        .range
+        .clone();
+    let zeros = vec![0.0; 20];
+    let still = Still(zeros.clone());
+    let mut b = ObservationBuilder::new(&layout);
+    let mut obs = vec![0.0f32; layout.obs_len];
+    let past = vec![0.0f32; 40];
+    b.build(
+        &ObsInputs {
+            gyro: [0.0; 3],
+            accel: [0.0; 3],
+            quat: [1.0, 0.0, 0.0, 0.0],
+            q: &zeros,
+            qd: &zeros,
+            default_q: &zeros,
+            past_actions: &past,
+            last_targets: &zeros,
+            time_s: 0.0,
+            ramp: 1.0,
+            reference: &still,
+            truth: None,
+            trackers: None,
+        },
+        &mut obs,
+    );
+    assert_eq!(&obs[slot], &[0.6f32, -0.2]);
+    std::fs::remove_dir_all(&dir).unwrap();
+}

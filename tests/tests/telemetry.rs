@@ -1,0 +1,180 @@
+//! Run telemetry: the MCAP a run writes is read back by Python's `mcap` package, and a full ring
+//! counts its drops.
+
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+
+use controller::clip::{Clip, Reference};
+use controller::player::PlayOptions;
+use controller::policy::PolicyLayout;
+use controller::sim::lockstep_player;
+use controller::telemetry::{Backpressure, TelemetrySink, TickRecord};
+use robot_link::RobotLink;
+use robots::{Robot, reference_robot_path};
+use sim2real::config::MirrorConfig;
+
+#[test]
+fn a_recorded_run_reads_back_in_python_with_the_reported_counts() {
+    let robot = Robot::load(&reference_robot_path()).unwrap();
+    let layout = PolicyLayout::load(
+        &reference_robot_path().with_file_name("policies/reference_follower.toml"),
+        &robot,
+    )
+    .unwrap();
+    let clip = Clip::load(&reference_robot_path().with_file_name("clips/wave_and_look.csv")).unwrap();
+    let reference = Reference::from_clip(&clip, &robot, 50.0).unwrap();
+    let path = std::env::temp_dir().join(format!("run-{}.mcap", std::process::id()));
+    let names: Vec<String> = robot.config.joints.iter().map(|j| j.name.clone()).collect();
+    let mjcf = robot.mjcf_path.clone();
+    let mjcf_joints: Vec<String> = robot.config.joints.iter().map(|j| j.mjcf_joint.clone()).collect();
+    let (p, mut clock, _w) = lockstep_player(
+        robot,
+        layout,
+        reference,
+        PlayOptions::default(),
+        MirrorConfig::default(),
+        Arc::new(AtomicBool::new(false)),
+    )
+    .unwrap();
+    let info = controller::telemetry::RecordingInfo {
+        joint_names: names.clone(),
+        root_frame: "pelvis".into(),
+        kinematics: Some((mjcf.clone(), mjcf_joints.clone())),
+        bus_names: p.link().bus_names().to_vec(),
+        ..Default::default()
+    };
+    let sink = TelemetrySink::start(&path, 64, Backpressure::Block, &info).unwrap();
+    let mut p = p.with_telemetry(sink);
+    let summary = p.run(&mut clock).unwrap();
+    let t = summary.telemetry.expect("recorded");
+    assert_eq!(
+        (t.pushed, t.written, t.dropped),
+        (summary.ticks, summary.ticks, 0)
+    );
+
+    let script = test_support::fixtures::workspace_root().join("tests/python/read_mcap.py");
+    let out = std::process::Command::new(test_support::fixtures::venv_python())
+        .arg(script)
+        .arg(&path)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    for (topic, n) in &t.messages {
+        assert_eq!(v["counts"][topic].as_u64(), Some(*n), "topic {topic}: {v}");
+    }
+    assert_eq!(v["counts"]["/joint_state"].as_u64(), Some(summary.ticks));
+    assert_eq!(v["schemas"]["/tf"], "foxglove.FrameTransform");
+    assert_eq!(v["first_tf"]["child_frame_id"], "pelvis");
+    assert_eq!(v["metadata"]["/timing"]["bus_names"], "can0,can1,dxl0");
+    // Every link of the robot gets its transform each tick: root + 21 links.
+    assert_eq!(v["counts"]["/tf"].as_u64(), Some(22 * summary.ticks));
+    let frames: Vec<&str> = v["tf_children"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f.as_str().unwrap())
+        .collect();
+    assert!(
+        frames.contains(&"left_foot") && frames.contains(&"head"),
+        "{frames:?}"
+    );
+    assert!(
+        v["metadata"]["/joint_state"]["joint_names"]
+            .as_str()
+            .unwrap()
+            .starts_with("left_hip_yaw,left_hip_roll")
+    );
+    assert_eq!(v["first_joint_state"]["q"].as_array().unwrap().len(), 20);
+    let modes: Vec<&str> = v["modes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|m| m.as_str().unwrap())
+        .collect();
+    // Ready lasts no longer than tick 0, so the first recorded mode is SoftStart.
+    assert_eq!(modes, ["SoftStart", "Running", "Stopping", "Damped", "Off"]);
+    std::fs::remove_file(&path).unwrap();
+}
+
+#[test]
+fn an_overflowing_ring_counts_every_dropped_record() {
+    let path = std::env::temp_dir().join(format!("overflow-{}.mcap", std::process::id()));
+    let mut sink = TelemetrySink::start(
+        &path,
+        2,
+        Backpressure::Drop,
+        &controller::telemetry::RecordingInfo {
+            joint_names: vec!["j".into()],
+            root_frame: "base".into(),
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let mut r = TickRecord {
+        joints: 1,
+        obs_len: 512,
+        ..TickRecord::default()
+    };
+    // Pushing far faster than JSON encoding of a 512-value observation can keep up with.
+    for k in 0..5000 {
+        r.tick = k;
+        r.time_ns = k * 1000;
+        sink.push(&r);
+    }
+    let report = sink.finish().unwrap();
+    assert_eq!(report.pushed, 5000);
+    assert!(report.dropped > 0, "{report:?}");
+    assert_eq!(report.written + report.dropped, report.pushed);
+    assert!(
+        report
+            .to_string()
+            .contains(&format!("{} dropped", report.dropped))
+    );
+    std::fs::remove_file(&path).unwrap();
+}
+
+#[test]
+fn ten_minutes_of_records_at_500_hz_lose_nothing_in_lockstep() {
+    // The lockstep loop's recorder blocks instead of dropping: 10 minutes of 500 Hz records of the
+    // reference robot's size (20 joints, 127 observations) pushed faster than the logger encodes.
+    let dir = std::env::temp_dir().join(format!("long-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let names: Vec<String> = (0..20).map(|i| format!("j{i}")).collect();
+    let path = dir.join("long.mcap");
+    let mut sink = TelemetrySink::start(
+        &path,
+        1024,
+        Backpressure::Block,
+        &controller::telemetry::RecordingInfo {
+            joint_names: names.clone(),
+            root_frame: "pelvis".into(),
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let ticks: u64 = 10 * 60 * 500;
+    let mut r = TickRecord {
+        joints: 20,
+        obs_len: 127,
+        mode: 3,
+        ..TickRecord::default()
+    };
+    for k in 0..ticks {
+        r.tick = k;
+        r.time_ns = k * 2_000_000;
+        r.q[k as usize % 20] = k as f64 * 1e-6;
+        sink.push(&r);
+    }
+    let report = sink.finish().unwrap();
+    assert_eq!((report.pushed, report.written, report.dropped), (ticks, ticks, 0));
+    assert_eq!(report.messages["/joint_state"], ticks);
+    // Read back: every tick's joint state is in the file.
+    let bytes = std::fs::read(&path).unwrap();
+    let count = mcap::MessageStream::new(&bytes)
+        .unwrap()
+        .filter(|m| m.as_ref().unwrap().channel.topic == "/joint_state")
+        .count();
+    assert_eq!(count as u64, ticks);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
