@@ -46,8 +46,13 @@ pub fn lockstep_robot(robot: &Robot, world: &Arc<Mutex<Mirror>>) -> Result<Locks
     )
 }
 
-/// Drivers on every bus of a served mirror, connected as to hardware.
+/// Drivers on every bus of a served mirror, connected as to hardware, each bus on its own thread.
 pub fn wired_robot(robot: &Robot, served: &ServedMirror) -> Result<WiredRobot, IoError> {
+    wired_robot_with(robot, served, || {})
+}
+
+/// [`wired_robot`], running `on_start` first on each bus thread.
+pub fn wired_robot_with(robot: &Robot, served: &ServedMirror, on_start: fn()) -> Result<WiredRobot, IoError> {
     let ep = served.endpoints();
     let mut can = Vec::new();
     for (name, addr) in &ep.can {
@@ -78,7 +83,7 @@ pub fn wired_robot(robot: &Robot, served: &ServedMirror) -> Result<WiredRobot, I
         Duration::from_millis(20),
         options,
     )?
-    .parallel()
+    .parallel_with(on_start)
 }
 
 /// Serves `mirror` on loopback (free ports) for a wired run.

@@ -245,6 +245,116 @@ fn a_steady_state_tick_allocates_nothing() {
 }
 
 #[test]
+fn a_steady_state_tick_over_real_wires_allocates_nothing_on_the_loop_or_the_bus_threads() {
+    use robot_link::TickClock;
+    use test_support::alloc::{count_allocations, watch_this_thread, watched_heap_ops};
+    let robot = Robot::load(&reference_robot_path()).unwrap();
+    let layout = PolicyLayout::load(&follower(), &robot).unwrap();
+    let clip = Clip::load(&biped("clips/squat.csv")).unwrap();
+    let reference = Reference::from_clip(&clip, &robot, layout.manifest.rate_hz).unwrap();
+    let mirror = Mirror::new(
+        robot.clone(),
+        MirrorConfig {
+            gantry: true,
+            ..MirrorConfig::default()
+        },
+    )
+    .unwrap();
+    let served = sim2real::link::serve_locally(mirror).unwrap();
+    // Each bus on its own thread, every heap operation there counted.
+    let io = sim2real::link::wired_robot_with(&robot, &served, watch_this_thread).unwrap();
+    let options = PlayOptions {
+        end: controller::player::EndMode::Loop,
+        ..PlayOptions::default()
+    };
+    let mut p = Player::new(
+        robot,
+        layout,
+        reference,
+        options,
+        io,
+        Arc::new(AtomicBool::new(false)),
+    )
+    .unwrap();
+    let mut clock = sim2real::link::ServedClock::new(Arc::clone(&served.world));
+    p.identify().unwrap();
+    let period = std::time::Duration::from_millis(20);
+    let mut tick = |p: &mut Player<sim2real::link::WiredRobot>| {
+        p.step(&clock).unwrap();
+        clock.wait_until(period * p.ticks() as u32);
+    };
+    while p.mode() != Mode::Running {
+        tick(&mut p);
+        assert!(p.ticks() < 200, "never reached Running: {:?}", p.transitions());
+    }
+    for _ in 0..20 {
+        tick(&mut p);
+    }
+    let before = watched_heap_ops();
+    let (_, stats) = count_allocations(|| {
+        for _ in 0..100 {
+            tick(&mut p);
+        }
+    });
+    let on_bus_threads = watched_heap_ops() - before;
+    assert_eq!(p.mode(), Mode::Running, "{:?}", p.transitions());
+    assert!(
+        stats.is_zero() && on_bus_threads == 0,
+        "loop thread: {stats:?}; heap operations on the bus threads: {on_bus_threads}"
+    );
+}
+
+#[test]
+fn each_mit_motor_gets_one_round_trip_per_tick() {
+    use robot_link::TickClock;
+    let (mut p, mut clock, world) = player(
+        follower(),
+        biped("clips/squat.csv"),
+        MirrorConfig::default(),
+        PlayOptions::default(),
+    );
+    p.identify().unwrap();
+    let period = std::time::Duration::from_millis(20);
+    let frames = |w: &Arc<Mutex<Mirror>>| -> Vec<(String, usize, u64)> {
+        let w = w.lock().unwrap();
+        p_buses(&w)
+    };
+    fn p_buses(w: &Mirror) -> Vec<(String, usize, u64)> {
+        let robot = w.robot();
+        robot
+            .config
+            .buses
+            .iter()
+            .filter(|b| b.kind == robots::BusKind::MitCan)
+            .map(|b| {
+                let motors = robot.joints_on(&b.name).count();
+                (b.name.clone(), motors, w.can_bus(&b.name).unwrap().stats().frames)
+            })
+            .collect()
+    }
+    for k in 1..=80u32 {
+        p.step(&clock).unwrap();
+        clock.wait_until(period * k);
+    }
+    assert_eq!(p.mode(), Mode::Running);
+    let before = frames(&world);
+    for k in 81..=130u32 {
+        p.step(&clock).unwrap();
+        clock.wait_until(period * k);
+    }
+    assert_eq!(p.mode(), Mode::Running);
+    for ((bus, motors, a), (_, _, b)) in before.iter().zip(frames(&world)) {
+        // One command and its reply per motor per tick, nothing else.
+        assert_eq!(
+            b - a,
+            50 * 2 * *motors as u64,
+            "{bus}: {} frames in 50 ticks",
+            b - a
+        );
+    }
+}
+
+#[test]
 fn a_policy_with_two_named_inputs_gets_each_its_terms() {
     let dir = std::env::temp_dir().join(format!("play-two-inputs-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();

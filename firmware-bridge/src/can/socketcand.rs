@@ -184,30 +184,42 @@ impl Framer {
 
     /// The next complete message or junk run, if any.
     pub fn next_item(&mut self) -> Option<Framed> {
-        let text = |b: &[u8]| String::from_utf8_lossy(b).into_owned();
+        let (span, is_message) = self.next_span()?;
+        let text = String::from_utf8_lossy(&self.buf[span.clone()]).into_owned();
+        self.consume(span.end);
+        Some(if is_message {
+            Framed::Message(text)
+        } else {
+            Framed::Junk(text)
+        })
+    }
+
+    /// Where the next complete message (`true`) or junk run (`false`) lies in the buffer, without
+    /// copying it out; [`Self::consume`] drops it afterwards.
+    pub fn next_span(&self) -> Option<(std::ops::Range<usize>, bool)> {
         let start = self.buf.iter().position(|&b| !b.is_ascii_whitespace())?;
         if self.buf[start] != b'<' {
             let end = self.buf[start..]
                 .iter()
                 .position(|&b| b == b'<')
                 .map_or(self.buf.len(), |p| start + p);
-            let junk = text(&self.buf[start..end]);
-            self.buf.drain(..end);
-            return Some(Framed::Junk(junk));
+            return Some((start..end, false));
         }
         match self.buf[start..].iter().position(|&b| b == b'>') {
-            Some(p) => {
-                let msg = text(&self.buf[start..=start + p]);
-                self.buf.drain(..=start + p);
-                Some(Framed::Message(msg))
-            }
-            None if self.buf.len() - start > MAX_MESSAGE => {
-                let junk = text(&self.buf[start..]);
-                self.buf.clear();
-                Some(Framed::Junk(junk))
-            }
+            Some(p) => Some((start..start + p + 1, true)),
+            None if self.buf.len() - start > MAX_MESSAGE => Some((start..self.buf.len(), false)),
             None => None,
         }
+    }
+
+    /// The bytes of a span from [`Self::next_span`].
+    pub fn bytes(&self, span: std::ops::Range<usize>) -> &[u8] {
+        &self.buf[span]
+    }
+
+    /// Drops everything before `end`.
+    pub fn consume(&mut self, end: usize) {
+        self.buf.drain(..end);
     }
 }
 
@@ -307,22 +319,27 @@ impl SocketcandClient {
     fn next_message(&mut self, deadline: Instant) -> Result<Option<Message>, CanError> {
         let mut chunk = [0u8; 512];
         loop {
-            while let Some(item) = self.framer.next_item() {
-                let bad = match item {
-                    Framed::Message(m) => match parse(&m) {
-                        Ok(msg) => return Ok(Some(msg)),
-                        Err(reason) => CanError::Malformed {
-                            bus: self.bus.clone(),
-                            input: truncated(&m),
-                            reason,
-                        },
-                    },
-                    Framed::Junk(j) => CanError::Malformed {
+            // Messages are parsed where they lie in the buffer: a steady stream of frames
+            // allocates nothing.
+            while let Some((span, is_message)) = self.framer.next_span() {
+                let bytes = self.framer.bytes(span.clone());
+                let parsed = match std::str::from_utf8(bytes) {
+                    Ok(m) if is_message => parse(m),
+                    Ok(_) => Err("text outside < >"),
+                    Err(_) => Err("message is not ASCII text"),
+                };
+                let bad = match parsed {
+                    Ok(msg) => {
+                        self.framer.consume(span.end);
+                        return Ok(Some(msg));
+                    }
+                    Err(reason) => CanError::Malformed {
                         bus: self.bus.clone(),
-                        input: truncated(&j),
-                        reason: "text outside < >",
+                        input: truncated(&String::from_utf8_lossy(bytes)),
+                        reason,
                     },
                 };
+                self.framer.consume(span.end);
                 self.malformed.record(&bad);
             }
             let left = deadline.saturating_duration_since(Instant::now());

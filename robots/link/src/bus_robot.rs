@@ -1,6 +1,13 @@
 //! Every bus driver of a robot description behind one read/write pair, in the robot's joint order.
 //! The same code drives the mirror in lockstep, the mirror over real wires, and the hardware; only
 //! the transports differ.
+//!
+//! One round trip per device per tick, on every bus:
+//! - MIT-mode CAN motors answer only commands, so the *write* is the exchange: each motor gets its
+//!   command and the reply it triggers is the state the next *read* returns (measured when the
+//!   command arrived, one tick before the read). A read sends nothing.
+//! - Dynamixel servos are read with one sync read (the read is the round trip) and commanded with
+//!   one sync write, which has no reply.
 
 use std::time::{Duration, Instant};
 
@@ -18,6 +25,9 @@ use robots::{BusKind, Robot, drivers, spatial};
 use crate::link::{IoError, RobotLink};
 use crate::state::{DeviceIdentity, JointTarget, RobotState};
 use crate::workers::{Op, Worker};
+
+/// Buses one robot may have (more are refused at set-up).
+pub const MAX_BUSES: usize = 16;
 
 /// The ports of a robot's buses, in robot.toml order per kind.
 #[derive(Debug)]
@@ -64,8 +74,7 @@ where
     }
 
     fn read(&mut self, state: &mut RobotState) -> Result<(), IoError> {
-        // MIT motors answer commands: repeating the last one is the read.
-        self.driver.cycle(&self.commands)?;
+        // The replies to the last write (or to the identify's disable frames) are the reading.
         for (f, &i) in self.driver.feedback().iter().zip(&self.joints) {
             state.q[i] = f.q;
             state.qd[i] = f.qd;
@@ -313,6 +322,12 @@ impl<S: ByteStream> BusRobot<S> {
             buses.push((Box::new(bus), idx));
             names.push(name);
         }
+        if buses.len() > MAX_BUSES {
+            return Err(IoError::Setup(format!(
+                "{} buses; at most {MAX_BUSES} are supported",
+                buses.len()
+            )));
+        }
         let covered: usize = buses.iter().map(|b| b.1.len()).sum();
         let n = robot.config.joints.len();
         if covered != n {
@@ -338,9 +353,15 @@ impl<S: ByteStream> BusRobot<S> {
     }
 
     /// Moves each bus onto its own thread: reads and writes of all buses then overlap.
-    pub fn parallel(mut self) -> Result<Self, IoError> {
+    pub fn parallel(self) -> Result<Self, IoError> {
+        self.parallel_with(|| {})
+    }
+
+    /// [`Self::parallel`], running `on_start` first on each bus thread (real-time set-up of the
+    /// thread, or instrumentation in tests).
+    pub fn parallel_with(mut self, on_start: fn()) -> Result<Self, IoError> {
         for (i, (bus, joints)) in std::mem::take(&mut self.buses).into_iter().enumerate() {
-            let w = Worker::spawn(bus, joints, self.n, i)
+            let w = Worker::spawn(bus, joints, self.n, i, on_start)
                 .map_err(|e| IoError::Setup(format!("cannot start a bus thread: {e}")))?;
             self.workers.push(w);
         }
@@ -349,22 +370,19 @@ impl<S: ByteStream> BusRobot<S> {
 
     /// Runs `op` on every worker at once and waits for all; the first error wins.
     fn fan_out(&mut self, op: Op) -> Result<(), IoError> {
-        for w in &self.workers {
-            if let Some(ops) = &w.ops {
-                ops.send(op)
-                    .map_err(|_| IoError::Setup("a bus thread stopped".into()))?;
-            }
-        }
         let mut first = None;
-        for w in &self.workers {
-            match w.done.recv() {
-                Ok(Ok(())) => {}
-                Ok(Err(e)) => {
+        let mut sent = [false; MAX_BUSES];
+        for (w, sent) in self.workers.iter_mut().zip(&mut sent) {
+            match w.send(op) {
+                Ok(()) => *sent = true,
+                Err(e) => {
                     first.get_or_insert(e);
                 }
-                Err(_) => {
-                    first.get_or_insert(IoError::Setup("a bus thread stopped".into()));
-                }
+            }
+        }
+        for (w, _) in self.workers.iter_mut().zip(sent).filter(|(_, s)| *s) {
+            if let Err(e) = w.wait() {
+                first.get_or_insert(e);
             }
         }
         first.map_or(Ok(()), Err)
@@ -403,10 +421,11 @@ impl<S: ByteStream> BusRobot<S> {
         }
         if !self.workers.is_empty() {
             let r = self.fan_out(Op::Read);
-            for (w, t) in self.workers.iter().zip(&mut self.times) {
-                let s = w.lock();
+            for (w, t) in self.workers.iter_mut().zip(&mut self.times) {
+                let joints = &w.joints;
+                let Some(s) = w.slot.as_deref() else { continue };
                 *t = s.elapsed;
-                for &i in &w.joints {
+                for &i in joints {
                     state.q[i] = s.state.q[i];
                     state.qd[i] = s.state.qd[i];
                     state.tau[i] = s.state.tau[i];
@@ -441,12 +460,16 @@ impl<S: ByteStream> BusRobot<S> {
         if self.workers.is_empty() {
             return Ok(());
         }
-        for w in &self.workers {
-            w.lock().targets.copy_from_slice(targets);
+        for w in &mut self.workers {
+            if let Some(s) = w.slot() {
+                s.targets.copy_from_slice(targets);
+            }
         }
         let r = self.fan_out(Op::Write);
-        for (w, t) in self.workers.iter().zip(&mut self.times) {
-            *t += w.lock().elapsed;
+        for (w, t) in self.workers.iter_mut().zip(&mut self.times) {
+            if let Some(s) = w.slot() {
+                *t += s.elapsed;
+            }
         }
         r
     }

@@ -13,11 +13,13 @@
 //!
 //! Counters are thread-local so the test harness's other threads (and other tests running in
 //! parallel) do not disturb a measurement. Work a measured closure hands to other threads is not
-//! counted: measure on the thread that runs the code path.
+//! counted by [`count_allocations`]; threads that call [`watch_this_thread`] (a bus worker's start
+//! hook, say) also add every heap operation to one process-wide counter, [`watched_heap_ops`].
 #![allow(unsafe_code)] // implementing GlobalAlloc is unsafe by definition
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 thread_local! {
     // `const` initialisation: reading these never allocates, so the allocator may use them.
@@ -25,6 +27,20 @@ thread_local! {
     static REALLOCATIONS: Cell<u64> = const { Cell::new(0) };
     static DEALLOCATIONS: Cell<u64> = const { Cell::new(0) };
     static BYTES: Cell<u64> = const { Cell::new(0) };
+    static WATCHED: Cell<bool> = const { Cell::new(false) };
+}
+
+/// Heap operations (allocations, reallocations, frees) on watched threads, all together.
+static WATCHED_OPS: AtomicU64 = AtomicU64::new(0);
+
+/// Counts this thread's heap operations in [`watched_heap_ops`] from now on.
+pub fn watch_this_thread() {
+    WATCHED.with(|w| w.set(true));
+}
+
+/// Heap operations on every watched thread so far.
+pub fn watched_heap_ops() -> u64 {
+    WATCHED_OPS.load(Ordering::Relaxed)
 }
 
 /// The system allocator with per-thread counters. See the module docs.
@@ -36,10 +52,17 @@ fn bump(counter: &'static std::thread::LocalKey<Cell<u64>>, by: u64) {
     let _ = counter.try_with(|c| c.set(c.get().wrapping_add(by)));
 }
 
+fn bump_watched() {
+    if WATCHED.try_with(Cell::get).unwrap_or(false) {
+        WATCHED_OPS.fetch_add(1, Ordering::Relaxed);
+    }
+}
+
 // SAFETY: every method forwards to `System` with the caller's arguments unchanged; the counting
 // touches only const-initialised thread-locals, which neither allocate nor unwind.
 unsafe impl GlobalAlloc for CountingAllocator {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        bump_watched();
         bump(&ALLOCATIONS, 1);
         bump(&BYTES, layout.size() as u64);
         // SAFETY: forwarded contract.
@@ -47,6 +70,7 @@ unsafe impl GlobalAlloc for CountingAllocator {
     }
 
     unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+        bump_watched();
         bump(&ALLOCATIONS, 1);
         bump(&BYTES, layout.size() as u64);
         // SAFETY: forwarded contract.
@@ -54,12 +78,14 @@ unsafe impl GlobalAlloc for CountingAllocator {
     }
 
     unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        bump_watched();
         bump(&DEALLOCATIONS, 1);
         // SAFETY: forwarded contract.
         unsafe { System.dealloc(ptr, layout) }
     }
 
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        bump_watched();
         bump(&REALLOCATIONS, 1);
         bump(&BYTES, new_size as u64);
         // SAFETY: forwarded contract.
