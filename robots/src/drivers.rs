@@ -1,6 +1,6 @@
 //! A robot's joints as the bus drivers of `firmware-bridge` want them.
 
-use firmware_bridge::dxl::driver::DxlJointConfig;
+use firmware_bridge::dxl::driver::{DxlJointConfig, DxlMode};
 use firmware_bridge::dxl::models as dxl_models;
 use firmware_bridge::mit::driver::MitJointConfig;
 use firmware_bridge::mit::models as mit_models;
@@ -22,7 +22,9 @@ pub fn mit_joint(j: &JointConfig) -> MitJointConfig {
 
 /// The Dynamixel driver's view of a joint on a `dynamixel` bus. Direct drive only: the servo's
 /// own position loop runs in servo ticks, so a gear between servo and joint is folded into the
-/// joint's limits by the robot file, not here.
+/// joint's limits by the robot file, not here. Servos that sense current run current-based
+/// position control, so the goal current caps their torque at the joint's limit
+/// ([`goal_current_for`]); the others run plain position control.
 ///
 /// # Panics
 /// When the joint's model is not a Dynamixel servo (loading a [`crate::Robot`] checks this).
@@ -33,7 +35,17 @@ pub fn dxl_joint(j: &JointConfig) -> DxlJointConfig {
     c.zero_ticks = 2048.0 + j.zero_offset / dxl_models::rad_per_tick();
     c.homing_offset = j.homing_offset_ticks;
     c.position_gains = Some(position_gains_for(j.kp, j.kd, model));
+    if model.current_sensing {
+        c.mode = DxlMode::CurrentBasedPosition;
+    }
     c
+}
+
+/// The goal current (A) that caps a current-sensing servo's torque at `torque` (N·m), within the
+/// model's current limit.
+pub fn goal_current_for(torque: f64, model: &dxl_models::DxlModel) -> f64 {
+    let max = f64::from(model.current_limit) * dxl_models::CURRENT_UNIT_A;
+    (torque.abs() / model.torque_constant()).min(max)
 }
 
 /// Position P and D gains of a servo that give roughly stiffness `kp` (N·m/rad) and damping `kd`

@@ -112,9 +112,11 @@ impl MirrorHost {
         }
         for ((d, idx), cmds) in self.dxl.iter_mut().zip(&mut self.dxl_commands) {
             for (c, &i) in cmds.iter_mut().zip(idx.iter()) {
+                let model = firmware_bridge::dxl::models::find(&joints[i].model);
                 *c = DxlCommand {
                     q: q[i],
-                    current: 0.0,
+                    // Current-sensing servos run current-based position control: cap at the limit.
+                    current: model.map_or(0.0, |m| drivers::goal_current_for(joints[i].torque_limit, m)),
                 };
             }
             d.cycle(cmds)?;

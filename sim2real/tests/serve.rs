@@ -79,7 +79,10 @@ fn drivers_hold_the_served_biped_over_socketcand_and_pseudo_terminals() {
             .iter()
             .map(|&i| DxlCommand {
                 q: joints[i].default_position,
-                current: 0.0,
+                current: drivers::goal_current_for(
+                    joints[i].torque_limit,
+                    firmware_bridge::dxl::models::find(&joints[i].model).unwrap(),
+                ),
             })
             .collect();
         dxl.cycle(&cmds).unwrap();

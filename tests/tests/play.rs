@@ -355,6 +355,94 @@ fn each_mit_motor_gets_one_round_trip_per_tick() {
 }
 
 #[test]
+fn dynamixel_servos_take_the_loops_stiffness_damping_and_torque_cap() {
+    use firmware_bridge::dxl::table::addr;
+    use robot_link::TickClock;
+    let (mut p, mut clock, world) = player(
+        follower(),
+        biped("clips/squat.csv"),
+        MirrorConfig::default(),
+        PlayOptions::default(),
+    );
+    let robot = p.robot().clone();
+    let elbow = robot
+        .config
+        .joints
+        .iter()
+        .position(|j| j.name == "left_elbow")
+        .unwrap();
+    let joint = &robot.config.joints[elbow];
+    let model = firmware_bridge::dxl::models::find(&joint.model).unwrap();
+    let register = |a: u16| lock_servo(&world, elbow, a);
+    let period = std::time::Duration::from_millis(20);
+    let mut tick = |p: &mut MirrorPlayer| {
+        p.step(&clock).unwrap();
+        clock.wait_until(period * p.ticks() as u32);
+    };
+    p.identify().unwrap();
+    // Current-based position control, the torque capped at the joint's limit.
+    assert_eq!(register(addr::OPERATING_MODE), 5);
+    for _ in 0..10 {
+        tick(&mut p);
+    }
+    // Mid soft start the servo holds the ramped stiffness, not the configured one.
+    assert_eq!(p.mode(), Mode::SoftStart);
+    let t = p.targets()[elbow];
+    assert!(t.kp < joint.kp);
+    let want = robots::drivers::position_gains_for(t.kp, t.kd, model);
+    assert_eq!(register(addr::POSITION_P_GAIN), i64::from(want[0]));
+    assert_eq!(register(addr::POSITION_D_GAIN), i64::from(want[2]));
+    let cap = robots::drivers::goal_current_for(joint.torque_limit, model);
+    let units = (cap / firmware_bridge::dxl::models::CURRENT_UNIT_A).round() as i64;
+    assert!(units > 0);
+    assert_eq!(register(addr::GOAL_CURRENT).abs(), units);
+    while p.mode() != Mode::Running {
+        tick(&mut p);
+    }
+    tick(&mut p);
+    let full = robots::drivers::position_gains_for(joint.kp, joint.kd, model);
+    assert_eq!(register(addr::POSITION_P_GAIN), i64::from(full[0]));
+    // Damping: no stiffness, the D gain kept, torque on (not limp).
+    p.request_stop();
+    while p.mode() != Mode::Damped {
+        tick(&mut p);
+        assert!(p.ticks() < 1000);
+    }
+    tick(&mut p);
+    assert_eq!(register(addr::POSITION_P_GAIN), 0);
+    assert!(register(addr::POSITION_D_GAIN) > 0);
+    assert!(world.lock().unwrap().servo_mut(elbow).unwrap().torque_enabled());
+}
+
+fn lock_servo(world: &Arc<Mutex<Mirror>>, joint: usize, address: u16) -> i64 {
+    world.lock().unwrap().servo_mut(joint).unwrap().register(address)
+}
+
+#[test]
+fn torque_actions_on_position_servos_are_refused_when_the_policy_loads() {
+    let robot = Robot::load(&reference_robot_path()).unwrap();
+    let dir = std::env::temp_dir().join(format!("torque-policy-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let text = std::fs::read_to_string(follower())
+        .unwrap()
+        .replace("kind = \"position\"", "kind = \"torque\"");
+    assert!(text.contains("kind = \"torque\""));
+    let manifest = dir.join("torque.toml");
+    std::fs::write(&manifest, text).unwrap();
+    std::fs::copy(
+        biped("policies/reference_follower.onnx"),
+        dir.join("reference_follower.onnx"),
+    )
+    .unwrap();
+    let err = PolicyLayout::load(&manifest, &robot).unwrap_err().to_string();
+    assert!(
+        err.contains("action.kind") && err.contains("left_shoulder_pitch"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
 fn a_policy_with_two_named_inputs_gets_each_its_terms() {
     let dir = std::env::temp_dir().join(format!("play-two-inputs-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();

@@ -63,6 +63,8 @@ impl PlayOptions {
             ("tilt", format!("{:?}", l.tilt)),
             ("overruns", l.overruns.to_string()),
             ("position_margin", format!("{:?}", l.position_margin)),
+            ("tracking_error", format!("{:?}", l.tracking_error)),
+            ("tracking_ticks", l.tracking_ticks.to_string()),
             (
                 "max_ticks",
                 self.max_ticks.map_or(String::new(), |m| m.to_string()),
@@ -91,6 +93,10 @@ impl PlayOptions {
         num("damping_s", &mut o.damping_s)?;
         num("tilt", &mut o.limits.tilt)?;
         num("position_margin", &mut o.limits.position_margin)?;
+        num("tracking_error", &mut o.limits.tracking_error)?;
+        if let Some(v) = get("tracking_ticks") {
+            o.limits.tracking_ticks = v.parse().map_err(|_| format!("option tracking_ticks = {v:?}"))?;
+        }
         if let Some(v) = get("end") {
             o.end = match v.as_str() {
                 "Hold" => EndMode::Hold,
@@ -330,6 +336,8 @@ pub struct Player<L: RobotLink> {
     root_samples: u64,
     overruns: u64,
     overrun_run: u32,
+    /// Ticks in a row each joint has been beyond the tracking limit.
+    off_target: Vec<u32>,
     limited_ticks: u64,
     fell: bool,
     compute: Histogram,
@@ -475,6 +483,7 @@ impl<L: RobotLink> Player<L> {
             root_samples: 0,
             overruns: 0,
             overrun_run: 0,
+            off_target: vec![0; n],
             limited_ticks: 0,
             fell: false,
             compute: Histogram::default(),
@@ -632,6 +641,7 @@ impl<L: RobotLink> Player<L> {
             return Ok(());
         }
         self.stop_seen = self.stop.load(Ordering::Relaxed);
+        self.count_off_target();
         if let Some(cause) = self.check_state() {
             self.fail(cause);
         }
@@ -791,6 +801,12 @@ impl<L: RobotLink> Player<L> {
         if tilt > lim.tilt {
             return Some(Cause::Tilt { angle: tilt });
         }
+        if let Some(joint) = self.off_target.iter().position(|&t| t > lim.tracking_ticks) {
+            return Some(Cause::TrackingError {
+                joint,
+                error: self.targets[joint].q - s.q[joint],
+            });
+        }
         if self.overrun_run >= lim.overruns {
             return Some(Cause::Overruns {
                 count: self.overrun_run,
@@ -800,6 +816,17 @@ impl<L: RobotLink> Player<L> {
             return Some(Cause::StopRequested);
         }
         None
+    }
+
+    /// Counts, per joint, the ticks in a row its measured position has been beyond the tracking
+    /// limit from the position target it was sent (joints under stiffness only).
+    fn count_off_target(&mut self) {
+        let tracking = matches!(self.mode, Mode::SoftStart | Mode::Running);
+        let limit = self.options.limits.tracking_error;
+        for ((count, t), &q) in self.off_target.iter_mut().zip(&self.targets).zip(&self.state.q) {
+            let off = tracking && t.enabled && t.kp > 0.0 && (t.q - q).abs() > limit;
+            *count = if off { count.saturating_add(1) } else { 0 };
+        }
     }
 
     /// The state machine: fills `targets` for this tick.

@@ -488,6 +488,24 @@ impl PolicyLayout {
                 return Err(err(field, format!("{v} must be a positive number")));
             }
         }
+        // What the buses can honour: Dynamixel servos run their own position loop (gains and a
+        // current cap), they take no torque commands.
+        if a.kind == ActionKind::Torque
+            && let Some(j) = robot.config.joints.iter().find(|j| {
+                robot
+                    .bus(&j.bus)
+                    .is_some_and(|b| b.kind == robots::BusKind::Dynamixel)
+            })
+        {
+            return Err(err(
+                "action.kind",
+                format!(
+                    "torque actions cannot drive joint {} ({} on Dynamixel bus {}): its servo \
+                     takes position goals with gains, not torque commands",
+                    j.name, j.model, j.bus
+                ),
+            ));
+        }
         let n = names.len();
         let feet = robot.config.feet.len();
         let mut slots = Vec::with_capacity(manifest.observation.len());

@@ -65,6 +65,13 @@ pub enum Cause {
         /// How many in a row.
         count: u32,
     },
+    /// A joint stayed far from its target (blocked, or its zero or direction is wrong).
+    TrackingError {
+        /// Robot joint index.
+        joint: usize,
+        /// Target minus measured position, rad.
+        error: f64,
+    },
     /// An e-stop input fired.
     EStop,
     /// A bus failed as a whole.
@@ -89,6 +96,11 @@ impl std::fmt::Display for Cause {
             Self::NonFinite { what } => write!(f, "non-finite {what}"),
             Self::Tilt { angle } => write!(f, "base tilted {:.0}°", angle.to_degrees()),
             Self::Overruns { count } => write!(f, "{count} deadline overruns in a row"),
+            Self::TrackingError { joint, error } => write!(
+                f,
+                "joint {joint}: {:.0}° from its target for too long",
+                error.to_degrees()
+            ),
             Self::EStop => write!(f, "e-stop"),
             Self::BusFailure => write!(f, "bus failure"),
             Self::HoldDone => write!(f, "hold or blend done"),
@@ -137,6 +149,10 @@ pub struct SafetyLimits {
     pub overruns: u32,
     /// Margin inside the joint position limits, rad.
     pub position_margin: f64,
+    /// Largest tolerated distance of a joint from its position target, rad …
+    pub tracking_error: f64,
+    /// … for more than this many ticks in a row.
+    pub tracking_ticks: u32,
 }
 
 impl Default for SafetyLimits {
@@ -146,6 +162,8 @@ impl Default for SafetyLimits {
             tilt: 0.8,
             overruns: 5,
             position_margin: 0.02,
+            tracking_error: 0.5,
+            tracking_ticks: 25,
         }
     }
 }

@@ -716,6 +716,41 @@ impl<T: DxlTransport> DxlBusDriver<T> {
         self.configure_joint(joint)
     }
 
+    /// One sync write of every joint's Position D, I and P gains (`[P, I, D]` per joint, the
+    /// control table's units), e.g. when the loop changes a joint's stiffness or damping.
+    pub fn write_gains(&mut self, gains: &[[u16; 3]]) -> Result<(), DxlError> {
+        if gains.len() != self.joints.len() {
+            return Err(DxlError::Config(format!(
+                "{} gain sets for {} joints",
+                gains.len(),
+                self.joints.len()
+            )));
+        }
+        if let Some((i, _)) = gains
+            .iter()
+            .enumerate()
+            .find(|(_, g)| g.iter().any(|&v| v > 16383))
+        {
+            return Err(DxlError::Config(format!(
+                "joint {:?}: gains {:?} beyond the servo's 0..=16383",
+                self.joints[i].name, gains[i]
+            )));
+        }
+        self.tx.clear();
+        self.tx.extend_from_slice(&addr::POSITION_D_GAIN.to_le_bytes());
+        self.tx.extend_from_slice(&6u16.to_le_bytes());
+        for (j, &[p, i, d]) in self.joints.iter().zip(gains) {
+            self.tx.push(j.id);
+            self.tx.extend_from_slice(&d.to_le_bytes());
+            self.tx.extend_from_slice(&i.to_le_bytes());
+            self.tx.extend_from_slice(&p.to_le_bytes());
+        }
+        self.stats.writes += 1;
+        self.transport
+            .send(BROADCAST_ID, inst::SYNC_WRITE, &self.tx)
+            .map_err(DxlError::Link)
+    }
+
     /// One sync write of every joint's goal.
     ///
     /// Commands with a non-finite field are refused before anything is sent.

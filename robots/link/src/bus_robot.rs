@@ -145,12 +145,77 @@ where
     }
 }
 
-impl<D: DxlTransport + Send + std::fmt::Debug> JointBus for Bus<DxlBusDriver<D>, DxlCommand>
+/// A Dynamixel line: the servos run their own position loop, so the loop's stiffness and damping
+/// become the servos' Position P/D gains (written only when they change) and their torque limit
+/// the goal current of current-based position control.
+#[derive(Debug)]
+struct DxlBus<D: DxlTransport> {
+    driver: DxlBusDriver<D>,
+    joints: Vec<usize>,
+    commands: Vec<DxlCommand>,
+    models: Vec<&'static dxl_models::DxlModel>,
+    /// Goal current per joint, A: its torque limit (ignored by servos without current control).
+    current_caps: Vec<f64>,
+    /// Stiffness and damping the servos hold now (NaN: unknown, write before use).
+    gains_held: Vec<(f64, f64)>,
+    gains: Vec<[u16; 3]>,
+    enabled: bool,
+}
+
+impl<D: DxlTransport> DxlBus<D> {
+    fn new(driver: DxlBusDriver<D>, joints: Vec<usize>, robot: &Robot) -> Result<Self, IoError> {
+        let n = joints.len();
+        let mut models = Vec::with_capacity(n);
+        let mut current_caps = Vec::with_capacity(n);
+        for &i in &joints {
+            let j = &robot.config.joints[i];
+            let model = dxl_models::find(&j.model).ok_or_else(|| {
+                IoError::Setup(format!("joint {}: {} is no Dynamixel model", j.name, j.model))
+            })?;
+            models.push(model);
+            current_caps.push(drivers::goal_current_for(j.torque_limit, model));
+        }
+        Ok(Self {
+            driver,
+            joints,
+            commands: vec![DxlCommand::default(); n],
+            models,
+            current_caps,
+            gains_held: vec![(f64::NAN, f64::NAN); n],
+            gains: vec![[0; 3]; n],
+            enabled: false,
+        })
+    }
+
+    /// Writes the P/D gains of `targets` when any joint's stiffness or damping changed.
+    fn update_gains(&mut self, targets: &[JointTarget]) -> Result<(), IoError> {
+        let changed = self
+            .joints
+            .iter()
+            .zip(&self.gains_held)
+            .any(|(&i, &(kp, kd))| targets[i].kp != kp || targets[i].kd != kd);
+        if !changed {
+            return Ok(());
+        }
+        for (k, &i) in self.joints.iter().enumerate() {
+            let t = &targets[i];
+            self.gains[k] = drivers::position_gains_for(t.kp, t.kd, self.models[k]);
+        }
+        self.driver.write_gains(&self.gains)?;
+        for (held, &i) in self.gains_held.iter_mut().zip(&self.joints) {
+            *held = (targets[i].kp, targets[i].kd);
+        }
+        Ok(())
+    }
+}
+
+impl<D: DxlTransport + Send + std::fmt::Debug> JointBus for DxlBus<D>
 where
     D::Instant: Send,
 {
     fn identify(&mut self) -> Result<(), IoError> {
         self.driver.configure()?;
+        self.gains_held.fill((f64::NAN, f64::NAN));
         self.enabled = false;
         Ok(())
     }
@@ -168,20 +233,19 @@ where
     }
 
     fn write(&mut self, targets: &[JointTarget]) -> Result<(), IoError> {
-        // Dynamixel position servos have no pure-damping mode: joints asked for kp = 0 go limp
-        // (the gearbox resists), which is the damped state for these joints.
-        let want = self
-            .joints
-            .iter()
-            .all(|&i| targets[i].enabled && targets[i].kp > 0.0);
-        for (c, &i) in self.commands.iter_mut().zip(&self.joints) {
+        // Torque on while every joint is commanded; kp = 0 with kd > 0 is damping (D gain alone
+        // acts on the servo's speed). Feed-forward torque cannot reach a position servo: policies
+        // that need it are refused when they load.
+        let want = self.joints.iter().all(|&i| targets[i].enabled);
+        for ((c, &i), &cap) in self.commands.iter_mut().zip(&self.joints).zip(&self.current_caps) {
             *c = DxlCommand {
                 q: targets[i].q,
-                current: 0.0,
+                current: cap,
             };
         }
         if want {
-            // Goals first, so torque comes on towards the target, not a stale goal.
+            // Gains and goals first, so torque comes on towards the target with the asked gains.
+            self.update_gains(targets)?;
             self.driver.write_goals(&self.commands)?;
         }
         if want != self.enabled {
@@ -312,13 +376,7 @@ impl<S: ByteStream> BusRobot<S> {
                 .joints_on(&name)
                 .map(|(i, j)| (i, drivers::dxl_joint(j)))
                 .unzip();
-            let n = idx.len();
-            let bus = Bus {
-                driver: DxlBusDriver::new(port, cfg, dxl)?,
-                joints: idx.clone(),
-                commands: vec![DxlCommand::default(); n],
-                enabled: false,
-            };
+            let bus = DxlBus::new(DxlBusDriver::new(port, cfg, dxl)?, idx.clone(), robot)?;
             buses.push((Box::new(bus), idx));
             names.push(name);
         }
