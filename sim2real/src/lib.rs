@@ -6,6 +6,7 @@ pub mod hands;
 pub mod host;
 pub mod link;
 pub mod mirror;
+pub mod model_index;
 pub mod mujoco;
 pub mod render;
 pub mod serve;

@@ -23,11 +23,11 @@ use firmware_bridge::serial::{LockstepStream, SerialSimWorld, StreamLine};
 use firmware_bridge::time::{SimInstant, SimRng};
 use firmware_bridge::{dxl, mit};
 use mujoco_rs::prelude::*;
-use mujoco_rs::wrappers::mj_model::MjtObjBase;
 use robots::spatial::{quat_conj, quat_mul, quat_of_rpy, quat_rotate};
 use robots::{BusKind, Robot};
 
 use crate::config::{FaultKind, MirrorConfig, Range};
+use crate::model_index::{self, ModelIndex};
 use crate::mujoco::{MujocoError, load_model};
 
 /// Why a mirror could not be built.
@@ -147,6 +147,7 @@ pub struct Mirror {
     jig: Option<Vec<f64>>,
     root_qpos: usize,
     root_dof: usize,
+    root_body: usize,
     feet: Vec<usize>,
     now: SimInstant,
     physics_dt: Duration,
@@ -189,12 +190,10 @@ impl Mirror {
             0 => physics_dt,
             us => Duration::from_micros(us),
         };
-        let find = |model: &MjModel, kind: MjtObjBase, name: &str| model.name_to_id(kind, name);
+        let index = ModelIndex::of_robot(&model, &robot).map_err(|e| MirrorError::Robot(e.to_string()))?;
         let mut joints = Vec::with_capacity(robot.config.joints.len());
-        for j in &robot.config.joints {
-            let id = find(&model, MjtObjBase::mjOBJ_JOINT, &j.mjcf_joint).ok_or_else(|| {
-                MirrorError::Robot(format!("joint {:?} is not in the compiled model", j.mjcf_joint))
-            })?;
+        for (j, ids) in robot.config.joints.iter().zip(&index.joints) {
+            let id = ids.id;
             // A position servo in the model: joint transmission, gain = -bias (kp), no velocity bias.
             let actuator = (0..model.ffi().nu as usize).find(|&a| {
                 model.actuator_trntype()[a] == MjtTrn::mjTRN_JOINT
@@ -204,8 +203,8 @@ impl Mirror {
             });
             let truth = config.hardware.joints.get(&j.name);
             joints.push(MirrorJoint {
-                qpos: model.jnt_qposadr()[id] as usize,
-                dof: model.jnt_dofadr()[id] as usize,
+                qpos: ids.qpos,
+                dof: ids.dof,
                 direction: truth.map_or(j.direction, |t| t.direction),
                 gear: j.gear,
                 // A description's Dynamixel zero counts the Homing Offset the driver programs;
@@ -224,35 +223,15 @@ impl Mirror {
             model.dof_damping_mut()[j.dof] *= scale;
         }
         let sensor = |name: &str| {
-            find(&model, MjtObjBase::mjOBJ_SENSOR, name)
-                .map(|id| model.sensor_adr()[id] as usize)
-                .ok_or_else(|| MirrorError::Robot(format!("the model has no sensor {name:?} (the IMU needs imu_gyro, imu_accel, imu_quat at its site)")))
+            model_index::sensor_address(&model, name).map_err(|e| {
+                MirrorError::Robot(format!(
+                    "{e} (the IMU needs imu_gyro, imu_accel, imu_quat at its site)"
+                ))
+            })
         };
         let (gyro, accel, quat) = (sensor("imu_gyro")?, sensor("imu_accel")?, sensor("imu_quat")?);
-        let root_body = find(&model, MjtObjBase::mjOBJ_BODY, &robot.config.root_body).ok_or_else(|| {
-            MirrorError::Robot(format!(
-                "root body {:?} is not in the model",
-                robot.config.root_body
-            ))
-        })?;
-        let root_joint = model.body_jntadr()[root_body];
-        if root_joint < 0 || model.jnt_type()[root_joint as usize] != MjtJoint::mjJNT_FREE {
-            return Err(MirrorError::Robot(format!(
-                "root body {:?} has no free joint",
-                robot.config.root_body
-            )));
-        }
-        let root_qpos = model.jnt_qposadr()[root_joint as usize] as usize;
-        let root_dof = model.jnt_dofadr()[root_joint as usize] as usize;
-        let feet = robot
-            .config
-            .feet
-            .iter()
-            .map(|f| {
-                find(&model, MjtObjBase::mjOBJ_BODY, f)
-                    .ok_or_else(|| MirrorError::Robot(format!("foot body {f:?} is not in the model")))
-            })
-            .collect::<Result<Vec<_>, _>>()?;
+        let (root_qpos, root_dof, root_body) = (index.root.qpos, index.root.dof, index.root_body);
+        let feet = index.feet.clone();
 
         // Devices on every bus.
         let mut can = Vec::new();
@@ -367,6 +346,7 @@ impl Mirror {
             jig: None,
             root_qpos,
             root_dof,
+            root_body,
             feet,
             now: SimInstant::ZERO,
             physics_dt,
@@ -622,12 +602,7 @@ impl Mirror {
         let w_body = [v[3], v[4], v[5]];
         let w_world = quat_rotate(cur, w_body);
         let torque: [f64; 3] = std::array::from_fn(|i| kr * s * err[i + 1] - cr * w_world[i]);
-        let body = self
-            .data
-            .model()
-            .name_to_id(MjtObjBase::mjOBJ_BODY, &self.robot.config.root_body)
-            .unwrap_or(1);
-        let x = &mut self.data.xfrc_applied_mut()[body];
+        let x = &mut self.data.xfrc_applied_mut()[self.root_body];
         x[..3].copy_from_slice(&force);
         x[3..].copy_from_slice(&torque);
     }

@@ -5,6 +5,7 @@
 
 use mujoco_rs::wrappers::mj_model::MjtObjBase;
 use robots::{Robot, spatial};
+use sim2real::model_index::ModelIndex;
 
 use controller::clip::Reference;
 
@@ -150,32 +151,11 @@ impl std::fmt::Display for MotionQuality {
 /// Analyses `reference` on `robot`'s model.
 pub fn analyze(robot: &Robot, reference: &Reference) -> Result<MotionQuality, String> {
     let model = sim2real::mujoco::load_model(&robot.mjcf_path).map_err(|e| e.to_string())?;
-    let find = |kind, name: &str| model.name_to_id(kind, name);
-    let root = find(MjtObjBase::mjOBJ_BODY, &robot.config.root_body).ok_or("root body missing")?;
-    let root_joint = model.body_jntadr()[root];
-    if root_joint < 0 {
-        return Err(format!(
-            "root body {:?} has no free joint",
-            robot.config.root_body
-        ));
-    }
-    let (root_q, root_v) = (
-        model.jnt_qposadr()[root_joint as usize] as usize,
-        model.jnt_dofadr()[root_joint as usize] as usize,
-    );
+    let index = ModelIndex::of_robot(&model, robot).map_err(|e| e.to_string())?;
+    let (root_q, root_v) = (index.root.qpos, index.root.dof);
     let joints = &robot.config.joints;
-    let mut adr = Vec::with_capacity(joints.len());
-    for j in joints {
-        let id = find(MjtObjBase::mjOBJ_JOINT, &j.mjcf_joint)
-            .ok_or_else(|| format!("joint {:?} missing", j.mjcf_joint))?;
-        adr.push((model.jnt_qposadr()[id] as usize, model.jnt_dofadr()[id] as usize));
-    }
-    let feet: Vec<usize> = robot
-        .config
-        .feet
-        .iter()
-        .map(|f| find(MjtObjBase::mjOBJ_BODY, f).ok_or_else(|| format!("foot {f:?} missing")))
-        .collect::<Result<_, _>>()?;
+    let adr: Vec<(usize, usize)> = index.joints.iter().map(|j| (j.qpos, j.dof)).collect();
+    let feet = index.feet.clone();
     let ngeom = model.ffi().ngeom as usize;
     let soles: Vec<Vec<usize>> = feet
         .iter()

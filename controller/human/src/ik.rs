@@ -4,9 +4,9 @@
 
 use crate::body_map::Frame;
 use mujoco_rs::prelude::{MjData, MjModel};
-use mujoco_rs::wrappers::mj_model::MjtObjBase;
 use robots::spatial;
 use robots::{OrientationCompare, Robot};
+use sim2real::model_index::{self, FrameId};
 
 /// Where a frame is on the model.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -59,25 +59,14 @@ impl Ik {
         let model = sim2real::mujoco::load_model(&robot.mjcf_path).map_err(|e| e.to_string())?;
         let frames = frames
             .iter()
-            .map(|f| {
-                if let Some(b) = model.name_to_id(MjtObjBase::mjOBJ_BODY, f) {
-                    Ok(FrameRef::Body(b))
-                } else if let Some(s) = model.name_to_id(MjtObjBase::mjOBJ_SITE, f) {
-                    Ok(FrameRef::Site {
-                        site: s,
-                        body: model.site_bodyid()[s] as usize,
-                    })
-                } else {
-                    Err(format!(
-                        "{f:?} is neither a body nor a site of {}",
-                        robot.mjcf_path.display()
-                    ))
-                }
+            .map(|f| match model_index::frame(&model, f) {
+                Ok(FrameId::Body(b)) => Ok(FrameRef::Body(b)),
+                Ok(FrameId::Site { site, body }) => Ok(FrameRef::Site { site, body }),
+                Err(e) => Err(format!("{e} ({})", robot.mjcf_path.display())),
             })
             .collect::<Result<Vec<_>, _>>()?;
-        let root_body = model
-            .name_to_id(MjtObjBase::mjOBJ_BODY, &robot.config.root_body)
-            .ok_or("the root body is not in the model")?;
+        // A fixed-base model (no free root) solves with the root where the model puts it.
+        let root_body = model_index::body(&model, &robot.config.root_body).map_err(|e| e.to_string())?;
         let root_joint = model.body_jntadr()[root_body];
         let root = (root_joint >= 0).then(|| {
             let j = root_joint as usize;
@@ -88,12 +77,10 @@ impl Ik {
             .joints
             .iter()
             .map(|j| {
-                let id = model
-                    .name_to_id(MjtObjBase::mjOBJ_JOINT, &j.mjcf_joint)
-                    .ok_or_else(|| format!("joint {:?} is not in the model", j.mjcf_joint))?;
+                let ids = model_index::joint(&model, &j.mjcf_joint).map_err(|e| e.to_string())?;
                 Ok(Slot {
-                    qpos: model.jnt_qposadr()[id] as usize,
-                    dof: model.jnt_dofadr()[id] as usize,
+                    qpos: ids.qpos,
+                    dof: ids.dof,
                     limits: j.position_limits,
                 })
             })

@@ -1,8 +1,8 @@
 //! Forward kinematics of a reference on the robot's own model: where each named body is when the
 //! robot stands in the reference's pose, for policies that observe reference body positions.
 
-use mujoco_rs::wrappers::mj_model::MjtObjBase;
 use robots::{Robot, spatial};
+use sim2real::model_index::{self, ModelIndex};
 
 use crate::clip::Reference;
 
@@ -10,33 +10,13 @@ use crate::clip::Reference;
 /// heading frame (yaw only): `ticks × bodies × 3` values.
 pub fn body_positions(robot: &Robot, reference: &Reference, bodies: &[String]) -> Result<Vec<f64>, String> {
     let model = sim2real::mujoco::load_model(&robot.mjcf_path).map_err(|e| e.to_string())?;
-    let find = |kind, name: &str| model.name_to_id(kind, name);
+    let index = ModelIndex::of_robot(&model, robot).map_err(|e| e.to_string())?;
     let body_ids = bodies
         .iter()
-        .map(|b| {
-            find(MjtObjBase::mjOBJ_BODY, b)
-                .ok_or_else(|| format!("body {b:?} is not in {}", robot.mjcf_path.display()))
-        })
+        .map(|b| model_index::body(&model, b).map_err(|e| format!("{e} ({})", robot.mjcf_path.display())))
         .collect::<Result<Vec<_>, _>>()?;
-    let root = find(MjtObjBase::mjOBJ_BODY, &robot.config.root_body).ok_or("root body missing")?;
-    let root_joint = model.body_jntadr()[root];
-    if root_joint < 0 {
-        return Err(format!(
-            "root body {:?} has no free joint",
-            robot.config.root_body
-        ));
-    }
-    let root_qpos = model.jnt_qposadr()[root_joint as usize] as usize;
-    let joint_qpos = robot
-        .config
-        .joints
-        .iter()
-        .map(|j| {
-            find(MjtObjBase::mjOBJ_JOINT, &j.mjcf_joint)
-                .map(|id| model.jnt_qposadr()[id] as usize)
-                .ok_or_else(|| format!("joint {:?} missing", j.mjcf_joint))
-        })
-        .collect::<Result<Vec<_>, _>>()?;
+    let root_qpos = index.root.qpos;
+    let joint_qpos: Vec<usize> = index.joints.iter().map(|j| j.qpos).collect();
     let mut data = model.make_data();
     let mut out = Vec::with_capacity(reference.len() * bodies.len() * 3);
     for k in 0..reference.len() {

@@ -539,21 +539,11 @@ impl Links {
     fn new(mjcf: &Path, joints: &[String], root: &str) -> Result<Self, String> {
         use mujoco_rs::wrappers::mj_model::MjtObjBase;
         let model = crate::sim_model(mjcf)?;
-        let id = |kind, name: &str| {
-            model
-                .name_to_id(kind, name)
-                .ok_or_else(|| format!("{name:?} is not in {}", mjcf.display()))
-        };
-        let root_body = id(MjtObjBase::mjOBJ_BODY, root)?;
-        let root_joint = model.body_jntadr()[root_body];
-        if root_joint < 0 {
-            return Err(format!("root body {root:?} has no free joint"));
-        }
-        let root_qpos = model.jnt_qposadr()[root_joint as usize] as usize;
-        let joint_qpos = joints
-            .iter()
-            .map(|j| id(MjtObjBase::mjOBJ_JOINT, j).map(|i| model.jnt_qposadr()[i] as usize))
-            .collect::<Result<Vec<_>, _>>()?;
+        let joints: Vec<&str> = joints.iter().map(String::as_str).collect();
+        let index = sim2real::model_index::ModelIndex::new(&model, root, &joints, &[])
+            .map_err(|e| format!("{e} ({})", mjcf.display()))?;
+        let (root_body, root_qpos) = (index.root_body, index.root.qpos);
+        let joint_qpos: Vec<usize> = index.joints.iter().map(|j| j.qpos).collect();
         let name = |b: usize| {
             model
                 .id_to_name(MjtObjBase::mjOBJ_BODY, b)
