@@ -5,6 +5,7 @@
 use std::path::Path;
 
 use controller::npy::NpyArray;
+use controller::options::RunMetadata;
 use controller::policy::PolicyLayout;
 
 /// Observations per policy step (running ticks only), and where they came from.
@@ -16,8 +17,8 @@ pub struct ObsTrace {
     pub ticks: Vec<u64>,
 }
 
-/// Reads the observations of a recorded run's Running ticks, and the run's recorded metadata.
-pub fn trace_from_run(path: &Path) -> Result<(ObsTrace, std::collections::BTreeMap<String, String>), String> {
+/// Reads the observations of a recorded run's Running ticks, and what the run was made from.
+pub fn trace_from_run(path: &Path) -> Result<(ObsTrace, RunMetadata), String> {
     let bytes = std::fs::read(path).map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
     let stream =
         mcap::MessageStream::new(&bytes).map_err(|e| format!("{}: not an MCAP file: {e}", path.display()))?;
@@ -51,6 +52,12 @@ pub fn trace_from_run(path: &Path) -> Result<(ObsTrace, std::collections::BTreeM
     if trace.steps.is_empty() {
         return Err(format!("{}: no Running ticks with observations", path.display()));
     }
+    let run = run
+        .get("run")
+        .ok_or_else(|| format!("{}: the recording does not say how it was run", path.display()))
+        .and_then(|json| {
+            RunMetadata::from_json(json).map_err(|e| format!("{}: run metadata: {e}", path.display()))
+        })?;
     Ok((trace, run))
 }
 

@@ -12,7 +12,8 @@ use std::time::Duration;
 use robots::Robot;
 
 use controller::clip::{Clip, Reference};
-use controller::player::{PlayError, PlayOptions, Player};
+use controller::options::RunMetadata;
+use controller::player::{PlayError, Player};
 use controller::policy::PolicyLayout;
 use robot_link::GroundTruth;
 use robot_link::TickClock;
@@ -295,31 +296,28 @@ impl std::fmt::Display for ReplayReport {
 /// Replays `path` through the controller.
 pub fn replay(path: &Path) -> Result<ReplayReport, PlayError> {
     let rec = read_recording(path).map_err(PlayError::Setup)?;
-    let get = |k: &str| rec.run.get(k).cloned();
-    let file = |k: &str| {
-        get(k).map(PathBuf::from).ok_or_else(|| {
+    let run = rec
+        .run
+        .get("run")
+        .ok_or_else(|| {
             PlayError::Setup(format!(
-                "{}: the recording does not say which {k} it ran",
+                "{}: the recording does not say how it was run",
                 path.display()
             ))
         })
-    };
-    let robot = Robot::load(&file("robot")?).map_err(|e| PlayError::Setup(e.to_string()))?;
-    let mut layout = PolicyLayout::load(&file("policy")?, &robot)?;
-    if let Some(c) = get("command") {
-        let values: Vec<f64> = c
-            .split(',')
-            .map(|v| {
-                v.parse()
-                    .map_err(|_| PlayError::Setup(format!("recorded command {c:?}")))
-            })
-            .collect::<Result<_, _>>()?;
-        layout.set_command(&values)?;
+        .and_then(|json| {
+            RunMetadata::from_json(json)
+                .map_err(|e| PlayError::Setup(format!("{}: run metadata: {e}", path.display())))
+        })?;
+    let robot = Robot::load(&run.robot).map_err(|e| PlayError::Setup(e.to_string()))?;
+    let mut layout = PolicyLayout::load(&run.policy, &robot)?;
+    if let Some(values) = &run.command {
+        layout.set_command(values)?;
     }
-    let clip = Clip::load(&file("clip")?).map_err(|e| PlayError::Setup(e.to_string()))?;
+    let clip = Clip::load(&run.clip).map_err(|e| PlayError::Setup(e.to_string()))?;
     let reference = Reference::from_clip(&clip, &robot, layout.manifest.rate_hz)
         .map_err(|e| PlayError::Setup(e.to_string()))?;
-    let options = PlayOptions::from_pairs(|k| get(k)).map_err(PlayError::Setup)?;
+    let options = run.options;
     let joints = robot.config.joints.iter().map(|j| j.name.clone()).collect();
     let ticks = Arc::new(rec.ticks);
     let reads = Arc::new(AtomicUsize::new(0));

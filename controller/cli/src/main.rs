@@ -179,13 +179,8 @@ fn run() -> Result<()> {
 fn compare(run: &std::path::Path, other: &std::path::Path, tolerance: f64) -> Result<()> {
     use analysis::compare::{compare, trace_from_export, trace_from_run};
     let (a, meta) = trace_from_run(run).map_err(anyhow::Error::msg)?;
-    let file = |k: &str| {
-        meta.get(k)
-            .map(PathBuf::from)
-            .ok_or_else(|| anyhow::anyhow!("{}: the recording does not say which {k} it ran", run.display()))
-    };
-    let robot = robots::Robot::load(&file("robot")?)?;
-    let mut layout = controller::policy::PolicyLayout::load(&file("policy")?, &robot)?;
+    let robot = robots::Robot::load(&meta.robot)?;
+    let mut layout = controller::policy::PolicyLayout::load(&meta.policy, &robot)?;
     let model = controller::onnx::OnnxModel::load(&layout.onnx_path)?;
     layout.bind_model(model.inputs(), model.output().1)?;
     let is_run = other.extension().is_some_and(|e| e.eq_ignore_ascii_case("mcap"));

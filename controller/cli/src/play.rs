@@ -206,27 +206,19 @@ fn with_recorder<L: RobotLink>(
     } else {
         Backpressure::Block
     };
-    let mut run: std::collections::BTreeMap<String, String> = options.to_pairs().into_iter().collect();
-    let absolute = |p: &PathBuf| {
-        std::fs::canonicalize(p)
-            .unwrap_or_else(|_| p.clone())
-            .display()
-            .to_string()
+    let absolute = |p: &PathBuf| std::fs::canonicalize(p).unwrap_or_else(|_| p.clone());
+    let run = controller::options::RunMetadata {
+        robot: absolute(&args.files.robot),
+        policy: absolute(&args.files.policy),
+        clip: absolute(&args.files.clip),
+        command: args.command.clone(),
+        options: *options,
     };
-    run.insert("robot".into(), absolute(&args.files.robot));
-    run.insert("policy".into(), absolute(&args.files.policy));
-    run.insert("clip".into(), absolute(&args.files.clip));
-    if let Some(c) = &args.command {
-        run.insert(
-            "command".into(),
-            c.iter().map(|v| format!("{v:?}")).collect::<Vec<_>>().join(","),
-        );
-    }
     let robot = player.robot();
     let info = controller::telemetry::RecordingInfo {
         joint_names: player.joint_names(),
         root_frame: player.root_frame(),
-        run,
+        run: Some(run),
         bus_names: player.link().bus_names().to_vec(),
         kinematics: Some((
             robot.mjcf_path.clone(),

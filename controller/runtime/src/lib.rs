@@ -6,15 +6,19 @@
 //! [`safety`] (governor, faults) and [`metrics`]; around it [`estop`], [`realtime`], [`telemetry`]
 //! (the recording sink) and the inputs: [`clip`] files and live references.
 
+pub mod action;
 pub mod clip;
 pub mod estop;
 pub mod fk;
+pub mod metrics;
 pub mod native;
 pub mod npy;
 pub mod onnx;
+pub mod options;
 pub mod player;
 pub mod policy;
 pub mod realtime;
+pub mod reference;
 pub mod safety;
 pub mod sim;
 pub mod telemetry;

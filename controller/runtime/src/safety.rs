@@ -3,21 +3,39 @@
 
 use robots::JointConfig;
 
-/// Where the controller is.
+/// Where the controller is. The discriminant is what recordings store.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
 pub enum Mode {
     /// Torque off, nothing commanded.
-    Off,
+    Off = 0,
     /// Every device answered with the right identity.
-    Ready,
+    Ready = 1,
     /// Ramping to the default pose at reduced gains.
-    SoftStart,
+    SoftStart = 2,
     /// The policy is in command.
-    Running,
+    Running = 3,
     /// Holding (after a fault) or blending to the default pose (after a stop request).
-    Stopping,
+    Stopping = 4,
     /// kp = 0, kd > 0: the joints are damped, then torque goes off.
-    Damped,
+    Damped = 5,
+}
+
+impl Mode {
+    /// Every mode, in discriminant order.
+    pub const ALL: [Self; 6] = [
+        Self::Off,
+        Self::Ready,
+        Self::SoftStart,
+        Self::Running,
+        Self::Stopping,
+        Self::Damped,
+    ];
+
+    /// The mode a recording stored as `code`.
+    pub fn from_code(code: u8) -> Option<Self> {
+        Self::ALL.get(usize::from(code)).copied()
+    }
 }
 
 /// Why a transition happened.
@@ -139,7 +157,8 @@ pub struct Transition {
 }
 
 /// Thresholds of the safety checks.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct SafetyLimits {
     /// Largest tolerated run of stale feedback, ticks.
     pub stale_ticks: u32,
@@ -171,6 +190,97 @@ impl Default for SafetyLimits {
 /// Angle between the base's z axis and the vertical, from the IMU orientation `[w, x, y, z]`.
 pub fn tilt_of(q: [f64; 4]) -> f64 {
     robots::spatial::angle_between(robots::spatial::quat_rotate(q, [0.0, 0.0, 1.0]), [0.0, 0.0, 1.0])
+}
+
+/// The checks that stop a run, on the measured state each tick: e-stop, stale or faulted devices,
+/// a silent IMU, non-finite readings, tilt, joints stuck far from their targets, overruns, a stop
+/// request. Reads only the loop's own buffers: no lock, no I/O, no allocation.
+#[derive(Debug)]
+pub struct SafetyMonitor {
+    limits: SafetyLimits,
+    /// IMU staleness limit in ticks: two of its periods, at least the joints' limit.
+    imu_limit: u32,
+    /// Ticks in a row each joint has been beyond the tracking limit.
+    off_target: Vec<u32>,
+    /// Deadline overruns in a row.
+    overrun_run: u32,
+}
+
+impl SafetyMonitor {
+    /// A monitor for `n` joints, a loop ticking every `dt` s and an IMU at `imu_rate_hz`.
+    pub fn new(limits: SafetyLimits, n: usize, dt: f64, imu_rate_hz: f64) -> Self {
+        Self {
+            imu_limit: limits.stale_ticks.max((2.0 / (dt * imu_rate_hz)).ceil() as u32),
+            limits,
+            off_target: vec![0; n],
+            overrun_run: 0,
+        }
+    }
+
+    /// Notes whether the last tick missed its deadline.
+    pub fn deadline(&mut self, missed: bool) {
+        self.overrun_run = if missed { self.overrun_run + 1 } else { 0 };
+    }
+
+    /// The first reason to stop in `mode` given the measured `state` and the `targets` last sent.
+    pub fn check(
+        &mut self,
+        mode: Mode,
+        state: &robot_link::RobotState,
+        targets: &[robot_link::JointTarget],
+        estop: bool,
+        stop_requested: bool,
+    ) -> Option<Cause> {
+        // Joints under stiffness that stay far from their targets (blocked, or zero/direction
+        // wrong), counted while the robot is being driven.
+        let tracking = matches!(mode, Mode::SoftStart | Mode::Running);
+        for ((count, t), &q) in self.off_target.iter_mut().zip(targets).zip(&state.q) {
+            let off = tracking && t.enabled && t.kp > 0.0 && (t.q - q).abs() > self.limits.tracking_error;
+            *count = if off { count.saturating_add(1) } else { 0 };
+        }
+        if !matches!(mode, Mode::SoftStart | Mode::Running | Mode::Stopping) {
+            return None;
+        }
+        if estop {
+            return Some(Cause::EStop);
+        }
+        let (s, lim) = (state, &self.limits);
+        if let Some(joint) = s.missed.iter().position(|&m| m > lim.stale_ticks) {
+            return Some(Cause::StaleFeedback {
+                joint,
+                ticks: s.missed[joint],
+            });
+        }
+        if let Some(joint) = s.faulted.iter().position(|&f| f) {
+            return Some(Cause::DeviceFault { joint });
+        }
+        if s.imu_missed > self.imu_limit {
+            return Some(Cause::StaleImu { ticks: s.imu_missed });
+        }
+        let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
+        if !(finite(&s.q) && finite(&s.qd) && finite(&s.gyro) && finite(&s.quat)) {
+            return Some(Cause::NonFinite { what: "state" });
+        }
+        let tilt = tilt_of(s.quat);
+        if tilt > lim.tilt {
+            return Some(Cause::Tilt { angle: tilt });
+        }
+        if let Some(joint) = self.off_target.iter().position(|&t| t > lim.tracking_ticks) {
+            return Some(Cause::TrackingError {
+                joint,
+                error: targets[joint].q - s.q[joint],
+            });
+        }
+        if self.overrun_run >= lim.overruns {
+            return Some(Cause::Overruns {
+                count: self.overrun_run,
+            });
+        }
+        if stop_requested && mode != Mode::Stopping {
+            return Some(Cause::StopRequested);
+        }
+        None
+    }
 }
 
 /// Clamps a position target into the joint's limits (with margin) and its speed limit from the

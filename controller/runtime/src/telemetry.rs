@@ -128,6 +128,99 @@ impl Default for TickRecord {
 /// Names of the modes, by [`TickRecord::mode`].
 pub const MODE_NAMES: [&str; 6] = ["Off", "Ready", "SoftStart", "Running", "Stopping", "Damped"];
 
+/// What the loop knows at the end of a tick, for its record.
+#[derive(Debug, Clone, Copy)]
+pub struct TickView<'a> {
+    /// Tick number.
+    pub tick: u64,
+    /// Run time.
+    pub now: std::time::Duration,
+    /// Safety mode.
+    pub mode: crate::safety::Mode,
+    /// The measured state.
+    pub state: &'a robot_link::RobotState,
+    /// The targets sent.
+    pub targets: &'a [robot_link::JointTarget],
+    /// The reference, robot order.
+    pub reference_q: &'a [f64],
+    /// The reference root pose.
+    pub reference_root: [f64; 7],
+    /// Whether the reference was the clip itself.
+    pub tracking: bool,
+    /// Raw actions.
+    pub actions: &'a [f32],
+    /// The observation.
+    pub obs: &'a [f32],
+    /// Simulation ground truth (its pose counts only with `has_truth`).
+    pub truth: &'a robot_link::GroundTruth,
+    /// Whether the clock had ground truth this tick.
+    pub has_truth: bool,
+    /// Whether a stop had been requested.
+    pub stop_requested: bool,
+    /// Time each bus took.
+    pub bus_times: &'a [std::time::Duration],
+    /// Bus I/O of the tick.
+    pub io: std::time::Duration,
+    /// Compute of the tick.
+    pub compute: std::time::Duration,
+    /// The latest transition's cause.
+    pub cause: Option<crate::safety::Cause>,
+}
+
+impl TickRecord {
+    /// Copies `v` into this record (no allocation; lengths are capped at the record's sizes).
+    pub fn fill(&mut self, v: &TickView<'_>) {
+        let (state, r) = (v.state, self);
+        let n = state.q.len().min(MAX_JOINTS);
+        r.tick = v.tick;
+        r.time_ns = v.now.as_nanos() as u64;
+        r.mode = v.mode as u8;
+        r.joints = n as u16;
+        for i in 0..n {
+            r.q[i] = state.q[i];
+            r.qd[i] = state.qd[i];
+            r.tau[i] = state.tau[i];
+            r.missed[i] = state.missed[i];
+            r.faulted[i] = state.faulted[i];
+            let t = &v.targets[i];
+            r.target[i] = [t.q, t.qd, t.kp, t.kd, t.tau];
+            r.enabled[i] = t.enabled;
+            r.reference_q[i] = v.reference_q[i] as f32;
+        }
+        r.reference_root = v.reference_root;
+        r.tracking = v.tracking;
+        let m = v.actions.len().min(MAX_JOINTS);
+        r.action[..m].copy_from_slice(&v.actions[..m]);
+        let k = v.obs.len().min(MAX_OBS);
+        r.obs_len = k as u16;
+        r.obs[..k].copy_from_slice(&v.obs[..k]);
+        r.imu[..3].copy_from_slice(&state.gyro);
+        r.imu[3..6].copy_from_slice(&state.accel);
+        r.imu[6..].copy_from_slice(&state.quat);
+        r.imu_missed = state.imu_missed;
+        let t = v.truth;
+        r.base_pose = if v.has_truth { t.root_pose } else { [f64::NAN; 7] };
+        r.base_lin_vel = t.base_lin_vel;
+        let feet = t.foot_contacts.len().min(MAX_FEET);
+        r.feet = feet as u8;
+        r.foot_contacts[..feet].copy_from_slice(&t.foot_contacts[..feet]);
+        r.stop_requested = v.stop_requested;
+        let b = v.bus_times.len().min(r.bus_us.len());
+        r.buses = b as u8;
+        for (slot, t) in r.bus_us.iter_mut().zip(&v.bus_times[..b]) {
+            *slot = t.as_secs_f32() * 1e6;
+        }
+        r.io_us = v.io.as_secs_f32() * 1e6;
+        r.compute_us = v.compute.as_secs_f32() * 1e6;
+        if let Some(cause) = v.cause {
+            use std::io::Write as _;
+            let mut cursor = std::io::Cursor::new(&mut r.cause[..]);
+            let _ = write!(cursor, "{cause}");
+            r.cause_len = cursor.position() as u8;
+        }
+    }
+}
+
 /// What the ring does when the logger falls behind.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Backpressure {
@@ -176,7 +269,7 @@ pub struct RecordingInfo {
     /// The base frame's name.
     pub root_frame: String,
     /// How to rebuild the run (files, options), for replays.
-    pub run: BTreeMap<String, String>,
+    pub run: Option<crate::options::RunMetadata>,
     /// Bus names, in the order of [`TickRecord::bus_us`].
     pub bus_names: Vec<String>,
     /// The robot's MJCF and its joint names in robot order: with them the logger also writes a
@@ -254,7 +347,9 @@ impl TelemetrySink {
         let mut timing_meta = meta.clone();
         timing_meta.insert("bus_names".into(), info.bus_names.join(","));
         let mut replay_meta = meta.clone();
-        replay_meta.extend(run.iter().map(|(k, v)| (k.clone(), v.clone())));
+        if let Some(run) = run {
+            replay_meta.insert("run".into(), run.to_json());
+        }
         let mut channels = Vec::with_capacity(TOPICS.len());
         for (topic, schema) in TOPICS {
             let name = if topic == "/tf" {

@@ -1,0 +1,116 @@
+//! The policy's actions as joint commands, per the contract's `[action]`: clip, scale around the
+//! default pose (position) or of the joint's torque limit (torque), low-pass, and the governor
+//! (position limits with margin, rate limit, torque bounds) before anything reaches a bus.
+
+use robot_link::JointTarget;
+use robots::JointConfig;
+
+use crate::policy::{ActionKind, PolicyLayout};
+use crate::safety::{govern_position, govern_torque};
+
+/// Turns one tick's actions into targets; remembers past actions for the observation.
+#[derive(Debug)]
+pub struct ActionMapper {
+    /// This tick's actions, policy order (the model writes here).
+    actions: Vec<f32>,
+    /// The last `k` actions, newest first.
+    past: Vec<f32>,
+    /// Low-passed position targets, robot order.
+    filtered: Vec<f64>,
+}
+
+impl ActionMapper {
+    /// A mapper for `n` joints remembering `k` past actions, targets starting at `default_q`.
+    pub fn new(n: usize, k: usize, default_q: &[f64]) -> Self {
+        Self {
+            actions: vec![0.0; n],
+            past: vec![0.0; k.max(1) * n],
+            filtered: default_q.to_vec(),
+        }
+    }
+
+    /// Starts the low-pass filter from `q` (robot order).
+    pub fn reset(&mut self, q: &[f64]) {
+        self.filtered.copy_from_slice(q);
+    }
+
+    /// The buffer the model writes this tick's actions into.
+    pub fn actions_mut(&mut self) -> &mut [f32] {
+        &mut self.actions
+    }
+
+    /// This tick's actions.
+    pub fn actions(&self) -> &[f32] {
+        &self.actions
+    }
+
+    /// Past actions, newest first.
+    pub fn past(&self) -> &[f32] {
+        &self.past
+    }
+
+    /// Maps this tick's actions into `targets` (robot order) and returns how many joints the
+    /// governor limited. `q` is the measured position (robot order).
+    pub fn map(
+        &mut self,
+        layout: &PolicyLayout,
+        joints: &[JointConfig],
+        q: &[f64],
+        targets: &mut [JointTarget],
+        dt: f64,
+        margin: f64,
+    ) -> u64 {
+        // Remember actions, newest first.
+        let n = self.actions.len();
+        let kept = self.past.len() - n;
+        self.past.copy_within(..kept, n);
+        self.past[..n].copy_from_slice(&self.actions);
+        let spec = &layout.manifest.action;
+        let alpha = spec.lowpass_hz.map_or(1.0, |fc| {
+            let rc = 1.0 / (std::f64::consts::TAU * fc);
+            dt / (rc + dt)
+        });
+        let mut limited = 0u64;
+        for (p, &r) in layout.robot_index.iter().enumerate() {
+            let j = &joints[r];
+            let a = f64::from(self.actions[p]);
+            let a = spec.clip.map_or(a, |c| a.clamp(-c, c));
+            targets[r] = match spec.kind {
+                ActionKind::Position => {
+                    let wanted = layout.default_q[r] + spec.scale.unwrap_or(1.0) * a;
+                    self.filtered[r] += alpha * (wanted - self.filtered[r]);
+                    let previous = targets[r].q;
+                    let governed =
+                        govern_position(j, previous, self.filtered[r], dt, margin, spec.rate_limit);
+                    if governed != self.filtered[r] {
+                        limited += 1;
+                    }
+                    JointTarget {
+                        q: governed,
+                        qd: 0.0,
+                        kp: layout.kp[r],
+                        kd: layout.kd[r],
+                        tau: 0.0,
+                        enabled: true,
+                    }
+                }
+                ActionKind::Torque => {
+                    let wanted = a * j.torque_limit;
+                    let tau = govern_torque(j, wanted);
+                    if tau != wanted {
+                        limited += 1;
+                    }
+                    JointTarget {
+                        q: q[r],
+                        qd: 0.0,
+                        kp: 0.0,
+                        kd: 0.0,
+                        tau,
+                        enabled: true,
+                    }
+                }
+            };
+        }
+        limited
+    }
+}

@@ -1,0 +1,219 @@
+//! What a run measures about itself: durations as preallocated histograms, tracking errors,
+//! overruns and governor saturation, and the summary printed at the end.
+
+use std::time::Duration;
+
+use crate::safety::Transition;
+
+/// A histogram of durations in 10 µs bins up to 40 ms, preallocated.
+#[derive(Debug, Clone)]
+pub struct Histogram {
+    bins: Vec<u32>,
+    count: u64,
+    max: Duration,
+}
+
+const BIN: Duration = Duration::from_micros(10);
+
+impl Default for Histogram {
+    fn default() -> Self {
+        Self {
+            bins: vec![0; 4000],
+            count: 0,
+            max: Duration::ZERO,
+        }
+    }
+}
+
+impl Histogram {
+    /// Adds a sample (no allocation).
+    pub fn record(&mut self, d: Duration) {
+        let i = ((d.as_nanos() / BIN.as_nanos()) as usize).min(self.bins.len() - 1);
+        self.bins[i] += 1;
+        self.count += 1;
+        self.max = self.max.max(d);
+    }
+
+    /// The `p`-quantile (upper edge of its bin, never above the largest sample).
+    pub fn quantile(&self, p: f64) -> Duration {
+        let want = (p * self.count as f64).ceil().max(1.0) as u64;
+        let mut seen = 0u64;
+        for (i, &c) in self.bins.iter().enumerate() {
+            seen += u64::from(c);
+            if seen >= want {
+                return (BIN * (i as u32 + 1)).min(self.max);
+            }
+        }
+        self.max
+    }
+
+    /// Largest sample.
+    pub fn max(&self) -> Duration {
+        self.max
+    }
+
+    /// Samples.
+    pub fn count(&self) -> u64 {
+        self.count
+    }
+}
+
+impl std::fmt::Display for Histogram {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "p50 {:.0} µs, p99 {:.0} µs, max {:.0} µs over {} ticks",
+            self.quantile(0.5).as_secs_f64() * 1e6,
+            self.quantile(0.99).as_secs_f64() * 1e6,
+            self.max.as_secs_f64() * 1e6,
+            self.count
+        )
+    }
+}
+
+/// What a run did.
+#[derive(Debug, Clone)]
+pub struct PlaySummary {
+    /// Ticks run.
+    pub ticks: u64,
+    /// Simulated or wall seconds covered.
+    pub duration_s: f64,
+    /// Ticks that missed their deadline (wall clock only).
+    pub overruns: u64,
+    /// Joint tracking RMSE over the clip, rad (NaN when the run never reached the clip).
+    pub joint_rmse: f64,
+    /// Root position RMSE over the clip, m (when the root is known: simulation).
+    pub root_rmse: Option<f64>,
+    /// Whether the robot fell (tilt beyond the limit).
+    pub fell: bool,
+    /// Policy ticks where the governor changed a command (limit, speed or torque saturation).
+    pub limited_ticks: u64,
+    /// The state machine's course.
+    pub transitions: Vec<Transition>,
+    /// Per-tick compute time (observe, infer, limit).
+    pub compute: Histogram,
+    /// Per-tick bus time (read + write).
+    pub io: Histogram,
+    /// How late each tick started after its deadline.
+    pub jitter: Histogram,
+    /// With a live reference: from the arrival of the input a tick used to its bus write.
+    pub live_latency: Option<Histogram>,
+    /// What the telemetry logger wrote, when recording.
+    pub telemetry: Option<crate::telemetry::TelemetryReport>,
+}
+
+impl std::fmt::Display for PlaySummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(
+            f,
+            "ran {} ticks ({:.2} s), {} overruns",
+            self.ticks, self.duration_s, self.overruns
+        )?;
+        writeln!(f, "joint tracking RMSE: {:.2}°", self.joint_rmse.to_degrees())?;
+        if let Some(r) = self.root_rmse {
+            writeln!(f, "root position RMSE:  {:.1} cm", r * 100.0)?;
+        }
+        writeln!(f, "fell: {}", if self.fell { "YES" } else { "no" })?;
+        writeln!(
+            f,
+            "ticks where the governor limited a command: {}",
+            self.limited_ticks
+        )?;
+        writeln!(f, "compute per tick: {}", self.compute)?;
+        writeln!(f, "bus I/O per tick: {}", self.io)?;
+        writeln!(f, "tick start lateness: {}", self.jitter)?;
+        if let Some(l) = &self.live_latency {
+            writeln!(f, "tracker input → bus command: {l}")?;
+        }
+        if let Some(t) = &self.telemetry {
+            writeln!(f, "{t}")?;
+        }
+        writeln!(f, "state machine:")?;
+        for t in &self.transitions {
+            writeln!(f, "  tick {:>5}: {:?} → {:?} ({})", t.tick, t.from, t.to, t.cause)?;
+        }
+        Ok(())
+    }
+}
+
+/// The running sums behind a [`PlaySummary`], updated in the tick without allocating.
+#[derive(Debug, Clone, Default)]
+pub struct RunMetrics {
+    sq_joint_error: f64,
+    joint_samples: u64,
+    sq_root_error: f64,
+    root_samples: u64,
+    /// Ticks that missed their deadline.
+    pub overruns: u64,
+    /// Policy ticks where the governor changed a command.
+    pub limited_ticks: u64,
+    /// The base tilted beyond the limit at some point.
+    pub fell: bool,
+    /// Compute per tick.
+    pub compute: Histogram,
+    /// Bus I/O per tick.
+    pub io: Histogram,
+    /// Tick start lateness.
+    pub jitter: Histogram,
+    /// Live input arrival to bus write.
+    pub live_latency: Histogram,
+}
+
+impl RunMetrics {
+    /// Adds one tick's joint errors (measured − reference) and, in simulation, the root's.
+    pub fn add_tracking(&mut self, q: &[f64], reference: &[f64], root: Option<([f64; 3], [f64; 3])>) {
+        for (a, b) in q.iter().zip(reference) {
+            self.sq_joint_error += (a - b) * (a - b);
+        }
+        self.joint_samples += q.len() as u64;
+        if let Some((measured, wanted)) = root {
+            self.sq_root_error += (0..3).map(|k| (measured[k] - wanted[k]).powi(2)).sum::<f64>();
+            self.root_samples += 1;
+        }
+    }
+
+    /// The summary of a run of `ticks` over `took`.
+    pub fn summary(&self, ticks: u64, took: Duration, transitions: &[Transition], live: bool) -> PlaySummary {
+        PlaySummary {
+            ticks,
+            duration_s: took.as_secs_f64(),
+            overruns: self.overruns,
+            joint_rmse: if self.joint_samples > 0 {
+                (self.sq_joint_error / self.joint_samples as f64).sqrt()
+            } else {
+                f64::NAN
+            },
+            root_rmse: (self.root_samples > 0)
+                .then(|| (self.sq_root_error / self.root_samples as f64).sqrt()),
+            fell: self.fell,
+            limited_ticks: self.limited_ticks,
+            transitions: transitions.to_vec(),
+            compute: self.compute.clone(),
+            io: self.io.clone(),
+            jitter: self.jitter.clone(),
+            live_latency: live.then(|| self.live_latency.clone()),
+            telemetry: None,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn histogram_quantiles_bracket_the_samples() {
+        let mut h = Histogram::default();
+        for us in 1..=100u64 {
+            h.record(Duration::from_micros(us));
+        }
+        assert_eq!(h.count(), 100);
+        // 10 µs bins, upper edges: the median sample (50 µs) lies in the [50, 60) µs bin.
+        assert_eq!(h.quantile(0.5), Duration::from_micros(60));
+        assert_eq!(h.quantile(0.99), Duration::from_micros(100));
+        assert_eq!(h.max(), Duration::from_micros(100));
+        let mut idle = Histogram::default();
+        idle.record(Duration::ZERO);
+        assert_eq!(idle.quantile(0.99), Duration::ZERO);
+    }
+}

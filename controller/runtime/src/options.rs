@@ -1,0 +1,120 @@
+//! How a run goes ([`PlayOptions`]) and what it was run from ([`RunMetadata`]): one serde
+//! struct each, recorded with the run and read back by a replay.
+
+use std::path::PathBuf;
+
+use crate::safety::SafetyLimits;
+
+/// What happens when the clip ends.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum EndMode {
+    /// Hold the last frame for a moment, then stop.
+    #[default]
+    Hold,
+    /// Blend back to the default pose, then stop.
+    Blend,
+    /// Start the clip again (until stopped).
+    Loop,
+}
+
+/// How a run goes. Recorded with every run (as part of [`RunMetadata`]) and read back by replays.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PlayOptions {
+    /// Soft start: time to reach the default pose, s.
+    pub soft_start_s: f64,
+    /// Soft start gain factor.
+    pub soft_start_gain: f64,
+    /// ψ ramp with the clip held at its first frame, s.
+    pub ramp_s: f64,
+    /// What happens at the end of the clip.
+    pub end: EndMode,
+    /// End hold or blend time, s.
+    pub end_s: f64,
+    /// Damping time before torque off, s.
+    pub damping_s: f64,
+    /// Safety thresholds.
+    pub limits: SafetyLimits,
+    /// Stop after this many ticks in any case (loops, tests).
+    pub max_ticks: Option<u64>,
+}
+
+impl Default for PlayOptions {
+    fn default() -> Self {
+        Self {
+            soft_start_s: 1.0,
+            soft_start_gain: 0.3,
+            ramp_s: 1.5,
+            end: EndMode::Hold,
+            end_s: 0.5,
+            damping_s: 0.5,
+            limits: SafetyLimits::default(),
+            max_ticks: None,
+        }
+    }
+}
+
+/// What a run was made from: the files, the command values and the options. A recording carries
+/// it as JSON, so a replay rebuilds exactly the same run.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RunMetadata {
+    /// The robot description (robot.toml).
+    pub robot: PathBuf,
+    /// The policy manifest.
+    pub policy: PathBuf,
+    /// The clip.
+    pub clip: PathBuf,
+    /// Command values given on the command line, if any.
+    #[serde(default)]
+    pub command: Option<Vec<f64>>,
+    /// The options.
+    pub options: PlayOptions,
+}
+
+impl RunMetadata {
+    /// The metadata as JSON (full float precision).
+    pub fn to_json(&self) -> String {
+        serde_json::to_string(self).unwrap_or_default()
+    }
+
+    /// Metadata written by [`Self::to_json`].
+    pub fn from_json(text: &str) -> Result<Self, serde_json::Error> {
+        serde_json::from_str(text)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn run_metadata_round_trips_through_json_exactly() {
+        let m = RunMetadata {
+            robot: "robots/biped/robot.toml".into(),
+            policy: "p.toml".into(),
+            clip: "c.csv".into(),
+            command: Some(vec![0.1, -2.5e-7]),
+            options: PlayOptions {
+                soft_start_s: 0.1 + 0.2,
+                end: EndMode::Blend,
+                max_ticks: Some(7),
+                ..PlayOptions::default()
+            },
+        };
+        assert_eq!(RunMetadata::from_json(&m.to_json()).unwrap(), m);
+        // Options a recording leaves out keep their defaults; unknown ones are refused.
+        let partial = r#"{"robot":"r","policy":"p","clip":"c","options":{"ramp_s":2.0}}"#;
+        let m = RunMetadata::from_json(partial).unwrap();
+        assert_eq!(m.options.ramp_s, 2.0);
+        assert_eq!(m.options.end_s, PlayOptions::default().end_s);
+        let unknown = r#"{"robot":"r","policy":"p","clip":"c","options":{"ramp":2.0}}"#;
+        assert!(
+            RunMetadata::from_json(unknown)
+                .unwrap_err()
+                .to_string()
+                .contains("ramp")
+        );
+    }
+}

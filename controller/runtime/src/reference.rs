@@ -1,0 +1,225 @@
+//! Where the reference is at each tick: the clip's frames (or a live frame another thread
+//! computes), held at the first frame while the start-up ramp ψ rises, then played, then held,
+//! blended to the default pose or looped at the end; and the frames ahead the policy looks at, in
+//! its joint order. Every buffer is sized at construction.
+
+use std::time::Instant;
+
+use human::live::{LiveReader, TRACKER_VALUES};
+
+use crate::clip::Reference;
+use crate::options::{EndMode, PlayOptions};
+use crate::policy::ReferenceView;
+
+/// The reference frames the observation sees at one tick, policy order.
+#[derive(Debug)]
+struct Frames {
+    q: Vec<Vec<f64>>,
+    qd: Vec<Vec<f64>>,
+    root: Vec<[f64; 7]>,
+    body: Vec<Vec<f64>>,
+}
+
+impl ReferenceView for Frames {
+    fn joint_pos(&self, offset: usize) -> &[f64] {
+        &self.q[offset.min(self.q.len() - 1)]
+    }
+    fn joint_vel(&self, offset: usize) -> &[f64] {
+        &self.qd[offset.min(self.qd.len() - 1)]
+    }
+    fn root_pose(&self, offset: usize) -> [f64; 7] {
+        self.root[offset.min(self.root.len() - 1)]
+    }
+    fn body_pos(&self, offset: usize) -> &[f64] {
+        &self.body[offset.min(self.body.len() - 1)]
+    }
+}
+
+/// A live source of reference frames, and what the loop has taken from it.
+#[derive(Debug)]
+struct Live {
+    reader: LiveReader,
+    /// Arrival of the input behind this tick's frame, when no command used it yet.
+    source: Option<Instant>,
+    /// The input the last command used.
+    used: Option<Instant>,
+    trackers: [f64; TRACKER_VALUES],
+}
+
+/// The reference's cursor.
+#[derive(Debug)]
+pub struct ReferenceCursor {
+    reference: Reference,
+    frames: Frames,
+    /// Robot-order reference of the current tick (blended during ramps and at the end).
+    current_q: Vec<f64>,
+    /// Policy ticks since the clip (its ramp) started.
+    tick: usize,
+    ramp_ticks: usize,
+    end_ticks: usize,
+    end: EndMode,
+    live: Option<Live>,
+}
+
+impl ReferenceCursor {
+    /// A cursor over `reference` for a policy that looks `frames` ticks ahead (at least 1), with
+    /// `body_width` reference body values per frame, ticking every `dt` seconds.
+    pub fn new(
+        reference: Reference,
+        frames: usize,
+        body_width: usize,
+        default_q: &[f64],
+        options: &PlayOptions,
+        dt: f64,
+    ) -> Self {
+        let n = default_q.len();
+        Self {
+            frames: Frames {
+                q: vec![vec![0.0; n]; frames],
+                qd: vec![vec![0.0; n]; frames],
+                root: vec![[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]; frames],
+                body: vec![vec![0.0; body_width]; frames],
+            },
+            current_q: default_q.to_vec(),
+            tick: 0,
+            ramp_ticks: (options.ramp_s / dt).round() as usize,
+            end_ticks: (options.end_s / dt).round() as usize,
+            end: options.end,
+            live: None,
+            reference,
+        }
+    }
+
+    /// Takes each tick's frame from `reader` instead of the clip (the reference is one frame).
+    pub fn set_live(&mut self, reader: LiveReader) {
+        self.live = Some(Live {
+            reader,
+            source: None,
+            used: None,
+            trackers: [0.0; TRACKER_VALUES],
+        });
+    }
+
+    /// Whether frames come from a live source.
+    pub fn is_live(&self) -> bool {
+        self.live.is_some()
+    }
+
+    /// The clip's frames.
+    pub fn reference(&self) -> &Reference {
+        &self.reference
+    }
+
+    /// Starts the clip (its ramp) over.
+    pub fn restart(&mut self) {
+        self.tick = 0;
+    }
+
+    /// Policy ticks since the clip started.
+    pub fn tick(&self) -> usize {
+        self.tick
+    }
+
+    /// Moves to the next tick.
+    pub fn step(&mut self) {
+        self.tick += 1;
+    }
+
+    /// The clip proper is playing (not its ramp, not its end).
+    pub fn in_clip(&self) -> bool {
+        self.tick >= self.ramp_ticks && self.tick < self.ramp_ticks + self.reference.len()
+    }
+
+    /// Whether the tick just taken tracked the clip (what a recording marks as tracking).
+    pub fn tracked(&self) -> bool {
+        self.tick > self.ramp_ticks && self.tick <= self.ramp_ticks + self.reference.len()
+    }
+
+    /// The clip, ramp and end included, is over (never for a loop).
+    pub fn finished(&self) -> bool {
+        match self.end {
+            EndMode::Loop => false,
+            EndMode::Hold | EndMode::Blend => {
+                self.tick >= self.ramp_ticks + self.reference.len() + self.end_ticks
+            }
+        }
+    }
+
+    /// The reference of this tick, robot order.
+    pub fn current_q(&self) -> &[f64] {
+        &self.current_q
+    }
+
+    /// The reference root pose of this tick.
+    pub fn current_root(&self) -> [f64; 7] {
+        self.frames.root[0]
+    }
+
+    /// The frames the observation sees.
+    pub fn view(&self) -> &dyn ReferenceView {
+        &self.frames
+    }
+
+    /// The live devices' values for the `tracker_poses` term, with a live source.
+    pub fn trackers(&self) -> Option<&[f64; TRACKER_VALUES]> {
+        self.live.as_ref().map(|l| &l.trackers)
+    }
+
+    /// The arrival of the input behind the command about to be sent, once per input.
+    pub fn take_live_source(&mut self) -> Option<Instant> {
+        let live = self.live.as_mut()?;
+        let source = live.source.take()?;
+        live.used = Some(source);
+        Some(source)
+    }
+
+    /// Positions the frames for this tick and returns ψ (0 → 1 over the ramp). `default_q` is
+    /// robot order; `robot_index[p]` is the robot joint of policy joint `p`.
+    pub fn update(&mut self, default_q: &[f64], robot_index: &[usize]) -> f64 {
+        if let Some(live) = &mut self.live {
+            let frame = live.reader.latest();
+            let n = self.reference.n;
+            self.reference.q[..n].copy_from_slice(&frame.q);
+            self.reference.qd[..n].copy_from_slice(&frame.qd);
+            self.reference.root[0] = frame.root;
+            live.trackers = frame.trackers;
+            // Latency counts to the first command that uses an input, not the ones after it.
+            live.source = frame.source.filter(|s| Some(*s) != live.used);
+        }
+        let (ramp, len) = (self.ramp_ticks, self.reference.len());
+        let psi = if ramp == 0 {
+            1.0
+        } else {
+            (self.tick as f64 / ramp as f64).min(1.0)
+        };
+        let base = self.tick.saturating_sub(ramp);
+        let base = if self.end == EndMode::Loop {
+            base % len
+        } else {
+            base
+        };
+        let end_ticks = self.end_ticks.max(1);
+        let moving = |k: usize| self.tick >= ramp && k < len;
+        for f in 0..self.frames.q.len() {
+            let k = base + f;
+            let (q, qd) = (self.reference.q_at(k), self.reference.qd_at(k));
+            let blend = if self.end == EndMode::Blend && k >= len {
+                ((k - len + 1) as f64 / end_ticks as f64).min(1.0)
+            } else {
+                0.0
+            };
+            for (p, &r) in robot_index.iter().enumerate() {
+                self.frames.q[f][p] = q[r] + (default_q[r] - q[r]) * blend;
+                self.frames.qd[f][p] = if moving(k) { qd[r] } else { 0.0 };
+            }
+            self.frames.root[f] = self.reference.root[k.min(len - 1)];
+            if !self.reference.bodies.is_empty() {
+                self.frames.body[f].copy_from_slice(self.reference.body_pos_at(k));
+            }
+        }
+        for (p, &r) in robot_index.iter().enumerate() {
+            self.current_q[r] = self.frames.q[0][p];
+        }
+        psi
+    }
+}
