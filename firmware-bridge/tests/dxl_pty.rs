@@ -53,8 +53,12 @@ fn the_dynamixel2_driver_drives_emulated_servos_through_a_serial_device() {
         assert!((fb.q - c.q).abs() < 0.03, "q = {} for goal {}", fb.q, c.q);
     }
     d.disable().unwrap();
-    std::thread::sleep(Duration::from_millis(20));
-    assert!(!world.lock().unwrap().servo(0).torque_enabled());
+    // The broadcast has no answer: wait (bounded) until the served servo has taken it.
+    let give_up = std::time::Instant::now() + Duration::from_secs(10);
+    while world.lock().unwrap().servo(0).torque_enabled() {
+        assert!(std::time::Instant::now() < give_up, "torque still on");
+        std::thread::yield_now();
+    }
 }
 
 #[test]

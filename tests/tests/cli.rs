@@ -2,7 +2,9 @@
 
 use std::process::Command;
 
-use test_support::bin::robodeploy;
+use std::time::Duration;
+
+use test_support::bin::{Running, robodeploy, run};
 
 #[test]
 fn doctor_loads_both_native_libraries_and_models() {
@@ -66,56 +68,33 @@ fn help_teaches_the_commands() {
 
 #[test]
 fn can_scan_finds_the_motors_can_emulate_serves() {
-    use std::io::BufRead;
-    let mut emulate = robodeploy()
-        .args([
-            "can",
-            "emulate",
-            "--listen",
-            "127.0.0.1:0",
-            "--motor",
-            "1:DM-J4310",
-            "--motor",
-            "4:DM-J4310",
-            "--seconds",
-            "20",
-        ])
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut first = String::new();
-    let mut reader = std::io::BufReader::new(emulate.stdout.take().unwrap());
-    reader.read_line(&mut first).unwrap();
-    // Keep draining the server's output so it never writes into a closed pipe.
-    let drain = std::thread::Builder::new()
-        .name("drain".into())
-        .spawn(move || std::io::copy(&mut reader, &mut std::io::sink()))
-        .unwrap();
+    let mut emulate = Running::start(&[
+        "can",
+        "emulate",
+        "--listen",
+        "127.0.0.1:0",
+        "--motor",
+        "1:DM-J4310",
+        "--motor",
+        "4:DM-J4310",
+        "--seconds",
+        "20",
+    ]);
+    let first = emulate.wait_for("127.0.0.1:", Duration::from_secs(60));
     let addr = first.rsplit(' ').next().unwrap().trim().to_owned();
     assert!(addr.starts_with("127.0.0.1:"), "{first}");
-    let out = robodeploy()
-        .args([
-            "can",
-            "scan",
-            "--socketcand",
-            &addr,
-            "--model",
-            "DM-J4310",
-            "--ids",
-            "1-5",
-        ])
-        .output()
-        .unwrap();
-    let _ = emulate.kill();
-    let _ = emulate.wait();
-    let _ = drain.join();
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{stdout}{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let (ok, stdout, stderr) = run(&[
+        "can",
+        "scan",
+        "--socketcand",
+        &addr,
+        "--model",
+        "DM-J4310",
+        "--ids",
+        "1-5",
+    ]);
+    emulate.kill();
+    assert!(ok, "{stdout}{stderr}");
     assert!(stdout.contains("2 motor(s) answered out of 5 asked"), "{stdout}");
     // DaMiao motors reply on their master ID (motor ID + 0x10).
     assert!(
@@ -140,31 +119,19 @@ fn can_emulate_rejects_unknown_models_by_name() {
 
 #[test]
 fn dxl_scan_finds_the_servos_dxl_emulate_serves() {
-    use std::io::BufRead;
-    let mut emulate = robodeploy()
-        .args([
-            "dxl",
-            "emulate",
-            "--servo",
-            "1:XM430-W350",
-            "--servo",
-            "3:XL430-W250",
-            "--baud",
-            "4000000",
-            "--seconds",
-            "20",
-        ])
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut first = String::new();
-    let mut reader = std::io::BufReader::new(emulate.stdout.take().unwrap());
-    reader.read_line(&mut first).unwrap();
-    let drain = std::thread::Builder::new()
-        .name("drain".into())
-        .spawn(move || std::io::copy(&mut reader, &mut std::io::sink()))
-        .unwrap();
+    let mut emulate = Running::start(&[
+        "dxl",
+        "emulate",
+        "--servo",
+        "1:XM430-W350",
+        "--servo",
+        "3:XL430-W250",
+        "--baud",
+        "4000000",
+        "--seconds",
+        "20",
+    ]);
+    let first = emulate.wait_for("/dev/pts/", Duration::from_secs(60));
     let path = first
         .split(" on ")
         .nth(1)
@@ -172,21 +139,11 @@ fn dxl_scan_finds_the_servos_dxl_emulate_serves() {
         .unwrap()
         .to_owned();
     assert!(path.starts_with("/dev/pts/"), "{first}");
-    let out = robodeploy()
-        .args([
-            "dxl", "scan", "--port", &path, "--baud", "4000000", "--ids", "1-4",
-        ])
-        .output()
-        .unwrap();
-    let _ = emulate.kill();
-    let _ = emulate.wait();
-    let _ = drain.join();
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{stdout}{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let (ok, stdout, stderr) = run(&[
+        "dxl", "scan", "--port", &path, "--baud", "4000000", "--ids", "1-4",
+    ]);
+    emulate.kill();
+    assert!(ok, "{stdout}{stderr}");
     assert!(stdout.contains("2 servo(s) answered out of 4 asked"), "{stdout}");
     assert!(
         stdout.contains("   1   XM430-W350") && stdout.contains("   3   XL430-W250"),
@@ -227,60 +184,32 @@ fn dxl_emulate_rejects_bad_servos_and_rates_by_name() {
 
 #[test]
 fn sim_serve_exposes_the_biped_to_the_bus_scanners() {
-    use std::io::BufRead;
-    let mut serve = robodeploy()
-        .args(["sim", "serve", "--gantry", "--port", "0", "--seconds", "30"])
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut reader = std::io::BufReader::new(serve.stdout.take().unwrap());
-    let mut lines = Vec::new();
-    for _ in 0..5 {
-        let mut l = String::new();
-        reader.read_line(&mut l).unwrap();
-        lines.push(l);
-    }
-    let drain = std::thread::Builder::new()
-        .name("drain".into())
-        .spawn(move || std::io::copy(&mut reader, &mut std::io::sink()))
-        .unwrap();
-    let field = |prefix: &str| {
-        lines
-            .iter()
-            .find(|l| l.trim_start().starts_with(prefix))
-            .and_then(|l| l.split_whitespace().last())
-            .unwrap_or_else(|| panic!("no {prefix} line in {lines:?}"))
-            .to_owned()
+    let mut serve = Running::start(&["sim", "serve", "--gantry", "--port", "0", "--seconds", "30"]);
+    // The endpoints, one per line, the IMU's last.
+    serve.wait_for("imu", Duration::from_secs(60));
+    let last_field = |prefix: &str| {
+        let line = serve.seen(prefix).unwrap_or_else(|| panic!("no {prefix} line"));
+        line.split_whitespace().last().unwrap().to_owned()
     };
-    let dxl_path = field("dxl");
-    let can_addr = field("can  can0");
-    let dxl = robodeploy()
-        .args([
-            "dxl", "scan", "--port", &dxl_path, "--baud", "4000000", "--ids", "1-10",
-        ])
-        .output()
-        .unwrap();
-    let can = robodeploy()
-        .args([
-            "can",
-            "scan",
-            "--socketcand",
-            &can_addr,
-            "--model",
-            "AK80-9",
-            "--ids",
-            "1-8",
-        ])
-        .output()
-        .unwrap();
-    let _ = serve.kill();
-    let _ = serve.wait();
-    let _ = drain.join();
-    let dxl = String::from_utf8_lossy(&dxl.stdout);
+    let (dxl_path, can_addr) = (last_field("dxl"), last_field("can  can0"));
+    let (_, dxl, _) = run(&[
+        "dxl", "scan", "--port", &dxl_path, "--baud", "4000000", "--ids", "1-10",
+    ]);
+    let (_, can, _) = run(&[
+        "can",
+        "scan",
+        "--socketcand",
+        &can_addr,
+        "--model",
+        "AK80-9",
+        "--ids",
+        "1-8",
+    ]);
+    serve.kill();
+
     assert!(dxl.contains("8 servo(s) answered out of 10 asked"), "{dxl}");
     assert!(dxl.contains("   7   XL430-W250"), "{dxl}");
-    let can = String::from_utf8_lossy(&can.stdout);
+
     assert!(can.contains("6 motor(s) answered out of 8 asked"), "{can}");
 }
 
@@ -411,23 +340,25 @@ fn play_refuses_a_clip_beyond_the_limits_before_anything_moves() {
 
 #[test]
 fn sigint_soft_stops_a_looping_play() {
-    use std::io::Read;
-    let mut child = robodeploy()
-        .args(["play", "--no-record", "--end", "loop", "--clip"])
-        .arg(robots::reference_robot_path().with_file_name("clips/wave_and_look.csv"))
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    std::thread::sleep(std::time::Duration::from_millis(1500));
+    let clip = robots::reference_robot_path().with_file_name("clips/wave_and_look.csv");
+    let mut play = Running::start(&[
+        "play".as_ref(),
+        "--no-record".as_ref(),
+        "--end".as_ref(),
+        "loop".as_ref(),
+        "--clip".as_ref(),
+        clip.as_os_str(),
+    ]);
+    // Interrupt only once the policy is in command.
+    play.wait_for("soft start done", Duration::from_secs(120));
     let status = Command::new("kill")
-        .args(["-INT", &child.id().to_string()])
+        .args(["-INT", &play.id().to_string()])
         .status()
         .unwrap();
     assert!(status.success());
-    let mut stdout = String::new();
-    child.stdout.take().unwrap().read_to_string(&mut stdout).unwrap();
-    assert!(child.wait().unwrap().success(), "{stdout}");
+    let out = play.finish();
+    let stdout = out.stdout;
+    assert!(out.status.success(), "{stdout}");
     assert!(stdout.contains("Running → Stopping (stop requested)"), "{stdout}");
     assert!(
         stdout.contains("Stopping → Damped") && stdout.contains("Damped → Off"),
@@ -497,36 +428,27 @@ fn check_prints_the_layout_without_moving_anything() {
 
 #[test]
 fn a_udp_estop_damps_the_robot_at_once() {
-    use std::io::{BufRead, Read};
-    let mut child = robodeploy()
-        .args([
-            "play",
-            "--no-record",
-            "--end",
-            "loop",
-            "--estop-udp",
-            "127.0.0.1:0",
-        ])
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut reader = std::io::BufReader::new(child.stdout.take().unwrap());
-    let mut line = String::new();
-    let addr = loop {
-        line.clear();
-        assert!(reader.read_line(&mut line).unwrap() > 0, "no e-stop line");
-        if let Some(a) = line.trim().strip_prefix("e-stop: send ESTOP to udp://") {
-            break a.to_owned();
-        }
-    };
-    std::thread::sleep(std::time::Duration::from_millis(800));
+    let mut play = Running::start(&[
+        "play",
+        "--no-record",
+        "--end",
+        "loop",
+        "--estop-udp",
+        "127.0.0.1:0",
+    ]);
+    let line = play.wait_for("e-stop: send ESTOP to udp://", Duration::from_secs(120));
+    let addr = line
+        .trim()
+        .strip_prefix("e-stop: send ESTOP to udp://")
+        .unwrap()
+        .to_owned();
+    play.wait_for("soft start done", Duration::from_secs(120));
     let socket = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
     socket.send_to(b"hello", &addr).unwrap();
     socket.send_to(b"ESTOP", &addr).unwrap();
-    let mut rest = String::new();
-    reader.read_to_string(&mut rest).unwrap();
-    assert!(child.wait().unwrap().success(), "{rest}");
+    let out = play.finish();
+    let rest = out.stdout;
+    assert!(out.status.success(), "{rest}");
     let stop = rest
         .lines()
         .find(|l| l.contains("→ Stopping"))

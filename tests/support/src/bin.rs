@@ -58,3 +58,171 @@ pub fn robodeploy_path() -> PathBuf {
 pub fn robodeploy() -> Command {
     Command::new(robodeploy_path())
 }
+
+/// A `robodeploy` process whose output is read line by line as it comes: a test waits for the
+/// line that says the process is ready (never a fixed sleep), and both pipes are always drained,
+/// so the process never blocks on a full pipe.
+#[derive(Debug)]
+pub struct Running {
+    child: std::process::Child,
+    lines: std::sync::mpsc::Receiver<(Stream, String)>,
+    seen: Vec<(Stream, String)>,
+    readers: Vec<std::thread::JoinHandle<()>>,
+}
+
+/// Which pipe a line came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stream {
+    /// Standard output.
+    Stdout,
+    /// Standard error.
+    Stderr,
+}
+
+/// What a finished process said.
+#[derive(Debug)]
+pub struct Finished {
+    /// Its exit status.
+    pub status: std::process::ExitStatus,
+    /// Everything it wrote to standard output.
+    pub stdout: String,
+    /// Everything it wrote to standard error.
+    pub stderr: String,
+}
+
+impl Running {
+    /// Starts `robodeploy ARGS` with both pipes read.
+    ///
+    /// # Panics
+    /// When the process cannot start.
+    pub fn start<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> Self {
+        use std::io::BufRead;
+        use std::process::Stdio;
+        let mut child = robodeploy()
+            .args(args)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("robodeploy starts");
+        // Bounded: the readers wait for the test (and the process for them) past this many lines.
+        let (tx, lines) = std::sync::mpsc::sync_channel(1 << 16);
+        let mut readers = Vec::new();
+        let out = child
+            .stdout
+            .take()
+            .map(|p| (Stream::Stdout, Box::new(p) as Box<dyn std::io::Read + Send>));
+        let err = child
+            .stderr
+            .take()
+            .map(|p| (Stream::Stderr, Box::new(p) as Box<dyn std::io::Read + Send>));
+        for (stream, pipe) in [out, err].into_iter().flatten() {
+            let tx = tx.clone();
+            readers.push(
+                std::thread::Builder::new()
+                    .name(format!("{stream:?}"))
+                    .spawn(move || {
+                        for line in std::io::BufReader::new(pipe).lines() {
+                            let Ok(line) = line else { break };
+                            if tx.send((stream, line)).is_err() {
+                                break;
+                            }
+                        }
+                    })
+                    .expect("a reader thread starts"),
+            );
+        }
+        Self {
+            child,
+            lines,
+            seen: Vec::new(),
+            readers,
+        }
+    }
+
+    /// The process id.
+    pub fn id(&self) -> u32 {
+        self.child.id()
+    }
+
+    /// Waits (up to `timeout`) for a line on either pipe that contains `needle`, and returns it.
+    ///
+    /// # Panics
+    /// When the process ends or the time runs out first, with everything it printed.
+    pub fn wait_for(&mut self, needle: &str, timeout: std::time::Duration) -> String {
+        let give_up = std::time::Instant::now() + timeout;
+        loop {
+            let left = give_up.saturating_duration_since(std::time::Instant::now());
+            match self.lines.recv_timeout(left) {
+                Ok((stream, line)) => {
+                    let hit = line.contains(needle);
+                    self.seen.push((stream, line.clone()));
+                    if hit {
+                        return line;
+                    }
+                }
+                Err(e) => panic!("no line with {needle:?} ({e:?}); so far:\n{}", self.transcript()),
+            }
+        }
+    }
+
+    /// The first line seen so far that starts (after indentation) with `prefix`.
+    pub fn seen(&self, prefix: &str) -> Option<&str> {
+        self.seen
+            .iter()
+            .map(|(_, l)| l.as_str())
+            .find(|l| l.trim_start().starts_with(prefix))
+    }
+
+    fn transcript(&self) -> String {
+        self.seen.iter().map(|(_, l)| format!("{l}\n")).collect()
+    }
+
+    /// Waits for the process to end and returns all it printed.
+    ///
+    /// # Panics
+    /// When waiting fails.
+    pub fn finish(mut self) -> Finished {
+        // Read until both pipes close (the process ended), then reap it.
+        while let Ok(line) = self.lines.recv() {
+            self.seen.push(line);
+        }
+        for r in self.readers.drain(..) {
+            let _ = r.join();
+        }
+        let status = self.child.wait().expect("the process can be waited for");
+        let text = |s: Stream| {
+            self.seen
+                .iter()
+                .filter(|(k, _)| *k == s)
+                .map(|(_, l)| format!("{l}\n"))
+                .collect()
+        };
+        Finished {
+            status,
+            stdout: text(Stream::Stdout),
+            stderr: text(Stream::Stderr),
+        }
+    }
+}
+
+impl Running {
+    /// Stops the process (a server, say) and returns all it printed.
+    pub fn kill(mut self) -> Finished {
+        let _ = self.child.kill();
+        self.finish()
+    }
+}
+
+/// Runs `robodeploy ARGS` to the end: whether it succeeded, its stdout and its stderr.
+///
+/// # Panics
+/// When the process cannot start.
+pub fn run<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> (bool, String, String) {
+    let out = robodeploy().args(args).output().expect("robodeploy starts");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
