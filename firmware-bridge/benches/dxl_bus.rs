@@ -14,7 +14,6 @@
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use firmware_bridge::can::virtual_bus::SimWorld;
 use firmware_bridge::dxl::driver::{DxlBusDriver, DxlCommand, DxlDriverOptions, DxlJointConfig};
 use firmware_bridge::dxl::models::find;
 use firmware_bridge::dxl::packet::{self, Decoded};
@@ -22,6 +21,7 @@ use firmware_bridge::dxl::servo::{ServoConfig, XSeriesServo};
 use firmware_bridge::dxl::transport::{DxlTransport, LinkError, LockstepDxlPort, StatusPacket};
 use firmware_bridge::dxl::wire::{DxlRig, WireTiming};
 use firmware_bridge::plant::InertiaPlant;
+use firmware_bridge::time::SimWorld;
 use test_support::stats::Summary;
 
 const MODEL: &str = "XM430-W350";

@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
-use crate::can::virtual_bus::SimWorld;
+use crate::time::SimWorld;
 use crate::time::{BusInstant, SimInstant};
 
 /// A simulated world with serial lines (Dynamixel buses, IMU streams) a host can talk on.

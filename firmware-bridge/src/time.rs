@@ -1,4 +1,6 @@
-//! Simulated time for mock buses and emulated firmware.
+//! Simulated time for mock buses and emulated firmware: the [`SimInstant`] clock, the
+//! [`SimWorld`] that owns it (advanced by host ports in lockstep), the [`WallClockRunner`] that
+//! runs a world in real time, and the seeded [`SimRng`].
 //!
 //! Transports name their own `Instant` type (see [`crate::can::CanBus`]): hardware uses
 //! [`std::time::Instant`], mock buses in lockstep use [`SimInstant`], so the same driver code runs
@@ -97,6 +99,78 @@ impl SimRng {
         let u1 = self.next_f64().max(f64::MIN_POSITIVE);
         let u2 = self.next_f64();
         (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+    }
+}
+
+/// A simulated world that owns time: physics, firmware and the wires between them.
+///
+/// Host ports advance it only while the controller waits, so simulated time moves in lockstep
+/// with the controller, deterministically.
+pub trait SimWorld {
+    /// The world's clock.
+    fn now(&self) -> SimInstant;
+
+    /// Runs the world's next event if it is due no later than `limit`, else moves the clock to
+    /// `limit`. Returns the new time.
+    fn step_until(&mut self, limit: SimInstant) -> SimInstant;
+}
+
+/// Runs a simulated world in real time on its own thread, for serving it over real wires
+/// (socketcand, pseudo-terminals) to a controller in another process.
+#[derive(Debug)]
+pub struct WallClockRunner {
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    thread: Option<std::thread::JoinHandle<()>>,
+    start: std::time::Instant,
+}
+
+impl WallClockRunner {
+    /// Starts stepping `world` so that its clock follows the wall clock from now on, checking
+    /// every `resolution`.
+    pub fn spawn<W: SimWorld + Send + 'static>(
+        world: std::sync::Arc<std::sync::Mutex<W>>,
+        resolution: Duration,
+    ) -> std::io::Result<Self> {
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let start = std::time::Instant::now();
+        let flag = std::sync::Arc::clone(&stop);
+        let thread = std::thread::Builder::new()
+            .name("sim-wall-clock".into())
+            .spawn(move || {
+                let origin = world
+                    .lock()
+                    .unwrap_or_else(std::sync::PoisonError::into_inner)
+                    .now();
+                while !flag.load(std::sync::atomic::Ordering::Relaxed) {
+                    let target = origin + start.elapsed();
+                    {
+                        let mut w = world.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+                        while w.now() < target {
+                            w.step_until(target);
+                        }
+                    }
+                    std::thread::sleep(resolution);
+                }
+            })?;
+        Ok(Self {
+            stop,
+            thread: Some(thread),
+            start,
+        })
+    }
+
+    /// Wall time since the runner started: the timestamp for frames served to clients.
+    pub fn elapsed(&self) -> Duration {
+        self.start.elapsed()
+    }
+}
+
+impl Drop for WallClockRunner {
+    fn drop(&mut self) {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
     }
 }
 

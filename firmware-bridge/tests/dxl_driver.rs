@@ -4,7 +4,6 @@ use std::f64::consts::PI;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use firmware_bridge::can::virtual_bus::SimWorld;
 use firmware_bridge::dxl::driver::{
     DxlBusDriver, DxlCommand, DxlDriverOptions, DxlError, DxlFault, DxlJointConfig, DxlMode, ScanProblem,
 };
@@ -14,6 +13,7 @@ use firmware_bridge::dxl::table::{addr, hw};
 use firmware_bridge::dxl::transport::LockstepDxlPort;
 use firmware_bridge::dxl::wire::{DxlRig, WireTiming};
 use firmware_bridge::time::SimInstant;
+use firmware_bridge::time::SimWorld;
 use test_support::alloc::{CountingAllocator, count_allocations};
 
 #[global_allocator]

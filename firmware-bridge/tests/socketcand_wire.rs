@@ -6,12 +6,13 @@ use std::net::TcpStream;
 use std::time::Duration;
 
 use firmware_bridge::can::socketcand::{SocketcandClient, SocketcandServer};
-use firmware_bridge::can::virtual_bus::{VirtualCanBus, WallClockRunner};
+use firmware_bridge::can::virtual_bus::VirtualCanBus;
 use firmware_bridge::mit::driver::{JointCommand, MitBusDriver, MitJointConfig};
 use firmware_bridge::mit::firmware::MitFirmwareConfig;
 use firmware_bridge::mit::models::find;
 use firmware_bridge::mit::rig::MitRig;
 use firmware_bridge::plant::InertiaPlant;
+use firmware_bridge::time::WallClockRunner;
 
 struct Served {
     server: SocketcandServer,

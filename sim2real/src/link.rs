@@ -7,11 +7,11 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
 use firmware_bridge::can::socketcand::SocketcandClient;
-use firmware_bridge::can::virtual_bus::SimWorld;
 use firmware_bridge::dxl::driver::DxlDriverOptions;
 use firmware_bridge::dxl::transport::SerialDxlPort;
 use firmware_bridge::serial::{DeviceStream, LockstepStream};
 use firmware_bridge::time::SimInstant;
+use firmware_bridge::time::SimWorld;
 use robot_link::{BusPorts, BusRobot, GroundTruth, IoError, TickClock, WallClock};
 use robots::Robot;
 

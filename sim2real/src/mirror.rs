@@ -10,7 +10,7 @@
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use firmware_bridge::can::virtual_bus::{LockstepCanPort, SimWorld, VirtualCanBus, VirtualCanNode};
+use firmware_bridge::can::virtual_bus::{LockstepCanPort, VirtualCanBus, VirtualCanNode};
 use firmware_bridge::dxl::servo::{ReplyFault, ServoConfig, XSeriesServo};
 use firmware_bridge::dxl::table::hw;
 use firmware_bridge::dxl::transport::LockstepDxlPort;
@@ -20,6 +20,7 @@ use firmware_bridge::mit::codec::MotorFault;
 use firmware_bridge::mit::firmware::{InjectedFaults, MitFirmwareConfig, MitMotorFirmware};
 use firmware_bridge::plant::MotorPlant;
 use firmware_bridge::serial::{LockstepStream, SerialSimWorld, StreamLine};
+use firmware_bridge::time::SimWorld;
 use firmware_bridge::time::{SimInstant, SimRng};
 use firmware_bridge::{dxl, mit};
 use mujoco_rs::prelude::*;

@@ -7,8 +7,8 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use firmware_bridge::can::socketcand::SocketcandServer;
-use firmware_bridge::can::virtual_bus::WallClockRunner;
 use firmware_bridge::serial::PtyServer;
+use firmware_bridge::time::WallClockRunner;
 
 use crate::mirror::Mirror;
 

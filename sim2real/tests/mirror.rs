@@ -35,15 +35,11 @@ impl Host {
             self.inner
                 .command_positions(&self.robot, &self.default_pose)
                 .unwrap();
-            for (d, _) in &self.inner.mit {
-                log.extend(d.feedback().iter().map(|f| f.q.to_bits()));
-            }
-            for (d, _) in &self.inner.dxl {
-                log.extend(d.feedback().iter().map(|f| f.q.to_bits()));
-            }
-            if let Some(r) = self.inner.imu.poll().unwrap() {
-                log.extend(r.sample.gyro.map(f64::to_bits));
-                log.extend(r.sample.quat.map(f64::to_bits));
+            let s = self.inner.state();
+            log.extend(s.q.iter().map(|q| q.to_bits()));
+            if s.imu_missed == 0 {
+                log.extend(s.gyro.map(f64::to_bits));
+                log.extend(s.quat.map(f64::to_bits));
             }
             self.inner.wait_until(start + TICK * k);
         }
@@ -79,8 +75,8 @@ fn the_biped_stands_ten_seconds_under_its_own_firmware_pd() {
     assert!(w.stats().physics_steps >= 10_000 && w.stats().imu_outputs >= 1_990);
     // The IMU says the same: gravity along its z.
     drop(w);
-    let imu = h.inner.imu.poll().unwrap().unwrap();
-    assert!((imu.sample.accel[2] - 9.81).abs() < 1.0, "{:?}", imu.sample.accel);
+    let accel = h.inner.state().accel;
+    assert!((accel[2] - 9.81).abs() < 1.0, "{accel:?}");
 }
 
 #[test]
@@ -143,15 +139,13 @@ fn scheduled_faults_reach_the_devices_at_their_time() {
         ..MirrorConfig::default()
     });
     h.run(0.4);
-    assert!(h.inner.dxl[0].0.feedback().iter().all(|f| !f.is_stale()));
+    assert!(h.inner.state().missed.iter().all(|&m| m == 0));
     h.run(0.2);
-    let name = |i: &usize| h.robot.config.joints[*i].name.clone();
-    let (dxl, dxl_joints) = &h.inner.dxl[0];
-    let elbow = dxl_joints.iter().position(|i| name(i) == "left_elbow").unwrap();
-    assert!(dxl.feedback()[elbow].is_stale());
-    let (right, idx) = &h.inner.mit[1];
-    let knee = idx.iter().position(|i| name(i) == "right_knee").unwrap();
-    assert!(right.feedback()[knee].is_stale());
+    let index = |name: &str| h.robot.config.joints.iter().position(|j| j.name == name).unwrap();
+    let missed = &h.inner.state().missed;
+    assert!(missed[index("left_elbow")] > 0 && missed[index("right_knee")] > 0);
+    let stale = missed.iter().filter(|&&m| m > 0).count();
+    assert_eq!(stale, 2, "only the two faulted joints: {missed:?}");
     assert_eq!(h.inner.world.lock().unwrap().stats().faults_applied, 2);
 }
 

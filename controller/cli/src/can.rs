@@ -8,12 +8,13 @@ use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand};
 use firmware_bridge::can::socketcan::SocketCanBus;
 use firmware_bridge::can::socketcand::{SocketcandClient, SocketcandServer};
-use firmware_bridge::can::virtual_bus::{VirtualCanBus, WallClockRunner};
+use firmware_bridge::can::virtual_bus::VirtualCanBus;
 use firmware_bridge::mit::driver::scan;
 use firmware_bridge::mit::firmware::MitFirmwareConfig;
 use firmware_bridge::mit::models;
 use firmware_bridge::mit::rig::MitRig;
 use firmware_bridge::plant::InertiaPlant;
+use firmware_bridge::time::WallClockRunner;
 
 /// CAN bus tools for MIT-mode motors (CubeMars AK, DaMiao DM-J).
 #[derive(Debug, Subcommand)]

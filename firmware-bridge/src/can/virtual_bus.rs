@@ -14,7 +14,7 @@ use std::time::Duration;
 
 use super::wire_time::{frame_bits, frame_time};
 use super::{CanBus, CanError, CanFrame, CanId};
-use crate::time::{SimInstant, SimRng};
+use crate::time::{SimInstant, SimRng, SimWorld};
 
 /// Receive FIFO depth of each node.
 pub const RX_FIFO_DEPTH: usize = 256;
@@ -283,19 +283,6 @@ impl VirtualCanNode {
     }
 }
 
-/// A simulated world that owns time: physics, firmware and the wires between them.
-///
-/// Host ports advance it only while the controller waits, so simulated time moves in lockstep
-/// with the controller, deterministically.
-pub trait SimWorld {
-    /// The world's clock.
-    fn now(&self) -> SimInstant;
-
-    /// Runs the world's next event if it is due no later than `limit`, else moves the clock to
-    /// `limit`. Returns the new time.
-    fn step_until(&mut self, limit: SimInstant) -> SimInstant;
-}
-
 /// The controller's adapter on a virtual bus in a lockstep world: receiving with a deadline runs
 /// the world forward event by event until a frame arrives or the deadline passes.
 #[derive(Debug)]
@@ -511,64 +498,5 @@ mod tests {
             .unwrap();
         assert_eq!(got.id(), CanId::Standard(3));
         assert!(port.now() < deadline + Duration::from_millis(1));
-    }
-}
-
-/// Runs a simulated world in real time on its own thread, for serving it over real wires
-/// (socketcand, pseudo-terminals) to a controller in another process.
-#[derive(Debug)]
-pub struct WallClockRunner {
-    stop: Arc<std::sync::atomic::AtomicBool>,
-    thread: Option<std::thread::JoinHandle<()>>,
-    start: std::time::Instant,
-}
-
-impl WallClockRunner {
-    /// Starts stepping `world` so that its clock follows the wall clock from now on, checking
-    /// every `resolution`.
-    pub fn spawn<W: SimWorld + Send + 'static>(
-        world: Arc<Mutex<W>>,
-        resolution: Duration,
-    ) -> std::io::Result<Self> {
-        let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
-        let start = std::time::Instant::now();
-        let flag = Arc::clone(&stop);
-        let thread = std::thread::Builder::new()
-            .name("sim-wall-clock".into())
-            .spawn(move || {
-                let origin = world
-                    .lock()
-                    .unwrap_or_else(std::sync::PoisonError::into_inner)
-                    .now();
-                while !flag.load(std::sync::atomic::Ordering::Relaxed) {
-                    let target = origin + start.elapsed();
-                    {
-                        let mut w = world.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-                        while w.now() < target {
-                            w.step_until(target);
-                        }
-                    }
-                    std::thread::sleep(resolution);
-                }
-            })?;
-        Ok(Self {
-            stop,
-            thread: Some(thread),
-            start,
-        })
-    }
-
-    /// Wall time since the runner started: the timestamp for frames served to clients.
-    pub fn elapsed(&self) -> Duration {
-        self.start.elapsed()
-    }
-}
-
-impl Drop for WallClockRunner {
-    fn drop(&mut self) {
-        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
-        if let Some(t) = self.thread.take() {
-            let _ = t.join();
-        }
     }
 }

@@ -13,10 +13,10 @@ use std::time::Duration;
 use super::models::DxlModel;
 use super::packet::{self, Decoded, PacketError};
 use super::servo::{Reply, ReplySlot, ServoConfig, XSeriesServo};
-use crate::can::virtual_bus::SimWorld;
 use crate::plant::InertiaPlant;
 use crate::serial::SerialSimWorld;
 use crate::time::SimInstant;
+use crate::time::SimWorld;
 
 /// Baud rate of an X-series Baud Rate code (address 8).
 pub const fn baud_of_code(code: u8) -> Option<u32> {

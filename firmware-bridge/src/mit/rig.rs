@@ -10,9 +10,10 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use super::firmware::{MitFirmwareConfig, MitMotorFirmware};
-use crate::can::virtual_bus::{LockstepCanPort, SimWorld, VirtualCanBus, VirtualCanNode};
+use crate::can::virtual_bus::{LockstepCanPort, VirtualCanBus, VirtualCanNode};
 use crate::plant::InertiaPlant;
 use crate::time::SimInstant;
+use crate::time::SimWorld;
 
 /// One motor on the rig.
 #[derive(Debug)]
