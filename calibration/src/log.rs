@@ -27,6 +27,11 @@ struct Row {
     targets: Option<Vec<JointTarget>>,
 }
 
+/// The first command of a log beyond the motion limits: when, which joint, by how much.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct LimitViolation(pub String);
+
 /// The ticks of a calibration.
 #[derive(Debug, Clone, Default)]
 pub struct CommandLog {
@@ -72,7 +77,7 @@ impl CommandLog {
 
     /// The first command beyond `limits`, if any: the torque its PD law asks for on the state it
     /// was computed from, and the speed of its target against the previous one.
-    pub fn check(&self, limits: &MotionLimits, period: f64) -> Result<(), String> {
+    pub fn check(&self, limits: &MotionLimits, period: f64) -> Result<(), LimitViolation> {
         let mut previous: Option<&[JointTarget]> = None;
         for row in &self.rows {
             let Some(targets) = &row.targets else {
@@ -82,18 +87,18 @@ impl CommandLog {
             for (j, t) in targets.iter().enumerate() {
                 let torque = t.kp * (t.q - row.q[j]) - t.kd * row.qd[j];
                 if torque.abs() > limits.torque[j] * (1.0 + 1e-9) {
-                    return Err(format!(
+                    return Err(LimitViolation(format!(
                         "t = {:.3} s ({}): {} asked for {torque:.3} N·m, limit {:.3}",
                         row.t, row.step, self.joints[j], limits.torque[j]
-                    ));
+                    )));
                 }
                 if let Some(p) = previous {
                     let speed = (t.q - p[j].q).abs() / period;
                     if speed > limits.speed[j] * (1.0 + 1e-9) {
-                        return Err(format!(
+                        return Err(LimitViolation(format!(
                             "t = {:.3} s ({}): {} target moved at {speed:.3} rad/s, limit {:.3}",
                             row.t, row.step, self.joints[j], limits.speed[j]
-                        ));
+                        )));
                     }
                 }
             }
@@ -103,7 +108,7 @@ impl CommandLog {
     }
 
     /// Writes the log as CSV: `t,step,joint,q,qd,target,kp,kd` (target, kp, kd empty when limp).
-    pub fn write_csv(&self, path: &Path) -> Result<(), String> {
+    pub fn write_csv(&self, path: &Path) -> Result<(), robots::FileError> {
         let mut out = String::from("t,step,joint,q,qd,target,kp,kd\n");
         for row in &self.rows {
             for (j, name) in self.joints.iter().enumerate() {
@@ -121,9 +126,9 @@ impl CommandLog {
             }
         }
         if let Some(dir) = path.parent() {
-            std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+            std::fs::create_dir_all(dir).map_err(|e| robots::FileError::new(dir, e.to_string()))?;
         }
-        std::fs::write(path, out).map_err(|e| format!("{}: {e}", path.display()))
+        std::fs::write(path, out).map_err(|e| robots::FileError::new(path, e.to_string()))
     }
 }
 
@@ -156,10 +161,10 @@ mod tests {
         log.record("hold", Duration::ZERO, &sample(0.0), None);
         assert!(log.check(&limits, 0.02).is_ok());
         log.record("move", Duration::ZERO, &sample(0.0), Some(&[t(0.2)]));
-        assert!(log.check(&limits, 0.02).unwrap_err().contains("2.000 N·m"));
+        assert!(log.check(&limits, 0.02).unwrap_err().0.contains("2.000 N·m"));
         let mut fast = CommandLog::new(vec!["knee".into()]);
         fast.record("move", Duration::ZERO, &sample(0.0), Some(&[t(0.0)]));
         fast.record("move", Duration::ZERO, &sample(0.0), Some(&[t(0.02)]));
-        assert!(fast.check(&limits, 0.02).unwrap_err().contains("1.000 rad/s"));
+        assert!(fast.check(&limits, 0.02).unwrap_err().0.contains("1.000 rad/s"));
     }
 }

@@ -82,8 +82,14 @@ pub enum CalibrationError {
     #[error("IMU: {0}")]
     Imu(String),
     /// The results could not be saved.
-    #[error("{0}")]
-    Save(String),
+    #[error("cannot save the calibration: {0}")]
+    Save(robots::FileError),
+}
+
+impl From<robots::FileError> for CalibrationError {
+    fn from(e: robots::FileError) -> Self {
+        Self::Save(e)
+    }
 }
 
 impl From<Aborted> for CalibrationError {
@@ -510,7 +516,7 @@ impl<'a, R: Rig + ?Sized, O: Operator + ?Sized> Session<'a, R, O> {
                 joint.gear,
                 self.options.gear_tolerance,
             )
-            .map_err(|message| CalibrationError::Joint {
+            .map_err(|solve::SolveError(message)| CalibrationError::Joint {
                 joint: joint.name.clone(),
                 message,
             })?;
@@ -528,7 +534,7 @@ impl<'a, R: Rig + ?Sized, O: Operator + ?Sized> Session<'a, R, O> {
         mapping: JointMapping,
     ) -> Result<JointResult, CalibrationError> {
         let joint = &self.robot.config.joints[j];
-        let fail = |message: String| CalibrationError::Joint {
+        let fail = |solve::SolveError(message)| CalibrationError::Joint {
             joint: joint.name.clone(),
             message,
         };
@@ -641,7 +647,7 @@ impl<'a, R: Rig + ?Sized, O: Operator + ?Sized> Session<'a, R, O> {
         // Mounting from the attitude's vertical (the fused attitude does not carry the
         // accelerometer's bias).
         let (mounting, tilt_measured) =
-            solve::imu_mounting(upright.up, tilted.up).map_err(CalibrationError::Imu)?;
+            solve::imu_mounting(upright.up, tilted.up).map_err(|e| CalibrationError::Imu(e.0))?;
         let rpy = spatial::rpy_of_mat(&mounting).map(f64::to_degrees);
         let result = ImuResult {
             calibration: ImuCalibration {

@@ -49,14 +49,11 @@ pub fn run_calibration<R: Rig + ?Sized, O: Operator + ?Sized>(
     }
     let outcome = outcome?;
     let path = robots::calibration::path_for(&robot.path);
-    let old = robots::calibration::Calibration::read(&path).map_err(CalibrationError::Save)?;
+    let old = robots::calibration::Calibration::read(&path)?;
     let previous = old
         .is_some()
         .then(|| robots::calibration::previous_path_for(&robot.path));
-    let calibration = outcome
-        .calibration(note, old)
-        .write_beside(&robot.path)
-        .map_err(|m| CalibrationError::Save(format!("cannot write the calibration: {m}")))?;
+    let calibration = outcome.calibration(note, old).write_beside(&robot.path)?;
     Ok((
         outcome,
         Written {

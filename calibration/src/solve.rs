@@ -20,18 +20,20 @@ pub fn joint_from_two_poses(
     theta: [f64; 2],
     gear: f64,
     tolerance: f64,
-) -> Result<JointMapping, String> {
+) -> Result<JointMapping, SolveError> {
     let dq = q[1] - q[0];
     if dq.abs() < 1e-3 {
-        return Err(format!("the two jig poses differ by only {dq:.4} rad"));
+        return Err(SolveError(format!(
+            "the two jig poses differ by only {dq:.4} rad"
+        )));
     }
     let ratio = (theta[1] - theta[0]) / dq;
     if ((ratio.abs() - gear) / gear).abs() > tolerance {
-        return Err(format!(
+        return Err(SolveError(format!(
             "the actuator turned {:.4} rad for {dq:.4} rad of joint (ratio {ratio:.3}, gear {gear}): \
              the joint slipped in the jig, or the gear is wrong",
             theta[1] - theta[0]
-        ));
+        )));
     }
     let direction = ratio.signum();
     Ok(JointMapping {
@@ -51,14 +53,14 @@ pub fn actuator_range(mapping: JointMapping, gear: f64, range: [f64; 2]) -> [f64
 /// centre (2048), so the wrap point (0/4095) sits half a turn from the middle of the range.
 /// `mapping.zero` is measured with Homing Offset 0. Returns the offset and the new zero (rad,
 /// relative to tick 2048, Homing Offset included). Refuses ranges wider than a turn.
-pub fn dynamixel_homing(mapping: JointMapping, range: [f64; 2]) -> Result<(i32, f64), String> {
+pub fn dynamixel_homing(mapping: JointMapping, range: [f64; 2]) -> Result<(i32, f64), SolveError> {
     let [lo, hi] = actuator_range(mapping, 1.0, range);
     let per_tick = dxl_models::rad_per_tick();
     let span_ticks = (hi - lo) / per_tick;
     if span_ticks >= 4096.0 - 2.0 * WRAP_MARGIN_TICKS {
-        return Err(format!(
+        return Err(SolveError(format!(
             "the joint's range spans {span_ticks:.0} ticks: more than one turn of the encoder"
-        ));
+        )));
     }
     let centre_ticks = 2048.0 + (lo + hi) / 2.0 / per_tick;
     let homing = (2048.0 - centre_ticks).round() as i32;
@@ -70,20 +72,30 @@ pub const WRAP_MARGIN_TICKS: f64 = 64.0;
 
 /// An MIT motor's range must stay inside the protocol's position field (±`p_max`), where the
 /// 16-bit value wraps; a margin of 5 % is kept.
-pub fn check_mit_range(mapping: JointMapping, gear: f64, range: [f64; 2], p_max: f64) -> Result<(), String> {
+pub fn check_mit_range(
+    mapping: JointMapping,
+    gear: f64,
+    range: [f64; 2],
+    p_max: f64,
+) -> Result<(), SolveError> {
     let [lo, hi] = actuator_range(mapping, gear, range);
     let limit = 0.95 * p_max;
     if lo < -limit || hi > limit {
-        return Err(format!(
+        return Err(SolveError(format!(
             "on the motor the joint's range is [{lo:.3}, {hi:.3}] rad, crossing the position field's \
              wrap at ±{p_max} rad: set the motor's zero near the middle of the joint's range (MIT \
              set-zero frame, joint in the jig), then calibrate again"
-        ));
+        )));
     }
     Ok(())
 }
 
 use robots::spatial::{self, Mat3, angle_between, cross, unit};
+
+/// Why measured poses do not give an answer (too close together, out of range), for a person.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct SolveError(pub String);
 
 /// TRIAD: the rotation R with `R·u1 = r1` exactly and `R·u2` as close to `r2` as the angle
 /// between them allows (`u` measured in one frame, `r` the same directions in the other).
@@ -112,13 +124,13 @@ pub fn rotation_between(a: &Mat3, b: &Mat3) -> f64 {
 /// The IMU's mounting (IMU axes → base axes) from the mean specific force (the "up" direction in
 /// IMU axes) with the base upright and with the base pitched forward (nose down) about its y axis.
 /// Returns the rotation and the measured tilt between the poses, rad.
-pub fn imu_mounting(up_upright: [f64; 3], up_pitched: [f64; 3]) -> Result<(Mat3, f64), String> {
+pub fn imu_mounting(up_upright: [f64; 3], up_pitched: [f64; 3]) -> Result<(Mat3, f64), SolveError> {
     let alpha = angle_between(up_upright, up_pitched);
     if alpha < 10f64.to_radians() {
-        return Err(format!(
+        return Err(SolveError(format!(
             "the two poses differ by only {:.1}° of tilt: tilt the robot at least 10° (20–40° is best)",
             alpha.to_degrees()
-        ));
+        )));
     }
     // Pitching forward by α about base y turns "up", seen from the base, to (−sin α, 0, cos α).
     let r2 = [-alpha.sin(), 0.0, alpha.cos()];
@@ -145,7 +157,7 @@ mod tests {
     #[test]
     fn a_slipped_joint_or_a_wrong_gear_is_refused() {
         let e = joint_from_two_poses([0.0, 0.2], [0.0, 0.05], 1.0, 0.1).unwrap_err();
-        assert!(e.contains("slipped"), "{e}");
+        assert!(e.0.contains("slipped"), "{e}");
         assert!(joint_from_two_poses([0.0, 0.0], [0.0, 0.2], 1.0, 0.1).is_err());
     }
 
@@ -174,6 +186,7 @@ mod tests {
         assert!(
             check_mit_range(m, 1.0, [-2.0, 0.5], 12.5)
                 .unwrap_err()
+                .0
                 .contains("wrap")
         );
         assert!(

@@ -6,6 +6,8 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+use crate::FileError;
+
 /// One joint's measured actuator mapping.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields)]
@@ -72,29 +74,30 @@ pub fn previous_path_for(robot_toml: &Path) -> PathBuf {
 
 impl Calibration {
     /// Reads `path`; a missing file is no calibration (`Ok(None)`).
-    pub fn read(path: &Path) -> Result<Option<Self>, String> {
+    pub fn read(path: &Path) -> Result<Option<Self>, FileError> {
         match std::fs::read_to_string(path) {
             Ok(text) => toml::from_str(&text)
                 .map(Some)
-                .map_err(|e| format!("{}: {}", path.display(), e.message())),
+                .map_err(|e| FileError::new(path, e.message())),
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
-            Err(e) => Err(format!("{}: cannot read: {e}", path.display())),
+            Err(e) => Err(FileError::new(path, format!("cannot read: {e}"))),
         }
     }
 
     /// Writes beside `robot_toml`: the old file becomes `calibration.previous.toml`, the new one
     /// is written to a temporary file first and renamed into place.
-    pub fn write_beside(&self, robot_toml: &Path) -> Result<PathBuf, String> {
+    pub fn write_beside(&self, robot_toml: &Path) -> Result<PathBuf, FileError> {
         let path = path_for(robot_toml);
-        let text = toml::to_string_pretty(self).map_err(|e| e.to_string())?;
+        let text = toml::to_string_pretty(self).map_err(|e| FileError::new(&path, e.to_string()))?;
         let tmp = path.with_extension("toml.partial");
-        std::fs::write(&tmp, text).map_err(|e| format!("{}: {e}", tmp.display()))?;
+        std::fs::write(&tmp, text).map_err(|e| FileError::new(&tmp, e.to_string()))?;
         if path.exists() {
             let previous = previous_path_for(robot_toml);
-            std::fs::copy(&path, &previous)
-                .map_err(|e| format!("cannot keep {} as {}: {e}", path.display(), previous.display()))?;
+            std::fs::copy(&path, &previous).map_err(|e| {
+                FileError::new(&path, format!("cannot keep it as {}: {e}", previous.display()))
+            })?;
         }
-        std::fs::rename(&tmp, &path).map_err(|e| format!("{}: {e}", path.display()))?;
+        std::fs::rename(&tmp, &path).map_err(|e| FileError::new(&path, e.to_string()))?;
         Ok(path)
     }
 }

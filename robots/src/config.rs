@@ -255,7 +255,7 @@ impl Robot {
         // What calibration measured overrides the description.
         let cal_path = crate::calibration::path_for(path);
         if let Some(cal) =
-            crate::calibration::Calibration::read(&cal_path).map_err(|m| err("calibration", m))?
+            crate::calibration::Calibration::read(&cal_path).map_err(|e| err("calibration", e.to_string()))?
         {
             for (name, c) in &cal.joints {
                 let j = config
@@ -278,7 +278,7 @@ impl Robot {
             }
         }
         let mjcf_path = path.parent().unwrap_or(Path::new(".")).join(&config.mjcf);
-        let mjcf = mjcf::summarize(&mjcf_path).map_err(|m| err("mjcf", m))?;
+        let mjcf = mjcf::summarize(&mjcf_path).map_err(|e| err("mjcf", e.to_string()))?;
         let robot = Self {
             config,
             path: path.to_path_buf(),

@@ -15,6 +15,26 @@ pub use config::{
     Robot, RobotConfig, RobotError,
 };
 
+/// A file that could not be read, parsed or written, and what was wrong with it.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{}: {message}", path.display())]
+pub struct FileError {
+    /// The file.
+    pub path: std::path::PathBuf,
+    /// What is wrong.
+    pub message: String,
+}
+
+impl FileError {
+    /// `message` about `path`.
+    pub fn new(path: &std::path::Path, message: impl Into<String>) -> Self {
+        Self {
+            path: path.to_path_buf(),
+            message: message.into(),
+        }
+    }
+}
+
 /// The reference robot shipped with the project: `robots/biped/robot.toml`.
 pub fn reference_robot_path() -> std::path::PathBuf {
     std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("biped/robot.toml")

@@ -4,6 +4,8 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+use crate::FileError;
+
 /// A joint declared in the MJCF.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MjcfJoint {
@@ -31,15 +33,20 @@ pub struct MjcfSummary {
 }
 
 /// Reads `path`. Errors name the file and what is wrong.
-pub fn summarize(path: &Path) -> Result<MjcfSummary, String> {
-    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
-    let doc =
-        roxmltree::Document::parse(&text).map_err(|e| format!("{}: not valid XML: {e}", path.display()))?;
+pub fn summarize(path: &Path) -> Result<MjcfSummary, FileError> {
+    summarize_text(path).map_err(|message| FileError {
+        path: path.to_path_buf(),
+        message,
+    })
+}
+
+fn summarize_text(path: &Path) -> Result<MjcfSummary, String> {
+    let text = std::fs::read_to_string(path).map_err(|e| format!("cannot read: {e}"))?;
+    let doc = roxmltree::Document::parse(&text).map_err(|e| format!("not valid XML: {e}"))?;
     let root = doc.root_element();
     if root.tag_name().name() != "mujoco" {
         return Err(format!(
-            "{}: root element is <{}>, not <mujoco>",
-            path.display(),
+            "root element is <{}>, not <mujoco>",
             root.tag_name().name()
         ));
     }

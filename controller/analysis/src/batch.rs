@@ -13,17 +13,7 @@ use controller::player::{PlayOptions, PlaySummary};
 use controller::policy::PolicyLayout;
 use controller::sim::lockstep_player;
 
-/// An error with its sources, `a: b: c`.
-fn chain(e: &dyn std::error::Error) -> String {
-    let mut out = e.to_string();
-    let mut source = e.source();
-    while let Some(s) = source {
-        out.push_str(": ");
-        out.push_str(&s.to_string());
-        source = s.source();
-    }
-    out
-}
+use crate::AnalysisError;
 
 /// One run's outcome.
 #[derive(Debug, Clone)]
@@ -32,7 +22,7 @@ pub struct BatchRun {
     pub clip: usize,
     /// Seed.
     pub seed: u64,
-    /// The run's summary, or why it could not run.
+    /// The run's summary, or why it could not run (the error's whole message, for the table).
     pub result: Result<PlaySummary, String>,
 }
 
@@ -79,7 +69,7 @@ pub struct BatchSpec<'a> {
 pub fn run_batch(
     spec: &BatchSpec<'_>,
     progress: &(dyn Fn(usize, usize) + Sync),
-) -> Result<(Vec<ClipTotals>, Vec<BatchRun>), String> {
+) -> Result<(Vec<ClipTotals>, Vec<BatchRun>), AnalysisError> {
     let BatchSpec {
         robot,
         policy,
@@ -90,12 +80,11 @@ pub fn run_batch(
         jobs,
     } = *spec;
     // Load and check everything before starting any run.
-    let layout = PolicyLayout::load(policy, robot).map_err(|e| e.to_string())?;
+    let layout = PolicyLayout::load(policy, robot)?;
     let mut references = Vec::with_capacity(clips.len());
     for c in clips {
-        let clip = Clip::load(c).map_err(|e| e.to_string())?;
-        references
-            .push(Reference::from_clip(&clip, robot, layout.manifest.rate_hz).map_err(|e| e.to_string())?);
+        let clip = Clip::load(c)?;
+        references.push(Reference::from_clip(&clip, robot, layout.manifest.rate_hz)?);
     }
     let work: Vec<(usize, u64)> = (0..clips.len())
         .flat_map(|c| seeds.iter().map(move |&s| (c, s)))
@@ -124,8 +113,10 @@ pub fn run_batch(
                         config,
                         Arc::new(AtomicBool::new(false)),
                     )
-                    .map_err(|e| chain(&e))
-                    .and_then(|(mut p, mut clock, _w)| p.run(&mut clock).map_err(|e| chain(&e)));
+                    .map_err(|e| robot_link::message_chain(&e))
+                    .and_then(|(mut p, mut clock, _w)| {
+                        p.run(&mut clock).map_err(|e| robot_link::message_chain(&e))
+                    });
                     results
                         .lock()
                         .unwrap_or_else(PoisonError::into_inner)

@@ -6,6 +6,8 @@ use std::path::Path;
 
 use controller::npy::NpyArray;
 use controller::options::RunMetadata;
+
+use crate::AnalysisError;
 use controller::policy::PolicyLayout;
 
 /// Observations per policy step (running ticks only), and where they came from.
@@ -18,31 +20,33 @@ pub struct ObsTrace {
 }
 
 /// Reads the observations of a recorded run's Running ticks, and what the run was made from.
-pub fn trace_from_run(path: &Path) -> Result<(ObsTrace, RunMetadata), String> {
-    let bytes = std::fs::read(path).map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
-    let stream =
-        mcap::MessageStream::new(&bytes).map_err(|e| format!("{}: not an MCAP file: {e}", path.display()))?;
+pub fn trace_from_run(path: &Path) -> Result<(ObsTrace, RunMetadata), AnalysisError> {
+    run_trace(path).map_err(|m| AnalysisError::file(path, m))
+}
+
+fn run_trace(path: &Path) -> Result<(ObsTrace, RunMetadata), String> {
+    let bytes = std::fs::read(path).map_err(|e| format!("cannot read: {e}"))?;
+    let stream = mcap::MessageStream::new(&bytes).map_err(|e| format!("not an MCAP file: {e}"))?;
     let mut trace = ObsTrace {
         steps: Vec::new(),
         ticks: Vec::new(),
     };
     let mut run = std::collections::BTreeMap::new();
     for message in stream {
-        let m = message.map_err(|e| format!("{}: {e}", path.display()))?;
+        let m = message.map_err(|e| format!("{e}"))?;
         if m.channel.topic == "/replay" && run.is_empty() {
             run = m.channel.metadata.clone();
         }
         if m.channel.topic != "/policy" {
             continue;
         }
-        let v: serde_json::Value =
-            serde_json::from_slice(&m.data).map_err(|e| format!("{}: /policy: {e}", path.display()))?;
+        let v: serde_json::Value = serde_json::from_slice(&m.data).map_err(|e| format!("/policy: {e}"))?;
         if v["running"].as_bool() != Some(true) {
             continue;
         }
         let obs = v["obs"]
             .as_array()
-            .ok_or_else(|| format!("{}: /policy without obs", path.display()))?
+            .ok_or_else(|| "/policy without obs".to_owned())?
             .iter()
             .map(|x| x.as_f64().map_or(f32::NAN, |x| x as f32))
             .collect();
@@ -50,38 +54,36 @@ pub fn trace_from_run(path: &Path) -> Result<(ObsTrace, RunMetadata), String> {
         trace.ticks.push(v["tick"].as_u64().unwrap_or(0));
     }
     if trace.steps.is_empty() {
-        return Err(format!("{}: no Running ticks with observations", path.display()));
+        return Err("no Running ticks with observations".to_owned());
     }
     let run = run
         .get("run")
-        .ok_or_else(|| format!("{}: the recording does not say how it was run", path.display()))
-        .and_then(|json| {
-            RunMetadata::from_json(json).map_err(|e| format!("{}: run metadata: {e}", path.display()))
-        })?;
+        .ok_or_else(|| "the recording does not say how it was run".to_owned())
+        .and_then(|json| RunMetadata::from_json(json).map_err(|e| format!("run metadata: {e}")))?;
     Ok((trace, run))
 }
 
 /// Reads an observation export: `.npz` with an `obs` array (steps × values), or CSV with one
 /// observation per row (a header row is skipped).
-pub fn trace_from_export(path: &Path) -> Result<ObsTrace, String> {
+pub fn trace_from_export(path: &Path) -> Result<ObsTrace, AnalysisError> {
+    export_trace(path).map_err(|m| AnalysisError::file(path, m))
+}
+
+fn export_trace(path: &Path) -> Result<ObsTrace, String> {
     let steps: Vec<Vec<f32>> = if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("npz")) {
-        let arrays = controller::npy::read_npz(path).map_err(|e| format!("{}: {e}", path.display()))?;
+        let arrays = controller::npy::read_npz(path).map_err(|e| e.message)?;
         match arrays.get("obs") {
             Some(NpyArray::Numbers { shape, data }) if shape.len() == 2 => data
                 .chunks(shape[1])
                 .map(|r| r.iter().map(|&x| x as f32).collect())
                 .collect(),
             Some(_) => {
-                return Err(format!(
-                    "{}: obs must be a steps × values number array",
-                    path.display()
-                ));
+                return Err("obs must be a steps × values number array".into());
             }
-            None => return Err(format!("{}: no obs array", path.display())),
+            None => return Err("no obs array".into()),
         }
     } else {
-        let text =
-            std::fs::read_to_string(path).map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
+        let text = std::fs::read_to_string(path).map_err(|e| format!("cannot read: {e}"))?;
         let mut rows = Vec::new();
         for (i, line) in text
             .lines()
@@ -92,7 +94,7 @@ pub fn trace_from_export(path: &Path) -> Result<ObsTrace, String> {
             match parsed {
                 Ok(row) => rows.push(row),
                 Err(_) if rows.is_empty() => {} // a header
-                Err(_) => return Err(format!("{}: line {}: not numbers", path.display(), i + 1)),
+                Err(_) => return Err(format!("line {}: not numbers", i + 1)),
             }
         }
         rows
@@ -126,15 +128,15 @@ pub fn compare(
     b: &ObsTrace,
     layout: &PolicyLayout,
     tolerance: f64,
-) -> Result<Vec<TermDiff>, String> {
+) -> Result<Vec<TermDiff>, AnalysisError> {
     let steps = a.steps.len().min(b.steps.len());
     for (name, t) in [("first", a), ("second", b)] {
         if let Some(s) = t.steps.iter().take(steps).find(|s| s.len() != layout.obs_len) {
-            return Err(format!(
+            return Err(AnalysisError::Mismatch(format!(
                 "the {name} trace has {} values per step; the policy's observation has {}",
                 s.len(),
                 layout.obs_len
-            ));
+            )));
         }
     }
     let mut out: Vec<TermDiff> = layout

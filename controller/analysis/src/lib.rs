@@ -3,6 +3,9 @@
 
 pub mod batch;
 pub mod compare;
+pub mod error;
 pub mod motion_check;
 pub mod replay;
 pub mod report;
+
+pub use error::AnalysisError;

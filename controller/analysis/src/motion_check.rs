@@ -149,9 +149,12 @@ impl std::fmt::Display for MotionQuality {
 }
 
 /// Analyses `reference` on `robot`'s model.
-pub fn analyze(robot: &Robot, reference: &Reference) -> Result<MotionQuality, String> {
-    let model = sim2real::mujoco::load_model(&robot.mjcf_path).map_err(|e| e.to_string())?;
-    let index = ModelIndex::of_robot(&model, robot).map_err(|e| e.to_string())?;
+pub fn analyze(
+    robot: &Robot,
+    reference: &Reference,
+) -> Result<MotionQuality, controller::fk::KinematicsError> {
+    let model = sim2real::mujoco::load_model(&robot.mjcf_path)?;
+    let index = ModelIndex::of_robot(&model, robot)?;
     let (root_q, root_v) = (index.root.qpos, index.root.dof);
     let joints = &robot.config.joints;
     let adr: Vec<(usize, usize)> = index.joints.iter().map(|j| (j.qpos, j.dof)).collect();

@@ -13,7 +13,9 @@ use robots::Robot;
 
 use controller::clip::{Clip, Reference};
 use controller::options::RunMetadata;
-use controller::player::{PlayError, Player};
+
+use crate::AnalysisError;
+use controller::player::Player;
 use controller::policy::PolicyLayout;
 use robot_link::GroundTruth;
 use robot_link::TickClock;
@@ -59,22 +61,25 @@ fn numbers(v: &serde_json::Value, key: &str) -> Result<Vec<f64>, String> {
 }
 
 /// Reads the `/replay` channel of an MCAP file written by `play`.
-pub fn read_recording(path: &Path) -> Result<Recording, String> {
-    let bytes = std::fs::read(path).map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
-    let stream =
-        mcap::MessageStream::new(&bytes).map_err(|e| format!("{}: not an MCAP file: {e}", path.display()))?;
+pub fn read_recording(path: &Path) -> Result<Recording, AnalysisError> {
+    recording(path).map_err(|m| AnalysisError::file(path, m))
+}
+
+fn recording(path: &Path) -> Result<Recording, String> {
+    let bytes = std::fs::read(path).map_err(|e| format!("cannot read: {e}"))?;
+    let stream = mcap::MessageStream::new(&bytes).map_err(|e| format!("not an MCAP file: {e}"))?;
     let mut run = BTreeMap::new();
     let mut ticks = Vec::new();
     for message in stream {
-        let m = message.map_err(|e| format!("{}: {e}", path.display()))?;
+        let m = message.map_err(|e| format!("{e}"))?;
         if m.channel.topic != "/replay" {
             continue;
         }
         if run.is_empty() {
             run = m.channel.metadata.clone();
         }
-        let v: serde_json::Value = serde_json::from_slice(&m.data)
-            .map_err(|e| format!("{}: /replay message: {e}", path.display()))?;
+        let v: serde_json::Value =
+            serde_json::from_slice(&m.data).map_err(|e| format!("/replay message: {e}"))?;
         let (q, qd, tau) = (numbers(&v, "q")?, numbers(&v, "qd")?, numbers(&v, "tau")?);
         let n = q.len();
         let mut state = RobotState::new(n);
@@ -294,29 +299,22 @@ impl std::fmt::Display for ReplayReport {
 }
 
 /// Replays `path` through the controller.
-pub fn replay(path: &Path) -> Result<ReplayReport, PlayError> {
-    let rec = read_recording(path).map_err(PlayError::Setup)?;
+pub fn replay(path: &Path) -> Result<ReplayReport, AnalysisError> {
+    let rec = read_recording(path)?;
     let run = rec
         .run
         .get("run")
-        .ok_or_else(|| {
-            PlayError::Setup(format!(
-                "{}: the recording does not say how it was run",
-                path.display()
-            ))
-        })
+        .ok_or_else(|| AnalysisError::file(path, "the recording does not say how it was run"))
         .and_then(|json| {
-            RunMetadata::from_json(json)
-                .map_err(|e| PlayError::Setup(format!("{}: run metadata: {e}", path.display())))
+            RunMetadata::from_json(json).map_err(|e| AnalysisError::file(path, format!("run metadata: {e}")))
         })?;
-    let robot = Robot::load(&run.robot).map_err(|e| PlayError::Setup(e.to_string()))?;
+    let robot = Robot::load(&run.robot).map_err(|e| AnalysisError::file(&run.robot, e.to_string()))?;
     let mut layout = PolicyLayout::load(&run.policy, &robot)?;
     if let Some(values) = &run.command {
         layout.set_command(values)?;
     }
-    let clip = Clip::load(&run.clip).map_err(|e| PlayError::Setup(e.to_string()))?;
-    let reference = Reference::from_clip(&clip, &robot, layout.manifest.rate_hz)
-        .map_err(|e| PlayError::Setup(e.to_string()))?;
+    let clip = Clip::load(&run.clip)?;
+    let reference = Reference::from_clip(&clip, &robot, layout.manifest.rate_hz)?;
     let options = run.options;
     let joints = robot.config.joints.iter().map(|j| j.name.clone()).collect();
     let ticks = Arc::new(rec.ticks);

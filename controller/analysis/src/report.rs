@@ -8,6 +8,8 @@ use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::Path;
 
+use crate::AnalysisError;
+
 /// The headline numbers of a run.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct RunSummary {
@@ -58,15 +60,18 @@ fn floats(v: &serde_json::Value) -> Vec<f64> {
     })
 }
 
-fn read(path: &Path) -> Result<Series, String> {
-    let bytes = std::fs::read(path).map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
-    let stream =
-        mcap::MessageStream::new(&bytes).map_err(|e| format!("{}: not an MCAP file: {e}", path.display()))?;
+fn read(path: &Path) -> Result<Series, AnalysisError> {
+    read_series(path).map_err(|m| AnalysisError::file(path, m))
+}
+
+fn read_series(path: &Path) -> Result<Series, String> {
+    let bytes = std::fs::read(path).map_err(|e| format!("cannot read: {e}"))?;
+    let stream = mcap::MessageStream::new(&bytes).map_err(|e| format!("not an MCAP file: {e}"))?;
     let mut s = Series::default();
     for message in stream {
-        let m = message.map_err(|e| format!("{}: {e}", path.display()))?;
-        let v: serde_json::Value = serde_json::from_slice(&m.data)
-            .map_err(|e| format!("{}: {}: {e}", path.display(), m.channel.topic))?;
+        let m = message.map_err(|e| format!("{e}"))?;
+        let v: serde_json::Value =
+            serde_json::from_slice(&m.data).map_err(|e| format!("{}: {e}", m.channel.topic))?;
         match m.channel.topic.as_str() {
             "/joint_state" => {
                 if s.joints.is_empty() {
@@ -105,7 +110,7 @@ fn read(path: &Path) -> Result<Series, String> {
         }
     }
     if s.q.is_empty() {
-        return Err(format!("{}: no /joint_state messages", path.display()));
+        return Err("no /joint_state messages".to_owned());
     }
     Ok(s)
 }
@@ -266,12 +271,15 @@ fn svg_plot(title: &str, unit: &str, series: &[Line<'_>]) -> String {
 }
 
 /// Writes the report of the run `log` into `dir`; returns the summary.
-pub fn write_report(log: &Path, dir: &Path) -> Result<RunSummary, String> {
+pub fn write_report(log: &Path, dir: &Path) -> Result<RunSummary, AnalysisError> {
     let s = read(log)?;
     let summary = summarize(&s);
-    std::fs::create_dir_all(dir).map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
-    let json = serde_json::to_string_pretty(&summary).map_err(|e| e.to_string())?;
-    std::fs::write(dir.join("summary.json"), json).map_err(|e| e.to_string())?;
+    std::fs::create_dir_all(dir).map_err(|e| AnalysisError::write(dir, e))?;
+    let json = serde_json::to_string_pretty(&summary)
+        .map_err(|e| AnalysisError::write(&dir.join("summary.json"), std::io::Error::other(e)))?;
+    let write =
+        |name: &Path, text: &str| std::fs::write(name, text).map_err(|e| AnalysisError::write(name, e));
+    write(&dir.join("summary.json"), &json)?;
     let mut md = format!("# Run report: {}\n\n", log.display());
     let _ = writeln!(md, "| metric | value |\n|---|---|");
     let _ = writeln!(
@@ -319,7 +327,7 @@ pub fn write_report(log: &Path, dir: &Path) -> Result<RunSummary, String> {
     for (j, e) in &summary.joint_rmse_deg {
         let _ = writeln!(md, "- {j}: {e:.2}°");
     }
-    std::fs::write(dir.join("summary.md"), &md).map_err(|e| e.to_string())?;
+    write(&dir.join("summary.md"), &md)?;
 
     let mut html = String::from(
         "<!doctype html><html><head><meta charset=\"utf-8\"><title>robodeploy run report</title></head><body style=\"font-family:sans-serif;max-width:1200px\">\n",
@@ -376,13 +384,13 @@ pub fn write_report(log: &Path, dir: &Path) -> Result<RunSummary, String> {
         &[("bus I/O", "#393", io), ("compute", "#c60", compute)],
     ));
     html.push_str("</body></html>\n");
-    std::fs::write(dir.join("report.html"), &html).map_err(|e| e.to_string())?;
+    write(&dir.join("report.html"), &html)?;
     // Each plot also as its own SVG file, for documents that embed pictures.
     let plots = dir.join("plots");
-    std::fs::create_dir_all(&plots).map_err(|e| format!("cannot create {}: {e}", plots.display()))?;
+    std::fs::create_dir_all(&plots).map_err(|e| AnalysisError::write(&plots, e))?;
     for (i, svg) in html.split("<figure>").skip(1).enumerate() {
         let svg = &svg[..svg.find("</figure>").unwrap_or(svg.len())];
-        std::fs::write(plots.join(format!("{i:02}.svg")), svg).map_err(|e| e.to_string())?;
+        write(&plots.join(format!("{i:02}.svg")), svg)?;
     }
     Ok(summary)
 }

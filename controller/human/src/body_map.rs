@@ -6,6 +6,8 @@
 
 use robots::spatial::{self, Mat3};
 
+use crate::HumanError;
+
 /// A rigid frame: position and orientation (world, or a heading frame).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Frame {
@@ -57,18 +59,22 @@ impl RetargetMap {
         target: &[Frame],
         params: &[PairParams],
         z_shift: f64,
-    ) -> Result<Self, String> {
+    ) -> Result<Self, HumanError> {
         if !(h_source.is_finite() && h_source > 0.0 && h_target.is_finite() && h_target > 0.0) {
-            return Err(format!(
+            return Err(HumanError::map(format!(
                 "root heights must be positive: source {h_source} m, target {h_target} m"
-            ));
+            )));
         }
         if source.len() != target.len() || source.len() != params.len() {
-            return Err("one source frame, one target frame and one parameter set per pair".into());
+            return Err(HumanError::map(
+                "one source frame, one target frame and one parameter set per pair",
+            ));
         }
         for (k, p) in params.iter().enumerate() {
             if spatial::norm(p.p_pos) > 0.5 || spatial::norm(p.p_ori) > 0.5 {
-                return Err(format!("pair {k}: |p_pos| and |p_ori| must be ≤ 0.5"));
+                return Err(HumanError::map(format!(
+                    "pair {k}: |p_pos| and |p_ori| must be ≤ 0.5"
+                )));
             }
         }
         let scale = h_target / h_source;
@@ -170,13 +176,18 @@ impl UserCalibration {
     /// From the devices' poses (robot axes: x forward, z up) while the user stands in a T-pose:
     /// stature from the headset's height, the head joint behind and below the eyes, each wrist
     /// short of its controller along the outstretched arm.
-    pub fn from_tpose(hmd: &Frame, left: &Frame, right: &Frame, template: &Template) -> Result<Self, String> {
+    pub fn from_tpose(
+        hmd: &Frame,
+        left: &Frame,
+        right: &Frame,
+        template: &Template,
+    ) -> Result<Self, HumanError> {
         let stature = hmd.pos[2] / template.eye_height;
         if !(1.0..=2.3).contains(&stature) {
-            return Err(format!(
+            return Err(HumanError::Calibration(format!(
                 "a headset {:.2} m above the floor is not a standing adult (stature {stature:.2} m): stand up straight for the T-pose",
                 hmd.pos[2]
-            ));
+            )));
         }
         let heading = spatial::yaw(spatial::heading(&hmd.rot));
         let [fwd, up] = template.head_from_eyes;
@@ -186,9 +197,9 @@ impl UserCalibration {
         );
         let span = spatial::norm(spatial::sub(left.pos, right.pos));
         if span < 0.8 * stature {
-            return Err(format!(
+            return Err(HumanError::Calibration(format!(
                 "controllers {span:.2} m apart: hold both arms straight out to the sides for the T-pose"
-            ));
+            )));
         }
         let wrist = |c: &Frame| {
             let mut out = spatial::sub(c.pos, head);
@@ -312,6 +323,7 @@ mod tests {
         assert!(
             UserCalibration::from_tpose(&hmd, &down, &right, &t)
                 .unwrap_err()
+                .to_string()
                 .contains("arms straight")
         );
     }

@@ -7,6 +7,7 @@
 
 use std::path::Path;
 
+use crate::HumanError;
 use robots::spatial::{IDENTITY, Mat3, mat_apply as apply, mat_mul as mul, transpose};
 
 /// One joint of the hierarchy.
@@ -66,19 +67,26 @@ pub struct Pose {
     pub rot: Vec<Mat3>,
 }
 
-fn err(path: &Path, line: usize, message: impl std::fmt::Display) -> String {
-    format!("{}:{line}: {message}", path.display())
+fn err(path: &Path, line: usize, message: impl std::fmt::Display) -> HumanError {
+    HumanError::Motion {
+        file: path.to_path_buf(),
+        line,
+        message: message.to_string(),
+    }
 }
 
 impl Bvh {
     /// Reads and parses `path`.
-    pub fn load(path: &Path) -> Result<Self, String> {
-        let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    pub fn load(path: &Path) -> Result<Self, HumanError> {
+        let text = std::fs::read_to_string(path).map_err(|source| HumanError::Read {
+            file: path.to_path_buf(),
+            source,
+        })?;
         Self::parse(path, &text)
     }
 
     /// Parses BVH text; errors name the file and line.
-    pub fn parse(path: &Path, text: &str) -> Result<Self, String> {
+    pub fn parse(path: &Path, text: &str) -> Result<Self, HumanError> {
         let mut lines = text.lines().enumerate().map(|(i, l)| (i + 1, l.trim()));
         let mut joints: Vec<BvhJoint> = Vec::new();
         let mut stack: Vec<Option<usize>> = Vec::new();
@@ -176,7 +184,7 @@ impl Bvh {
         if joints.is_empty() || !stack.is_empty() {
             return Err(err(path, last, "the HIERARCHY is incomplete"));
         }
-        let mut next = |what: &str| -> Result<(usize, &str), String> {
+        let mut next = |what: &str| -> Result<(usize, &str), HumanError> {
             lines
                 .by_ref()
                 .find(|(_, l)| !l.is_empty())
@@ -238,10 +246,13 @@ impl Bvh {
         } else if has("Hips") && has("LeftHand") {
             Dialect::Cmu
         } else {
-            return Err(format!(
-                "{}: unknown skeleton (root {:?}): known are CMU (Hips, LeftHand, …) and Bandai (joint_Root, Hand_L, …)",
-                path.display(),
-                joints[0].name
+            return Err(err(
+                path,
+                0,
+                format!(
+                    "unknown skeleton (root {:?}): known are CMU (Hips, LeftHand, …) and Bandai (joint_Root, Hand_L, …)",
+                    joints[0].name
+                ),
             ));
         };
         Ok(Self {
@@ -389,9 +400,13 @@ mod tests {
         let path = Path::new("bad.bvh");
         let good = "HIERARCHY\nROOT Hips\n{\nOFFSET 0 0 0\nCHANNELS 6 Xposition Yposition Zposition Zrotation Yrotation Xrotation\nJOINT LeftHand\n{\nOFFSET 1 0 0\nCHANNELS 3 Zrotation Yrotation Xrotation\nEnd Site\n{\nOFFSET 1 0 0\n}\n}\n}\nMOTION\nFrames: 1\nFrame Time: 0.01\n0 18 0 0 0 0 0 0 0\n";
         assert!(Bvh::parse(path, good).is_ok());
-        let e = Bvh::parse(path, &good.replace("0 18 0 0 0 0 0 0 0", "0 18 0 0 0 0 0 0")).unwrap_err();
+        let e = Bvh::parse(path, &good.replace("0 18 0 0 0 0 0 0 0", "0 18 0 0 0 0 0 0"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("bad.bvh:19") && e.contains("8 values"), "{e}");
-        let e = Bvh::parse(path, &good.replace("Frames: 1", "Frames: 2")).unwrap_err();
+        let e = Bvh::parse(path, &good.replace("Frames: 1", "Frames: 2"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("Frames: 2, but 1 rows"), "{e}");
         let e = Bvh::parse(
             path,
@@ -400,14 +415,18 @@ mod tests {
                 "Zrotation Wrotation Xrotation\nEnd",
             ),
         )
-        .unwrap_err();
+        .unwrap_err()
+        .to_string();
         assert!(e.contains(":9:") && e.contains("Wrotation"), "{e}");
-        let e = Bvh::parse(path, &good.replace("0 18 0 0", "0 NaN 0 0")).unwrap_err();
+        let e = Bvh::parse(path, &good.replace("0 18 0 0", "0 NaN 0 0"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("not finite") || e.contains("not a number"), "{e}");
         assert!(Bvh::parse(path, "").is_err());
         assert!(
             Bvh::parse(path, &good.replace("LeftHand", "Paw"))
                 .unwrap_err()
+                .to_string()
                 .contains("unknown skeleton")
         );
     }

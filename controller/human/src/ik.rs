@@ -8,6 +8,8 @@ use robots::spatial;
 use robots::{OrientationCompare, Robot};
 use sim2real::model_index::{self, FrameId};
 
+use crate::HumanError;
+
 /// Where a frame is on the model.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum FrameRef {
@@ -55,18 +57,23 @@ pub struct Ik {
 impl Ik {
     /// A solver on `robot`'s MJCF for `frames` (body or site names). `free_root`: the root moves
     /// too; `locked`: robot joints (policy order) the solver leaves where they are.
-    pub fn new(robot: &Robot, frames: &[String], free_root: bool, locked: &[usize]) -> Result<Self, String> {
-        let model = sim2real::mujoco::load_model(&robot.mjcf_path).map_err(|e| e.to_string())?;
+    pub fn new(
+        robot: &Robot,
+        frames: &[String],
+        free_root: bool,
+        locked: &[usize],
+    ) -> Result<Self, HumanError> {
+        let model = sim2real::mujoco::load_model(&robot.mjcf_path)?;
         let frames = frames
             .iter()
             .map(|f| match model_index::frame(&model, f) {
                 Ok(FrameId::Body(b)) => Ok(FrameRef::Body(b)),
                 Ok(FrameId::Site { site, body }) => Ok(FrameRef::Site { site, body }),
-                Err(e) => Err(format!("{e} ({})", robot.mjcf_path.display())),
+                Err(e) => Err(HumanError::Model(e)),
             })
             .collect::<Result<Vec<_>, _>>()?;
         // A fixed-base model (no free root) solves with the root where the model puts it.
-        let root_body = model_index::body(&model, &robot.config.root_body).map_err(|e| e.to_string())?;
+        let root_body = model_index::body(&model, &robot.config.root_body)?;
         let root_joint = model.body_jntadr()[root_body];
         let root = (root_joint >= 0).then(|| {
             let j = root_joint as usize;
@@ -77,14 +84,14 @@ impl Ik {
             .joints
             .iter()
             .map(|j| {
-                let ids = model_index::joint(&model, &j.mjcf_joint).map_err(|e| e.to_string())?;
+                let ids = model_index::joint(&model, &j.mjcf_joint)?;
                 Ok(Slot {
                     qpos: ids.qpos,
                     dof: ids.dof,
                     limits: j.position_limits,
                 })
             })
-            .collect::<Result<Vec<_>, String>>()?;
+            .collect::<Result<Vec<_>, HumanError>>()?;
         let nv = model.ffi().nv as usize;
         let mut active = vec![false; nv];
         if let (true, Some((_, dof))) = (free_root, root) {

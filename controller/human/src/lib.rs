@@ -5,6 +5,7 @@
 
 pub mod body_map;
 pub mod bvh;
+pub mod error;
 pub mod ik;
 pub mod live;
 pub mod osc;
@@ -12,3 +13,5 @@ pub mod retarget;
 pub mod teleop;
 pub mod vmc;
 pub mod vr_send;
+
+pub use error::HumanError;

@@ -11,6 +11,7 @@ use robots::{HumanBody, Robot};
 
 use super::bvh::{Bvh, Dialect, Pose};
 use super::ik::{Ik, IkGoal};
+use crate::HumanError;
 
 /// The BVH joint standing for a human body, per dialect.
 pub fn bvh_joint(dialect: Dialect, body: HumanBody) -> &'static str {
@@ -104,42 +105,48 @@ pub struct Retargeted {
 }
 
 /// Retargets `bvh` onto `robot`.
-pub fn retarget(robot: &Robot, bvh: &Bvh, options: &RetargetOptions) -> Result<Retargeted, String> {
+pub fn retarget(robot: &Robot, bvh: &Bvh, options: &RetargetOptions) -> Result<Retargeted, HumanError> {
     let config = robot.config.retarget.as_ref().ok_or_else(|| {
-        format!(
+        HumanError::map(format!(
             "{}: no [retarget] section: which robot body stands for which human one?",
             robot.path.display()
-        )
+        ))
     })?;
     if options.nominal_frame >= bvh.frames() || options.start_frame + 1 >= bvh.frames() {
-        return Err(format!(
+        return Err(HumanError::map(format!(
             "nominal frame {} and start frame {}, but the recording has {} frames",
             options.nominal_frame,
             options.start_frame,
             bvh.frames()
-        ));
+        )));
     }
     if !(options.rate_hz.is_finite() && options.rate_hz > 0.0) {
-        return Err(format!("rate {} Hz is not a rate", options.rate_hz));
+        return Err(HumanError::map(format!(
+            "rate {} Hz is not a rate",
+            options.rate_hz
+        )));
     }
     let human: Vec<usize> = config
         .pairs
         .iter()
         .map(|p| {
             let name = bvh_joint(bvh.dialect, p.human);
-            bvh.joint(name)
-                .ok_or_else(|| format!("the recording has no {name} joint for {:?}", p.human))
+            bvh.joint(name).ok_or_else(|| {
+                HumanError::map(format!("the recording has no {name} joint for {:?}", p.human))
+            })
         })
         .collect::<Result<_, _>>()?;
     let [lh, rh] = hips(bvh.dialect).map(|n| bvh.joint(n));
     let (Some(lh), Some(rh)) = (lh, rh) else {
-        return Err("the recording has no thigh joints to tell its heading".into());
+        return Err(HumanError::map(
+            "the recording has no thigh joints to tell its heading",
+        ));
     };
     let root_pair = config
         .pairs
         .iter()
         .position(|p| p.human == HumanBody::Root)
-        .ok_or("no root pair")?;
+        .ok_or_else(|| HumanError::map("[retarget] pairs no robot frame with the root"))?;
 
     // The human, turned to face +x and moved over the origin at the nominal frame.
     let nominal = bvh.pose(options.nominal_frame);

@@ -14,6 +14,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, Instant};
 
+use crate::HumanError;
 use crate::body_map::{Frame, PairParams, RetargetMap, Template, UserCalibration, joint_from_device};
 use robots::spatial;
 use robots::{HumanBody, Robot};
@@ -171,18 +172,18 @@ struct Worker {
 impl Teleop {
     /// Starts the worker for `robot` on `receiver`'s tracks. The robot's [retarget] section must
     /// pair `head`, `left_hand` and `right_hand` with robot frames.
-    pub fn start(robot: &Robot, receiver: &VmcReceiver, options: TeleopOptions) -> Result<Self, String> {
+    pub fn start(robot: &Robot, receiver: &VmcReceiver, options: TeleopOptions) -> Result<Self, HumanError> {
         let config = robot
             .config
             .retarget
             .as_ref()
-            .ok_or_else(|| format!("{}: no [retarget] section", robot.path.display()))?;
+            .ok_or_else(|| HumanError::map(format!("{}: no [retarget] section", robot.path.display())))?;
         let pair = |b: HumanBody| {
             config.pairs.iter().find(|p| p.human == b).ok_or_else(|| {
-                format!(
+                HumanError::map(format!(
                     "{}: [retarget] pairs no robot frame with {b:?}",
                     robot.path.display()
-                )
+                ))
             })
         };
         let pairs = [pair(BODIES[0])?, pair(BODIES[1])?, pair(BODIES[2])?];
@@ -216,7 +217,7 @@ impl Teleop {
         let arm_joints = [arm(1), arm(2)];
         let dt = 1.0 / options.rate_hz;
         let period = Duration::try_from_secs_f64(dt)
-            .map_err(|_| format!("control rate {} Hz is not a rate", options.rate_hz))?;
+            .map_err(|_| HumanError::map(format!("control rate {} Hz is not a rate", options.rate_hz)))?;
         let worker = Worker {
             weights: pairs.map(|p| (p.position_weight, p.orientation_weight)),
             params: pairs.map(|p| PairParams {
@@ -273,7 +274,7 @@ impl Teleop {
                     worker.update(&t, now, start, &mut f, &st);
                 }
             })
-            .map_err(|e| format!("cannot start the teleoperation thread: {e}"))?;
+            .map_err(|e| HumanError::io("cannot start the teleoperation thread", e))?;
         Ok(Self {
             live: Some(live),
             standby,
@@ -437,7 +438,7 @@ impl Worker {
     }
 
     /// Averages the T-pose samples, calibrates the user and builds the map.
-    fn calibrate(&mut self) -> Result<String, String> {
+    fn calibrate(&mut self) -> Result<String, HumanError> {
         let n = self.tpose.len() as f64;
         let mean = |k: usize| {
             let mut f = self.tpose[self.tpose.len() - 1][k];
@@ -458,8 +459,8 @@ impl Worker {
             UserCalibration::from_tpose(&hmd, &left, &right, &self.options.template)?
         };
         let heading = spatial::heading(&hmd.rot);
-        let frames =
-            user_frames(&[Some(hmd), Some(left), Some(right)], &user, heading).ok_or("no headset")?;
+        let frames = user_frames(&[Some(hmd), Some(left), Some(right)], &user, heading)
+            .ok_or_else(|| HumanError::Calibration("no headset".into()))?;
         let head_height = frames.head.pos[2];
         let source = [
             frames.head,

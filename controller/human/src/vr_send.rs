@@ -15,6 +15,7 @@ use super::bvh::Bvh;
 use super::osc::{self, Arg};
 use super::retarget::bvh_joint;
 use super::vmc::{robot_to_unity_position, robot_to_unity_quat};
+use crate::HumanError;
 use robots::HumanBody;
 
 /// How the session is sent.
@@ -62,11 +63,11 @@ pub struct Rig {
 
 impl Rig {
     /// The device rig of `bvh`, measured on its first frame (a T-pose).
-    pub fn new(bvh: &Bvh) -> Result<Self, String> {
+    pub fn new(bvh: &Bvh) -> Result<Self, HumanError> {
         let find = |b: HumanBody| {
             let name = bvh_joint(bvh.dialect, b);
             bvh.joint(name)
-                .ok_or_else(|| format!("the recording has no {name} joint"))
+                .ok_or_else(|| HumanError::map(format!("the recording has no {name} joint")))
         };
         let joints = [
             find(HumanBody::Head)?,
@@ -154,15 +155,17 @@ pub fn send(
     options: &SendOptions,
     stop: &AtomicBool,
     sent: &mut dyn FnMut(Duration, usize),
-) -> Result<u64, String> {
+) -> Result<u64, HumanError> {
     let rig = Rig::new(bvh)?;
-    let local: SocketAddr = if to.is_ipv4() { "127.0.0.1:0" } else { "[::1]:0" }
-        .parse()
-        .map_err(|e| format!("{e}"))?;
-    let socket = UdpSocket::bind(local).map_err(|e| format!("cannot open a UDP socket: {e}"))?;
+    let local = if to.is_ipv4() {
+        SocketAddr::from(([127, 0, 0, 1], 0))
+    } else {
+        SocketAddr::from((std::net::Ipv6Addr::LOCALHOST, 0))
+    };
+    let socket = UdpSocket::bind(local).map_err(|e| HumanError::io("cannot open a UDP socket", e))?;
     let mut rng = SimRng::new(options.seed);
     let period = Duration::try_from_secs_f64(1.0 / options.rate_hz)
-        .map_err(|_| format!("{} Hz is not a sending rate", options.rate_hz))?;
+        .map_err(|_| HumanError::map(format!("{} Hz is not a sending rate", options.rate_hz)))?;
     let start = Instant::now();
     let mut buf = Vec::with_capacity(512);
     let mut count = 0u64;
@@ -190,7 +193,7 @@ pub fn send(
         }
         socket
             .send_to(&buf, to)
-            .map_err(|e| format!("cannot send to {to}: {e}"))?;
+            .map_err(|e| HumanError::io(format!("cannot send to {to}"), e))?;
         sent(start.elapsed(), frame);
         count += 1;
     }

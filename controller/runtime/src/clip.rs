@@ -63,7 +63,7 @@ impl Clip {
             place: place.to_owned(),
             message,
         };
-        let arrays = crate::npy::read_npz(path).map_err(|m| err("file", m))?;
+        let arrays = crate::npy::read_npz(path).map_err(|e| err("file", e.message))?;
         let numbers = |name: &str, cols: Option<usize>| -> Result<(usize, Vec<f64>), ClipError> {
             match arrays.get(name) {
                 Some(NpyArray::Numbers { shape, data }) => match (shape.as_slice(), cols) {

@@ -6,14 +6,29 @@ use sim2real::model_index::{self, ModelIndex};
 
 use crate::clip::Reference;
 
+/// The robot's model could not give the reference's body positions.
+#[derive(Debug, thiserror::Error)]
+pub enum KinematicsError {
+    /// MuJoCo could not load the model.
+    #[error(transparent)]
+    Model(#[from] sim2real::mujoco::MujocoError),
+    /// The model lacks a body or joint the robot names.
+    #[error(transparent)]
+    Names(#[from] model_index::ModelIndexError),
+}
+
 /// Positions of `bodies` at every tick of `reference`, relative to the reference root in its
 /// heading frame (yaw only): `ticks × bodies × 3` values.
-pub fn body_positions(robot: &Robot, reference: &Reference, bodies: &[String]) -> Result<Vec<f64>, String> {
-    let model = sim2real::mujoco::load_model(&robot.mjcf_path).map_err(|e| e.to_string())?;
-    let index = ModelIndex::of_robot(&model, robot).map_err(|e| e.to_string())?;
+pub fn body_positions(
+    robot: &Robot,
+    reference: &Reference,
+    bodies: &[String],
+) -> Result<Vec<f64>, KinematicsError> {
+    let model = sim2real::mujoco::load_model(&robot.mjcf_path)?;
+    let index = ModelIndex::of_robot(&model, robot)?;
     let body_ids = bodies
         .iter()
-        .map(|b| model_index::body(&model, b).map_err(|e| format!("{e} ({})", robot.mjcf_path.display())))
+        .map(|b| model_index::body(&model, b))
         .collect::<Result<Vec<_>, _>>()?;
     let root_qpos = index.root.qpos;
     let joint_qpos: Vec<usize> = index.joints.iter().map(|j| j.qpos).collect();

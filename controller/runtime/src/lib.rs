@@ -22,8 +22,3 @@ pub mod reference;
 pub mod safety;
 pub mod sim;
 pub mod telemetry;
-
-/// Loads a robot model with the pinned MuJoCo (for kinematics inside the controller's tools).
-pub(crate) fn sim_model(mjcf: &std::path::Path) -> Result<mujoco_rs::prelude::MjModel, String> {
-    sim2real::mujoco::load_model(mjcf).map_err(|e| e.to_string())
-}

@@ -32,24 +32,20 @@ pub fn search_dirs() -> Vec<PathBuf> {
 /// The version ONNX Runtime reports for itself (`OrtGetApiBase()->GetVersionString()`), read from the
 /// library file at `path` without initialising it. Used to refuse a mislabelled or wrong library
 /// before ort binds to it.
-pub fn onnxruntime_version(path: &Path) -> Result<String, String> {
+pub fn onnxruntime_version(path: &Path) -> Result<String, robots::FileError> {
     #[allow(unsafe_code)] // dlopen of the library ort is about to load anyway, and one C getter call
     // SAFETY: loading runs the library's initialisers, exactly as ort's own load would; the symbol
     // has the documented C signature `const OrtApiBase* OrtGetApiBase(void)`, whose
     // `GetVersionString` returns a static NUL-terminated string.
     unsafe {
-        let lib =
-            libloading::Library::new(path).map_err(|e| format!("cannot load {}: {e}", path.display()))?;
-        let get_base: libloading::Symbol<'_, unsafe extern "C" fn() -> *const ort::sys::OrtApiBase> =
-            lib.get(b"OrtGetApiBase\0").map_err(|_| {
-                format!(
-                    "{} does not export OrtGetApiBase: not ONNX Runtime",
-                    path.display()
-                )
-            })?;
+        let lib = libloading::Library::new(path)
+            .map_err(|e| robots::FileError::new(path, format!("cannot load: {e}")))?;
+        let get_base: libloading::Symbol<'_, unsafe extern "C" fn() -> *const ort::sys::OrtApiBase> = lib
+            .get(b"OrtGetApiBase\0")
+            .map_err(|_| robots::FileError::new(path, "does not export OrtGetApiBase: not ONNX Runtime"))?;
         let base = get_base();
         if base.is_null() {
-            return Err(format!("{}: OrtGetApiBase returned null", path.display()));
+            return Err(robots::FileError::new(path, "OrtGetApiBase returned null"));
         }
         let version = std::ffi::CStr::from_ptr(((*base).GetVersionString)());
         Ok(version.to_string_lossy().into_owned())
@@ -169,7 +165,7 @@ mod tests {
         let dir = temp_dir("fake");
         let fake = dir.join(ONNXRUNTIME_FILE);
         std::fs::write(&fake, b"not an ELF file").unwrap();
-        let err = onnxruntime_version(&fake).unwrap_err();
+        let err = onnxruntime_version(&fake).unwrap_err().to_string();
         assert!(err.contains(&fake.display().to_string()), "{err}");
     }
 }

@@ -24,8 +24,31 @@ pub enum NpyArray {
     },
 }
 
+/// Why a NumPy file cannot be read: the file (`None` for bytes in memory) and what is wrong.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{}{message}", file.as_ref().map(|f| format!("{}: ", f.display())).unwrap_or_default())]
+pub struct NpyError {
+    /// The file.
+    pub file: Option<std::path::PathBuf>,
+    /// What is wrong.
+    pub message: String,
+}
+
+impl From<String> for NpyError {
+    fn from(message: String) -> Self {
+        Self { file: None, message }
+    }
+}
+
 /// Reads every array of an `.npz` file by name (without the `.npy` suffix).
-pub fn read_npz(path: &Path) -> Result<BTreeMap<String, NpyArray>, String> {
+pub fn read_npz(path: &Path) -> Result<BTreeMap<String, NpyArray>, NpyError> {
+    read_npz_entries(path).map_err(|message| NpyError {
+        file: Some(path.to_path_buf()),
+        message,
+    })
+}
+
+fn read_npz_entries(path: &Path) -> Result<BTreeMap<String, NpyArray>, String> {
     let file = std::fs::File::open(path).map_err(|e| format!("cannot open: {e}"))?;
     let mut zip = zip::ZipArchive::new(file).map_err(|e| format!("not an .npz (zip) file: {e}"))?;
     let mut out = BTreeMap::new();
@@ -38,14 +61,18 @@ pub fn read_npz(path: &Path) -> Result<BTreeMap<String, NpyArray>, String> {
             .map_err(|e| format!("{name}: {e}"))?;
         out.insert(
             name.clone(),
-            parse_npy(&bytes).map_err(|e| format!("array {name:?}: {e}"))?,
+            parse_npy_text(&bytes).map_err(|e| format!("array {name:?}: {e}"))?,
         );
     }
     Ok(out)
 }
 
 /// Parses one `.npy` document.
-pub fn parse_npy(bytes: &[u8]) -> Result<NpyArray, String> {
+pub fn parse_npy(bytes: &[u8]) -> Result<NpyArray, NpyError> {
+    parse_npy_text(bytes).map_err(NpyError::from)
+}
+
+fn parse_npy_text(bytes: &[u8]) -> Result<NpyArray, String> {
     if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
         return Err("not an .npy array (bad magic)".into());
     }
@@ -183,12 +210,13 @@ mod tests {
 
     #[test]
     fn broken_arrays_are_refused_with_a_reason() {
-        assert!(parse_npy(b"garbage!!!!!").unwrap_err().contains("magic"));
+        assert!(parse_npy(b"garbage!!!!!").unwrap_err().message.contains("magic"));
         let short = npy("<f8", "(3,)", &[0; 8]);
-        assert!(parse_npy(&short).unwrap_err().contains("data bytes"));
+        assert!(parse_npy(&short).unwrap_err().message.contains("data bytes"));
         assert!(
             parse_npy(&npy("<c16", "(1,)", &[0; 16]))
                 .unwrap_err()
+                .message
                 .contains("dtype")
         );
     }

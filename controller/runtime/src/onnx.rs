@@ -59,7 +59,7 @@ pub fn environment() -> Result<&'static Environment, OnnxError> {
     ENVIRONMENT
         .get_or_init(|| {
             let path = native::find_onnxruntime().map_err(|e| e.to_string())?;
-            let version = native::onnxruntime_version(&path)?;
+            let version = native::onnxruntime_version(&path).map_err(|e| e.to_string())?;
             if version != native::ONNXRUNTIME_VERSION {
                 return Err(format!(
                     "{} is ONNX Runtime {version}, but this build is pinned to {}; run `scripts/setup` to \

@@ -11,7 +11,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use human::live::LiveReader;
-use robot_link::{GroundTruth, IoError, JointTarget, RobotLink, RobotState, TickClock};
+use robot_link::{ErrorKind, GroundTruth, IoError, JointTarget, RobotLink, RobotState, TickClock};
 use robots::Robot;
 
 use crate::action::ActionMapper;
@@ -37,9 +37,27 @@ pub enum PlayError {
     /// The policy manifest.
     #[error(transparent)]
     Policy(#[from] crate::policy::PolicyError),
-    /// Something else, described.
+    /// The recording.
+    #[error(transparent)]
+    Telemetry(#[from] crate::telemetry::TelemetryError),
+    /// Forward kinematics of the reference on the robot's model.
+    #[error(transparent)]
+    Kinematics(#[from] crate::fk::KinematicsError),
+    /// The inputs of a run do not fit together (reference and policy, model and robot).
     #[error("{0}")]
     Setup(String),
+}
+
+impl PlayError {
+    /// What kind of failure this is.
+    pub fn kind(&self) -> ErrorKind {
+        match self {
+            Self::Io(e) => e.kind(),
+            Self::Onnx(crate::onnx::OnnxError::Runtime(_)) => ErrorKind::Unavailable,
+            Self::Onnx(_) | Self::Policy(_) | Self::Setup(_) | Self::Kinematics(_) => ErrorKind::BadInput,
+            Self::Telemetry(_) => ErrorKind::Io,
+        }
+    }
 }
 
 const MAX_FRAMES_AHEAD: usize = 64;
@@ -111,8 +129,7 @@ impl<L: RobotLink> Player<L> {
                     "all ref_body_pos terms must name the same bodies".into(),
                 ));
             }
-            reference.body_pos =
-                crate::fk::body_positions(&robot, &reference, &bodies).map_err(PlayError::Setup)?;
+            reference.body_pos = crate::fk::body_positions(&robot, &reference, &bodies)?;
             reference.bodies = bodies;
         }
         let body_width = 3 * reference.bodies.len();
@@ -214,7 +231,9 @@ impl<L: RobotLink> Player<L> {
     }
 
     /// Stops recording: waits for the logger and returns what it wrote.
-    pub fn finish_telemetry(&mut self) -> Option<Result<crate::telemetry::TelemetryReport, String>> {
+    pub fn finish_telemetry(
+        &mut self,
+    ) -> Option<Result<crate::telemetry::TelemetryReport, crate::telemetry::TelemetryError>> {
         self.telemetry.take().map(TelemetrySink::finish)
     }
 
@@ -315,7 +334,7 @@ impl<L: RobotLink> Player<L> {
                 .record(clock.elapsed().saturating_sub(deadline));
         }
         let mut summary = self.summary(clock.elapsed() - start);
-        summary.telemetry = self.finish_telemetry().transpose().map_err(PlayError::Setup)?;
+        summary.telemetry = self.finish_telemetry().transpose()?;
         Ok(summary)
     }
 

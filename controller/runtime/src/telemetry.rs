@@ -221,6 +221,33 @@ impl TickRecord {
     }
 }
 
+/// Why a recording could not be written.
+#[derive(Debug, thiserror::Error)]
+pub enum TelemetryError {
+    /// The file could not be created.
+    #[error("cannot create {}: {source}", path.display())]
+    Create {
+        /// The recording.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The MCAP writer failed.
+    #[error("{}: {message}", path.display())]
+    Write {
+        /// The recording.
+        path: PathBuf,
+        /// The writer's message.
+        message: String,
+    },
+    /// The robot's model could not give the per-link frames.
+    #[error("{0}")]
+    Kinematics(String),
+    /// The logger thread could not start, or died.
+    #[error("telemetry logger: {0}")]
+    Logger(String),
+}
+
 /// What the ring does when the logger falls behind.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Backpressure {
@@ -284,7 +311,7 @@ pub struct TelemetrySink {
     backpressure: Backpressure,
     pushed: u64,
     dropped: Arc<AtomicU64>,
-    logger: Option<std::thread::JoinHandle<Result<Written, String>>>,
+    logger: Option<std::thread::JoinHandle<Result<Written, TelemetryError>>>,
     path: PathBuf,
 }
 
@@ -332,16 +359,22 @@ impl TelemetrySink {
         capacity: usize,
         backpressure: Backpressure,
         info: &RecordingInfo,
-    ) -> Result<Self, String> {
+    ) -> Result<Self, TelemetryError> {
+        let wrote = |e: &dyn std::fmt::Display| TelemetryError::Write {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        };
         let (joint_names, root_frame, run) = (&info.joint_names, info.root_frame.as_str(), &info.run);
-        let file =
-            std::fs::File::create(path).map_err(|e| format!("cannot create {}: {e}", path.display()))?;
+        let file = std::fs::File::create(path).map_err(|source| TelemetryError::Create {
+            path: path.to_path_buf(),
+            source,
+        })?;
         let (tx, rx) = crossbeam::channel::bounded::<TickRecord>(capacity.max(1));
         let mut writer = mcap::WriteOptions::new()
             .compression(Some(mcap::Compression::Lz4))
             .profile("")
             .create(BufWriter::new(file))
-            .map_err(|e| e.to_string())?;
+            .map_err(|e| wrote(&e))?;
         let meta: BTreeMap<String, String> = [("joint_names".to_owned(), joint_names.join(","))].into();
         // The replay channel also says how to rebuild the run: files and options.
         let mut timing_meta = meta.clone();
@@ -359,7 +392,7 @@ impl TelemetrySink {
             };
             let schema_id = writer
                 .add_schema(name, "jsonschema", schema.as_bytes())
-                .map_err(|e| e.to_string())?;
+                .map_err(|e| wrote(&e))?;
             let m = match topic {
                 "/replay" => &replay_meta,
                 "/timing" => &timing_meta,
@@ -368,11 +401,16 @@ impl TelemetrySink {
             channels.push(
                 writer
                     .add_channel(schema_id, topic, "json", m)
-                    .map_err(|e| e.to_string())?,
+                    .map_err(|e| wrote(&e))?,
             );
         }
         let root = root_frame.to_owned();
         let kinematics = info.kinematics.clone();
+        let file_path = path.to_path_buf();
+        let failed = move |e: &dyn std::fmt::Display| TelemetryError::Write {
+            path: file_path.clone(),
+            message: e.to_string(),
+        };
         let logger = std::thread::Builder::new()
             .name("telemetry".into())
             .spawn(move || {
@@ -402,7 +440,7 @@ impl TelemetrySink {
                         };
                         writer
                             .write_to_known_channel(&header, text.as_bytes())
-                            .map_err(|e| e.to_string())?;
+                            .map_err(|e| failed(&e))?;
                         *counts.entry((*topic).to_owned()).or_default() += 1;
                     }
                     if let Some(links) = &mut links
@@ -420,16 +458,16 @@ impl TelemetrySink {
                             };
                             writer
                                 .write_to_known_channel(&header, text.as_bytes())
-                                .map_err(|e| e.to_string())?;
+                                .map_err(|e| failed(&e))?;
                             *counts.entry("/tf".to_owned()).or_default() += 1;
                         }
                     }
                     written += 1;
                 }
-                writer.finish().map_err(|e| e.to_string())?;
+                writer.finish().map_err(|e| failed(&e))?;
                 Ok((written, counts))
             })
-            .map_err(|e| e.to_string())?;
+            .map_err(|e| TelemetryError::Logger(e.to_string()))?;
         Ok(Self {
             tx: Some(tx),
             backpressure,
@@ -454,10 +492,11 @@ impl TelemetrySink {
     }
 
     /// Closes the ring, waits for the logger to write everything, finishes the file.
-    pub fn finish(mut self) -> Result<TelemetryReport, String> {
+    pub fn finish(mut self) -> Result<TelemetryReport, TelemetryError> {
         self.tx.take();
         let (written, messages) = self.logger.take().map_or(Ok((0, BTreeMap::new())), |h| {
-            h.join().map_err(|_| "the telemetry thread panicked".to_owned())?
+            h.join()
+                .map_err(|_| TelemetryError::Logger("the thread panicked".into()))?
         })?;
         Ok(TelemetryReport {
             path: self.path.clone(),
@@ -631,12 +670,13 @@ struct Links {
 }
 
 impl Links {
-    fn new(mjcf: &Path, joints: &[String], root: &str) -> Result<Self, String> {
+    fn new(mjcf: &Path, joints: &[String], root: &str) -> Result<Self, TelemetryError> {
         use mujoco_rs::wrappers::mj_model::MjtObjBase;
-        let model = crate::sim_model(mjcf)?;
+        let model =
+            sim2real::mujoco::load_model(mjcf).map_err(|e| TelemetryError::Kinematics(e.to_string()))?;
         let joints: Vec<&str> = joints.iter().map(String::as_str).collect();
         let index = sim2real::model_index::ModelIndex::new(&model, root, &joints, &[])
-            .map_err(|e| format!("{e} ({})", mjcf.display()))?;
+            .map_err(|e| TelemetryError::Kinematics(format!("{e} ({})", mjcf.display())))?;
         let (root_body, root_qpos) = (index.root_body, index.root.qpos);
         let joint_qpos: Vec<usize> = index.joints.iter().map(|j| j.qpos).collect();
         let name = |b: usize| {

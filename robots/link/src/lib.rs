@@ -16,5 +16,5 @@ mod workers;
 
 pub use bus_robot::{BusPorts, BusRobot};
 pub use clock::{TickClock, WallClock};
-pub use link::{IoError, RobotLink, message_chain};
+pub use link::{ErrorKind, IoError, RobotLink, message_chain};
 pub use state::{DeviceIdentity, GroundTruth, JointTarget, RobotState};

@@ -51,6 +51,34 @@ pub trait RobotLink: std::fmt::Debug {
     }
 }
 
+/// What kind of failure an error is: what the safety layer and the exit status go by.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum ErrorKind {
+    /// A file, flag or value is wrong; nothing was moved.
+    BadInput,
+    /// A bus, wire, socket or file system failed.
+    Io,
+    /// A device is missing, faulted, or not the configured model.
+    Device,
+    /// Something the run needs is not there (a native library, a thread).
+    Unavailable,
+}
+
+impl IoError {
+    /// What kind of failure this is.
+    pub fn kind(&self) -> ErrorKind {
+        use firmware_bridge::dxl::driver::DxlError as D;
+        use firmware_bridge::mit::driver::MitError as M;
+        match self {
+            Self::Mit(M::NoReply { .. }) | Self::Dxl(D::Fault(_) | D::Scan(_)) => ErrorKind::Device,
+            Self::Mit(M::Config { .. } | M::Command { .. } | M::CommandCount { .. })
+            | Self::Dxl(D::Config(_)) => ErrorKind::BadInput,
+            Self::Mit(_) | Self::Dxl(_) | Self::Imu(_) => ErrorKind::Io,
+            Self::Setup(_) => ErrorKind::BadInput,
+        }
+    }
+}
+
 /// The message of an error and of every error under it, joined by ": ".
 pub fn message_chain(e: &dyn std::error::Error) -> String {
     let mut s = e.to_string();

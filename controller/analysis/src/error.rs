@@ -1,0 +1,57 @@
+//! What can go wrong reading runs back, by kind.
+
+use std::path::PathBuf;
+
+/// An analysis failure.
+#[derive(Debug, thiserror::Error)]
+pub enum AnalysisError {
+    /// A recording or an export cannot be read, or is not what it should be.
+    #[error("{}: {message}", file.display())]
+    File {
+        /// The file.
+        file: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+    /// The inputs do not fit together (two traces, a trace and a policy).
+    #[error("{0}")]
+    Mismatch(String),
+    /// A clip cannot be used.
+    #[error(transparent)]
+    Clip(#[from] controller::clip::ClipError),
+    /// A policy manifest cannot be used.
+    #[error(transparent)]
+    Policy(#[from] controller::policy::PolicyError),
+    /// Running the loop failed.
+    #[error(transparent)]
+    Play(#[from] controller::player::PlayError),
+    /// The robot's model could not be used.
+    #[error(transparent)]
+    Kinematics(#[from] controller::fk::KinematicsError),
+    /// Output could not be written.
+    #[error("cannot write {}: {source}", path.display())]
+    Write {
+        /// The file or folder.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+}
+
+impl AnalysisError {
+    /// `message` about `file`.
+    pub fn file(file: &std::path::Path, message: impl Into<String>) -> Self {
+        Self::File {
+            file: file.to_path_buf(),
+            message: message.into(),
+        }
+    }
+
+    /// A failed write of `path`.
+    pub fn write(path: &std::path::Path, source: std::io::Error) -> Self {
+        Self::Write {
+            path: path.to_path_buf(),
+            source,
+        }
+    }
+}
