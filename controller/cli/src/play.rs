@@ -7,17 +7,15 @@ use std::sync::atomic::AtomicBool;
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use robots::Robot;
-use sim2real::mirror::Mirror;
 
 use crate::sim::load_mirror_config;
 use controller::clip::{Clip, Reference};
 use controller::onnx::OnnxModel;
 use controller::player::{PlayOptions, PlaySummary, Player};
 use controller::policy::PolicyLayout;
-use controller::sim::lockstep_player;
+use controller::sim::{lockstep_player, wired_player};
 use controller::telemetry::{Backpressure, TelemetrySink};
 use robot_link::RobotLink;
-use sim2real::link::{ServedClock, serve_locally, wired_robot};
 
 /// Arguments of `play`.
 #[derive(Debug, Args)]
@@ -305,15 +303,9 @@ pub fn play(args: &PlayArgs) -> Result<()> {
         }
     );
     let summary: PlaySummary = if args.wall {
-        let mirror = Mirror::new(l.robot.clone(), config).context("cannot build the mirror")?;
-        let served = serve_locally(mirror).context("cannot serve the mirror")?;
-        let io = wired_robot(&l.robot, &served)?;
-        let mut clock = ServedClock::new(Arc::clone(&served.world));
-        let mut player = with_estop(
-            Player::new(l.robot, l.layout, l.reference, options, io, stop)?,
-            args,
-            &options,
-        )?;
+        let (player, mut clock, _served) =
+            wired_player(l.robot, l.layout, l.reference, options, config, stop, || {})?;
+        let mut player = with_estop(player, args, &options)?;
         player.run(&mut clock)?
     } else {
         let (player, mut clock, _world) =

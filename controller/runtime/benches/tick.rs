@@ -15,15 +15,13 @@ use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 use controller::clip::{Clip, Reference};
-use controller::player::{EndMode, PlayOptions, Player};
+use controller::player::{EndMode, PlayOptions};
 use controller::policy::PolicyLayout;
 use controller::safety::Mode;
-use controller::sim::lockstep_player;
+use controller::sim::{lockstep_player, wired_player};
 use robot_link::TickClock;
 use robots::{Robot, reference_robot_path};
 use sim2real::config::MirrorConfig;
-use sim2real::link::{ServedClock, serve_locally, wired_robot};
-use sim2real::mirror::Mirror;
 use test_support::stats::Summary;
 
 fn files() -> (Robot, PolicyLayout, Reference) {
@@ -67,31 +65,18 @@ fn lockstep_compute() -> Summary {
 
 fn wall_jitter(seconds: f64) -> String {
     let (robot, layout, reference) = files();
-    let mirror = Mirror::new(
-        robot.clone(),
-        MirrorConfig {
-            gantry: true,
-            ..MirrorConfig::default()
-        },
-    )
-    .unwrap();
-    let served = serve_locally(mirror).unwrap();
-    let io = wired_robot(&robot, &served).unwrap();
     let options = PlayOptions {
         end: EndMode::Loop,
         max_ticks: Some((seconds * 50.0) as u64),
         ..PlayOptions::default()
     };
-    let mut p = Player::new(
-        robot,
-        layout,
-        reference,
-        options,
-        io,
-        Arc::new(AtomicBool::new(false)),
-    )
-    .unwrap();
-    let mut clock = ServedClock::new(Arc::clone(&served.world));
+    let mirror = MirrorConfig {
+        gantry: true,
+        ..MirrorConfig::default()
+    };
+    let stop = Arc::new(AtomicBool::new(false));
+    let (mut p, mut clock, _served) =
+        wired_player(robot, layout, reference, options, mirror, stop, || {}).unwrap();
     let s = p.run(&mut clock).unwrap();
     let _ = clock.elapsed();
     format!("{}\n  overruns {}, bus I/O {}", s.jitter, s.overruns, s.io)

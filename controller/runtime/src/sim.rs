@@ -1,10 +1,13 @@
-//! Runs of the loop on the mirror in lockstep.
+//! Runs of the loop on the mirror: in lockstep, or served in real time over real wires.
 
 use std::sync::{Arc, Mutex};
 
 use robots::Robot;
-use sim2real::link::{LockstepClock, LockstepRobot, lockstep_robot};
+use sim2real::link::{
+    LockstepClock, LockstepRobot, ServedClock, WiredRobot, lockstep_robot, serve_locally, wired_robot_with,
+};
 use sim2real::mirror::Mirror;
+use sim2real::serve::ServedMirror;
 
 /// A lockstep run: the player, the clock that advances the mirror, and the mirror.
 pub type LockstepRun = (
@@ -29,4 +32,29 @@ pub fn lockstep_player(
     let io = lockstep_robot(&robot, &world)?;
     let player = crate::player::Player::new(robot, layout, reference, options, io, stop)?;
     Ok((player, LockstepClock::new(Arc::clone(&world)), world))
+}
+
+/// A wired run: the player, the wall clock with the mirror's ground truth, and the served mirror
+/// (which stops serving when dropped).
+pub type WiredRun = (crate::player::Player<WiredRobot>, ServedClock, ServedMirror);
+
+/// A run on the mirror of `robot` served in real time on loopback, the player connected over
+/// socketcand and pseudo-terminals as to hardware, each bus on its own thread (`on_start` runs
+/// first on each).
+pub fn wired_player(
+    robot: Robot,
+    layout: crate::policy::PolicyLayout,
+    reference: crate::clip::Reference,
+    options: crate::player::PlayOptions,
+    mirror: sim2real::config::MirrorConfig,
+    stop: Arc<std::sync::atomic::AtomicBool>,
+    on_start: fn(),
+) -> Result<WiredRun, crate::player::PlayError> {
+    let world =
+        Mirror::new(robot.clone(), mirror).map_err(|e| crate::player::PlayError::Setup(e.to_string()))?;
+    let served = serve_locally(world)
+        .map_err(|e| crate::player::PlayError::Setup(format!("cannot serve the mirror: {e}")))?;
+    let io = wired_robot_with(&robot, &served, on_start)?;
+    let player = crate::player::Player::new(robot, layout, reference, options, io, stop)?;
+    Ok((player, ServedClock::new(Arc::clone(&served.world)), served))
 }
