@@ -736,14 +736,28 @@ impl<T: DxlTransport> DxlBusDriver<T> {
                 self.joints[i].name, gains[i]
             )));
         }
+        self.sync_write(addr::POSITION_D_GAIN, 6, |k, _, tx| {
+            let [p, i, d] = gains[k];
+            for v in [d, i, p] {
+                tx.extend_from_slice(&v.to_le_bytes());
+            }
+        })
+    }
+
+    /// One sync write of `len` bytes at `address` to every joint, `fill` appending each joint's
+    /// bytes (it gets the joint's index and configuration).
+    fn sync_write(
+        &mut self,
+        address: u16,
+        len: u16,
+        mut fill: impl FnMut(usize, &DxlJointConfig, &mut Vec<u8>),
+    ) -> Result<(), DxlError> {
         self.tx.clear();
-        self.tx.extend_from_slice(&addr::POSITION_D_GAIN.to_le_bytes());
-        self.tx.extend_from_slice(&6u16.to_le_bytes());
-        for (j, &[p, i, d]) in self.joints.iter().zip(gains) {
+        self.tx.extend_from_slice(&address.to_le_bytes());
+        self.tx.extend_from_slice(&len.to_le_bytes());
+        for (k, j) in self.joints.iter().enumerate() {
             self.tx.push(j.id);
-            self.tx.extend_from_slice(&d.to_le_bytes());
-            self.tx.extend_from_slice(&i.to_le_bytes());
-            self.tx.extend_from_slice(&p.to_le_bytes());
+            fill(k, j, &mut self.tx);
         }
         self.stats.writes += 1;
         self.transport
@@ -772,20 +786,11 @@ impl<T: DxlTransport> DxlBusDriver<T> {
                 self.joints[i].name
             )));
         }
-        self.tx.clear();
-        self.tx
-            .extend_from_slice(&(addr::INDIRECT_DATA_1 + GOAL_SLOT - 1).to_le_bytes());
-        self.tx.extend_from_slice(&(GOAL_MAP.len() as u16).to_le_bytes());
-        for (j, c) in self.joints.iter().zip(commands) {
-            self.tx.push(j.id);
-            self.tx.extend_from_slice(&j.rad_to_ticks(c.q).to_le_bytes());
-            self.tx
-                .extend_from_slice(&j.amps_to_current(c.current).to_le_bytes());
-        }
-        self.stats.writes += 1;
-        self.transport
-            .send(BROADCAST_ID, inst::SYNC_WRITE, &self.tx)
-            .map_err(DxlError::Link)
+        let goal = addr::INDIRECT_DATA_1 + GOAL_SLOT - 1;
+        self.sync_write(goal, GOAL_MAP.len() as u16, |k, j, tx| {
+            tx.extend_from_slice(&j.rad_to_ticks(commands[k].q).to_le_bytes());
+            tx.extend_from_slice(&j.amps_to_current(commands[k].current).to_le_bytes());
+        })
     }
 
     /// One sync read of every joint's state. Faults are per joint (see [`DxlFeedback`]); only a
