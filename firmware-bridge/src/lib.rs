@@ -9,6 +9,7 @@
 //! - [`imu`]: WIT-protocol serial AHRS: decoder, emulated part, host reader.
 //! - [`mit`]: MIT-mode motors: codec, host driver, emulated firmware.
 //! - [`plant`]: what emulated firmware drives.
+//! - [`ratelimit`]: warnings about floods of bad input, one line per interval with a count.
 //! - [`serial`]: serial lines to simulated worlds, byte streams, the pseudo-terminal server.
 //! - [`time`]: simulated time and deterministic randomness.
 
@@ -17,5 +18,6 @@ pub mod dxl;
 pub mod imu;
 pub mod mit;
 pub mod plant;
+pub mod ratelimit;
 pub mod serial;
 pub mod time;

@@ -310,6 +310,39 @@ fn play_runs_the_default_clip_on_the_mirror_and_prints_a_summary() {
         stdout.contains("Running → Stopping (clip finished)") && stdout.contains("Damped → Off"),
         "{stdout}"
     );
+    assert_eq!(out.status.code(), Some(0));
+    assert_eq!(
+        stdout.trim_end().lines().last(),
+        Some("result: finished"),
+        "{stdout}"
+    );
+}
+
+#[test]
+fn a_safety_stop_exits_3_and_says_why_last() {
+    let dir = std::env::temp_dir().join(format!("cli-nan-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let onnx = test_support::fixtures::fixture("nan_after_half_ramp.onnx");
+    let follower = robots::reference_robot_path().with_file_name("policies/reference_follower.toml");
+    let manifest = std::fs::read_to_string(follower).unwrap().replace(
+        "onnx = \"reference_follower.onnx\"",
+        &format!("onnx = {:?}", onnx.display().to_string()),
+    );
+    let policy = dir.join("nan.toml");
+    std::fs::write(&policy, manifest).unwrap();
+    let out = robodeploy()
+        .args(["play", "--no-record", "--gantry", "--policy"])
+        .arg(&policy)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(3), "{stdout}");
+    let last = stdout.trim_end().lines().last().unwrap();
+    assert!(
+        last.starts_with("result: safety stop at tick") && last.contains("non-finite action"),
+        "{stdout}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -326,7 +359,7 @@ fn play_refuses_a_clip_beyond_the_limits_before_anything_moves() {
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success());
+    assert_eq!(out.status.code(), Some(2), "bad input: {stderr}");
     assert!(
         stderr.contains("t = 0.000 s (tick 0): left_knee = 2.900 rad is outside its limits"),
         "{stderr}"
@@ -358,12 +391,73 @@ fn sigint_soft_stops_a_looping_play() {
     assert!(status.success());
     let out = play.finish();
     let stdout = out.stdout;
-    assert!(out.status.success(), "{stdout}");
+    // Exit status 4: stopped by the operator, said last.
+    assert_eq!(out.status.code(), Some(4), "{stdout}");
+    assert!(
+        stdout
+            .trim_end()
+            .lines()
+            .last()
+            .unwrap()
+            .starts_with("result: stopped by the operator"),
+        "{stdout}"
+    );
     assert!(stdout.contains("Running → Stopping (stop requested)"), "{stdout}");
     assert!(
         stdout.contains("Stopping → Damped") && stdout.contains("Damped → Off"),
         "{stdout}"
     );
+}
+
+#[test]
+fn an_estop_is_acted_on_while_nobody_reads_the_logs() {
+    use std::io::BufRead;
+    // Both pipes are left unread after the e-stop line: a thread that blocked on a log line would
+    // never see the ESTOP behind 2000 junk datagrams, and the looping run would never end.
+    let mut child = robodeploy()
+        .args([
+            "play",
+            "--no-record",
+            "--end",
+            "loop",
+            "--estop-udp",
+            "127.0.0.1:0",
+        ])
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stdout = std::io::BufReader::new(child.stdout.take().unwrap());
+    let addr = loop {
+        let mut line = String::new();
+        assert!(stdout.read_line(&mut line).unwrap() > 0, "no e-stop line");
+        if let Some(a) = line.trim().strip_prefix("e-stop: send ESTOP to udp://") {
+            break a.to_owned();
+        }
+    };
+    let socket = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    for k in 0..2000u32 {
+        let junk = format!("junk datagram {k} that is long enough to fill a log line quickly");
+        socket.send_to(junk.as_bytes(), &addr).unwrap();
+    }
+    let give_up = std::time::Instant::now() + Duration::from_secs(120);
+    let status = loop {
+        // As an e-stop button does: ESTOP until the robot stopped (a full socket buffer may drop
+        // a datagram; the junk must not be what keeps the stop from arriving).
+        socket.send_to(b"ESTOP", &addr).unwrap();
+        if let Some(status) = child.try_wait().unwrap() {
+            break status;
+        }
+        if std::time::Instant::now() > give_up {
+            let _ = child.kill();
+            panic!("the e-stop was not acted on while the logs went unread");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut stdout, &mut rest).unwrap();
+    assert!(rest.contains("(e-stop)"), "{status:?}\n{rest}");
 }
 
 #[test]
@@ -406,7 +500,7 @@ fn play_on_hardware_names_a_missing_bus_and_moves_nothing() {
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success());
+    assert_eq!(out.status.code(), Some(5), "I/O failure: {stderr}");
     assert!(stderr.contains("bus can0 (can0): cannot open"), "{stderr}");
     assert!(
         !String::from_utf8_lossy(&out.stdout).contains("ran "),
@@ -448,7 +542,7 @@ fn a_udp_estop_damps_the_robot_at_once() {
     socket.send_to(b"ESTOP", &addr).unwrap();
     let out = play.finish();
     let rest = out.stdout;
-    assert!(out.status.success(), "{rest}");
+    assert_eq!(out.status.code(), Some(4), "{rest}");
     let stop = rest
         .lines()
         .find(|l| l.contains("→ Stopping"))

@@ -73,8 +73,7 @@ pub fn run(args: &BatchArgs) -> Result<()> {
         options: PlayOptions::default(),
         jobs,
     };
-    let (totals, _) =
-        run_batch(&spec, &|done, _| bar.set_position(done as u64)).map_err(anyhow::Error::msg)?;
+    let (totals, _) = run_batch(&spec, &|done, _| bar.set_position(done as u64))?;
     bar.finish_and_clear();
     println!(
         "{:<28} {:>6} {:>9} {:>13} {:>12} {:>14}",

@@ -12,6 +12,8 @@ mod calibrate;
 mod can;
 mod console;
 mod dxl;
+mod exit;
+mod logging;
 mod play;
 mod retarget;
 mod sim;
@@ -22,8 +24,19 @@ mod teleop;
 /// The controller reads the robot's state over its CAN and serial buses, builds the policy's
 /// observation exactly as in training, runs the ONNX policy, limits the commands and writes them
 /// back to the servos, at the policy rate.
+const EXIT_STATUSES: &str = "\
+Exit status:
+  0  finished: the run or command did what it was asked
+  1  failed for another reason (the message says why)
+  2  bad input: a file, flag or value is wrong; nothing moved
+  3  safety stop: a fault stopped the robot (stale feedback, device fault, NaN, tilt or fall,
+     tracking error, overruns, bus failure, a diverging mirror)
+  4  stopped by the operator: SIGINT/SIGTERM or the e-stop
+  5  I/O failure: a bus, device or file could not be used
+A run prints how it ended as its last line (`result: …`).";
+
 #[derive(Debug, Parser)]
-#[command(name = "robodeploy", version, about, long_about)]
+#[command(name = "robodeploy", version, about, long_about, after_long_help = EXIT_STATUSES)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -120,50 +133,58 @@ enum Command {
 }
 
 fn main() -> std::process::ExitCode {
-    // Errors are for the person at the terminal: the message chain, not a backtrace.
+    // Errors are for the person at the terminal: the message chain, not a backtrace; the exit
+    // status says what kind of failure it was (see `exit`).
     match run() {
-        Ok(()) => std::process::ExitCode::SUCCESS,
+        Ok(code) => code,
         Err(e) => {
-            eprintln!("error: {e:#}");
-            std::process::ExitCode::FAILURE
+            logging::last_words(format!("error: {e:#}\n"));
+            exit::of_error(&e)
         }
     }
 }
 
-fn run() -> Result<()> {
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info,ort=warn".into()),
-        )
-        .with_writer(std::io::stderr)
-        .init();
-    match Cli::parse().command {
-        Command::Doctor { mjcf, onnx } => doctor(&mjcf, &onnx),
-        Command::Can(cmd) => can::run(cmd),
-        Command::Dxl(cmd) => dxl::run(cmd),
-        Command::Bus(cmd) => bus::run(cmd),
-        Command::Calibrate(cmd) => calibrate::run(cmd),
-        Command::Sim(cmd) => sim::run(cmd),
+fn run() -> Result<std::process::ExitCode> {
+    let log = logging::init();
+    let result = dispatch(Cli::parse().command);
+    if log.dropped() > 0 {
+        logging::last_words(format!(
+            "log: {} lines dropped (standard error was not read fast enough)\n",
+            log.dropped()
+        ));
+    }
+    result
+}
+
+fn dispatch(command: Command) -> Result<std::process::ExitCode> {
+    let done = |r: Result<()>| r.map(|()| std::process::ExitCode::SUCCESS);
+    match command {
+        Command::Doctor { mjcf, onnx } => done(doctor(&mjcf, &onnx)),
+        Command::Can(cmd) => done(can::run(cmd)),
+        Command::Dxl(cmd) => done(dxl::run(cmd)),
+        Command::Bus(cmd) => done(bus::run(cmd)),
+        Command::Calibrate(cmd) => done(calibrate::run(cmd)),
+        Command::Sim(cmd) => done(sim::run(cmd)),
         Command::Play(args) => play::play(&args),
-        Command::Check(args) => play::check(&args),
-        Command::Batch(args) => batch::run(&args),
-        Command::Retarget(args) => retarget::run(&args),
+        Command::Check(args) => done(play::check(&args)),
+        Command::Batch(args) => done(batch::run(&args)),
+        Command::Retarget(args) => done(retarget::run(&args)),
         Command::Teleop(args) => teleop::teleop(&args),
-        Command::Vr(cmd) => teleop::vr(cmd),
+        Command::Vr(cmd) => done(teleop::vr(cmd)),
         Command::Compare {
             run,
             other,
             tolerance,
-        } => compare(&run, &other, tolerance),
+        } => done(compare(&run, &other, tolerance)),
         Command::Report { run, out } => {
-            let s = analysis::report::write_report(&run, &out).map_err(anyhow::Error::msg)?;
+            let s = analysis::report::write_report(&run, &out)?;
             println!(
                 "report in {}: joint RMSE {:.2}°, {} safety events",
                 out.display(),
                 s.joints_rmse_deg,
                 s.safety_events.len()
             );
-            Ok(())
+            Ok(std::process::ExitCode::SUCCESS)
         }
         Command::Replay { log } => {
             let report = analysis::replay::replay(&log)?;
@@ -171,25 +192,25 @@ fn run() -> Result<()> {
             if report.first_difference.is_some() {
                 anyhow::bail!("the replay does not reproduce the recording");
             }
-            Ok(())
+            Ok(std::process::ExitCode::SUCCESS)
         }
     }
 }
 
 fn compare(run: &std::path::Path, other: &std::path::Path, tolerance: f64) -> Result<()> {
     use analysis::compare::{compare, trace_from_export, trace_from_run};
-    let (a, meta) = trace_from_run(run).map_err(anyhow::Error::msg)?;
+    let (a, meta) = trace_from_run(run)?;
     let robot = robots::Robot::load(&meta.robot)?;
     let mut layout = controller::policy::PolicyLayout::load(&meta.policy, &robot)?;
     let model = controller::onnx::OnnxModel::load(&layout.onnx_path)?;
     layout.bind_model(model.inputs(), model.output().1)?;
     let is_run = other.extension().is_some_and(|e| e.eq_ignore_ascii_case("mcap"));
     let b = if is_run {
-        trace_from_run(other).map_err(anyhow::Error::msg)?.0
+        trace_from_run(other)?.0
     } else {
-        trace_from_export(other).map_err(anyhow::Error::msg)?
+        trace_from_export(other)?
     };
-    let diffs = compare(&a, &b, &layout, tolerance).map_err(anyhow::Error::msg)?;
+    let diffs = compare(&a, &b, &layout, tolerance)?;
     let steps = a.steps.len().min(b.steps.len());
     match diffs.first().filter(|d| d.first_step.is_some()) {
         Some(d) => {

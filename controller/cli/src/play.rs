@@ -151,7 +151,7 @@ pub fn check(args: &CheckArgs) -> Result<()> {
             l.reference.held_joints.join(", ")
         );
     }
-    let quality = analysis::motion_check::analyze(&l.robot, &l.reference).map_err(anyhow::Error::msg)?;
+    let quality = analysis::motion_check::analyze(&l.robot, &l.reference)?;
     println!("clip quality on the robot model:");
     print!("{quality}");
     let problems = quality.problems();
@@ -223,12 +223,12 @@ fn with_recorder<L: RobotLink>(
             robot.config.joints.iter().map(|j| j.mjcf_joint.clone()).collect(),
         )),
     };
-    let sink = TelemetrySink::start(&path, 1024, backpressure, &info).map_err(anyhow::Error::msg)?;
+    let sink = TelemetrySink::start(&path, 1024, backpressure, &info)?;
     Ok(player.with_telemetry(sink))
 }
 
 /// Runs `play`.
-pub fn play(args: &PlayArgs) -> Result<()> {
+pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
     let mut l = load(&args.files)?;
     if let Some(values) = &args.command {
         l.layout.set_command(values)?;
@@ -281,7 +281,7 @@ pub fn play(args: &PlayArgs) -> Result<()> {
         )?;
         let summary = player.run(&mut clock)?;
         print!("{summary}");
-        return Ok(());
+        return Ok(finish(&summary));
     }
     let mut config = match &args.mirror {
         Some(p) => load_mirror_config(p)?,
@@ -315,12 +315,19 @@ pub fn play(args: &PlayArgs) -> Result<()> {
     };
     print!("{summary}");
     if let (Some(dir), Some(t)) = (&args.report, &summary.telemetry) {
-        let r = analysis::report::write_report(&t.path, dir).map_err(anyhow::Error::msg)?;
+        let r = analysis::report::write_report(&t.path, dir)?;
         println!(
             "report: {} (joint RMSE {:.2}°)",
             dir.join("report.html").display(),
             r.joints_rmse_deg
         );
     }
-    Ok(())
+    Ok(finish(&summary))
+}
+
+/// Prints how the run ended, last, and returns the exit status that says so.
+pub fn finish(summary: &PlaySummary) -> std::process::ExitCode {
+    let outcome = summary.outcome();
+    println!("result: {outcome}");
+    crate::exit::of_outcome(&outcome)
 }

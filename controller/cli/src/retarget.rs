@@ -46,7 +46,7 @@ pub struct RetargetArgs {
 /// Runs `retarget`.
 pub fn run(args: &RetargetArgs) -> Result<()> {
     let robot = Robot::load(&args.robot)?;
-    let bvh = Bvh::load(&args.bvh).map_err(anyhow::Error::msg)?;
+    let bvh = Bvh::load(&args.bvh)?;
     println!(
         "{}: {:?} skeleton, {} joints, {} frames at {:.0} Hz ({:.1} s)",
         args.bvh.display(),
@@ -66,7 +66,7 @@ pub fn run(args: &RetargetArgs) -> Result<()> {
     };
     let bar = indicatif::ProgressBar::new_spinner().with_message("retargeting");
     let started = std::time::Instant::now();
-    let motion = retarget(&robot, &bvh, &options).map_err(anyhow::Error::msg)?;
+    let motion = retarget(&robot, &bvh, &options)?;
     bar.finish_and_clear();
     println!(
         "retargeted onto {}: scale {:.3}, {} frames at {} Hz in {:.1} s; paired frames off their targets by {:.1} cm on average, {:.1} cm at worst",
@@ -101,7 +101,7 @@ pub fn run(args: &RetargetArgs) -> Result<()> {
     // The clip checker, as `check --clip` runs it.
     let clip = Clip::load(&args.out)?;
     let reference = Reference::from_clip(&clip, &robot, args.rate)?;
-    let quality = analysis::motion_check::analyze(&robot, &reference).map_err(anyhow::Error::msg)?;
+    let quality = analysis::motion_check::analyze(&robot, &reference)?;
     println!("clip quality on the robot model:");
     print!("{quality}");
     let problems = quality.problems();

@@ -99,7 +99,7 @@ pub struct SendArgs {
 /// Runs a `vr` subcommand.
 pub fn vr(cmd: VrCommand) -> Result<()> {
     let VrCommand::Send(args) = cmd;
-    let bvh = Bvh::load(&args.bvh).map_err(anyhow::Error::msg)?;
+    let bvh = Bvh::load(&args.bvh)?;
     if !(args.rate.is_finite() && (1.0..=1000.0).contains(&args.rate)) {
         bail!("--rate {} is not a tracker rate", args.rate);
     }
@@ -126,15 +126,14 @@ pub fn vr(cmd: VrCommand) -> Result<()> {
     let bar = indicatif::ProgressBar::new(bvh.frames() as u64).with_message("frames");
     let packets = send(&bvh, args.to, &options, &stop, &mut |_, frame| {
         bar.set_position(frame as u64);
-    })
-    .map_err(anyhow::Error::msg)?;
+    })?;
     bar.finish_and_clear();
     println!("sent {packets} packets");
     Ok(())
 }
 
 /// Runs `teleop`.
-pub fn teleop(args: &TeleopArgs) -> Result<()> {
+pub fn teleop(args: &TeleopArgs) -> Result<std::process::ExitCode> {
     let robot = Robot::load(&args.robot)?;
     let mut layout = PolicyLayout::load(&args.policy, &robot)?;
     let model = controller::onnx::OnnxModel::load(&layout.onnx_path)?;
@@ -178,7 +177,7 @@ pub fn teleop(args: &TeleopArgs) -> Result<()> {
         headset_only: args.headset_only,
         ..TeleopOptions::default()
     };
-    let mut teleop = Teleop::start(&robot, &receiver, options).map_err(anyhow::Error::msg)?;
+    let mut teleop = Teleop::start(&robot, &receiver, options)?;
     let reference = Reference::hold(&teleop.standby, teleop.root, rate);
     let live = teleop
         .live
@@ -225,7 +224,7 @@ pub fn teleop(args: &TeleopArgs) -> Result<()> {
     };
     print!("{summary}");
     print_teleop(&teleop.status(), &receiver);
-    Ok(())
+    Ok(crate::play::finish(&summary))
 }
 
 fn print_teleop(status: &TeleopStatus, receiver: &VmcReceiver) {

@@ -136,6 +136,78 @@ impl std::fmt::Display for PlaySummary {
     }
 }
 
+/// How a run ended. Exit statuses and reports go by it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum RunOutcome {
+    /// The reference played to its end (or the tick budget ran out) without a fault.
+    Finished,
+    /// The operator stopped it: SIGINT/SIGTERM (a soft stop) or the e-stop.
+    StoppedByOperator {
+        /// Tick of the stop.
+        tick: u64,
+        /// Why.
+        cause: crate::safety::Cause,
+    },
+    /// A fault stopped it, or the robot fell.
+    SafetyStop {
+        /// Tick of the stop (the last tick for a fall noticed without a stop).
+        tick: u64,
+        /// Why (`None`: the base fell).
+        cause: Option<crate::safety::Cause>,
+    },
+}
+
+impl std::fmt::Display for RunOutcome {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Finished => write!(f, "finished"),
+            Self::StoppedByOperator { tick, cause } => {
+                write!(f, "stopped by the operator at tick {tick}: {cause}")
+            }
+            Self::SafetyStop { tick, cause: Some(c) } => write!(f, "safety stop at tick {tick}: {c}"),
+            Self::SafetyStop { tick, cause: None } => {
+                write!(f, "safety stop: the base fell (by tick {tick})")
+            }
+        }
+    }
+}
+
+impl PlaySummary {
+    /// How the run ended: the first stop that was not the clip's own end decides; a fall is a
+    /// safety stop even when nothing else stopped the run.
+    pub fn outcome(&self) -> RunOutcome {
+        use crate::safety::Cause;
+        let stop = self
+            .transitions
+            .iter()
+            .find(|t| t.cause.is_fault() || t.cause == Cause::StopRequested);
+        match stop {
+            Some(t) if matches!(t.cause, Cause::StopRequested | Cause::EStop) => {
+                if self.fell {
+                    RunOutcome::SafetyStop {
+                        tick: t.tick,
+                        cause: None,
+                    }
+                } else {
+                    RunOutcome::StoppedByOperator {
+                        tick: t.tick,
+                        cause: t.cause,
+                    }
+                }
+            }
+            Some(t) => RunOutcome::SafetyStop {
+                tick: t.tick,
+                cause: Some(t.cause),
+            },
+            None if self.fell => RunOutcome::SafetyStop {
+                tick: self.ticks,
+                cause: None,
+            },
+            None => RunOutcome::Finished,
+        }
+    }
+}
+
 /// The running sums behind a [`PlaySummary`], updated in the tick without allocating.
 #[derive(Debug, Clone, Default)]
 pub struct RunMetrics {

@@ -227,20 +227,41 @@ fn truncated(s: &str) -> String {
     s.chars().take(80).collect()
 }
 
-/// Counters of malformed input, shared with whoever reports them.
-#[derive(Debug, Default)]
-pub struct MalformedCounter(AtomicU64);
+/// Counters of malformed input, shared with whoever reports them; logged at most once a second
+/// (a garbage flood must not become a flood of log lines).
+#[derive(Debug)]
+pub struct MalformedCounter {
+    count: AtomicU64,
+    log: std::sync::Mutex<crate::ratelimit::RateLimit>,
+}
+
+impl Default for MalformedCounter {
+    fn default() -> Self {
+        Self {
+            count: AtomicU64::new(0),
+            log: std::sync::Mutex::new(crate::ratelimit::RateLimit::per_second()),
+        }
+    }
+}
 
 impl MalformedCounter {
-    /// Counts and logs one malformed input.
+    /// Counts one malformed input, and logs it unless one was logged less than a second ago.
     fn record(&self, err: &CanError) {
-        self.0.fetch_add(1, Ordering::Relaxed);
-        tracing::warn!(%err, "socketcand: rejected input");
+        self.count.fetch_add(1, Ordering::Relaxed);
+        // Never wait for the lock: if another thread holds it, this one is left out.
+        let allowed = match self.log.try_lock() {
+            Ok(mut l) => l.allow(Instant::now()),
+            Err(std::sync::TryLockError::Poisoned(p)) => p.into_inner().allow(Instant::now()),
+            Err(std::sync::TryLockError::WouldBlock) => None,
+        };
+        if let Some(left_out) = allowed {
+            tracing::warn!(%err, left_out, "socketcand: rejected input");
+        }
     }
 
     /// Malformed inputs so far.
     pub fn get(&self) -> u64 {
-        self.0.load(Ordering::Relaxed)
+        self.count.load(Ordering::Relaxed)
     }
 }
 

@@ -30,7 +30,7 @@ pub fn open_sequential(robot: &Robot) -> Result<HardwareRobot, IoError> {
     let mut imu = None;
     for bus in &robot.config.buses {
         let fail = |e: &dyn std::fmt::Display| {
-            IoError::Setup(format!("bus {} ({}): cannot open: {e}", bus.name, bus.device))
+            IoError::Open(format!("bus {} ({}): cannot open: {e}", bus.name, bus.device))
         };
         match bus.kind {
             BusKind::MitCan => can.push((

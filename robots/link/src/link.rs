@@ -22,6 +22,9 @@ pub enum IoError {
     /// The robot description and the ports do not fit.
     #[error("{0}")]
     Setup(String),
+    /// A bus's device could not be opened.
+    #[error("{0}")]
+    Open(String),
 }
 
 /// The robot as the loop drives it: identify, read, write, torque off. [`BusRobot`] is the real
@@ -73,7 +76,7 @@ impl IoError {
             Self::Mit(M::NoReply { .. }) | Self::Dxl(D::Fault(_) | D::Scan(_)) => ErrorKind::Device,
             Self::Mit(M::Config { .. } | M::Command { .. } | M::CommandCount { .. })
             | Self::Dxl(D::Config(_)) => ErrorKind::BadInput,
-            Self::Mit(_) | Self::Dxl(_) | Self::Imu(_) => ErrorKind::Io,
+            Self::Mit(_) | Self::Dxl(_) | Self::Imu(_) | Self::Open(_) => ErrorKind::Io,
             Self::Setup(_) => ErrorKind::BadInput,
         }
     }
