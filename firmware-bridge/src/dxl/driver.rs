@@ -992,7 +992,11 @@ pub struct ScanHit {
     pub temperature: u8,
 }
 
-/// Pings every ID in `ids` and reads the state of those that answer. Writes nothing.
+/// Pings per ID before a scan calls it missing.
+pub const SCAN_TRIES: usize = 3;
+
+/// Pings every ID in `ids` (each up to [`SCAN_TRIES`] times) and reads the state of those that
+/// answer. Writes nothing.
 pub fn scan<T: DxlTransport>(
     transport: &mut T,
     ids: std::ops::RangeInclusive<u8>,
@@ -1015,7 +1019,16 @@ pub fn scan<T: DxlTransport>(
                 Err(e) => Err(e),
             }
         };
-        let Some(ping) = ask(inst::PING, &[], 3)? else {
+        // A silent ID is asked again before it counts as missing: one late or lost reply (a
+        // busy USB adapter or pseudo-terminal) is not an absent servo.
+        let mut ping = None;
+        for _ in 0..SCAN_TRIES {
+            ping = ask(inst::PING, &[], 3)?;
+            if ping.is_some() {
+                break;
+            }
+        }
+        let Some(ping) = ping else {
             continue;
         };
         let read = |a: u16, n: u16| {

@@ -440,8 +440,44 @@ pub struct ScanHit {
     pub reply: super::codec::MitReply,
 }
 
+/// Disable frames per ID before a scan calls it missing.
+pub const SCAN_TRIES: usize = 3;
+
+fn ask_once<B: CanBus>(
+    bus: &mut B,
+    model: &MotorModel,
+    id: u8,
+    timeout: Duration,
+) -> Result<Option<ScanHit>, CanError> {
+    bus.send(&CanFrame::new8(
+        CanId::Standard(u16::from(id)),
+        SpecialFrame::Disable.bytes(),
+    ))?;
+    let deadline = bus.now() + timeout;
+    while let Some(frame) = bus.recv_until(deadline)? {
+        let CanId::Standard(reply_id) = frame.id() else {
+            continue;
+        };
+        let Ok(reply) = unpack_reply(model, frame.data()) else {
+            continue;
+        };
+        let named = match model.family {
+            super::models::MotorFamily::Damiao => reply.motor_id == id & 0x0F,
+            _ => reply.motor_id == id,
+        };
+        if named {
+            return Ok(Some(ScanHit {
+                motor_id: id,
+                reply_id,
+                reply,
+            }));
+        }
+    }
+    Ok(None)
+}
+
 /// Asks each ID in `ids` for its state with a *disable* frame (torque off: safe on a robot that
-/// is not running) and returns the motors that answered within `timeout`, decoded as `model`.
+/// is not running) and returns the motors that answered (each ID asked up to [`SCAN_TRIES`] times) within `timeout`, decoded as `model`.
 pub fn scan<B: CanBus>(
     bus: &mut B,
     model: &MotorModel,
@@ -450,28 +486,11 @@ pub fn scan<B: CanBus>(
 ) -> Result<Vec<ScanHit>, CanError> {
     let mut hits = Vec::new();
     for id in ids {
-        bus.send(&CanFrame::new8(
-            CanId::Standard(u16::from(id)),
-            SpecialFrame::Disable.bytes(),
-        ))?;
-        let deadline = bus.now() + timeout;
-        while let Some(frame) = bus.recv_until(deadline)? {
-            let CanId::Standard(reply_id) = frame.id() else {
-                continue;
-            };
-            let Ok(reply) = unpack_reply(model, frame.data()) else {
-                continue;
-            };
-            let named = match model.family {
-                super::models::MotorFamily::Damiao => reply.motor_id == id & 0x0F,
-                _ => reply.motor_id == id,
-            };
-            if named {
-                hits.push(ScanHit {
-                    motor_id: id,
-                    reply_id,
-                    reply,
-                });
+        // A silent ID is asked again before it counts as missing: one lost or late reply is not
+        // an absent motor.
+        for _ in 0..SCAN_TRIES {
+            if let Some(hit) = ask_once(bus, model, id, timeout)? {
+                hits.push(hit);
                 break;
             }
         }
