@@ -783,10 +783,66 @@ fn play_writes_a_report_with_plots_and_the_reactor_metrics() {
         html.matches("<svg").count() >= 9 && html.contains("left_knee tracking"),
         "plots missing"
     );
+    let md = std::fs::read_to_string(dir.join("summary.md")).unwrap();
     assert!(
-        std::fs::read_to_string(dir.join("summary.md"))
-            .unwrap()
-            .contains("| success (root within 1 m and 45°) | yes |")
+        md.contains(
+            "| success (no fall, no safety stop, played to the end, root within 1 m and 45°) | yes |"
+        ) && md.contains("| reference played | 100 % |"),
+        "{md}"
+    );
+    assert_eq!(summary["played"], 1.0);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_run_stopped_by_a_fault_is_no_success_in_the_report_or_the_batch() {
+    // The right knee falls silent during the soft start: the run stops before the clip plays.
+    let dir = std::env::temp_dir().join(format!("robodeploy-fault-report-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mirror = dir.join("fault.toml");
+    std::fs::write(
+        &mirror,
+        "gantry = true\n[[faults]]\nat_s = 0.5\njoint = \"right_knee\"\nfault = { kind = \"vanish\" }\n",
+    )
+    .unwrap();
+    let out = robodeploy()
+        .args(["play", "--mirror"])
+        .arg(&mirror)
+        .arg("--record")
+        .arg(dir.join("run.mcap"))
+        .arg("--report")
+        .arg(&dir)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(3), "{stdout}");
+    assert!(
+        stdout.contains("success (no fall") && stdout.contains("): NO"),
+        "{stdout}"
+    );
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["success"], false, "{summary}");
+    assert_eq!(summary["safety_stop"], true, "{summary}");
+    assert_eq!(summary["played"], 0.0, "{summary}");
+    let clip = robots::reference_robot_path().with_file_name("clips/squat.csv");
+    let (_, table, _) = run(&[
+        "batch".as_ref(),
+        "--seeds".as_ref(),
+        "0-1".as_ref(),
+        "--mirror".as_ref(),
+        mirror.as_os_str(),
+        "--clips".as_ref(),
+        clip.as_os_str(),
+    ]);
+    let row = table
+        .lines()
+        .find(|l| l.contains("squat.csv"))
+        .unwrap_or_else(|| panic!("{table}"));
+    assert_eq!(
+        row.split_whitespace().nth(2),
+        Some("0%"),
+        "success column: {table}"
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -137,7 +137,8 @@ pub fn run_batch(
         .map(|(c, path)| {
             let mine: Vec<&BatchRun> = runs.iter().filter(|r| r.clip == c).collect();
             let ok: Vec<&PlaySummary> = mine.iter().filter_map(|r| r.result.as_ref().ok()).collect();
-            let clean = |s: &PlaySummary| !s.fell && s.transitions.iter().all(|t| !t.cause.is_fault());
+            // The same criterion as the report's (controller::metrics::tracking_success).
+            let clean = |s: &PlaySummary| s.success();
             let mean = |f: &dyn Fn(&PlaySummary) -> f64| {
                 if ok.is_empty() {
                     f64::NAN

@@ -8,6 +8,8 @@ use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::Path;
 
+use controller::metrics::{root_error, tracking_success};
+
 use crate::AnalysisError;
 
 /// The headline numbers of a run.
@@ -25,8 +27,15 @@ pub struct RunSummary {
     pub root_position_rmse_cm: Option<f64>,
     /// Root orientation RMSE, deg (simulation runs).
     pub root_orientation_rmse_deg: Option<f64>,
-    /// ReActor success: root never more than 1 m or 45° from the reference.
-    pub success: Option<bool>,
+    /// Whether the base fell (tilt beyond the run's limit; simulation runs).
+    pub fell: Option<bool>,
+    /// Whether a fault stopped the run.
+    pub safety_stop: bool,
+    /// Share of the reference played (when the recording says how long it was).
+    pub played: Option<f64>,
+    /// Success: no fall, no safety stop, the reference played to its end, and (simulation) the
+    /// root never more than 1 m or 45° from the reference's — [`tracking_success`].
+    pub success: bool,
     /// Mean magnitude of the third time derivative of joint positions, rad/s³.
     pub jitter: f64,
     /// Ticks where some joint's feedback was missing.
@@ -52,6 +61,12 @@ struct Series {
     compute: Vec<f64>,
     safety: Vec<(u64, String, String)>,
     joints: Vec<String>,
+    /// A safety transition had a fault as its cause.
+    faulted: bool,
+    /// Ticks of the reference, when the recording says.
+    reference_ticks: Option<usize>,
+    /// The run's tilt limit, rad (the default when the recording does not say).
+    tilt_limit: f64,
 }
 
 fn floats(v: &serde_json::Value) -> Vec<f64> {
@@ -67,7 +82,10 @@ fn read(path: &Path) -> Result<Series, AnalysisError> {
 fn read_series(path: &Path) -> Result<Series, String> {
     let bytes = std::fs::read(path).map_err(|e| format!("cannot read: {e}"))?;
     let stream = mcap::MessageStream::new(&bytes).map_err(|e| format!("not an MCAP file: {e}"))?;
-    let mut s = Series::default();
+    let mut s = Series {
+        tilt_limit: controller::safety::SafetyLimits::default().tilt,
+        ..Series::default()
+    };
     for message in stream {
         let m = message.map_err(|e| format!("{e}"))?;
         let v: serde_json::Value =
@@ -93,6 +111,14 @@ fn read_series(path: &Path) -> Result<Series, String> {
                 s.tracking.push(v["tracking"].as_bool().unwrap_or(false));
             }
             "/replay" => {
+                if s.base_pose.is_empty() {
+                    let meta = &m.channel.metadata;
+                    s.reference_ticks = meta.get("reference_ticks").and_then(|n| n.parse().ok());
+                    s.tilt_limit = meta
+                        .get("run")
+                        .and_then(|j| controller::options::RunMetadata::from_json(j).ok())
+                        .map_or(s.tilt_limit, |r| r.options.limits.tilt);
+                }
                 let p = floats(&v["base_pose"]);
                 s.base_pose
                     .push(std::array::from_fn(|i| p.get(i).copied().unwrap_or(f64::NAN)));
@@ -101,11 +127,14 @@ fn read_series(path: &Path) -> Result<Series, String> {
                 s.io.push(v["io_us"].as_f64().unwrap_or(0.0));
                 s.compute.push(v["compute_us"].as_f64().unwrap_or(0.0));
             }
-            "/safety" => s.safety.push((
-                v["tick"].as_u64().unwrap_or(0),
-                v["mode"].as_str().unwrap_or("?").to_owned(),
-                v["cause"].as_str().unwrap_or("").to_owned(),
-            )),
+            "/safety" => {
+                s.faulted |= v["fault"].as_bool().unwrap_or(false);
+                s.safety.push((
+                    v["tick"].as_u64().unwrap_or(0),
+                    v["mode"].as_str().unwrap_or("?").to_owned(),
+                    v["cause"].as_str().unwrap_or("").to_owned(),
+                ));
+            }
             _ => {}
         }
     }
@@ -123,12 +152,6 @@ fn quantiles(v: &[f64]) -> [f64; 3] {
     s.sort_by(f64::total_cmp);
     let at = |p: f64| s[((p * (s.len() - 1) as f64).round() as usize).min(s.len() - 1)];
     [at(0.5), at(0.99), s[s.len() - 1]]
-}
-
-/// Angle between two orientations `[w, x, y, z]`, rad.
-fn angle_between(a: [f64; 4], b: [f64; 4]) -> f64 {
-    let dot: f64 = (0..4).map(|i| a[i] * b[i]).sum();
-    2.0 * dot.abs().clamp(0.0, 1.0).acos()
 }
 
 fn summarize(s: &Series) -> RunSummary {
@@ -160,17 +183,32 @@ fn summarize(s: &Series) -> RunSummary {
         .sqrt()
         .to_degrees();
     let has_truth = s.base_pose.iter().any(|p| !p[0].is_nan());
-    let (mut pos_sq, mut ori_sq, mut success) = (0.0, 0.0, true);
+    let (mut pos_sq, mut ori_sq, mut root_max) = (0.0, 0.0, (0.0f64, 0.0f64));
     for &k in &window {
         let (Some(p), Some(r)) = (s.base_pose.get(k), s.reference_root.get(k)) else {
             continue;
         };
-        let d = ((p[0] - r[0]).powi(2) + (p[1] - r[1]).powi(2) + (p[2] - r[2]).powi(2)).sqrt();
-        let a = angle_between([p[3], p[4], p[5], p[6]], [r[3], r[4], r[5], r[6]]);
+        let (d, a) = root_error(*p, *r);
         pos_sq += d * d;
         ori_sq += a * a;
-        success &= d <= 1.0 && a <= 45f64.to_radians();
+        root_max = (root_max.0.max(d), root_max.1.max(a));
     }
+    // Fell: the base tilted beyond the run's limit at any tick (simulation truth).
+    let fell = has_truth.then(|| {
+        s.base_pose
+            .iter()
+            .filter(|p| !p[0].is_nan())
+            .any(|p| controller::safety::tilt_of([p[3], p[4], p[5], p[6]]) > s.tilt_limit)
+    });
+    let played = s
+        .reference_ticks
+        .map(|n| (window.len() as f64 / n.max(1) as f64).min(1.0));
+    let success = tracking_success(
+        fell.unwrap_or(false),
+        s.faulted,
+        played,
+        has_truth.then_some(root_max),
+    );
     // Jitter: third derivative by finite differences over the tracking window.
     let mut jitter = (0.0, 0usize);
     for w in window.windows(4) {
@@ -194,7 +232,10 @@ fn summarize(s: &Series) -> RunSummary {
         joints_rmse_deg,
         root_position_rmse_cm: has_truth.then(|| (pos_sq / count).sqrt() * 100.0),
         root_orientation_rmse_deg: has_truth.then(|| (ori_sq / count).sqrt().to_degrees()),
-        success: has_truth.then_some(success),
+        fell,
+        safety_stop: s.faulted,
+        played,
+        success,
         jitter: if jitter.1 > 0 {
             jitter.0 / jitter.1 as f64
         } else {
@@ -288,21 +329,29 @@ pub fn write_report(log: &Path, dir: &Path) -> Result<RunSummary, AnalysisError>
         summary.ticks, summary.tracking_ticks
     );
     let _ = writeln!(md, "| joint RMSE | {:.2}° |", summary.joints_rmse_deg);
-    if let (Some(p), Some(o), Some(ok)) = (
-        summary.root_position_rmse_cm,
-        summary.root_orientation_rmse_deg,
-        summary.success,
-    ) {
+    if let (Some(p), Some(o)) = (summary.root_position_rmse_cm, summary.root_orientation_rmse_deg) {
         let _ = writeln!(
             md,
             "| root position RMSE | {p:.1} cm |\n| root orientation RMSE | {o:.1}° |"
         );
-        let _ = writeln!(
-            md,
-            "| success (root within 1 m and 45°) | {} |",
-            if ok { "yes" } else { "NO" }
-        );
     }
+    let yes = |b: bool| if b { "yes" } else { "NO" };
+    if let Some(fell) = summary.fell {
+        let _ = writeln!(md, "| fell | {} |", if fell { "YES" } else { "no" });
+    }
+    let _ = writeln!(
+        md,
+        "| safety stop | {} |",
+        if summary.safety_stop { "YES" } else { "no" }
+    );
+    if let Some(p) = summary.played {
+        let _ = writeln!(md, "| reference played | {:.0} % |", 100.0 * p);
+    }
+    let _ = writeln!(
+        md,
+        "| success (no fall, no safety stop, played to the end, root within 1 m and 45°) | {} |",
+        yes(summary.success)
+    );
     let _ = writeln!(
         md,
         "| jitter (mean \\|d³q/dt³\\|) | {:.2} rad/s³ |",

@@ -217,6 +217,7 @@ fn with_recorder<L: RobotLink>(
         joint_names: player.joint_names(),
         root_frame: player.root_frame(),
         run: Some(run),
+        reference_ticks: Some(player.reference_ticks()),
         bus_names: player.link().bus_names().to_vec(),
         kinematics: Some((
             robot.mjcf_path.clone(),

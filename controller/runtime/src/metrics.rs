@@ -3,7 +3,19 @@
 
 use std::time::Duration;
 
+use robots::spatial;
+
 use crate::safety::Transition;
+
+/// Distance (m) and rotation angle (rad) between two root poses `[x, y, z, w, qx, qy, qz]`.
+pub fn root_error(a: [f64; 7], b: [f64; 7]) -> (f64, f64) {
+    let d = spatial::norm(spatial::sub([a[0], a[1], a[2]], [b[0], b[1], b[2]]));
+    let rel = spatial::quat_mul(
+        spatial::quat_conj([a[3], a[4], a[5], a[6]]),
+        [b[3], b[4], b[5], b[6]],
+    );
+    (d, spatial::norm(spatial::quat_log(rel)))
+}
 
 /// A histogram of durations in 10 µs bins up to 40 ms, preallocated.
 #[derive(Debug, Clone)]
@@ -98,6 +110,10 @@ pub struct PlaySummary {
     pub jitter: Histogram,
     /// With a live reference: from the arrival of the input a tick used to its bus write.
     pub live_latency: Option<Histogram>,
+    /// Largest root position (m) and orientation (rad) error over the clip (simulation).
+    pub root_max_error: Option<(f64, f64)>,
+    /// Share of the reference played (1 = to its end; live references count as played).
+    pub played: f64,
     /// What the telemetry logger wrote, when recording.
     pub telemetry: Option<crate::telemetry::TelemetryReport>,
 }
@@ -114,6 +130,12 @@ impl std::fmt::Display for PlaySummary {
             writeln!(f, "root position RMSE:  {:.1} cm", r * 100.0)?;
         }
         writeln!(f, "fell: {}", if self.fell { "YES" } else { "no" })?;
+        writeln!(f, "reference played: {:.0} %", 100.0 * self.played)?;
+        writeln!(
+            f,
+            "success (no fall, no safety stop, played to the end, root within 1 m and 45°): {}",
+            if self.success() { "yes" } else { "NO" }
+        )?;
         writeln!(
             f,
             "ticks where the governor limited a command: {}",
@@ -208,6 +230,38 @@ impl PlaySummary {
     }
 }
 
+/// ReActor's tracking success, with what makes a run count at all: no fall, no safety stop, the
+/// reference played to its end, and (when the root is known) the root never more than 1 m or 45°
+/// from the reference's. Reports and batch tables both decide by this.
+pub fn tracking_success(
+    fell: bool,
+    safety_stop: bool,
+    played: Option<f64>,
+    root_max_error: Option<(f64, f64)>,
+) -> bool {
+    !fell
+        && !safety_stop
+        && played.is_none_or(|p| p >= 1.0 - 1e-9)
+        && root_max_error.is_none_or(|(d, a)| d <= ROOT_SUCCESS_M && a <= ROOT_SUCCESS_RAD)
+}
+
+/// ReActor's success bound on the root's position error, m.
+pub const ROOT_SUCCESS_M: f64 = 1.0;
+/// ReActor's success bound on the root's orientation error, rad (45°).
+pub const ROOT_SUCCESS_RAD: f64 = std::f64::consts::FRAC_PI_4;
+
+impl PlaySummary {
+    /// Whether the run counts as a success ([`tracking_success`]).
+    pub fn success(&self) -> bool {
+        tracking_success(
+            self.fell,
+            matches!(self.outcome(), RunOutcome::SafetyStop { .. }),
+            Some(self.played),
+            self.root_max_error,
+        )
+    }
+}
+
 /// The running sums behind a [`PlaySummary`], updated in the tick without allocating.
 #[derive(Debug, Clone, Default)]
 pub struct RunMetrics {
@@ -215,6 +269,9 @@ pub struct RunMetrics {
     joint_samples: u64,
     sq_root_error: f64,
     root_samples: u64,
+    root_max: (f64, f64),
+    /// Reference ticks played (in the clip proper).
+    pub played_ticks: u64,
     /// Ticks that missed their deadline.
     pub overruns: u64,
     /// Policy ticks where the governor changed a command.
@@ -232,20 +289,31 @@ pub struct RunMetrics {
 }
 
 impl RunMetrics {
-    /// Adds one tick's joint errors (measured − reference) and, in simulation, the root's.
-    pub fn add_tracking(&mut self, q: &[f64], reference: &[f64], root: Option<([f64; 3], [f64; 3])>) {
+    /// Adds one tick's joint errors (measured − reference) and, in simulation, the root's
+    /// (measured and reference root poses `[x, y, z, w, qx, qy, qz]`).
+    pub fn add_tracking(&mut self, q: &[f64], reference: &[f64], root: Option<([f64; 7], [f64; 7])>) {
         for (a, b) in q.iter().zip(reference) {
             self.sq_joint_error += (a - b) * (a - b);
         }
         self.joint_samples += q.len() as u64;
+        self.played_ticks += 1;
         if let Some((measured, wanted)) = root {
-            self.sq_root_error += (0..3).map(|k| (measured[k] - wanted[k]).powi(2)).sum::<f64>();
+            let (d, a) = root_error(measured, wanted);
+            self.sq_root_error += d * d;
             self.root_samples += 1;
+            self.root_max = (self.root_max.0.max(d), self.root_max.1.max(a));
         }
     }
 
-    /// The summary of a run of `ticks` over `took`.
-    pub fn summary(&self, ticks: u64, took: Duration, transitions: &[Transition], live: bool) -> PlaySummary {
+    /// The summary of a run of `ticks` over `took`, of a reference `reference_ticks` long.
+    pub fn summary(
+        &self,
+        ticks: u64,
+        took: Duration,
+        transitions: &[Transition],
+        live: bool,
+        reference_ticks: usize,
+    ) -> PlaySummary {
         PlaySummary {
             ticks,
             duration_s: took.as_secs_f64(),
@@ -264,6 +332,12 @@ impl RunMetrics {
             io: self.io.clone(),
             jitter: self.jitter.clone(),
             live_latency: live.then(|| self.live_latency.clone()),
+            root_max_error: (self.root_samples > 0).then_some(self.root_max),
+            played: if live {
+                1.0
+            } else {
+                (self.played_ticks as f64 / reference_ticks.max(1) as f64).min(1.0)
+            },
             telemetry: None,
         }
     }

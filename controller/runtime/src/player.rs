@@ -282,6 +282,11 @@ impl<L: RobotLink> Player<L> {
         &self.targets
     }
 
+    /// Ticks of the reference at the policy rate.
+    pub fn reference_ticks(&self) -> usize {
+        self.cursor.reference().len()
+    }
+
     /// Ticks run.
     pub fn ticks(&self) -> u64 {
         self.tick
@@ -573,10 +578,7 @@ impl<L: RobotLink> Player<L> {
         }
         // Tracking error against the clip (not during the ramp or the end).
         if self.cursor.in_clip() {
-            let root = has_truth.then(|| {
-                let (t, r) = (self.truth.root_pose, self.cursor.current_root());
-                ([t[0], t[1], t[2]], [r[0], r[1], r[2]])
-            });
+            let root = has_truth.then(|| (self.truth.root_pose, self.cursor.current_root()));
             self.metrics
                 .add_tracking(&self.state.q, self.cursor.current_q(), root);
         }
@@ -584,8 +586,13 @@ impl<L: RobotLink> Player<L> {
     }
 
     fn summary(&self, took: Duration) -> PlaySummary {
-        self.metrics
-            .summary(self.tick, took, &self.machine.transitions, self.cursor.is_live())
+        self.metrics.summary(
+            self.tick,
+            took,
+            &self.machine.transitions,
+            self.cursor.is_live(),
+            self.cursor.reference().len(),
+        )
     }
 
     /// Asks for a soft stop (what SIGINT does).

@@ -86,6 +86,8 @@ pub struct TickRecord {
     pub cause: [u8; 64],
     /// Bytes of `cause` in use.
     pub cause_len: u8,
+    /// Whether that cause is a fault (a safety stop), not the normal course of a run.
+    pub cause_fault: bool,
 }
 
 impl Default for TickRecord {
@@ -121,6 +123,7 @@ impl Default for TickRecord {
             buses: 0,
             cause: [0; 64],
             cause_len: 0,
+            cause_fault: false,
         }
     }
 }
@@ -217,6 +220,7 @@ impl TickRecord {
             let mut cursor = std::io::Cursor::new(&mut r.cause[..]);
             let _ = write!(cursor, "{cause}");
             r.cause_len = cursor.position() as u8;
+            r.cause_fault = cause.is_fault();
         }
     }
 }
@@ -297,6 +301,8 @@ pub struct RecordingInfo {
     pub root_frame: String,
     /// How to rebuild the run (files, options), for replays.
     pub run: Option<crate::options::RunMetadata>,
+    /// Ticks of the reference at the policy rate (how much of it a run played is reported).
+    pub reference_ticks: Option<usize>,
     /// Bus names, in the order of [`TickRecord::bus_us`].
     pub bus_names: Vec<String>,
     /// The robot's MJCF and its joint names in robot order: with them the logger also writes a
@@ -331,7 +337,7 @@ const TOPICS: [(&str, &str); 8] = [
     ),
     (
         "/safety",
-        r#"{"type":"object","properties":{"tick":{"type":"integer"},"mode":{"type":"string"},"cause":{"type":"string"}}}"#,
+        r#"{"type":"object","properties":{"tick":{"type":"integer"},"mode":{"type":"string"},"cause":{"type":"string"},"fault":{"type":"boolean"}}}"#,
     ),
     (
         "/imu",
@@ -382,6 +388,9 @@ impl TelemetrySink {
         let mut replay_meta = meta.clone();
         if let Some(run) = run {
             replay_meta.insert("run".into(), run.to_json());
+        }
+        if let Some(n) = info.reference_ticks {
+            replay_meta.insert("reference_ticks".into(), n.to_string());
         }
         let mut channels = Vec::with_capacity(TOPICS.len());
         for (topic, schema) in TOPICS {
@@ -575,7 +584,11 @@ fn encode(out: &mut String, k: usize, r: &TickRecord, root: &str, last_mode: &mu
             *last_mode = r.mode;
             let name = MODE_NAMES.get(usize::from(r.mode)).copied().unwrap_or("?");
             let cause = std::str::from_utf8(&r.cause[..usize::from(r.cause_len)]).unwrap_or("?");
-            let _ = write!(out, "\"tick\":{},\"mode\":\"{name}\",\"cause\":{cause:?}", r.tick);
+            let _ = write!(
+                out,
+                "\"tick\":{},\"mode\":\"{name}\",\"cause\":{cause:?},\"fault\":{}",
+                r.tick, r.cause_fault
+            );
         }
         4 => {
             array64(out, "gyro", r.imu[..3].iter().copied());
