@@ -98,6 +98,7 @@ fn truth_of(world: &Arc<Mutex<Mirror>>, truth: &mut GroundTruth) -> bool {
         &mut truth.base_lin_vel,
         &mut truth.foot_contacts,
     );
+    truth.simulation_failed = w.diverged().is_some();
     true
 }
 

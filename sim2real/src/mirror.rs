@@ -150,6 +150,8 @@ pub struct Mirror {
     root_dof: usize,
     root_body: usize,
     feet: Vec<usize>,
+    /// Set when the simulation diverged; physics stops there.
+    diverged: Option<String>,
     now: SimInstant,
     physics_dt: Duration,
     next_physics: SimInstant,
@@ -349,6 +351,7 @@ impl Mirror {
             root_dof,
             root_body,
             feet,
+            diverged: None,
             now: SimInstant::ZERO,
             physics_dt,
             next_physics: SimInstant::ZERO,
@@ -467,6 +470,7 @@ impl Mirror {
     /// Ground truth a state estimator would provide: root pose `[x, y, z, w, qx, qy, qz]`, root
     /// linear velocity in the base frame, and whether each foot (robot.toml order) touches anything.
     pub fn ground_truth(&self, root_pose: &mut [f64; 7], base_lin_vel: &mut [f64; 3], feet: &mut [bool]) {
+        // (The caller also asks [`Self::diverged`]: a diverged mirror's truth is not the robot's.)
         *root_pose = self.root_pose();
         let v = self.data.qvel();
         // The free joint's linear velocity is in the world frame; rotate it into the base.
@@ -580,7 +584,20 @@ impl Mirror {
                 self.data.qfrc_applied_mut()[j.dof] = bias;
             }
         }
+        if self.diverged.is_some() {
+            // A diverged simulation stays where it stopped: stepping it on only resets it again
+            // and again (MuJoCo's answer to NaN), which would look like a robot that moves.
+            self.stats.physics_steps += 1;
+            return;
+        }
         self.data.step();
+        if let Some(why) = self.divergence() {
+            tracing::warn!(
+                "mirror: the simulation diverged at t = {:.3} s: {why}",
+                self.data.time()
+            );
+            self.diverged = Some(format!("at t = {:.3} s: {why}", self.data.time()));
+        }
         if let Some(jig) = &self.jig {
             // A jig is rigid: the joints are where it puts them, whatever the motors do.
             for (j, &q) in self.joints.iter().zip(jig) {
@@ -589,6 +606,31 @@ impl Mirror {
             }
         }
         self.stats.physics_steps += 1;
+    }
+
+    /// Why the simulation can no longer be trusted, if it cannot: MuJoCo's own instability
+    /// warnings (bad position, velocity or acceleration, which it answers by resetting), or a
+    /// state that is no longer finite.
+    fn divergence(&self) -> Option<String> {
+        use mujoco_rs::mujoco_c::mjtWarning as W;
+        let warnings = &self.data.ffi().warning;
+        for (w, what) in [
+            (W::mjWARN_BADQPOS, "bad joint positions"),
+            (W::mjWARN_BADQVEL, "bad joint velocities"),
+            (W::mjWARN_BADQACC, "bad joint accelerations (unstable)"),
+        ] {
+            if warnings[w as usize].number > 0 {
+                return Some(format!("MuJoCo warned of {what}"));
+            }
+        }
+        let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
+        (!(finite(self.data.qpos()) && finite(self.data.qvel())))
+            .then(|| "the state is not finite".to_owned())
+    }
+
+    /// Why the simulation stopped being trustworthy, if it did (then it no longer moves).
+    pub fn diverged(&self) -> Option<&str> {
+        self.diverged.as_deref()
     }
 
     fn hold_on_gantry(&mut self, g: Gantry) {

@@ -439,6 +439,35 @@ fn torque_actions_on_position_servos_are_refused_when_the_policy_loads() {
 }
 
 #[test]
+fn a_diverging_mirror_is_a_safety_stop_not_a_robot_that_keeps_moving() {
+    // Masses scaled to almost nothing make the mirror's physics blow up under the motors' torques.
+    let mirror = MirrorConfig {
+        gantry: true,
+        randomization: sim2real::config::Randomization {
+            mass_scale: sim2real::config::Range::fixed(1e-9),
+            ..Default::default()
+        },
+        ..MirrorConfig::default()
+    };
+    let (mut p, mut clock, world) = player(
+        follower(),
+        biped("clips/squat.csv"),
+        mirror,
+        PlayOptions::default(),
+    );
+    let s = p.run(&mut clock).unwrap();
+    let diverged = world.lock().unwrap().diverged().map(str::to_owned);
+    assert!(diverged.is_some(), "the mirror did not notice: {s}");
+    let stop = transition(&s, Mode::Stopping).unwrap_or_else(|| panic!("{s}"));
+    assert_eq!(stop.cause, Cause::SimulationFailed, "{s}");
+    assert!(matches!(
+        s.outcome(),
+        controller::metrics::RunOutcome::SafetyStop { .. }
+    ));
+    assert!(!s.success());
+}
+
+#[test]
 fn a_policy_with_two_named_inputs_gets_each_its_terms() {
     let dir = std::env::temp_dir().join(format!("play-two-inputs-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();

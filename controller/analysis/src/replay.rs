@@ -107,6 +107,7 @@ fn recording(path: &Path) -> Result<Recording, String> {
                 root_pose: std::array::from_fn(|i| pose[i]),
                 base_lin_vel: [lin[0], lin[1], lin[2]],
                 foot_contacts: numbers(&v, "feet")?.iter().map(|&f| f != 0.0).collect(),
+                simulation_failed: v["simulation_failed"].as_bool().unwrap_or(false),
             })
         });
         let t = numbers(&v, "target")?;

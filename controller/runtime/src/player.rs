@@ -370,6 +370,9 @@ impl<L: RobotLink> Player<L> {
             self.fail(cause);
         }
         if has_truth {
+            if self.truth.simulation_failed {
+                self.fail(Cause::SimulationFailed);
+            }
             let p = self.truth.root_pose;
             self.metrics.fell |= tilt_of([p[3], p[4], p[5], p[6]]) > self.options.limits.tilt;
         }

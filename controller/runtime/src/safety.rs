@@ -90,6 +90,8 @@ pub enum Cause {
         /// Target minus measured position, rad.
         error: f64,
     },
+    /// The mirrored simulation diverged (unstable or non-finite physics).
+    SimulationFailed,
     /// An e-stop input fired.
     EStop,
     /// A bus failed as a whole.
@@ -119,6 +121,7 @@ impl std::fmt::Display for Cause {
                 "joint {joint}: {:.0}° from its target for too long",
                 error.to_degrees()
             ),
+            Self::SimulationFailed => write!(f, "the mirror's simulation diverged"),
             Self::EStop => write!(f, "e-stop"),
             Self::BusFailure => write!(f, "bus failure"),
             Self::HoldDone => write!(f, "hold or blend done"),

@@ -60,6 +60,8 @@ pub struct TickRecord {
     pub foot_contacts: [bool; MAX_FEET],
     /// Whether a stop had been requested when the tick ran.
     pub stop_requested: bool,
+    /// Whether the simulation had diverged (ground truth says so).
+    pub simulation_failed: bool,
     /// Commanded targets: q, qd, kp, kd, tau.
     pub target: [[f64; 5]; MAX_JOINTS],
     /// Commanded torque on/off.
@@ -110,6 +112,7 @@ impl Default for TickRecord {
             base_lin_vel: [0.0; 3],
             foot_contacts: [false; MAX_FEET],
             stop_requested: false,
+            simulation_failed: false,
             target: [[0.0; 5]; MAX_JOINTS],
             enabled: [false; MAX_JOINTS],
             reference_q: [0.0; MAX_JOINTS],
@@ -208,6 +211,7 @@ impl TickRecord {
         r.feet = feet as u8;
         r.foot_contacts[..feet].copy_from_slice(&t.foot_contacts[..feet]);
         r.stop_requested = v.stop_requested;
+        r.simulation_failed = v.has_truth && t.simulation_failed;
         let b = v.bus_times.len().min(r.bus_us.len());
         r.buses = b as u8;
         for (slot, t) in r.bus_us.iter_mut().zip(&v.bus_times[..b]) {
@@ -605,8 +609,8 @@ fn encode(out: &mut String, k: usize, r: &TickRecord, root: &str, last_mode: &mu
             let f = usize::from(r.feet);
             let _ = write!(
                 out,
-                "\"tick\":{},\"imu_missed\":{},\"stop\":{},",
-                r.tick, r.imu_missed, r.stop_requested
+                "\"tick\":{},\"imu_missed\":{},\"stop\":{},\"simulation_failed\":{},",
+                r.tick, r.imu_missed, r.stop_requested, r.simulation_failed
             );
             array64(out, "q", r.q[..n].iter().copied());
             out.push(',');

@@ -88,4 +88,6 @@ pub struct GroundTruth {
     pub base_lin_vel: [f64; 3],
     /// Foot contact flags.
     pub foot_contacts: Vec<bool>,
+    /// The simulation itself failed (diverged): nothing it says about the robot holds.
+    pub simulation_failed: bool,
 }
