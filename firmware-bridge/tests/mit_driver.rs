@@ -167,7 +167,7 @@ fn a_silent_motor_is_detected_within_one_tick_and_the_tick_stays_bounded() {
     tick(&rig, &mut drivers[..1], &hold([0.0; 3]));
     rig.lock().unwrap().motor_mut(1).firmware.inject(InjectedFaults {
         silent: true,
-        fault: None,
+        ..InjectedFaults::default()
     });
     let before = drivers[0].now();
     let report = drivers[0].cycle(&hold([0.0; 3])).unwrap();

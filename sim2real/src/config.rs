@@ -48,7 +48,7 @@ impl Default for Randomization {
 pub struct ScheduledFault {
     /// When, seconds after the start.
     pub at_s: f64,
-    /// The joint (robot.toml name) whose device misbehaves.
+    /// The joint (robot.toml name) whose device misbehaves, or `"imu"` for the IMU.
     pub joint: String,
     /// What happens.
     pub fault: FaultKind,
@@ -58,12 +58,14 @@ pub struct ScheduledFault {
 #[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
 #[serde(rename_all = "snake_case", tag = "kind")]
 pub enum FaultKind {
-    /// The device stops answering for `count` packets/frames (`None`: for good).
+    /// The device stops answering for `count` packets/frames (`None`: for good; at least 1).
+    /// MIT motors still act on what they hear; the IMU loses `count` output cycles.
     Silent {
         /// How many answers are lost.
         count: Option<u32>,
     },
-    /// The device's answers carry a bad CRC (Dynamixel) for `count` answers.
+    /// The device's answers carry a bad CRC for `count` answers (at least 1). On CAN the
+    /// controller drops such frames, so the host sees lost replies.
     CorruptCrc {
         /// How many answers.
         count: u32,

@@ -132,6 +132,21 @@ pub struct MirrorStats {
     pub busy: Duration,
 }
 
+/// The joint index that stands for the IMU in a fault schedule (`joint = "imu"`).
+const IMU_TARGET: usize = usize::MAX;
+
+/// A fault on the emulated IMU.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum ImuFault {
+    None,
+    /// The next this many output cycles are lost.
+    Lost(u32),
+    /// The next this many output cycles fail their checksums.
+    Corrupt(u32),
+    /// No output any more.
+    Gone,
+}
+
 /// The mirrored robot.
 #[derive(Debug)]
 pub struct Mirror {
@@ -152,6 +167,8 @@ pub struct Mirror {
     feet: Vec<usize>,
     /// Set when the simulation diverged; physics stops there.
     diverged: Option<String>,
+    /// A fault scheduled on the IMU.
+    imu_fault: ImuFault,
     now: SimInstant,
     physics_dt: Duration,
     next_physics: SimInstant,
@@ -316,14 +333,28 @@ impl Mirror {
 
         let mut faults = Vec::new();
         for f in &config.faults {
-            let joint = robot
-                .config
-                .joints
-                .iter()
-                .position(|j| j.name == f.joint)
-                .ok_or_else(|| {
-                    MirrorError::Robot(format!("scheduled fault names unknown joint {:?}", f.joint))
-                })?;
+            let joint =
+                if f.joint == "imu" {
+                    IMU_TARGET
+                } else {
+                    robot.config.joints.iter().position(|j| j.name == f.joint).ok_or_else(|| {
+                    MirrorError::Robot(format!(
+                        "scheduled fault names unknown joint {:?} (a joint of robot.toml, or \"imu\")",
+                        f.joint
+                    ))
+                })?
+                };
+            if let FaultKind::Silent { count: Some(0) } | FaultKind::CorruptCrc { count: 0 } = f.fault {
+                return Err(MirrorError::Robot(format!(
+                    "scheduled fault for {:?}: count = 0 is no fault (leave count out: for good)",
+                    f.joint
+                )));
+            }
+            if joint == IMU_TARGET && f.fault == FaultKind::Overheat {
+                return Err(MirrorError::Robot(
+                    "scheduled fault for \"imu\": the IMU has no overheat fault (silent, corrupt_crc, vanish)".into(),
+                ));
+            }
             let at = Duration::try_from_secs_f64(f.at_s).map_err(|_| {
                 MirrorError::Robot(format!(
                     "scheduled fault for {:?}: at_s = {} is not a time",
@@ -352,6 +383,7 @@ impl Mirror {
             root_body,
             feet,
             diverged: None,
+            imu_fault: ImuFault::None,
             now: SimInstant::ZERO,
             physics_dt,
             next_physics: SimInstant::ZERO,
@@ -663,6 +695,29 @@ impl Mirror {
         };
         let mut bytes = [0u8; 44];
         self.imu.emulator.output(t, &truth, &mut bytes);
+        // The part keeps its schedule (and its noise draws) whatever is lost on the way.
+        match self.imu_fault {
+            ImuFault::None => {}
+            ImuFault::Gone => return,
+            ImuFault::Lost(n) | ImuFault::Corrupt(n) => {
+                let corrupt = matches!(self.imu_fault, ImuFault::Corrupt(_));
+                if corrupt {
+                    // Every packet of the cycle fails its checksum.
+                    for sum in bytes.iter_mut().skip(10).step_by(11) {
+                        *sum = sum.wrapping_add(1);
+                    }
+                }
+                let left = n.saturating_sub(1);
+                self.imu_fault = match left {
+                    0 => ImuFault::None,
+                    k if corrupt => ImuFault::Corrupt(k),
+                    k => ImuFault::Lost(k),
+                };
+                if !corrupt {
+                    return;
+                }
+            }
+        }
         self.imu.line.device_transmit(t, &bytes);
         self.stats.imu_outputs += 1;
     }
@@ -676,19 +731,30 @@ impl Mirror {
                 FaultKind::Vanish => servo.vanish(),
             }
         } else if let Some(motor) = self.motor_mut(joint) {
+            // CAN frames carry a hardware CRC: a corrupted reply is dropped by the controller
+            // and never reaches the host, so it counts as a lost reply.
             let injected = match fault {
-                FaultKind::Silent { .. } | FaultKind::Vanish | FaultKind::CorruptCrc { .. } => {
-                    InjectedFaults {
-                        silent: true,
-                        fault: None,
-                    }
-                }
+                FaultKind::Silent { count: None } | FaultKind::Vanish => InjectedFaults {
+                    silent: true,
+                    ..InjectedFaults::default()
+                },
+                FaultKind::Silent { count: Some(n) } | FaultKind::CorruptCrc { count: n } => InjectedFaults {
+                    lost_replies: n,
+                    ..InjectedFaults::default()
+                },
                 FaultKind::Overheat => InjectedFaults {
-                    silent: false,
                     fault: Some(MotorFault::OverTemperature),
+                    ..InjectedFaults::default()
                 },
             };
             motor.inject(injected);
+        } else if joint == IMU_TARGET {
+            self.imu_fault = match fault {
+                FaultKind::Silent { count: None } | FaultKind::Vanish => ImuFault::Gone,
+                FaultKind::Silent { count: Some(n) } => ImuFault::Lost(n),
+                FaultKind::CorruptCrc { count } => ImuFault::Corrupt(count),
+                FaultKind::Overheat => ImuFault::None,
+            };
         }
         self.stats.faults_applied += 1;
     }

@@ -249,3 +249,73 @@ fn models_with_their_own_position_actuators_track_the_firmware_goals() {
     drop(w);
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn counted_faults_end_after_their_count_on_can_motors_and_the_imu() {
+    let fault = |joint: &str, fault| ScheduledFault {
+        at_s: 0.2,
+        joint: joint.into(),
+        fault,
+    };
+    let mut h = host(MirrorConfig {
+        faults: vec![
+            fault("right_knee", FaultKind::Silent { count: Some(3) }),
+            fault("left_knee", FaultKind::CorruptCrc { count: 2 }),
+            fault("imu", FaultKind::Silent { count: Some(10) }),
+        ],
+        gantry: true,
+        ..MirrorConfig::default()
+    });
+    let index = |name: &str| h.robot.config.joints.iter().position(|j| j.name == name).unwrap();
+    let (right, left) = (index("right_knee"), index("left_knee"));
+    let mut worst = (0, 0, 0);
+    for _ in 0..25 {
+        h.run(0.02);
+        let s = h.inner.state();
+        worst = (
+            worst.0.max(s.missed[right]),
+            worst.1.max(s.missed[left]),
+            worst.2.max(s.imu_missed),
+        );
+    }
+    // One command per tick: 3 (and 2) lost replies are 3 (and 2) stale ticks in a row, then back.
+    assert_eq!(worst.0, 3);
+    assert_eq!(worst.1, 2);
+    // The IMU lost exactly its 10 output cycles (a tick went without a sample), then came back.
+    assert!(worst.2 >= 1, "{worst:?}");
+    let s = h.inner.state();
+    assert_eq!((s.missed[right], s.missed[left], s.imu_missed), (0, 0, 0));
+    let mut clean = host(MirrorConfig {
+        gantry: true,
+        ..MirrorConfig::default()
+    });
+    for _ in 0..25 {
+        clean.run(0.02);
+    }
+    let outputs = |h: &Host| h.inner.world.lock().unwrap().stats().imu_outputs;
+    assert_eq!(outputs(&clean) - outputs(&h), 10);
+}
+
+#[test]
+fn a_fault_plan_that_means_nothing_is_refused_by_name() {
+    let robot = Robot::load(&reference_robot_path()).unwrap();
+    let refuse = |joint: &str, fault| {
+        let config = MirrorConfig {
+            faults: vec![ScheduledFault {
+                at_s: 1.0,
+                joint: joint.into(),
+                fault,
+            }],
+            ..MirrorConfig::default()
+        };
+        Mirror::new(robot.clone(), config).unwrap_err().to_string()
+    };
+    let e = refuse("right_knee", FaultKind::Silent { count: Some(0) });
+    assert!(e.contains("right_knee") && e.contains("count = 0"), "{e}");
+    let e = refuse("left_elbow", FaultKind::CorruptCrc { count: 0 });
+    assert!(e.contains("count = 0"), "{e}");
+    let e = refuse("imu", FaultKind::Overheat);
+    assert!(e.contains("imu") && e.contains("overheat"), "{e}");
+    let e = refuse("tail", FaultKind::Vanish);
+    assert!(e.contains("unknown joint \"tail\""), "{e}");
+}

@@ -59,6 +59,9 @@ impl MitFirmwareConfig {
 pub struct InjectedFaults {
     /// The motor stops answering (and stops listening): a cut cable or a dead driver board.
     pub silent: bool,
+    /// The next this many replies are lost on the wire (the motor heard and acted; its answer did
+    /// not arrive): a loose connector, or frames the controller dropped for a bad CRC.
+    pub lost_replies: u32,
     /// Report and act on this fault (torque off) from now on.
     pub fault: Option<MotorFault>,
 }
@@ -183,6 +186,10 @@ impl MitMotorFirmware {
                 }
                 self.last_command = Some(now);
             }
+        }
+        if self.injected.lost_replies > 0 {
+            self.injected.lost_replies -= 1;
+            return None;
         }
         self.frames_answered += 1;
         Some(self.reply(plant))
@@ -413,21 +420,37 @@ mod tests {
     }
 
     #[test]
+    fn lost_replies_come_back_after_their_count_while_the_motor_keeps_listening() {
+        let model = find("AK80-9").unwrap();
+        let mut fw = MitMotorFirmware::new(MitFirmwareConfig::new(1, model));
+        let plant = InertiaPlant::new(0.01, 0.0, 0.0, 0.0);
+        fw.inject(InjectedFaults {
+            lost_replies: 2,
+            ..InjectedFaults::default()
+        });
+        let enable = special(1, SpecialFrame::Enable);
+        assert!(fw.on_frame(SimInstant::ZERO, &enable, &plant).is_none());
+        assert!(fw.enabled(), "a lost reply is not a deaf motor");
+        assert!(fw.on_frame(SimInstant::ZERO, &enable, &plant).is_none());
+        assert!(fw.on_frame(SimInstant::ZERO, &enable, &plant).is_some());
+    }
+
+    #[test]
     fn injected_faults_silence_or_trip_the_motor() {
         let model = find("AK80-9").unwrap();
         let mut fw = MitMotorFirmware::new(MitFirmwareConfig::new(1, model));
         let plant = InertiaPlant::new(0.01, 0.0, 0.0, 0.0);
         fw.inject(InjectedFaults {
             silent: true,
-            fault: None,
+            ..InjectedFaults::default()
         });
         assert!(
             fw.on_frame(SimInstant::ZERO, &special(1, SpecialFrame::Enable), &plant)
                 .is_none()
         );
         fw.inject(InjectedFaults {
-            silent: false,
             fault: Some(MotorFault::OverCurrent),
+            ..InjectedFaults::default()
         });
         let r = fw
             .on_frame(SimInstant::ZERO, &special(1, SpecialFrame::Enable), &plant)
