@@ -75,6 +75,9 @@ pub fn previous_path_for(robot_toml: &Path) -> PathBuf {
 impl Calibration {
     /// Reads `path`; a missing file is no calibration (`Ok(None)`).
     pub fn read(path: &Path) -> Result<Option<Self>, FileError> {
+        if path.exists() {
+            crate::check_regular_file(path).map_err(|m| FileError::new(path, m))?;
+        }
         match std::fs::read_to_string(path) {
             Ok(text) => toml::from_str(&text)
                 .map(Some)

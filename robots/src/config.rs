@@ -234,7 +234,7 @@ impl Robot {
             place: place.to_owned(),
             message,
         };
-        let text = std::fs::read_to_string(path).map_err(|e| err("file", format!("cannot read: {e}")))?;
+        let text = crate::read_text(path).map_err(|m| err("file", m))?;
         Self::from_str(path, &text)
     }
 
@@ -508,6 +508,16 @@ impl Robot {
             check_actuator(j, bus.kind).map_err(|(f, msg)| (at(f), msg))?;
         }
         Ok(())
+    }
+}
+
+/// Whether `kp`/`kd` (joint side) fit `j`'s actuator: the error names the actuator's ranges. For
+/// gains that come from elsewhere (a policy manifest) than robot.toml.
+pub fn check_gains(j: &JointConfig, kind: BusKind, kp: f64, kd: f64) -> Result<(), String> {
+    let probe = JointConfig { kp, kd, ..j.clone() };
+    match check_actuator(&probe, kind) {
+        Err(("kp", message)) => Err(message),
+        _ => Ok(()),
     }
 }
 

@@ -12,7 +12,7 @@ pub mod spatial;
 
 pub use config::{
     BodyPair, BusConfig, BusKind, HumanBody, ImuConfig, JointConfig, OrientationCompare, RetargetConfig,
-    Robot, RobotConfig, RobotError,
+    Robot, RobotConfig, RobotError, check_gains,
 };
 
 /// A file that could not be read, parsed or written, and what was wrong with it.
@@ -32,6 +32,39 @@ impl FileError {
             path: path.to_path_buf(),
             message: message.into(),
         }
+    }
+}
+
+/// Largest text file the project reads (robot and policy files, clips, motion capture), bytes.
+pub const MAX_TEXT_FILE_BYTES: u64 = 256 << 20;
+
+/// Reads a text input file: refused unless it is a regular file of at most
+/// [`MAX_TEXT_FILE_BYTES`] (a device such as `/dev/zero`, a folder or a FIFO would hang or exhaust
+/// memory), and valid UTF-8. The message says what is wrong, without the path (callers name it).
+pub fn read_text(path: &std::path::Path) -> Result<String, String> {
+    check_regular_file(path)?;
+    std::fs::read_to_string(path).map_err(|e| format!("cannot read: {e}"))
+}
+
+/// Refuses anything but a regular file of at most [`MAX_TEXT_FILE_BYTES`].
+pub fn check_regular_file(path: &std::path::Path) -> Result<(), String> {
+    let meta = std::fs::metadata(path).map_err(|e| format!("cannot read: {e}"))?;
+    if !meta.is_file() {
+        return Err("not a regular file".into());
+    }
+    if meta.len() > MAX_TEXT_FILE_BYTES {
+        return Err(format!("{} bytes: larger than {MAX_TEXT_FILE_BYTES}", meta.len()));
+    }
+    Ok(())
+}
+
+/// A number as a person reads it in an error: plain when ordinary, in exponent form when huge or
+/// tiny (`1e308`, not 309 digits).
+pub fn num(v: f64) -> String {
+    if v != 0.0 && !(1e-3..1e6).contains(&v.abs()) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
     }
 }
 

@@ -41,7 +41,7 @@ pub fn summarize(path: &Path) -> Result<MjcfSummary, FileError> {
 }
 
 fn summarize_text(path: &Path) -> Result<MjcfSummary, String> {
-    let text = std::fs::read_to_string(path).map_err(|e| format!("cannot read: {e}"))?;
+    let text = crate::read_text(path)?;
     let doc = roxmltree::Document::parse(&text).map_err(|e| format!("not valid XML: {e}"))?;
     let root = doc.root_element();
     if root.tag_name().name() != "mujoco" {

@@ -61,7 +61,15 @@ impl ServedMirror {
         let mut can = Vec::new();
         let mut can_endpoints = Vec::new();
         for (i, (name, bus)) in can_buses.into_iter().enumerate() {
-            let port = if first_port == 0 { 0 } else { first_port + i as u16 };
+            let port = match first_port {
+                0 => 0,
+                first => u16::try_from(usize::from(first) + i).map_err(|_| {
+                    std::io::Error::new(
+                        std::io::ErrorKind::InvalidInput,
+                        format!("port {first} + {i}: the CAN buses' ports run past 65535"),
+                    )
+                })?,
+            };
             let server =
                 SocketcandServer::spawn(SocketAddr::new(ip, port), &name, bus.attach(), move || {
                     start.elapsed()

@@ -25,24 +25,22 @@ pub fn trace_from_run(path: &Path) -> Result<(ObsTrace, RunMetadata), AnalysisEr
 }
 
 fn run_trace(path: &Path) -> Result<(ObsTrace, RunMetadata), String> {
-    let bytes = std::fs::read(path).map_err(|e| format!("cannot read: {e}"))?;
-    let stream = mcap::MessageStream::new(&bytes).map_err(|e| format!("not an MCAP file: {e}"))?;
+    let bytes = crate::recording::read(path)?;
     let mut trace = ObsTrace {
         steps: Vec::new(),
         ticks: Vec::new(),
     };
     let mut run = std::collections::BTreeMap::new();
-    for message in stream {
-        let m = message.map_err(|e| format!("{e}"))?;
-        if m.channel.topic == "/replay" && run.is_empty() {
-            run = m.channel.metadata.clone();
+    crate::recording::for_each_message(&bytes, |m| {
+        if m.topic == "/replay" && run.is_empty() {
+            run = m.metadata.clone();
         }
-        if m.channel.topic != "/policy" {
-            continue;
+        if m.topic != "/policy" {
+            return Ok(());
         }
-        let v: serde_json::Value = serde_json::from_slice(&m.data).map_err(|e| format!("/policy: {e}"))?;
+        let v: serde_json::Value = serde_json::from_slice(m.data).map_err(|e| format!("/policy: {e}"))?;
         if v["running"].as_bool() != Some(true) {
-            continue;
+            return Ok(());
         }
         let obs = v["obs"]
             .as_array()
@@ -52,7 +50,8 @@ fn run_trace(path: &Path) -> Result<(ObsTrace, RunMetadata), String> {
             .collect();
         trace.steps.push(obs);
         trace.ticks.push(v["tick"].as_u64().unwrap_or(0));
-    }
+        Ok(())
+    })?;
     if trace.steps.is_empty() {
         return Err("no Running ticks with observations".to_owned());
     }
@@ -73,17 +72,18 @@ fn export_trace(path: &Path) -> Result<ObsTrace, String> {
     let steps: Vec<Vec<f32>> = if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("npz")) {
         let arrays = controller::npy::read_npz(path).map_err(|e| e.message)?;
         match arrays.get("obs") {
-            Some(NpyArray::Numbers { shape, data }) if shape.len() == 2 => data
-                .chunks(shape[1])
-                .map(|r| r.iter().map(|&x| x as f32).collect())
-                .collect(),
+            Some(NpyArray::Numbers { shape, data }) if shape.len() == 2 && shape[0] > 0 && shape[1] > 0 => {
+                data.chunks(shape[1])
+                    .map(|r| r.iter().map(|&x| x as f32).collect())
+                    .collect()
+            }
             Some(_) => {
                 return Err("obs must be a steps × values number array".into());
             }
             None => return Err("no obs array".into()),
         }
     } else {
-        let text = std::fs::read_to_string(path).map_err(|e| format!("cannot read: {e}"))?;
+        let text = robots::read_text(path)?;
         let mut rows = Vec::new();
         for (i, line) in text
             .lines()
@@ -99,6 +99,9 @@ fn export_trace(path: &Path) -> Result<ObsTrace, String> {
         }
         rows
     };
+    if steps.is_empty() {
+        return Err("no observations (one row per step, one column per value)".into());
+    }
     let n = steps.len() as u64;
     Ok(ObsTrace {
         steps,
@@ -130,6 +133,13 @@ pub fn compare(
     tolerance: f64,
 ) -> Result<Vec<TermDiff>, AnalysisError> {
     let steps = a.steps.len().min(b.steps.len());
+    if steps == 0 {
+        return Err(AnalysisError::Mismatch(format!(
+            "nothing to compare: the traces have {} and {} steps",
+            a.steps.len(),
+            b.steps.len()
+        )));
+    }
     for (name, t) in [("first", a), ("second", b)] {
         if let Some(s) = t.steps.iter().take(steps).find(|s| s.len() != layout.obs_len) {
             return Err(AnalysisError::Mismatch(format!(

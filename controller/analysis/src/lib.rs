@@ -5,6 +5,7 @@ pub mod batch;
 pub mod compare;
 pub mod error;
 pub mod motion_check;
+pub mod recording;
 pub mod replay;
 pub mod report;
 

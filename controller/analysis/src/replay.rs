@@ -66,20 +66,18 @@ pub fn read_recording(path: &Path) -> Result<Recording, AnalysisError> {
 }
 
 fn recording(path: &Path) -> Result<Recording, String> {
-    let bytes = std::fs::read(path).map_err(|e| format!("cannot read: {e}"))?;
-    let stream = mcap::MessageStream::new(&bytes).map_err(|e| format!("not an MCAP file: {e}"))?;
+    let bytes = crate::recording::read(path)?;
     let mut run = BTreeMap::new();
     let mut ticks = Vec::new();
-    for message in stream {
-        let m = message.map_err(|e| format!("{e}"))?;
-        if m.channel.topic != "/replay" {
-            continue;
+    crate::recording::for_each_message(&bytes, |m| {
+        if m.topic != "/replay" {
+            return Ok(());
         }
         if run.is_empty() {
-            run = m.channel.metadata.clone();
+            run = m.metadata.clone();
         }
         let v: serde_json::Value =
-            serde_json::from_slice(&m.data).map_err(|e| format!("/replay message: {e}"))?;
+            serde_json::from_slice(m.data).map_err(|e| format!("/replay message: {e}"))?;
         let (q, qd, tau) = (numbers(&v, "q")?, numbers(&v, "qd")?, numbers(&v, "tau")?);
         let n = q.len();
         let mut state = RobotState::new(n);
@@ -89,6 +87,22 @@ fn recording(path: &Path) -> Result<Recording, String> {
         state.missed = numbers(&v, "missed")?.iter().map(|&m| m as u32).collect();
         state.faulted = numbers(&v, "faulted")?.iter().map(|&f| f != 0.0).collect();
         let imu = numbers(&v, "imu")?;
+        for (key, want) in [
+            ("qd", n),
+            ("tau", n),
+            ("missed", n),
+            ("faulted", n),
+            ("target", 5 * n),
+            ("enabled", n),
+        ] {
+            let got = numbers(&v, key)?.len();
+            if got != want {
+                return Err(format!(
+                    "/replay tick {}: {key} has {got} values for {n} joints",
+                    v["tick"]
+                ));
+            }
+        }
         if imu.len() != 10 {
             return Err(format!(
                 "{}: /replay imu has {} values",
@@ -101,8 +115,16 @@ fn recording(path: &Path) -> Result<Recording, String> {
         state.quat = [imu[6], imu[7], imu[8], imu[9]];
         state.imu_missed = v["imu_missed"].as_u64().unwrap_or(0) as u32;
         let pose = numbers(&v, "base_pose")?;
+        let lin = numbers(&v, "base_lin_vel")?;
+        if pose.len() != 7 || lin.len() != 3 {
+            return Err(format!(
+                "/replay tick {}: base_pose has {} values (7), base_lin_vel {} (3)",
+                v["tick"],
+                pose.len(),
+                lin.len()
+            ));
+        }
         let truth = (!pose[0].is_nan()).then(|| -> Result<GroundTruth, String> {
-            let lin = numbers(&v, "base_lin_vel")?;
             Ok(GroundTruth {
                 root_pose: std::array::from_fn(|i| pose[i]),
                 base_lin_vel: [lin[0], lin[1], lin[2]],
@@ -129,7 +151,8 @@ fn recording(path: &Path) -> Result<Recording, String> {
             stop: v["stop"].as_bool().unwrap_or(false),
             targets,
         });
-    }
+        Ok(())
+    })?;
     if ticks.is_empty() {
         return Err(format!(
             "{}: no /replay messages (record with robodeploy play)",

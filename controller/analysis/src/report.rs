@@ -80,21 +80,17 @@ fn read(path: &Path) -> Result<Series, AnalysisError> {
 }
 
 fn read_series(path: &Path) -> Result<Series, String> {
-    let bytes = std::fs::read(path).map_err(|e| format!("cannot read: {e}"))?;
-    let stream = mcap::MessageStream::new(&bytes).map_err(|e| format!("not an MCAP file: {e}"))?;
+    let bytes = crate::recording::read(path)?;
     let mut s = Series {
         tilt_limit: controller::safety::SafetyLimits::default().tilt,
         ..Series::default()
     };
-    for message in stream {
-        let m = message.map_err(|e| format!("{e}"))?;
-        let v: serde_json::Value =
-            serde_json::from_slice(&m.data).map_err(|e| format!("{}: {e}", m.channel.topic))?;
-        match m.channel.topic.as_str() {
+    crate::recording::for_each_message(&bytes, |m| {
+        let v: serde_json::Value = serde_json::from_slice(m.data).map_err(|e| format!("{}: {e}", m.topic))?;
+        match m.topic {
             "/joint_state" => {
                 if s.joints.is_empty() {
                     s.joints = m
-                        .channel
                         .metadata
                         .get("joint_names")
                         .map_or_else(Vec::new, |n| n.split(',').map(str::to_owned).collect());
@@ -112,7 +108,7 @@ fn read_series(path: &Path) -> Result<Series, String> {
             }
             "/replay" => {
                 if s.base_pose.is_empty() {
-                    let meta = &m.channel.metadata;
+                    let meta = &m.metadata;
                     s.reference_ticks = meta.get("reference_ticks").and_then(|n| n.parse().ok());
                     s.tilt_limit = meta
                         .get("run")
@@ -137,7 +133,8 @@ fn read_series(path: &Path) -> Result<Series, String> {
             }
             _ => {}
         }
-    }
+        Ok(())
+    })?;
     if s.q.is_empty() {
         return Err("no /joint_state messages".to_owned());
     }

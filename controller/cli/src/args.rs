@@ -43,6 +43,44 @@ pub fn id_range(s: &str, max: u8) -> Result<(u8, u8), String> {
     Ok((a, b))
 }
 
+/// A flag's number, refused (by clap, naming the flag) unless finite and within `[lo, hi]`.
+pub fn within(lo: f64, hi: f64) -> impl Fn(&str) -> Result<f64, String> + Clone + Send + Sync + 'static {
+    move |text: &str| {
+        let v: f64 = text
+            .trim()
+            .parse()
+            .map_err(|_| format!("{text:?} is not a number"))?;
+        if v.is_finite() && (lo..=hi).contains(&v) {
+            Ok(v)
+        } else {
+            Err(format!(
+                "{} is outside [{}, {}]",
+                robots::num(v),
+                robots::num(lo),
+                robots::num(hi)
+            ))
+        }
+    }
+}
+
+/// A flag's whole number, refused unless within `[lo, hi]`.
+pub fn whole_within(
+    lo: u64,
+    hi: u64,
+) -> impl Fn(&str) -> Result<u64, String> + Clone + Send + Sync + 'static {
+    move |text: &str| {
+        let v: u64 = text
+            .trim()
+            .parse()
+            .map_err(|_| format!("{text:?} is not a whole number"))?;
+        if (lo..=hi).contains(&v) {
+            Ok(v)
+        } else {
+            Err(format!("{v} is outside [{lo}, {hi}]"))
+        }
+    }
+}
+
 /// What happens when the clip ends (`--end`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum EndArg {

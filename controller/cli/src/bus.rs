@@ -35,7 +35,7 @@ pub struct ScanArgs {
     #[arg(long)]
     sim: bool,
     /// How long to wait for each answer, ms.
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, default_value_t = 20, value_parser = crate::args::whole_within(1, 10_000))]
     timeout_ms: u64,
 }
 

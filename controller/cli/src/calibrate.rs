@@ -102,7 +102,7 @@ pub struct VerifyArgs {
     #[command(flatten)]
     target: Target,
     /// Fail when a joint ends farther than this from the default pose, deg.
-    #[arg(long, default_value_t = 3.0)]
+    #[arg(long, default_value_t = 3.0, value_parser = crate::args::within(0.01, 45.0))]
     tolerance_deg: f64,
     /// The tick log (CSV: every command and reading).
     #[arg(long, default_value = "out/calibration/verify-log.csv")]

@@ -45,10 +45,10 @@ pub struct EmulateArgs {
     #[arg(long = "motor", required = true, value_parser = parse_motor)]
     motors: Vec<(u8, String)>,
     /// Bus bitrate, bit/s (frames take their wire time at this rate).
-    #[arg(long, default_value_t = 1_000_000)]
+    #[arg(long, default_value_t = 1_000_000, value_parser = clap::value_parser!(u32).range(10_000..=1_000_000))]
     bitrate: u32,
     /// Stop after this many seconds (default: run until interrupted).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::args::whole_within(1, 31_536_000))]
     seconds: Option<u64>,
 }
 
@@ -71,7 +71,7 @@ pub struct ScanArgs {
     #[arg(long, default_value = "1-16", value_parser = parse_range)]
     ids: (u8, u8),
     /// How long to wait for each answer, ms.
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, default_value_t = 20, value_parser = crate::args::whole_within(1, 10_000))]
     timeout_ms: u64,
 }
 

@@ -38,13 +38,13 @@ pub struct EmulateArgs {
     #[arg(long, default_value_t = 1_000_000)]
     baud: u32,
     /// Return Delay Time of the servos, µs (factory: 500).
-    #[arg(long, default_value_t = 500)]
+    #[arg(long, default_value_t = 500, value_parser = crate::args::whole_within(0, 508))]
     return_delay_us: u64,
     /// USB adapter latency added to every answer, µs (FTDI default 16000; tuned adapters 1000).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = crate::args::whole_within(0, 100_000))]
     usb_latency_us: u64,
     /// Stop after this many seconds (default: run until interrupted).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::args::whole_within(1, 31_536_000))]
     seconds: Option<u64>,
 }
 
@@ -61,7 +61,7 @@ pub struct ScanArgs {
     #[arg(long, default_value = "1-20", value_parser = parse_ids)]
     ids: (u8, u8),
     /// How long to wait for each answer, ms.
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, default_value_t = 20, value_parser = crate::args::whole_within(1, 10_000))]
     timeout_ms: u64,
 }
 

@@ -103,7 +103,7 @@ enum Command {
         /// Another run, or a training export (.npz / .csv).
         other: PathBuf,
         /// Differences up to this are equal.
-        #[arg(long, default_value_t = 1e-3)]
+        #[arg(long, default_value_t = 1e-3, value_parser = crate::args::within(0.0, 1e6))]
         tolerance: f64,
     },
     /// Write the report of a recorded run: tracking plots, root error, success, RMSE, jitter,

@@ -39,10 +39,10 @@ pub struct PlayArgs {
     #[arg(long, value_enum, default_value_t = crate::args::EndArg::Hold)]
     end: crate::args::EndArg,
     /// Seconds of the start-up ramp ψ (clip held at its first frame).
-    #[arg(long, default_value_t = 1.5)]
+    #[arg(long, default_value_t = 1.5, value_parser = crate::args::within(0.0, 60.0))]
     ramp: f64,
     /// Stop (softly) after this many seconds of the run, whatever the clip.
-    #[arg(long)]
+    #[arg(long, value_parser = crate::args::within(0.02, 86_400.0))]
     max_seconds: Option<f64>,
     /// Real-time set-up of the loop thread: SCHED_FIFO, mlockall, pinned to the last CPU. Steps
     /// the system refuses are reported and skipped.

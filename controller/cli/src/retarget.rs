@@ -22,7 +22,7 @@ pub struct RetargetArgs {
     #[arg(long, default_value = "out/clips/retargeted.csv")]
     out: PathBuf,
     /// Clip rate, Hz.
-    #[arg(long, default_value_t = 50.0)]
+    #[arg(long, default_value_t = 50.0, value_parser = crate::args::within(1.0, 1000.0))]
     rate: f64,
     /// The recording's frame that matches the robot's nominal pose (CMU trials start in a T-pose).
     #[arg(long, default_value_t = 0)]
@@ -35,11 +35,11 @@ pub struct RetargetArgs {
     #[arg(long, value_enum, default_value_t = crate::args::NominalArg::Tpose)]
     nominal: crate::args::NominalArg,
     /// Inverse-kinematics iterations per frame.
-    #[arg(long, default_value_t = 12)]
-    iterations: usize,
+    #[arg(long, default_value_t = 12, value_parser = crate::args::whole_within(1, 1000))]
+    iterations: u64,
     /// Gaussian smoothing of the result, σ in seconds (0: none): mocap jitter would otherwise
     /// ask the motors for accelerations they do not have.
-    #[arg(long, default_value_t = 0.08)]
+    #[arg(long, default_value_t = 0.08, value_parser = crate::args::within(0.0, 1.0))]
     smoothing: f64,
 }
 
@@ -61,7 +61,7 @@ pub fn run(args: &RetargetArgs) -> Result<()> {
         nominal_frame: args.nominal_frame,
         start_frame: args.start_frame,
         nominal: args.nominal.into(),
-        iterations: args.iterations,
+        iterations: args.iterations as usize,
         smoothing_s: args.smoothing,
     };
     let bar = indicatif::ProgressBar::new_spinner().with_message("retargeting");

@@ -45,13 +45,13 @@ pub struct StandArgs {
     #[arg(long)]
     gantry: bool,
     /// Simulated seconds.
-    #[arg(long, default_value_t = 3.0)]
+    #[arg(long, default_value_t = 3.0, value_parser = crate::args::within(0.001, 3600.0))]
     seconds: f64,
     /// Folder for the frames (frame_0000.png …); none when absent.
     #[arg(long)]
     frames: Option<PathBuf>,
     /// Frames per simulated second.
-    #[arg(long, default_value_t = 10.0)]
+    #[arg(long, default_value_t = 10.0, value_parser = crate::args::within(0.1, 100.0))]
     fps: f64,
     /// Frame size, px.
     #[arg(long, default_value = "480x360", value_parser = parse_size)]
@@ -91,13 +91,13 @@ pub struct ServeArgs {
     #[arg(long, default_value_t = 29536)]
     port: u16,
     /// Stop after this many seconds (default: run until interrupted).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::args::whole_within(1, 31_536_000))]
     seconds: Option<u64>,
 }
 
 /// Reads mirror settings from a TOML file; errors name the file and the line.
 pub fn load_mirror_config(path: &Path) -> Result<MirrorConfig> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let text = robots::read_text(path).map_err(|m| robots::FileError::new(path, m))?;
     toml::from_str(&text).with_context(|| format!("{}: invalid mirror settings", path.display()))
 }
 

@@ -42,16 +42,16 @@ pub struct TeleopArgs {
     #[arg(long)]
     headset_only: bool,
     /// Seconds the user holds the T-pose at the start.
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, default_value_t = 0.5, value_parser = crate::args::within(0.1, 60.0))]
     tpose: f64,
     /// Seconds without tracker data after which the stream counts as lost.
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, default_value_t = 0.5, value_parser = crate::args::within(0.02, 60.0))]
     lost_after: f64,
     /// Seconds to blend back to the standby pose after a loss.
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, value_parser = crate::args::within(0.0, 60.0))]
     blend: f64,
     /// Stop (softly) after this many seconds; otherwise Ctrl-C.
-    #[arg(long)]
+    #[arg(long, value_parser = crate::args::within(0.02, 86_400.0))]
     max_seconds: Option<f64>,
     /// Run on the robot's own buses instead of the mirror.
     #[arg(long)]
@@ -80,19 +80,19 @@ pub struct SendArgs {
     #[arg(long, default_value_t = SocketAddr::from(([127, 0, 0, 1], VMC_PORT)))]
     to: SocketAddr,
     /// Packets per second.
-    #[arg(long, default_value_t = 72.0)]
+    #[arg(long, default_value_t = 72.0, value_parser = crate::args::within(1.0, 1000.0))]
     rate: f64,
     /// Seconds the T-pose is held first.
-    #[arg(long, default_value_t = 1.5)]
+    #[arg(long, default_value_t = 1.5, value_parser = crate::args::within(0.0, 60.0))]
     tpose: f64,
     /// First frame of the motion after the T-pose.
     #[arg(long, default_value_t = 1)]
     start_frame: usize,
     /// Stop after this many seconds (T-pose included).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::args::within(0.01, 86_400.0))]
     seconds: Option<f64>,
     /// Position noise (standard deviation), mm.
-    #[arg(long, default_value_t = 2.0)]
+    #[arg(long, default_value_t = 2.0, value_parser = crate::args::within(0.0, 100.0))]
     noise_mm: f64,
 }
 

@@ -67,6 +67,15 @@ pub struct Pose {
     pub rot: Vec<Mat3>,
 }
 
+/// Most frames a recording may have (an hour at 120 Hz).
+pub const MAX_FRAMES: usize = 432_000;
+
+/// Frame times a recording may have, s (1000 Hz to 1 Hz).
+pub const FRAME_TIME_S: std::ops::RangeInclusive<f64> = 0.001..=1.0;
+
+/// Longest recording, s.
+pub const MAX_DURATION_S: f64 = 3600.0;
+
 fn err(path: &Path, line: usize, message: impl std::fmt::Display) -> HumanError {
     HumanError::Motion {
         file: path.to_path_buf(),
@@ -78,6 +87,11 @@ fn err(path: &Path, line: usize, message: impl std::fmt::Display) -> HumanError 
 impl Bvh {
     /// Reads and parses `path`.
     pub fn load(path: &Path) -> Result<Self, HumanError> {
+        robots::check_regular_file(path).map_err(|message| HumanError::Motion {
+            file: path.to_path_buf(),
+            line: 0,
+            message,
+        })?;
         let text = std::fs::read_to_string(path).map_err(|source| HumanError::Read {
             file: path.to_path_buf(),
             source,
@@ -198,14 +212,39 @@ impl Bvh {
         let frames: usize = frames_line
             .strip_prefix("Frames:")
             .and_then(|v| v.trim().parse().ok())
-            .ok_or_else(|| err(path, n, "expected 'Frames: N'"))?;
+            .filter(|f| (1..=MAX_FRAMES).contains(f))
+            .ok_or_else(|| {
+                err(
+                    path,
+                    n,
+                    format!("expected 'Frames: N' with N in [1, {MAX_FRAMES}]"),
+                )
+            })?;
         let (n, time_line) = next("Frame Time:")?;
         let frame_time: f64 = time_line
             .strip_prefix("Frame Time:")
             .and_then(|v| v.trim().parse().ok())
-            .filter(|t: &f64| t.is_finite() && *t > 0.0)
-            .ok_or_else(|| err(path, n, "expected 'Frame Time: SECONDS' (positive)"))?;
-        let mut motion = Vec::with_capacity(frames * channels);
+            .filter(|t: &f64| FRAME_TIME_S.contains(t))
+            .ok_or_else(|| {
+                err(
+                    path,
+                    n,
+                    format!(
+                        "expected 'Frame Time: SECONDS' in [{}, {}]",
+                        FRAME_TIME_S.start(),
+                        FRAME_TIME_S.end()
+                    ),
+                )
+            })?;
+        if frames as f64 * frame_time > MAX_DURATION_S {
+            return Err(err(
+                path,
+                n,
+                format!("{frames} frames of {frame_time} s: a recording lasts at most {MAX_DURATION_S} s"),
+            ));
+        }
+        // The rows that follow are counted, not trusted: reserve no more than the text can hold.
+        let mut motion = Vec::with_capacity((frames * channels).min(text.len() / 2));
         let mut rows = 0;
         for (n, line) in lines {
             if line.is_empty() {
@@ -399,7 +438,9 @@ mod tests {
     fn broken_files_are_refused_with_their_line() {
         let path = Path::new("bad.bvh");
         let good = "HIERARCHY\nROOT Hips\n{\nOFFSET 0 0 0\nCHANNELS 6 Xposition Yposition Zposition Zrotation Yrotation Xrotation\nJOINT LeftHand\n{\nOFFSET 1 0 0\nCHANNELS 3 Zrotation Yrotation Xrotation\nEnd Site\n{\nOFFSET 1 0 0\n}\n}\n}\nMOTION\nFrames: 1\nFrame Time: 0.01\n0 18 0 0 0 0 0 0 0\n";
-        assert!(Bvh::parse(path, good).is_ok());
+        if let Err(e) = Bvh::parse(path, good) {
+            panic!("{e}");
+        }
         let e = Bvh::parse(path, &good.replace("0 18 0 0 0 0 0 0 0", "0 18 0 0 0 0 0 0"))
             .unwrap_err()
             .to_string();

@@ -133,10 +133,10 @@ impl Clip {
 
     /// Reads a CSV clip.
     pub fn load_csv(path: &Path) -> Result<Self, ClipError> {
-        let text = std::fs::read_to_string(path).map_err(|e| ClipError {
+        let text = robots::read_text(path).map_err(|message| ClipError {
             file: path.to_path_buf(),
             place: "file".into(),
-            message: format!("cannot read: {e}"),
+            message,
         })?;
         Self::parse_csv(path, &text)
     }
@@ -169,6 +169,19 @@ impl Clip {
             .iter()
             .map(|s| (*s).to_owned())
             .collect();
+        if let Some((k, name)) = joints
+            .iter()
+            .enumerate()
+            .find(|(k, name)| joints[..*k].contains(name))
+        {
+            return Err(err(
+                format!("line {}", header_line + 1),
+                format!(
+                    "column {} names joint {name:?} a second time",
+                    ROOT_COLUMNS.len() + k + 1
+                ),
+            ));
+        }
         let mut clip = Self {
             path: path.to_path_buf(),
             joints,
@@ -203,6 +216,29 @@ impl Clip {
                     format!("time {} does not increase (previous {last})", row[0]),
                 ));
             }
+            if let Some(&last) = clip.times.last()
+                && row[0] - last > MAX_FRAME_GAP_S
+            {
+                return Err(err(
+                    place(),
+                    format!(
+                        "time {} is {} s after the previous frame: frames are at most {MAX_FRAME_GAP_S} s apart",
+                        robots::num(row[0]),
+                        robots::num(row[0] - last)
+                    ),
+                ));
+            }
+            if let Some(&first) = clip.times.first()
+                && row[0] - first > MAX_CLIP_S
+            {
+                return Err(err(
+                    place(),
+                    format!(
+                        "time {}: a clip lasts at most {MAX_CLIP_S} s",
+                        robots::num(row[0])
+                    ),
+                ));
+            }
             let quat = [row[4], row[5], row[6], row[7]];
             let norm = quat.iter().map(|x| x * x).sum::<f64>().sqrt();
             if (norm - 1.0).abs() > 1e-3 {
@@ -234,6 +270,12 @@ impl Clip {
         self.times[self.times.len() - 1] - self.times[0]
     }
 }
+
+/// Longest clip, s (an hour; longer programs are several clips).
+pub const MAX_CLIP_S: f64 = 3600.0;
+
+/// Largest time between two frames of a clip, s.
+pub const MAX_FRAME_GAP_S: f64 = 10.0;
 
 /// A clip resampled to the control rate, in the robot's joint order, ready to track.
 #[derive(Debug, Clone, PartialEq)]

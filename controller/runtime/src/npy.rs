@@ -49,6 +49,7 @@ pub fn read_npz(path: &Path) -> Result<BTreeMap<String, NpyArray>, NpyError> {
 }
 
 fn read_npz_entries(path: &Path) -> Result<BTreeMap<String, NpyArray>, String> {
+    robots::check_regular_file(path)?;
     let file = std::fs::File::open(path).map_err(|e| format!("cannot open: {e}"))?;
     let mut zip = zip::ZipArchive::new(file).map_err(|e| format!("not an .npz (zip) file: {e}"))?;
     let mut out = BTreeMap::new();
@@ -111,10 +112,20 @@ fn parse_npy_text(bytes: &[u8]) -> Result<NpyArray, String> {
                 .map_err(|_| format!("malformed shape {shape_text:?}"))
         })
         .collect::<Result<_, _>>()?;
-    let count: usize = shape.iter().product();
+    let count = shape
+        .iter()
+        .try_fold(1usize, |n, &d| n.checked_mul(d))
+        .ok_or_else(|| format!("shape {shape:?} is too large"))?;
     let data = &bytes[start + header_len..];
+    let unsupported = || format!("unsupported dtype {descr:?} (need <f4, <f8, <i4, <i8 or <U)");
+    if !descr.is_char_boundary(2.min(descr.len())) || descr.len() < 3 {
+        return Err(unsupported());
+    }
     let (kind, size) = descr.split_at(2);
-    let size: usize = size.parse().map_err(|_| format!("unsupported dtype {descr:?}"))?;
+    let size: usize = size.parse().map_err(|_| unsupported())?;
+    if size == 0 {
+        return Err(unsupported());
+    }
     let need = count
         .checked_mul(if kind.ends_with('U') { 4 * size } else { size })
         .ok_or("array too large")?;

@@ -155,6 +155,10 @@ fn vector_len(dtype: &ValueType) -> Result<usize, String> {
 impl OnnxModel {
     /// Loads a model and checks it has exactly one float vector input and one float vector output.
     pub fn load(path: &Path) -> Result<Self, OnnxError> {
+        robots::check_regular_file(path).map_err(|reason| OnnxError::Load {
+            path: path.to_path_buf(),
+            reason,
+        })?;
         let env = environment_for(path)?;
         let load_err = load_error(path);
         let builder_err = |e: ort::Error<_>| load_err(e.into());

@@ -60,8 +60,6 @@ impl PlayError {
     }
 }
 
-const MAX_FRAMES_AHEAD: usize = 64;
-
 /// The state machine's place.
 #[derive(Debug)]
 struct Machine {
@@ -154,9 +152,10 @@ impl<L: RobotLink> Player<L> {
             .max()
             .unwrap_or(0)
             + 1;
-        if frames > MAX_FRAMES_AHEAD {
+        if frames > crate::policy::MAX_FRAMES_AHEAD {
             return Err(PlayError::Setup(format!(
-                "the policy looks {frames} frames ahead; at most {MAX_FRAMES_AHEAD}"
+                "the policy looks {frames} frames ahead; at most {}",
+                crate::policy::MAX_FRAMES_AHEAD
             )));
         }
         let k_actions = layout

@@ -257,6 +257,51 @@ impl Term {
     }
 }
 
+/// Policy rates the loop runs, Hz.
+pub const RATE_HZ: std::ops::RangeInclusive<f64> = 1.0..=1000.0;
+
+/// Past actions a `last_actions` term may stack.
+pub const MAX_PAST_ACTIONS: usize = 16;
+
+/// Ticks ahead a reference term may look.
+pub const MAX_FRAMES_AHEAD: usize = 64;
+
+/// The documented ranges of a term's own fields (its shaping is checked by the caller).
+fn check_term(term: &Term) -> Result<(), String> {
+    let s = term.shaping();
+    if let Some(c) = s.clip
+        && !(c.is_finite() && c > 0.0)
+    {
+        return Err(format!("clip = {c} must be a positive number"));
+    }
+    if !(s.scale.abs() <= 1e6 && s.offset.abs() <= 1e6) {
+        return Err(format!("scale {} / offset {} beyond ±1e6", s.scale, s.offset));
+    }
+    match term {
+        Term::LastActions { k, .. } if !(1..=MAX_PAST_ACTIONS).contains(k) => {
+            Err(format!("k = {k} is outside [1, {MAX_PAST_ACTIONS}]"))
+        }
+        Term::RefJointPos { frames, .. }
+        | Term::RefJointVel { frames, .. }
+        | Term::RefRootPose { frames, .. }
+        | Term::RefBodyPos { frames, .. }
+            if frames.is_empty() || frames.iter().any(|&f| f > MAX_FRAMES_AHEAD - 1) =>
+        {
+            Err(format!(
+                "frames {frames:?}: one to many offsets, each at most {} ticks ahead",
+                MAX_FRAMES_AHEAD - 1
+            ))
+        }
+        Term::Command { values, .. } if values.iter().any(|v| !v.is_finite()) || values.len() > 64 => {
+            Err(format!("values {values:?}: at most 64 finite numbers"))
+        }
+        Term::Phase { period_s, .. } if !(0.01..=3600.0).contains(period_s) => {
+            Err(format!("period_s = {period_s} is outside [0.01, 3600] s"))
+        }
+        _ => Ok(()),
+    }
+}
+
 /// How actions become joint commands.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -434,7 +479,7 @@ impl PolicyLayout {
             place: place.to_owned(),
             message,
         };
-        let text = std::fs::read_to_string(path).map_err(|e| err("file", format!("cannot read: {e}")))?;
+        let text = robots::read_text(path).map_err(|m| err("file", m))?;
         let mut manifest: PolicyManifest = toml::from_str(&text).map_err(|e| {
             let line = e
                 .span()
@@ -469,23 +514,37 @@ impl PolicyLayout {
                 format!("robot joints not driven by the policy: {}", missing.join(", ")),
             ));
         }
-        if !(manifest.rate_hz > 0.0 && manifest.rate_hz <= 1000.0) {
+        if !(RATE_HZ.contains(&manifest.rate_hz)) {
             return Err(err(
                 "rate_hz",
-                format!("{} is outside (0, 1000]", manifest.rate_hz),
+                format!(
+                    "{} Hz is outside [{}, {}]",
+                    robots::num(manifest.rate_hz),
+                    RATE_HZ.start(),
+                    RATE_HZ.end()
+                ),
             ));
         }
         let a = &manifest.action;
-        for (field, v) in [
-            ("action.scale", a.scale),
-            ("action.clip", a.clip),
-            ("action.rate_limit", a.rate_limit),
-            ("action.lowpass_hz", a.lowpass_hz),
+        let nyquist = manifest.rate_hz / 2.0;
+        for (field, v, range) in [
+            ("action.scale", a.scale, 1e-6..=10.0),
+            ("action.clip", a.clip, 1e-6..=100.0),
+            ("action.rate_limit", a.rate_limit, 1e-3..=100.0),
+            ("action.lowpass_hz", a.lowpass_hz, 0.1..=nyquist),
         ] {
             if let Some(v) = v
-                && !(v.is_finite() && v > 0.0)
+                && !range.contains(&v)
             {
-                return Err(err(field, format!("{v} must be a positive number")));
+                return Err(err(
+                    field,
+                    format!(
+                        "{} is outside [{}, {}]",
+                        robots::num(v),
+                        range.start(),
+                        range.end()
+                    ),
+                ));
             }
         }
         // What the buses can honour: Dynamixel servos run their own position loop (gains and a
@@ -513,6 +572,7 @@ impl PolicyLayout {
         for (i, term) in manifest.observation.iter().enumerate() {
             let s = term.shaping();
             let place = format!("observation[{i}] ({})", term.name());
+            check_term(term).map_err(|m| err(&place, m))?;
             if s.history == 0 || s.history > 64 || !(s.scale.is_finite() && s.offset.is_finite()) {
                 return Err(err(
                     &place,
@@ -576,6 +636,11 @@ impl PolicyLayout {
                     "stiffness",
                     format!("{}: kp {} / kd {} must not be negative", j.name, kp[r], kd[r]),
                 ));
+            }
+            if let Some(bus) = robot.bus(&j.bus)
+                && let Err(m) = robots::check_gains(j, bus.kind, kp[r], kd[r])
+            {
+                return Err(err("stiffness", format!("{}: {m}", j.name)));
             }
         }
         Ok(Self {

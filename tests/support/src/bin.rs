@@ -183,6 +183,11 @@ impl Running {
     /// # Panics
     /// When waiting fails.
     pub fn finish(mut self) -> Finished {
+        let status = self.drain_and_wait();
+        self.finish_with(status)
+    }
+
+    fn drain_and_wait(&mut self) -> std::process::ExitStatus {
         // Read until both pipes close (the process ended), then reap it.
         while let Ok(line) = self.lines.recv() {
             self.seen.push(line);
@@ -190,7 +195,16 @@ impl Running {
         for r in self.readers.drain(..) {
             let _ = r.join();
         }
-        let status = self.child.wait().expect("the process can be waited for");
+        self.child.wait().expect("the process can be waited for")
+    }
+
+    fn finish_with(mut self, status: std::process::ExitStatus) -> Finished {
+        while let Ok(line) = self.lines.recv() {
+            self.seen.push(line);
+        }
+        for r in self.readers.drain(..) {
+            let _ = r.join();
+        }
         let text = |s: Stream| {
             self.seen
                 .iter()
@@ -225,4 +239,29 @@ pub fn run<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> (bool, String, String) {
         String::from_utf8_lossy(&out.stdout).into_owned(),
         String::from_utf8_lossy(&out.stderr).into_owned(),
     )
+}
+
+/// Runs `robodeploy ARGS` to the end within `limit`: its exit code (`None`: killed by a signal),
+/// stdout and stderr.
+///
+/// # Panics
+/// When the process cannot start, or is still running after `limit` (then it is killed): a hang.
+pub fn run_within<S: AsRef<std::ffi::OsStr>>(
+    args: &[S],
+    limit: std::time::Duration,
+) -> (Option<i32>, String, String) {
+    let mut run = Running::start(args);
+    let give_up = std::time::Instant::now() + limit;
+    loop {
+        if let Some(status) = run.child.try_wait().expect("the process can be waited for") {
+            let out = run.finish_with(status);
+            return (out.status.code(), out.stdout, out.stderr);
+        }
+        if std::time::Instant::now() > give_up {
+            let _ = run.child.kill();
+            let out = run.finish();
+            panic!("robodeploy hung for {limit:?}:\n{}{}", out.stdout, out.stderr);
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
 }

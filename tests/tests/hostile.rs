@@ -1,0 +1,352 @@
+//! Hostile and careless input, as regression tests: every case ends in a clear error that names the
+//! file and field (or the flag), exit status 2 (bad input), within a bound — never a panic, an
+//! abort or a hang. The inputs are the ones that once did.
+
+use std::ffi::OsString;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use test_support::bin::run_within;
+
+/// A scratch folder for one test.
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("hostile-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn biped(file: &str) -> PathBuf {
+    robots::reference_robot_path().with_file_name(file)
+}
+
+/// Runs robodeploy with `args`; asserts a bad-input refusal whose message contains `needle`.
+fn refused<S: AsRef<std::ffi::OsStr>>(args: &[S], needle: &str) {
+    let (code, stdout, stderr) = run_within(args, Duration::from_secs(120));
+    let shown: Vec<String> = args
+        .iter()
+        .map(|a| a.as_ref().to_string_lossy().into_owned())
+        .collect();
+    assert!(!stderr.contains("panicked"), "{shown:?} panicked:\n{stderr}");
+    assert_eq!(code, Some(2), "{shown:?}: status {code:?}\n{stdout}{stderr}");
+    assert!(
+        stderr.contains(needle),
+        "{shown:?}: expected {needle:?} in:\n{stderr}"
+    );
+}
+
+fn args(list: &[&dyn AsRef<std::ffi::OsStr>]) -> Vec<OsString> {
+    list.iter().map(|a| a.as_ref().to_owned()).collect()
+}
+
+/// The reference follower's manifest with `from` replaced by `to`, beside a copy of its model.
+fn manifest(dir: &Path, name: &str, from: &str, to: &str) -> PathBuf {
+    let text = std::fs::read_to_string(biped("policies/reference_follower.toml")).unwrap();
+    assert!(text.contains(from), "{from:?} not in the manifest");
+    let path = dir.join(format!("{name}.toml"));
+    std::fs::write(&path, text.replacen(from, to, 1)).unwrap();
+    let onnx = dir.join("reference_follower.onnx");
+    if !onnx.exists() {
+        std::fs::copy(biped("policies/reference_follower.onnx"), onnx).unwrap();
+    }
+    path
+}
+
+#[test]
+fn policy_manifests_with_absurd_numbers_are_refused_by_field() {
+    let dir = scratch("policy");
+    for (from, to, needle) in [
+        (
+            "k = 2",
+            "k = 1000000000000000000",
+            "(last_actions): k = 1000000000000000000 is outside [1, 16]",
+        ),
+        (
+            "clip = 5.0",
+            "clip = -1.0",
+            "(joint_vel): clip = -1 must be a positive number",
+        ),
+        (
+            "clip = 5.0",
+            "clip = nan",
+            "(joint_vel): clip = NaN must be a positive number",
+        ),
+        (
+            "frames = [0, 5]",
+            "frames = [0, 1000000000]",
+            "(ref_joint_pos): frames [0, 1000000000]",
+        ),
+        (
+            "rate_hz = 50.0",
+            "rate_hz = 1e-9",
+            "rate_hz: 1e-9 Hz is outside [1, 1000]",
+        ),
+        (
+            "rate_limit = 6.0",
+            "rate_limit = 6.0\nlowpass_hz = 1e-9",
+            "action.lowpass_hz: 1e-9 is outside [0.1, 25]",
+        ),
+        ("scale = 1.0", "scale = 1e308", "action.scale: 1e308 is outside"),
+    ] {
+        let policy = manifest(&dir, "bad", from, to);
+        refused(&args(&[&"check", &"--policy", &policy]), needle);
+    }
+    let stiff = manifest(
+        &dir,
+        "stiff",
+        "[action]",
+        "stiffness = [1e9, 1e9, 1e9, 1e9, 1e9, 1e9, 1e9, 1e9, 1e9, 1e9, 1e9, 1e9, 1e9, 1e9, 1e9, 1e9, 1e9, 1e9, 1e9, 1e9]\n\n[action]",
+    );
+    refused(
+        &args(&[&"check", &"--policy", &stiff]),
+        "stiffness: left_hip_yaw: kp",
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// The squat clip with its header and first frames, then `edit` applied to the rows.
+fn clip(dir: &Path, name: &str, edit: impl Fn(&mut Vec<Vec<String>>, &mut Vec<String>)) -> PathBuf {
+    let text = std::fs::read_to_string(biped("clips/squat.csv")).unwrap();
+    let mut lines = text.lines().filter(|l| !l.starts_with('#'));
+    let mut header: Vec<String> = lines.next().unwrap().split(',').map(str::to_owned).collect();
+    let mut rows: Vec<Vec<String>> = lines
+        .take(3)
+        .map(|l| l.split(',').map(str::to_owned).collect())
+        .collect();
+    edit(&mut rows, &mut header);
+    let path = dir.join(format!("{name}.csv"));
+    let body: Vec<String> = std::iter::once(header.join(","))
+        .chain(rows.iter().map(|r| r.join(",")))
+        .collect();
+    std::fs::write(&path, body.join("\n")).unwrap();
+    path
+}
+
+#[test]
+fn clips_with_huge_gaps_durations_or_twice_named_joints_are_refused() {
+    let dir = scratch("clips");
+    for (name, time, needle) in [
+        (
+            "gap300",
+            "1e300",
+            "time 1e300 is 1e300 s after the previous frame",
+        ),
+        (
+            "gap1e9",
+            "1e9",
+            "s after the previous frame: frames are at most 10 s apart",
+        ),
+        ("long", "1e5", "frames are at most 10 s apart"),
+    ] {
+        let path = clip(&dir, name, |rows, _| rows[2][0] = time.into());
+        refused(&args(&[&"check", &"--clip", &path]), needle);
+    }
+    let twice = clip(&dir, "twice", |rows, header| {
+        header.push(header[8].clone());
+        for r in rows.iter_mut() {
+            let v = r[8].clone();
+            r.push(v);
+        }
+    });
+    refused(
+        &args(&[&"check", &"--clip", &twice]),
+        "names joint \"left_hip_yaw\" a second time",
+    );
+    refused(
+        &args(&[&"check", &"--clip", &"/dev/zero"]),
+        "/dev/zero: file: not a regular file",
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// An `.npy` document with header `descr` and `shape`, and no data.
+fn npy(descr: &str, shape: &str) -> Vec<u8> {
+    let mut header = format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': {shape}, }}");
+    while (10 + header.len() + 1) % 64 != 0 {
+        header.push(' ');
+    }
+    header.push('\n');
+    let mut out = b"\x93NUMPY\x01\x00".to_vec();
+    out.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    out.extend_from_slice(header.as_bytes());
+    out
+}
+
+fn npz(path: &Path, name: &str, array: &[u8]) {
+    use std::io::Write as _;
+    let mut zip = zip::ZipWriter::new(std::fs::File::create(path).unwrap());
+    zip.start_file(format!("{name}.npy"), zip::write::SimpleFileOptions::default())
+        .unwrap();
+    zip.write_all(array).unwrap();
+    zip.finish().unwrap();
+}
+
+#[test]
+fn npz_files_with_impossible_headers_are_refused() {
+    let dir = scratch("npz");
+    for (name, array, descr, shape, needle) in [
+        ("u0", "joint_names", "<U0", "(2,)", "unsupported dtype \"<U0\""),
+        ("short", "joint_names", "<", "(2,)", "unsupported dtype \"<\""),
+        (
+            "huge",
+            "joint_pos",
+            "<f8",
+            "(4294967296, 4294967296, 4294967296)",
+            "is too large",
+        ),
+    ] {
+        let path = dir.join(format!("{name}.npz"));
+        npz(&path, array, &npy(descr, shape));
+        refused(&args(&[&"check", &"--clip", &path]), needle);
+    }
+    // An export with no values, or no rows, is nothing to compare against.
+    let run = dir.join("run.mcap");
+    let (code, _, stderr) = run_within(&args(&[&"play", &"--record", &run]), Duration::from_secs(300));
+    assert_eq!(code, Some(0), "{stderr}");
+    let zero = dir.join("zero.npz");
+    npz(&zero, "obs", &npy("<f8", "(5, 0)"));
+    refused(
+        &args(&[&"compare", &run, &zero]),
+        "obs must be a steps × values number array",
+    );
+    let empty = dir.join("empty.csv");
+    std::fs::write(&empty, "\n").unwrap();
+    refused(&args(&[&"compare", &run, &empty]), "no observations");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// The CMU recording's hierarchy with a motion section of `frames` frames `time` apart.
+fn bvh(dir: &Path, name: &str, frames: &str, time: &str) -> PathBuf {
+    let text = std::fs::read_to_string(
+        test_support::fixtures::workspace_root().join("data/mocap/cmu_13_26_direct-traffic-wave.bvh"),
+    )
+    .unwrap();
+    let at = text.find("MOTION").unwrap();
+    let row = text[at..].lines().nth(3).unwrap();
+    let path = dir.join(format!("{name}.bvh"));
+    std::fs::write(
+        &path,
+        format!(
+            "{}MOTION\nFrames: {frames}\nFrame Time: {time}\n{row}\n{row}\n",
+            &text[..at]
+        ),
+    )
+    .unwrap();
+    path
+}
+
+#[test]
+fn bvh_recordings_with_absurd_frame_counts_or_times_are_refused() {
+    let dir = scratch("bvh");
+    let max = u64::MAX.to_string();
+    for (name, frames, time, needle) in [
+        ("zero", "0", "0.0083333", "'Frames: N' with N in [1, 432000]"),
+        (
+            "tera",
+            "1000000000000",
+            "0.0083333",
+            "'Frames: N' with N in [1, 432000]",
+        ),
+        (
+            "max",
+            max.as_str(),
+            "0.0083333",
+            "'Frames: N' with N in [1, 432000]",
+        ),
+        ("slow", "2", "1e300", "'Frame Time: SECONDS' in [0.001, 1]"),
+        ("slower", "2", "1e6", "'Frame Time: SECONDS' in [0.001, 1]"),
+    ] {
+        let path = bvh(&dir, name, frames, time);
+        refused(
+            &args(&[&"retarget", &"--bvh", &path, &"--out", &dir.join("x.csv")]),
+            needle,
+        );
+        refused(
+            &args(&[&"vr", &"send", &"--bvh", &path, &"--seconds", &"1"]),
+            needle,
+        );
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn flags_with_absurd_values_are_refused_by_name() {
+    let bvh = test_support::fixtures::workspace_root().join("data/mocap/cmu_13_26_direct-traffic-wave.bvh");
+    for (list, needle) in [
+        (
+            args(&[&"retarget", &"--bvh", &bvh, &"--rate", &"1e9"]),
+            "'--rate <RATE>': 1e9 is outside [1, 1000]",
+        ),
+        (
+            args(&[&"retarget", &"--bvh", &bvh, &"--smoothing", &"1e9"]),
+            "'--smoothing <SMOOTHING>'",
+        ),
+        (
+            args(&[&"play", &"--no-record", &"--ramp", &"1e300"]),
+            "'--ramp <RAMP>': 1e300 is outside [0, 60]",
+        ),
+        (
+            args(&[&"sim", &"stand", &"--seconds", &"1e300"]),
+            "'--seconds <SECONDS>'",
+        ),
+        (
+            args(&[&"vr", &"send", &"--bvh", &bvh, &"--noise-mm", &"nan"]),
+            "'--noise-mm <NOISE_MM>': NaN",
+        ),
+        (
+            args(&[&"can", &"emulate", &"--motor", &"1:AK80-9", &"--bitrate", &"0"]),
+            "'--bitrate <BITRATE>'",
+        ),
+        (
+            args(&[&"play", &"--no-record", &"--max-seconds=-1"]),
+            "'--max-seconds <MAX_SECONDS>': -1 is outside",
+        ),
+    ] {
+        refused(&list, needle);
+    }
+}
+
+#[test]
+fn a_robot_file_pointing_at_a_device_is_refused_not_read_forever() {
+    let dir = scratch("robot");
+    let text = std::fs::read_to_string(robots::reference_robot_path())
+        .unwrap()
+        .replacen("mjcf = \"biped.xml\"", "mjcf = \"/dev/zero\"", 1);
+    let path = dir.join("robot.toml");
+    std::fs::write(&path, text).unwrap();
+    refused(
+        &args(&[&"check", &"--robot", &path]),
+        "mjcf: /dev/zero: not a regular file",
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn corrupted_recordings_are_refused_by_report_replay_and_compare() {
+    let dir = scratch("mcap");
+    let run = dir.join("run.mcap");
+    let (code, _, stderr) = run_within(&args(&[&"play", &"--record", &run]), Duration::from_secs(300));
+    assert_eq!(code, Some(0), "{stderr}");
+    let clean = std::fs::read(&run).unwrap();
+    // Bits flipped across the file, lengths and compressed data included: each reader either
+    // reads the file or refuses it, never crashes or runs out of memory.
+    let flipped = dir.join("flipped.mcap");
+    let step = (clean.len() / 24).max(1);
+    for at in (8..clean.len()).step_by(step) {
+        let mut bytes = clean.clone();
+        bytes[at] ^= 0x40;
+        std::fs::write(&flipped, &bytes).unwrap();
+        for list in [
+            args(&[&"report", &flipped, &"--out", &dir.join("report")]),
+            args(&[&"replay", &flipped]),
+            args(&[&"compare", &flipped, &run]),
+        ] {
+            let (code, _, stderr) = run_within(&list, Duration::from_secs(120));
+            assert!(
+                !stderr.contains("panicked") && matches!(code, Some(0 | 1 | 2 | 5)),
+                "byte {at}: {list:?} ended with {code:?}:\n{stderr}"
+            );
+        }
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
