@@ -350,3 +350,79 @@ fn corrupted_recordings_are_refused_by_report_replay_and_compare() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn a_recording_cut_by_sigkill_is_read_up_to_the_cut() {
+    let dir = scratch("sigkill");
+    let run = dir.join("run.mcap");
+    let mut play = test_support::bin::Running::start(&args(&[&"play", &"--end", &"loop", &"--record", &run]));
+    play.wait_for("soft start done", Duration::from_secs(120));
+    let killed = std::process::Command::new("kill")
+        .args(["-KILL", &play.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    let _ = play.finish();
+    let out = dir.join("report");
+    let (code, _, stderr) = run_within(
+        &args(&[&"report", &run, &"--out", &out]),
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, Some(0), "{stderr}");
+    assert!(stderr.contains("the recording ends early"), "{stderr}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert!(summary["ticks"].as_u64().unwrap() >= 30, "{summary}");
+    let (code, stdout, stderr) = run_within(&args(&[&"replay", &run]), Duration::from_secs(120));
+    assert_eq!(code, Some(0), "{stdout}{stderr}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_full_disk_fails_the_recording_clearly_and_nothing_panics() {
+    let (code, stdout, stderr) = run_within(
+        &args(&[&"play", &"--record", &"/dev/full"]),
+        Duration::from_secs(120),
+    );
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert_eq!(code, Some(5), "I/O failure: {stdout}{stderr}");
+    assert!(stderr.contains("/dev/full"), "{stderr}");
+}
+
+#[test]
+fn two_runs_at_once_never_write_the_same_default_recording() {
+    let start = || {
+        test_support::bin::Running::start(&args(&[
+            &"play",
+            &"--end",
+            &"loop",
+            &"--clip",
+            &biped("clips/wave_and_look.csv"),
+        ]))
+    };
+    let (mut a, mut b) = (start(), start());
+    a.wait_for("soft start done", Duration::from_secs(120));
+    b.wait_for("soft start done", Duration::from_secs(120));
+    for p in [&a, &b] {
+        let stopped = std::process::Command::new("kill")
+            .args(["-INT", &p.id().to_string()])
+            .status()
+            .unwrap();
+        assert!(stopped.success());
+    }
+    let file = |out: &str| {
+        out.lines()
+            .find_map(|l| l.strip_prefix("telemetry: "))
+            .and_then(|l| l.split(' ').next())
+            .unwrap_or_else(|| panic!("{out}"))
+            .to_owned()
+    };
+    let (a, b) = (a.finish(), b.finish());
+    let (fa, fb) = (file(&a.stdout), file(&b.stdout));
+    assert_ne!(fa, fb, "both wrote {fa}");
+    for f in [fa, fb] {
+        let path = test_support::fixtures::workspace_root().join("tests").join(&f);
+        let (code, _, stderr) = run_within(&args(&[&"replay", &path]), Duration::from_secs(120));
+        assert_eq!(code, Some(0), "{f}: {stderr}");
+    }
+}

@@ -50,9 +50,7 @@ fn check_chunks(b: &[u8]) -> Result<(), String> {
         let body = at + 9;
         let end = usize::try_from(len).ok().and_then(|l| body.checked_add(l));
         let Some(end) = end.filter(|&e| e <= b.len()) else {
-            return Err(format!(
-                "record at byte {at} claims {len} bytes, past the end of the file"
-            ));
+            break; // cut short (a crash): the reader gives what came before
         };
         if op == OP_CHUNK {
             // start time, end time, uncompressed size, crc, compression (len + text), records (len).
@@ -95,11 +93,13 @@ pub struct Message<'a> {
 
 /// Calls `each` with every message of `bytes` (a checked recording), in file order. Records are
 /// bounded by the file's size and chunks' CRCs are checked (the `mcap` crate's own message stream
-/// leaves its record lengths unbounded).
+/// leaves its record lengths unbounded). A recording cut short (a crash, a full disk) gives every
+/// message before the cut and a warning; damage inside the file is an error.
 pub fn for_each_message(
     bytes: &[u8],
     mut each: impl FnMut(Message<'_>) -> Result<(), String>,
 ) -> Result<(), String> {
+    let mut delivered = 0u64;
     use mcap::sans_io::{LinearReadEvent, LinearReader, LinearReaderOptions};
     let mut reader = LinearReader::new_with_options(
         LinearReaderOptions::default()
@@ -109,7 +109,15 @@ pub fn for_each_message(
     let mut channels: std::collections::HashMap<u16, mcap::records::Channel> = Default::default();
     let mut rest = bytes;
     while let Some(event) = reader.next_event() {
-        match event.map_err(|e| e.to_string())? {
+        let event = match event {
+            Ok(e) => e,
+            Err(e) if rest.is_empty() && delivered > 0 => {
+                tracing::warn!("the recording ends early ({e}): read {delivered} messages before the cut");
+                return Ok(());
+            }
+            Err(e) => return Err(e.to_string()),
+        };
+        match event {
             LinearReadEvent::ReadRequest(need) => {
                 let n = need.min(rest.len());
                 reader.insert(n).copy_from_slice(&rest[..n]);
@@ -131,6 +139,7 @@ pub fn for_each_message(
                             log_time: header.log_time,
                             data: &data,
                         })?;
+                        delivered += 1;
                     }
                     _ => {}
                 }

@@ -97,5 +97,5 @@ fn code_of(e: &(dyn std::error::Error + 'static)) -> Option<u8> {
     if bad_input {
         return Some(BAD_INPUT);
     }
-    e.is::<std::io::Error>().then_some(IO_FAILURE)
+    (e.is::<std::io::Error>() || e.is::<controller::telemetry::TelemetryError>()).then_some(IO_FAILURE)
 }

@@ -1,6 +1,6 @@
 //! `robodeploy play` and `robodeploy check`: run a policy on a clip, or validate the three files.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 
@@ -187,17 +187,23 @@ fn with_recorder<L: RobotLink>(
         return Ok(player);
     }
     let robot = player.robot_name().to_owned();
-    let path = args.record.clone().unwrap_or_else(|| {
-        let clip = args
-            .files
-            .clip
-            .file_stem()
-            .map_or("run".into(), |s| s.to_string_lossy().into_owned());
-        PathBuf::from("out/runs").join(format!("{robot}-{clip}.mcap"))
-    });
-    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    }
+    let (path, claimed) = match &args.record {
+        Some(p) => {
+            if let Some(dir) = p.parent().filter(|d| !d.as_os_str().is_empty()) {
+                std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+            }
+            (p.clone(), None)
+        }
+        None => {
+            let clip = args
+                .files
+                .clip
+                .file_stem()
+                .map_or("run".into(), |s| s.to_string_lossy().into_owned());
+            let (path, file) = claim(Path::new("out/runs"), &format!("{robot}-{clip}"))?;
+            (path, Some(file))
+        }
+    };
     // Lockstep runs can wait for the disk; real-time runs drop (and count) instead.
     let backpressure = if args.wall || args.hardware {
         Backpressure::Drop
@@ -224,7 +230,10 @@ fn with_recorder<L: RobotLink>(
             robot.config.joints.iter().map(|j| j.mjcf_joint.clone()).collect(),
         )),
     };
-    let sink = TelemetrySink::start(&path, 1024, backpressure, &info)?;
+    let sink = match claimed {
+        Some(file) => TelemetrySink::start_in(file, &path, 1024, backpressure, &info)?,
+        None => TelemetrySink::start(&path, 1024, backpressure, &info)?,
+    };
     Ok(player.with_telemetry(sink))
 }
 
@@ -326,9 +335,52 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
     Ok(finish(&summary))
 }
 
+/// A recording file this run alone writes: `DIR/STEM.mcap`, or `STEM-2.mcap`, … when another run
+/// is writing it (each run holds an exclusive lock on its file until it ends), emptied for this run.
+fn claim(dir: &Path, stem: &str) -> Result<(PathBuf, std::fs::File)> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    for n in 1..1000u32 {
+        let name = if n == 1 {
+            format!("{stem}.mcap")
+        } else {
+            format!("{stem}-{n}.mcap")
+        };
+        let path = dir.join(name);
+        let file = std::fs::OpenOptions::new()
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(&path)
+            .with_context(|| format!("cannot create {}", path.display()))?;
+        match file.try_lock() {
+            Ok(()) => {
+                file.set_len(0)
+                    .with_context(|| format!("cannot empty {}", path.display()))?;
+                return Ok((path, file));
+            }
+            Err(std::fs::TryLockError::WouldBlock) => {}
+            Err(std::fs::TryLockError::Error(e)) => {
+                return Err(e).with_context(|| format!("cannot lock {}", path.display()));
+            }
+        }
+    }
+    bail!(
+        "{}: a thousand runs are writing {stem}.mcap at once",
+        dir.display()
+    )
+}
+
 /// Prints how the run ended, last, and returns the exit status that says so.
 pub fn finish(summary: &PlaySummary) -> std::process::ExitCode {
     let outcome = summary.outcome();
-    println!("result: {outcome}");
-    crate::exit::of_outcome(&outcome)
+    match (&summary.telemetry_error, outcome) {
+        (Some(e), controller::metrics::RunOutcome::Finished) => {
+            println!("result: finished, but the recording failed: {e}");
+            std::process::ExitCode::from(crate::exit::IO_FAILURE)
+        }
+        _ => {
+            println!("result: {outcome}");
+            crate::exit::of_outcome(&outcome)
+        }
+    }
 }

@@ -116,6 +116,8 @@ pub struct PlaySummary {
     pub played: f64,
     /// What the telemetry logger wrote, when recording.
     pub telemetry: Option<crate::telemetry::TelemetryReport>,
+    /// Why the recording failed, if it did (the run itself went on).
+    pub telemetry_error: Option<String>,
 }
 
 impl std::fmt::Display for PlaySummary {
@@ -149,6 +151,9 @@ impl std::fmt::Display for PlaySummary {
         }
         if let Some(t) = &self.telemetry {
             writeln!(f, "{t}")?;
+        }
+        if let Some(e) = &self.telemetry_error {
+            writeln!(f, "telemetry: FAILED: {e}")?;
         }
         writeln!(f, "state machine:")?;
         for t in &self.transitions {
@@ -339,6 +344,7 @@ impl RunMetrics {
                 (self.played_ticks as f64 / reference_ticks.max(1) as f64).min(1.0)
             },
             telemetry: None,
+            telemetry_error: None,
         }
     }
 }

@@ -338,7 +338,12 @@ impl<L: RobotLink> Player<L> {
                 .record(clock.elapsed().saturating_sub(deadline));
         }
         let mut summary = self.summary(clock.elapsed() - start);
-        summary.telemetry = self.finish_telemetry().transpose()?;
+        // A failed recording (a full disk) does not undo the run: the summary says both.
+        match self.finish_telemetry() {
+            Some(Ok(report)) => summary.telemetry = Some(report),
+            Some(Err(e)) => summary.telemetry_error = Some(e.to_string()),
+            None => {}
+        }
         Ok(summary)
     }
 
