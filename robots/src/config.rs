@@ -397,16 +397,40 @@ impl Robot {
                 ));
             }
         }
-        if !(c.control_rate_hz.is_finite() && c.control_rate_hz > 0.0) {
+        if c.feet.is_empty() {
+            return Err((
+                "feet".into(),
+                "no feet: name the bodies the robot stands on".into(),
+            ));
+        }
+        if !(1.0..=1000.0).contains(&c.control_rate_hz) {
             return Err((
                 "control_rate_hz".into(),
-                format!("{} is not a positive rate", c.control_rate_hz),
+                format!("{} Hz is outside [1, 1000]", crate::num(c.control_rate_hz)),
             ));
         }
         let mut bus_names = BTreeSet::new();
+        let mut devices = BTreeSet::new();
         for (i, b) in c.buses.iter().enumerate() {
             if !bus_names.insert(&b.name) {
                 return Err((format!("buses[{i}].name"), format!("{:?} is used twice", b.name)));
+            }
+            if !devices.insert(&b.device) {
+                return Err((
+                    format!("buses[{i}] ({}).device", b.name),
+                    format!("{:?} already carries another bus", b.device),
+                ));
+            }
+            let rates: &[u32] = match b.kind {
+                BusKind::MitCan => &CAN_BITRATES,
+                BusKind::ImuSerial => &WIT_BAUDS,
+                BusKind::Dynamixel => &[],
+            };
+            if !rates.is_empty() && !rates.contains(&b.rate) {
+                return Err((
+                    format!("buses[{i}] ({}).rate", b.name),
+                    format!("{} is not one of {rates:?}", b.rate),
+                ));
             }
             if b.kind == BusKind::Dynamixel && dxl::wire::code_of_baud(b.rate).is_none() {
                 return Err((
@@ -439,6 +463,15 @@ impl Robot {
                 format!("{} is outside (0, 1000]", c.imu.rate_hz),
             ));
         }
+        for (field, v) in [
+            ("imu.mounting_rpy_deg", c.imu.mounting_rpy_deg),
+            ("imu.gyro_bias", c.imu.gyro_bias),
+            ("imu.accel_bias", c.imu.accel_bias),
+        ] {
+            if v.iter().any(|x| !x.is_finite()) {
+                return Err((field.into(), format!("{v:?} is not finite")));
+            }
+        }
         let mut names = BTreeSet::new();
         let mut ids = BTreeSet::new();
         let mut mjcf_joints = BTreeSet::new();
@@ -467,6 +500,34 @@ impl Robot {
             };
             if !ids.insert((&j.bus, j.id)) {
                 return Err((at("id"), format!("{} is used twice on bus {}", j.id, j.bus)));
+            }
+            let ids = match bus.kind {
+                // MIT-mode motor IDs fill 7 bits of the command's CAN ID; 0 is the master's.
+                BusKind::MitCan => 1..=127,
+                // 253 is reserved and 254 is broadcast in Dynamixel Protocol 2.0.
+                BusKind::Dynamixel => 0..=252,
+                BusKind::ImuSerial => 0..=255,
+            };
+            if !ids.contains(&j.id) {
+                return Err((
+                    at("id"),
+                    format!(
+                        "{} is outside [{}, {}] for a {:?} bus",
+                        j.id,
+                        ids.start(),
+                        ids.end(),
+                        bus.kind
+                    ),
+                ));
+            }
+            if !(-HOMING_OFFSET_MAX..=HOMING_OFFSET_MAX).contains(&j.homing_offset_ticks) {
+                return Err((
+                    at("homing_offset_ticks"),
+                    format!(
+                        "{} is outside the servo's [-{HOMING_OFFSET_MAX}, {HOMING_OFFSET_MAX}]",
+                        j.homing_offset_ticks
+                    ),
+                ));
             }
             if j.direction.abs() != 1.0 {
                 return Err((at("direction"), format!("{} (must be 1 or -1)", j.direction)));
@@ -510,6 +571,17 @@ impl Robot {
         Ok(())
     }
 }
+
+/// CAN bit rates the MIT-mode motors run at.
+pub const CAN_BITRATES: [u32; 4] = [125_000, 250_000, 500_000, 1_000_000];
+
+/// Baud rates of the WIT-protocol AHRS.
+pub const WIT_BAUDS: [u32; 9] = [
+    4800, 9600, 19_200, 38_400, 57_600, 115_200, 230_400, 460_800, 921_600,
+];
+
+/// Largest Homing Offset of an X-series servo, ticks (the control table's range).
+pub const HOMING_OFFSET_MAX: i32 = 1_044_479;
 
 /// Whether `kp`/`kd` (joint side) fit `j`'s actuator: the error names the actuator's ranges. For
 /// gains that come from elsewhere (a policy manifest) than robot.toml.

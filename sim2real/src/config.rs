@@ -118,6 +118,89 @@ pub struct MirrorConfig {
 }
 
 impl MirrorConfig {
+    /// Checks every field against its documented range (`robot` names the joints), as a file of
+    /// mirror settings must pass: `Err((field, message))`. Configurations built in code are
+    /// trusted as they are (tests use extreme ones on purpose).
+    pub fn check(&self, robot: &robots::Robot) -> Result<(), (String, String)> {
+        let range = |field: &str, r: &Range, lo: f64, hi: f64| {
+            if !(r.0.is_finite() && r.1.is_finite() && lo <= r.0 && r.0 <= r.1 && r.1 <= hi) {
+                Err((
+                    format!("randomization.{field}"),
+                    format!(
+                        "[{}, {}] is not an interval within [{}, {}]",
+                        robots::num(r.0),
+                        robots::num(r.1),
+                        robots::num(lo),
+                        robots::num(hi)
+                    ),
+                ))
+            } else {
+                Ok(())
+            }
+        };
+        let r = &self.randomization;
+        range("mass_scale", &r.mass_scale, 0.1, 10.0)?;
+        range("friction_scale", &r.friction_scale, 0.0, 10.0)?;
+        range("strength_scale", &r.strength_scale, 0.1, 2.0)?;
+        range("usb_latency_us", &r.usb_latency_us, 0.0, 100_000.0)?;
+        if !(0.0..=100.0).contains(&r.imu_noise_scale) {
+            return Err((
+                "randomization.imu_noise_scale".into(),
+                format!("{} is outside [0, 100]", robots::num(r.imu_noise_scale)),
+            ));
+        }
+        if self.firmware_period_us != 0 && !(100..=10_000).contains(&self.firmware_period_us) {
+            return Err((
+                "firmware_period_us".into(),
+                format!(
+                    "{} is outside [100, 10000] µs (0: the physics step)",
+                    self.firmware_period_us
+                ),
+            ));
+        }
+        if self.servo_return_delay_us > 508 {
+            return Err((
+                "servo_return_delay_us".into(),
+                format!("{} is beyond the servos' 508 µs", self.servo_return_delay_us),
+            ));
+        }
+        for (k, f) in self.faults.iter().enumerate() {
+            if !(0.0..=86_400.0).contains(&f.at_s) {
+                return Err((
+                    format!("faults[{k}].at_s"),
+                    format!("{} is outside [0, 86400] s", robots::num(f.at_s)),
+                ));
+            }
+        }
+        for (name, t) in &self.hardware.joints {
+            let field = format!("hardware.joints.{name}");
+            if robot.config.joints.iter().all(|j| &j.name != name) {
+                return Err((field, format!("{name:?} is not a joint of {}", robot.config.name)));
+            }
+            if t.direction.abs() != 1.0 {
+                return Err((
+                    format!("{field}.direction"),
+                    format!("{} (must be 1 or -1)", t.direction),
+                ));
+            }
+            if !(t.zero_offset.is_finite() && t.zero_offset.abs() <= 4.0 * std::f64::consts::PI) {
+                return Err((
+                    format!("{field}.zero_offset"),
+                    format!("{} is outside ±4π", t.zero_offset),
+                ));
+            }
+        }
+        if let Some(m) = self.hardware.imu_mounting_rpy_deg
+            && m.iter().any(|v| !v.is_finite())
+        {
+            return Err((
+                "hardware.imu_mounting_rpy_deg".into(),
+                format!("{m:?} is not finite"),
+            ));
+        }
+        Ok(())
+    }
+
     /// The servos' Return Delay Time.
     pub fn servo_return_delay(&self) -> Duration {
         Duration::from_micros(self.servo_return_delay_us)

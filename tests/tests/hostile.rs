@@ -426,3 +426,128 @@ fn two_runs_at_once_never_write_the_same_default_recording() {
         assert_eq!(code, Some(0), "{f}: {stderr}");
     }
 }
+
+/// A copy of the reference robot's folder with `from` replaced by `to` in its robot.toml.
+fn robot(dir: &Path, from: &str, to: &str) -> PathBuf {
+    let src = robots::reference_robot_path();
+    let folder = dir.join("robot");
+    let _ = std::fs::remove_dir_all(&folder);
+    std::fs::create_dir_all(&folder).unwrap();
+    for entry in std::fs::read_dir(src.parent().unwrap()).unwrap() {
+        let entry = entry.unwrap();
+        if entry.file_type().unwrap().is_file() {
+            std::fs::copy(entry.path(), folder.join(entry.file_name())).unwrap();
+        }
+    }
+    let text = std::fs::read_to_string(&src).unwrap();
+    assert!(text.contains(from), "{from:?} not in robot.toml");
+    let path = folder.join("robot.toml");
+    std::fs::write(&path, text.replacen(from, to, 1)).unwrap();
+    path
+}
+
+#[test]
+fn robot_files_with_impossible_ids_rates_devices_and_values_are_refused_by_field() {
+    let dir = scratch("robotfile");
+    for (from, to, needle) in [
+        (
+            "control_rate_hz = 50.0",
+            "control_rate_hz = 1e-300",
+            "control_rate_hz: 1e-300 Hz is outside [1, 1000]",
+        ),
+        (
+            "feet = [\"left_foot\", \"right_foot\"]",
+            "feet = []",
+            "feet: no feet",
+        ),
+        (
+            "device = \"can1\"",
+            "device = \"can0\"",
+            "(can1).device: \"can0\" already carries another bus",
+        ),
+        (
+            "rate = 921600",
+            "rate = 921601",
+            "(imu0).rate: 921601 is not one of",
+        ),
+        (
+            "rate = 1000000",
+            "rate = 1000001",
+            "(can0).rate: 1000001 is not one of",
+        ),
+        (
+            "mounting_rpy_deg = [0.0, 0.0, 0.0]",
+            "mounting_rpy_deg = [nan, 0.0, 0.0]",
+            "imu.mounting_rpy_deg",
+        ),
+        (
+            "bus = \"dxl0\"\nid = 1",
+            "bus = \"dxl0\"\nid = 253",
+            "(left_shoulder_pitch).id: 253 is outside [0, 252]",
+        ),
+        (
+            "bus = \"can0\"\nid = 1",
+            "bus = \"can0\"\nid = 0",
+            "(left_hip_yaw).id: 0 is outside [1, 127]",
+        ),
+        (
+            "bus = \"dxl0\"\nid = 1",
+            "bus = \"dxl0\"\nid = 1\nhoming_offset_ticks = 99999999",
+            "homing_offset_ticks: 99999999 is outside",
+        ),
+    ] {
+        let path = robot(&dir, from, to);
+        refused(&args(&[&"check", &"--robot", &path]), needle);
+    }
+    // A policy at another rate than the robot's loop.
+    let path = robot(&dir, "control_rate_hz = 50.0", "control_rate_hz = 100.0");
+    refused(
+        &args(&[&"check", &"--robot", &path]),
+        "rate_hz: 50 Hz, but rd-biped runs its loop at control_rate_hz = 100 Hz",
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn mirror_settings_out_of_their_ranges_are_refused_by_field() {
+    let dir = scratch("mirrorfile");
+    for (text, needle) in [
+        (
+            "firmware_period_us = 1",
+            "firmware_period_us: 1 is outside [100, 10000]",
+        ),
+        (
+            "[hardware.joints.left_knee]\nzero_offset = 0.1\ndirection = 0.0",
+            "hardware.joints.left_knee.direction",
+        ),
+        (
+            "[hardware.joints.tail]\nzero_offset = 0.1\ndirection = 1.0",
+            "hardware.joints.tail: \"tail\" is not a joint",
+        ),
+        (
+            "[randomization]\nimu_noise_scale = nan",
+            "randomization.imu_noise_scale: NaN is outside",
+        ),
+        (
+            "[randomization]\nusb_latency_us = [-5.0, 10.0]",
+            "randomization.usb_latency_us",
+        ),
+        (
+            "[randomization]\nmass_scale = [0.0, 0.0]",
+            "randomization.mass_scale: [0, 0] is not an interval",
+        ),
+        (
+            "[randomization]\nfriction_scale = [2.0, 1.0]",
+            "randomization.friction_scale",
+        ),
+        (
+            "[randomization]\nstrength_scale = [1e9, 1e9]",
+            "randomization.strength_scale",
+        ),
+    ] {
+        let path = dir.join("mirror.toml");
+        std::fs::write(&path, text).unwrap();
+        refused(&args(&[&"play", &"--no-record", &"--mirror", &path]), needle);
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -51,7 +51,7 @@ fn parse_seeds(s: &str) -> Result<(u64, u64), String> {
 pub fn run(args: &BatchArgs) -> Result<()> {
     let robot = Robot::load(&args.robot)?;
     let mirror = match &args.mirror {
-        Some(p) => load_mirror_config(p)?,
+        Some(p) => load_mirror_config(p, &robot)?,
         None => sim2real::config::MirrorConfig::default(),
     };
     let seeds: Vec<u64> = (args.seeds.0..=args.seeds.1).collect();

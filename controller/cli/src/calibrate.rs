@@ -158,7 +158,7 @@ fn with_rig(
         return body(&mut rig, &mut op, &None);
     }
     let mut config = match &t.mirror {
-        Some(p) => load_mirror_config(p)?,
+        Some(p) => load_mirror_config(p, robot)?,
         None => MirrorConfig::default(),
     };
     // Calibration happens on the stand.

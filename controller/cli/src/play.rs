@@ -294,7 +294,7 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         return Ok(finish(&summary));
     }
     let mut config = match &args.mirror {
-        Some(p) => load_mirror_config(p)?,
+        Some(p) => load_mirror_config(p, &l.robot)?,
         None => sim2real::config::MirrorConfig::default(),
     };
     config.gantry |= args.gantry;

@@ -95,10 +95,15 @@ pub struct ServeArgs {
     seconds: Option<u64>,
 }
 
-/// Reads mirror settings from a TOML file; errors name the file and the line.
-pub fn load_mirror_config(path: &Path) -> Result<MirrorConfig> {
+/// Reads mirror settings from a TOML file for `robot`: errors name the file and the line or field.
+pub fn load_mirror_config(path: &Path, robot: &Robot) -> Result<MirrorConfig> {
     let text = robots::read_text(path).map_err(|m| robots::FileError::new(path, m))?;
-    toml::from_str(&text).with_context(|| format!("{}: invalid mirror settings", path.display()))
+    let config: MirrorConfig =
+        toml::from_str(&text).map_err(|e| robots::FileError::new(path, e.to_string()))?;
+    config
+        .check(robot)
+        .map_err(|(field, m)| robots::FileError::new(path, format!("{field}: {m}")))?;
+    Ok(config)
 }
 
 /// Runs a `sim` subcommand.
@@ -109,9 +114,9 @@ pub fn run(cmd: SimCommand) -> Result<()> {
     }
 }
 
-fn mirror_config(path: Option<&Path>, gantry: bool) -> Result<MirrorConfig> {
+fn mirror_config(path: Option<&Path>, gantry: bool, robot: &Robot) -> Result<MirrorConfig> {
     let mut config = match path {
-        Some(p) => load_mirror_config(p)?,
+        Some(p) => load_mirror_config(p, robot)?,
         None => MirrorConfig::default(),
     };
     config.gantry |= gantry;
@@ -123,7 +128,7 @@ fn stand(args: &StandArgs) -> Result<()> {
         anyhow::bail!("--seconds must be positive and --fps in (0, 100]");
     }
     let robot = Robot::load(&args.robot)?;
-    let config = mirror_config(args.mirror.as_deref(), args.gantry)?;
+    let config = mirror_config(args.mirror.as_deref(), args.gantry, &robot)?;
     let mut host =
         MirrorHost::start(robot.clone(), config).context("cannot start the mirror and its drivers")?;
     if let Some(dir) = &args.frames {
@@ -188,7 +193,7 @@ fn stand(args: &StandArgs) -> Result<()> {
 
 fn serve(args: &ServeArgs) -> Result<()> {
     let robot = Robot::load(&args.robot)?;
-    let mut config = mirror_config(args.mirror.as_deref(), args.gantry)?;
+    let mut config = mirror_config(args.mirror.as_deref(), args.gantry, &robot)?;
     if let Some(seed) = args.seed {
         config.seed = seed;
     }

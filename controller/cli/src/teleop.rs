@@ -211,7 +211,7 @@ pub fn teleop(args: &TeleopArgs) -> Result<std::process::ExitCode> {
         player.run(&mut clock)?
     } else {
         let config = match &args.mirror {
-            Some(p) => load_mirror_config(p)?,
+            Some(p) => load_mirror_config(p, &robot)?,
             None => sim2real::config::MirrorConfig::default(),
         };
         let world = Arc::new(Mutex::new(

@@ -525,6 +525,17 @@ impl PolicyLayout {
                 ),
             ));
         }
+        if (manifest.rate_hz - robot.config.control_rate_hz).abs() > 1e-9 {
+            return Err(err(
+                "rate_hz",
+                format!(
+                    "{} Hz, but {} runs its loop at control_rate_hz = {} Hz",
+                    robots::num(manifest.rate_hz),
+                    robot.config.name,
+                    robots::num(robot.config.control_rate_hz)
+                ),
+            ));
+        }
         let a = &manifest.action;
         let nyquist = manifest.rate_hz / 2.0;
         for (field, v, range) in [
