@@ -551,3 +551,23 @@ fn mirror_settings_out_of_their_ranges_are_refused_by_field() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn a_two_minute_soak_of_random_faults_keeps_every_command_in_limits_and_every_fault_in_bound() {
+    let (code, stdout, stderr) = run_within(
+        &args(&[&"soak", &"--minutes", &"2", &"--seed", &"7"]),
+        Duration::from_secs(600),
+    );
+    assert_eq!(code, Some(0), "{stdout}{stderr}");
+    assert!(
+        stdout.contains("commands outside limits: 0") && stdout.contains("records lost: 0"),
+        "{stdout}"
+    );
+    assert!(stdout.trim_end().ends_with("PASSED"), "{stdout}");
+    // Faults were injected, and more than one kind.
+    let kinds = stdout
+        .lines()
+        .filter(|l| l.contains(" on a joint") || l.contains(" on the IMU"))
+        .count();
+    assert!(kinds >= 2, "{stdout}");
+}

@@ -1,5 +1,5 @@
 //! What reads a run after it ran: replay through the same loop, observation-contract comparison,
-//! run reports, batch runs on the mirror, and the motion checker for clips.
+//! run reports, batch runs and soaks on the mirror, and the motion checker for clips.
 
 pub mod batch;
 pub mod compare;
@@ -8,5 +8,6 @@ pub mod motion_check;
 pub mod recording;
 pub mod replay;
 pub mod report;
+pub mod soak;
 
 pub use error::AnalysisError;

@@ -17,6 +17,7 @@ mod logging;
 mod play;
 mod retarget;
 mod sim;
+mod soak;
 mod teleop;
 
 /// Run motion-tracking policies on a real robot, or on its mirrored MuJoCo simulator.
@@ -118,6 +119,9 @@ enum Command {
     /// The mirrored simulator: a robot's MuJoCo model behind emulated firmware on its buses.
     #[command(subcommand)]
     Sim(sim::SimCommand),
+    /// Soak the stack on the mirror: episodes of random clips with random device faults, checking
+    /// commands against the limits, fault reaction times and lost records (exit 3 if any fails).
+    Soak(soak::SoakArgs),
     /// Check the native libraries and load a MuJoCo model and an ONNX model, moving nothing.
     ///
     /// Prints the versions of MuJoCo and ONNX Runtime this build loads, the sizes of the MuJoCo
@@ -170,6 +174,7 @@ fn dispatch(command: Command) -> Result<std::process::ExitCode> {
         Command::Batch(args) => done(batch::run(&args)),
         Command::Retarget(args) => done(retarget::run(&args)),
         Command::Teleop(args) => teleop::teleop(&args),
+        Command::Soak(args) => soak::run(&args),
         Command::Vr(cmd) => done(teleop::vr(cmd)),
         Command::Compare {
             run,
