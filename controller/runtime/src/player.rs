@@ -502,8 +502,10 @@ impl<L: RobotLink> Player<L> {
             let margin = self.options.limits.position_margin;
             let joints = &self.robot.config.joints;
             for ((t, d), j) in self.targets.iter_mut().zip(&self.layout.default_q).zip(joints) {
-                t.q += (d - t.q) * a;
-                t.q = govern_position(j, t.q, t.q, self.dt, margin, None);
+                // The blend is governed from the previous target like any command: far from the
+                // default pose with few ticks left it would otherwise outrun the joint's speed.
+                let wanted = t.q + (d - t.q) * a;
+                t.q = govern_position(j, t.q, wanted, self.dt, margin, None);
             }
         } else {
             self.hold_targets();

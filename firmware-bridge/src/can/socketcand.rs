@@ -103,7 +103,8 @@ pub fn parse(msg: &str) -> Result<Message, &'static str> {
                 .parse()
                 .map_err(|_| "timestamp microseconds are not a number")?;
             let hex = words.next().unwrap_or("");
-            if hex.len() % 2 != 0 || hex.len() > 16 {
+            // Digits only before slicing in pairs: a multi-byte character must not split.
+            if hex.len() % 2 != 0 || hex.len() > 16 || !hex.bytes().all(|b| b.is_ascii_hexdigit()) {
                 return Err("frame data must be 0–8 bytes of two hex digits each");
             }
             let n = hex.len() / 2;
@@ -618,6 +619,15 @@ fn write_fully(stream: &mut TcpStream, mut bytes: &[u8]) -> std::io::Result<()> 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn frame_data_with_a_multibyte_character_is_refused_not_split() {
+        // Found by the socketcand_text fuzz target: slicing "ff…" in pairs split a UTF-8 character.
+        assert_eq!(
+            parse("< frame 111 1.000000 f\u{9b}0 >"),
+            Err("frame data must be 0–8 bytes of two hex digits each")
+        );
+    }
 
     #[test]
     fn parses_the_documented_messages() {
