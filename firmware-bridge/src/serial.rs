@@ -168,6 +168,7 @@ impl<W: SerialSimWorld> ByteStream for LockstepStream<W> {
 pub struct PtyServer {
     path: String,
     stop: Arc<AtomicBool>,
+    dropped: Arc<std::sync::atomic::AtomicU64>,
     thread: Option<std::thread::JoinHandle<()>>,
 }
 
@@ -185,6 +186,8 @@ impl PtyServer {
         serialport::SerialPort::set_timeout(&mut master, resolution).map_err(std::io::Error::other)?;
         let stop = Arc::new(AtomicBool::new(false));
         let flag = Arc::clone(&stop);
+        let lost_bytes = Arc::new(std::sync::atomic::AtomicU64::new(0));
+        let dropped = Arc::clone(&lost_bytes);
         let thread = std::thread::Builder::new()
             .name("serial-pty".into())
             .spawn(move || {
@@ -194,6 +197,7 @@ impl PtyServer {
                 let origin = world.lock().unwrap_or_else(PoisonError::into_inner).now();
                 let mut inbound = [0u8; 4096];
                 let mut outbound = Vec::with_capacity(8192);
+                let mut overflow_log = crate::ratelimit::RateLimit::per_second();
                 while !flag.load(Ordering::Relaxed) {
                     let n = match master.read(&mut inbound) {
                         Ok(n) => n,
@@ -216,17 +220,47 @@ impl PtyServer {
                         }
                         w.host_receive(line, &mut outbound);
                     }
-                    if !outbound.is_empty() && master.write_all(&outbound).is_err() {
-                        tracing::warn!("pseudo-terminal write failed; stopping the serial server");
-                        break;
+                    // Like a UART whose reader stopped reading: what does not fit in the
+                    // terminal's buffer now is lost (counted), and the line stays up.
+                    let mut rest = &outbound[..];
+                    while !rest.is_empty() {
+                        match master.write(rest) {
+                            Ok(0) => break,
+                            Ok(k) => rest = &rest[k..],
+                            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                            Err(e) if e.kind() == std::io::ErrorKind::TimedOut => break,
+                            Err(e) => {
+                                tracing::warn!(
+                                    "pseudo-terminal write failed: {e}; stopping the serial server"
+                                );
+                                return;
+                            }
+                        }
+                    }
+                    if !rest.is_empty() {
+                        let lost =
+                            dropped.fetch_add(rest.len() as u64, Ordering::Relaxed) + rest.len() as u64;
+                        if let Some(left_out) = overflow_log.allow(std::time::Instant::now()) {
+                            tracing::warn!(
+                                lost,
+                                left_out,
+                                "pseudo-terminal: the client is not reading; bytes dropped"
+                            );
+                        }
                     }
                 }
             })?;
         Ok(Self {
             path,
             stop,
+            dropped: lost_bytes,
             thread: Some(thread),
         })
+    }
+
+    /// Bytes lost because the client did not read them in time.
+    pub fn dropped(&self) -> u64 {
+        self.dropped.load(Ordering::Relaxed)
     }
 
     /// The device path to open (e.g. `/dev/pts/7`).

@@ -105,3 +105,57 @@ fn robotis_dynamixel_sdk_pings_reads_writes_and_syncs_the_emulated_servos() {
     }
     assert!(ok("hardware_error") && v["hardware_error"]["value"] == 0);
 }
+
+#[test]
+fn a_client_that_floods_and_never_reads_neither_stalls_nor_kills_the_line() {
+    use firmware_bridge::dxl::packet::{BROADCAST_ID, encode_instruction, inst};
+    use std::io::Write;
+    let models = ["XM430-W350", "XL430-W250"];
+    let (world, pty) = serve(&models);
+    {
+        // Broadcast pings (every servo answers) between line noise, far faster than 1 Mbaud
+        // carries them, from a client that never reads an answer.
+        let mut flood = serialport::new(pty.path(), BAUD)
+            .timeout(Duration::from_secs(5))
+            .open_native()
+            .unwrap();
+        let mut chunk = Vec::new();
+        let mut ping = [0u8; 16];
+        let n = encode_instruction(BROADCAST_ID, inst::PING, &[], &mut ping).unwrap();
+        for i in 0..400u32 {
+            chunk.extend_from_slice(&ping[..n]);
+            chunk.extend((0..7).map(|k| (i * 31 + k * 17) as u8));
+        }
+        let give_up = std::time::Instant::now() + Duration::from_secs(20);
+        while pty.dropped() == 0 || world.lock().unwrap().wire().overflowed() == 0 {
+            assert!(std::time::Instant::now() < give_up, "no overflow after 20 s");
+            flood.write_all(&chunk).unwrap();
+        }
+    }
+    // The line is still served: a well-behaved client drives the servos.
+    let port = SerialDxlPort::open(pty.path(), BAUD).unwrap();
+    let joints = vec![
+        DxlJointConfig::new("shoulder", 1, models[0]),
+        DxlJointConfig::new("elbow", 2, models[1]),
+    ];
+    let options = DxlDriverOptions {
+        reply_slack: Duration::from_millis(30),
+        ..DxlDriverOptions::default()
+    };
+    let mut d = DxlBusDriver::new(port, joints, options).unwrap();
+    let give_up = std::time::Instant::now() + Duration::from_secs(20);
+    // The flood's queued bytes drain first; configuration succeeds once the line is quiet.
+    while let Err(e) = d.configure() {
+        assert!(
+            std::time::Instant::now() < give_up,
+            "the line never recovered: {e}"
+        );
+    }
+    d.enable().unwrap();
+    let commands = [0.3, -0.2].map(|q| DxlCommand { q, current: 0.0 });
+    let mut fresh = 0;
+    while fresh < 20 {
+        assert!(std::time::Instant::now() < give_up, "only {fresh} fresh states");
+        fresh += d.cycle(&commands).unwrap().fresh;
+    }
+}

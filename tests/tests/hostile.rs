@@ -571,3 +571,46 @@ fn a_two_minute_soak_of_random_faults_keeps_every_command_in_limits_and_every_fa
         .count();
     assert!(kinds >= 2, "{stdout}");
 }
+
+#[test]
+fn emulators_stop_cleanly_on_sigint_with_their_summary() {
+    for (list, ready) in [
+        (
+            args(&[
+                &"can",
+                &"emulate",
+                &"--listen",
+                &"127.0.0.1:0",
+                &"--motor",
+                &"1:AK80-9",
+            ]),
+            "socketcand: serving",
+        ),
+        (
+            args(&[&"dxl", &"emulate", &"--servo", &"1:XM430-W350"]),
+            "dynamixel: serving",
+        ),
+        (args(&[&"sim", &"serve", &"--port", &"0"]), "imu"),
+    ] {
+        let mut server = test_support::bin::Running::start(&list);
+        server.wait_for(ready, Duration::from_secs(120));
+        let sent = std::process::Command::new("kill")
+            .args(["-INT", &server.id().to_string()])
+            .status()
+            .unwrap();
+        assert!(sent.success());
+        let out = server.finish();
+        assert_eq!(
+            out.status.code(),
+            Some(0),
+            "{list:?}:\n{}{}",
+            out.stdout,
+            out.stderr
+        );
+        assert!(
+            out.stdout.contains("stopped (stopped by a signal)"),
+            "{list:?}:\n{}",
+            out.stdout
+        );
+    }
+}

@@ -43,6 +43,27 @@ pub fn id_range(s: &str, max: u8) -> Result<(u8, u8), String> {
     Ok((a, b))
 }
 
+/// Keeps a server running until `seconds` pass (`None`: for ever) or SIGINT/SIGTERM arrives; says
+/// which, so the server can print its summary and end cleanly instead of dying mid-write.
+pub fn serve_until_stopped(seconds: Option<u64>) -> anyhow::Result<&'static str> {
+    use std::sync::atomic::{AtomicBool, Ordering};
+    let stop = std::sync::Arc::new(AtomicBool::new(false));
+    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(signal, std::sync::Arc::clone(&stop))
+            .map_err(|e| anyhow::anyhow!("cannot install the stop signal handlers: {e}"))?;
+    }
+    let until = seconds.map(|s| std::time::Instant::now() + std::time::Duration::from_secs(s));
+    loop {
+        if stop.load(Ordering::Relaxed) {
+            return Ok("stopped by a signal");
+        }
+        if until.is_some_and(|u| std::time::Instant::now() >= u) {
+            return Ok("time is up");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+}
+
 /// A flag's number, refused (by clap, naming the flag) unless finite and within `[lo, hi]`.
 pub fn within(lo: f64, hi: f64) -> impl Fn(&str) -> Result<f64, String> + Clone + Send + Sync + 'static {
     move |text: &str| {

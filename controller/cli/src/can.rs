@@ -125,12 +125,8 @@ fn emulate(args: &EmulateArgs) -> Result<()> {
     }
     let _ = out.flush();
     drop(out);
-    match args.seconds {
-        Some(s) => std::thread::sleep(Duration::from_secs(s)),
-        None => loop {
-            std::thread::sleep(Duration::from_secs(3600));
-        },
-    }
+    let why = crate::args::serve_until_stopped(args.seconds)?;
+    let _ = writeln!(std::io::stdout(), "stopped ({why})");
     let _ = writeln!(
         std::io::stdout(),
         "stopping after {:.1} s; malformed input received: {}",

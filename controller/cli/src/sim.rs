@@ -214,12 +214,8 @@ fn serve(args: &ServeArgs) -> Result<()> {
     let _ = writeln!(out, "  imu  {:<6} {}", "", ep.imu);
     let _ = out.flush();
     drop(out);
-    match args.seconds {
-        Some(s) => std::thread::sleep(Duration::from_secs(s)),
-        None => loop {
-            std::thread::sleep(Duration::from_secs(3600));
-        },
-    }
+    let why = crate::args::serve_until_stopped(args.seconds)?;
+    let _ = writeln!(std::io::stdout(), "stopped ({why})");
     let stats = served
         .world
         .lock()

@@ -262,10 +262,15 @@ fn packet_len_hint(used: &[u8]) -> usize {
         .map_or(used.len(), |start| used.len() - start)
 }
 
-/// A line in simulated time between a host and a [`ServoChain`].
+/// Transmit buffer of the emulated USB serial adapter, bytes (an FTDI FT232's is 256 B–4 KB).
+pub const ADAPTER_BUFFER_BYTES: usize = 4096;
+
+/// A line in simulated time between a host (through its USB serial adapter) and a [`ServoChain`].
 #[derive(Debug)]
 pub struct SimDxlWire {
     chain: ServoChain,
+    /// Bytes the host adapter dropped because its transmit buffer was full.
+    overflowed: u64,
     line_free_at: SimInstant,
     to_servos: VecDeque<(SimInstant, usize)>,
     to_servos_bytes: VecDeque<u8>,
@@ -279,6 +284,7 @@ impl SimDxlWire {
     pub fn new(chain: ServoChain) -> Self {
         Self {
             chain,
+            overflowed: 0,
             line_free_at: SimInstant::ZERO,
             to_servos: VecDeque::with_capacity(16),
             to_servos_bytes: VecDeque::with_capacity(2 * MAX_PACKET),
@@ -300,11 +306,26 @@ impl SimDxlWire {
 
     /// The host starts sending `bytes` at `now` (after anything it is still sending).
     pub fn host_transmit(&mut self, now: SimInstant, bytes: &[u8]) {
+        // A USB serial adapter buffers a few kilobytes on its way to the line; what a host sends
+        // beyond that is lost (counted), as on the real adapter — a flood neither grows memory nor
+        // keeps the line busy for seconds.
+        let room = ADAPTER_BUFFER_BYTES.saturating_sub(self.to_servos_bytes.len());
+        let taken = bytes.len().min(room);
+        self.overflowed += (bytes.len() - taken) as u64;
+        if taken == 0 {
+            return;
+        }
+        let bytes = &bytes[..taken];
         let start = self.line_free_at.max(now);
         let arrival = start + self.chain.timing.bytes_time(bytes.len());
         self.line_free_at = arrival;
         self.to_servos.push_back((arrival, bytes.len()));
         self.to_servos_bytes.extend(bytes);
+    }
+
+    /// Bytes dropped because the adapter's transmit buffer was full.
+    pub fn overflowed(&self) -> u64 {
+        self.overflowed
     }
 
     /// The next time after `now` something happens on the wire (bytes already delivered to the
