@@ -40,6 +40,27 @@ impl RateLimit {
     }
 }
 
+/// A [`RateLimit`] shared between threads that never waits: if another thread is deciding right
+/// now, this occurrence is left out (a warning is not worth blocking a device thread for).
+#[derive(Debug)]
+pub struct SharedRateLimit(std::sync::Mutex<RateLimit>);
+
+impl SharedRateLimit {
+    /// At most one line per second.
+    pub const fn per_second() -> Self {
+        Self(std::sync::Mutex::new(RateLimit::per_second()))
+    }
+
+    /// [`RateLimit::allow`] at the current time, without waiting for the lock.
+    pub fn allow_now(&self) -> Option<u64> {
+        match self.0.try_lock() {
+            Ok(mut l) => l.allow(Instant::now()),
+            Err(std::sync::TryLockError::Poisoned(p)) => p.into_inner().allow(Instant::now()),
+            Err(std::sync::TryLockError::WouldBlock) => None,
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

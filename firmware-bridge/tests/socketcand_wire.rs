@@ -5,13 +5,15 @@ use std::io::{Read, Write};
 use std::net::TcpStream;
 use std::time::Duration;
 
-use firmware_bridge::can::socketcand::{SocketcandClient, SocketcandServer};
+use firmware_bridge::can::socketcand::{ClientLimits, SocketcandClient, SocketcandServer};
 use firmware_bridge::can::virtual_bus::VirtualCanBus;
+use firmware_bridge::can::{CanFrame, CanId};
 use firmware_bridge::mit::driver::{JointCommand, MitBusDriver, MitJointConfig};
 use firmware_bridge::mit::firmware::MitFirmwareConfig;
 use firmware_bridge::mit::models::find;
 use firmware_bridge::mit::rig::MitRig;
 use firmware_bridge::plant::InertiaPlant;
+use firmware_bridge::time::SimInstant;
 use firmware_bridge::time::WallClockRunner;
 
 struct Served {
@@ -131,4 +133,127 @@ fn garbage_on_the_wire_is_counted_and_the_session_survives() {
     }
     assert!(text.contains("< frame 000 "), "{text}");
     assert_eq!(served.server.malformed(), 4);
+}
+
+/// A bus with no motors, served with short client limits; the test puts frames on it itself.
+fn serve_bare(limits: ClientLimits) -> (VirtualCanBus, SocketcandServer) {
+    let bus = VirtualCanBus::new("can0", 1_000_000);
+    let server = SocketcandServer::spawn_with(
+        "127.0.0.1:0".parse().unwrap(),
+        "can0",
+        bus.attach(),
+        || Duration::ZERO,
+        limits,
+    )
+    .unwrap();
+    (bus, server)
+}
+
+/// Reads until `want` arrives or the peer closes (or 20 s pass); returns everything read.
+fn read_until(s: &mut TcpStream, want: &str) -> String {
+    s.set_read_timeout(Some(Duration::from_millis(200))).unwrap();
+    let give_up = std::time::Instant::now() + Duration::from_secs(20);
+    let mut text = String::new();
+    let mut buf = [0u8; 256];
+    while !text.contains(want) && std::time::Instant::now() < give_up {
+        match s.read(&mut buf) {
+            Ok(0) => break,
+            Ok(n) => text.push_str(&String::from_utf8_lossy(&buf[..n])),
+            Err(_) => {}
+        }
+    }
+    text
+}
+
+fn raw_mode(addr: std::net::SocketAddr) -> TcpStream {
+    let mut s = TcpStream::connect(addr).unwrap();
+    assert!(read_until(&mut s, "< hi >").contains("< hi >"));
+    s.write_all(b"< open can0 >< rawmode >").unwrap();
+    let text = read_until(&mut s, "< ok >< ok >");
+    assert!(text.contains("< ok >< ok >"), "{text}");
+    s
+}
+
+const LONG: Duration = Duration::from_secs(600);
+
+#[test]
+fn a_second_client_is_refused_at_once_and_served_when_the_first_leaves() {
+    let (_bus, server) = serve_bare(ClientLimits {
+        handshake: LONG,
+        idle: LONG,
+        stalled_reader: LONG,
+    });
+    let first = raw_mode(server.local_addr());
+    let mut second = TcpStream::connect(server.local_addr()).unwrap();
+    let text = read_until(&mut second, "< error bus in use by another client >");
+    assert!(text.contains("< error bus in use by another client >"), "{text}");
+    drop(first);
+    // Once the first client is gone the bus is free again (retry: the server notices the close).
+    let give_up = std::time::Instant::now() + Duration::from_secs(20);
+    loop {
+        let mut next = TcpStream::connect(server.local_addr()).unwrap();
+        if read_until(&mut next, "< hi >").contains("< hi >") {
+            break;
+        }
+        assert!(std::time::Instant::now() < give_up, "the bus stayed taken");
+    }
+}
+
+#[test]
+fn a_client_that_never_finishes_the_handshake_or_goes_quiet_is_dropped() {
+    let (_bus, server) = serve_bare(ClientLimits {
+        handshake: Duration::from_millis(300),
+        idle: Duration::from_millis(300),
+        stalled_reader: LONG,
+    });
+    let mut mute = TcpStream::connect(server.local_addr()).unwrap();
+    let text = read_until(&mut mute, "< error handshake timeout >");
+    assert!(
+        text.starts_with("< hi >") && text.contains("< error handshake timeout >"),
+        "{text}"
+    );
+    let mut quiet = raw_mode(server.local_addr());
+    let text = read_until(&mut quiet, "< error idle timeout >");
+    assert!(text.contains("< error idle timeout >"), "{text}");
+    // A client that keeps talking (`< echo >` as a keep-alive) stays.
+    let mut talking = raw_mode(server.local_addr());
+    for _ in 0..10 {
+        talking.write_all(b"< echo >").unwrap();
+        let text = read_until(&mut talking, "< echo >");
+        assert!(text.contains("< echo >") && !text.contains("error"), "{text}");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+#[test]
+fn a_client_that_stops_reading_is_dropped_and_frees_the_bus() {
+    let (bus, server) = serve_bare(ClientLimits {
+        handshake: LONG,
+        idle: LONG,
+        stalled_reader: Duration::from_millis(300),
+    });
+    let _stalled = raw_mode(server.local_addr());
+    let sender = bus.attach();
+    let frame = CanFrame::new(CanId::standard(0x123).unwrap(), &[1, 2, 3, 4, 5, 6, 7, 8]).unwrap();
+    let mut t = 0u64;
+    let give_up = std::time::Instant::now() + Duration::from_secs(60);
+    // Frames flow to a client that reads none of them until its socket buffers are full; then the
+    // server gives up on it and takes the next client.
+    loop {
+        for _ in 0..200 {
+            let _ = sender.send(&frame);
+            t += 200_000;
+            bus.set_now(SimInstant::from_nanos(t));
+        }
+        let mut next = TcpStream::connect(server.local_addr()).unwrap();
+        let text = read_until(&mut next, ">");
+        if text.contains("< hi >") {
+            break;
+        }
+        assert!(text.contains("in use"), "{text}");
+        assert!(
+            std::time::Instant::now() < give_up,
+            "the stalled client kept the bus"
+        );
+    }
 }

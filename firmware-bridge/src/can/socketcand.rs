@@ -233,14 +233,14 @@ fn truncated(s: &str) -> String {
 #[derive(Debug)]
 pub struct MalformedCounter {
     count: AtomicU64,
-    log: std::sync::Mutex<crate::ratelimit::RateLimit>,
+    log: crate::ratelimit::SharedRateLimit,
 }
 
 impl Default for MalformedCounter {
     fn default() -> Self {
         Self {
             count: AtomicU64::new(0),
-            log: std::sync::Mutex::new(crate::ratelimit::RateLimit::per_second()),
+            log: crate::ratelimit::SharedRateLimit::per_second(),
         }
     }
 }
@@ -249,13 +249,7 @@ impl MalformedCounter {
     /// Counts one malformed input, and logs it unless one was logged less than a second ago.
     fn record(&self, err: &CanError) {
         self.count.fetch_add(1, Ordering::Relaxed);
-        // Never wait for the lock: if another thread holds it, this one is left out.
-        let allowed = match self.log.try_lock() {
-            Ok(mut l) => l.allow(Instant::now()),
-            Err(std::sync::TryLockError::Poisoned(p)) => p.into_inner().allow(Instant::now()),
-            Err(std::sync::TryLockError::WouldBlock) => None,
-        };
-        if let Some(left_out) = allowed {
+        if let Some(left_out) = self.log.allow_now() {
             tracing::warn!(%err, left_out, "socketcand: rejected input");
         }
     }
@@ -428,7 +422,31 @@ impl CanBus for SocketcandClient {
     }
 }
 
-/// A socketcand server bridging TCP clients to a virtual bus node, one client at a time.
+/// How long a socketcand client may take before the server drops it, so that no client holds the
+/// bus for good. A client refused or dropped gets `< error … >` saying why.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ClientLimits {
+    /// From connecting to raw mode (`< open bus >`, `< rawmode >`).
+    pub handshake: Duration,
+    /// In raw mode, the longest silence from the client (frames or `< echo >` keep it alive).
+    pub idle: Duration,
+    /// The longest a client may leave frames unread (its receive window full).
+    pub stalled_reader: Duration,
+}
+
+impl Default for ClientLimits {
+    fn default() -> Self {
+        Self {
+            handshake: Duration::from_secs(10),
+            idle: Duration::from_secs(60),
+            stalled_reader: Duration::from_secs(2),
+        }
+    }
+}
+
+/// A socketcand server bridging TCP clients to a virtual bus node. One client owns the bus at a
+/// time (two controllers on one bus would fight over the motors); a second is refused with
+/// `< error bus in use >` at once instead of waiting unanswered in the backlog.
 #[derive(Debug)]
 pub struct SocketcandServer {
     addr: SocketAddr,
@@ -446,6 +464,17 @@ impl SocketcandServer {
         node: VirtualCanNode,
         clock: impl Fn() -> Duration + Send + 'static,
     ) -> std::io::Result<Self> {
+        Self::spawn_with(listen, bus, node, clock, ClientLimits::default())
+    }
+
+    /// [`Self::spawn`] with other time limits for clients.
+    pub fn spawn_with(
+        listen: SocketAddr,
+        bus: &str,
+        node: VirtualCanNode,
+        clock: impl Fn() -> Duration + Send + 'static,
+        limits: ClientLimits,
+    ) -> std::io::Result<Self> {
         let listener = TcpListener::bind(listen)?;
         listener.set_nonblocking(true)?;
         let addr = listener.local_addr()?;
@@ -457,6 +486,8 @@ impl SocketcandServer {
             stop: Arc::clone(&stop),
             malformed: Arc::clone(&malformed),
             clock: Box::new(clock),
+            limits,
+            send_failures: crate::ratelimit::SharedRateLimit::per_second(),
         };
         let thread = std::thread::Builder::new()
             .name(format!("socketcand-{bus}"))
@@ -495,6 +526,8 @@ struct Session {
     stop: Arc<AtomicBool>,
     malformed: Arc<MalformedCounter>,
     clock: Box<dyn Fn() -> Duration + Send>,
+    limits: ClientLimits,
+    send_failures: crate::ratelimit::SharedRateLimit,
 }
 
 #[derive(PartialEq)]
@@ -510,8 +543,9 @@ impl Session {
             match listener.accept() {
                 Ok((stream, peer)) => {
                     tracing::info!(%peer, bus = %self.bus, "socketcand: client connected");
-                    if let Err(e) = self.client(stream) {
-                        tracing::info!(bus = %self.bus, "socketcand: client gone: {e}");
+                    match self.client(stream, listener) {
+                        Ok(()) => tracing::info!(%peer, bus = %self.bus, "socketcand: client left"),
+                        Err(e) => tracing::info!(%peer, bus = %self.bus, "socketcand: client dropped: {e}"),
                     }
                 }
                 Err(e) if e.kind() == ErrorKind::WouldBlock => std::thread::sleep(Duration::from_millis(5)),
@@ -523,12 +557,15 @@ impl Session {
         }
     }
 
-    fn client(&self, mut stream: TcpStream) -> std::io::Result<()> {
+    fn client(&self, mut stream: TcpStream, listener: &TcpListener) -> std::io::Result<()> {
         // Non-blocking with a short sleep, not a read timeout: socket timeouts are rounded up to
         // scheduler ticks (1–4 ms), which would hold every reply frame back that long.
         stream.set_nonblocking(true)?;
         stream.set_nodelay(true)?;
-        write_fully(&mut stream, b"< hi >")?;
+        let limits = self.limits;
+        let connected = Instant::now();
+        let mut heard = connected;
+        write_fully(&mut stream, b"< hi >", connected + limits.stalled_reader)?;
         // Drop frames that were sent before this client connected.
         while self.node.try_recv().is_some() {}
         let mut mode = Mode::Greeted;
@@ -536,18 +573,35 @@ impl Session {
         let mut chunk = [0u8; 1024];
         let mut out = String::with_capacity(256);
         while !self.stop.load(Ordering::Relaxed) {
+            refuse_waiting_clients(listener, &self.bus);
+            let now = Instant::now();
+            let overdue = match mode {
+                Mode::Raw => (now.duration_since(heard) > limits.idle).then_some("idle timeout"),
+                _ => (now.duration_since(connected) > limits.handshake).then_some("handshake timeout"),
+            };
+            if let Some(why) = overdue {
+                let _ = write_fully(
+                    &mut stream,
+                    format!("< error {why} >").as_bytes(),
+                    now + limits.stalled_reader,
+                );
+                return Err(std::io::Error::new(ErrorKind::TimedOut, why));
+            }
             if mode == Mode::Raw {
                 out.clear();
                 while let Some(f) = self.node.try_recv() {
                     format_frame(&mut out, &f, (self.clock)());
                 }
                 if !out.is_empty() {
-                    write_fully(&mut stream, out.as_bytes())?;
+                    write_fully(&mut stream, out.as_bytes(), now + limits.stalled_reader)?;
                 }
             }
             match stream.read(&mut chunk) {
                 Ok(0) => return Ok(()),
-                Ok(n) => framer.push(&chunk[..n]),
+                Ok(n) => {
+                    heard = Instant::now();
+                    framer.push(&chunk[..n]);
+                }
                 Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => {
                     std::thread::sleep(Duration::from_micros(50));
                     continue;
@@ -572,7 +626,7 @@ impl Session {
                     (Ok(Message::Echo), _) => "< echo >",
                     (Ok(Message::Send(frame)), Mode::Raw) => {
                         if let Err(e) = self.node.send(&frame) {
-                            tracing::warn!("socketcand: {e}");
+                            self.send_failed(&e);
                         }
                         ""
                     }
@@ -594,21 +648,51 @@ impl Session {
                     }
                 };
                 if !reply.is_empty() {
-                    write_fully(&mut stream, reply.as_bytes())?;
+                    write_fully(
+                        &mut stream,
+                        reply.as_bytes(),
+                        Instant::now() + limits.stalled_reader,
+                    )?;
                 }
             }
         }
         Ok(())
     }
+
+    /// A failed send onto the bus (full queue), logged at most once a second.
+    fn send_failed(&self, e: &CanError) {
+        if let Some(left_out) = self.send_failures.allow_now() {
+            tracing::warn!(%e, left_out, "socketcand: frame not sent onto the bus");
+        }
+    }
 }
 
-/// `write_all` on a non-blocking socket: waits out a full send buffer instead of failing.
-fn write_fully(stream: &mut TcpStream, mut bytes: &[u8]) -> std::io::Result<()> {
+/// Answers every client waiting to connect with a refusal and closes it.
+fn refuse_waiting_clients(listener: &TcpListener, bus: &str) {
+    while let Ok((mut other, peer)) = listener.accept() {
+        tracing::info!(%peer, bus, "socketcand: refused a second client");
+        // Best effort, never blocking: the socket is fresh, its buffer empty.
+        let _ = other.set_nonblocking(true);
+        let _ = other.write(b"< error bus in use by another client >");
+    }
+}
+
+/// `write_all` on a non-blocking socket: waits out a full send buffer until `deadline`, then
+/// gives up with `TimedOut` (a client that stopped reading).
+fn write_fully(stream: &mut TcpStream, mut bytes: &[u8], deadline: Instant) -> std::io::Result<()> {
     while !bytes.is_empty() {
         match stream.write(bytes) {
             Ok(0) => return Err(ErrorKind::WriteZero.into()),
             Ok(n) => bytes = &bytes[n..],
-            Err(e) if e.kind() == ErrorKind::WouldBlock => std::thread::sleep(Duration::from_micros(50)),
+            Err(e) if e.kind() == ErrorKind::WouldBlock => {
+                if Instant::now() > deadline {
+                    return Err(std::io::Error::new(
+                        ErrorKind::TimedOut,
+                        "the client stopped reading",
+                    ));
+                }
+                std::thread::sleep(Duration::from_micros(50));
+            }
             Err(e) if e.kind() == ErrorKind::Interrupted => {}
             Err(e) => return Err(e),
         }
