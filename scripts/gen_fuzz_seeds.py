@@ -1,0 +1,108 @@
+#!/usr/bin/env python3
+"""Write the seed corpora of the file and network parsers' fuzz targets (tests/fuzz/corpus/).
+
+Every seed is made here, small and valid, so the fuzzer starts from inputs the parser accepts and
+mutates them into the ones it must refuse. None is third-party material:
+
+  osc_vmc/         VMC tracker datagrams as a VR bridge sends them (a bundle of headset and
+                   controller poses, one bare message).
+  bvh_text/        a two-joint BVH skeleton with three frames.
+  clip_csv/        a three-frame clip in the project's CSV layout (time, root pose, one joint).
+  npy_array/       NumPy .npy arrays (format 1.0), float64 and float32, as np.save writes them.
+  mcap_recording/  a tiny recording (two channels, three messages), lz4- and zstd-compressed
+                   chunks, written with the `mcap` Python package of the project's venv.
+
+Usage: .local/venv/bin/python scripts/gen_fuzz_seeds.py
+"""
+import io
+import pathlib
+import struct
+
+ROOT = pathlib.Path(__file__).resolve().parent.parent / "tests" / "fuzz" / "corpus"
+
+
+def write(target, name, data):
+    d = ROOT / target
+    d.mkdir(parents=True, exist_ok=True)
+    (d / name).write_bytes(data if isinstance(data, bytes) else data.encode())
+
+
+def osc_string(s):
+    b = s.encode() + b"\0"
+    return b + b"\0" * (-len(b) % 4)
+
+
+def osc_message(address, args):
+    tags = "," + "".join("s" if isinstance(a, str) else "f" for a in args)
+    body = b"".join(osc_string(a) if isinstance(a, str) else struct.pack(">f", a) for a in args)
+    return osc_string(address) + osc_string(tags) + body
+
+
+def osc_bundle(elements):
+    out = osc_string("#bundle") + struct.pack(">Q", 1)
+    for e in elements:
+        out += struct.pack(">i", len(e)) + e
+    return out
+
+
+hmd = osc_message("/VMC/Ext/Hmd/Pos", ["HMD", 0.0, 1.6, 0.0, 0.0, 0.0, 0.0, 1.0])
+left = osc_message("/VMC/Ext/Con/Pos", ["LeftHand", -0.3, 1.0, 0.2, 0.0, 0.0, 0.0, 1.0])
+right = osc_message("/VMC/Ext/Con/Pos", ["RightHand", 0.3, 1.0, 0.2, 0.0, 0.0, 0.0, 1.0])
+write("osc_vmc", "bundle", osc_bundle([hmd, left, right]))
+write("osc_vmc", "message", hmd)
+
+write("bvh_text", "two_joints.bvh", """HIERARCHY
+ROOT Hips
+{
+  OFFSET 0.0 0.0 0.0
+  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
+  JOINT Spine
+  {
+    OFFSET 0.0 10.0 0.0
+    CHANNELS 3 Zrotation Xrotation Yrotation
+    End Site
+    {
+      OFFSET 0.0 10.0 0.0
+    }
+  }
+}
+MOTION
+Frames: 3
+Frame Time: 0.033333
+0 90 0 0 0 0 0 0 0
+0 90 1 0 5 0 10 0 0
+0 90 2 0 10 0 20 0 0
+""")
+
+write("clip_csv", "three_frames.csv", """# fuzz seed: three frames, one joint
+time,root_x,root_y,root_z,root_qw,root_qx,root_qy,root_qz,left_knee
+0.0,0,0,0.45,1,0,0,0,0.0
+0.1,0,0,0.45,1,0,0,0,0.2
+0.2,0,0,0.45,1,0,0,0,0.4
+""")
+
+
+def npy(descr, shape, payload):
+    header = "{'descr': '%s', 'fortran_order': False, 'shape': %s, }" % (descr, shape)
+    pad = -(10 + len(header) + 1) % 64
+    header = header + " " * pad + "\n"
+    return b"\x93NUMPY\x01\x00" + struct.pack("<H", len(header)) + header.encode() + payload
+
+
+write("npy_array", "f8_2x3.npy", npy("<f8", "(2, 3)", struct.pack("<6d", *range(6))))
+write("npy_array", "f4_4.npy", npy("<f4", "(4,)", struct.pack("<4f", 0.5, 1.5, 2.5, 3.5)))
+
+from mcap.writer import CompressionType, Writer  # noqa: E402
+
+for name, compression in [("lz4", CompressionType.LZ4), ("zstd", CompressionType.ZSTD)]:
+    buf = io.BytesIO()
+    w = Writer(buf, compression=compression)
+    w.start(profile="", library="robodeploy fuzz seed")
+    schema = w.register_schema(name="seed", encoding="jsonschema", data=b"{}")
+    a = w.register_channel(topic="/joints", message_encoding="json", schema_id=schema)
+    b = w.register_channel(topic="/safety", message_encoding="json", schema_id=schema)
+    for k in range(3):
+        w.add_message(a, log_time=k * 20_000_000, publish_time=k * 20_000_000, data=b'{"q":[0.1,0.2]}')
+    w.add_message(b, log_time=40_000_000, publish_time=40_000_000, data=b'{"mode":"Damped"}')
+    w.finish()
+    write("mcap_recording", f"tiny_{name}.mcap", buf.getvalue())
