@@ -24,10 +24,8 @@ fn serve(models: &[&str]) -> (Arc<Mutex<DxlRig>>, PtyServer) {
     (world, pty)
 }
 
-#[test]
-fn the_dynamixel2_driver_drives_emulated_servos_through_a_serial_device() {
-    let models = ["XM430-W350", "XL430-W250"];
-    let (world, pty) = serve(&models);
+/// This project's driver on the served line: servo 1 (`models[0]`) and servo 2 (`models[1]`).
+fn shoulder_and_elbow(pty: &PtyServer, models: [&str; 2]) -> DxlBusDriver<SerialDxlPort> {
     let port = SerialDxlPort::open(pty.path(), BAUD).unwrap();
     let joints = vec![
         DxlJointConfig::new("shoulder", 1, models[0]),
@@ -38,7 +36,14 @@ fn the_dynamixel2_driver_drives_emulated_servos_through_a_serial_device() {
         reply_slack: Duration::from_millis(30),
         ..DxlDriverOptions::default()
     };
-    let mut d = DxlBusDriver::new(port, joints, options).unwrap();
+    DxlBusDriver::new(port, joints, options).unwrap()
+}
+
+#[test]
+fn the_dynamixel2_driver_drives_emulated_servos_through_a_serial_device() {
+    let models = ["XM430-W350", "XL430-W250"];
+    let (world, pty) = serve(&models);
+    let mut d = shoulder_and_elbow(&pty, models);
     d.configure().unwrap();
     d.enable().unwrap();
     let commands = [0.4, -0.6].map(|q| DxlCommand { q, current: 0.0 });
@@ -133,16 +138,7 @@ fn a_client_that_floods_and_never_reads_neither_stalls_nor_kills_the_line() {
         }
     }
     // The line is still served: a well-behaved client drives the servos.
-    let port = SerialDxlPort::open(pty.path(), BAUD).unwrap();
-    let joints = vec![
-        DxlJointConfig::new("shoulder", 1, models[0]),
-        DxlJointConfig::new("elbow", 2, models[1]),
-    ];
-    let options = DxlDriverOptions {
-        reply_slack: Duration::from_millis(30),
-        ..DxlDriverOptions::default()
-    };
-    let mut d = DxlBusDriver::new(port, joints, options).unwrap();
+    let mut d = shoulder_and_elbow(&pty, models);
     let give_up = std::time::Instant::now() + Duration::from_secs(20);
     // The flood's queued bytes drain first; configuration succeeds once the line is quiet.
     while let Err(e) = d.configure() {

@@ -364,6 +364,36 @@ const TOPICS: [(&str, &str); 8] = [
 /// `foxglove.FrameTransform` as a JSON schema (the names Foxglove's 3D panel matches).
 const FRAME_TRANSFORM_SCHEMA: &str = r#"{"title":"foxglove.FrameTransform","type":"object","properties":{"timestamp":{"type":"object","properties":{"sec":{"type":"integer"},"nsec":{"type":"integer"}}},"parent_frame_id":{"type":"string"},"child_frame_id":{"type":"string"},"translation":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}}},"rotation":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"},"w":{"type":"number"}}}}}"#;
 
+/// What the logger has written: the running message sequence number and a count per topic.
+#[derive(Default)]
+struct Sent {
+    sequence: u32,
+    counts: BTreeMap<String, u64>,
+}
+
+impl Sent {
+    /// Writes one JSON message on a known channel, numbered and counted under its topic.
+    fn write<W: std::io::Write + std::io::Seek>(
+        &mut self,
+        writer: &mut mcap::Writer<W>,
+        channel_id: u16,
+        topic: &str,
+        time_ns: u64,
+        json: &str,
+    ) -> Result<(), mcap::McapError> {
+        self.sequence = self.sequence.wrapping_add(1);
+        let header = mcap::records::MessageHeader {
+            channel_id,
+            sequence: self.sequence,
+            log_time: time_ns,
+            publish_time: time_ns,
+        };
+        writer.write_to_known_channel(&header, json.as_bytes())?;
+        *self.counts.entry(topic.to_owned()).or_default() += 1;
+        Ok(())
+    }
+}
+
 impl TelemetrySink {
     /// Creates `path` and starts the logger with a ring of `capacity` records. `joint_names`
     /// (robot order) go into the channels' metadata; `root_frame` names the base frame.
@@ -453,10 +483,9 @@ impl TelemetrySink {
                     None => None,
                 };
                 let tf = channels[TOPICS.len() - 2];
-                let mut counts: BTreeMap<String, u64> = BTreeMap::new();
+                let mut sent = Sent::default();
                 let mut written = 0u64;
                 let mut text = String::with_capacity(16 * 1024);
-                let mut sequence = 0u32;
                 let mut last_mode = u8::MAX;
                 while let Ok(r) = rx.recv() {
                     for (k, (topic, _)) in TOPICS.iter().enumerate() {
@@ -465,17 +494,8 @@ impl TelemetrySink {
                         if !wrote {
                             continue;
                         }
-                        sequence = sequence.wrapping_add(1);
-                        let header = mcap::records::MessageHeader {
-                            channel_id: channels[k],
-                            sequence,
-                            log_time: r.time_ns,
-                            publish_time: r.time_ns,
-                        };
-                        writer
-                            .write_to_known_channel(&header, text.as_bytes())
+                        sent.write(&mut writer, channels[k], topic, r.time_ns, &text)
                             .map_err(|e| failed(&e))?;
-                        *counts.entry((*topic).to_owned()).or_default() += 1;
                     }
                     if let Some(links) = &mut links
                         && !r.base_pose[0].is_nan()
@@ -483,24 +503,15 @@ impl TelemetrySink {
                         for i in 0..links.update(&r) {
                             text.clear();
                             links.encode(&mut text, i, r.time_ns);
-                            sequence = sequence.wrapping_add(1);
-                            let header = mcap::records::MessageHeader {
-                                channel_id: tf,
-                                sequence,
-                                log_time: r.time_ns,
-                                publish_time: r.time_ns,
-                            };
-                            writer
-                                .write_to_known_channel(&header, text.as_bytes())
+                            sent.write(&mut writer, tf, "/tf", r.time_ns, &text)
                                 .map_err(|e| failed(&e))?;
-                            *counts.entry("/tf".to_owned()).or_default() += 1;
                         }
                     }
                     written += 1;
                 }
                 writer.finish().map_err(|e| failed(&e))?;
                 drop(std::mem::ManuallyDrop::into_inner(writer));
-                Ok((written, counts))
+                Ok((written, sent.counts))
             })
             .map_err(|e| TelemetryError::Logger(e.to_string()))?;
         Ok(Self {
