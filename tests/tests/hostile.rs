@@ -301,6 +301,21 @@ fn flags_with_absurd_values_are_refused_by_name() {
             args(&[&"play", &"--no-record", &"--max-seconds=-1"]),
             "'--max-seconds <MAX_SECONDS>': -1 is outside",
         ),
+        (
+            // usize::MAX: `start + 1` overflowed before the frame count was checked.
+            args(&[
+                &"retarget",
+                &"--bvh",
+                &bvh,
+                &"--start-frame",
+                &"18446744073709551615",
+            ]),
+            "'--start-frame <START_FRAME>': 18446744073709551615 is outside [0, 431999]",
+        ),
+        (
+            args(&[&"batch", &"--jobs", &"0"]),
+            "'--jobs <JOBS>': 0 is outside [1, 256]",
+        ),
     ] {
         refused(&list, needle);
     }

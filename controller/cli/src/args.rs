@@ -102,6 +102,18 @@ pub fn whole_within(
     }
 }
 
+/// A frame index of a motion file: `[0, human::bvh::MAX_FRAMES)` (the file's own length is
+/// checked when it loads).
+pub fn frame_index(text: &str) -> Result<usize, String> {
+    let max = human::bvh::MAX_FRAMES as u64 - 1;
+    whole_within(0, max)(text).map(|v| v as usize)
+}
+
+/// Parallel jobs: 1–256.
+pub fn jobs(text: &str) -> Result<usize, String> {
+    whole_within(1, 256)(text).map(|v| v as usize)
+}
+
 /// What happens when the clip ends (`--end`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum EndArg {

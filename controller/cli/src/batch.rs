@@ -28,8 +28,8 @@ pub struct BatchArgs {
     /// Mirror settings (randomisation, faults, gantry), TOML.
     #[arg(long)]
     mirror: Option<PathBuf>,
-    /// Parallel runs (default: the number of cores).
-    #[arg(long)]
+    /// Parallel runs, 1–256 (default: the number of cores).
+    #[arg(long, value_parser = crate::args::jobs)]
     jobs: Option<usize>,
 }
 

@@ -25,10 +25,10 @@ pub struct RetargetArgs {
     #[arg(long, default_value_t = 50.0, value_parser = crate::args::within(1.0, 1000.0))]
     rate: f64,
     /// The recording's frame that matches the robot's nominal pose (CMU trials start in a T-pose).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = crate::args::frame_index)]
     nominal_frame: usize,
     /// The recording's first frame in the clip (CMU trials start with a one-frame T-pose: 1).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = crate::args::frame_index)]
     start_frame: usize,
     /// The robot's nominal pose: robot.toml's T-pose, or its default standing pose (for
     /// recordings that start standing with the arms down).

@@ -86,7 +86,7 @@ pub struct SendArgs {
     #[arg(long, default_value_t = 1.5, value_parser = crate::args::within(0.0, 60.0))]
     tpose: f64,
     /// First frame of the motion after the T-pose.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = crate::args::frame_index)]
     start_frame: usize,
     /// Stop after this many seconds (T-pose included).
     #[arg(long, value_parser = crate::args::within(0.01, 86_400.0))]
