@@ -9,6 +9,7 @@ mutates them into the ones it must refuse. None is third-party material:
   bvh_text/        a two-joint BVH skeleton with three frames.
   clip_csv/        a three-frame clip in the project's CSV layout (time, root pose, one joint).
   npy_array/       NumPy .npy arrays (format 1.0), float64 and float32, as np.save writes them.
+  mirror_toml/     the project's own randomized-with-faults mirror settings (sim2real/configs/).
   mcap_recording/  a tiny recording (two channels, three messages), lz4- and zstd-compressed
                    chunks, written with the `mcap` Python package of the project's venv.
 
@@ -91,6 +92,9 @@ def npy(descr, shape, payload):
 
 write("npy_array", "f8_2x3.npy", npy("<f8", "(2, 3)", struct.pack("<6d", *range(6))))
 write("npy_array", "f4_4.npy", npy("<f4", "(4,)", struct.pack("<4f", 0.5, 1.5, 2.5, 3.5)))
+
+MIRROR = pathlib.Path(__file__).resolve().parent.parent / "sim2real" / "configs" / "randomized-with-faults.toml"
+write("mirror_toml", "randomized-with-faults.toml", MIRROR.read_text())
 
 from mcap.writer import CompressionType, Writer  # noqa: E402
 

@@ -54,6 +54,18 @@ pub struct ScheduledFault {
     pub fault: FaultKind,
 }
 
+/// A constant force on the robot's root body for a while: a shove, a bump, a tug on the gantry.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Push {
+    /// When it starts, seconds after the start: [0, 86400].
+    pub at_s: f64,
+    /// How long it lasts, s: [0.001, 5].
+    pub duration_s: f64,
+    /// The force in the world frame (x forward, z up), N: each component within ±2000.
+    pub force_n: [f64; 3],
+}
+
 /// Faults a device can be made to show.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
 #[serde(rename_all = "snake_case", tag = "kind")]
@@ -113,6 +125,8 @@ pub struct MirrorConfig {
     pub randomization: Randomization,
     /// Faults, in any order.
     pub faults: Vec<ScheduledFault>,
+    /// Shoves on the robot's root body, in any order.
+    pub pushes: Vec<Push>,
     /// The machine's true offsets, directions and IMU mounting (for calibration tests).
     pub hardware: HardwareTruth,
 }
@@ -170,6 +184,21 @@ impl MirrorConfig {
                     format!("faults[{k}].at_s"),
                     format!("{} is outside [0, 86400] s", robots::num(f.at_s)),
                 ));
+            }
+        }
+        for (k, p) in self.pushes.iter().enumerate() {
+            let bad = |field: &str, m: String| Err((format!("pushes[{k}].{field}"), m));
+            if !(0.0..=86_400.0).contains(&p.at_s) {
+                return bad("at_s", format!("{} is outside [0, 86400] s", robots::num(p.at_s)));
+            }
+            if !(0.001..=5.0).contains(&p.duration_s) {
+                return bad(
+                    "duration_s",
+                    format!("{} is outside [0.001, 5] s", robots::num(p.duration_s)),
+                );
+            }
+            if let Some(f) = p.force_n.iter().find(|f| !(-2000.0..=2000.0).contains(*f)) {
+                return bad("force_n", format!("{} is outside ±2000 N", robots::num(*f)));
             }
         }
         for (name, t) in &self.hardware.joints {

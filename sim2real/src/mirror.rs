@@ -175,6 +175,8 @@ pub struct Mirror {
     firmware_period: Duration,
     next_firmware: SimInstant,
     faults: Vec<(SimInstant, usize, FaultKind)>,
+    /// Pushes on the root: start, end, world force (N).
+    pushes: Vec<(SimInstant, SimInstant, [f64; 3])>,
     next_fault: usize,
     peak_torque: f64,
     stats: MirrorStats,
@@ -364,6 +366,12 @@ impl Mirror {
             faults.push((SimInstant::ZERO + at, joint, f.fault));
         }
         faults.sort_by_key(|f| f.0);
+        let seconds = |s: f64| SimInstant::ZERO + Duration::from_secs_f64(s);
+        let pushes = config
+            .pushes
+            .iter()
+            .map(|p| (seconds(p.at_s), seconds(p.at_s + p.duration_s), p.force_n))
+            .collect();
 
         let data = MjData::new(Box::new(model));
         let n_joints = joints.len();
@@ -390,6 +398,7 @@ impl Mirror {
             firmware_period,
             next_firmware: SimInstant::ZERO,
             faults,
+            pushes,
             next_fault: 0,
             peak_torque: 0.0,
             stats: MirrorStats::default(),
@@ -607,7 +616,10 @@ impl Mirror {
         }
         if let Some(g) = self.gantry {
             self.hold_on_gantry(g);
+        } else if !self.pushes.is_empty() {
+            self.data.xfrc_applied_mut()[self.root_body] = [0.0; 6];
         }
+        self.apply_pushes();
         if self.jig.is_some() {
             // The clamp carries the joints' load (gravity, Coriolis; the motors push against it),
             // so the limbs do not swing inside the step and shake the base.
@@ -663,6 +675,19 @@ impl Mirror {
     /// Why the simulation stopped being trustworthy, if it did (then it no longer moves).
     pub fn diverged(&self) -> Option<&str> {
         self.diverged.as_deref()
+    }
+
+    /// Adds the pushes active now to the root's applied force (after the gantry wrote its own).
+    fn apply_pushes(&mut self) {
+        let now = self.now;
+        for &(start, end, force) in &self.pushes {
+            if start <= now && now < end {
+                let x = &mut self.data.xfrc_applied_mut()[self.root_body];
+                for (xi, fi) in x.iter_mut().zip(force) {
+                    *xi += fi;
+                }
+            }
+        }
     }
 
     fn hold_on_gantry(&mut self, g: Gantry) {

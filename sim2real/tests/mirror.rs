@@ -319,3 +319,52 @@ fn a_fault_plan_that_means_nothing_is_refused_by_name() {
     let e = refuse("tail", FaultKind::Vanish);
     assert!(e.contains("unknown joint \"tail\""), "{e}");
 }
+
+#[test]
+fn a_scheduled_push_shoves_the_root_while_it_lasts_and_only_then() {
+    use sim2real::config::Push;
+    let shove = |force_n| {
+        let mut h = host(MirrorConfig {
+            gantry: true,
+            pushes: vec![Push {
+                at_s: 0.5,
+                duration_s: 0.3,
+                force_n,
+            }],
+            ..MirrorConfig::default()
+        });
+        let start = h.inner.world.lock().unwrap().root_pose();
+        h.run(0.4);
+        let before = h.inner.world.lock().unwrap().root_pose();
+        h.run(0.3);
+        let during = h.inner.world.lock().unwrap().root_pose();
+        h.run(1.5);
+        let after = h.inner.world.lock().unwrap().root_pose();
+        (start[0], before[0], during[0], after[0])
+    };
+    // The gantry's spring (2·10⁴ N/m) gives 200 N a 1 cm deflection.
+    let (start, before, during, after) = shove([200.0, 0.0, 0.0]);
+    assert!(
+        (before - start).abs() < 1e-3,
+        "moved before the push: {start} → {before}"
+    );
+    assert!(during - start > 0.005, "not shoved forward: {start} → {during}");
+    assert!(
+        (after - start).abs() < 2e-3,
+        "not back after the push: {start} → {after}"
+    );
+    let (start, _, during, _) = shove([-200.0, 0.0, 0.0]);
+    assert!(start - during > 0.005, "not shoved backward: {start} → {during}");
+    // Out of range: refused by field.
+    let robot = Robot::load(&reference_robot_path()).unwrap();
+    let config = MirrorConfig {
+        pushes: vec![Push {
+            at_s: 1.0,
+            duration_s: 0.1,
+            force_n: [0.0, f64::NAN, 0.0],
+        }],
+        ..MirrorConfig::default()
+    };
+    let (field, _) = config.check(&robot).unwrap_err();
+    assert_eq!(field, "pushes[0].force_n");
+}

@@ -585,6 +585,13 @@ fn a_two_minute_soak_of_random_faults_keeps_every_command_in_limits_and_every_fa
         .filter(|l| l.contains(" on a joint") || l.contains(" on the IMU"))
         .count();
     assert!(kinds >= 2, "{stdout}");
+    // The robot was shoved, too.
+    let pushes: usize = stdout
+        .lines()
+        .find_map(|l| l.trim().strip_prefix("pushes: "))
+        .and_then(|n| n.parse().ok())
+        .unwrap_or(0);
+    assert!(pushes >= 1, "{stdout}");
 }
 
 #[test]

@@ -19,7 +19,7 @@ use controller::telemetry::{Backpressure, RecordingInfo, TelemetrySink};
 use firmware_bridge::time::SimRng;
 use robot_link::TickClock;
 use robots::Robot;
-use sim2real::config::{FaultKind, MirrorConfig, ScheduledFault};
+use sim2real::config::{FaultKind, MirrorConfig, Push, ScheduledFault};
 
 use crate::AnalysisError;
 
@@ -66,6 +66,8 @@ pub struct SoakReport {
     pub simulated_s: f64,
     /// Per fault kind (and target: `joint` or `imu`).
     pub faults: BTreeMap<String, FaultFigures>,
+    /// Shoves on the root (30–150 N for 0.05–0.3 s, any horizontal direction).
+    pub pushes: usize,
     /// Episodes without a fault that ended in a safety stop anyway.
     pub unexplained_stops: Vec<String>,
     /// Faults that did not reach the safe state in bound (episode, kind, reaction).
@@ -107,6 +109,7 @@ impl std::fmt::Display for SoakReport {
                 x.injected, x.stopped_in_bound, x.worst_ticks
             )?;
         }
+        writeln!(f, "  pushes: {}", self.pushes)?;
         writeln!(f, "  commands outside limits: {}", self.commands_outside_limits)?;
         writeln!(f, "  records lost: {}", self.records_lost)?;
         for v in self
@@ -119,6 +122,25 @@ impl std::fmt::Display for SoakReport {
         }
         write!(f, "  {}", if self.passed() { "PASSED" } else { "FAILED" })
     }
+}
+
+/// None, one or two random shoves for an episode that runs `ticks` ticks at `dt`.
+fn draw_pushes(rng: &mut SimRng, ticks: u64, dt: f64) -> Vec<Push> {
+    let n = usize::from(rng.next_f64() < 0.5) + usize::from(rng.next_f64() < 0.2);
+    let last = (ticks as f64 * dt - 1.0).max(2.6);
+    (0..n)
+        .map(|_| {
+            let at_s = 2.5 + rng.next_f64() * (last - 2.5);
+            let duration_s = 0.05 + rng.next_f64() * 0.25;
+            let angle = rng.next_f64() * std::f64::consts::TAU;
+            let newtons = 30.0 + rng.next_f64() * 120.0;
+            Push {
+                at_s,
+                duration_s,
+                force_n: [newtons * angle.cos(), newtons * angle.sin(), 0.0],
+            }
+        })
+        .collect()
 }
 
 /// A random fault for an episode that runs `ticks` ticks at `dt`, on one of `joints` or the IMU.
@@ -190,6 +212,8 @@ pub fn soak(spec: &SoakSpec<'_>, progress: &dyn Fn(f64)) -> Result<SoakReport, A
     let joints: Vec<String> = robot.config.joints.iter().map(|j| j.name.clone()).collect();
     let dt = 1.0 / layout.manifest.rate_hz;
     let mut rng = SimRng::new(spec.seed);
+    // Pushes draw from their own stream, so a seed's faults are the same with or without them.
+    let mut push_rng = SimRng::new(spec.seed ^ 0x5055_5348);
     let mut report = SoakReport::default();
     std::fs::create_dir_all(spec.scratch).map_err(|e| AnalysisError::write(spec.scratch, e))?;
     while report.simulated_s < spec.seconds {
@@ -198,12 +222,15 @@ pub fn soak(spec: &SoakSpec<'_>, progress: &dyn Fn(f64)) -> Result<SoakReport, A
         let ticks = 200 + (rng.next_f64() * 600.0) as u64;
         let clip = ((rng.next_f64() * references.len() as f64) as usize).min(references.len() - 1);
         let fault = (rng.next_f64() < 0.8).then(|| draw_fault(&mut rng, &joints, ticks, dt));
+        let pushes = draw_pushes(&mut push_rng, ticks, dt);
+        report.pushes += pushes.len();
         // On the gantry: the reference follower has no balance of its own (a trained policy
         // would), and what is tested here is the path from a device fault to the safe state.
         let mirror = MirrorConfig {
             seed: rng.next_u64(),
             gantry: true,
             faults: fault.iter().map(|(f, _)| f.clone()).collect(),
+            pushes,
             ..MirrorConfig::default()
         };
         let options = PlayOptions {

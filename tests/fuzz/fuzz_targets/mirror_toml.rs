@@ -1,0 +1,20 @@
+//! Mirror settings (`--mirror FILE`): any text through the typed deserializer and, when it parses,
+//! the range check against the reference robot (joints named, periods, noise, latencies, masses).
+#![no_main]
+
+use libfuzzer_sys::fuzz_target;
+use sim2real::config::MirrorConfig;
+
+fn robot() -> &'static robots::Robot {
+    static ROBOT: std::sync::OnceLock<robots::Robot> = std::sync::OnceLock::new();
+    ROBOT.get_or_init(|| robots::Robot::load(&robots::reference_robot_path()).expect("the reference robot loads"))
+}
+
+fuzz_target!(|data: &[u8]| {
+    let Ok(text) = std::str::from_utf8(data) else {
+        return;
+    };
+    if let Ok(config) = toml::from_str::<MirrorConfig>(text) {
+        let _ = config.check(robot());
+    }
+});
