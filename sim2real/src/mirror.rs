@@ -366,12 +366,15 @@ impl Mirror {
             faults.push((SimInstant::ZERO + at, joint, f.fault));
         }
         faults.sort_by_key(|f| f.0);
-        let seconds = |s: f64| SimInstant::ZERO + Duration::from_secs_f64(s);
-        let pushes = config
-            .pushes
-            .iter()
-            .map(|p| (seconds(p.at_s), seconds(p.at_s + p.duration_s), p.force_n))
-            .collect();
+        let mut pushes = Vec::with_capacity(config.pushes.len());
+        for (k, p) in config.pushes.iter().enumerate() {
+            let time = |s: f64| {
+                Duration::try_from_secs_f64(s)
+                    .map(|d| SimInstant::ZERO + d)
+                    .map_err(|_| MirrorError::Robot(format!("pushes[{k}]: {s} s is not a time")))
+            };
+            pushes.push((time(p.at_s)?, time(p.at_s + p.duration_s)?, p.force_n));
+        }
 
         let data = MjData::new(Box::new(model));
         let n_joints = joints.len();
