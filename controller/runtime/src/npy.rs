@@ -126,8 +126,10 @@ fn parse_npy_text(bytes: &[u8]) -> Result<NpyArray, String> {
     if size == 0 {
         return Err(unsupported());
     }
-    let need = count
-        .checked_mul(if kind.ends_with('U') { 4 * size } else { size })
+    // A `<U` item is `size` UTF-32 characters; the fuzzer found `<U` sizes whose byte count overflows.
+    let item_bytes = if kind.ends_with('U') { size.checked_mul(4) } else { Some(size) };
+    let need = item_bytes
+        .and_then(|b| count.checked_mul(b))
         .ok_or("array too large")?;
     if data.len() < need {
         return Err(format!(
@@ -187,6 +189,13 @@ mod tests {
         out.extend_from_slice(header.as_bytes());
         out.extend_from_slice(data);
         out
+    }
+
+    #[test]
+    fn a_string_item_size_whose_bytes_overflow_is_refused() {
+        // Found by the npy_array fuzz target: 4 × size overflowed (a panic in checked builds).
+        let e = parse_npy(&npy("<U4611686018427387904", "(2, 3)", &[])).unwrap_err();
+        assert!(e.to_string().contains("too large"), "{e}");
     }
 
     #[test]
