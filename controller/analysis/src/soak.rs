@@ -307,7 +307,9 @@ pub fn soak(spec: &SoakSpec<'_>, progress: &dyn Fn(f64)) -> Result<SoakReport, A
             .map(|t| (t.tick, t.cause));
         match (&fault, stop) {
             (Some((f, kind)), stop) => {
-                let at = (f.at_s / dt).ceil() as u64;
+                // The tick whose window holds the fault's time: its bus exchange may already
+                // see the fault (a reply due a few ms into the tick), so reactions count from it.
+                let at = (f.at_s / dt).floor() as u64;
                 let figures = report.faults.entry(kind.clone()).or_default();
                 figures.injected += 1;
                 match stop {

@@ -127,7 +127,11 @@ fn parse_npy_text(bytes: &[u8]) -> Result<NpyArray, String> {
         return Err(unsupported());
     }
     // A `<U` item is `size` UTF-32 characters; the fuzzer found `<U` sizes whose byte count overflows.
-    let item_bytes = if kind.ends_with('U') { size.checked_mul(4) } else { Some(size) };
+    let item_bytes = if kind.ends_with('U') {
+        size.checked_mul(4)
+    } else {
+        Some(size)
+    };
     let need = item_bytes
         .and_then(|b| count.checked_mul(b))
         .ok_or("array too large")?;
