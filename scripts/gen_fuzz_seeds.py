@@ -9,6 +9,8 @@ mutates them into the ones it must refuse. None is third-party material:
   bvh_text/        a two-joint BVH skeleton with three frames.
   clip_csv/        a three-frame clip in the project's CSV layout (time, root pose, one joint).
   npy_array/       NumPy .npy arrays (format 1.0), float64 and float32, as np.save writes them.
+  policy_toml/     the project's reference-follower manifest with its default pose, stiffness and
+                   damping written out (so the target never needs the ONNX file's metadata).
   mirror_toml/     the project's own randomized-with-faults mirror settings (sim2real/configs/).
   mcap_recording/  a tiny recording (two channels, three messages), lz4- and zstd-compressed
                    chunks, written with the `mcap` Python package of the project's venv.
@@ -95,6 +97,14 @@ write("npy_array", "f4_4.npy", npy("<f4", "(4,)", struct.pack("<4f", 0.5, 1.5, 2
 
 MIRROR = pathlib.Path(__file__).resolve().parent.parent / "sim2real" / "configs" / "randomized-with-faults.toml"
 write("mirror_toml", "randomized-with-faults.toml", MIRROR.read_text())
+
+POLICY = pathlib.Path(__file__).resolve().parent.parent / "robots" / "biped" / "policies" / "reference_follower.toml"
+manifest = POLICY.read_text()
+head, tables = manifest.split("\n[", 1)
+joints = head.count('",') + head.count('"\n]')
+explicit = "default_pose = [%s]\nstiffness = [%s]\ndamping = [%s]\n" % (
+    ", ".join(["0.0"] * joints), ", ".join(["20.0"] * joints), ", ".join(["1.0"] * joints))
+write("policy_toml", "reference_follower.toml", head + "\n" + explicit + "\n[" + tables)
 
 from mcap.writer import CompressionType, Writer  # noqa: E402
 

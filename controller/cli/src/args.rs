@@ -43,24 +43,35 @@ pub fn id_range(s: &str, max: u8) -> Result<(u8, u8), String> {
     Ok((a, b))
 }
 
-/// Keeps a server running until `seconds` pass (`None`: for ever) or SIGINT/SIGTERM arrives; says
-/// which, so the server can print its summary and end cleanly instead of dying mid-write.
-pub fn serve_until_stopped(seconds: Option<u64>) -> anyhow::Result<&'static str> {
-    use std::sync::atomic::{AtomicBool, Ordering};
-    let stop = std::sync::Arc::new(AtomicBool::new(false));
-    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-        signal_hook::flag::register(signal, std::sync::Arc::clone(&stop))
-            .map_err(|e| anyhow::anyhow!("cannot install the stop signal handlers: {e}"))?;
+/// SIGINT/SIGTERM caught for a server, so it can print its summary and end cleanly instead of
+/// dying mid-write. Installed before the server says it is serving: a signal sent as soon as that
+/// line appears must find the handler in place.
+#[derive(Debug)]
+pub struct StopSignal(std::sync::Arc<std::sync::atomic::AtomicBool>);
+
+impl StopSignal {
+    /// Installs the handlers.
+    pub fn install() -> anyhow::Result<Self> {
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+            signal_hook::flag::register(signal, std::sync::Arc::clone(&stop))
+                .map_err(|e| anyhow::anyhow!("cannot install the stop signal handlers: {e}"))?;
+        }
+        Ok(Self(stop))
     }
-    let until = seconds.map(|s| std::time::Instant::now() + std::time::Duration::from_secs(s));
-    loop {
-        if stop.load(Ordering::Relaxed) {
-            return Ok("stopped by a signal");
+
+    /// Waits until `seconds` pass (`None`: for ever) or a signal arrives; says which.
+    pub fn wait(&self, seconds: Option<u64>) -> &'static str {
+        let until = seconds.map(|s| std::time::Instant::now() + std::time::Duration::from_secs(s));
+        loop {
+            if self.0.load(std::sync::atomic::Ordering::Relaxed) {
+                return "stopped by a signal";
+            }
+            if until.is_some_and(|u| std::time::Instant::now() >= u) {
+                return "time is up";
+            }
+            std::thread::sleep(std::time::Duration::from_millis(50));
         }
-        if until.is_some_and(|u| std::time::Instant::now() >= u) {
-            return Ok("time is up");
-        }
-        std::thread::sleep(std::time::Duration::from_millis(50));
     }
 }
 

@@ -93,6 +93,7 @@ pub fn run(cmd: CanCommand) -> Result<()> {
 }
 
 fn emulate(args: &EmulateArgs) -> Result<()> {
+    let stop = crate::args::StopSignal::install()?;
     let bus = VirtualCanBus::new(&args.bus, args.bitrate);
     let mut rig = MitRig::new(vec![bus.clone()], Duration::from_micros(500));
     for (id, name) in &args.motors {
@@ -125,7 +126,7 @@ fn emulate(args: &EmulateArgs) -> Result<()> {
     }
     let _ = out.flush();
     drop(out);
-    let why = crate::args::serve_until_stopped(args.seconds)?;
+    let why = stop.wait(args.seconds);
     let _ = writeln!(std::io::stdout(), "stopped ({why})");
     let _ = writeln!(
         std::io::stdout(),

@@ -83,6 +83,7 @@ pub fn run(cmd: DxlCommand) -> Result<()> {
 }
 
 fn emulate(args: &EmulateArgs) -> Result<()> {
+    let stop = crate::args::StopSignal::install()?;
     if code_of_baud(args.baud).is_none() {
         bail!(
             "--baud {}: X-series servos support 9600, 57600, 115200, 1000000, 2000000, 3000000, 4000000 and 4500000",
@@ -121,7 +122,7 @@ fn emulate(args: &EmulateArgs) -> Result<()> {
     }
     let _ = out.flush();
     drop(out);
-    let why = crate::args::serve_until_stopped(args.seconds)?;
+    let why = stop.wait(args.seconds);
     let _ = writeln!(std::io::stdout(), "stopped ({why})");
     let stats = rig
         .lock()

@@ -192,6 +192,7 @@ fn stand(args: &StandArgs) -> Result<()> {
 }
 
 fn serve(args: &ServeArgs) -> Result<()> {
+    let stop = crate::args::StopSignal::install()?;
     let robot = Robot::load(&args.robot)?;
     let mut config = mirror_config(args.mirror.as_deref(), args.gantry, &robot)?;
     if let Some(seed) = args.seed {
@@ -214,7 +215,7 @@ fn serve(args: &ServeArgs) -> Result<()> {
     let _ = writeln!(out, "  imu  {:<6} {}", "", ep.imu);
     let _ = out.flush();
     drop(out);
-    let why = crate::args::serve_until_stopped(args.seconds)?;
+    let why = stop.wait(args.seconds);
     let _ = writeln!(std::io::stdout(), "stopped ({why})");
     let stats = served
         .world

@@ -94,14 +94,14 @@ fn load_error(path: &Path) -> impl Fn(ort::Error) -> OnnxError + '_ {
 
 /// The pinned environment, after checking the file exists.
 fn environment_for(path: &Path) -> Result<&'static Environment, OnnxError> {
-    let env = environment()?;
+    // A missing file is named before ONNX Runtime is loaded for nothing.
     if !path.is_file() {
         return Err(OnnxError::Load {
             path: path.to_path_buf(),
             reason: "no such file".into(),
         });
     }
-    Ok(env)
+    environment()
 }
 
 /// The custom metadata properties of a model file (empty when it has none).

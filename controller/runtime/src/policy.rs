@@ -474,13 +474,23 @@ pub struct PolicyLayout {
 impl PolicyLayout {
     /// Loads `path` and resolves it against `robot`.
     pub fn load(path: &Path, robot: &Robot) -> Result<Self, PolicyError> {
+        let text = robots::read_text(path).map_err(|message| PolicyError {
+            file: path.to_path_buf(),
+            place: "file".to_owned(),
+            message,
+        })?;
+        Self::parse(path, &text, robot)
+    }
+
+    /// Resolves the manifest `text` (read from `path`, which names it in errors and locates the
+    /// ONNX file beside it) against `robot`.
+    pub fn parse(path: &Path, text: &str, robot: &Robot) -> Result<Self, PolicyError> {
         let err = |place: &str, message: String| PolicyError {
             file: path.to_path_buf(),
             place: place.to_owned(),
             message,
         };
-        let text = robots::read_text(path).map_err(|m| err("file", m))?;
-        let mut manifest: PolicyManifest = toml::from_str(&text).map_err(|e| {
+        let mut manifest: PolicyManifest = toml::from_str(text).map_err(|e| {
             let line = e
                 .span()
                 .map_or(0, |s| text[..s.start.min(text.len())].matches('\n').count() + 1);

@@ -1,0 +1,22 @@
+//! Policy manifests: any text through the typed deserializer and every range and cross-check
+//! against the reference robot (joint names, rates, terms, scales, clips, action mapping, gains
+//! against the motors). The manifest's path points nowhere, so a manifest that leaves fields to the
+//! ONNX file's metadata is refused for the missing file rather than loading a model per input.
+#![no_main]
+
+use libfuzzer_sys::fuzz_target;
+
+fn robot() -> &'static robots::Robot {
+    static ROBOT: std::sync::OnceLock<robots::Robot> = std::sync::OnceLock::new();
+    ROBOT.get_or_init(|| robots::Robot::load(&robots::reference_robot_path()).expect("the reference robot loads"))
+}
+
+fuzz_target!(|data: &[u8]| {
+    let Ok(text) = std::str::from_utf8(data) else {
+        return;
+    };
+    let path = std::path::Path::new("/nonexistent/robodeploy-fuzz/policy.toml");
+    if let Ok(layout) = controller::policy::PolicyLayout::parse(path, text, robot()) {
+        assert_eq!(layout.manifest.joints.len(), robot().config.joints.len());
+    }
+});
