@@ -390,6 +390,22 @@ fn a_recording_cut_by_sigkill_is_read_up_to_the_cut() {
     assert!(summary["ticks"].as_u64().unwrap() >= 30, "{summary}");
     let (code, stdout, stderr) = run_within(&args(&[&"replay", &run]), Duration::from_secs(120));
     assert_eq!(code, Some(0), "{stdout}{stderr}");
+    // An independent reader gets the same ticks back: Python's `mcap`, record by record.
+    let script = test_support::fixtures::workspace_root().join("tests/python/read_mcap.py");
+    let out = std::process::Command::new(test_support::fixtures::venv_python())
+        .arg(script)
+        .arg(&run)
+        .arg("--cut")
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let read: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(read["cut"], true, "{read}");
+    assert_eq!(
+        read["counts"]["/joint_state"].as_u64(),
+        summary["ticks"].as_u64(),
+        "{read}\n{summary}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
