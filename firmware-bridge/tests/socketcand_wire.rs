@@ -215,13 +215,27 @@ fn a_client_that_never_finishes_the_handshake_or_goes_quiet_is_dropped() {
     let mut quiet = raw_mode(server.local_addr());
     let text = read_until(&mut quiet, "< error idle timeout >");
     assert!(text.contains("< error idle timeout >"), "{text}");
-    // A client that keeps talking (`< echo >` as a keep-alive) stays.
+    // A client that keeps talking (`< echo >` as a keep-alive) stays: over 1 s, more than three
+    // idle limits, the server only ever answers its echoes.
     let mut talking = raw_mode(server.local_addr());
-    for _ in 0..10 {
+    let until = std::time::Instant::now() + Duration::from_secs(1);
+    while std::time::Instant::now() < until {
         talking.write_all(b"< echo >").unwrap();
         let text = read_until(&mut talking, "< echo >");
         assert!(text.contains("< echo >") && !text.contains("error"), "{text}");
-        std::thread::sleep(Duration::from_millis(100));
+        // Then 100 ms of listening (a third of the idle limit): the server must say nothing.
+        talking
+            .set_read_timeout(Some(Duration::from_millis(100)))
+            .unwrap();
+        let mut buf = [0u8; 256];
+        match talking.read(&mut buf) {
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                ) => {}
+            other => panic!("the server spoke to a talking client: {other:?} {:?}", &buf[..8]),
+        }
     }
 }
 

@@ -221,6 +221,23 @@ impl Running {
 }
 
 impl Running {
+    /// Waits for the process to end (its output closes) within `limit`: all it printed, or, when
+    /// it is still running then, `Err` with what it printed before it was killed.
+    ///
+    /// # Panics
+    /// When waiting fails.
+    pub fn finish_within(mut self, limit: std::time::Duration) -> Result<Finished, Finished> {
+        let give_up = std::time::Instant::now() + limit;
+        loop {
+            let left = give_up.saturating_duration_since(std::time::Instant::now());
+            match self.lines.recv_timeout(left) {
+                Ok(line) => self.seen.push(line),
+                Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => return Ok(self.finish()),
+                Err(std::sync::mpsc::RecvTimeoutError::Timeout) => return Err(self.kill()),
+            }
+        }
+    }
+
     /// Stops the process (a server, say) and returns all it printed.
     pub fn kill(mut self) -> Finished {
         let _ = self.child.kill();
@@ -250,18 +267,8 @@ pub fn run_within<S: AsRef<std::ffi::OsStr>>(
     args: &[S],
     limit: std::time::Duration,
 ) -> (Option<i32>, String, String) {
-    let mut run = Running::start(args);
-    let give_up = std::time::Instant::now() + limit;
-    loop {
-        if let Some(status) = run.child.try_wait().expect("the process can be waited for") {
-            let out = run.finish_with(status);
-            return (out.status.code(), out.stdout, out.stderr);
-        }
-        if std::time::Instant::now() > give_up {
-            let _ = run.child.kill();
-            let out = run.finish();
-            panic!("robodeploy hung for {limit:?}:\n{}{}", out.stdout, out.stderr);
-        }
-        std::thread::sleep(std::time::Duration::from_millis(20));
+    match Running::start(args).finish_within(limit) {
+        Ok(out) => (out.status.code(), out.stdout, out.stderr),
+        Err(out) => panic!("robodeploy hung for {limit:?}:\n{}{}", out.stdout, out.stderr),
     }
 }
