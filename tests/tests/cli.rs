@@ -443,8 +443,11 @@ fn an_estop_is_acted_on_while_nobody_reads_the_logs() {
     }
     // The process's end arrives as an event, so the loop below reacts to it at once.
     let pid = child.id();
-    let (ended, end) = std::sync::mpsc::channel();
-    std::thread::spawn(move || ended.send(child.wait()));
+    let (ended, end) = std::sync::mpsc::sync_channel(1);
+    std::thread::Builder::new()
+        .name("reaper".into())
+        .spawn(move || ended.send(child.wait()))
+        .unwrap();
     let give_up = std::time::Instant::now() + Duration::from_secs(120);
     let status = loop {
         // As an e-stop button does: ESTOP every 50 ms until the robot stopped (a full socket
@@ -453,9 +456,7 @@ fn an_estop_is_acted_on_while_nobody_reads_the_logs() {
         match end.recv_timeout(Duration::from_millis(50)) {
             Ok(status) => break status.unwrap(),
             Err(_) if std::time::Instant::now() > give_up => {
-                let _ = std::process::Command::new("kill")
-                    .args(["-KILL", &pid.to_string()])
-                    .status();
+                let _ = Command::new("kill").args(["-KILL", &pid.to_string()]).status();
                 panic!("the e-stop was not acted on while the logs went unread");
             }
             Err(_) => {}

@@ -583,19 +583,25 @@ fn array(out: &mut String, name: &str, values: &[f32]) {
     json_array(out, name, values.iter().copied());
 }
 
+/// The measured joint state of `r`'s first `n` joints: the `/joint_state` message, and what
+/// `/replay` feeds back.
+fn joint_state_fields(out: &mut String, r: &TickRecord, n: usize) {
+    array64(out, "q", r.q[..n].iter().copied());
+    out.push(',');
+    array64(out, "qd", r.qd[..n].iter().copied());
+    out.push(',');
+    array64(out, "tau", r.tau[..n].iter().copied());
+    out.push(',');
+    array64(out, "missed", r.missed[..n].iter().map(|&m| f64::from(m)));
+}
+
 /// Encodes topic `k` of `r` as JSON into `out`; false when the topic has nothing this tick.
 fn encode(out: &mut String, k: usize, r: &TickRecord, root: &str, last_mode: &mut u8) -> bool {
     let n = usize::from(r.joints);
     out.push('{');
     match k {
         0 => {
-            array64(out, "q", r.q[..n].iter().copied());
-            out.push(',');
-            array64(out, "qd", r.qd[..n].iter().copied());
-            out.push(',');
-            array64(out, "tau", r.tau[..n].iter().copied());
-            out.push(',');
-            array64(out, "missed", r.missed[..n].iter().map(|&m| f64::from(m)));
+            joint_state_fields(out, r, n);
         }
         1 => {
             array64(out, "q", r.target[..n].iter().map(|t| t[0]));
@@ -645,13 +651,7 @@ fn encode(out: &mut String, k: usize, r: &TickRecord, root: &str, last_mode: &mu
                 "\"tick\":{},\"imu_missed\":{},\"stop\":{},\"simulation_failed\":{},",
                 r.tick, r.imu_missed, r.stop_requested, r.simulation_failed
             );
-            array64(out, "q", r.q[..n].iter().copied());
-            out.push(',');
-            array64(out, "qd", r.qd[..n].iter().copied());
-            out.push(',');
-            array64(out, "tau", r.tau[..n].iter().copied());
-            out.push(',');
-            array64(out, "missed", r.missed[..n].iter().map(|&m| f64::from(m)));
+            joint_state_fields(out, r, n);
             out.push(',');
             array64(
                 out,

@@ -5,16 +5,11 @@
 use libfuzzer_sys::fuzz_target;
 use sim2real::config::MirrorConfig;
 
-fn robot() -> &'static robots::Robot {
-    static ROBOT: std::sync::OnceLock<robots::Robot> = std::sync::OnceLock::new();
-    ROBOT.get_or_init(|| robots::Robot::load(&robots::reference_robot_path()).expect("the reference robot loads"))
-}
-
 fuzz_target!(|data: &[u8]| {
     let Ok(text) = std::str::from_utf8(data) else {
         return;
     };
     if let Ok(config) = toml::from_str::<MirrorConfig>(text) {
-        let _ = config.check(robot());
+        let _ = config.check(robodeploy_fuzz::reference_robot());
     }
 });

@@ -10,6 +10,12 @@ fuzz_target!(|data: &[u8]| {
         let _ = m.args().count();
     });
     let mut tracks = Tracks::default();
-    let accepted = decode(data, &Serials::default(), std::time::Instant::now(), &mut tracks, &Counters::default());
+    let accepted = decode(
+        data,
+        &Serials::default(),
+        std::time::Instant::now(),
+        &mut tracks,
+        &Counters::default(),
+    );
     assert!(accepted <= 16);
 });

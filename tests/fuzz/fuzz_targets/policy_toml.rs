@@ -6,17 +6,17 @@
 
 use libfuzzer_sys::fuzz_target;
 
-fn robot() -> &'static robots::Robot {
-    static ROBOT: std::sync::OnceLock<robots::Robot> = std::sync::OnceLock::new();
-    ROBOT.get_or_init(|| robots::Robot::load(&robots::reference_robot_path()).expect("the reference robot loads"))
-}
-
 fuzz_target!(|data: &[u8]| {
     let Ok(text) = std::str::from_utf8(data) else {
         return;
     };
     let path = std::path::Path::new("/nonexistent/robodeploy-fuzz/policy.toml");
-    if let Ok(layout) = controller::policy::PolicyLayout::parse(path, text, robot()) {
-        assert_eq!(layout.manifest.joints.len(), robot().config.joints.len());
+    if let Ok(layout) =
+        controller::policy::PolicyLayout::parse(path, text, robodeploy_fuzz::reference_robot())
+    {
+        assert_eq!(
+            layout.manifest.joints.len(),
+            robodeploy_fuzz::reference_robot().config.joints.len()
+        );
     }
 });
