@@ -20,6 +20,75 @@ pub struct BusConfig {
     pub device: String,
     /// Bit rate (CAN) or baud rate (serial).
     pub rate: u32,
+    /// Bus cycles per second: every device gets one round trip per cycle, on the bus's own
+    /// thread. Default: the fastest of [`DEFAULT_BUS_RATES_HZ`] whose worst-case wire time fills
+    /// at most [`DEFAULT_BUS_LOAD`] of the period. Range: the policy's rate to 10 kHz, and the
+    /// wire must carry a cycle within the period.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rate_hz: Option<f64>,
+    /// What the joints are commanded between policy ticks: the newest target held, or a ramp
+    /// from the previous target to the newest over one policy period (gains ramp with it).
+    #[serde(default)]
+    pub interpolation: Interpolation,
+    /// The devices' own command timeout, ms: torque drops when no command arrived for this long
+    /// (MIT firmware timeout, Dynamixel Bus Watchdog). At least two bus periods, at most 10 s;
+    /// Dynamixel counts it in 20 ms steps (20–2540 ms). Default: [`default_command_timeout`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub command_timeout_ms: Option<f64>,
+}
+
+/// Bus rates tried for a default, fastest first, Hz.
+pub const DEFAULT_BUS_RATES_HZ: [f64; 6] = [1000.0, 500.0, 250.0, 200.0, 100.0, 50.0];
+
+/// Share of a bus period the worst-case wire time of a default-rate cycle may fill.
+pub const DEFAULT_BUS_LOAD: f64 = 0.85;
+
+/// Fastest bus rate robot.toml accepts, Hz.
+pub const MAX_BUS_RATE_HZ: f64 = 10_000.0;
+
+/// What a bus commands between policy ticks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Interpolation {
+    /// The newest target until the next one.
+    #[default]
+    Hold,
+    /// From the previous target to the newest over one policy period.
+    Linear,
+}
+
+/// How one bus is scheduled: resolved from robot.toml and its defaults.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BusTiming {
+    /// Cycles per second.
+    pub rate_hz: f64,
+    /// One cycle.
+    pub period: std::time::Duration,
+    /// Worst-case wire time of one cycle (zero for a stream the host only reads).
+    pub wire_time: std::time::Duration,
+    /// Between policy ticks.
+    pub interpolation: Interpolation,
+    /// The devices' own command timeout.
+    pub command_timeout: std::time::Duration,
+}
+
+impl BusTiming {
+    /// Share of the period the wire is busy, 0–1.
+    pub fn load(&self) -> f64 {
+        self.wire_time.as_secs_f64() / self.period.as_secs_f64()
+    }
+}
+
+/// The command timeout a bus gets when robot.toml names none: ten bus periods, at least 20 ms
+/// (a Dynamixel Bus Watchdog step), rounded up to whole 20 ms steps on Dynamixel lines.
+pub fn default_command_timeout(kind: BusKind, period: std::time::Duration) -> std::time::Duration {
+    let ms = (period.as_secs_f64() * 10.0 * 1e3).max(20.0);
+    let ms = if kind == BusKind::Dynamixel {
+        (ms / 20.0).ceil() * 20.0
+    } else {
+        ms.ceil()
+    };
+    std::time::Duration::from_millis(ms as u64)
 }
 
 /// The protocol of a bus.
@@ -312,7 +381,134 @@ impl Robot {
 
     fn check(&self) -> Result<(), (String, String)> {
         self.check_body()?;
+        self.check_bus_timing()?;
         self.check_retarget()
+    }
+
+    /// Worst-case wire time of one cycle of bus `b` with the joints robot.toml puts on it (zero for
+    /// the IMU stream, which the host only reads).
+    pub fn bus_wire_time(&self, b: &BusConfig) -> std::time::Duration {
+        let devices = self.joints_on(&b.name).count();
+        match b.kind {
+            BusKind::MitCan => mit::driver::cycle_wire_time(devices, b.rate),
+            // The driver programs a Return Delay Time of 0.
+            BusKind::Dynamixel => dxl::driver::cycle_wire_time(devices, b.rate, std::time::Duration::ZERO),
+            BusKind::ImuSerial => std::time::Duration::ZERO,
+        }
+    }
+
+    /// How bus `name` is scheduled (robot.toml's values or their defaults); `None` for a bus the
+    /// robot does not have. Valid for a loaded robot (checked at load).
+    pub fn bus_timing(&self, name: &str) -> Option<BusTiming> {
+        let b = self.bus(name)?;
+        self.resolve_timing(b).ok()
+    }
+
+    /// Resolves `b`'s timing, or says what robot.toml field is wrong.
+    fn resolve_timing(&self, b: &BusConfig) -> Result<BusTiming, (&'static str, String)> {
+        let wire = self.bus_wire_time(b);
+        let policy = self.config.control_rate_hz;
+        let fits = |rate: f64| wire.as_secs_f64() <= DEFAULT_BUS_LOAD / rate;
+        let rate_hz = match b.rate_hz {
+            Some(r) => {
+                if !(r.is_finite() && (policy..=MAX_BUS_RATE_HZ).contains(&r)) {
+                    return Err((
+                        "rate_hz",
+                        format!(
+                            "{} Hz is outside [{}, {}] (the policy's control_rate_hz to the fastest bus rate)",
+                            crate::num(r),
+                            crate::num(policy),
+                            crate::num(MAX_BUS_RATE_HZ)
+                        ),
+                    ));
+                }
+                if wire.as_secs_f64() > 1.0 / r {
+                    return Err((
+                        "rate_hz",
+                        format!(
+                            "{} Hz leaves {:.3} ms per cycle, but one cycle takes {:.3} ms of wire time ({} devices at {} bit/s)",
+                            crate::num(r),
+                            1e3 / r,
+                            wire.as_secs_f64() * 1e3,
+                            self.joints_on(&b.name).count(),
+                            b.rate
+                        ),
+                    ));
+                }
+                r
+            }
+            None if b.kind == BusKind::ImuSerial => DEFAULT_BUS_RATES_HZ[0].max(policy),
+            None => DEFAULT_BUS_RATES_HZ
+                .iter()
+                .copied()
+                .filter(|&r| r >= policy)
+                .find(|&r| fits(r))
+                .or_else(|| fits(policy).then_some(policy))
+                .ok_or_else(|| {
+                    (
+                        "rate",
+                        format!(
+                            "one cycle takes {:.3} ms of wire time ({} devices at {} bit/s): more than {:.0} % of the policy's {:.3} ms period; use a faster line or split the bus",
+                            wire.as_secs_f64() * 1e3,
+                            self.joints_on(&b.name).count(),
+                            b.rate,
+                            DEFAULT_BUS_LOAD * 100.0,
+                            1e3 / policy
+                        ),
+                    )
+                })?,
+        };
+        let period = std::time::Duration::from_nanos((1e9 / rate_hz).round() as u64);
+        let command_timeout = match b.command_timeout_ms {
+            None => default_command_timeout(b.kind, period),
+            Some(ms) => {
+                let least = period.as_secs_f64() * 2e3;
+                if !(ms.is_finite() && ms >= least && ms <= 10_000.0) {
+                    return Err((
+                        "command_timeout_ms",
+                        format!(
+                            "{} ms is outside [{least:.3}, 10000]: at least two bus periods, or one late cycle drops torque",
+                            crate::num(ms)
+                        ),
+                    ));
+                }
+                if b.kind == BusKind::Dynamixel && !(20.0..=2540.0).contains(&ms)
+                    || b.kind == BusKind::Dynamixel && ms % 20.0 != 0.0
+                {
+                    return Err((
+                        "command_timeout_ms",
+                        format!(
+                            "{} ms: the Bus Watchdog counts 20 ms steps from 20 to 2540 ms",
+                            crate::num(ms)
+                        ),
+                    ));
+                }
+                std::time::Duration::from_secs_f64(ms / 1e3)
+            }
+        };
+        if b.kind == BusKind::ImuSerial
+            && (b.interpolation != Interpolation::Hold || b.command_timeout_ms.is_some())
+        {
+            return Err((
+                "interpolation",
+                "an IMU line carries no commands: interpolation and command_timeout_ms do not apply".into(),
+            ));
+        }
+        Ok(BusTiming {
+            rate_hz,
+            period,
+            wire_time: wire,
+            interpolation: b.interpolation,
+            command_timeout,
+        })
+    }
+
+    fn check_bus_timing(&self) -> Result<(), (String, String)> {
+        for (i, b) in self.config.buses.iter().enumerate() {
+            self.resolve_timing(b)
+                .map_err(|(field, message)| (format!("buses[{i}] ({}).{field}", b.name), message))?;
+        }
+        Ok(())
     }
 
     fn check_retarget(&self) -> Result<(), (String, String)> {

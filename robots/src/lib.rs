@@ -11,8 +11,8 @@ pub mod mjcf;
 pub mod spatial;
 
 pub use config::{
-    BodyPair, BusConfig, BusKind, HumanBody, ImuConfig, JointConfig, OrientationCompare, RetargetConfig,
-    Robot, RobotConfig, RobotError, check_gains,
+    BodyPair, BusConfig, BusKind, BusTiming, HumanBody, ImuConfig, Interpolation, JointConfig,
+    OrientationCompare, RetargetConfig, Robot, RobotConfig, RobotError, check_gains, default_command_timeout,
 };
 
 /// A file that could not be read, parsed or written, and what was wrong with it.

@@ -148,3 +148,73 @@ fn a_bad_retargeting_map_is_named() {
     let text = reference_text().replacen("human = \"left_hand\"", "human = \"left_paw\"", 1);
     expect_error(&text, &["left_paw"]);
 }
+
+#[test]
+fn each_bus_gets_the_fastest_rate_its_wire_carries() {
+    let robot = Robot::load(&reference_robot_path()).unwrap();
+    // Six MIT motors on 1 Mbit/s CAN: 12 frames of at most 135 bits = 1.62 ms, 81 % of 2 ms.
+    let can = robot.bus_timing("can0").unwrap();
+    assert_eq!(can.rate_hz, 500.0);
+    assert_eq!(can.wire_time.as_micros(), 1620);
+    assert!((can.load() - 0.81).abs() < 1e-9);
+    // Eight servos at 4 Mbaud: sync write 70 B + sync read 22 B + 8 statuses of 27 B = 308 B,
+    // 0.77 ms: 77 % of 1 ms.
+    let dxl = robot.bus_timing("dxl0").unwrap();
+    assert_eq!(dxl.rate_hz, 1000.0);
+    assert_eq!(dxl.wire_time.as_micros(), 770);
+    // The IMU line is only read: 1 kHz.
+    assert_eq!(robot.bus_timing("imu0").unwrap().rate_hz, 1000.0);
+    // Ten periods, whole 20 ms steps on the Dynamixel line.
+    assert_eq!(can.command_timeout.as_millis(), 20);
+    assert_eq!(dxl.command_timeout.as_millis(), 20);
+}
+
+#[test]
+fn bus_rates_and_timeouts_the_wire_or_the_policy_cannot_keep_are_named() {
+    let set = |bus: &str, line: &str| {
+        reference_text().replacen(
+            &format!("name = \"{bus}\""),
+            &format!("name = \"{bus}\"\n{line}"),
+            1,
+        )
+    };
+    // 1 kHz leaves 1 ms; six motors need 1.62 ms.
+    expect_error(
+        &set("can0", "rate_hz = 1000.0"),
+        &["buses[0] (can0).rate_hz", "1000 Hz", "1.620 ms of wire time"],
+    );
+    // Slower than the 50 Hz policy.
+    expect_error(
+        &set("can1", "rate_hz = 25.0"),
+        &["buses[1] (can1).rate_hz", "25 Hz is outside [50"],
+    );
+    expect_error(&set("can1", "rate_hz = nan"), &["buses[1] (can1).rate_hz", "NaN"]);
+    // A timeout under two bus periods (2 ms at 500 Hz).
+    expect_error(
+        &set("can0", "command_timeout_ms = 3.0"),
+        &["buses[0] (can0).command_timeout_ms", "3 ms is outside [4.000"],
+    );
+    expect_error(
+        &set("dxl0", "command_timeout_ms = 30.0"),
+        &["buses[2] (dxl0).command_timeout_ms", "20 ms steps"],
+    );
+    expect_error(
+        &set("imu0", "interpolation = \"linear\""),
+        &["buses[3] (imu0).interpolation"],
+    );
+    // A bus too slow for the policy at any rate: 6 motors at 125 kbit/s need 12.96 ms; a
+    // 100 Hz policy leaves 10 ms.
+    let slow = set("can0", "").replacen("rate = 1000000", "rate = 125000", 1);
+    let fast_policy = slow.replacen("control_rate_hz = 50.0", "control_rate_hz = 100.0", 1);
+    expect_error(&fast_policy, &["buses[0] (can0).rate", "12.960 ms of wire time"]);
+    // The same line under the 50 Hz policy runs at 50 Hz.
+    let robot = load_variant(&slow).unwrap();
+    assert_eq!(robot.bus_timing("can0").unwrap().rate_hz, 50.0);
+    // A policy faster than a configured bus.
+    let policy_faster =
+        set("can0", "rate_hz = 100.0").replacen("control_rate_hz = 50.0", "control_rate_hz = 200.0", 1);
+    expect_error(
+        &policy_faster,
+        &["buses[0] (can0).rate_hz", "100 Hz is outside [200"],
+    );
+}

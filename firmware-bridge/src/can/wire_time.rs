@@ -87,6 +87,21 @@ pub fn frame_bits(frame: &CanFrame) -> u32 {
     b.len as u32 + stuffed + UNSTUFFED_TAIL_BITS
 }
 
+/// The most bits a data frame of `dlc` bytes can occupy (every stuff bit the rule allows, since
+/// the data decide how many there are): what a schedule must budget for.
+pub const fn worst_case_bits(dlc: u8, extended: bool) -> u32 {
+    // SOF, identifier and control bits, data, CRC-15: the span stuff bits are inserted into.
+    let header = if extended {
+        1 + 11 + 2 + 18 + 3 + 4
+    } else {
+        1 + 11 + 3 + 4
+    };
+    let span = header + 8 * dlc as u32 + 15;
+    // A stuff bit follows every 5 equal bits; each inserted bit starts a new run, so at most one
+    // per 4 bits after the first.
+    span + (span - 1) / 4 + UNSTUFFED_TAIL_BITS
+}
+
 /// Time `frame` occupies a bus running at `bitrate` bit/s.
 pub fn frame_time(frame: &CanFrame, bitrate: u32) -> Duration {
     Duration::from_nanos(u64::from(frame_bits(frame)) * 1_000_000_000 / u64::from(bitrate.max(1)))
@@ -95,6 +110,26 @@ pub fn frame_time(frame: &CanFrame, bitrate: u32) -> Duration {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn no_frame_is_longer_than_its_worst_case() {
+        // Payloads that stuff the most: runs of equal bits through data and identifier.
+        for data in [
+            [0u8; 8],
+            [0xFF; 8],
+            [0x0F; 8],
+            [0xF0; 8],
+            [0x83, 0xE0, 0xF8, 0x3E, 0x0F, 0x83, 0xE0, 0xF8],
+        ] {
+            for id in [0u16, 0x7FF, 0x001, 0x400] {
+                let f = CanFrame::new8(CanId::Standard(id), data);
+                assert!(frame_bits(&f) <= worst_case_bits(8, false), "{id:#x} {data:?}");
+            }
+        }
+        // 8-byte standard frame: 98 stuffable bits, at most 24 stuff bits, 13 unstuffed.
+        assert_eq!(worst_case_bits(8, false), 135);
+        assert_eq!(worst_case_bits(0, false), 34 + 8 + 13);
+    }
 
     #[test]
     fn crc15_leaves_zero_remainder_over_message_and_crc() {

@@ -45,6 +45,19 @@ const GOAL_MAP: [u16; 6] = [
 const FEEDBACK_SLOT: u16 = 1;
 const GOAL_SLOT: u16 = 17;
 const STATUS_OVERHEAD: usize = 11;
+/// Header, ID, length, instruction and CRC of an instruction packet.
+const INSTRUCTION_OVERHEAD: usize = 10;
+
+/// Wire time of one bus cycle of `servos` servos at `baud`: the goals' sync write, the sync
+/// read's instruction and every servo's status, each servo waiting `return_delay` before it
+/// answers.
+pub fn cycle_wire_time(servos: usize, baud: u32, return_delay: Duration) -> Duration {
+    let sync_write = INSTRUCTION_OVERHEAD + 4 + servos * (1 + GOAL_MAP.len());
+    let sync_read = INSTRUCTION_OVERHEAD + 4 + servos;
+    let statuses = servos * (STATUS_OVERHEAD + FEEDBACK_MAP.len());
+    super::wire::WireTiming::new(baud).bytes_time(sync_write + sync_read + statuses)
+        + return_delay * servos as u32
+}
 
 /// How a joint's servo is driven.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, serde::Serialize)]
@@ -172,6 +185,9 @@ pub struct DxlDriverOptions {
     pub watchdog: Option<Duration>,
     /// Added to every reply deadline (host scheduling, adapter latency).
     pub reply_slack: Duration,
+    /// The longest a sync read waits for its statuses (a bus cycle's share of its period), or
+    /// `None`: as long as the wire, the return delays and the slack take.
+    pub max_reply_wait: Option<Duration>,
 }
 
 impl Default for DxlDriverOptions {
@@ -181,6 +197,7 @@ impl Default for DxlDriverOptions {
             expected_return_delay: Duration::from_micros(500),
             watchdog: Some(Duration::from_millis(100)),
             reply_slack: Duration::from_millis(2),
+            max_reply_wait: None,
         }
     }
 }
@@ -411,6 +428,8 @@ pub struct DxlBusDriver<T: DxlTransport> {
     feedback: Vec<DxlFeedback<T::Instant>>,
     received: Vec<bool>,
     tx: Vec<u8>,
+    /// When the statuses of the sync read last sent are due.
+    state_deadline: Option<T::Instant>,
     stats: DxlDriverStats,
 }
 
@@ -482,6 +501,7 @@ impl<T: DxlTransport> DxlBusDriver<T> {
             received: vec![false; n],
             tx: Vec::with_capacity(8 + n * (1 + GOAL_MAP.len()) + 16),
             joints,
+            state_deadline: None,
             stats: DxlDriverStats::default(),
         })
     }
@@ -796,6 +816,15 @@ impl<T: DxlTransport> DxlBusDriver<T> {
     /// One sync read of every joint's state. Faults are per joint (see [`DxlFeedback`]); only a
     /// failing line is an error.
     pub fn read_state(&mut self) -> Result<ReadReport, DxlError> {
+        self.request_state()?;
+        self.collect_state()
+    }
+
+    /// The first half of a sync read: sends the instruction. The statuses are due by a deadline
+    /// from the bytes on the wire, the return delays and the slack (capped by
+    /// [`DxlDriverOptions::max_reply_wait`]); [`Self::collect_state`] takes them. Between the two,
+    /// other buses can be served.
+    pub fn request_state(&mut self) -> Result<(), DxlError> {
         let n = self.joints.len();
         self.tx.clear();
         self.tx
@@ -809,7 +838,23 @@ impl<T: DxlTransport> DxlBusDriver<T> {
             .send(BROADCAST_ID, inst::SYNC_READ, &self.tx)
             .map_err(DxlError::Link)?;
         self.stats.reads += 1;
-        let deadline = self.deadline(10 + self.tx.len(), n * (STATUS_OVERHEAD + FEEDBACK_MAP.len()), n);
+        let mut deadline = self.deadline(10 + self.tx.len(), n * (STATUS_OVERHEAD + FEEDBACK_MAP.len()), n);
+        if let Some(cap) = self.options.max_reply_wait {
+            deadline = deadline.min(self.transport.now() + cap);
+        }
+        self.state_deadline = Some(deadline);
+        Ok(())
+    }
+
+    /// The second half of a sync read: takes the statuses until all are in or the deadline set
+    /// by [`Self::request_state`] passes (at once, if it has: only what has arrived).
+    pub fn collect_state(&mut self) -> Result<ReadReport, DxlError> {
+        let n = self.joints.len();
+        let Some(deadline) = self.state_deadline.take() else {
+            return Err(DxlError::Config(
+                "statuses collected before a sync read was sent".into(),
+            ));
+        };
         self.received.fill(false);
         for fb in &mut self.feedback {
             fb.last_fault = None;

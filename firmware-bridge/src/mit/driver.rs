@@ -13,6 +13,13 @@ use super::models::MotorModel;
 use crate::can::{CanBus, CanError, CanFrame, CanId};
 use crate::time::BusInstant;
 
+/// Wire time of one cycle of `motors` motors at `bitrate`: a command and a reply each, every
+/// frame at its worst-case length (8 data bytes, every stuff bit).
+pub fn cycle_wire_time(motors: usize, bitrate: u32) -> Duration {
+    let bits = motors as u64 * 2 * u64::from(crate::can::wire_time::worst_case_bits(8, false));
+    Duration::from_nanos((bits * 1_000_000_000).div_ceil(u64::from(bitrate.max(1))))
+}
+
 /// Most motors one driver (one bus) handles.
 pub const MAX_MOTORS_PER_BUS: usize = 32;
 
@@ -189,6 +196,10 @@ pub struct MitBusDriver<B: CanBus> {
     feedback: Vec<JointFeedback<B::Instant>>,
     answered: Vec<bool>,
     reply_timeout: Duration,
+    /// When the replies to the commands last sent are due.
+    reply_deadline: Option<B::Instant>,
+    /// What the commands last sent did, until their replies are collected.
+    pending: CycleReport,
     stats: DriverStats,
 }
 
@@ -247,6 +258,8 @@ impl<B: CanBus> MitBusDriver<B> {
             feedback: vec![blank; n],
             answered: vec![false; n],
             reply_timeout,
+            reply_deadline: None,
+            pending: CycleReport::default(),
             stats: DriverStats::default(),
         })
     }
@@ -289,6 +302,14 @@ impl<B: CanBus> MitBusDriver<B> {
 
     /// Sends one command per joint and collects replies until all are in or `reply_timeout` passes.
     pub fn cycle(&mut self, commands: &[JointCommand]) -> Result<CycleReport, MitError> {
+        self.send_commands(commands)?;
+        self.collect_replies()
+    }
+
+    /// The first half of a cycle: sends one command per joint back to back. Their replies are due
+    /// within `reply_timeout`; [`Self::collect_replies`] takes them. Between the two, other buses
+    /// can be served (a scheduler running several buses in one thread).
+    pub fn send_commands(&mut self, commands: &[JointCommand]) -> Result<(), MitError> {
         if commands.len() != self.joints.len() {
             return Err(MitError::CommandCount {
                 expected: self.joints.len(),
@@ -309,9 +330,18 @@ impl<B: CanBus> MitBusDriver<B> {
             })?;
             frames[i] = CanFrame::new8(CanId::Standard(u16::from(j.motor_id)), bytes);
         }
+        self.reply_deadline = Some(self.bus.now() + self.reply_timeout);
         for f in &frames[..self.joints.len()] {
             self.bus.send(f)?;
         }
+        self.pending = report;
+        Ok(())
+    }
+
+    /// The second half of a cycle: collects one reply per motor until all are in or the deadline
+    /// set when the commands went out passes (at once, if it has passed: only what has arrived).
+    pub fn collect_replies(&mut self) -> Result<CycleReport, MitError> {
+        let mut report = std::mem::take(&mut self.pending);
         self.collect(&mut report)?;
         self.stats.cycles += 1;
         self.stats.clamped += report.clamped as u64;
@@ -320,7 +350,10 @@ impl<B: CanBus> MitBusDriver<B> {
 
     fn collect(&mut self, report: &mut CycleReport) -> Result<(), MitError> {
         self.answered.fill(false);
-        let deadline = self.bus.now() + self.reply_timeout;
+        let deadline = self
+            .reply_deadline
+            .take()
+            .unwrap_or_else(|| self.bus.now() + self.reply_timeout);
         let mut outstanding = self.joints.len();
         while outstanding > 0 {
             let Some(frame) = self.bus.recv_until(deadline)? else {
@@ -401,6 +434,7 @@ impl<B: CanBus> MitBusDriver<B> {
                 which.bytes(),
             ))?;
         }
+        self.reply_deadline = None;
         let mut report = CycleReport::default();
         self.collect(&mut report)?;
         match self.answered.iter().position(|a| !a) {
