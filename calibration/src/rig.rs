@@ -62,7 +62,7 @@ impl<L: RobotLink, C: TickClock> LinkRig<L, C> {
     fn exchange(&mut self, state: &mut RobotState) -> Result<(), RigError> {
         self.link.write(&self.targets).map_err(RigError::Bus)?;
         self.deadline = self.deadline.max(self.clock.elapsed()) + self.period;
-        self.clock.wait_until(self.deadline);
+        self.link.wait_until(&mut self.clock, self.deadline);
         self.link.read(state).map_err(RigError::Bus)
     }
 }

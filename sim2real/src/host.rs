@@ -5,11 +5,12 @@
 use std::sync::{Arc, Mutex, PoisonError};
 
 use firmware_bridge::time::SimWorld;
+use firmware_bridge::time::SimInstant;
 use robot_link::{IoError, JointTarget, RobotState};
 use robots::Robot;
 
 use crate::config::MirrorConfig;
-use crate::link::{LockstepRobot, lockstep_robot};
+use crate::link::{LockstepClock, LockstepRobot, lockstep_robot};
 use crate::mirror::{Mirror, MirrorError};
 
 /// Why the host side could not start or tick.
@@ -29,6 +30,8 @@ pub struct MirrorHost {
     /// The mirror, shared with the ports.
     pub world: Arc<Mutex<Mirror>>,
     link: LockstepRobot,
+    clock: LockstepClock,
+    start: SimInstant,
     state: RobotState,
     targets: Vec<JointTarget>,
 }
@@ -42,16 +45,20 @@ impl MirrorHost {
         let n = robot.config.joints.len();
         let mut state = RobotState::new(n);
         link.read(&mut state)?;
+        let clock = LockstepClock::new(Arc::clone(&world));
+        let start = world.lock().unwrap_or_else(PoisonError::into_inner).now();
         Ok(Self {
             world,
             link,
+            clock,
+            start,
             state,
             targets: vec![JointTarget::default(); n],
         })
     }
 
-    /// One control tick: sends every joint its target `q` (robot order) with the robot's PD
-    /// gains, then reads every bus and the IMU.
+    /// One control tick: hands every joint its target `q` (robot order) with the robot's PD
+    /// gains, and reads the newest state of every bus and the IMU.
     pub fn command_positions(&mut self, robot: &Robot, q: &[f64]) -> Result<(), HostError> {
         for ((t, j), &q) in self.targets.iter_mut().zip(&robot.config.joints).zip(q) {
             *t = JointTarget {
@@ -72,16 +79,15 @@ impl MirrorHost {
         &self.state
     }
 
-    /// Runs the mirror until `deadline` (the rest of a control tick).
-    pub fn wait_until(&self, deadline: firmware_bridge::time::SimInstant) {
-        let mut w = self.world.lock().unwrap_or_else(PoisonError::into_inner);
-        while w.now() < deadline {
-            w.step_until(deadline);
-        }
+    /// Runs the mirror until `deadline` (the rest of a control tick), the buses cycling at
+    /// their rates on the way.
+    pub fn wait_until(&mut self, deadline: SimInstant) {
+        let since_start = deadline.saturating_since(self.start);
+        self.link.wait_until(&mut self.clock, since_start);
     }
 
     /// The mirror's clock.
-    pub fn now(&self) -> firmware_bridge::time::SimInstant {
+    pub fn now(&self) -> SimInstant {
         self.world.lock().unwrap_or_else(PoisonError::into_inner).now()
     }
 }

@@ -185,14 +185,13 @@ fn a_stop_request_soft_stops_through_blend_and_damping() {
         options,
     );
     p.identify().unwrap();
-    use robot_link::TickClock;
     let period = std::time::Duration::from_millis(20);
     for k in 1..=200u32 {
         if k == 150 {
             p.request_stop();
         }
         p.step(&clock).unwrap();
-        clock.wait_until(period * k);
+        p.wait_until(&mut clock, period * k);
     }
     let t = p.transitions();
     let stop = t.iter().find(|t| t.to == Mode::Stopping).unwrap();
@@ -204,7 +203,6 @@ fn a_stop_request_soft_stops_through_blend_and_damping() {
 
 #[test]
 fn a_steady_state_tick_allocates_nothing() {
-    use robot_link::TickClock;
     use test_support::alloc::count_allocations;
     let (p, mut clock, _w) = player(
         follower(),
@@ -231,13 +229,13 @@ fn a_steady_state_tick_allocates_nothing() {
     let period = std::time::Duration::from_millis(20);
     for k in 1..=80u32 {
         p.step(&clock).unwrap();
-        clock.wait_until(period * k);
+        p.wait_until(&mut clock, period * k);
     }
     assert_eq!(p.mode(), Mode::Running);
     let (_, stats) = count_allocations(|| {
         for k in 81..=180u32 {
             p.step(&clock).unwrap();
-            clock.wait_until(period * k);
+            p.wait_until(&mut clock, period * k);
         }
     });
     assert_eq!(p.mode(), Mode::Running);
@@ -246,7 +244,6 @@ fn a_steady_state_tick_allocates_nothing() {
 
 #[test]
 fn a_steady_state_tick_over_real_wires_allocates_nothing_on_the_loop_or_the_bus_threads() {
-    use robot_link::TickClock;
     use test_support::alloc::{count_allocations, watch_this_thread, watched_heap_ops};
     let robot = Robot::load(&reference_robot_path()).unwrap();
     let layout = PolicyLayout::load(&follower(), &robot).unwrap();
@@ -277,7 +274,7 @@ fn a_steady_state_tick_over_real_wires_allocates_nothing_on_the_loop_or_the_bus_
     let period = std::time::Duration::from_millis(20);
     let mut tick = |p: &mut Player<sim2real::link::WiredRobot>| {
         p.step(&clock).unwrap();
-        clock.wait_until(period * p.ticks() as u32);
+        p.wait_until(&mut clock, period * p.ticks() as u32);
     };
     while p.mode() != Mode::Running {
         tick(&mut p);
@@ -302,7 +299,6 @@ fn a_steady_state_tick_over_real_wires_allocates_nothing_on_the_loop_or_the_bus_
 
 #[test]
 fn each_mit_motor_gets_one_round_trip_per_tick() {
-    use robot_link::TickClock;
     let (mut p, mut clock, world) = player(
         follower(),
         biped("clips/squat.csv"),
@@ -330,13 +326,13 @@ fn each_mit_motor_gets_one_round_trip_per_tick() {
     }
     for k in 1..=80u32 {
         p.step(&clock).unwrap();
-        clock.wait_until(period * k);
+        p.wait_until(&mut clock, period * k);
     }
     assert_eq!(p.mode(), Mode::Running);
     let before = frames(&world);
     for k in 81..=130u32 {
         p.step(&clock).unwrap();
-        clock.wait_until(period * k);
+        p.wait_until(&mut clock, period * k);
     }
     assert_eq!(p.mode(), Mode::Running);
     for ((bus, motors, a), (_, _, b)) in before.iter().zip(frames(&world)) {
@@ -353,7 +349,6 @@ fn each_mit_motor_gets_one_round_trip_per_tick() {
 #[test]
 fn dynamixel_servos_take_the_loops_stiffness_damping_and_torque_cap() {
     use firmware_bridge::dxl::table::addr;
-    use robot_link::TickClock;
     let (mut p, mut clock, world) = player(
         follower(),
         biped("clips/squat.csv"),
@@ -373,7 +368,7 @@ fn dynamixel_servos_take_the_loops_stiffness_damping_and_torque_cap() {
     let period = std::time::Duration::from_millis(20);
     let mut tick = |p: &mut MirrorPlayer| {
         p.step(&clock).unwrap();
-        clock.wait_until(period * p.ticks() as u32);
+        p.wait_until(&mut clock, period * p.ticks() as u32);
     };
     p.identify().unwrap();
     // Current-based position control, the torque capped at the joint's limit.

@@ -17,7 +17,6 @@ use controller::safety::Mode;
 use controller::sim::lockstep_player;
 use controller::telemetry::{Backpressure, RecordingInfo, TelemetrySink};
 use firmware_bridge::time::SimRng;
-use robot_link::TickClock;
 use robots::Robot;
 use sim2real::config::{FaultKind, MirrorConfig, Push, ScheduledFault};
 
@@ -296,7 +295,7 @@ pub fn soak(spec: &SoakSpec<'_>, progress: &dyn Fn(f64)) -> Result<SoakReport, A
                 }
                 previous[k] = Some(t.q);
             }
-            clock.wait_until(period * p.ticks() as u32);
+            p.wait_until(&mut clock, period * p.ticks() as u32);
         }
         report.ticks += p.ticks();
         report.simulated_s += p.ticks() as f64 * dt;

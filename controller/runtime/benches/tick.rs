@@ -58,7 +58,7 @@ fn lockstep_compute() -> Summary {
             assert_eq!(p.mode(), Mode::Running);
             samples.push(total.saturating_sub(busy));
         }
-        clock.wait_until(period * k);
+        p.wait_until(&mut clock, period * k);
     }
     Summary::of(&mut samples).unwrap()
 }

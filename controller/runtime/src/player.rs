@@ -328,7 +328,7 @@ impl<L: RobotLink> Player<L> {
         while self.machine.mode != Mode::Off {
             self.step(clock)?;
             let deadline = start + period * (self.tick as u32);
-            let missed = clock.wait_until(deadline);
+            let missed = self.io.wait_until(clock, deadline);
             if missed {
                 self.metrics.overruns += 1;
             }
@@ -345,6 +345,12 @@ impl<L: RobotLink> Player<L> {
             None => {}
         }
         Ok(summary)
+    }
+
+    /// Lets time pass until `deadline` on `clock`, the buses cycling on the way (for callers
+    /// that drive [`Self::step`] themselves); returns whether the deadline had passed.
+    pub fn wait_until(&mut self, clock: &mut dyn TickClock, deadline: Duration) -> bool {
+        self.io.wait_until(clock, deadline)
     }
 
     /// One tick: read, check, compute, write.

@@ -231,6 +231,12 @@ impl<W: SerialSimWorld> DxlTransport for LockstepDxlPort<W> {
                 None => {}
             }
             let mut world = self.world.lock().unwrap_or_else(PoisonError::into_inner);
+            // What has arrived counts even at the deadline: a scheduler may collect late.
+            let had = self.rx.len();
+            world.host_receive(self.line, &mut self.rx);
+            if self.rx.len() > had {
+                continue;
+            }
             if world.now() >= deadline {
                 return Err(LinkError::Timeout);
             }

@@ -24,7 +24,9 @@ use robots::{BusKind, Robot, drivers, spatial};
 
 use crate::link::{IoError, RobotLink};
 use crate::state::{DeviceIdentity, JointTarget, RobotState};
-use crate::workers::{Op, Worker};
+use crate::clock::TickClock;
+use crate::cycle::{BusStats, Cycler, copy_joints};
+use crate::workers::Worker;
 
 /// Buses one robot may have (more are refused at set-up).
 pub const MAX_BUSES: usize = 16;
@@ -40,14 +42,18 @@ pub struct BusPorts<C, D, S> {
     pub imu: S,
 }
 
-/// One bus of joints as the loop drives it.
+/// One bus of joints as its cycles drive it.
 pub(crate) trait JointBus: Send + std::fmt::Debug {
     /// Checks the devices answer with their identities; leaves them limp.
     fn identify(&mut self) -> Result<(), IoError>;
-    /// Reads the bus's joints into `state` (robot order).
-    fn read(&mut self, state: &mut RobotState) -> Result<(), IoError>;
-    /// Sends the bus's joints their targets (robot order).
-    fn write(&mut self, targets: &[JointTarget]) -> Result<(), IoError>;
+    /// Reads the bus's joints at once (a whole round trip) into `state` (robot order).
+    fn sample(&mut self, state: &mut RobotState) -> Result<(), IoError>;
+    /// The first half of a cycle: sends the joints their targets (robot order) and asks for their
+    /// state.
+    fn send(&mut self, targets: &[JointTarget]) -> Result<(), IoError>;
+    /// The second half: takes the replies (until all are in or their deadline passes) into
+    /// `state` (robot order).
+    fn receive(&mut self, state: &mut RobotState) -> Result<(), IoError>;
     /// Torque off.
     fn torque_off(&mut self) -> Result<(), IoError>;
     /// Who each device says it is (after [`Self::identify`]), appended to `out`.
@@ -61,6 +67,8 @@ struct Bus<Driver, Command> {
     joints: Vec<usize>,
     commands: Vec<Command>,
     enabled: bool,
+    /// Commands went out and their replies are still to be taken.
+    pending: bool,
 }
 
 impl<C: CanBus + Send + std::fmt::Debug> JointBus for Bus<MitBusDriver<C>, JointCommand>
@@ -73,8 +81,8 @@ where
         Ok(())
     }
 
-    fn read(&mut self, state: &mut RobotState) -> Result<(), IoError> {
-        // The replies to the last write (or to the identify's disable frames) are the reading.
+    fn sample(&mut self, state: &mut RobotState) -> Result<(), IoError> {
+        // The replies to the identify's disable frames (or the last cycle) are the reading.
         for (f, &i) in self.driver.feedback().iter().zip(&self.joints) {
             state.q[i] = f.q;
             state.qd[i] = f.qd;
@@ -85,7 +93,7 @@ where
         Ok(())
     }
 
-    fn write(&mut self, targets: &[JointTarget]) -> Result<(), IoError> {
+    fn send(&mut self, targets: &[JointTarget]) -> Result<(), IoError> {
         let want = self.joints.iter().any(|&i| targets[i].enabled);
         if want != self.enabled {
             if want {
@@ -111,13 +119,23 @@ where
                 JointCommand::default()
             };
         }
-        self.driver.cycle(&self.commands)?;
+        // MIT motors answer commands only: the command is the request for state.
+        self.driver.send_commands(&self.commands)?;
+        self.pending = true;
         Ok(())
+    }
+
+    fn receive(&mut self, state: &mut RobotState) -> Result<(), IoError> {
+        if std::mem::take(&mut self.pending) {
+            self.driver.collect_replies()?;
+        }
+        self.sample(state)
     }
 
     fn torque_off(&mut self) -> Result<(), IoError> {
         self.commands.fill(JointCommand::default());
         self.enabled = false;
+        self.pending = false;
         self.driver.disable_all()?;
         Ok(())
     }
@@ -160,6 +178,8 @@ struct DxlBus<D: DxlTransport> {
     gains_held: Vec<(f64, f64)>,
     gains: Vec<[u16; 3]>,
     enabled: bool,
+    /// A sync read went out and its statuses are still to be taken.
+    pending: bool,
 }
 
 impl<D: DxlTransport> DxlBus<D> {
@@ -184,7 +204,18 @@ impl<D: DxlTransport> DxlBus<D> {
             gains_held: vec![(f64::NAN, f64::NAN); n],
             gains: vec![[0; 3]; n],
             enabled: false,
+            pending: false,
         })
+    }
+
+    fn copy_feedback(&self, state: &mut RobotState) {
+        for (f, &i) in self.driver.feedback().iter().zip(&self.joints) {
+            state.q[i] = f.q;
+            state.qd[i] = f.qd;
+            state.tau[i] = f.tau;
+            state.missed[i] = f.missed_cycles;
+            state.faulted[i] = f.hardware_error != 0;
+        }
     }
 
     /// Writes the P/D gains of `targets` when any joint's stiffness or damping changed.
@@ -220,19 +251,13 @@ where
         Ok(())
     }
 
-    fn read(&mut self, state: &mut RobotState) -> Result<(), IoError> {
+    fn sample(&mut self, state: &mut RobotState) -> Result<(), IoError> {
         self.driver.read_state()?;
-        for (f, &i) in self.driver.feedback().iter().zip(&self.joints) {
-            state.q[i] = f.q;
-            state.qd[i] = f.qd;
-            state.tau[i] = f.tau;
-            state.missed[i] = f.missed_cycles;
-            state.faulted[i] = f.hardware_error != 0;
-        }
+        self.copy_feedback(state);
         Ok(())
     }
 
-    fn write(&mut self, targets: &[JointTarget]) -> Result<(), IoError> {
+    fn send(&mut self, targets: &[JointTarget]) -> Result<(), IoError> {
         // Torque on while every joint is commanded; kp = 0 with kd > 0 is damping (D gain alone
         // acts on the servo's speed). Feed-forward torque cannot reach a position servo: policies
         // that need it are refused when they load.
@@ -256,11 +281,22 @@ where
             }
             self.enabled = want;
         }
+        self.driver.request_state()?;
+        self.pending = true;
+        Ok(())
+    }
+
+    fn receive(&mut self, state: &mut RobotState) -> Result<(), IoError> {
+        if std::mem::take(&mut self.pending) {
+            self.driver.collect_state()?;
+        }
+        self.copy_feedback(state);
         Ok(())
     }
 
     fn torque_off(&mut self) -> Result<(), IoError> {
         self.enabled = false;
+        self.pending = false;
         self.driver.disable()?;
         Ok(())
     }
@@ -308,6 +344,9 @@ where
     fn write(&mut self, targets: &[JointTarget]) -> Result<(), IoError> {
         BusRobot::write(self, targets)
     }
+    fn wait_until(&mut self, clock: &mut dyn TickClock, deadline: Duration) -> bool {
+        BusRobot::wait_until(self, clock, deadline)
+    }
     fn torque_off(&mut self) -> Result<(), IoError> {
         BusRobot::torque_off(self)
     }
@@ -320,26 +359,47 @@ where
     fn bus_times(&self) -> &[Duration] {
         &self.times
     }
+    fn bus_stats(&self) -> &[BusStats] {
+        &self.stats
+    }
 }
 
-/// Every bus of a robot, in sequence (lockstep: deterministic) or in parallel (wall clock).
+/// Every bus of a robot, each cycling at its own rate under the policy: in one thread on a
+/// schedule of simulated time (lockstep: deterministic), or each on a thread of its own on the
+/// wall clock.
 #[derive(Debug)]
 pub struct BusRobot<S: ByteStream> {
-    buses: Vec<(Box<dyn JointBus>, Vec<usize>)>,
+    /// Buses served in this thread, with their next start and the finish of a cycle in flight.
+    cyclers: Vec<Cycler>,
+    next_start: Vec<Duration>,
+    in_flight: Vec<Option<Duration>>,
+    /// Buses on threads of their own.
     workers: Vec<Worker>,
+    /// The link's time: the tick clock's in this thread, or since `epoch` with workers.
+    now: Duration,
+    scheduled: bool,
+    epoch: Instant,
+    /// The number of the newest targets.
+    seq: u64,
+    /// Targets with torque off, for the end.
+    off: Vec<JointTarget>,
+    /// The first error a scheduled cycle met, for the next read.
+    error: Option<IoError>,
     imu: ImuReader<S>,
     last_imu: Option<S::Instant>,
     /// IMU mounting (IMU axes to base axes) and gyro bias, from the robot's calibration.
     imu_mount: [f64; 4],
     gyro_bias: [f64; 3],
     accel_bias: [f64; 3],
-    n: usize,
     names: Vec<String>,
     times: Vec<Duration>,
+    stats: Vec<BusStats>,
 }
 
 impl<S: ByteStream> BusRobot<S> {
-    /// Drivers for `robot` on `ports`. Nothing is sent yet.
+    /// Drivers for `robot` on `ports`, each bus at the rate robot.toml gives it; no reply is
+    /// waited for longer than `reply_timeout` or [`crate::cycle::REPLY_SHARE`] of the bus's period. Nothing is
+    /// sent yet.
     pub fn new<C, D>(
         robot: &Robot,
         ports: BusPorts<C, D, S>,
@@ -352,50 +412,74 @@ impl<S: ByteStream> BusRobot<S> {
         D: DxlTransport + Send + std::fmt::Debug + 'static,
         D::Instant: Send,
     {
-        let mut buses: Vec<(Box<dyn JointBus>, Vec<usize>)> = Vec::new();
+        let n = robot.config.joints.len();
+        let policy_period = Duration::from_secs_f64(1.0 / robot.config.control_rate_hz);
+        let damping_kd: Vec<f64> = robot.config.joints.iter().map(|j| j.kd).collect();
+        let timing = |name: &str| {
+            robot
+                .bus_timing(name)
+                .ok_or_else(|| IoError::Setup(format!("bus {name} is not in robot {}", robot.config.name)))
+        };
+        let mut cyclers = Vec::new();
         let mut names = Vec::new();
         for (name, port) in ports.can {
             check_kind(robot, &name, BusKind::MitCan)?;
+            let timing = timing(&name)?;
             let (idx, cfg): (Vec<_>, Vec<_>) = robot
                 .joints_on(&name)
                 .map(|(i, j)| (i, drivers::mit_joint(j)))
                 .unzip();
-            let n = idx.len();
+            let window = reply_timeout.min(Cycler::reply_window(&timing));
             let bus = Bus {
-                driver: MitBusDriver::new(port, cfg, reply_timeout)?,
+                driver: MitBusDriver::new(port, cfg, window)?,
                 joints: idx.clone(),
-                commands: vec![JointCommand::default(); n],
+                commands: vec![JointCommand::default(); idx.len()],
                 enabled: false,
+                pending: false,
             };
-            buses.push((Box::new(bus), idx));
+            cyclers.push(Cycler::new(Box::new(bus), idx, timing, policy_period, damping_kd.clone()));
             names.push(name);
         }
         for (name, port) in ports.dxl {
             check_kind(robot, &name, BusKind::Dynamixel)?;
+            let timing = timing(&name)?;
             let (idx, cfg): (Vec<_>, Vec<_>) = robot
                 .joints_on(&name)
                 .map(|(i, j)| (i, drivers::dxl_joint(j)))
                 .unzip();
-            let bus = DxlBus::new(DxlBusDriver::new(port, cfg, dxl)?, idx.clone(), robot)?;
-            buses.push((Box::new(bus), idx));
+            let options = DxlDriverOptions {
+                max_reply_wait: Some(Cycler::reply_window(&timing)),
+                watchdog: Some(timing.command_timeout),
+                ..dxl
+            };
+            let bus = DxlBus::new(DxlBusDriver::new(port, cfg, options)?, idx.clone(), robot)?;
+            cyclers.push(Cycler::new(Box::new(bus), idx, timing, policy_period, damping_kd.clone()));
             names.push(name);
         }
-        if buses.len() > MAX_BUSES {
+        if cyclers.len() > MAX_BUSES {
             return Err(IoError::Setup(format!(
                 "{} buses; at most {MAX_BUSES} are supported",
-                buses.len()
+                cyclers.len()
             )));
         }
-        let covered: usize = buses.iter().map(|b| b.1.len()).sum();
-        let n = robot.config.joints.len();
+        let covered: usize = cyclers.iter().map(|c| c.joints.len()).sum();
         if covered != n {
             return Err(IoError::Setup(format!(
                 "the ports reach {covered} of the robot's {n} joints"
             )));
         }
+        let k = cyclers.len();
         Ok(Self {
-            buses,
+            cyclers,
+            next_start: vec![Duration::ZERO; k],
+            in_flight: vec![None; k],
             workers: Vec::new(),
+            now: Duration::ZERO,
+            scheduled: false,
+            epoch: Instant::now(),
+            seq: 0,
+            off: vec![JointTarget::default(); n],
+            error: None,
             imu: ImuReader::new(ports.imu),
             last_imu: None,
             imu_mount: {
@@ -404,13 +488,13 @@ impl<S: ByteStream> BusRobot<S> {
             },
             gyro_bias: robot.config.imu.gyro_bias,
             accel_bias: robot.config.imu.accel_bias,
-            n,
-            times: vec![Duration::ZERO; names.len()],
+            times: vec![Duration::ZERO; k],
+            stats: vec![BusStats::default(); k],
             names,
         })
     }
 
-    /// Moves each bus onto its own thread: reads and writes of all buses then overlap.
+    /// Moves each bus onto its own thread, cycling at its rate on the wall clock.
     pub fn parallel(self) -> Result<Self, IoError> {
         self.parallel_with(|| {})
     }
@@ -418,41 +502,27 @@ impl<S: ByteStream> BusRobot<S> {
     /// [`Self::parallel`], running `on_start` first on each bus thread (real-time set-up of the
     /// thread, or instrumentation in tests).
     pub fn parallel_with(mut self, on_start: fn()) -> Result<Self, IoError> {
-        for (i, (bus, joints)) in std::mem::take(&mut self.buses).into_iter().enumerate() {
-            let w = Worker::spawn(bus, joints, self.n, i, on_start)
+        self.epoch = Instant::now();
+        for (i, c) in std::mem::take(&mut self.cyclers).into_iter().enumerate() {
+            let w = Worker::spawn(c, self.epoch, i, on_start)
                 .map_err(|e| IoError::Setup(format!("cannot start a bus thread: {e}")))?;
             self.workers.push(w);
         }
         Ok(self)
     }
 
-    /// Runs `op` on every worker at once and waits for all; the first error wins.
-    fn fan_out(&mut self, op: Op) -> Result<(), IoError> {
-        let mut first = None;
-        let mut sent = [false; MAX_BUSES];
-        for (w, sent) in self.workers.iter_mut().zip(&mut sent) {
-            match w.send(op) {
-                Ok(()) => *sent = true,
-                Err(e) => {
-                    first.get_or_insert(e);
-                }
-            }
-        }
-        for (w, _) in self.workers.iter_mut().zip(sent).filter(|(_, s)| *s) {
-            if let Err(e) = w.wait() {
-                first.get_or_insert(e);
-            }
-        }
-        first.map_or(Ok(()), Err)
-    }
-
     /// Checks every device answers with the right identity and configures the servos (torque
-    /// off). MIT motors are asked with a *disable* frame, which also leaves them limp.
+    /// off), then reads every joint once. MIT motors are asked with a *disable* frame, which also
+    /// leaves them limp.
     pub fn identify(&mut self) -> Result<(), IoError> {
-        for (b, _) in &mut self.buses {
-            b.identify()?;
+        if !self.workers.is_empty() {
+            return Err(IoError::Setup("devices are identified before the buses get their threads".into()));
         }
-        self.fan_out(Op::Identify)
+        for c in &mut self.cyclers {
+            c.bus.identify()?;
+            c.sample(self.now)?;
+        }
+        Ok(())
     }
 
     /// Who each device says it is, robot bus order (after [`Self::identify`]). Buses moved onto
@@ -464,34 +534,36 @@ impl<S: ByteStream> BusRobot<S> {
             ));
         }
         let mut out = Vec::new();
-        for ((b, _), name) in self.buses.iter_mut().zip(&self.names) {
-            b.identities(name, &mut out)?;
+        for (c, name) in self.cyclers.iter_mut().zip(&self.names) {
+            c.bus.identities(name, &mut out)?;
         }
         Ok(out)
     }
 
-    /// Reads every bus and the IMU into `state`.
+    /// The newest complete state of every bus and the IMU into `state`, with each joint's age.
     pub fn read(&mut self, state: &mut RobotState) -> Result<(), IoError> {
-        for ((b, _), t) in self.buses.iter_mut().zip(&mut self.times) {
-            let started = Instant::now();
-            b.read(state)?;
-            *t = started.elapsed();
+        if let Some(e) = self.error.take() {
+            return Err(e);
+        }
+        for ((c, t), s) in self.cyclers.iter().zip(&mut self.times).zip(&mut self.stats) {
+            c.copy_into(state, self.now);
+            *t = c.stats.last_cycle;
+            *s = c.stats;
         }
         if !self.workers.is_empty() {
-            let r = self.fan_out(Op::Read);
-            for (w, t) in self.workers.iter_mut().zip(&mut self.times) {
-                let joints = &w.joints;
-                let Some(s) = w.slot.as_deref() else { continue };
-                *t = s.elapsed;
-                for &i in joints {
-                    state.q[i] = s.state.q[i];
-                    state.qd[i] = s.state.qd[i];
-                    state.tau[i] = s.state.tau[i];
-                    state.missed[i] = s.state.missed[i];
-                    state.faulted[i] = s.state.faulted[i];
+            let now = self.epoch.elapsed();
+            self.now = now;
+            for ((w, t), s) in self.workers.iter_mut().zip(&mut self.times).zip(&mut self.stats) {
+                if let Some(e) = w.error() {
+                    return Err(e);
                 }
+                let joints = std::mem::take(&mut w.joints);
+                let p = w.newest();
+                copy_joints(&joints, &p.state, &p.sampled_at, state, now);
+                *t = p.stats.last_cycle;
+                *s = p.stats;
+                w.joints = joints;
             }
-            r?;
         }
         match self.imu.poll()? {
             Some(r) if Some(r.received_at) != self.last_imu => {
@@ -508,40 +580,109 @@ impl<S: ByteStream> BusRobot<S> {
         Ok(())
     }
 
-    /// Sends every joint its target (robot order), switching torque on or off per bus as needed.
+    /// Hands every bus the policy's targets (robot order); each bus commands them from its next
+    /// cycle on, switching torque on or off as needed.
     pub fn write(&mut self, targets: &[JointTarget]) -> Result<(), IoError> {
-        for ((b, _), t) in self.buses.iter_mut().zip(&mut self.times) {
-            let started = Instant::now();
-            b.write(targets)?;
-            *t += started.elapsed();
+        self.seq += 1;
+        for c in &mut self.cyclers {
+            c.take_order(self.seq, self.now, targets);
         }
-        if self.workers.is_empty() {
-            return Ok(());
-        }
-        for w in &mut self.workers {
-            if let Some(s) = w.slot() {
-                s.targets.copy_from_slice(targets);
+        if !self.workers.is_empty() {
+            let now = self.epoch.elapsed();
+            for w in &mut self.workers {
+                w.order(self.seq, now, targets, false);
             }
         }
-        let r = self.fan_out(Op::Write);
-        for (w, t) in self.workers.iter_mut().zip(&mut self.times) {
-            if let Some(s) = w.slot() {
-                *t += s.elapsed;
-            }
-        }
-        r
+        Ok(())
     }
 
-    /// Torque off everywhere (best effort on every bus, first error reported).
+    /// Lets time pass until `deadline` on `clock`. Buses served in this thread cycle on the way,
+    /// in time order (a cycle's finish before another's start at the same instant; cycles due at
+    /// `deadline` itself run after the tick, with its targets). Returns whether the deadline had
+    /// passed already.
+    pub fn wait_until(&mut self, clock: &mut dyn TickClock, deadline: Duration) -> bool {
+        if self.cyclers.is_empty() {
+            return clock.wait_until(deadline);
+        }
+        let late = clock.elapsed() > deadline;
+        if !self.scheduled {
+            // The schedule starts with the first wait: cycles fall on the policy's ticks.
+            let now = clock.elapsed();
+            self.next_start.fill(now);
+            self.scheduled = true;
+        }
+        loop {
+            let mut next: Option<(Duration, usize, bool)> = None;
+            for (k, (&start, &fin)) in self.next_start.iter().zip(&self.in_flight).enumerate() {
+                let (t, finish) = fin.map_or((start, false), |f| (f, true));
+                if next.is_none_or(|(bt, _, bf)| t < bt || (t == bt && finish && !bf)) {
+                    next = Some((t, k, finish));
+                }
+            }
+            let Some((t, k, finish)) = next else { break };
+            if t >= deadline {
+                break;
+            }
+            clock.wait_until(t);
+            self.now = t;
+            let c = &mut self.cyclers[k];
+            let r = if finish {
+                self.in_flight[k] = None;
+                c.finish(clock.elapsed())
+            } else {
+                let period = c.timing.period;
+                self.in_flight[k] = Some(t + Cycler::reply_window(&c.timing));
+                self.next_start[k] = t + period;
+                // A cycle that blocked (a torque switch waits for its replies) pushes the
+                // following ones out: count the slots lost.
+                let now = clock.elapsed();
+                if now > t + period {
+                    let lost = ((now - t).as_nanos() / period.as_nanos()) as u32;
+                    c.stats.overruns += u64::from(lost);
+                    self.next_start[k] = t + period * (lost + 1);
+                }
+                c.start(t)
+            };
+            if let Err(e) = r {
+                self.error.get_or_insert(e);
+            }
+        }
+        let missed = clock.wait_until(deadline);
+        self.now = deadline;
+        late || missed
+    }
+
+    /// Torque off everywhere (best effort on every bus, first error reported); the buses keep
+    /// cycling with torque off.
     pub fn torque_off(&mut self) -> Result<(), IoError> {
         let mut first: Option<IoError> = None;
-        for (b, _) in &mut self.buses {
-            if let Err(e) = b.torque_off() {
+        self.seq += 1;
+        for c in &mut self.cyclers {
+            c.take_order(self.seq, self.now, &self.off);
+            if let Err(e) = c.bus.torque_off() {
                 first.get_or_insert(e);
             }
         }
-        if let Err(e) = self.fan_out(Op::TorqueOff) {
-            first.get_or_insert(e);
+        if !self.workers.is_empty() {
+            let now = self.epoch.elapsed();
+            for w in &mut self.workers {
+                w.order(self.seq, now, &self.off, true);
+            }
+            // Not in a tick: the end of a run, or a failed bus. Each worker gets a moment.
+            let give_up = Instant::now() + Duration::from_secs(1);
+            for (w, name) in self.workers.iter_mut().zip(&self.names) {
+                while w.newest().torque_off_done < self.seq {
+                    if let Some(e) = w.error() {
+                        first.get_or_insert(e);
+                        break;
+                    }
+                    if Instant::now() > give_up {
+                        first.get_or_insert(IoError::Setup(format!("bus {name}: torque off not confirmed within 1 s")));
+                        break;
+                    }
+                    std::thread::sleep(Duration::from_millis(1));
+                }
+            }
         }
         first.map_or(Ok(()), Err)
     }

@@ -24,9 +24,12 @@ pub struct WallClock {
 impl WallClock {
     /// Starts now.
     pub fn start() -> Self {
-        Self {
-            start: Instant::now(),
-        }
+        Self::since(Instant::now())
+    }
+
+    /// Counting from `start`.
+    pub fn since(start: Instant) -> Self {
+        Self { start }
     }
 }
 

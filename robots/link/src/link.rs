@@ -5,6 +5,8 @@ use std::time::Duration;
 use firmware_bridge::dxl::driver::DxlError;
 use firmware_bridge::mit::driver::MitError;
 
+use crate::clock::TickClock;
+use crate::cycle::BusStats;
 use crate::state::{DeviceIdentity, JointTarget, RobotState};
 
 /// Why the buses failed as a whole (single-device trouble shows in [`RobotState`]).
@@ -36,6 +38,11 @@ pub trait RobotLink: std::fmt::Debug {
     fn read(&mut self, state: &mut RobotState) -> Result<(), IoError>;
     /// Sends every joint its target (robot order).
     fn write(&mut self, targets: &[JointTarget]) -> Result<(), IoError>;
+    /// Lets time pass until `deadline` on `clock` (the links whose buses cycle in the loop's own
+    /// thread serve them on the way); returns whether the deadline had passed already.
+    fn wait_until(&mut self, clock: &mut dyn TickClock, deadline: Duration) -> bool {
+        clock.wait_until(deadline)
+    }
     /// Torque off everywhere.
     fn torque_off(&mut self) -> Result<(), IoError>;
     /// Who each device says it is (after [`Self::identify`]), robot bus order.
@@ -48,8 +55,12 @@ pub trait RobotLink: std::fmt::Debug {
     fn bus_names(&self) -> &[String] {
         &[]
     }
-    /// Time each bus took in the last read + write.
+    /// Time each bus's newest cycle took.
     fn bus_times(&self) -> &[Duration] {
+        &[]
+    }
+    /// What each bus did so far (cycles, overruns, cycle times, self-damping), as of the last read.
+    fn bus_stats(&self) -> &[BusStats] {
         &[]
     }
 }

@@ -31,6 +31,9 @@ pub struct RobotState {
     pub missed: Vec<u32>,
     /// A device reports a fault, per joint.
     pub faulted: Vec<bool>,
+    /// How old each joint's sample was when read: since the start of the bus cycle that brought
+    /// it.
+    pub age: Vec<std::time::Duration>,
     /// IMU angular velocity, rad/s.
     pub gyro: [f64; 3],
     /// IMU specific force, m/s².
@@ -50,11 +53,28 @@ impl RobotState {
             tau: vec![0.0; n],
             missed: vec![u32::MAX; n],
             faulted: vec![false; n],
+            age: vec![std::time::Duration::ZERO; n],
             gyro: [0.0; 3],
             accel: [0.0; 3],
             quat: [1.0, 0.0, 0.0, 0.0],
             imu_missed: u32::MAX,
         }
+    }
+}
+
+impl RobotState {
+    /// Copies `other` into `self` without allocating (both for the same number of joints).
+    pub fn copy_from(&mut self, other: &Self) {
+        self.q.copy_from_slice(&other.q);
+        self.qd.copy_from_slice(&other.qd);
+        self.tau.copy_from_slice(&other.tau);
+        self.missed.copy_from_slice(&other.missed);
+        self.faulted.copy_from_slice(&other.faulted);
+        self.age.copy_from_slice(&other.age);
+        self.gyro = other.gyro;
+        self.accel = other.accel;
+        self.quat = other.quat;
+        self.imu_missed = other.imu_missed;
     }
 }
 

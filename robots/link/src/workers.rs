@@ -1,163 +1,166 @@
-//! Bus workers: each bus of a [`crate::BusRobot`] serviced on its own thread, so the tick's I/O
-//! phase costs the slowest bus, not the sum.
+//! Bus workers: each bus of a [`crate::BusRobot`] cycling on its own thread at its own rate, on
+//! absolute deadlines like the loop's.
 //!
-//! The loop and a worker share no lock: one preallocated [`Slot`] (state, targets, timing) travels
-//! with each request to the worker and back with its answer, through two one-place lock-free
-//! queues; each side parks until the other unparks it. (Blocking channels allocate a waiter
-//! context per wait; parking does not.) Nothing is allocated per tick.
+//! The loop and a worker share no lock: the policy's targets go to the worker and the worker's
+//! newest complete state comes back through one triple buffer each way (`triple_buffer`: the
+//! writer never waits, the reader always gets the newest whole value). Both sides copy into
+//! buffers sized at start-up: nothing is allocated per cycle or per tick. A bus error travels
+//! through a one-place lock-free queue.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::thread::Thread;
 use std::time::{Duration, Instant};
 
 use crossbeam::queue::ArrayQueue;
+use triple_buffer::{Input, Output, triple_buffer};
 
-use crate::bus_robot::JointBus;
+use crate::clock::{TickClock, WallClock};
+use crate::cycle::{BusStats, Cycler};
 use crate::link::IoError;
 use crate::state::{JointTarget, RobotState};
 
-/// What a bus worker is asked to do.
-#[derive(Debug, Clone, Copy)]
-pub(crate) enum Op {
-    Identify,
-    Read,
-    Write,
-    TorqueOff,
-}
-
-/// The buffers one request carries: the state a read fills, the targets a write sends, and how
-/// long the bus took.
-#[derive(Debug)]
-pub(crate) struct Slot {
-    pub(crate) state: RobotState,
+/// The policy's targets for a worker.
+#[derive(Debug, Clone)]
+pub(crate) struct Order {
+    /// Increases with every write.
+    pub(crate) seq: u64,
+    /// When the policy issued them (since the link's epoch).
+    pub(crate) issued_at: Duration,
+    /// Robot order.
     pub(crate) targets: Vec<JointTarget>,
-    pub(crate) elapsed: Duration,
+    /// Torque off, now (the end of a run, or a failed bus).
+    pub(crate) torque_off: bool,
 }
 
-/// A request, with the thread to wake when it is answered.
-type Request = (Op, Box<Slot>, Thread);
-type Answer = (Result<(), IoError>, Box<Slot>);
-
-/// What the loop and one worker share.
-#[derive(Debug)]
-struct Mailbox {
-    requests: ArrayQueue<Request>,
-    answers: ArrayQueue<Answer>,
-    stop: AtomicBool,
+/// A worker's newest complete cycle.
+#[derive(Debug, Clone)]
+pub(crate) struct Published {
+    pub(crate) state: RobotState,
+    pub(crate) sampled_at: Vec<Duration>,
+    pub(crate) stats: BusStats,
+    /// The newest order the worker acted on.
+    pub(crate) seen: u64,
+    /// The newest torque-off order carried out.
+    pub(crate) torque_off_done: u64,
 }
 
-/// A bus serviced on its own thread.
+/// A bus cycling on its own thread.
 #[derive(Debug)]
 pub(crate) struct Worker {
-    mailbox: Arc<Mailbox>,
-    /// The slot, while the loop holds it (between requests).
-    pub(crate) slot: Option<Box<Slot>>,
     pub(crate) joints: Vec<usize>,
+    orders: Input<Order>,
+    published: Output<Published>,
+    errors: Arc<ArrayQueue<IoError>>,
+    stop: Arc<AtomicBool>,
     thread: Option<std::thread::JoinHandle<()>>,
 }
 
 impl Worker {
-    /// Starts the thread `bus-{index}` for `bus` (its joints `joints` of `n`); `on_start` runs first
-    /// on the new thread (real-time set-up, instrumentation).
-    pub(crate) fn spawn(
-        mut bus: Box<dyn JointBus>,
-        joints: Vec<usize>,
-        n: usize,
-        index: usize,
-        on_start: fn(),
-    ) -> std::io::Result<Self> {
-        let mailbox = Arc::new(Mailbox {
-            requests: ArrayQueue::new(1),
-            answers: ArrayQueue::new(1),
-            stop: AtomicBool::new(false),
+    /// Starts the thread `bus-{index}` cycling `cycler` from `epoch`; `on_start` runs first on
+    /// the new thread (real-time set-up, instrumentation).
+    pub(crate) fn spawn(mut cycler: Cycler, epoch: Instant, index: usize, on_start: fn()) -> std::io::Result<Self> {
+        let n = cycler.sent.len();
+        let (orders, mut order_out) = triple_buffer(&Order {
+            seq: 0,
+            issued_at: Duration::ZERO,
+            targets: vec![JointTarget::default(); n],
+            torque_off: false,
         });
-        let shared = Arc::clone(&mailbox);
+        let (mut publish, published) = triple_buffer(&Published {
+            state: cycler.state.clone(),
+            sampled_at: cycler.sampled_at.clone(),
+            stats: cycler.stats,
+            seen: 0,
+            torque_off_done: 0,
+        });
+        let errors = Arc::new(ArrayQueue::new(1));
+        let stop = Arc::new(AtomicBool::new(false));
+        let joints = cycler.joints.clone();
+        let (shared_errors, shared_stop) = (Arc::clone(&errors), Arc::clone(&stop));
         let thread = std::thread::Builder::new()
             .name(format!("bus-{index}"))
             .spawn(move || {
                 on_start();
-                loop {
-                    let Some((op, mut slot, waiting)) = shared.requests.pop() else {
-                        if shared.stop.load(Ordering::Acquire) {
-                            break;
-                        }
-                        std::thread::park();
-                        continue;
-                    };
-                    let started = Instant::now();
-                    let r = match op {
-                        Op::Identify => bus.identify(),
-                        Op::Read => bus.read(&mut slot.state),
-                        Op::Write => bus.write(&slot.targets),
-                        Op::TorqueOff => bus.torque_off(),
-                    };
-                    slot.elapsed = started.elapsed();
-                    // One request is out at a time, so its answer always has a place.
-                    let _ = shared.answers.push((r, slot));
-                    waiting.unpark();
+                let mut clock = WallClock::since(epoch);
+                let period = cycler.timing.period;
+                let mut next = clock.elapsed();
+                let mut torque_off_done = 0;
+                let report = |r: Result<(), IoError>| {
+                    if let Err(e) = r {
+                        // The loop reads one at a time; while one waits, later ones add nothing.
+                        let _ = shared_errors.push(e);
+                    }
+                };
+                while !shared_stop.load(Ordering::Acquire) {
+                    clock.wait_until(next);
+                    let order = order_out.read();
+                    cycler.take_order(order.seq, order.issued_at, &order.targets);
+                    if order.torque_off && order.seq != torque_off_done {
+                        report(cycler.bus.torque_off());
+                        torque_off_done = order.seq;
+                    }
+                    let seen = order.seq;
+                    let now = clock.elapsed();
+                    report(cycler.start(now));
+                    report(cycler.finish(clock.elapsed()));
+                    let out = publish.input_buffer_mut();
+                    out.state.copy_from(&cycler.state);
+                    out.sampled_at.copy_from_slice(&cycler.sampled_at);
+                    out.stats = cycler.stats;
+                    out.seen = seen;
+                    out.torque_off_done = torque_off_done;
+                    publish.publish();
+                    // The next slot on the grid; slots that passed while this cycle ran are lost.
+                    next += period;
+                    let late = clock.elapsed();
+                    if next <= late {
+                        let behind = (late - next).as_nanos() / period.as_nanos() + 1;
+                        cycler.stats.overruns += behind as u64;
+                        next += period * behind as u32;
+                    }
                 }
             })?;
         Ok(Self {
-            mailbox,
-            slot: Some(Box::new(Slot {
-                state: RobotState::new(n),
-                targets: vec![JointTarget::default(); n],
-                elapsed: Duration::ZERO,
-            })),
             joints,
+            orders,
+            published,
+            errors,
+            stop,
             thread: Some(thread),
         })
     }
 
-    /// The slot, to fill targets before a write or read a state after a read.
-    pub(crate) fn slot(&mut self) -> Option<&mut Slot> {
-        self.slot.as_deref_mut()
+    /// Hands the worker targets number `seq` (robot order).
+    pub(crate) fn order(&mut self, seq: u64, issued_at: Duration, targets: &[JointTarget], torque_off: bool) {
+        let o = self.orders.input_buffer_mut();
+        o.seq = seq;
+        o.issued_at = issued_at;
+        o.targets.copy_from_slice(targets);
+        o.torque_off = torque_off;
+        self.orders.publish();
     }
 
-    /// Hands the slot to the worker with `op`.
-    pub(crate) fn send(&mut self, op: Op) -> Result<(), IoError> {
-        let stopped = || IoError::Setup("a bus thread stopped".into());
-        let thread = self
-            .thread
+    /// The worker's newest complete cycle.
+    pub(crate) fn newest(&mut self) -> &Published {
+        self.published.read()
+    }
+
+    /// A bus error the worker met since the last call, or that its thread ended.
+    pub(crate) fn error(&self) -> Option<IoError> {
+        if let Some(e) = self.errors.pop() {
+            return Some(e);
+        }
+        self.thread
             .as_ref()
-            .filter(|t| !t.is_finished())
-            .ok_or_else(stopped)?;
-        let slot = self.slot.take().ok_or_else(stopped)?;
-        if let Err((_, slot, _)) = self.mailbox.requests.push((op, slot, std::thread::current())) {
-            self.slot = Some(slot);
-            return Err(stopped());
-        }
-        thread.thread().unpark();
-        Ok(())
-    }
-
-    /// Waits for the worker's answer and takes the slot back.
-    pub(crate) fn wait(&mut self) -> Result<(), IoError> {
-        loop {
-            if let Some((r, slot)) = self.mailbox.answers.pop() {
-                self.slot = Some(slot);
-                return r;
-            }
-            if self
-                .thread
-                .as_ref()
-                .is_none_or(std::thread::JoinHandle::is_finished)
-            {
-                // The thread ended without answering (it panicked): its bus is gone.
-                return Err(IoError::Setup("a bus thread stopped".into()));
-            }
-            // Parks until the worker unparks this thread (a spurious wake-up just loops).
-            std::thread::park_timeout(Duration::from_millis(100));
-        }
+            .is_none_or(std::thread::JoinHandle::is_finished)
+            .then(|| IoError::Setup("a bus thread stopped".into()))
     }
 }
 
 impl Drop for Worker {
     fn drop(&mut self) {
-        self.mailbox.stop.store(true, Ordering::Release);
+        self.stop.store(true, Ordering::Release);
         if let Some(t) = self.thread.take() {
-            t.thread().unpark();
             let _ = t.join();
         }
     }

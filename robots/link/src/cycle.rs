@@ -1,0 +1,271 @@
+//! One bus cycle, the same in lockstep and on a thread of its own: take the policy's newest
+//! targets, command the joints (held or ramped between policy ticks, or damped by the bus itself
+//! after a fault), read their state back, and judge staleness at the bus's own rate.
+//!
+//! Times are [`Duration`]s since the link's epoch (the lockstep clock's start, or the instant the
+//! link was built on the wall clock). A joint's sample time is the start of the cycle that
+//! brought it: the device measured within that cycle's wire time, so ages are never understated.
+
+use std::time::Duration;
+
+use robots::{BusTiming, Interpolation};
+
+use crate::bus_robot::JointBus;
+use crate::link::IoError;
+use crate::state::{JointTarget, RobotState};
+
+/// Cycles in a row a joint may stay silent before its bus damps itself.
+pub const STALE_CYCLES: u32 = 2;
+
+/// Share of a bus period a cycle may wait for its replies; the rest is margin before the next.
+pub const REPLY_SHARE: f64 = 0.9;
+
+/// Buckets of [`CycleTimes`], 10 µs each.
+const BUCKETS: usize = 400;
+const BUCKET: Duration = Duration::from_micros(10);
+
+/// A fixed histogram of cycle times (10 µs buckets to 4 ms, and one for anything longer): what a
+/// bench reads percentiles from without the cycle allocating.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CycleTimes {
+    counts: [u32; BUCKETS + 1],
+    total: u64,
+}
+
+impl Default for CycleTimes {
+    fn default() -> Self {
+        Self {
+            counts: [0; BUCKETS + 1],
+            total: 0,
+        }
+    }
+}
+
+impl CycleTimes {
+    fn record(&mut self, d: Duration) {
+        let k = ((d.as_nanos() / BUCKET.as_nanos()) as usize).min(BUCKETS);
+        self.counts[k] = self.counts[k].saturating_add(1);
+        self.total += 1;
+    }
+
+    /// The `p`-quantile (0–1), to the bucket's upper edge; `None` before the first cycle or
+    /// beyond the last bucket.
+    pub fn quantile(&self, p: f64) -> Option<Duration> {
+        if self.total == 0 {
+            return None;
+        }
+        let want = ((p.clamp(0.0, 1.0) * self.total as f64).ceil() as u64).max(1);
+        let mut seen = 0u64;
+        for (k, &c) in self.counts.iter().enumerate() {
+            seen += u64::from(c);
+            if seen >= want {
+                return (k < BUCKETS).then(|| BUCKET * (k as u32 + 1));
+            }
+        }
+        None
+    }
+
+    /// Cycles recorded.
+    pub fn count(&self) -> u64 {
+        self.total
+    }
+}
+
+/// What a bus did since the link was built.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct BusStats {
+    /// Cycles run.
+    pub cycles: u64,
+    /// Cycles that started after their slot had passed (the previous one ran long).
+    pub overruns: u64,
+    /// How long the last cycle took, send to last reply.
+    pub last_cycle: Duration,
+    /// Every cycle's duration.
+    pub cycle_times: CycleTimes,
+    /// The cycle in which the bus damped itself (a joint silent for [`STALE_CYCLES`] cycles, or
+    /// faulted), if it did.
+    pub damped_at_cycle: Option<u64>,
+    /// When that cycle started.
+    pub damped_at: Option<Duration>,
+    /// The first cycle that sent damping.
+    pub damping_sent_at_cycle: Option<u64>,
+}
+
+/// One bus with its schedule and what it commands between policy ticks.
+#[derive(Debug)]
+pub(crate) struct Cycler {
+    pub(crate) bus: Box<dyn JointBus>,
+    /// The robot indices of its joints.
+    pub(crate) joints: Vec<usize>,
+    pub(crate) timing: BusTiming,
+    policy_period: Duration,
+    /// Damping per joint when the bus damps itself (robot order).
+    damping_kd: Vec<f64>,
+    /// The policy's newest targets, when it issued them and their number.
+    order: Vec<JointTarget>,
+    issued_at: Duration,
+    order_seq: u64,
+    /// Where a ramp starts: what was commanded when the newest targets came.
+    from: Vec<JointTarget>,
+    /// What the last cycle commanded.
+    pub(crate) sent: Vec<JointTarget>,
+    /// The state the bus's cycles read (its joints only), with each joint's sample time.
+    pub(crate) state: RobotState,
+    pub(crate) sampled_at: Vec<Duration>,
+    /// The bus damps itself until torque goes off.
+    pub(crate) damped: bool,
+    pub(crate) stats: BusStats,
+    started: Duration,
+}
+
+impl Cycler {
+    pub(crate) fn new(
+        bus: Box<dyn JointBus>,
+        joints: Vec<usize>,
+        timing: BusTiming,
+        policy_period: Duration,
+        damping_kd: Vec<f64>,
+    ) -> Self {
+        let n = damping_kd.len();
+        Self {
+            bus,
+            joints,
+            timing,
+            policy_period,
+            damping_kd,
+            order: vec![JointTarget::default(); n],
+            issued_at: Duration::ZERO,
+            order_seq: 0,
+            from: vec![JointTarget::default(); n],
+            sent: vec![JointTarget::default(); n],
+            state: RobotState::new(n),
+            sampled_at: vec![Duration::ZERO; n],
+            damped: false,
+            stats: BusStats::default(),
+            started: Duration::ZERO,
+        }
+    }
+
+    /// How long a cycle waits for its replies at most.
+    pub(crate) fn reply_window(timing: &BusTiming) -> Duration {
+        timing.period.mul_f64(REPLY_SHARE)
+    }
+
+    /// Takes the policy's targets number `seq`, issued at `issued_at` (robot order). A ramp
+    /// starts from what the bus commands now.
+    pub(crate) fn take_order(&mut self, seq: u64, issued_at: Duration, targets: &[JointTarget]) {
+        if seq == self.order_seq {
+            return;
+        }
+        self.order_seq = seq;
+        self.issued_at = issued_at;
+        for &i in &self.joints {
+            self.from[i] = self.sent[i];
+            self.order[i] = targets[i];
+        }
+    }
+
+    /// Reads the bus's joints at once (after identify, before cycles run), stamped `now`.
+    pub(crate) fn sample(&mut self, now: Duration) -> Result<(), IoError> {
+        self.bus.sample(&mut self.state)?;
+        self.stamp(now);
+        Ok(())
+    }
+
+    /// The first half of a cycle at `now`: the commands go out.
+    pub(crate) fn start(&mut self, now: Duration) -> Result<(), IoError> {
+        self.started = now;
+        let linear = self.timing.interpolation == Interpolation::Linear;
+        // The ramp reaches the newest target in the last cycle before the next policy tick.
+        let since = now.saturating_sub(self.issued_at) + self.timing.period;
+        let alpha = (since.as_secs_f64() / self.policy_period.as_secs_f64()).min(1.0);
+        let mut damping = false;
+        for &i in &self.joints {
+            let (t, f) = (self.order[i], self.from[i]);
+            self.sent[i] = if self.damped && t.enabled {
+                damping = true;
+                let kd = if self.sent[i].kd > 0.0 { self.sent[i].kd } else { self.damping_kd[i] };
+                JointTarget {
+                    q: self.sent[i].q,
+                    kd,
+                    enabled: true,
+                    ..JointTarget::default()
+                }
+            } else if linear && t.enabled && f.enabled {
+                let lerp = |a: f64, b: f64| a + (b - a) * alpha;
+                JointTarget {
+                    q: lerp(f.q, t.q),
+                    qd: lerp(f.qd, t.qd),
+                    kp: lerp(f.kp, t.kp),
+                    kd: lerp(f.kd, t.kd),
+                    tau: lerp(f.tau, t.tau),
+                    enabled: true,
+                }
+            } else {
+                t
+            };
+        }
+        if damping && self.stats.damping_sent_at_cycle.is_none() {
+            self.stats.damping_sent_at_cycle = Some(self.stats.cycles);
+        }
+        self.bus.send(&self.sent)
+    }
+
+    /// The second half of the cycle that started last: the replies, and the bus's own check
+    /// (`now` is when the replies are taken).
+    pub(crate) fn finish(&mut self, now: Duration) -> Result<(), IoError> {
+        let r = self.bus.receive(&mut self.state);
+        let took = now.saturating_sub(self.started);
+        self.stats.last_cycle = took;
+        self.stats.cycle_times.record(took);
+        let started = self.started;
+        self.stamp(started);
+        let driven = self.joints.iter().any(|&i| self.order[i].enabled);
+        if !driven {
+            self.damped = false;
+        } else if !self.damped
+            && self
+                .joints
+                .iter()
+                .any(|&i| self.state.missed[i] >= STALE_CYCLES || self.state.faulted[i])
+        {
+            self.damped = true;
+            self.stats.damped_at_cycle.get_or_insert(self.stats.cycles);
+            self.stats.damped_at.get_or_insert(started);
+        }
+        self.stats.cycles += 1;
+        r
+    }
+
+    /// Marks fresh joints as sampled at `at`.
+    fn stamp(&mut self, at: Duration) {
+        for &i in &self.joints {
+            if self.state.missed[i] == 0 {
+                self.sampled_at[i] = at;
+            }
+        }
+    }
+
+    /// Copies this bus's joints into `state`, with their ages at `now`.
+    pub(crate) fn copy_into(&self, state: &mut RobotState, now: Duration) {
+        copy_joints(&self.joints, &self.state, &self.sampled_at, state, now);
+    }
+}
+
+/// Copies `joints` of `from` (sampled at `sampled_at`) into `to`, with their ages at `now`.
+pub(crate) fn copy_joints(
+    joints: &[usize],
+    from: &RobotState,
+    sampled_at: &[Duration],
+    to: &mut RobotState,
+    now: Duration,
+) {
+    for &i in joints {
+        to.q[i] = from.q[i];
+        to.qd[i] = from.qd[i];
+        to.tau[i] = from.tau[i];
+        to.missed[i] = from.missed[i];
+        to.faulted[i] = from.faulted[i];
+        to.age[i] = now.saturating_sub(sampled_at[i]);
+    }
+}
