@@ -40,8 +40,11 @@ pub struct BusConfig {
 /// Bus rates tried for a default, fastest first, Hz.
 pub const DEFAULT_BUS_RATES_HZ: [f64; 6] = [1000.0, 500.0, 250.0, 200.0, 100.0, 50.0];
 
-/// Share of a bus period the worst-case wire time of a default-rate cycle may fill.
-pub const DEFAULT_BUS_LOAD: f64 = 0.85;
+/// Share of a bus period the worst-case time of a default-rate cycle may fill. Half: the rest is
+/// for what the wire time leaves out — a host that is not real-time, USB CAN adapters (about
+/// 1 ms per direction), firmware reply delays — so a cycle late by as much as its own length
+/// still keeps its slot.
+pub const DEFAULT_BUS_LOAD: f64 = 0.5;
 
 /// Fastest bus rate robot.toml accepts, Hz.
 pub const MAX_BUS_RATE_HZ: f64 = 10_000.0;
@@ -66,13 +69,24 @@ pub struct BusTiming {
     pub period: std::time::Duration,
     /// Worst-case wire time of one cycle (zero for a stream the host only reads).
     pub wire_time: std::time::Duration,
+    /// What the host's adapter adds to a round trip (a USB serial adapter's latency timer).
+    pub adapter_latency: std::time::Duration,
     /// Between policy ticks.
     pub interpolation: Interpolation,
     /// The devices' own command timeout.
     pub command_timeout: std::time::Duration,
 }
 
+/// Latency a USB serial adapter adds to each direction of a Dynamixel round trip: the FTDI
+/// latency timer at its lowest setting (Linux `low_latency`), 1 ms.
+pub const SERIAL_ADAPTER_LATENCY: std::time::Duration = std::time::Duration::from_millis(1);
+
 impl BusTiming {
+    /// Wire time plus the adapter's latency: how long a cycle takes at best.
+    pub fn round_trip(&self) -> std::time::Duration {
+        self.wire_time + self.adapter_latency
+    }
+
     /// Share of the period the wire is busy, 0–1.
     pub fn load(&self) -> f64 {
         self.wire_time.as_secs_f64() / self.period.as_secs_f64()
@@ -407,8 +421,13 @@ impl Robot {
     /// Resolves `b`'s timing, or says what robot.toml field is wrong.
     fn resolve_timing(&self, b: &BusConfig) -> Result<BusTiming, (&'static str, String)> {
         let wire = self.bus_wire_time(b);
+        let adapter_latency = match b.kind {
+            BusKind::Dynamixel => SERIAL_ADAPTER_LATENCY,
+            BusKind::MitCan | BusKind::ImuSerial => std::time::Duration::ZERO,
+        };
+        let cycle = (wire + adapter_latency).as_secs_f64();
         let policy = self.config.control_rate_hz;
-        let fits = |rate: f64| wire.as_secs_f64() <= DEFAULT_BUS_LOAD / rate;
+        let fits = |rate: f64| cycle <= DEFAULT_BUS_LOAD / rate;
         let rate_hz = match b.rate_hz {
             Some(r) => {
                 if !(r.is_finite() && (policy..=MAX_BUS_RATE_HZ).contains(&r)) {
@@ -422,16 +441,17 @@ impl Robot {
                         ),
                     ));
                 }
-                if wire.as_secs_f64() > 1.0 / r {
+                if cycle > 1.0 / r {
                     return Err((
                         "rate_hz",
                         format!(
-                            "{} Hz leaves {:.3} ms per cycle, but one cycle takes {:.3} ms of wire time ({} devices at {} bit/s)",
+                            "{} Hz leaves {:.3} ms per cycle, but one cycle takes {:.3} ms of wire time ({} devices at {} bit/s){}",
                             crate::num(r),
                             1e3 / r,
                             wire.as_secs_f64() * 1e3,
                             self.joints_on(&b.name).count(),
-                            b.rate
+                            b.rate,
+                            latency_note(adapter_latency)
                         ),
                     ));
                 }
@@ -443,16 +463,17 @@ impl Robot {
                 .copied()
                 .filter(|&r| r >= policy)
                 .find(|&r| fits(r))
-                .or_else(|| fits(policy).then_some(policy))
+                // A slow line still runs at the policy's rate if a cycle fits its period at all.
+                .or_else(|| (cycle <= 1.0 / policy).then_some(policy))
                 .ok_or_else(|| {
                     (
                         "rate",
                         format!(
-                            "one cycle takes {:.3} ms of wire time ({} devices at {} bit/s): more than {:.0} % of the policy's {:.3} ms period; use a faster line or split the bus",
+                            "one cycle takes {:.3} ms of wire time ({} devices at {} bit/s){}: more than the policy's {:.3} ms period; use a faster line or split the bus",
                             wire.as_secs_f64() * 1e3,
                             self.joints_on(&b.name).count(),
                             b.rate,
-                            DEFAULT_BUS_LOAD * 100.0,
+                            latency_note(adapter_latency),
                             1e3 / policy
                         ),
                     )
@@ -472,9 +493,7 @@ impl Robot {
                         ),
                     ));
                 }
-                if b.kind == BusKind::Dynamixel && !(20.0..=2540.0).contains(&ms)
-                    || b.kind == BusKind::Dynamixel && ms % 20.0 != 0.0
-                {
+                if b.kind == BusKind::Dynamixel && (!(20.0..=2540.0).contains(&ms) || ms % 20.0 != 0.0) {
                     return Err((
                         "command_timeout_ms",
                         format!(
@@ -483,7 +502,8 @@ impl Robot {
                         ),
                     ));
                 }
-                std::time::Duration::from_secs_f64(ms / 1e3)
+                // Finite and within [0, 10 s]: checked above.
+                std::time::Duration::from_micros((ms * 1e3).round() as u64)
             }
         };
         if b.kind == BusKind::ImuSerial
@@ -498,6 +518,7 @@ impl Robot {
             rate_hz,
             period,
             wire_time: wire,
+            adapter_latency,
             interpolation: b.interpolation,
             command_timeout,
         })
@@ -884,6 +905,18 @@ fn check_actuator(j: &JointConfig, kind: BusKind) -> Result<(), (&'static str, S
         BusKind::ImuSerial => return Err(("bus", "joints cannot sit on an imu_serial bus".into())),
     }
     Ok(())
+}
+
+/// " plus … ms of USB adapter latency", where there is some.
+fn latency_note(latency: std::time::Duration) -> String {
+    if latency.is_zero() {
+        String::new()
+    } else {
+        format!(
+            " plus {:.3} ms of USB adapter latency",
+            latency.as_secs_f64() * 1e3
+        )
+    }
 }
 
 fn line_of(text: &str, offset: usize) -> usize {

@@ -4,8 +4,8 @@
 
 use std::sync::{Arc, Mutex, PoisonError};
 
-use firmware_bridge::time::SimWorld;
 use firmware_bridge::time::SimInstant;
+use firmware_bridge::time::SimWorld;
 use robot_link::{IoError, JointTarget, RobotState};
 use robots::Robot;
 

@@ -269,8 +269,12 @@ fn counted_faults_end_after_their_count_on_can_motors_and_the_imu() {
     let index = |name: &str| h.robot.config.joints.iter().position(|j| j.name == name).unwrap();
     let (right, left) = (index("right_knee"), index("left_knee"));
     let mut worst = (0, 0, 0);
-    for _ in 0..25 {
-        h.run(0.02);
+    // Read at the CAN buses' own rate (500 Hz): every cycle's count is seen.
+    let start = h.inner.now();
+    let cycle = Duration::from_millis(2);
+    for k in 1..=250u32 {
+        h.inner.command_positions(&h.robot, &h.default_pose).unwrap();
+        h.inner.wait_until(start + cycle * k);
         let s = h.inner.state();
         worst = (
             worst.0.max(s.missed[right]),
@@ -278,18 +282,21 @@ fn counted_faults_end_after_their_count_on_can_motors_and_the_imu() {
             worst.2.max(s.imu_missed),
         );
     }
-    // One command per tick: 3 (and 2) lost replies are 3 (and 2) stale ticks in a row, then back.
+    // One command per bus cycle: 3 (and 2) lost replies are 3 (and 2) stale cycles in a row,
+    // then back.
     assert_eq!(worst.0, 3);
     assert_eq!(worst.1, 2);
     // The IMU lost exactly its 10 output cycles (a tick went without a sample), then came back.
     assert!(worst.2 >= 1, "{worst:?}");
+    h.run(0.1);
     let s = h.inner.state();
     assert_eq!((s.missed[right], s.missed[left], s.imu_missed), (0, 0, 0));
     let mut clean = host(MirrorConfig {
         gantry: true,
         ..MirrorConfig::default()
     });
-    for _ in 0..25 {
+    // As long as the faulty run: 0.5 s at the bus rate, 0.1 s at the tick rate.
+    for _ in 0..30 {
         clean.run(0.02);
     }
     let outputs = |h: &Host| h.inner.world.lock().unwrap().stats().imu_outputs;

@@ -4,6 +4,7 @@
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
 use std::sync::{Arc, Mutex};
+use std::time::Duration;
 
 use controller::clip::{Clip, Reference};
 use controller::player::{PlayOptions, PlaySummary, Player};
@@ -85,32 +86,66 @@ fn transition(s: &PlaySummary, to: Mode) -> Option<&controller::safety::Transiti
 }
 
 #[test]
-fn a_servo_that_stops_answering_brings_damping_within_two_ticks() {
+fn a_servo_that_vanishes_between_ticks_is_damped_within_two_bus_cycles_and_the_rest_within_a_tick() {
+    use robot_link::RobotLink;
     use sim2real::config::{FaultKind, ScheduledFault};
+    // 7 ms after tick 150's instant: between two policy ticks, inside a Dynamixel cycle.
+    let vanish = Duration::from_millis(3007);
     let mirror = MirrorConfig {
         faults: vec![ScheduledFault {
-            at_s: 3.0,
+            at_s: vanish.as_secs_f64(),
             joint: "left_elbow".into(),
             fault: FaultKind::Vanish,
         }],
         ..MirrorConfig::default()
     };
-    let (mut p, mut clock, _w) = player(
+    let (mut p, mut clock, world) = player(
         follower(),
         biped("clips/wave_and_look.csv"),
         mirror,
         PlayOptions::default(),
     );
     let s = p.run(&mut clock).unwrap();
-    let stop = transition(&s, Mode::Stopping).expect("a stop");
+    // Link time (the clock's) to mirror time (the fault plan's).
+    use firmware_bridge::time::SimWorld;
+    use robot_link::TickClock;
+    let mirror_now = world
+        .lock()
+        .unwrap()
+        .now()
+        .saturating_since(firmware_bridge::time::SimInstant::ZERO);
+    let offset = mirror_now - clock.elapsed();
+    let robot = p.robot().clone();
+    let dxl = p.link().bus_names().iter().position(|n| n == "dxl0").unwrap();
+    let stats = p.link().bus_stats()[dxl];
+    let period = robot.bus_timing("dxl0").unwrap().period;
+    assert_eq!(period, Duration::from_millis(10));
+    // The first two cycles that start after the vanish get no reply; the second damps its bus
+    // (detected at its finish), and the very next cycle sends damping.
+    let detected = stats.damped_at.expect("the bus damped itself") + offset;
+    assert!(detected > vanish, "{detected:?}");
     assert!(
-        matches!(stop.cause, Cause::StaleFeedback { joint: 14, .. }),
+        detected - vanish <= period * 2,
+        "detected {:?} after the vanish",
+        detected - vanish
+    );
+    let cycle = stats.damped_at_cycle.unwrap();
+    assert_eq!(stats.damping_sent_at_cycle, Some(cycle + 1));
+    // The loop damps everything at its next tick, straight from Running (no hold).
+    let damped = transition(&s, Mode::Damped).expect("damping");
+    assert_eq!(damped.from, Mode::Running, "{s}");
+    assert!(
+        matches!(damped.cause, Cause::StaleFeedback { joint: 14, .. }),
         "{s}"
     );
-    // The servo vanished at 3.0 s = tick 150; stale for more than 2 ticks is detected by tick 153.
-    assert!(stop.tick <= 153, "{s}");
-    let damped = transition(&s, Mode::Damped).unwrap();
-    assert!(damped.tick - stop.tick <= 2, "{s}");
+    let tick = Duration::from_millis(20);
+    let damped_at = tick * damped.tick as u32 + offset;
+    assert!(damped_at > detected, "{s}");
+    assert!(
+        damped_at - detected <= tick,
+        "the loop damped {:?} after the bus",
+        damped_at - detected
+    );
     assert_eq!(s.transitions.last().unwrap().to, Mode::Off);
 }
 
@@ -185,7 +220,7 @@ fn a_stop_request_soft_stops_through_blend_and_damping() {
         options,
     );
     p.identify().unwrap();
-    let period = std::time::Duration::from_millis(20);
+    let period = Duration::from_millis(20);
     for k in 1..=200u32 {
         if k == 150 {
             p.request_stop();
@@ -226,7 +261,7 @@ fn a_steady_state_tick_allocates_nothing() {
     .unwrap();
     let mut p = p.with_telemetry(sink);
     p.identify().unwrap();
-    let period = std::time::Duration::from_millis(20);
+    let period = Duration::from_millis(20);
     for k in 1..=80u32 {
         p.step(&clock).unwrap();
         p.wait_until(&mut clock, period * k);
@@ -254,7 +289,7 @@ fn a_steady_state_tick_over_real_wires_allocates_nothing_on_the_loop_or_the_bus_
     let options = PlayOptions {
         end: controller::player::EndMode::Loop,
         limits: controller::safety::SafetyLimits {
-            stale_ticks: 1000,
+            stale_cycles: 1000,
             overruns: 1000,
             tracking_ticks: 1000,
             ..Default::default()
@@ -271,7 +306,7 @@ fn a_steady_state_tick_over_real_wires_allocates_nothing_on_the_loop_or_the_bus_
         controller::sim::wired_player(robot, layout, reference, options, mirror, stop, watch_this_thread)
             .unwrap();
     p.identify().unwrap();
-    let period = std::time::Duration::from_millis(20);
+    let period = Duration::from_millis(20);
     let mut tick = |p: &mut Player<sim2real::link::WiredRobot>| {
         p.step(&clock).unwrap();
         p.wait_until(&mut clock, period * p.ticks() as u32);
@@ -298,7 +333,7 @@ fn a_steady_state_tick_over_real_wires_allocates_nothing_on_the_loop_or_the_bus_
 }
 
 #[test]
-fn each_mit_motor_gets_one_round_trip_per_tick() {
+fn each_mit_motor_gets_one_round_trip_per_bus_cycle_at_the_bus_rate() {
     let (mut p, mut clock, world) = player(
         follower(),
         biped("clips/squat.csv"),
@@ -306,12 +341,9 @@ fn each_mit_motor_gets_one_round_trip_per_tick() {
         PlayOptions::default(),
     );
     p.identify().unwrap();
-    let period = std::time::Duration::from_millis(20);
+    let period = Duration::from_millis(20);
     let frames = |w: &Arc<Mutex<Mirror>>| -> Vec<(String, usize, u64)> {
         let w = w.lock().unwrap();
-        p_buses(&w)
-    };
-    fn p_buses(w: &Mirror) -> Vec<(String, usize, u64)> {
         let robot = w.robot();
         robot
             .config
@@ -323,24 +355,36 @@ fn each_mit_motor_gets_one_round_trip_per_tick() {
                 (b.name.clone(), motors, w.can_bus(&b.name).unwrap().stats().frames)
             })
             .collect()
-    }
+    };
+    use robot_link::RobotLink;
+    let cycles = |p: &MirrorPlayer| -> Vec<u64> { p.link().bus_stats().iter().map(|s| s.cycles).collect() };
     for k in 1..=80u32 {
         p.step(&clock).unwrap();
         p.wait_until(&mut clock, period * k);
     }
     assert_eq!(p.mode(), Mode::Running);
-    let before = frames(&world);
-    for k in 81..=130u32 {
+    p.step(&clock).unwrap();
+    let (before, cycles_before) = (frames(&world), cycles(&p));
+    p.wait_until(&mut clock, period * 81);
+    for k in 82..=130u32 {
         p.step(&clock).unwrap();
         p.wait_until(&mut clock, period * k);
     }
     assert_eq!(p.mode(), Mode::Running);
+    p.step(&clock).unwrap();
+    let cycles_after = cycles(&p);
+    let names = p.link().bus_names().to_vec();
     for ((bus, motors, a), (_, _, b)) in before.iter().zip(frames(&world)) {
-        // One command and its reply per motor per tick, nothing else.
+        let k = names.iter().position(|n| n == bus).unwrap();
+        // The CAN buses run at 250 Hz: five cycles per 20 ms tick, 250 in 50 ticks (every
+        // cycle's replies are in before the tick that reads them).
+        let ran = cycles_after[k] - cycles_before[k];
+        assert_eq!(ran, 250, "{bus}");
+        // One command and its reply per motor per cycle, nothing else.
         assert_eq!(
             b - a,
-            50 * 2 * *motors as u64,
-            "{bus}: {} frames in 50 ticks",
+            ran * 2 * *motors as u64,
+            "{bus}: {} frames in {ran} cycles",
             b - a
         );
     }
@@ -365,7 +409,7 @@ fn dynamixel_servos_take_the_loops_stiffness_damping_and_torque_cap() {
     let joint = &robot.config.joints[elbow];
     let model = firmware_bridge::dxl::models::find(&joint.model).unwrap();
     let register = |a: u16| lock_servo(&world, elbow, a);
-    let period = std::time::Duration::from_millis(20);
+    let period = Duration::from_millis(20);
     let mut tick = |p: &mut MirrorPlayer| {
         p.step(&clock).unwrap();
         p.wait_until(&mut clock, period * p.ticks() as u32);

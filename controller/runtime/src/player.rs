@@ -427,9 +427,16 @@ impl<L: RobotLink> Player<L> {
         Ok(())
     }
 
-    /// A fault: hold (if running), then damping, then off.
+    /// A fault: hold (if running), then damping, then off; straight to damping when a bus has
+    /// damped itself.
     fn fail(&mut self, cause: Cause) {
         match self.machine.mode {
+            // A bus damped itself already: the rest follow now, no hold.
+            Mode::SoftStart | Mode::Running | Mode::Stopping
+                if cause.damps_at_once() && !self.machine.pending.is_some_and(|c| c.damps_at_once()) =>
+            {
+                self.go(Mode::Damped, cause);
+            }
             Mode::SoftStart | Mode::Running => self.go(Mode::Stopping, cause),
             Mode::Stopping if !self.machine.pending.is_some_and(|c| c.is_fault()) && cause.is_fault() => {
                 // A fault during a soft stop cuts it short.

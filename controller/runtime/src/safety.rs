@@ -51,12 +51,12 @@ pub enum Cause {
     ClipFinished,
     /// SIGINT, SIGTERM or an e-stop input asked to stop.
     StopRequested,
-    /// A joint's feedback was stale for more than the allowed ticks.
+    /// A joint's feedback was stale for the allowed bus cycles (its bus damped itself).
     StaleFeedback {
         /// Robot joint index.
         joint: usize,
-        /// Consecutive misses.
-        ticks: u32,
+        /// Consecutive bus cycles without a reply when the tick read it.
+        cycles: u32,
     },
     /// The IMU stopped delivering samples.
     StaleImu {
@@ -110,7 +110,9 @@ impl std::fmt::Display for Cause {
             Self::SoftStartDone => write!(f, "soft start done"),
             Self::ClipFinished => write!(f, "clip finished"),
             Self::StopRequested => write!(f, "stop requested"),
-            Self::StaleFeedback { joint, ticks } => write!(f, "joint {joint}: no feedback for {ticks} ticks"),
+            Self::StaleFeedback { joint, cycles } => {
+                write!(f, "joint {joint}: no feedback for {cycles} bus cycles")
+            }
             Self::StaleImu { ticks } => write!(f, "IMU: no sample for {ticks} ticks"),
             Self::DeviceFault { joint } => write!(f, "joint {joint}: device fault"),
             Self::NonFinite { what } => write!(f, "non-finite {what}"),
@@ -131,6 +133,12 @@ impl std::fmt::Display for Cause {
 }
 
 impl Cause {
+    /// Whether the robot goes straight to damping, without a hold: a joint's bus has damped
+    /// itself already (stale or faulted device), and the rest follow within the tick.
+    pub fn damps_at_once(&self) -> bool {
+        matches!(self, Self::StaleFeedback { .. } | Self::DeviceFault { .. })
+    }
+
     /// Whether this is a fault (as opposed to the normal course of a run).
     pub fn is_fault(&self) -> bool {
         !matches!(
@@ -163,8 +171,10 @@ pub struct Transition {
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SafetyLimits {
-    /// Largest tolerated run of stale feedback, ticks.
-    pub stale_ticks: u32,
+    /// Bus cycles in a row without a reply that make a joint stale (links whose buses do not
+    /// judge it themselves, such as a replay).
+    #[serde(alias = "stale_ticks")]
+    pub stale_cycles: u32,
     /// Largest base tilt from upright, rad.
     pub tilt: f64,
     /// Overruns in a row that stop the robot.
@@ -180,7 +190,7 @@ pub struct SafetyLimits {
 impl Default for SafetyLimits {
     fn default() -> Self {
         Self {
-            stale_ticks: 2,
+            stale_cycles: robot_link::STALE_CYCLES,
             tilt: 0.8,
             overruns: 5,
             position_margin: 0.02,
@@ -201,7 +211,7 @@ pub fn tilt_of(q: [f64; 4]) -> f64 {
 #[derive(Debug)]
 pub struct SafetyMonitor {
     limits: SafetyLimits,
-    /// IMU staleness limit in ticks: two of its periods, at least the joints' limit.
+    /// IMU staleness limit in ticks: two of its periods, at least two ticks.
     imu_limit: u32,
     /// Ticks in a row each joint has been beyond the tracking limit.
     off_target: Vec<u32>,
@@ -213,7 +223,7 @@ impl SafetyMonitor {
     /// A monitor for `n` joints, a loop ticking every `dt` s and an IMU at `imu_rate_hz`.
     pub fn new(limits: SafetyLimits, n: usize, dt: f64, imu_rate_hz: f64) -> Self {
         Self {
-            imu_limit: limits.stale_ticks.max((2.0 / (dt * imu_rate_hz)).ceil() as u32),
+            imu_limit: 2u32.max((2.0 / (dt * imu_rate_hz)).ceil() as u32),
             limits,
             off_target: vec![0; n],
             overrun_run: 0,
@@ -248,10 +258,10 @@ impl SafetyMonitor {
             return Some(Cause::EStop);
         }
         let (s, lim) = (state, &self.limits);
-        if let Some(joint) = s.missed.iter().position(|&m| m > lim.stale_ticks) {
+        if let Some(joint) = (0..s.missed.len()).find(|&j| s.stale[j] || s.missed[j] >= lim.stale_cycles) {
             return Some(Cause::StaleFeedback {
                 joint,
-                ticks: s.missed[joint],
+                cycles: s.missed[joint].max(lim.stale_cycles),
             });
         }
         if let Some(joint) = s.faulted.iter().position(|&f| f) {

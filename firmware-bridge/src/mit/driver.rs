@@ -182,6 +182,8 @@ pub struct DriverStats {
     pub cycles: u64,
     /// Replies missed, summed over motors.
     pub missed_replies: u64,
+    /// Replies that arrived after their cycle's deadline, dropped before the next commands.
+    pub late_replies: u64,
     /// Commands clamped.
     pub clamped: u64,
     /// Rejected frames by kind.
@@ -330,7 +332,13 @@ impl<B: CanBus> MitBusDriver<B> {
             })?;
             frames[i] = CanFrame::new8(CanId::Standard(u16::from(j.motor_id)), bytes);
         }
-        self.reply_deadline = Some(self.bus.now() + self.reply_timeout);
+        // Replies that came after their cycle's deadline would pass for this cycle's (MIT replies
+        // carry no sequence number): drop what has arrived before the commands go out.
+        let now = self.bus.now();
+        while self.bus.recv_until(now)?.is_some() {
+            self.stats.late_replies += 1;
+        }
+        self.reply_deadline = Some(now + self.reply_timeout);
         for f in &frames[..self.joints.len()] {
             self.bus.send(f)?;
         }

@@ -22,10 +22,10 @@ use firmware_bridge::mit::driver::{JointCommand, MitBusDriver};
 use firmware_bridge::serial::ByteStream;
 use robots::{BusKind, Robot, drivers, spatial};
 
-use crate::link::{IoError, RobotLink};
-use crate::state::{DeviceIdentity, JointTarget, RobotState};
 use crate::clock::TickClock;
 use crate::cycle::{BusStats, Cycler, copy_joints};
+use crate::link::{IoError, RobotLink};
+use crate::state::{DeviceIdentity, JointTarget, RobotState};
 use crate::workers::Worker;
 
 /// Buses one robot may have (more are refused at set-up).
@@ -375,6 +375,9 @@ pub struct BusRobot<S: ByteStream> {
     in_flight: Vec<Option<Duration>>,
     /// Buses on threads of their own.
     workers: Vec<Worker>,
+    /// Threads asked for (with what runs first on each), started once the devices are identified.
+    threads: Option<fn()>,
+    identified: bool,
     /// The link's time: the tick clock's in this thread, or since `epoch` with workers.
     now: Duration,
     scheduled: bool,
@@ -413,7 +416,13 @@ impl<S: ByteStream> BusRobot<S> {
         D::Instant: Send,
     {
         let n = robot.config.joints.len();
-        let policy_period = Duration::from_secs_f64(1.0 / robot.config.control_rate_hz);
+        let policy_period =
+            Duration::try_from_secs_f64(1.0 / robot.config.control_rate_hz).map_err(|_| {
+                IoError::Setup(format!(
+                    "control_rate_hz {} is not a rate",
+                    robot.config.control_rate_hz
+                ))
+            })?;
         let damping_kd: Vec<f64> = robot.config.joints.iter().map(|j| j.kd).collect();
         let timing = |name: &str| {
             robot
@@ -437,7 +446,13 @@ impl<S: ByteStream> BusRobot<S> {
                 enabled: false,
                 pending: false,
             };
-            cyclers.push(Cycler::new(Box::new(bus), idx, timing, policy_period, damping_kd.clone()));
+            cyclers.push(Cycler::new(
+                Box::new(bus),
+                idx,
+                timing,
+                policy_period,
+                damping_kd.clone(),
+            ));
             names.push(name);
         }
         for (name, port) in ports.dxl {
@@ -453,7 +468,13 @@ impl<S: ByteStream> BusRobot<S> {
                 ..dxl
             };
             let bus = DxlBus::new(DxlBusDriver::new(port, cfg, options)?, idx.clone(), robot)?;
-            cyclers.push(Cycler::new(Box::new(bus), idx, timing, policy_period, damping_kd.clone()));
+            cyclers.push(Cycler::new(
+                Box::new(bus),
+                idx,
+                timing,
+                policy_period,
+                damping_kd.clone(),
+            ));
             names.push(name);
         }
         if cyclers.len() > MAX_BUSES {
@@ -474,6 +495,8 @@ impl<S: ByteStream> BusRobot<S> {
             next_start: vec![Duration::ZERO; k],
             in_flight: vec![None; k],
             workers: Vec::new(),
+            threads: None,
+            identified: false,
             now: Duration::ZERO,
             scheduled: false,
             epoch: Instant::now(),
@@ -494,7 +517,8 @@ impl<S: ByteStream> BusRobot<S> {
         })
     }
 
-    /// Moves each bus onto its own thread, cycling at its rate on the wall clock.
+    /// Moves each bus onto its own thread, cycling at its rate on the wall clock, once the
+    /// devices are identified (at once, if they are).
     pub fn parallel(self) -> Result<Self, IoError> {
         self.parallel_with(|| {})
     }
@@ -502,27 +526,42 @@ impl<S: ByteStream> BusRobot<S> {
     /// [`Self::parallel`], running `on_start` first on each bus thread (real-time set-up of the
     /// thread, or instrumentation in tests).
     pub fn parallel_with(mut self, on_start: fn()) -> Result<Self, IoError> {
+        self.threads = Some(on_start);
+        if self.identified {
+            self.start_threads()?;
+        }
+        Ok(self)
+    }
+
+    fn start_threads(&mut self) -> Result<(), IoError> {
+        let Some(on_start) = self.threads.take() else {
+            return Ok(());
+        };
         self.epoch = Instant::now();
+        self.now = Duration::ZERO;
         for (i, c) in std::mem::take(&mut self.cyclers).into_iter().enumerate() {
             let w = Worker::spawn(c, self.epoch, i, on_start)
                 .map_err(|e| IoError::Setup(format!("cannot start a bus thread: {e}")))?;
             self.workers.push(w);
         }
-        Ok(self)
+        Ok(())
     }
 
     /// Checks every device answers with the right identity and configures the servos (torque
-    /// off), then reads every joint once. MIT motors are asked with a *disable* frame, which also
-    /// leaves them limp.
+    /// off), then reads every joint once; buses meant for threads of their own start cycling
+    /// there. MIT motors are asked with a *disable* frame, which also leaves them limp.
     pub fn identify(&mut self) -> Result<(), IoError> {
         if !self.workers.is_empty() {
-            return Err(IoError::Setup("devices are identified before the buses get their threads".into()));
+            return Err(IoError::Setup(
+                "devices are identified before the buses get their threads".into(),
+            ));
         }
         for c in &mut self.cyclers {
             c.bus.identify()?;
             c.sample(self.now)?;
         }
-        Ok(())
+        self.identified = true;
+        self.start_threads()
     }
 
     /// Who each device says it is, robot bus order (after [`Self::identify`]). Buses moved onto
@@ -628,7 +667,7 @@ impl<S: ByteStream> BusRobot<S> {
             let c = &mut self.cyclers[k];
             let r = if finish {
                 self.in_flight[k] = None;
-                c.finish(clock.elapsed())
+                c.finish(|| clock.elapsed())
             } else {
                 let period = c.timing.period;
                 self.in_flight[k] = Some(t + Cycler::reply_window(&c.timing));
@@ -677,7 +716,9 @@ impl<S: ByteStream> BusRobot<S> {
                         break;
                     }
                     if Instant::now() > give_up {
-                        first.get_or_insert(IoError::Setup(format!("bus {name}: torque off not confirmed within 1 s")));
+                        first.get_or_insert(IoError::Setup(format!(
+                            "bus {name}: torque off not confirmed within 1 s"
+                        )));
                         break;
                     }
                     std::thread::sleep(Duration::from_millis(1));

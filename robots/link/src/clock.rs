@@ -19,6 +19,8 @@ pub trait TickClock {
 #[derive(Debug)]
 pub struct WallClock {
     start: Instant,
+    /// How long before a deadline sleeping stops and spinning starts.
+    spin: Duration,
 }
 
 impl WallClock {
@@ -29,7 +31,20 @@ impl WallClock {
 
     /// Counting from `start`.
     pub fn since(start: Instant) -> Self {
-        Self { start }
+        Self {
+            start,
+            // The scheduler's wake-up slack is ~50–100 µs.
+            spin: Duration::from_micros(200),
+        }
+    }
+
+    /// Sleeps all the way to each deadline (a wake-up may come ~100 µs late), leaving the CPU
+    /// to others.
+    pub fn without_spin(self) -> Self {
+        Self {
+            spin: Duration::ZERO,
+            ..self
+        }
     }
 }
 
@@ -43,8 +58,8 @@ impl TickClock for WallClock {
         if now >= deadline {
             return true;
         }
-        // Sleep most of the way, then spin: the scheduler's wake-up slack is ~50–100 µs.
-        let spin = Duration::from_micros(200);
+        // Sleep most of the way, then spin.
+        let spin = self.spin;
         if deadline - now > spin {
             std::thread::sleep(deadline - now - spin);
         }

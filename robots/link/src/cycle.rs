@@ -20,11 +20,11 @@ pub const STALE_CYCLES: u32 = 2;
 /// Share of a bus period a cycle may wait for its replies; the rest is margin before the next.
 pub const REPLY_SHARE: f64 = 0.9;
 
-/// Buckets of [`CycleTimes`], 10 µs each.
-const BUCKETS: usize = 400;
-const BUCKET: Duration = Duration::from_micros(10);
+/// Buckets of [`CycleTimes`], 20 µs each.
+const BUCKETS: usize = 1000;
+const BUCKET: Duration = Duration::from_micros(20);
 
-/// A fixed histogram of cycle times (10 µs buckets to 4 ms, and one for anything longer): what a
+/// A fixed histogram of cycle times (20 µs buckets to 20 ms, and one for anything longer): what a
 /// bench reads percentiles from without the cycle allocating.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct CycleTimes {
@@ -114,6 +114,8 @@ pub(crate) struct Cycler {
     pub(crate) sampled_at: Vec<Duration>,
     /// The bus damps itself until torque goes off.
     pub(crate) damped: bool,
+    /// Joints whose fault made the bus damp itself.
+    fault_latched: Vec<bool>,
     pub(crate) stats: BusStats,
     started: Duration,
 }
@@ -141,6 +143,7 @@ impl Cycler {
             state: RobotState::new(n),
             sampled_at: vec![Duration::ZERO; n],
             damped: false,
+            fault_latched: vec![false; n],
             stats: BusStats::default(),
             started: Duration::ZERO,
         }
@@ -184,7 +187,11 @@ impl Cycler {
             let (t, f) = (self.order[i], self.from[i]);
             self.sent[i] = if self.damped && t.enabled {
                 damping = true;
-                let kd = if self.sent[i].kd > 0.0 { self.sent[i].kd } else { self.damping_kd[i] };
+                let kd = if self.sent[i].kd > 0.0 {
+                    self.sent[i].kd
+                } else {
+                    self.damping_kd[i]
+                };
                 JointTarget {
                     q: self.sent[i].q,
                     kd,
@@ -212,23 +219,32 @@ impl Cycler {
     }
 
     /// The second half of the cycle that started last: the replies, and the bus's own check
-    /// (`now` is when the replies are taken).
-    pub(crate) fn finish(&mut self, now: Duration) -> Result<(), IoError> {
+    /// (`now` tells the time once the replies are in).
+    pub(crate) fn finish(&mut self, now: impl FnOnce() -> Duration) -> Result<(), IoError> {
         let r = self.bus.receive(&mut self.state);
-        let took = now.saturating_sub(self.started);
+        let took = now().saturating_sub(self.started);
         self.stats.last_cycle = took;
         self.stats.cycle_times.record(took);
         let started = self.started;
         self.stamp(started);
         let driven = self.joints.iter().any(|&i| self.order[i].enabled);
+        let s = &mut self.state;
+        let mut trips = false;
+        for &i in &self.joints {
+            if !driven {
+                s.stale[i] = false;
+                self.fault_latched[i] = false;
+                continue;
+            }
+            // What made the bus damp itself stays visible to the loop until torque goes off.
+            s.stale[i] |= s.missed[i] >= STALE_CYCLES;
+            self.fault_latched[i] |= s.faulted[i];
+            s.faulted[i] = self.fault_latched[i];
+            trips |= s.stale[i] || s.faulted[i];
+        }
         if !driven {
             self.damped = false;
-        } else if !self.damped
-            && self
-                .joints
-                .iter()
-                .any(|&i| self.state.missed[i] >= STALE_CYCLES || self.state.faulted[i])
-        {
+        } else if trips && !self.damped {
             self.damped = true;
             self.stats.damped_at_cycle.get_or_insert(self.stats.cycles);
             self.stats.damped_at.get_or_insert(started);
@@ -266,6 +282,7 @@ pub(crate) fn copy_joints(
         to.tau[i] = from.tau[i];
         to.missed[i] = from.missed[i];
         to.faulted[i] = from.faulted[i];
+        to.stale[i] = from.stale[i];
         to.age[i] = now.saturating_sub(sampled_at[i]);
     }
 }

@@ -29,8 +29,12 @@ pub struct RobotState {
     pub tau: Vec<f64>,
     /// Consecutive reads without fresh feedback, per joint.
     pub missed: Vec<u32>,
-    /// A device reports a fault, per joint.
+    /// A device reports a fault, per joint (latched by a bus that damped itself for it).
     pub faulted: Vec<bool>,
+    /// The joint went silent for [`crate::STALE_CYCLES`] cycles of its bus in a row, and the bus
+    /// damped itself: latched until torque goes off, so a tick that reads after the joint came
+    /// back still sees it.
+    pub stale: Vec<bool>,
     /// How old each joint's sample was when read: since the start of the bus cycle that brought
     /// it.
     pub age: Vec<std::time::Duration>,
@@ -53,6 +57,7 @@ impl RobotState {
             tau: vec![0.0; n],
             missed: vec![u32::MAX; n],
             faulted: vec![false; n],
+            stale: vec![false; n],
             age: vec![std::time::Duration::ZERO; n],
             gyro: [0.0; 3],
             accel: [0.0; 3],
@@ -70,6 +75,7 @@ impl RobotState {
         self.tau.copy_from_slice(&other.tau);
         self.missed.copy_from_slice(&other.missed);
         self.faulted.copy_from_slice(&other.faulted);
+        self.stale.copy_from_slice(&other.stale);
         self.age.copy_from_slice(&other.age);
         self.gyro = other.gyro;
         self.accel = other.accel;
