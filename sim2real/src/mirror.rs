@@ -269,7 +269,11 @@ impl Mirror {
                             let m = mit::models::find(&j.model).expect("checked at load");
                             MitMotor {
                                 node: wire.attach(),
-                                firmware: MitMotorFirmware::new(MitFirmwareConfig::new(j.id, m)),
+                                firmware: MitMotorFirmware::new(MitFirmwareConfig {
+                                    // As the motor was set up for this robot.
+                                    command_timeout: robot.bus_timing(&bus.name).map(|t| t.command_timeout),
+                                    ..MitFirmwareConfig::new(j.id, m)
+                                }),
                                 joint: i,
                             }
                         })

@@ -375,3 +375,118 @@ fn a_scheduled_push_shoves_the_root_while_it_lasts_and_only_then() {
     let (field, _) = config.check(&robot).unwrap_err();
     assert_eq!(field, "pushes[0].force_n");
 }
+
+#[test]
+fn motors_drop_torque_after_the_command_timeout_robot_toml_gives_their_bus() {
+    // can0 with an 8 ms timeout (two 250 Hz cycles); can1 keeps its default (10 cycles, 40 ms).
+    let text = std::fs::read_to_string(reference_robot_path()).unwrap().replacen(
+        "name = \"can0\"",
+        "name = \"can0\"\ncommand_timeout_ms = 8.0",
+        1,
+    );
+    let robot = Robot::from_str(&reference_robot_path(), &text).unwrap();
+    let mut h = Host {
+        inner: MirrorHost::start(
+            robot.clone(),
+            MirrorConfig {
+                gantry: true,
+                ..MirrorConfig::default()
+            },
+        )
+        .unwrap(),
+        default_pose: robot.config.joints.iter().map(|j| j.default_position).collect(),
+        robot,
+    };
+    h.run(0.2);
+    let index = |name: &str| h.robot.config.joints.iter().position(|j| j.name == name).unwrap();
+    let (left, right) = (index("left_knee"), index("right_knee"));
+    let enabled = |h: &mut Host, j: usize| h.inner.world.lock().unwrap().motor_mut(j).unwrap().enabled();
+    assert!(enabled(&mut h, left) && enabled(&mut h, right));
+    // The host goes quiet for 20 ms (the world runs on without its buses being served).
+    {
+        use firmware_bridge::time::SimWorld;
+        let mut w = h.inner.world.lock().unwrap();
+        let until = w.now() + Duration::from_millis(20);
+        while w.now() < until {
+            w.step_until(until);
+        }
+    }
+    assert!(
+        !enabled(&mut h, left),
+        "can0's motors keep torque past their 8 ms timeout"
+    );
+    assert!(enabled(&mut h, right), "can1's 40 ms timeout has not passed");
+}
+
+#[test]
+fn a_linear_bus_ramps_its_targets_over_the_policy_period_and_a_hold_bus_jumps() {
+    let text = std::fs::read_to_string(reference_robot_path()).unwrap().replacen(
+        "name = \"can0\"",
+        "name = \"can0\"\ninterpolation = \"linear\"",
+        1,
+    );
+    let robot = Robot::from_str(&reference_robot_path(), &text).unwrap();
+    let mut host = MirrorHost::start(
+        robot.clone(),
+        MirrorConfig {
+            gantry: true,
+            ..MirrorConfig::default()
+        },
+    )
+    .unwrap();
+    let mut pose: Vec<f64> = robot.config.joints.iter().map(|j| j.default_position).collect();
+    let index = |name: &str| robot.config.joints.iter().position(|j| j.name == name).unwrap();
+    let (left, right) = (index("left_knee"), index("right_knee"));
+    let start = host.now();
+    let tick = Duration::from_millis(20);
+    for k in 1..=15u32 {
+        host.command_positions(&robot, &pose).unwrap();
+        host.wait_until(start + tick * k);
+    }
+    let command = |host: &MirrorHost, j: usize| {
+        host.world
+            .lock()
+            .unwrap()
+            .motor_mut(j)
+            .map(|m| m.command())
+            .unwrap()
+    };
+    let (from_left, from_right) = (command(&host, left).p, command(&host, right).p);
+    // A new target 0.1 rad away on both knees, then five 250 Hz cycles to the next tick.
+    pose[left] += 0.1;
+    pose[right] += 0.1;
+    host.command_positions(&robot, &pose).unwrap();
+    let cycle = Duration::from_millis(4);
+    let after = start + tick * 15;
+    for k in 1..=5u32 {
+        host.wait_until(after + cycle * k);
+        let (l, r) = (command(&host, left), command(&host, right));
+        // can0 ramps: a fifth of the step per cycle, reaching the target in the last cycle
+        // before the next tick; the stiffness stays (it did not change).
+        assert!(
+            (l.p - from_left - 0.1 * f64::from(k) / 5.0).abs() < 1e-3,
+            "cycle {k}: {}",
+            l.p - from_left
+        );
+        assert!(l.kp > 0.0);
+        // can1 holds: the whole step from the first cycle.
+        assert!(
+            (r.p - from_right - 0.1).abs() < 1e-3,
+            "cycle {k}: {}",
+            r.p - from_right
+        );
+    }
+}
+
+#[test]
+fn feedback_is_exactly_one_bus_period_old_at_each_tick_in_lockstep() {
+    let mut h = host(MirrorConfig::default());
+    h.run(0.5);
+    let robot = h.robot.clone();
+    for (i, j) in robot.config.joints.iter().enumerate() {
+        let period = robot.bus_timing(&j.bus).unwrap().period;
+        // Sampled at the start of the bus's last complete cycle, which started one period
+        // before the tick (cycles fall on the ticks' instants).
+        assert_eq!(h.inner.state().age[i], period, "{}", j.name);
+    }
+}

@@ -582,6 +582,12 @@ fn bus_scan_compares_every_bus_of_the_robot_with_its_file() {
         "{stdout}"
     );
     assert!(stdout.contains("dxl  dxl0: 8 servo(s) answered"), "{stdout}");
+    // Each bus's schedule and the command timeout its devices need, from robot.toml.
+    assert!(
+        stdout.contains("cycles at 250 Hz (1.62 ms of 4.00 ms on the wire, 40 % load), targets held between policy ticks, device command timeout 40 ms")
+            && stdout.contains("cycles at 100 Hz (0.77 ms of 10.00 ms on the wire, 8 % load)"),
+        "{stdout}"
+    );
     assert!(
         stdout.contains("0 checksum errors")
             && stdout.contains("every device of rd-biped answered as configured"),

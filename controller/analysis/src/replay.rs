@@ -86,6 +86,14 @@ fn recording(path: &Path) -> Result<Recording, String> {
         state.tau = tau;
         state.missed = numbers(&v, "missed")?.iter().map(|&m| m as u32).collect();
         state.faulted = numbers(&v, "faulted")?.iter().map(|&f| f != 0.0).collect();
+        // Recordings from before multi-rate buses have neither: nothing stale, age unknown (0).
+        if v.get("stale").is_some() {
+            state.stale = numbers(&v, "stale")?.iter().map(|&f| f != 0.0).collect();
+            state.age = numbers(&v, "age_ms")?
+                .iter()
+                .map(|&ms| Duration::try_from_secs_f64(ms / 1e3).unwrap_or_default())
+                .collect();
+        }
         let imu = numbers(&v, "imu")?;
         for (key, want) in [
             ("qd", n),
@@ -97,6 +105,14 @@ fn recording(path: &Path) -> Result<Recording, String> {
         ] {
             let got = numbers(&v, key)?.len();
             if got != want {
+                return Err(format!(
+                    "/replay tick {}: {key} has {got} values for {n} joints",
+                    v["tick"]
+                ));
+            }
+        }
+        for (key, got) in [("stale", state.stale.len()), ("age_ms", state.age.len())] {
+            if got != n {
                 return Err(format!(
                     "/replay tick {}: {key} has {got} values for {n} joints",
                     v["tick"]

@@ -95,6 +95,26 @@ fn scan(args: &ScanArgs) -> Result<()> {
     }
 }
 
+/// The bus's schedule from robot.toml: what the loop will run it at, and the command timeout the
+/// devices must be set to (the loop arms the Dynamixel Bus Watchdog with it; MIT motors keep
+/// theirs in their firmware, set with the vendor's tool).
+fn print_timing(robot: &Robot, bus: &str) {
+    if let Some(t) = robot.bus_timing(bus) {
+        println!(
+            "     cycles at {} Hz ({:.2} ms of {:.2} ms on the wire, {:.0} % load), targets {} between policy ticks, device command timeout {} ms",
+            robots::num(t.rate_hz),
+            t.wire_time.as_secs_f64() * 1e3,
+            t.period.as_secs_f64() * 1e3,
+            t.load() * 100.0,
+            match t.interpolation {
+                robots::Interpolation::Hold => "held",
+                robots::Interpolation::Linear => "ramped",
+            },
+            t.command_timeout.as_millis()
+        );
+    }
+}
+
 fn scan_mit<B: CanBus>(robot: &Robot, bus: &str, port: &mut B, timeout: Duration) -> Result<usize> {
     let joints: Vec<_> = robot.joints_on(bus).map(|(_, j)| j).collect();
     let model = mit::models::find(&joints[0].model).context("model checked at load")?;
@@ -107,6 +127,7 @@ fn scan_mit<B: CanBus>(robot: &Robot, bus: &str, port: &mut B, timeout: Duration
         .min(127);
     let hits = mit::driver::scan(port, model, 1..=last, timeout)?;
     println!("can  {bus}: {} motor(s) answered among IDs 1-{last}", hits.len());
+    print_timing(robot, bus);
     let mut problems = 0;
     for j in &joints {
         match hits.iter().find(|h| h.motor_id == j.id) {
@@ -142,6 +163,7 @@ fn scan_dxl<T: DxlTransport>(robot: &Robot, bus: &str, port: &mut T, timeout: Du
         .min(252);
     let hits = dxl::driver::scan(port, 1..=last, timeout)?;
     println!("dxl  {bus}: {} servo(s) answered among IDs 1-{last}", hits.len());
+    print_timing(robot, bus);
     let mut problems = 0;
     for j in &joints {
         let expected = dxl::models::find(&j.model).map_or(0, |m| m.model_number);

@@ -44,8 +44,12 @@ pub struct TickRecord {
     pub qd: [f64; MAX_JOINTS],
     /// Measured torques, N·m.
     pub tau: [f64; MAX_JOINTS],
-    /// Consecutive missed reads per joint.
+    /// Consecutive bus cycles without a reply per joint.
     pub missed: [u32; MAX_JOINTS],
+    /// The joint's bus damped itself for its silence (latched until torque goes off).
+    pub stale: [bool; MAX_JOINTS],
+    /// Age of each joint's sample when the tick read it, ms.
+    pub age_ms: [f32; MAX_JOINTS],
     /// Device fault flags per joint.
     pub faulted: [bool; MAX_JOINTS],
     /// IMU gyro, accelerometer, orientation `[w, x, y, z]`.
@@ -105,6 +109,8 @@ impl Default for TickRecord {
             qd: [0.0; MAX_JOINTS],
             tau: [0.0; MAX_JOINTS],
             missed: [0; MAX_JOINTS],
+            stale: [false; MAX_JOINTS],
+            age_ms: [0.0; MAX_JOINTS],
             faulted: [false; MAX_JOINTS],
             imu: [0.0; 10],
             imu_missed: 0,
@@ -187,6 +193,8 @@ impl TickRecord {
             r.qd[i] = state.qd[i];
             r.tau[i] = state.tau[i];
             r.missed[i] = state.missed[i];
+            r.stale[i] = state.stale[i];
+            r.age_ms[i] = (state.age[i].as_secs_f64() * 1e3) as f32;
             r.faulted[i] = state.faulted[i];
             let t = &v.targets[i];
             r.target[i] = [t.q, t.qd, t.kp, t.kd, t.tau];
@@ -332,7 +340,7 @@ pub struct TelemetrySink {
 const TOPICS: [(&str, &str); 8] = [
     (
         "/joint_state",
-        r#"{"type":"object","properties":{"q":{"type":"array","items":{"type":"number"}},"qd":{"type":"array","items":{"type":"number"}},"tau":{"type":"array","items":{"type":"number"}},"missed":{"type":"array","items":{"type":"number"}}}}"#,
+        r#"{"type":"object","properties":{"q":{"type":"array","items":{"type":"number"}},"qd":{"type":"array","items":{"type":"number"}},"tau":{"type":"array","items":{"type":"number"}},"missed":{"type":"array","items":{"type":"number"},"description":"bus cycles in a row without a reply"},"stale":{"type":"array","items":{"type":"number"},"description":"1: the joint's bus damped itself for its silence"},"age_ms":{"type":"array","items":{"type":"number"},"description":"age of each joint's sample when the tick read it, ms"}}}"#,
     ),
     (
         "/command",
@@ -593,6 +601,10 @@ fn joint_state_fields(out: &mut String, r: &TickRecord, n: usize) {
     array64(out, "tau", r.tau[..n].iter().copied());
     out.push(',');
     array64(out, "missed", r.missed[..n].iter().map(|&m| f64::from(m)));
+    out.push(',');
+    array64(out, "stale", r.stale[..n].iter().map(|&b| f64::from(u8::from(b))));
+    out.push(',');
+    array64(out, "age_ms", r.age_ms[..n].iter().map(|&a| f64::from(a)));
 }
 
 /// Encodes topic `k` of `r` as JSON into `out`; false when the topic has nothing this tick.

@@ -104,6 +104,11 @@ impl MitMotorFirmware {
         (self.enabled && self.command.kp > 0.0).then_some(self.command.p + self.zero)
     }
 
+    /// The command being executed (motor units), as last received.
+    pub fn command(&self) -> MitCommand {
+        self.command
+    }
+
     /// The configuration.
     pub fn config(&self) -> &MitFirmwareConfig {
         &self.cfg
