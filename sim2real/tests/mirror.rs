@@ -269,7 +269,7 @@ fn counted_faults_end_after_their_count_on_can_motors_and_the_imu() {
     let index = |name: &str| h.robot.config.joints.iter().position(|j| j.name == name).unwrap();
     let (right, left) = (index("right_knee"), index("left_knee"));
     let mut worst = (0, 0, 0);
-    // Read at the CAN buses' own rate (500 Hz): every cycle's count is seen.
+    // Read twice per CAN cycle (250 Hz): every cycle's count is seen.
     let start = h.inner.now();
     let cycle = Duration::from_millis(2);
     for k in 1..=250u32 {

@@ -61,6 +61,10 @@ pub struct PlayArgs {
     /// Do not record the run.
     #[arg(long, conflicts_with = "record")]
     no_record: bool,
+    /// Also record every bus cycle (what each bus read and commanded, its cycle time and misses)
+    /// on a `/bus/<name>` channel per bus, at the bus's own rate.
+    #[arg(long, conflicts_with = "no_record")]
+    record_bus_rate: bool,
     /// After the run, write its report (plots, summary) into this folder.
     #[arg(long, conflicts_with = "no_record")]
     report: Option<PathBuf>,
@@ -179,13 +183,30 @@ fn with_estop<L: RobotLink>(player: Player<L>, args: &PlayArgs, options: &PlayOp
 }
 
 fn with_recorder<L: RobotLink>(
-    player: Player<L>,
+    mut player: Player<L>,
     args: &PlayArgs,
     options: &PlayOptions,
 ) -> Result<Player<L>> {
     if args.no_record {
         return Ok(player);
     }
+    let bus_cycles = if args.record_bus_rate {
+        anyhow::ensure!(
+            player.record_bus_cycles(),
+            "--record-bus-rate: this run has no bus cycles to record"
+        );
+        let robot = player.robot();
+        Some(
+            player
+                .link()
+                .bus_names()
+                .iter()
+                .map(|b| robot.joints_on(b).map(|(i, _)| i).collect())
+                .collect(),
+        )
+    } else {
+        None
+    };
     let robot = player.robot_name().to_owned();
     let (path, claimed) = match &args.record {
         Some(p) => {
@@ -229,6 +250,7 @@ fn with_recorder<L: RobotLink>(
             robot.mjcf_path.clone(),
             robot.config.joints.iter().map(|j| j.mjcf_joint.clone()).collect(),
         )),
+        bus_cycles,
     };
     let sink = match claimed {
         Some(file) => TelemetrySink::start_in(file, &path, 1024, backpressure, &info)?,

@@ -310,6 +310,13 @@ impl<L: RobotLink> Player<L> {
         m.ticks = 0;
     }
 
+    /// Records every bus cycle for telemetry (before the devices are identified): the
+    /// recording's `/bus/<name>` channels. False when the link has no bus cycles.
+    pub fn record_bus_cycles(&mut self) -> bool {
+        // A tick's worth of cycles of the fastest bus, many times over: the loop drains every tick.
+        self.io.record_cycles(1024)
+    }
+
     /// Checks every device and goes to Ready.
     pub fn identify(&mut self) -> Result<(), PlayError> {
         self.io.identify()?;
@@ -417,6 +424,8 @@ impl<L: RobotLink> Player<L> {
                 cause: self.machine.transitions.last().map(|t| t.cause),
             });
             sink.push(&self.record);
+            // The buses' cycles since the last tick, when the recording asked for them.
+            self.io.drain_cycles(&mut |c| sink.push_cycle(c));
         }
         self.tick += 1;
         self.machine.ticks += 1;

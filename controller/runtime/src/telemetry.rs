@@ -5,6 +5,7 @@
 //! In wall-clock runs the loop never waits for the logger: a full ring drops the record and counts
 //! it. In lockstep runs simulated time can wait, so the loop blocks instead and nothing is dropped.
 
+use robot_link::{CycleRecord, MAX_RECORDED_JOINTS};
 use robots::spatial;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -295,7 +296,7 @@ impl std::fmt::Display for TelemetryReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "telemetry: {} ({} ticks written, {} dropped, {} topics)",
+            "telemetry: {} ({} records written, {} dropped, {} topics)",
             self.path.display(),
             self.written,
             self.dropped,
@@ -323,12 +324,49 @@ pub struct RecordingInfo {
     /// The robot's MJCF and its joint names in robot order: with them the logger also writes a
     /// `foxglove.FrameTransform` per link (forward kinematics of the measured joints).
     pub kinematics: Option<(PathBuf, Vec<String>)>,
+    /// Joints of each bus (robot indices), in the order of `bus_names`: with them the recording
+    /// gets a `/bus/<name>` channel per bus for its cycles ([`TelemetrySink::push_cycle`]).
+    pub bus_cycles: Option<Vec<Vec<usize>>>,
+}
+
+/// What travels through the ring: a tick, or one bus cycle.
+#[derive(Debug, Clone, Copy)]
+#[allow(clippy::large_enum_variant)] // Both live in preallocated ring slots, never on their own.
+enum Record {
+    Tick(TickRecord),
+    Cycle(CycleRecord),
+}
+
+const BUS_CYCLE_SCHEMA: &str = r#"{"type":"object","description":"One bus cycle: what the bus read and commanded. Joint names in the channel's joint_names metadata; angles rad, speeds rad/s, torques N·m, gains N·m/rad and N·m·s/rad.","properties":{"cycle":{"type":"integer"},"took_us":{"type":"number","description":"send to last reply"},"overruns":{"type":"integer","description":"slots lost so far"},"damped":{"type":"boolean","description":"the bus is damping itself"},"q":{"type":"array","items":{"type":"number"}},"qd":{"type":"array","items":{"type":"number"}},"tau":{"type":"array","items":{"type":"number"}},"missed":{"type":"array","items":{"type":"number"}},"command_q":{"type":"array","items":{"type":"number"}},"command_qd":{"type":"array","items":{"type":"number"}},"kp":{"type":"array","items":{"type":"number"}},"kd":{"type":"array","items":{"type":"number"}},"command_tau":{"type":"array","items":{"type":"number"}},"enabled":{"type":"array","items":{"type":"number"}}}}"#;
+
+/// One bus cycle as the `/bus/<name>` message.
+fn encode_cycle(out: &mut String, c: &CycleRecord) {
+    let n = usize::from(c.joints);
+    let _ = write!(
+        out,
+        "{{\"cycle\":{},\"took_us\":{},\"overruns\":{},\"damped\":{},",
+        c.cycle, c.took_us, c.overruns, c.damped
+    );
+    array64(out, "q", c.q[..n].iter().map(|&v| f64::from(v)));
+    out.push(',');
+    array64(out, "qd", c.qd[..n].iter().map(|&v| f64::from(v)));
+    out.push(',');
+    array64(out, "tau", c.tau[..n].iter().map(|&v| f64::from(v)));
+    out.push(',');
+    array64(out, "missed", c.missed[..n].iter().map(|&m| f64::from(m)));
+    for (k, key) in ["command_q", "command_qd", "kp", "kd", "command_tau"].into_iter().enumerate() {
+        out.push(',');
+        array64(out, key, c.command[..n].iter().map(|cmd| f64::from(cmd[k])));
+    }
+    out.push(',');
+    array64(out, "enabled", c.enabled[..n].iter().map(|&b| f64::from(u8::from(b))));
+    out.push('}');
 }
 
 /// The loop's end of the telemetry ring.
 #[derive(Debug)]
 pub struct TelemetrySink {
-    tx: Option<crossbeam::channel::Sender<TickRecord>>,
+    tx: Option<crossbeam::channel::Sender<Record>>,
     backpressure: Backpressure,
     pushed: u64,
     dropped: Arc<AtomicU64>,
@@ -432,7 +470,7 @@ impl TelemetrySink {
             message: e.to_string(),
         };
         let (joint_names, root_frame, run) = (&info.joint_names, info.root_frame.as_str(), &info.run);
-        let (tx, rx) = crossbeam::channel::bounded::<TickRecord>(capacity.max(1));
+        let (tx, rx) = crossbeam::channel::bounded::<Record>(capacity.max(1));
         // Small chunks: a crash (SIGKILL, power) loses at most the chunk being built, ~0.3 s of
         // a 50 Hz run; `analysis::recording` reads everything before it.
         let writer = mcap::WriteOptions::new()
@@ -476,6 +514,24 @@ impl TelemetrySink {
                     .map_err(|e| wrote(&e))?,
             );
         }
+        // One channel per bus for its cycles, when asked for: its joints' names in the metadata.
+        let mut bus_channels = Vec::new();
+        if let Some(joints) = &info.bus_cycles {
+            let schema = writer
+                .add_schema("bus_cycle", "jsonschema", BUS_CYCLE_SCHEMA.as_bytes())
+                .map_err(|e| wrote(&e))?;
+            for (name, joints) in info.bus_names.iter().zip(joints) {
+                let names: Vec<&str> = joints
+                    .iter()
+                    .take(MAX_RECORDED_JOINTS)
+                    .filter_map(|&i| joint_names.get(i).map(String::as_str))
+                    .collect();
+                let m: BTreeMap<String, String> = [("joint_names".to_owned(), names.join(","))].into();
+                let topic = format!("/bus/{name}");
+                let id = writer.add_channel(schema, &topic, "json", &m).map_err(|e| wrote(&e))?;
+                bus_channels.push((id, topic));
+            }
+        }
         let root = root_frame.to_owned();
         let kinematics = info.kinematics.clone();
         let file_path = path.to_path_buf();
@@ -495,7 +551,20 @@ impl TelemetrySink {
                 let mut written = 0u64;
                 let mut text = String::with_capacity(16 * 1024);
                 let mut last_mode = u8::MAX;
-                while let Ok(r) = rx.recv() {
+                while let Ok(record) = rx.recv() {
+                    let r = match record {
+                        Record::Tick(r) => r,
+                        Record::Cycle(c) => {
+                            if let Some((id, topic)) = bus_channels.get(usize::from(c.bus)) {
+                                text.clear();
+                                encode_cycle(&mut text, &c);
+                                sent.write(&mut writer, *id, topic, c.started_ns, &text)
+                                    .map_err(|e| failed(&e))?;
+                            }
+                            written += 1;
+                            continue;
+                        }
+                    };
                     for (k, (topic, _)) in TOPICS.iter().enumerate() {
                         text.clear();
                         let wrote = encode(&mut text, k, &r, &root, &mut last_mode);
@@ -534,11 +603,21 @@ impl TelemetrySink {
 
     /// Hands a record to the logger (no allocation; blocks or drops per the backpressure).
     pub fn push(&mut self, record: &TickRecord) {
+        self.send(Record::Tick(*record));
+    }
+
+    /// Hands one bus cycle to the logger, like [`Self::push`] (recorded on `/bus/<name>` when
+    /// the recording was started with [`RecordingInfo::bus_cycles`]).
+    pub fn push_cycle(&mut self, record: &CycleRecord) {
+        self.send(Record::Cycle(*record));
+    }
+
+    fn send(&mut self, record: Record) {
         let Some(tx) = &self.tx else { return };
         self.pushed += 1;
         let full = match self.backpressure {
-            Backpressure::Block => tx.send(*record).is_err(),
-            Backpressure::Drop => tx.try_send(*record).is_err(),
+            Backpressure::Block => tx.send(record).is_err(),
+            Backpressure::Drop => tx.try_send(record).is_err(),
         };
         if full {
             self.dropped.fetch_add(1, Ordering::Relaxed);

@@ -23,7 +23,7 @@ use firmware_bridge::serial::ByteStream;
 use robots::{BusKind, Robot, drivers, spatial};
 
 use crate::clock::TickClock;
-use crate::cycle::{BusStats, Cycler, copy_joints};
+use crate::cycle::{BusStats, CycleLog, CycleRecord, Cycler, copy_joints};
 use crate::link::{IoError, RobotLink};
 use crate::state::{DeviceIdentity, JointTarget, RobotState};
 use crate::workers::Worker;
@@ -362,6 +362,12 @@ where
     fn bus_stats(&self) -> &[BusStats] {
         &self.stats
     }
+    fn record_cycles(&mut self, capacity: usize) -> bool {
+        BusRobot::record_cycles(self, capacity)
+    }
+    fn drain_cycles(&mut self, sink: &mut dyn FnMut(&CycleRecord)) -> u64 {
+        BusRobot::drain_cycles(self, sink)
+    }
 }
 
 /// Every bus of a robot, each cycling at its own rate under the policy: in one thread on a
@@ -397,6 +403,8 @@ pub struct BusRobot<S: ByteStream> {
     names: Vec<String>,
     times: Vec<Duration>,
     stats: Vec<BusStats>,
+    /// Each bus's cycle records, when telemetry asked for them.
+    logs: Vec<std::sync::Arc<CycleLog>>,
 }
 
 impl<S: ByteStream> BusRobot<S> {
@@ -513,8 +521,37 @@ impl<S: ByteStream> BusRobot<S> {
             accel_bias: robot.config.imu.accel_bias,
             times: vec![Duration::ZERO; k],
             stats: vec![BusStats::default(); k],
+            logs: Vec::new(),
             names,
         })
+    }
+
+    /// Records every cycle of every bus, up to `capacity` per bus between drains; only before
+    /// the buses get threads of their own (false after).
+    pub fn record_cycles(&mut self, capacity: usize) -> bool {
+        if !self.workers.is_empty() {
+            return false;
+        }
+        self.logs.clear();
+        for (k, c) in self.cyclers.iter_mut().enumerate() {
+            let log = CycleLog::new(capacity);
+            c.log = Some((std::sync::Arc::clone(&log), k as u8));
+            self.logs.push(log);
+        }
+        true
+    }
+
+    /// Hands every cycle recorded since the last call to `sink`, bus by bus; returns the
+    /// records lost so far (queues full).
+    pub fn drain_cycles(&mut self, sink: &mut dyn FnMut(&CycleRecord)) -> u64 {
+        let mut lost = 0;
+        for log in &self.logs {
+            while let Some(r) = log.queue.pop() {
+                sink(&r);
+            }
+            lost += log.lost.load(std::sync::atomic::Ordering::Relaxed);
+        }
+        lost
     }
 
     /// Moves each bus onto its own thread, cycling at its rate on the wall clock, once the

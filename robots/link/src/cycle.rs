@@ -6,8 +6,10 @@
 //! link was built on the wall clock). A joint's sample time is the start of the cycle that
 //! brought it: the device measured within that cycle's wire time, so ages are never understated.
 
+use std::sync::Arc;
 use std::time::Duration;
 
+use crossbeam::queue::ArrayQueue;
 use robots::{BusTiming, Interpolation};
 
 use crate::bus_robot::JointBus;
@@ -91,6 +93,78 @@ pub struct BusStats {
     pub damping_sent_at_cycle: Option<u64>,
 }
 
+/// Most joints a [`CycleRecord`] carries (a bus with more records its first ones).
+pub const MAX_RECORDED_JOINTS: usize = 32;
+
+/// One bus cycle as telemetry records it: what the bus read and commanded, and how long it took.
+/// Fixed size: cycles hand it to the loop through a preallocated queue.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CycleRecord {
+    /// The bus's index in [`crate::RobotLink::bus_names`].
+    pub bus: u8,
+    /// Joints recorded.
+    pub joints: u8,
+    /// The cycle's number on its bus.
+    pub cycle: u64,
+    /// When it started (the link's time), ns.
+    pub started_ns: u64,
+    /// Send to last reply, µs.
+    pub took_us: f32,
+    /// Slots lost so far.
+    pub overruns: u64,
+    /// The bus is damping itself.
+    pub damped: bool,
+    /// Robot index of each joint.
+    pub index: [u16; MAX_RECORDED_JOINTS],
+    /// Measured position (rad), velocity (rad/s), torque (N·m).
+    pub q: [f32; MAX_RECORDED_JOINTS],
+    pub qd: [f32; MAX_RECORDED_JOINTS],
+    pub tau: [f32; MAX_RECORDED_JOINTS],
+    /// Cycles in a row without a reply.
+    pub missed: [u32; MAX_RECORDED_JOINTS],
+    /// Commanded `[q, qd, kp, kd, tau]`, and torque on.
+    pub command: [[f32; 5]; MAX_RECORDED_JOINTS],
+    pub enabled: [bool; MAX_RECORDED_JOINTS],
+}
+
+impl Default for CycleRecord {
+    fn default() -> Self {
+        Self {
+            bus: 0,
+            joints: 0,
+            cycle: 0,
+            started_ns: 0,
+            took_us: 0.0,
+            overruns: 0,
+            damped: false,
+            index: [0; MAX_RECORDED_JOINTS],
+            q: [0.0; MAX_RECORDED_JOINTS],
+            qd: [0.0; MAX_RECORDED_JOINTS],
+            tau: [0.0; MAX_RECORDED_JOINTS],
+            missed: [0; MAX_RECORDED_JOINTS],
+            command: [[0.0; 5]; MAX_RECORDED_JOINTS],
+            enabled: [false; MAX_RECORDED_JOINTS],
+        }
+    }
+}
+
+/// Where a bus's cycle records wait for the loop: a preallocated queue; a full queue drops the
+/// newest and counts it.
+#[derive(Debug)]
+pub(crate) struct CycleLog {
+    pub(crate) queue: ArrayQueue<CycleRecord>,
+    pub(crate) lost: std::sync::atomic::AtomicU64,
+}
+
+impl CycleLog {
+    pub(crate) fn new(capacity: usize) -> Arc<Self> {
+        Arc::new(Self {
+            queue: ArrayQueue::new(capacity.max(1)),
+            lost: std::sync::atomic::AtomicU64::new(0),
+        })
+    }
+}
+
 /// One bus with its schedule and what it commands between policy ticks.
 #[derive(Debug)]
 pub(crate) struct Cycler {
@@ -118,6 +192,9 @@ pub(crate) struct Cycler {
     fault_latched: Vec<bool>,
     pub(crate) stats: BusStats,
     started: Duration,
+    /// Where each cycle is recorded, when telemetry asks for it; the bus's index.
+    pub(crate) log: Option<(Arc<CycleLog>, u8)>,
+    record: CycleRecord,
 }
 
 impl Cycler {
@@ -146,6 +223,8 @@ impl Cycler {
             fault_latched: vec![false; n],
             stats: BusStats::default(),
             started: Duration::ZERO,
+            log: None,
+            record: CycleRecord::default(),
         }
     }
 
@@ -249,8 +328,36 @@ impl Cycler {
             self.stats.damped_at_cycle.get_or_insert(self.stats.cycles);
             self.stats.damped_at.get_or_insert(started);
         }
+        self.log_cycle(took);
         self.stats.cycles += 1;
         r
+    }
+
+    /// Hands this cycle to telemetry, if it records cycles (a full queue drops and counts it).
+    fn log_cycle(&mut self, took: Duration) {
+        let Some((log, bus)) = &self.log else { return };
+        let r = &mut self.record;
+        r.bus = *bus;
+        r.cycle = self.stats.cycles;
+        r.started_ns = self.started.as_nanos() as u64;
+        r.took_us = took.as_secs_f32() * 1e6;
+        r.overruns = self.stats.overruns;
+        r.damped = self.damped;
+        let n = self.joints.len().min(MAX_RECORDED_JOINTS);
+        r.joints = n as u8;
+        for (k, &i) in self.joints.iter().take(n).enumerate() {
+            let (s, c) = (&self.state, &self.sent[i]);
+            r.index[k] = i as u16;
+            r.q[k] = s.q[i] as f32;
+            r.qd[k] = s.qd[i] as f32;
+            r.tau[k] = s.tau[i] as f32;
+            r.missed[k] = s.missed[i];
+            r.command[k] = [c.q, c.qd, c.kp, c.kd, c.tau].map(|v| v as f32);
+            r.enabled[k] = c.enabled;
+        }
+        if log.queue.push(*r).is_err() {
+            log.lost.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        }
     }
 
     /// Marks fresh joints as sampled at `at`.

@@ -20,6 +20,6 @@ mod workers;
 
 pub use bus_robot::{BusPorts, BusRobot};
 pub use clock::{TickClock, WallClock};
-pub use cycle::{BusStats, CycleTimes, STALE_CYCLES};
+pub use cycle::{BusStats, CycleRecord, CycleTimes, MAX_RECORDED_JOINTS, STALE_CYCLES};
 pub use link::{ErrorKind, IoError, RobotLink, message_chain};
 pub use state::{DeviceIdentity, GroundTruth, JointTarget, RobotState};

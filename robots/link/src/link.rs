@@ -6,7 +6,7 @@ use firmware_bridge::dxl::driver::DxlError;
 use firmware_bridge::mit::driver::MitError;
 
 use crate::clock::TickClock;
-use crate::cycle::BusStats;
+use crate::cycle::{BusStats, CycleRecord};
 use crate::state::{DeviceIdentity, JointTarget, RobotState};
 
 /// Why the buses failed as a whole (single-device trouble shows in [`RobotState`]).
@@ -62,6 +62,17 @@ pub trait RobotLink: std::fmt::Debug {
     /// What each bus did so far (cycles, overruns, cycle times, self-damping), as of the last read.
     fn bus_stats(&self) -> &[BusStats] {
         &[]
+    }
+    /// Asks every bus to record each of its cycles for telemetry, keeping up to `capacity` per
+    /// bus until [`Self::drain_cycles`] takes them (before the devices are identified); false
+    /// when this link has no bus cycles to record.
+    fn record_cycles(&mut self, _capacity: usize) -> bool {
+        false
+    }
+    /// Hands each cycle recorded since the last call to `sink`; returns the records lost so far
+    /// because they were not taken in time.
+    fn drain_cycles(&mut self, _sink: &mut dyn FnMut(&CycleRecord)) -> u64 {
+        0
     }
 }
 
