@@ -17,7 +17,14 @@ use sim2real::serve::ServedMirror;
 
 #[test]
 fn drivers_hold_the_served_biped_over_socketcand_and_pseudo_terminals() {
-    let robot = Robot::load(&reference_robot_path()).unwrap();
+    // This host loop cycles every 20 ms on a shared machine: the motors get a command timeout
+    // (200 ms) that a starved test thread cannot outlast, instead of the 40 ms of the robot's own
+    // 250 Hz buses.
+    let text = std::fs::read_to_string(reference_robot_path()).unwrap().replace(
+        "kind = \"mit_can\"",
+        "kind = \"mit_can\"\ncommand_timeout_ms = 200.0",
+    );
+    let robot = Robot::from_str(&reference_robot_path(), &text).unwrap();
     let mirror = Mirror::new(
         robot.clone(),
         MirrorConfig {

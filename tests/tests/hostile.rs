@@ -286,6 +286,10 @@ fn flags_with_absurd_values_are_refused_by_name() {
             "'--ramp <RAMP>': 1e300 is outside [0, 60]",
         ),
         (
+            args(&[&"play", &"--no-record", &"--stale-cycles", &"0"]),
+            "'--stale-cycles <STALE_CYCLES>'",
+        ),
+        (
             args(&[&"sim", &"stand", &"--seconds", &"1e300"]),
             "'--seconds <SECONDS>'",
         ),

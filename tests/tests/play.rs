@@ -741,3 +741,23 @@ fn command_values_from_the_command_line_reach_the_observation() {
     assert_eq!(&obs[slot], &[0.6f32, -0.2]);
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn squat_and_wave_track_at_least_as_well_as_with_buses_at_the_policy_rate() {
+    // Joint RMSE of the same runs when every bus was serviced once per 50 Hz tick (commit
+    // fdc38d7, lockstep, same mirror): squat 1.11°, wave 1.56°.
+    for (clip, before) in [("clips/squat.csv", 1.11), ("clips/wave_and_look.csv", 1.56)] {
+        let (mut p, mut clock, _w) = player(
+            follower(),
+            biped(clip),
+            MirrorConfig::default(),
+            PlayOptions::default(),
+        );
+        let s = p.run(&mut clock).unwrap();
+        let rmse = s.joint_rmse.to_degrees();
+        assert!(
+            !s.fell && rmse <= before,
+            "{clip}: {rmse:.3}° (was {before}°)\n{s}"
+        );
+    }
+}

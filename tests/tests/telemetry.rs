@@ -220,7 +220,12 @@ fn ten_minutes_of_a_500_hz_bus_recorded_from_the_loop_lose_nothing_in_lockstep()
         joint_names: p.joint_names(),
         root_frame: p.root_frame(),
         bus_names: buses.clone(),
-        bus_cycles: Some(buses.iter().map(|b| robot.joints_on(b).map(|(i, _)| i).collect()).collect()),
+        bus_cycles: Some(
+            buses
+                .iter()
+                .map(|b| robot.joints_on(b).map(|(i, _)| i).collect())
+                .collect(),
+        ),
         ..Default::default()
     };
     let sink = TelemetrySink::start(&path, 1024, Backpressure::Block, &info).unwrap();
@@ -232,7 +237,10 @@ fn ten_minutes_of_a_500_hz_bus_recorded_from_the_loop_lose_nothing_in_lockstep()
     let can0 = report.messages["/bus/can0"];
     // 500 Hz for the whole run: ten cycles per tick waited for (the last tick has no wait).
     let seconds = s.ticks as f64 / 50.0;
-    assert!((can0 as f64 - 500.0 * seconds).abs() <= 20.0, "{can0} cycles in {seconds} s");
+    assert!(
+        (can0 as f64 - 500.0 * seconds).abs() <= 20.0,
+        "{can0} cycles in {seconds} s"
+    );
     assert_eq!(report.messages["/bus/can1"], can0);
     // Every cycle is in the file, numbered without a gap.
     let bytes = std::fs::read(&path).unwrap();

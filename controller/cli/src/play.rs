@@ -44,6 +44,11 @@ pub struct PlayArgs {
     /// Stop (softly) after this many seconds of the run, whatever the clip.
     #[arg(long, value_parser = crate::args::within(0.02, 86_400.0))]
     max_seconds: Option<f64>,
+    /// Bus cycles in a row a joint may stay silent before its bus damps itself and the robot
+    /// stops (1–100). Raise it only for links that are late but not lost, such as a mirror
+    /// served on a busy machine.
+    #[arg(long, default_value_t = 2, value_parser = crate::args::whole_within(1, 100))]
+    stale_cycles: u64,
     /// Real-time set-up of the loop thread: SCHED_FIFO, mlockall, pinned to the last CPU. Steps
     /// the system refuses are reported and skipped.
     #[arg(long)]
@@ -278,6 +283,10 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         ramp_s: args.ramp,
         end: args.end.into(),
         max_ticks,
+        limits: controller::safety::SafetyLimits {
+            stale_cycles: args.stale_cycles as u32,
+            ..Default::default()
+        },
         ..PlayOptions::default()
     };
     if args.realtime {

@@ -190,8 +190,7 @@ fn main() {
     let quick = !std::env::args().any(|a| a == "--bench");
     println!("rd-biped: 2 CAN buses of 6 MIT motors, 8 Dynamixel servos on one line, 50 Hz policy");
     println!(
-        "lockstep on the mirror (simulated time), 20 s (replies are collected at the end of each reply window, {:.0} % of the period: that is the cycle time here):\n{}",
-        robot_link::cycle::REPLY_SHARE * 100.0,
+        "lockstep on the mirror (simulated time), 20 s (replies are taken when due: the round trip's estimate plus a margin, so that is the cycle time here):\n{}",
         lockstep(1000)
     );
     let seconds = if quick { 3.0 } else { 20.0 };

@@ -95,6 +95,9 @@ pub struct Player<L: RobotLink> {
     state: RobotState,
     targets: Vec<JointTarget>,
     start_pose: Vec<f64>,
+    /// The reference of the previous tick and, per joint, the reference at its sample's time.
+    previous_reference: Vec<f64>,
+    aligned_reference: Vec<f64>,
     policy_q: Vec<f64>,
     policy_qd: Vec<f64>,
     policy_default: Vec<f64>,
@@ -112,10 +115,17 @@ impl<L: RobotLink> Player<L> {
         mut layout: PolicyLayout,
         mut reference: Reference,
         options: PlayOptions,
-        io: L,
+        mut io: L,
         stop: Arc<AtomicBool>,
     ) -> Result<Self, PlayError> {
         let model = OnnxModel::load(&layout.onnx_path)?;
+        if options.limits.stale_cycles == 0 {
+            return Err(PlayError::Setup(
+                "limits.stale_cycles = 0: at least 1 cycle".into(),
+            ));
+        }
+        // The buses judge staleness themselves, at their rate, by the run's limit.
+        io.set_stale_cycles(options.limits.stale_cycles);
         // Reference body positions, by forward kinematics, when the policy observes them.
         let mut body_lists = layout.slots.iter().filter_map(|s| match &s.term {
             Term::RefBodyPos { bodies, .. } => Some(bodies.clone()),
@@ -193,6 +203,8 @@ impl<L: RobotLink> Player<L> {
             state: RobotState::new(n),
             targets: vec![JointTarget::default(); n],
             start_pose: default_q.clone(),
+            previous_reference: default_q.clone(),
+            aligned_reference: default_q.clone(),
             policy_q: vec![0.0; n],
             policy_qd: vec![0.0; n],
             policy_default: layout.robot_index.iter().map(|&r| default_q[r]).collect(),
@@ -608,11 +620,26 @@ impl<L: RobotLink> Player<L> {
             self.metrics.limited_ticks += 1;
         }
         // Tracking error against the clip (not during the ramp or the end).
+        // Each joint's sample is compared with the reference at the time it was taken (`age`
+        // before the tick, between this tick's frame and the last): the error of the motion, not
+        // of how old the feedback is.
+        let current = self.cursor.current_q();
+        for (((r, &now), &before), &age) in self
+            .aligned_reference
+            .iter_mut()
+            .zip(current)
+            .zip(&self.previous_reference)
+            .zip(&self.state.age)
+        {
+            let back = (age.as_secs_f64() / self.dt).min(1.0);
+            *r = now + (before - now) * back;
+        }
         if self.cursor.in_clip() {
             let root = has_truth.then(|| (self.truth.root_pose, self.cursor.current_root()));
             self.metrics
-                .add_tracking(&self.state.q, self.cursor.current_q(), root);
+                .add_tracking(&self.state.q, &self.aligned_reference, root);
         }
+        self.previous_reference.copy_from_slice(current);
         self.cursor.step();
     }
 

@@ -171,8 +171,9 @@ pub struct Transition {
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SafetyLimits {
-    /// Bus cycles in a row without a reply that make a joint stale (links whose buses do not
-    /// judge it themselves, such as a replay).
+    /// Bus cycles in a row without a reply that make a joint stale: its bus damps itself at
+    /// once, and the loop damps the rest (links without bus cycles, such as a replay, are judged
+    /// by the loop on the counts they report). At least 1.
     #[serde(alias = "stale_ticks")]
     pub stale_cycles: u32,
     /// Largest base tilt from upright, rad.
@@ -211,7 +212,7 @@ pub fn tilt_of(q: [f64; 4]) -> f64 {
 #[derive(Debug)]
 pub struct SafetyMonitor {
     limits: SafetyLimits,
-    /// IMU staleness limit in ticks: two of its periods, at least two ticks.
+    /// IMU staleness limit in ticks: two of its periods, at least two ticks and the joints' limit.
     imu_limit: u32,
     /// Ticks in a row each joint has been beyond the tracking limit.
     off_target: Vec<u32>,
@@ -223,7 +224,10 @@ impl SafetyMonitor {
     /// A monitor for `n` joints, a loop ticking every `dt` s and an IMU at `imu_rate_hz`.
     pub fn new(limits: SafetyLimits, n: usize, dt: f64, imu_rate_hz: f64) -> Self {
         Self {
-            imu_limit: 2u32.max((2.0 / (dt * imu_rate_hz)).ceil() as u32),
+            imu_limit: limits
+                .stale_cycles
+                .max(2)
+                .max((2.0 / (dt * imu_rate_hz)).ceil() as u32),
             limits,
             off_target: vec![0; n],
             overrun_run: 0,

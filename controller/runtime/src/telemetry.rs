@@ -354,12 +354,19 @@ fn encode_cycle(out: &mut String, c: &CycleRecord) {
     array64(out, "tau", c.tau[..n].iter().map(|&v| f64::from(v)));
     out.push(',');
     array64(out, "missed", c.missed[..n].iter().map(|&m| f64::from(m)));
-    for (k, key) in ["command_q", "command_qd", "kp", "kd", "command_tau"].into_iter().enumerate() {
+    for (k, key) in ["command_q", "command_qd", "kp", "kd", "command_tau"]
+        .into_iter()
+        .enumerate()
+    {
         out.push(',');
         array64(out, key, c.command[..n].iter().map(|cmd| f64::from(cmd[k])));
     }
     out.push(',');
-    array64(out, "enabled", c.enabled[..n].iter().map(|&b| f64::from(u8::from(b))));
+    array64(
+        out,
+        "enabled",
+        c.enabled[..n].iter().map(|&b| f64::from(u8::from(b))),
+    );
     out.push('}');
 }
 
@@ -528,7 +535,9 @@ impl TelemetrySink {
                     .collect();
                 let m: BTreeMap<String, String> = [("joint_names".to_owned(), names.join(","))].into();
                 let topic = format!("/bus/{name}");
-                let id = writer.add_channel(schema, &topic, "json", &m).map_err(|e| wrote(&e))?;
+                let id = writer
+                    .add_channel(schema, &topic, "json", &m)
+                    .map_err(|e| wrote(&e))?;
                 bus_channels.push((id, topic));
             }
         }

@@ -600,11 +600,14 @@ impl<T: DxlTransport> DxlBusDriver<T> {
             .send(id, instruction, params)
             .map_err(DxlError::Link)?;
         let deadline = self.deadline(10 + params.len(), STATUS_OVERHEAD + out.len(), 1);
-        let fault = match self.transport.recv_status(deadline) {
-            Ok(s) if s.id != id => DxlFault::WrongId {
-                expected: id,
-                got: s.id,
-            },
+        let mut status = self.transport.recv_status(deadline);
+        // Another servo's status is the late answer to an earlier instruction (two servos never
+        // answer for one ID): skip it and keep waiting for this one's.
+        while matches!(&status, Ok(s) if s.id != id) {
+            self.stats.late_statuses += 1;
+            status = self.transport.recv_status(deadline);
+        }
+        let fault = match status {
             Ok(s) if s.error & 0x7F != 0 => DxlFault::Status { id, error: s.error },
             Ok(s) if s.params.len() != out.len() => DxlFault::Malformed { id },
             Ok(s) => {

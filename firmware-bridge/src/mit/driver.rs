@@ -20,6 +20,9 @@ pub fn cycle_wire_time(motors: usize, bitrate: u32) -> Duration {
     Duration::from_nanos((bits * 1_000_000_000).div_ceil(u64::from(bitrate.max(1))))
 }
 
+/// Times an enable or disable is sent before a silent motor counts as missing.
+pub const SPECIAL_TRIES: usize = 3;
+
 /// Most motors one driver (one bus) handles.
 pub const MAX_MOTORS_PER_BUS: usize = 32;
 
@@ -435,24 +438,30 @@ impl<B: CanBus> MitBusDriver<B> {
         Ok(())
     }
 
+    /// Sends `which` to every motor and waits for every reply, asking again (up to
+    /// [`SPECIAL_TRIES`] times) while one is missing: a late reply on a busy host is not a
+    /// missing motor, and these frames may be repeated.
     fn special_all(&mut self, which: SpecialFrame) -> Result<(), MitError> {
-        for j in &self.joints {
-            self.bus.send(&CanFrame::new8(
-                CanId::Standard(u16::from(j.motor_id)),
-                which.bytes(),
-            ))?;
+        for _ in 0..SPECIAL_TRIES {
+            for j in &self.joints {
+                self.bus.send(&CanFrame::new8(
+                    CanId::Standard(u16::from(j.motor_id)),
+                    which.bytes(),
+                ))?;
+            }
+            self.reply_deadline = None;
+            let mut report = CycleReport::default();
+            self.collect(&mut report)?;
+            if self.answered.iter().all(|&a| a) {
+                return Ok(());
+            }
         }
-        self.reply_deadline = None;
-        let mut report = CycleReport::default();
-        self.collect(&mut report)?;
-        match self.answered.iter().position(|a| !a) {
-            Some(i) => Err(MitError::NoReply {
-                joint: self.joints[i].name.clone(),
-                motor_id: self.joints[i].motor_id,
-                timeout: self.reply_timeout,
-            }),
-            None => Ok(()),
-        }
+        let i = self.answered.iter().position(|a| !a).unwrap_or(0);
+        Err(MitError::NoReply {
+            joint: self.joints[i].name.clone(),
+            motor_id: self.joints[i].motor_id,
+            timeout: self.reply_timeout,
+        })
     }
 
     /// Turns every motor's torque on; fails naming the first motor that did not answer.

@@ -365,6 +365,9 @@ where
     fn record_cycles(&mut self, capacity: usize) -> bool {
         BusRobot::record_cycles(self, capacity)
     }
+    fn set_stale_cycles(&mut self, cycles: u32) {
+        BusRobot::set_stale_cycles(self, cycles);
+    }
     fn drain_cycles(&mut self, sink: &mut dyn FnMut(&CycleRecord)) -> u64 {
         BusRobot::drain_cycles(self, sink)
     }
@@ -524,6 +527,14 @@ impl<S: ByteStream> BusRobot<S> {
             logs: Vec::new(),
             names,
         })
+    }
+
+    /// Cycles in a row a joint may stay silent before its bus damps itself (at least 1); set
+    /// before the buses get threads of their own.
+    pub fn set_stale_cycles(&mut self, cycles: u32) {
+        for c in &mut self.cyclers {
+            c.stale_cycles = cycles.max(1);
+        }
     }
 
     /// Records every cycle of every bus, up to `capacity` per bus between drains; only before
@@ -707,7 +718,7 @@ impl<S: ByteStream> BusRobot<S> {
                 c.finish(|| clock.elapsed())
             } else {
                 let period = c.timing.period;
-                self.in_flight[k] = Some(t + Cycler::reply_window(&c.timing));
+                self.in_flight[k] = Some(t + Cycler::replies_expected(&c.timing));
                 self.next_start[k] = t + period;
                 // A cycle that blocked (a torque switch waits for its replies) pushes the
                 // following ones out: count the slots lost.

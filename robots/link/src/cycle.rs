@@ -190,6 +190,8 @@ pub(crate) struct Cycler {
     pub(crate) damped: bool,
     /// Joints whose fault made the bus damp itself.
     fault_latched: Vec<bool>,
+    /// Cycles in a row a joint may stay silent before the bus damps itself.
+    pub(crate) stale_cycles: u32,
     pub(crate) stats: BusStats,
     started: Duration,
     /// Where each cycle is recorded, when telemetry asks for it; the bus's index.
@@ -221,6 +223,7 @@ impl Cycler {
             sampled_at: vec![Duration::ZERO; n],
             damped: false,
             fault_latched: vec![false; n],
+            stale_cycles: STALE_CYCLES,
             stats: BusStats::default(),
             started: Duration::ZERO,
             log: None,
@@ -231,6 +234,13 @@ impl Cycler {
     /// How long a cycle waits for its replies at most.
     pub(crate) fn reply_window(timing: &BusTiming) -> Duration {
         timing.period.mul_f64(REPLY_SHARE)
+    }
+
+    /// When a scheduled cycle's replies are expected in: its round trip with a margin, within
+    /// the reply window. (Replies still missing then are waited for, up to the window.)
+    pub(crate) fn replies_expected(timing: &BusTiming) -> Duration {
+        let margin = Duration::from_micros(100).max(timing.period / 20);
+        (timing.round_trip() + margin).min(Self::reply_window(timing))
     }
 
     /// Takes the policy's targets number `seq`, issued at `issued_at` (robot order). A ramp
@@ -316,7 +326,7 @@ impl Cycler {
                 continue;
             }
             // What made the bus damp itself stays visible to the loop until torque goes off.
-            s.stale[i] |= s.missed[i] >= STALE_CYCLES;
+            s.stale[i] |= s.missed[i] >= self.stale_cycles;
             self.fault_latched[i] |= s.faulted[i];
             s.faulted[i] = self.fault_latched[i];
             trips |= s.stale[i] || s.faulted[i];

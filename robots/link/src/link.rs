@@ -63,6 +63,9 @@ pub trait RobotLink: std::fmt::Debug {
     fn bus_stats(&self) -> &[BusStats] {
         &[]
     }
+    /// Cycles in a row a joint may stay silent before its bus damps itself (default
+    /// [`crate::STALE_CYCLES`]; at least 1).
+    fn set_stale_cycles(&mut self, _cycles: u32) {}
     /// Asks every bus to record each of its cycles for telemetry, keeping up to `capacity` per
     /// bus until [`Self::drain_cycles`] takes them (before the devices are identified); false
     /// when this link has no bus cycles to record.
