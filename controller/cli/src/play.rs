@@ -49,8 +49,9 @@ pub struct PlayArgs {
     /// served on a busy machine.
     #[arg(long, default_value_t = 2, value_parser = crate::args::whole_within(1, 100))]
     stale_cycles: u64,
-    /// Real-time set-up of the loop thread: SCHED_FIFO, mlockall, pinned to the last CPU. Steps
-    /// the system refuses are reported and skipped.
+    /// Real-time set-up: the loop thread under SCHED_FIFO, memory locked, pinned to the last CPU;
+    /// each bus thread under SCHED_FIFO above the loop. Steps the system refuses are reported and
+    /// skipped.
     #[arg(long)]
     realtime: bool,
     /// Listen for an e-stop on this UDP address (a datagram `ESTOP` damps the robot at once).
@@ -264,6 +265,15 @@ fn with_recorder<L: RobotLink>(
     Ok(player.with_telemetry(sink))
 }
 
+/// What runs first on each bus thread: real-time set-up with `--realtime`.
+fn bus_threads(realtime: bool) -> fn() {
+    if realtime {
+        controller::realtime::bus_thread
+    } else {
+        || {}
+    }
+}
+
 /// Runs `play`.
 pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
     let mut l = load(&args.files)?;
@@ -313,7 +323,7 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
             l.clip.path.display(),
             l.reference.len()
         );
-        let io = robot_link::hardware::open(&l.robot)?;
+        let io = robot_link::hardware::open_with(&l.robot, bus_threads(args.realtime))?;
         let mut clock = robot_link::WallClock::start();
         let mut player = with_estop(
             Player::new(l.robot, l.layout, l.reference, options, io, stop)?,
@@ -344,8 +354,15 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         }
     );
     let summary: PlaySummary = if args.wall {
-        let (player, mut clock, _served) =
-            wired_player(l.robot, l.layout, l.reference, options, config, stop, || {})?;
+        let (player, mut clock, _served) = wired_player(
+            l.robot,
+            l.layout,
+            l.reference,
+            options,
+            config,
+            stop,
+            bus_threads(args.realtime),
+        )?;
         let mut player = with_estop(player, args, &options)?;
         player.run(&mut clock)?
     } else {

@@ -18,8 +18,13 @@ pub type HardwareRobot = BusRobot<DeviceStream>;
 /// Opens every bus of `robot` (nothing is sent yet), its buses on their own threads. Errors name
 /// the bus and device.
 pub fn open(robot: &Robot) -> Result<HardwareRobot, IoError> {
-    // Buses on their own threads: the tick's I/O costs the slowest bus, not the sum.
-    open_sequential(robot)?.parallel()
+    open_with(robot, || {})
+}
+
+/// [`open`], running `on_start` first on each bus thread (real-time set-up of the thread).
+pub fn open_with(robot: &Robot, on_start: fn()) -> Result<HardwareRobot, IoError> {
+    // Each bus cycles on its own thread, at its own rate.
+    open_sequential(robot)?.parallel_with(on_start)
 }
 
 /// Opens every bus of `robot`, serviced one after another (tools that need the drivers themselves,
