@@ -16,12 +16,22 @@ struct Host {
 }
 
 fn host(config: MirrorConfig) -> Host {
-    let robot = Robot::load(&reference_robot_path()).unwrap();
+    host_of(Robot::load(&reference_robot_path()).unwrap(), config)
+}
+
+fn host_of(robot: Robot, config: MirrorConfig) -> Host {
     let default_pose = robot.config.joints.iter().map(|j| j.default_position).collect();
     Host {
         inner: MirrorHost::start(robot.clone(), config).unwrap(),
         robot,
         default_pose,
+    }
+}
+
+fn on_gantry() -> MirrorConfig {
+    MirrorConfig {
+        gantry: true,
+        ..MirrorConfig::default()
     }
 }
 
@@ -219,18 +229,7 @@ fn models_with_their_own_position_actuators_track_the_firmware_goals() {
     std::fs::write(dir.join("biped.xml"), xml).unwrap();
     let text = std::fs::read_to_string(reference_robot_path()).unwrap();
     let robot = Robot::from_str(&dir.join("robot.toml"), &text).unwrap();
-    let mut h = Host {
-        inner: MirrorHost::start(
-            robot.clone(),
-            MirrorConfig {
-                gantry: true,
-                ..MirrorConfig::default()
-            },
-        )
-        .unwrap(),
-        default_pose: robot.config.joints.iter().map(|j| j.default_position).collect(),
-        robot,
-    };
+    let mut h = host_of(robot, on_gantry());
     assert_eq!(h.inner.world.lock().unwrap().position_actuated_joints(), 20);
     h.run(2.0);
     let w = h.inner.world.lock().unwrap();
@@ -385,18 +384,7 @@ fn motors_drop_torque_after_the_command_timeout_robot_toml_gives_their_bus() {
         1,
     );
     let robot = Robot::from_str(&reference_robot_path(), &text).unwrap();
-    let mut h = Host {
-        inner: MirrorHost::start(
-            robot.clone(),
-            MirrorConfig {
-                gantry: true,
-                ..MirrorConfig::default()
-            },
-        )
-        .unwrap(),
-        default_pose: robot.config.joints.iter().map(|j| j.default_position).collect(),
-        robot,
-    };
+    let mut h = host_of(robot, on_gantry());
     h.run(0.2);
     let index = |name: &str| h.robot.config.joints.iter().position(|j| j.name == name).unwrap();
     let (left, right) = (index("left_knee"), index("right_knee"));

@@ -14,27 +14,16 @@ use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
-use controller::clip::{Clip, Reference};
 use controller::player::{EndMode, PlayOptions};
-use controller::policy::PolicyLayout;
 use controller::safety::Mode;
 use controller::sim::{lockstep_player, wired_player};
 use robot_link::TickClock;
-use robots::{Robot, reference_robot_path};
 use sim2real::config::MirrorConfig;
 use test_support::stats::Summary;
 
-fn files() -> (Robot, PolicyLayout, Reference) {
-    let robot = Robot::load(&reference_robot_path()).unwrap();
-    let layout = PolicyLayout::load(
-        &reference_robot_path().with_file_name("policies/reference_follower.toml"),
-        &robot,
-    )
-    .unwrap();
-    let clip = Clip::load(&reference_robot_path().with_file_name("clips/squat.csv")).unwrap();
-    let reference = Reference::from_clip(&clip, &robot, layout.manifest.rate_hz).unwrap();
-    (robot, layout, reference)
-}
+#[path = "common/mod.rs"]
+mod common;
+use common::files;
 
 fn lockstep_compute() -> Summary {
     let (robot, layout, reference) = files();

@@ -442,6 +442,16 @@ impl<S: ByteStream> BusRobot<S> {
         };
         let mut cyclers = Vec::new();
         let mut names = Vec::new();
+        let mut add = |bus: Box<dyn JointBus>, joints: Vec<usize>, timing, name| {
+            cyclers.push(Cycler::new(
+                bus,
+                joints,
+                timing,
+                policy_period,
+                damping_kd.clone(),
+            ));
+            names.push(name);
+        };
         for (name, port) in ports.can {
             check_kind(robot, &name, BusKind::MitCan)?;
             let timing = timing(&name)?;
@@ -457,14 +467,7 @@ impl<S: ByteStream> BusRobot<S> {
                 enabled: false,
                 pending: false,
             };
-            cyclers.push(Cycler::new(
-                Box::new(bus),
-                idx,
-                timing,
-                policy_period,
-                damping_kd.clone(),
-            ));
-            names.push(name);
+            add(Box::new(bus), idx, timing, name);
         }
         for (name, port) in ports.dxl {
             check_kind(robot, &name, BusKind::Dynamixel)?;
@@ -479,14 +482,7 @@ impl<S: ByteStream> BusRobot<S> {
                 ..dxl
             };
             let bus = DxlBus::new(DxlBusDriver::new(port, cfg, options)?, idx.clone(), robot)?;
-            cyclers.push(Cycler::new(
-                Box::new(bus),
-                idx,
-                timing,
-                policy_period,
-                damping_kd.clone(),
-            ));
-            names.push(name);
+            add(Box::new(bus), idx, timing, name);
         }
         if cyclers.len() > MAX_BUSES {
             return Err(IoError::Setup(format!(

@@ -403,3 +403,23 @@ pub(crate) fn copy_joints(
         to.age[i] = now.saturating_sub(sampled_at[i]);
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cycle_time_quantiles_come_from_their_20_us_buckets() {
+        let mut t = CycleTimes::default();
+        assert_eq!(t.quantile(0.5), None);
+        for us in 1..=100u64 {
+            t.record(Duration::from_micros(us * 10));
+        }
+        // 10 µs … 1000 µs: the median 500 µs falls in the bucket ending at 520 µs, p99 990 µs at 1000.
+        assert_eq!(t.quantile(0.5), Some(Duration::from_micros(520)));
+        assert_eq!(t.quantile(0.99), Some(Duration::from_micros(1000)));
+        t.record(Duration::from_secs(1));
+        assert_eq!(t.count(), 101);
+        assert_eq!(t.quantile(1.0), None, "beyond the last bucket");
+    }
+}
