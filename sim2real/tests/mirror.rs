@@ -467,6 +467,27 @@ fn a_linear_bus_ramps_its_targets_over_the_policy_period_and_a_hold_bus_jumps() 
 }
 
 #[test]
+fn the_imu_line_is_polled_at_its_own_rate_between_ticks() {
+    let mut h = host(MirrorConfig::default());
+    let robot = h.robot.clone();
+    let poll = robot.bus_timing(&robot.config.imu.bus).unwrap().period;
+    assert_eq!(poll, Duration::from_millis(1));
+    let output = Duration::from_secs_f64(1.0 / robot.config.imu.rate_hz);
+    let mut ages = std::collections::BTreeSet::new();
+    for _ in 0..50 {
+        h.run(0.02);
+        let age = h.inner.state().imu_age;
+        // The newest 200 Hz sample, seen by the 1 kHz poll after it arrived: younger than one
+        // output period, stamped on the poll's grid.
+        assert!(age < output, "{age:?}");
+        assert_eq!(age.as_nanos() % poll.as_nanos(), 0, "{age:?}");
+        ages.insert(age);
+    }
+    // Polled only at the ticks, every sample would be 0 ms old when read.
+    assert!(ages.len() > 1, "{ages:?}");
+}
+
+#[test]
 fn feedback_is_exactly_one_bus_period_old_at_each_tick_in_lockstep() {
     let mut h = host(MirrorConfig::default());
     h.run(0.5);

@@ -57,6 +57,8 @@ pub struct TickRecord {
     pub imu: [f64; 10],
     /// Consecutive reads without an IMU sample.
     pub imu_missed: u32,
+    /// Age of the IMU sample when the tick read it, ms.
+    pub imu_age_ms: f32,
     /// Ground-truth base pose `[x, y, z, w, qx, qy, qz]` (simulation), NaN when unknown.
     pub base_pose: [f64; 7],
     /// Ground-truth base linear velocity in the base frame.
@@ -115,6 +117,7 @@ impl Default for TickRecord {
             faulted: [false; MAX_JOINTS],
             imu: [0.0; 10],
             imu_missed: 0,
+            imu_age_ms: 0.0,
             base_pose: [f64::NAN; 7],
             base_lin_vel: [0.0; 3],
             foot_contacts: [false; MAX_FEET],
@@ -213,6 +216,7 @@ impl TickRecord {
         r.imu[3..6].copy_from_slice(&state.accel);
         r.imu[6..].copy_from_slice(&state.quat);
         r.imu_missed = state.imu_missed;
+        r.imu_age_ms = (state.imu_age.as_secs_f64() * 1e3) as f32;
         let t = v.truth;
         r.base_pose = if v.has_truth { t.root_pose } else { [f64::NAN; 7] };
         r.base_lin_vel = t.base_lin_vel;
@@ -401,7 +405,7 @@ const TOPICS: [(&str, &str); 8] = [
     ),
     (
         "/imu",
-        r#"{"type":"object","properties":{"gyro":{"type":"array","items":{"type":"number"}},"accel":{"type":"array","items":{"type":"number"}},"quat":{"type":"array","items":{"type":"number"}}}}"#,
+        r#"{"type":"object","properties":{"gyro":{"type":"array","items":{"type":"number"}},"accel":{"type":"array","items":{"type":"number"}},"quat":{"type":"array","items":{"type":"number"}},"age_ms":{"type":"number","description":"age of the sample when the tick read it, ms"}}}"#,
     ),
     (
         "/timing",
@@ -739,6 +743,7 @@ fn encode(out: &mut String, k: usize, r: &TickRecord, root: &str, last_mode: &mu
             array64(out, "accel", r.imu[3..6].iter().copied());
             out.push(',');
             array64(out, "quat", r.imu[6..10].iter().copied());
+            let _ = write!(out, ",\"age_ms\":{}", r.imu_age_ms);
         }
         5 => {
             let _ = write!(out, "\"io_us\":{},\"compute_us\":{},", r.io_us, r.compute_us);

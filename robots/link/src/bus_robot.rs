@@ -16,14 +16,14 @@ use firmware_bridge::dxl::driver::{DxlBusDriver, DxlCommand, DxlDriverOptions};
 use firmware_bridge::dxl::models as dxl_models;
 use firmware_bridge::dxl::table::addr;
 use firmware_bridge::dxl::transport::DxlTransport;
-use firmware_bridge::imu::reader::ImuReader;
 use firmware_bridge::mit::codec::MotorFault;
 use firmware_bridge::mit::driver::{JointCommand, MitBusDriver};
 use firmware_bridge::serial::ByteStream;
-use robots::{BusKind, Robot, drivers, spatial};
+use robots::{BusKind, Robot, drivers};
 
 use crate::clock::TickClock;
 use crate::cycle::{BusStats, CycleLog, CycleRecord, Cycler, copy_joints};
+use crate::imu_cycle::{ImuCycle, ImuWorker};
 use crate::link::{IoError, RobotLink};
 use crate::state::{DeviceIdentity, JointTarget, RobotState};
 use crate::workers::Worker;
@@ -397,12 +397,12 @@ pub struct BusRobot<S: ByteStream> {
     off: Vec<JointTarget>,
     /// The first error a scheduled cycle met, for the next read.
     error: Option<IoError>,
-    imu: ImuReader<S>,
-    last_imu: Option<S::Instant>,
-    /// IMU mounting (IMU axes to base axes) and gyro bias, from the robot's calibration.
-    imu_mount: [f64; 4],
-    gyro_bias: [f64; 3],
-    accel_bias: [f64; 3],
+    /// The IMU polled in this thread (lockstep), or on a thread of its own.
+    imu: Option<ImuCycle<S>>,
+    imu_worker: Option<ImuWorker>,
+    imu_next: Duration,
+    /// Samples the loop has seen.
+    imu_seen: u64,
     names: Vec<String>,
     times: Vec<Duration>,
     stats: Vec<BusStats>,
@@ -510,14 +510,16 @@ impl<S: ByteStream> BusRobot<S> {
             seq: 0,
             off: vec![JointTarget::default(); n],
             error: None,
-            imu: ImuReader::new(ports.imu),
-            last_imu: None,
-            imu_mount: {
-                let [r, p, y] = robot.config.imu.mounting_rpy_deg.map(f64::to_radians);
-                spatial::quat_of_rpy(r, p, y)
-            },
-            gyro_bias: robot.config.imu.gyro_bias,
-            accel_bias: robot.config.imu.accel_bias,
+            imu: Some(ImuCycle::new(
+                ports.imu,
+                robot.config.imu.mounting_rpy_deg,
+                robot.config.imu.gyro_bias,
+                robot.config.imu.accel_bias,
+                timing(&robot.config.imu.bus)?.period,
+            )),
+            imu_worker: None,
+            imu_next: Duration::ZERO,
+            imu_seen: 0,
             times: vec![Duration::ZERO; k],
             stats: vec![BusStats::default(); k],
             logs: Vec::new(),
@@ -561,28 +563,10 @@ impl<S: ByteStream> BusRobot<S> {
         lost
     }
 
-    /// Moves each bus onto its own thread, cycling at its rate on the wall clock, once the
-    /// devices are identified (at once, if they are).
-    pub fn parallel(self) -> Result<Self, IoError> {
-        self.parallel_with(|| {})
-    }
-
-    /// [`Self::parallel`], running `on_start` first on each bus thread (real-time set-up of the
-    /// thread, or instrumentation in tests).
-    pub fn parallel_with(mut self, on_start: fn()) -> Result<Self, IoError> {
-        self.threads = Some(on_start);
-        if self.identified {
-            self.start_threads()?;
-        }
-        Ok(self)
-    }
-
     fn start_threads(&mut self) -> Result<(), IoError> {
         let Some(on_start) = self.threads.take() else {
             return Ok(());
         };
-        self.epoch = Instant::now();
-        self.now = Duration::ZERO;
         for (i, c) in std::mem::take(&mut self.cyclers).into_iter().enumerate() {
             let w = Worker::spawn(c, self.epoch, i, on_start)
                 .map_err(|e| IoError::Setup(format!("cannot start a bus thread: {e}")))?;
@@ -603,6 +587,9 @@ impl<S: ByteStream> BusRobot<S> {
         for c in &mut self.cyclers {
             c.bus.identify()?;
             c.sample(self.now)?;
+        }
+        if let Some(imu) = &mut self.imu {
+            imu.poll(self.now)?;
         }
         self.identified = true;
         self.start_threads()
@@ -648,18 +635,26 @@ impl<S: ByteStream> BusRobot<S> {
                 w.joints = joints;
             }
         }
-        match self.imu.poll()? {
-            Some(r) if Some(r.received_at) != self.last_imu => {
-                self.last_imu = Some(r.received_at);
-                // Into the base's axes: bias off, then the mounting rotation.
-                let m = self.imu_mount;
-                state.gyro = spatial::quat_rotate(m, spatial::sub(r.sample.gyro, self.gyro_bias));
-                state.accel = spatial::quat_rotate(m, spatial::sub(r.sample.accel, self.accel_bias));
-                state.quat = spatial::quat_mul(r.sample.quat, spatial::quat_conj(m));
-                state.imu_missed = 0;
+        let newest = match (&mut self.imu_worker, &self.imu) {
+            (Some(w), _) => {
+                if let Some(e) = w.error() {
+                    return Err(IoError::Imu(e));
+                }
+                w.newest()
             }
-            _ => state.imu_missed = state.imu_missed.saturating_add(1),
+            (None, Some(c)) => c.newest,
+            (None, None) => return Err(IoError::Setup("the IMU has no reader".into())),
+        };
+        if newest.count != self.imu_seen {
+            self.imu_seen = newest.count;
+            state.gyro = newest.gyro;
+            state.accel = newest.accel;
+            state.quat = newest.quat;
+            state.imu_missed = 0;
+        } else {
+            state.imu_missed = state.imu_missed.saturating_add(1);
         }
+        state.imu_age = self.now.saturating_sub(newest.arrived_at);
         Ok(())
     }
 
@@ -692,6 +687,7 @@ impl<S: ByteStream> BusRobot<S> {
             // The schedule starts with the first wait: cycles fall on the policy's ticks.
             let now = clock.elapsed();
             self.next_start.fill(now);
+            self.imu_next = now;
             self.scheduled = true;
         }
         loop {
@@ -703,6 +699,20 @@ impl<S: ByteStream> BusRobot<S> {
                 }
             }
             let Some((t, k, finish)) = next else { break };
+            // The IMU's poll, when it comes first (after finishes at the same instant).
+            if let Some(imu) = &mut self.imu
+                && self.imu_next < deadline
+                && (self.imu_next < t || (self.imu_next == t && !finish))
+            {
+                let at = self.imu_next;
+                clock.wait_until(at);
+                self.now = at;
+                self.imu_next = at + imu.period;
+                if let Err(e) = imu.poll(at) {
+                    self.error.get_or_insert(IoError::Imu(e));
+                }
+                continue;
+            }
             if t >= deadline {
                 break;
             }
@@ -770,6 +780,34 @@ impl<S: ByteStream> BusRobot<S> {
             }
         }
         first.map_or(Ok(()), Err)
+    }
+}
+
+impl<S: ByteStream + Send + 'static> BusRobot<S>
+where
+    S::Instant: Send,
+{
+    /// Moves each bus onto its own thread, cycling at its rate on the wall clock, once the
+    /// devices are identified (at once, if they are); the IMU gets its thread now.
+    pub fn parallel(self) -> Result<Self, IoError> {
+        self.parallel_with(|| {})
+    }
+
+    /// [`Self::parallel`], running `on_start` first on each bus thread (real-time set-up of the
+    /// thread, or instrumentation in tests).
+    pub fn parallel_with(mut self, on_start: fn()) -> Result<Self, IoError> {
+        self.epoch = Instant::now();
+        self.now = Duration::ZERO;
+        if let Some(imu) = self.imu.take() {
+            let w = ImuWorker::spawn(imu, self.epoch, on_start)
+                .map_err(|e| IoError::Setup(format!("cannot start the IMU thread: {e}")))?;
+            self.imu_worker = Some(w);
+        }
+        self.threads = Some(on_start);
+        if self.identified {
+            self.start_threads()?;
+        }
+        Ok(self)
     }
 }
 

@@ -6,7 +6,8 @@
 //!   cycling at its own rate under the policy: on a schedule in one thread (lockstep,
 //!   deterministic) or on [`workers`] (one thread per bus, wall clock);
 //! - [`cycle`]: one bus cycle (hold or ramp between policy ticks, the bus damping itself after a
-//!   fault, staleness judged per cycle) and its statistics;
+//!   fault, staleness judged per cycle) and its statistics; the IMU line polled at its own rate
+//!   (`imu_cycle`);
 //! - [`hardware`]: opening the buses robot.toml names;
 //! - [`clock`]: the [`TickClock`] a loop waits on.
 
@@ -14,6 +15,7 @@ pub mod bus_robot;
 pub mod clock;
 pub mod cycle;
 pub mod hardware;
+mod imu_cycle;
 pub mod link;
 pub mod state;
 mod workers;

@@ -46,6 +46,8 @@ pub struct RobotState {
     pub quat: [f64; 4],
     /// Consecutive reads without a new IMU sample.
     pub imu_missed: u32,
+    /// How old the IMU sample was when read: since it arrived.
+    pub imu_age: std::time::Duration,
 }
 
 impl RobotState {
@@ -63,6 +65,7 @@ impl RobotState {
             accel: [0.0; 3],
             quat: [1.0, 0.0, 0.0, 0.0],
             imu_missed: u32::MAX,
+            imu_age: std::time::Duration::ZERO,
         }
     }
 }
@@ -81,6 +84,7 @@ impl RobotState {
         self.accel = other.accel;
         self.quat = other.quat;
         self.imu_missed = other.imu_missed;
+        self.imu_age = other.imu_age;
     }
 }
 
