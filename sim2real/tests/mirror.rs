@@ -472,7 +472,7 @@ fn the_imu_line_is_polled_at_its_own_rate_between_ticks() {
     let robot = h.robot.clone();
     let poll = robot.bus_timing(&robot.config.imu.bus).unwrap().period;
     assert_eq!(poll, Duration::from_millis(1));
-    let output = Duration::from_secs_f64(1.0 / robot.config.imu.rate_hz);
+    let output = Duration::try_from_secs_f64(1.0 / robot.config.imu.rate_hz).unwrap();
     let mut ages = std::collections::BTreeSet::new();
     for _ in 0..50 {
         h.run(0.02);
