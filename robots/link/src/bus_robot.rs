@@ -627,12 +627,10 @@ impl<S: ByteStream> BusRobot<S> {
                 if let Some(e) = w.error() {
                     return Err(e);
                 }
-                let joints = std::mem::take(&mut w.joints);
-                let p = w.newest();
-                copy_joints(&joints, &p.state, &p.sampled_at, state, now);
+                let (joints, p) = w.joints_and_newest();
+                copy_joints(joints, &p.state, &p.sampled_at, state, now);
                 *t = p.stats.last_cycle;
                 *s = p.stats;
-                w.joints = joints;
             }
         }
         let newest = match (&mut self.imu_worker, &self.imu) {

@@ -152,6 +152,11 @@ impl Worker {
         self.published.read()
     }
 
+    /// The worker's joints (robot indices) and its newest complete cycle.
+    pub(crate) fn joints_and_newest(&mut self) -> (&[usize], &Published) {
+        (&self.joints, self.published.read())
+    }
+
     /// A bus error the worker met since the last call, or that its thread ended.
     pub(crate) fn error(&self) -> Option<IoError> {
         if let Some(e) = self.errors.pop() {
