@@ -113,11 +113,16 @@ fn wall(seconds: f64) -> String {
         ..MirrorConfig::default()
     };
     let stop = Arc::new(AtomicBool::new(false));
+    // The served mirror shares two cores with the loop and a dozen threads: a pseudo-terminal or
+    // socket now and then answers 10–20 ms late. The run goes on through that (8 silent cycles
+    // stop it, not 2) so the whole run is measured; the lateness shows in the p99s.
+    let mut opts = options(u64::from(ticks) + 10);
+    opts.limits.stale_cycles = 8;
     let (mut p, mut clock, _served) = wired_player(
         robot,
         layout,
         reference,
-        options(u64::from(ticks) + 10),
+        opts,
         mirror,
         stop,
         || {},
@@ -184,7 +189,7 @@ fn main() {
     );
     let seconds = if quick { 3.0 } else { 20.0 };
     println!(
-        "wall clock, {seconds:.0} s over socketcand + pseudo-terminals (the mirror served in real time):\n{}",
+        "wall clock, {seconds:.0} s over socketcand + pseudo-terminals (the mirror served in real time, stale after 8 cycles):\n{}",
         wall(seconds)
     );
     println!("stale detection (lockstep):");
