@@ -45,10 +45,10 @@ pub struct PlayArgs {
     #[arg(long, value_parser = crate::args::within(0.02, 86_400.0))]
     max_seconds: Option<f64>,
     /// Bus cycles in a row a joint may stay silent before its bus damps itself and the robot
-    /// stops (1–100). Raise it only for links that are late but not lost, such as a mirror
-    /// served on a busy machine.
-    #[arg(long, default_value_t = 2, value_parser = crate::args::whole_within(1, 100))]
-    stale_cycles: u64,
+    /// stops (1–100). Default: 2; 8 with --wall, whose mirror is served on this machine and
+    /// competes with the loop for its cores (late, not lost).
+    #[arg(long, value_parser = crate::args::whole_within(1, 100))]
+    stale_cycles: Option<u64>,
     /// Real-time set-up: the loop thread under SCHED_FIFO, memory locked, pinned to the last CPU;
     /// each bus thread under SCHED_FIFO above the loop. Steps the system refuses are reported and
     /// skipped.
@@ -265,6 +265,10 @@ fn with_recorder<L: RobotLink>(
     Ok(player.with_telemetry(sink))
 }
 
+/// Silent cycles tolerated by default over a mirror served on this machine: its socket and
+/// pseudo-terminal threads share the cores with the loop and answer 10–20 ms late now and then.
+const WALL_STALE_CYCLES: u32 = 8;
+
 /// What runs first on each bus thread: real-time set-up with `--realtime`.
 fn bus_threads(realtime: bool) -> fn() {
     if realtime {
@@ -294,7 +298,14 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         end: args.end.into(),
         max_ticks,
         limits: controller::safety::SafetyLimits {
-            stale_cycles: args.stale_cycles as u32,
+            stale_cycles: args.stale_cycles.map_or(
+                if args.wall {
+                    WALL_STALE_CYCLES
+                } else {
+                    robot_link::STALE_CYCLES
+                },
+                |c| c as u32,
+            ),
             ..Default::default()
         },
         ..PlayOptions::default()

@@ -118,16 +118,8 @@ fn wall(seconds: f64) -> String {
     // stop it, not 2) so the whole run is measured; the lateness shows in the p99s.
     let mut opts = options(u64::from(ticks) + 10);
     opts.limits.stale_cycles = 8;
-    let (mut p, mut clock, _served) = wired_player(
-        robot,
-        layout,
-        reference,
-        opts,
-        mirror,
-        stop,
-        || {},
-    )
-    .unwrap();
+    let (mut p, mut clock, _served) =
+        wired_player(robot, layout, reference, opts, mirror, stop, || {}).unwrap();
     let (mut ages, elapsed) = run_collecting_ages(&mut p, &mut clock, ticks);
     let mut out = table(&p, &mut ages, elapsed);
     if let Some(t) = p.transitions().iter().find(|t| t.cause.is_fault()) {
