@@ -76,3 +76,133 @@ fn broken_csv_clips_name_the_line() {
     );
     std::fs::remove_file(&path).unwrap();
 }
+
+fn motion_fixture(name: &str) -> std::path::PathBuf {
+    test_support::fixtures::workspace_root()
+        .join("tests/fixtures/motion")
+        .join(name)
+}
+
+/// The squat's reference from `path`, against the shipped CSV's: joints and root within `tol`.
+fn same_reference_as_the_squat(path: &std::path::Path, tol: f64) {
+    let robot = Robot::load(&reference_robot_path()).unwrap();
+    let clip = Clip::load(path).unwrap();
+    let from_file = Reference::from_clip(&clip, &robot, 50.0).unwrap();
+    let from_csv = Reference::from_clip(&Clip::load(&csv()).unwrap(), &robot, 50.0).unwrap();
+    assert_eq!(from_file.len(), from_csv.len(), "{}", path.display());
+    for (a, b) in from_file.q.iter().zip(&from_csv.q) {
+        assert!((a - b).abs() < tol, "{}: {a} vs {b}", path.display());
+    }
+    for (a, b) in from_file.root.iter().zip(&from_csv.root) {
+        for (x, y) in a.iter().zip(b) {
+            assert!((x - y).abs() < tol, "{}: root {a:?} vs {b:?}", path.display());
+        }
+    }
+    assert_eq!(from_file.held_joints, from_csv.held_joints);
+}
+
+#[test]
+fn motion_files_of_beyondmimic_and_the_lafan1_retargets_load_like_the_clip_they_came_from() {
+    // Fixtures written by scripts/gen_motion_fixtures.py from the squat (float32 NPZ, 6-decimal
+    // CSV, frame times k/30 s instead of the CSV's 4-decimal times).
+    same_reference_as_the_squat(&motion_fixture("squat_beyondmimic.npz"), 3e-4);
+    same_reference_as_the_squat(&motion_fixture("squat_lafan1.csv"), 3e-4);
+    // Without its sidecar, a motion NPZ holds the robot's joints in its order: the squat's 18
+    // columns (no head) cannot be rd-biped's 20, and that is said.
+    let dir = std::env::temp_dir().join(format!("motion-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let bare = dir.join("bare.npz");
+    std::fs::copy(motion_fixture("squat_beyondmimic.npz"), &bare).unwrap();
+    let clip = Clip::load(&bare).unwrap();
+    assert!(clip.robot_order);
+    let robot = Robot::load(&reference_robot_path()).unwrap();
+    let e = Reference::from_clip(&clip, &robot, 50.0).unwrap_err().to_string();
+    assert!(
+        e.contains("bare.npz: joints: 18 joint columns and no names") && e.contains("rd-biped has 20 joints"),
+        "{e}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn motion_files_with_a_wrong_or_missing_description_are_named() {
+    let dir = std::env::temp_dir().join(format!("motion-bad-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let csv_text = std::fs::read_to_string(motion_fixture("squat_lafan1.csv")).unwrap();
+    let sidecar = std::fs::read_to_string(motion_fixture("squat_lafan1.motion.toml")).unwrap();
+    let case = |name: &str, rows: &str, side: &str| -> String {
+        let path = dir.join(format!("{name}.csv"));
+        std::fs::write(&path, rows).unwrap();
+        std::fs::write(dir.join(format!("{name}.motion.toml")), side).unwrap();
+        match Clip::load(&path) {
+            Ok(_) => panic!("{name}: loaded"),
+            Err(e) => e.to_string(),
+        }
+    };
+    let e = case("nofps", &csv_text, &sidecar.replace("fps = 30.0\n", ""));
+    assert!(
+        e.contains("nofps.motion.toml: fps: a headerless CSV needs its frame rate"),
+        "{e}"
+    );
+    let e = case(
+        "noorder",
+        &csv_text,
+        &sidecar.replace("quaternion = \"xyzw\"\n", ""),
+    );
+    assert!(e.contains("noorder.motion.toml: quaternion"), "{e}");
+    let e = case("fps", &csv_text, &sidecar.replace("fps = 30.0", "fps = 0.0"));
+    assert!(e.contains("fps.motion.toml: fps: 0 is outside [1, 1000]"), "{e}");
+    let e = case("unknown", &csv_text, &format!("{sidecar}speed = 2\n"));
+    assert!(
+        e.contains("unknown.motion.toml: toml: unknown field `speed`"),
+        "{e}"
+    );
+    let e = case("fewer", &csv_text, &sidecar.replace(", \"right_elbow\"", ""));
+    assert!(
+        e.contains("fewer.motion.toml: joints: names 17 joints; the motion file has 18 joint columns"),
+        "{e}"
+    );
+    let e = case(
+        "twice",
+        &csv_text,
+        &sidecar.replace("\"right_knee\"", "\"left_knee\""),
+    );
+    assert!(e.contains("is named twice"), "{e}");
+    let e = case("ragged", &format!("{csv_text}1,2,3\n"), &sidecar);
+    assert!(e.contains("ragged.csv: line 212: 3 values"), "{e}");
+    // A root yawed 120°, x y z w; read as w x y z it turns upside down: named, at frame 0.
+    let (s, c) = (60f64.to_radians().sin(), 60f64.to_radians().cos());
+    let row = |t: usize| {
+        format!(
+            "0,0,{},0,0,{s},{c},{}\n",
+            0.45 + t as f64 * 1e-3,
+            vec!["0"; 18].join(",")
+        )
+    };
+    let rows: String = (0..3).map(row).collect();
+    let e = case("order", &rows, &sidecar.replace("\"xyzw\"", "\"wxyz\""));
+    assert!(
+        e.contains("order.csv: frame 0: the root starts upside down") && e.contains("quaternion order"),
+        "{e}"
+    );
+    let path = dir.join("right.csv");
+    std::fs::write(&path, &rows).unwrap();
+    std::fs::write(dir.join("right.motion.toml"), &sidecar).unwrap();
+    let clip = Clip::load(&path).unwrap();
+    assert!((clip.root[0][3] - c).abs() < 1e-12 && (clip.root[0][6] - s).abs() < 1e-12);
+    // A motion NPZ whose root body is not among its bodies.
+    let npz = dir.join("root.npz");
+    std::fs::copy(motion_fixture("squat_beyondmimic.npz"), &npz).unwrap();
+    let side = std::fs::read_to_string(motion_fixture("squat_beyondmimic.motion.toml")).unwrap();
+    std::fs::write(
+        dir.join("root.motion.toml"),
+        side.replace("root_body = 0", "root_body = 3"),
+    )
+    .unwrap();
+    let e = Clip::load(&npz).unwrap_err().to_string();
+    assert!(
+        e.contains("root.motion.toml: root_body: body 3 of 3 in body_pos_w"),
+        "{e}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}

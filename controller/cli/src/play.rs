@@ -91,7 +91,12 @@ struct Files {
     /// The policy manifest (TOML beside its ONNX file).
     #[arg(long, default_value_os_t = robots::reference_robot_path().with_file_name("policies/reference_follower.toml"))]
     policy: PathBuf,
-    /// The clip (CSV: time, root pose, joint columns named as in robot.toml).
+    /// The clip. CSV: `time,root_x,root_y,root_z,root_qw,root_qx,root_qy,root_qz,<joints…>` (joints
+    /// named as in robot.toml, quaternion w x y z). NPZ: `joint_names`, `joint_pos`, `root_pos`,
+    /// `root_quat` (w x y z), `fps` or `time`. Other tools' motion files with a `<name>.motion.toml`
+    /// beside them (fps, joints, quaternion order, root body): BeyondMimic/mjlab motion NPZ
+    /// (`fps`, `joint_pos`, `body_pos_w`, `body_quat_w` w x y z) and headerless CSV rows of root
+    /// x y z, quaternion, joints (the LAFAN1 retargets: `quaternion = "xyzw"`).
     #[arg(long, default_value_os_t = robots::reference_robot_path().with_file_name("clips/squat.csv"))]
     clip: PathBuf,
 }

@@ -9,6 +9,18 @@
 //! NPZ layout (named arrays, as retargeting tools in Python write them): `joint_names` (J strings),
 //! `joint_pos` (T × J), `root_pos` (T × 3), `root_quat` (T × 4, w x y z), and either `fps` (a scalar)
 //! or `time` (T).
+//!
+//! Motion files of other tools, described by a sidecar `<name>.motion.toml` beside them
+//! ([`MotionSidecar`]: frame rate, joint columns, quaternion order, root body):
+//! - BeyondMimic / mjlab motion NPZ: `fps`, `joint_pos` (T × J, no joint names: the sidecar's
+//!   `joints`, or the robot's order without one), `body_pos_w` (T × B × 3) and `body_quat_w`
+//!   (T × B × 4, w x y z), the root being body `root_body` (0); their velocity arrays are not read
+//!   (velocities come from the resampled positions).
+//! - Headerless CSV (the LAFAN1 humanoid retargets): per row root x y z, the root quaternion in the
+//!   sidecar's `quaternion` order (`"xyzw"` there), then the joints; `fps` and `joints` from the
+//!   sidecar.
+//!
+//! A root that starts upside down is refused: the usual sign of a quaternion read in the wrong order.
 
 use std::path::{Path, PathBuf};
 
@@ -27,6 +39,41 @@ pub struct Clip {
     pub root: Vec<[f64; 7]>,
     /// Joint angles per frame, `joints.len()` per row.
     pub q: Vec<f64>,
+    /// The columns are the robot's joints in its order (a motion file that names none).
+    pub robot_order: bool,
+}
+
+/// One frame of a motion file: time (s), root position, root quaternion `[w, x, y, z]`, joints.
+type Frame<'a> = (f64, [f64; 3], [f64; 4], &'a [f64]);
+
+/// What a `<name>.motion.toml` says about the motion file beside it.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MotionSidecar {
+    /// Frames per second (headerless CSV: required; 1–1000).
+    pub fps: Option<f64>,
+    /// Joint names of the joint columns, in order (robot.toml names); none: the robot's order.
+    pub joints: Option<Vec<String>>,
+    /// Order of the root quaternion in the file (headerless CSV: required).
+    pub quaternion: Option<QuaternionOrder>,
+    /// Index of the root body in a motion NPZ's body arrays.
+    #[serde(default)]
+    pub root_body: usize,
+}
+
+/// Order of a quaternion's components in a file.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum QuaternionOrder {
+    /// Scalar first (MuJoCo, Isaac Lab, this project).
+    Wxyz,
+    /// Scalar last (SciPy, Unity, the LAFAN1 retargets).
+    Xyzw,
+}
+
+/// The sidecar of motion file `path`: `<stem>.motion.toml` beside it.
+pub fn sidecar_path(path: &Path) -> PathBuf {
+    path.with_extension("motion.toml")
 }
 
 /// A clip that cannot be used: the file, where, what.
@@ -48,15 +95,170 @@ const ROOT_COLUMNS: [&str; 8] = [
 impl Clip {
     /// Reads a clip: `.npz` by its named arrays, anything else as CSV.
     pub fn load(path: &Path) -> Result<Self, ClipError> {
+        let sidecar = Self::read_sidecar(path)?;
         if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("npz")) {
-            Self::load_npz(path)
+            Self::load_npz_with(path, sidecar)
+        } else if let Some(sidecar) = sidecar {
+            Self::load_headerless_csv(path, &sidecar)
         } else {
             Self::load_csv(path)
         }
     }
 
-    /// Reads an NPZ clip.
+    /// The sidecar beside `path`, if there is one, checked.
+    fn read_sidecar(path: &Path) -> Result<Option<MotionSidecar>, ClipError> {
+        let side = sidecar_path(path);
+        if !side.exists() {
+            return Ok(None);
+        }
+        let err = |place: &str, message: String| ClipError {
+            file: side.clone(),
+            place: place.to_owned(),
+            message,
+        };
+        let text = robots::read_text(&side).map_err(|m| err("file", m))?;
+        let s: MotionSidecar = toml::from_str(&text).map_err(|e| err("toml", e.message().to_owned()))?;
+        if let Some(fps) = s.fps
+            && !(fps.is_finite() && (1.0..=1000.0).contains(&fps))
+        {
+            return Err(err("fps", format!("{} is outside [1, 1000]", robots::num(fps))));
+        }
+        if let Some(joints) = &s.joints {
+            if joints.is_empty() {
+                return Err(err("joints", "names no joint".into()));
+            }
+            if let Some((k, name)) = joints.iter().enumerate().find(|(k, n)| joints[..*k].contains(n)) {
+                return Err(err(&format!("joints[{k}]"), format!("{name:?} is named twice")));
+            }
+        }
+        Ok(Some(s))
+    }
+
+    /// Joint names for `count` columns: the sidecar's, or placeholders for the robot's order.
+    fn column_names(
+        path: &Path,
+        sidecar: Option<&MotionSidecar>,
+        count: usize,
+    ) -> Result<(Vec<String>, bool), ClipError> {
+        match sidecar.and_then(|s| s.joints.clone()) {
+            Some(names) if names.len() == count => Ok((names, false)),
+            Some(names) => Err(ClipError {
+                file: sidecar_path(path),
+                place: "joints".into(),
+                message: format!(
+                    "names {} joints; the motion file has {count} joint columns",
+                    names.len()
+                ),
+            }),
+            None => Ok(((0..count).map(|k| format!("joint {k}")).collect(), true)),
+        }
+    }
+
+    /// A headerless CSV described by its sidecar.
+    fn load_headerless_csv(path: &Path, sidecar: &MotionSidecar) -> Result<Self, ClipError> {
+        let side_err = |place: &str, message: &str| ClipError {
+            file: sidecar_path(path),
+            place: place.to_owned(),
+            message: message.to_owned(),
+        };
+        let fps = sidecar
+            .fps
+            .ok_or_else(|| side_err("fps", "a headerless CSV needs its frame rate"))?;
+        let order = sidecar.quaternion.ok_or_else(|| {
+            side_err(
+                "quaternion",
+                "a headerless CSV needs its quaternion order (\"xyzw\" or \"wxyz\")",
+            )
+        })?;
+        let text = robots::read_text(path).map_err(|message| ClipError {
+            file: path.to_path_buf(),
+            place: "file".into(),
+            message,
+        })?;
+        let mut rows = Vec::new();
+        let mut width = None;
+        for (n, line) in text
+            .lines()
+            .enumerate()
+            .filter(|(_, l)| !l.trim().is_empty() && !l.starts_with('#'))
+        {
+            let row: Result<Vec<f64>, _> = line.split(',').map(|c| c.trim().parse::<f64>()).collect();
+            let row = row.map_err(|e| ClipError {
+                file: path.to_path_buf(),
+                place: format!("line {}", n + 1),
+                message: format!("{e} (a headerless motion CSV holds numbers only)"),
+            })?;
+            if *width.get_or_insert(row.len()) != row.len() || row.len() <= 7 {
+                return Err(ClipError {
+                    file: path.to_path_buf(),
+                    place: format!("line {}", n + 1),
+                    message: format!(
+                        "{} values; rows hold root x y z, a quaternion, then the same joints",
+                        row.len()
+                    ),
+                });
+            }
+            rows.push(row);
+        }
+        let joints = width.unwrap_or(0).saturating_sub(7);
+        let (names, robot_order) = Self::column_names(path, Some(sidecar), joints)?;
+        let mut frames = Vec::with_capacity(rows.len());
+        for (k, r) in rows.iter().enumerate() {
+            let quat = match order {
+                QuaternionOrder::Wxyz => [r[3], r[4], r[5], r[6]],
+                QuaternionOrder::Xyzw => [r[6], r[3], r[4], r[5]],
+            };
+            frames.push((k as f64 / fps, [r[0], r[1], r[2]], quat, &r[7..]));
+        }
+        Self::from_frames(path, names, robot_order, &frames)
+    }
+
+    /// Builds a clip from `(time, root position, root quaternion w x y z, joints)` frames through
+    /// the CSV checks, refusing a root that starts upside down.
+    fn from_frames(
+        path: &Path,
+        joints: Vec<String>,
+        robot_order: bool,
+        frames: &[Frame<'_>],
+    ) -> Result<Self, ClipError> {
+        let mut text = String::new();
+        text.push_str("time,root_x,root_y,root_z,root_qw,root_qx,root_qy,root_qz,");
+        text.push_str(&joints.join(","));
+        text.push('\n');
+        for (t, pos, quat, q) in frames {
+            let row: Vec<String> = std::iter::once(*t)
+                .chain(pos.iter().copied())
+                .chain(quat.iter().copied())
+                .chain(q.iter().copied())
+                .map(|x| format!("{x:?}"))
+                .collect();
+            text.push_str(&row.join(","));
+            text.push('\n');
+        }
+        let mut clip = Self::parse_csv(path, &text)?;
+        clip.robot_order = robot_order;
+        let r = clip.root[0];
+        let up = robots::spatial::quat_rotate([r[3], r[4], r[5], r[6]], [0.0, 0.0, 1.0]);
+        if up[2] < 0.0 {
+            return Err(ClipError {
+                file: path.to_path_buf(),
+                place: "frame 0".into(),
+                message: format!(
+                    "the root starts upside down (its z axis points {:.2} down): is the quaternion order right? (read as w x y z: {:?})",
+                    -up[2],
+                    [r[3], r[4], r[5], r[6]]
+                ),
+            });
+        }
+        Ok(clip)
+    }
+
+    /// Reads an NPZ clip (with the sidecar beside it, if any).
     pub fn load_npz(path: &Path) -> Result<Self, ClipError> {
+        Self::load_npz_with(path, Self::read_sidecar(path)?)
+    }
+
+    fn load_npz_with(path: &Path, sidecar: Option<MotionSidecar>) -> Result<Self, ClipError> {
         use crate::npy::NpyArray;
         let err = |place: &str, message: String| ClipError {
             file: path.to_path_buf(),
@@ -85,6 +287,9 @@ impl Clip {
                 )),
             }
         };
+        if arrays.contains_key("body_pos_w") && !arrays.contains_key("root_pos") {
+            return Self::beyondmimic_npz(path, &arrays, sidecar.as_ref());
+        }
         let joints = match arrays.get("joint_names") {
             Some(NpyArray::Strings { data, .. }) => data.clone(),
             Some(_) => return Err(err("joint_names", "is not a string array".into())),
@@ -129,6 +334,65 @@ impl Clip {
             text.push('\n');
         }
         Self::parse_csv(path, &text)
+    }
+
+    /// A BeyondMimic / mjlab motion NPZ: joints from `joint_pos`, the root from body `root_body`.
+    fn beyondmimic_npz(
+        path: &Path,
+        arrays: &std::collections::BTreeMap<String, crate::npy::NpyArray>,
+        sidecar: Option<&MotionSidecar>,
+    ) -> Result<Self, ClipError> {
+        use crate::npy::NpyArray;
+        let err = |place: &str, message: String| ClipError {
+            file: path.to_path_buf(),
+            place: place.to_owned(),
+            message,
+        };
+        let numbers = |name: &str| match arrays.get(name) {
+            Some(NpyArray::Numbers { shape, data }) => Ok((shape.as_slice(), data.as_slice())),
+            Some(NpyArray::Strings { .. }) => Err(err(name, "holds strings, expected numbers".into())),
+            None => Err(err(
+                name,
+                "array missing (a motion NPZ has fps, joint_pos, body_pos_w, body_quat_w)".into(),
+            )),
+        };
+        let fps = match numbers("fps")? {
+            ([] | [1], [fps]) => *fps,
+            (s, _) => return Err(err("fps", format!("has shape {s:?}, expected one value"))),
+        };
+        if !(fps.is_finite() && (1.0..=1000.0).contains(&fps)) {
+            return Err(err("fps", format!("{} is outside [1, 1000]", robots::num(fps))));
+        }
+        let (t, j, q) = match numbers("joint_pos")? {
+            (&[t, j], q) if j > 0 => (t, j, q),
+            (s, _) => return Err(err("joint_pos", format!("has shape {s:?}, expected (T, J)"))),
+        };
+        let root = sidecar.map_or(0, |s| s.root_body);
+        let body = |name: &str, width: usize| match numbers(name)? {
+            (&[tt, b, w], data) if tt == t && w == width && root < b => Ok((b, data)),
+            (&[tt, b, w], _) if tt == t && w == width => Err(ClipError {
+                file: sidecar.map_or(path.to_path_buf(), |_| sidecar_path(path)),
+                place: "root_body".into(),
+                message: format!("body {root} of {b} in {name}"),
+            }),
+            (s, _) => Err(err(name, format!("has shape {s:?}, expected ({t}, B, {width})"))),
+        };
+        let (b, pos) = body("body_pos_w", 3)?;
+        let (_, quat) = body("body_quat_w", 4)?;
+        let (names, robot_order) = Self::column_names(path, sidecar, j)?;
+        let frames: Vec<_> = (0..t)
+            .map(|k| {
+                let p = (k * b + root) * 3;
+                let r = (k * b + root) * 4;
+                (
+                    k as f64 / fps,
+                    [pos[p], pos[p + 1], pos[p + 2]],
+                    [quat[r], quat[r + 1], quat[r + 2], quat[r + 3]],
+                    &q[k * j..(k + 1) * j],
+                )
+            })
+            .collect();
+        Self::from_frames(path, names, robot_order, &frames)
     }
 
     /// Reads a CSV clip.
@@ -188,6 +452,7 @@ impl Clip {
             times: Vec::new(),
             root: Vec::new(),
             q: Vec::new(),
+            robot_order: false,
         };
         for (i, line) in lines {
             let place = || format!("line {}", i + 1);
@@ -353,7 +618,26 @@ impl Reference {
         };
         let joints = &robot.config.joints;
         let n = joints.len();
-        for name in &clip.joints {
+        // A motion file that names no joints holds the robot's, in its order.
+        let robot_names: Vec<String>;
+        let names = if clip.robot_order {
+            if clip.joints.len() != n {
+                return Err(err(
+                    "joints".into(),
+                    format!(
+                        "{} joint columns and no names (no joints in {}): robot {} has {n} joints",
+                        clip.joints.len(),
+                        sidecar_path(&clip.path).display(),
+                        robot.config.name
+                    ),
+                ));
+            }
+            robot_names = joints.iter().map(|j| j.name.clone()).collect();
+            &robot_names
+        } else {
+            &clip.joints
+        };
+        for name in names {
             if !joints.iter().any(|j| &j.name == name) {
                 return Err(err(
                     "header".into(),
@@ -363,7 +647,7 @@ impl Reference {
         }
         let column: Vec<Option<usize>> = joints
             .iter()
-            .map(|j| clip.joints.iter().position(|c| c == &j.name))
+            .map(|j| names.iter().position(|c| c == &j.name))
             .collect();
         let held_joints = joints
             .iter()
