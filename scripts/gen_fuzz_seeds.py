@@ -8,6 +8,8 @@ mutates them into the ones it must refuse. None is third-party material:
                    controller poses, one bare message).
   bvh_text/        a two-joint BVH skeleton with three frames.
   clip_csv/        a three-frame clip in the project's CSV layout (time, root pose, one joint).
+  motion_csv/      a motion sidecar, a NUL byte, and the headerless CSV it describes (x y z w and
+                   w x y z quaternion orders, two joints).
   npy_array/       NumPy .npy arrays (format 1.0), float64 and float32, as np.save writes them.
   policy_toml/     the project's reference-follower manifest with its default pose, stiffness and
                    damping written out (so the target never needs the ONNX file's metadata).
@@ -82,6 +84,20 @@ time,root_x,root_y,root_z,root_qw,root_qx,root_qy,root_qz,left_knee
 0.0,0,0,0.45,1,0,0,0,0.0
 0.1,0,0,0.45,1,0,0,0,0.2
 0.2,0,0,0.45,1,0,0,0,0.4
+""")
+
+
+write("motion_csv", "xyzw_two_joints", """fps = 30.0
+quaternion = "xyzw"
+joints = ["left_knee", "right_knee"]
+\0""" + """0,0,0.45,0,0,0,1,0.0,0.1
+0,0,0.45,0,0,0,1,0.2,0.3
+0,0,0.45,0,0,0,1,0.4,0.5
+""")
+write("motion_csv", "wxyz_robot_order", """fps = 50.0
+quaternion = "wxyz"
+\0""" + """0,0,0.4,1,0,0,0,0.1,0.2
+0,0,0.4,1,0,0,0,0.1,0.3
 """)
 
 

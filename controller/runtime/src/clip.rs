@@ -117,7 +117,19 @@ impl Clip {
             message,
         };
         let text = robots::read_text(&side).map_err(|m| err("file", m))?;
-        let s: MotionSidecar = toml::from_str(&text).map_err(|e| err("toml", e.message().to_owned()))?;
+        MotionSidecar::parse(&side, &text).map(Some)
+    }
+}
+
+impl MotionSidecar {
+    /// Parses and checks a sidecar's text, as if read from `path`.
+    pub fn parse(path: &Path, text: &str) -> Result<Self, ClipError> {
+        let err = |place: &str, message: String| ClipError {
+            file: path.to_path_buf(),
+            place: place.to_owned(),
+            message,
+        };
+        let s: MotionSidecar = toml::from_str(text).map_err(|e| err("toml", e.message().to_owned()))?;
         if let Some(fps) = s.fps
             && !(fps.is_finite() && (1.0..=1000.0).contains(&fps))
         {
@@ -131,9 +143,11 @@ impl Clip {
                 return Err(err(&format!("joints[{k}]"), format!("{name:?} is named twice")));
             }
         }
-        Ok(Some(s))
+        Ok(s)
     }
+}
 
+impl Clip {
     /// Joint names for `count` columns: the sidecar's, or placeholders for the robot's order.
     fn column_names(
         path: &Path,
@@ -156,6 +170,16 @@ impl Clip {
 
     /// A headerless CSV described by its sidecar.
     fn load_headerless_csv(path: &Path, sidecar: &MotionSidecar) -> Result<Self, ClipError> {
+        let text = robots::read_text(path).map_err(|message| ClipError {
+            file: path.to_path_buf(),
+            place: "file".into(),
+            message,
+        })?;
+        Self::parse_headerless_csv(path, &text, sidecar)
+    }
+
+    /// Parses a headerless motion CSV's text (as if read from `path`) as its sidecar describes.
+    pub fn parse_headerless_csv(path: &Path, text: &str, sidecar: &MotionSidecar) -> Result<Self, ClipError> {
         let side_err = |place: &str, message: &str| ClipError {
             file: sidecar_path(path),
             place: place.to_owned(),
@@ -169,11 +193,6 @@ impl Clip {
                 "quaternion",
                 "a headerless CSV needs its quaternion order (\"xyzw\" or \"wxyz\")",
             )
-        })?;
-        let text = robots::read_text(path).map_err(|message| ClipError {
-            file: path.to_path_buf(),
-            place: "file".into(),
-            message,
         })?;
         let mut rows = Vec::new();
         let mut width = None;
