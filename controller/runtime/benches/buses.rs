@@ -105,8 +105,18 @@ fn lockstep(ticks: u32) -> String {
     table(&p, &mut ages, elapsed)
 }
 
-fn wall(seconds: f64) -> String {
+fn wall(seconds: f64, realtime: bool) -> String {
     let (robot, layout, reference) = files();
+    let mut out = String::new();
+    let on_start: fn() = if realtime {
+        let cpus = std::thread::available_parallelism().map_or(1, std::num::NonZero::get);
+        for step in controller::realtime::setup(80, Some(cpus - 1)).steps {
+            let _ = writeln!(out, "  realtime: {step}");
+        }
+        controller::realtime::bus_thread
+    } else {
+        || {}
+    };
     let ticks = (seconds * 50.0) as u32;
     let mirror = MirrorConfig {
         gantry: true,
@@ -119,9 +129,9 @@ fn wall(seconds: f64) -> String {
     let mut opts = options(u64::from(ticks) + 10);
     opts.limits.stale_cycles = 8;
     let (mut p, mut clock, _served) =
-        wired_player(robot, layout, reference, opts, mirror, stop, || {}).unwrap();
+        wired_player(robot, layout, reference, opts, mirror, stop, on_start).unwrap();
     let (mut ages, elapsed) = run_collecting_ages(&mut p, &mut clock, ticks);
-    let mut out = table(&p, &mut ages, elapsed);
+    out.push_str(&table(&p, &mut ages, elapsed));
     if let Some(t) = p.transitions().iter().find(|t| t.cause.is_fault()) {
         let _ = writeln!(out, "  the run stopped at tick {}: {}", t.tick, t.cause);
     }
@@ -182,9 +192,14 @@ fn main() {
     let seconds = if quick { 3.0 } else { 20.0 };
     println!(
         "wall clock, {seconds:.0} s over socketcand + pseudo-terminals (the mirror served in real time, stale after 8 cycles):\n{}",
-        wall(seconds)
+        wall(seconds, false)
     );
     println!("stale detection (lockstep):");
     println!("{}", stale_detection("left_elbow", "dxl0"));
     println!("{}", stale_detection("left_knee", "can0"));
+    // Last: the process's loop thread stays under SCHED_FIFO after this.
+    println!(
+        "wall clock again, with the real-time set-up of `play --realtime` (loop SCHED_FIFO 80 pinned to the last CPU, bus threads SCHED_FIFO 85):\n{}",
+        wall(seconds, true)
+    );
 }

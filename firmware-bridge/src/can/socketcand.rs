@@ -359,13 +359,20 @@ impl SocketcandClient {
                 self.malformed.record(&bad);
             }
             let left = deadline.saturating_duration_since(Instant::now());
-            if left.is_zero() {
-                return Ok(None);
-            }
-            let _ = self
-                .stream
-                .set_read_timeout(Some(left.max(Duration::from_micros(50))));
-            match self.stream.read(&mut chunk) {
+            let read = if left.is_zero() {
+                // Past the deadline, what the socket already holds still counts (a driver drops
+                // late replies this way before its next commands): read it without waiting.
+                let _ = self.stream.set_nonblocking(true);
+                let r = self.stream.read(&mut chunk);
+                let _ = self.stream.set_nonblocking(false);
+                r
+            } else {
+                let _ = self
+                    .stream
+                    .set_read_timeout(Some(left.max(Duration::from_micros(50))));
+                self.stream.read(&mut chunk)
+            };
+            match read {
                 Ok(0) => {
                     return Err(CanError::Disconnected {
                         bus: self.bus.clone(),
