@@ -528,6 +528,12 @@ fn check_prints_the_layout_without_moving_anything() {
         stdout.contains("observation of 127 values") && stdout.contains("ok: nothing moved"),
         "{stdout}"
     );
+    // Each bus's schedule, as the loop will run it.
+    assert!(
+        stdout.contains("dxl0   cycles at 100 Hz (0.77 ms of 10.00 ms on the wire, 8 % load), targets held")
+            && stdout.contains("imu0   polled at 1000 Hz (the IMU streams at 200 Hz)"),
+        "{stdout}"
+    );
 }
 
 #[test]

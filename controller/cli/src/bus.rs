@@ -98,20 +98,38 @@ fn scan(args: &ScanArgs) -> Result<()> {
 /// The bus's schedule from robot.toml: what the loop will run it at, and the command timeout the
 /// devices must be set to (the loop arms the Dynamixel Bus Watchdog with it; MIT motors keep
 /// theirs in their firmware, set with the vendor's tool).
-fn print_timing(robot: &Robot, bus: &str) {
-    if let Some(t) = robot.bus_timing(bus) {
-        println!(
-            "     cycles at {} Hz ({:.2} ms of {:.2} ms on the wire, {:.0} % load), targets {} between policy ticks, device command timeout {} ms",
+pub(crate) fn schedule(robot: &Robot, bus: &str) -> Option<String> {
+    let t = robot.bus_timing(bus)?;
+    if robot.bus(bus)?.kind == BusKind::ImuSerial {
+        return Some(format!(
+            "polled at {} Hz (the IMU streams at {} Hz)",
             robots::num(t.rate_hz),
-            t.wire_time.as_secs_f64() * 1e3,
-            t.period.as_secs_f64() * 1e3,
-            t.load() * 100.0,
+            robots::num(robot.config.imu.rate_hz)
+        ));
+    }
+    let mut line = format!(
+        "cycles at {} Hz ({:.2} ms of {:.2} ms on the wire, {:.0} % load)",
+        robots::num(t.rate_hz),
+        t.wire_time.as_secs_f64() * 1e3,
+        t.period.as_secs_f64() * 1e3,
+        t.load() * 100.0,
+    );
+    if robot.joints_on(bus).next().is_some() {
+        line.push_str(&format!(
+            ", targets {} between policy ticks, device command timeout {} ms",
             match t.interpolation {
                 robots::Interpolation::Hold => "held",
                 robots::Interpolation::Linear => "ramped",
             },
             t.command_timeout.as_millis()
-        );
+        ));
+    }
+    Some(line)
+}
+
+fn print_timing(robot: &Robot, bus: &str) {
+    if let Some(line) = schedule(robot, bus) {
+        println!("     {line}");
     }
 }
 

@@ -132,6 +132,11 @@ pub fn check(args: &CheckArgs) -> Result<()> {
         l.robot.config.joints.len(),
         l.robot.path.display()
     );
+    for b in &l.robot.config.buses {
+        if let Some(line) = crate::bus::schedule(&l.robot, &b.name) {
+            println!("       {:<6} {line}", b.name);
+        }
+    }
     println!("policy {}", l.layout.path.display());
     println!(
         "       {}",
