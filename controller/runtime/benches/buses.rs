@@ -65,8 +65,15 @@ fn table<L: RobotLink>(p: &Player<L>, ages: &mut [Vec<Duration>], elapsed: Durat
     let mut out = String::new();
     let _ = writeln!(
         out,
-        "  {:<6} {:>9} {:>9} {:>6} {:>14} {:>9} {:>16}",
-        "bus", "set Hz", "achieved", "load", "cycle p50/p99", "overruns", "age p50/p99"
+        "  {:<6} {:>9} {:>9} {:>6} {:>14} {:>9} {:>16} {:>18}",
+        "bus",
+        "set Hz",
+        "achieved",
+        "load",
+        "cycle p50/p99",
+        "overruns",
+        "age p50/p99",
+        "targets out p50/p99"
     );
     for ((name, st), ages) in p.link().bus_names().iter().zip(p.link().bus_stats()).zip(ages) {
         let timing = robot.bus_timing(name).unwrap();
@@ -74,7 +81,7 @@ fn table<L: RobotLink>(p: &Player<L>, ages: &mut [Vec<Duration>], elapsed: Durat
         let age = Summary::of(ages).unwrap();
         let _ = writeln!(
             out,
-            "  {:<6} {:>9.0} {:>9.1} {:>5.0}% {:>6}/{:<6}ms {:>9} {:>7.2}/{:<5.2} ms",
+            "  {:<6} {:>9.0} {:>9.1} {:>5.0}% {:>6}/{:<6}ms {:>9} {:>7.2}/{:<5.2} ms {:>9}/{:<5} ms",
             name,
             timing.rate_hz,
             st.cycles as f64 / elapsed.as_secs_f64(),
@@ -84,6 +91,8 @@ fn table<L: RobotLink>(p: &Player<L>, ages: &mut [Vec<Duration>], elapsed: Durat
             st.overruns,
             age.p50_us / 1e3,
             age.p99_us / 1e3,
+            ms(st.command_latency.quantile(0.5)),
+            ms(st.command_latency.quantile(0.99)),
         );
     }
     out

@@ -84,6 +84,8 @@ pub struct BusStats {
     pub last_cycle: Duration,
     /// Every cycle's duration.
     pub cycle_times: CycleTimes,
+    /// From the policy's write to the start of the cycle that sent it, per write.
+    pub command_latency: CycleTimes,
     /// The cycle in which the bus damped itself (a joint silent for [`STALE_CYCLES`] cycles, or
     /// faulted), if it did.
     pub damped_at_cycle: Option<u64>,
@@ -194,6 +196,8 @@ pub(crate) struct Cycler {
     pub(crate) stale_cycles: u32,
     pub(crate) stats: BusStats,
     started: Duration,
+    /// The newest targets have not gone out yet.
+    order_unsent: bool,
     /// Where each cycle is recorded, when telemetry asks for it; the bus's index.
     pub(crate) log: Option<(Arc<CycleLog>, u8)>,
     record: CycleRecord,
@@ -226,6 +230,7 @@ impl Cycler {
             stale_cycles: STALE_CYCLES,
             stats: BusStats::default(),
             started: Duration::ZERO,
+            order_unsent: false,
             log: None,
             record: CycleRecord::default(),
         }
@@ -251,6 +256,7 @@ impl Cycler {
         }
         self.order_seq = seq;
         self.issued_at = issued_at;
+        self.order_unsent = true;
         for &i in &self.joints {
             self.from[i] = self.sent[i];
             self.order[i] = targets[i];
@@ -267,6 +273,11 @@ impl Cycler {
     /// The first half of a cycle at `now`: the commands go out.
     pub(crate) fn start(&mut self, now: Duration) -> Result<(), IoError> {
         self.started = now;
+        if std::mem::take(&mut self.order_unsent) {
+            self.stats
+                .command_latency
+                .record(now.saturating_sub(self.issued_at));
+        }
         let linear = self.timing.interpolation == Interpolation::Linear;
         // The ramp reaches the newest target in the last cycle before the next policy tick.
         let since = now.saturating_sub(self.issued_at) + self.timing.period;

@@ -19,6 +19,10 @@ use crate::cycle::{BusStats, Cycler};
 use crate::link::IoError;
 use crate::state::{JointTarget, RobotState};
 
+/// How long after the policy's first write the bus cycles' grid falls: room for the writes'
+/// jitter from tick to tick.
+const ALIGN_MARGIN: Duration = Duration::from_micros(200);
+
 /// The policy's targets for a worker.
 #[derive(Debug, Clone)]
 pub(crate) struct Order {
@@ -91,6 +95,7 @@ impl Worker {
                 let mut clock = WallClock::since(epoch).without_spin();
                 let period = cycler.timing.period;
                 let mut next = clock.elapsed();
+                let mut aligned = false;
                 let mut torque_off_done = 0;
                 let report = |r: Result<(), IoError>| {
                     if let Err(e) = r {
@@ -107,6 +112,7 @@ impl Worker {
                         torque_off_done = order.seq;
                     }
                     let seen = order.seq;
+                    let issued_at = order.issued_at;
                     let now = clock.elapsed();
                     report(cycler.start(now));
                     report(cycler.finish(|| clock.elapsed()));
@@ -120,7 +126,15 @@ impl Worker {
                     // The next slot on the grid; slots that passed while this cycle ran are lost.
                     next += period;
                     let late = clock.elapsed();
-                    if next <= late {
+                    if !aligned && seen > 0 {
+                        // The grid moves to just after the policy's writes (which come on the
+                        // policy's own absolute deadlines): new targets go out within a margin of
+                        // being issued, not up to a bus period later.
+                        aligned = true;
+                        let origin = issued_at + ALIGN_MARGIN.min(period / 10);
+                        let slots = late.saturating_sub(origin).as_nanos() / period.as_nanos() + 1;
+                        next = origin + period * slots as u32;
+                    } else if next <= late {
                         let behind = (late - next).as_nanos() / period.as_nanos() + 1;
                         cycler.stats.overruns += behind as u64;
                         next += period * behind as u32;
