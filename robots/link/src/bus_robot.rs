@@ -435,6 +435,7 @@ impl<S: ByteStream> BusRobot<S> {
                 ))
             })?;
         let damping_kd: Vec<f64> = robot.config.joints.iter().map(|j| j.kd).collect();
+        let torque_limit: Vec<f64> = robot.config.joints.iter().map(|j| j.torque_limit).collect();
         let timing = |name: &str| {
             robot
                 .bus_timing(name)
@@ -442,13 +443,17 @@ impl<S: ByteStream> BusRobot<S> {
         };
         let mut cyclers = Vec::new();
         let mut names = Vec::new();
-        let mut add = |bus: Box<dyn JointBus>, joints: Vec<usize>, timing, name| {
+        // MIT motors run the PD law with nothing but their model's maximum to cap it: their
+        // commands are bounded to each joint's torque limit. Dynamixel servos get the limit as
+        // their goal current (current-based position control).
+        let mut add = |bus: Box<dyn JointBus>, joints: Vec<usize>, timing, name, bound_torque: bool| {
             cyclers.push(Cycler::new(
                 bus,
                 joints,
                 timing,
                 policy_period,
                 damping_kd.clone(),
+                bound_torque.then(|| torque_limit.clone()),
             ));
             names.push(name);
         };
@@ -467,7 +472,7 @@ impl<S: ByteStream> BusRobot<S> {
                 enabled: false,
                 pending: false,
             };
-            add(Box::new(bus), idx, timing, name);
+            add(Box::new(bus), idx, timing, name, true);
         }
         for (name, port) in ports.dxl {
             check_kind(robot, &name, BusKind::Dynamixel)?;
@@ -482,7 +487,7 @@ impl<S: ByteStream> BusRobot<S> {
                 ..dxl
             };
             let bus = DxlBus::new(DxlBusDriver::new(port, cfg, options)?, idx.clone(), robot)?;
-            add(Box::new(bus), idx, timing, name);
+            add(Box::new(bus), idx, timing, name, false);
         }
         if cyclers.len() > MAX_BUSES {
             return Err(IoError::Setup(format!(

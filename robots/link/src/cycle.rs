@@ -93,6 +93,8 @@ pub struct BusStats {
     pub damped_at: Option<Duration>,
     /// The first cycle that sent damping.
     pub damping_sent_at_cycle: Option<u64>,
+    /// Commands whose PD target was pulled in so their torque stayed within the joint's limit.
+    pub torque_bounded: u64,
 }
 
 /// Most joints a [`CycleRecord`] carries (a bus with more records its first ones).
@@ -177,6 +179,10 @@ pub(crate) struct Cycler {
     policy_period: Duration,
     /// Damping per joint when the bus damps itself (robot order).
     damping_kd: Vec<f64>,
+    /// Torque limit per joint (robot order), when this bus's devices run the PD law themselves
+    /// with nothing else to cap it (MIT motors): every command is bounded against the newest
+    /// measured state so the PD torque it asks for stays within it.
+    torque_limit: Option<Vec<f64>>,
     /// The policy's newest targets, when it issued them and their number.
     order: Vec<JointTarget>,
     issued_at: Duration,
@@ -210,6 +216,7 @@ impl Cycler {
         timing: BusTiming,
         policy_period: Duration,
         damping_kd: Vec<f64>,
+        torque_limit: Option<Vec<f64>>,
     ) -> Self {
         let n = damping_kd.len();
         Self {
@@ -218,6 +225,7 @@ impl Cycler {
             timing,
             policy_period,
             damping_kd,
+            torque_limit,
             order: vec![JointTarget::default(); n],
             issued_at: Duration::ZERO,
             order_seq: 0,
@@ -312,6 +320,13 @@ impl Cycler {
                 t
             };
         }
+        if let Some(limits) = &self.torque_limit {
+            for &i in &self.joints {
+                if bound_pd(&mut self.sent[i], self.state.q[i], self.state.qd[i], limits[i]) {
+                    self.stats.torque_bounded += 1;
+                }
+            }
+        }
         if damping && self.stats.damping_sent_at_cycle.is_none() {
             self.stats.damping_sent_at_cycle = Some(self.stats.cycles);
         }
@@ -396,6 +411,32 @@ impl Cycler {
     }
 }
 
+/// Bounds the torque the PD law of `t` asks for at the measured `q`, `qd` to `limit`: the position
+/// target is pulled towards `q` (never past it) and, if damping alone exceeds the limit, the
+/// damping is scaled down. Returns whether `t` changed.
+fn bound_pd(t: &mut JointTarget, q: f64, qd: f64, limit: f64) -> bool {
+    if !(t.enabled && q.is_finite() && qd.is_finite()) {
+        return false;
+    }
+    let damping = t.kd * (t.qd - qd);
+    let torque = t.kp * (t.q - q) + damping + t.tau;
+    if torque.abs() <= limit {
+        return false;
+    }
+    let wanted = torque.clamp(-limit, limit);
+    if t.kp > 0.0 {
+        let q_target = q + (wanted - damping - t.tau) / t.kp;
+        t.q = q_target.clamp(q.min(t.q), q.max(t.q));
+    }
+    let left = t.kp * (t.q - q) + damping + t.tau;
+    if left.abs() > limit && damping != 0.0 {
+        // Damping (and feed-forward) alone are beyond the limit: scale the damping down.
+        let room = (limit - (t.kp * (t.q - q) + t.tau).abs()).max(0.0);
+        t.kd *= (room / damping.abs()).min(1.0);
+    }
+    true
+}
+
 /// Copies `joints` of `from` (sampled at `sampled_at`) into `to`, with their ages at `now`.
 pub(crate) fn copy_joints(
     joints: &[usize],
@@ -418,6 +459,40 @@ pub(crate) fn copy_joints(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_pd_command_is_bounded_to_the_joints_torque_limit_at_the_measured_state() {
+        let t = |q, kp, kd, tau| JointTarget {
+            q,
+            qd: 0.0,
+            kp,
+            kd,
+            tau,
+            enabled: true,
+        };
+        // 150 N·m/rad × 0.5 rad = 75 N·m against a 40 N·m limit: the target moves to 40/150 rad.
+        let mut a = t(1.0, 150.0, 3.0, 0.0);
+        assert!(bound_pd(&mut a, 0.5, 0.0, 40.0));
+        assert!((a.q - (0.5 + 40.0 / 150.0)).abs() < 1e-12 && a.kp == 150.0);
+        // Within the limit: untouched.
+        let mut b = t(0.6, 150.0, 3.0, 0.0);
+        assert!(!bound_pd(&mut b, 0.5, 0.0, 40.0));
+        // Moving fast into the target's way: damping alone would give 3 × 20 = 60 N·m; the target
+        // is pulled onto the measured position and the damping scaled to the 40 N·m left.
+        let mut c = t(0.5, 150.0, 3.0, 0.0);
+        assert!(bound_pd(&mut c, 0.5, -20.0, 40.0));
+        let torque = c.kp * (c.q - 0.5) + c.kd * (0.0 - -20.0) + c.tau;
+        assert!(torque.abs() <= 40.0 + 1e-9, "{torque}");
+        // The other direction, and torque off is never touched.
+        let mut d = t(-1.0, 150.0, 3.0, 0.0);
+        assert!(bound_pd(&mut d, 0.0, 0.0, 40.0));
+        assert!((d.q + 40.0 / 150.0).abs() < 1e-12);
+        let mut off = JointTarget {
+            enabled: false,
+            ..t(5.0, 150.0, 3.0, 0.0)
+        };
+        assert!(!bound_pd(&mut off, 0.0, 0.0, 40.0));
+    }
 
     #[test]
     fn cycle_time_quantiles_come_from_their_20_us_buckets() {
