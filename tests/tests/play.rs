@@ -761,3 +761,29 @@ fn squat_and_wave_track_at_least_as_well_as_with_buses_at_the_policy_rate() {
         );
     }
 }
+
+#[test]
+fn a_robot_collapsing_after_the_run_hands_over_has_not_fallen() {
+    // Three seconds of damping after the squat, no gantry: with kp = 0 the biped folds up on the
+    // floor. That is the end of a run, not a fall: falls count while the soft start, the policy or
+    // the soft stop is in control.
+    let options = PlayOptions {
+        damping_s: 3.0,
+        ..PlayOptions::default()
+    };
+    let (mut p, mut clock, world) = player(
+        follower(),
+        biped("clips/squat.csv"),
+        MirrorConfig::default(),
+        options,
+    );
+    let s = p.run(&mut clock).unwrap();
+    let r = world.lock().unwrap().root_pose();
+    let tilt = controller::safety::tilt_of([r[3], r[4], r[5], r[6]]);
+    assert!(
+        tilt > PlayOptions::default().limits.tilt,
+        "the robot did not collapse: tilt {tilt:.2} rad"
+    );
+    assert!(!s.fell, "{s}");
+    assert!(s.success(), "{s}");
+}

@@ -402,8 +402,14 @@ impl<L: RobotLink> Player<L> {
             if self.truth.simulation_failed {
                 self.fail(Cause::SimulationFailed);
             }
+            // A fall counts while the soft start, the policy or the soft stop is in control; a
+            // robot folding up under damping after the run has handed over has not fallen.
+            let in_control = matches!(
+                self.machine.mode,
+                Mode::SoftStart | Mode::Running | Mode::Stopping
+            );
             let p = self.truth.root_pose;
-            self.metrics.fell |= tilt_of([p[3], p[4], p[5], p[6]]) > self.options.limits.tilt;
+            self.metrics.fell |= in_control && tilt_of([p[3], p[4], p[5], p[6]]) > self.options.limits.tilt;
         }
         self.advance(has_truth);
         let compute = c0.elapsed();
