@@ -189,6 +189,10 @@ pub struct RobotConfig {
     pub feet: Vec<String>,
     /// Policy rate, Hz.
     pub control_rate_hz: f64,
+    /// How far inside each joint's position limits the governor keeps targets, rad (0–0.2, and
+    /// less than half of every joint's range). Default 0.02.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub position_margin: Option<f64>,
     /// Buses.
     pub buses: Vec<BusConfig>,
     /// IMU.
@@ -625,6 +629,30 @@ impl Robot {
                 "control_rate_hz".into(),
                 format!("{} Hz is outside [1, 1000]", crate::num(c.control_rate_hz)),
             ));
+        }
+        if let Some(m) = c.position_margin {
+            let narrowest = c
+                .joints
+                .iter()
+                .map(|j| (j.position_limits[1] - j.position_limits[0], &j.name))
+                .min_by(|a, b| a.0.total_cmp(&b.0));
+            if !(m.is_finite() && (0.0..=0.2).contains(&m)) {
+                return Err((
+                    "position_margin".into(),
+                    format!("{} rad is outside [0, 0.2]", crate::num(m)),
+                ));
+            }
+            if let Some((range, name)) = narrowest
+                && 2.0 * m >= range
+            {
+                return Err((
+                    "position_margin".into(),
+                    format!(
+                        "{} rad leaves nothing of joint {name}'s {range:.3} rad range",
+                        crate::num(m)
+                    ),
+                ));
+            }
         }
         let mut bus_names = BTreeSet::new();
         let mut devices = BTreeSet::new();

@@ -224,3 +224,36 @@ fn bus_rates_and_timeouts_the_wire_or_the_policy_cannot_keep_are_named() {
         &["buses[0] (can0).rate_hz", "100 Hz is outside [200"],
     );
 }
+
+#[test]
+fn a_position_margin_the_joints_cannot_give_is_named() {
+    let with = |m: &str| {
+        reference_text().replacen(
+            "control_rate_hz = 50.0",
+            &format!("control_rate_hz = 50.0\nposition_margin = {m}"),
+            1,
+        )
+    };
+    assert_eq!(
+        load_variant(&with("0.05")).unwrap().config.position_margin,
+        Some(0.05)
+    );
+    expect_error(
+        &with("-0.01"),
+        &["position_margin", "-0.01 rad is outside [0, 0.2]"],
+    );
+    expect_error(&with("nan"), &["position_margin", "NaN"]);
+    // left_hip_roll spans 0.8 rad: a 0.2 rad margin leaves 0.4; the narrowest joint decides.
+    let narrow = with("0.15").replacen(
+        "position_limits = [-0.3, 0.5]",
+        "position_limits = [-0.1, 0.1]",
+        1,
+    );
+    expect_error(
+        &narrow,
+        &[
+            "position_margin",
+            "0.15 rad leaves nothing of joint left_hip_roll's 0.200 rad range",
+        ],
+    );
+}

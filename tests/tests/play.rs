@@ -787,3 +787,34 @@ fn a_robot_collapsing_after_the_run_hands_over_has_not_fallen() {
     assert!(!s.fell, "{s}");
     assert!(s.success(), "{s}");
 }
+
+#[test]
+fn the_robots_own_position_margin_governs_its_targets() {
+    // The squat comes within 0.15 rad of the left ankle's limit: a 0.16 rad margin in robot.toml
+    // makes the governor hold it back; the default 0.02 rad does not.
+    let text = std::fs::read_to_string(reference_robot_path()).unwrap().replacen(
+        "control_rate_hz = 50.0",
+        "control_rate_hz = 50.0\nposition_margin = 0.16",
+        1,
+    );
+    let robot = Robot::from_str(&reference_robot_path(), &text).unwrap();
+    let run = |robot: Robot| {
+        let layout = PolicyLayout::load(&follower(), &robot).unwrap();
+        let clip = Clip::load(&biped("clips/squat.csv")).unwrap();
+        let reference = Reference::from_clip(&clip, &robot, layout.manifest.rate_hz).unwrap();
+        let (mut p, mut clock, _w) = lockstep_player(
+            robot,
+            layout,
+            reference,
+            PlayOptions::default(),
+            MirrorConfig::default(),
+            Arc::new(AtomicBool::new(false)),
+        )
+        .unwrap();
+        p.run(&mut clock).unwrap()
+    };
+    let margin = run(robot);
+    let default = run(Robot::load(&reference_robot_path()).unwrap());
+    assert_eq!(default.limited_ticks, 0, "{default}");
+    assert!(margin.limited_ticks > 0, "{margin}");
+}

@@ -119,6 +119,11 @@ impl<L: RobotLink> Player<L> {
         stop: Arc<AtomicBool>,
     ) -> Result<Self, PlayError> {
         let model = OnnxModel::load(&layout.onnx_path)?;
+        // The robot's own margin inside its joint limits, where robot.toml gives one.
+        let mut options = options;
+        if let Some(m) = robot.config.position_margin {
+            options.limits.position_margin = m;
+        }
         if options.limits.stale_cycles == 0 {
             return Err(PlayError::Setup(
                 "limits.stale_cycles = 0: at least 1 cycle".into(),
