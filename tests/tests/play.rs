@@ -818,3 +818,52 @@ fn the_robots_own_position_margin_governs_its_targets() {
     assert_eq!(default.limited_ticks, 0, "{default}");
     assert!(margin.limited_ticks > 0, "{margin}");
 }
+
+#[test]
+fn end_stand_keeps_the_robot_standing_under_the_policy_until_the_operator_stops() {
+    let options = PlayOptions {
+        end: controller::player::EndMode::Stand,
+        ..PlayOptions::default()
+    };
+    let (mut p, mut clock, world) = player(
+        follower(),
+        biped("clips/squat.csv"),
+        MirrorConfig::default(),
+        options,
+    );
+    p.identify().unwrap();
+    let period = Duration::from_millis(20);
+    // Soft start, ramp, the 7 s squat, the blend: then 3 s more of standing.
+    let clip_ticks = p.reference_ticks() as u32;
+    let until = clip_ticks + 200 + 150;
+    for k in 1..=until {
+        p.step(&clock).unwrap();
+        p.wait_until(&mut clock, period * k);
+    }
+    assert_eq!(p.mode(), Mode::Running, "{:?}", p.transitions());
+    let robot = p.robot().clone();
+    for (t, j) in p.targets().iter().zip(&robot.config.joints) {
+        assert!(
+            (t.q - j.default_position).abs() < 1e-6 && t.kp > 0.0,
+            "{}: {:?}",
+            j.name,
+            t
+        );
+    }
+    let r = world.lock().unwrap().root_pose();
+    assert!(
+        controller::safety::tilt_of([r[3], r[4], r[5], r[6]]) < 0.1,
+        "standing"
+    );
+    // The operator stops it: a soft stop, then damping, then off.
+    p.request_stop();
+    let mut k = until;
+    while p.mode() != Mode::Off {
+        k += 1;
+        p.step(&clock).unwrap();
+        p.wait_until(&mut clock, period * k);
+        assert!(k < until + 200, "{:?}", p.transitions());
+    }
+    let stop = p.transitions().iter().find(|t| t.to == Mode::Stopping).unwrap();
+    assert_eq!((stop.from, stop.cause), (Mode::Running, Cause::StopRequested));
+}

@@ -134,6 +134,9 @@ pub enum EndArg {
     Blend,
     /// Start the clip again (until stopped).
     Loop,
+    /// Blend to the default pose and stand there under the policy until stopped (Ctrl-C,
+    /// e-stop, --max-seconds).
+    Stand,
 }
 
 impl From<EndArg> for controller::player::EndMode {
@@ -142,6 +145,7 @@ impl From<EndArg> for controller::player::EndMode {
             EndArg::Hold => Self::Hold,
             EndArg::Blend => Self::Blend,
             EndArg::Loop => Self::Loop,
+            EndArg::Stand => Self::Stand,
         }
     }
 }

@@ -16,6 +16,8 @@ pub enum EndMode {
     Blend,
     /// Start the clip again (until stopped).
     Loop,
+    /// Blend to the default pose and stand there under the policy until the operator stops.
+    Stand,
 }
 
 /// How a run goes. Recorded with every run (as part of [`RunMetadata`]) and read back by replays.

@@ -138,7 +138,7 @@ impl ReferenceCursor {
     /// The clip, ramp and end included, is over (never for a loop).
     pub fn finished(&self) -> bool {
         match self.end {
-            EndMode::Loop => false,
+            EndMode::Loop | EndMode::Stand => false,
             EndMode::Hold | EndMode::Blend => {
                 self.tick >= self.ramp_ticks + self.reference.len() + self.end_ticks
             }
@@ -203,7 +203,7 @@ impl ReferenceCursor {
         for f in 0..self.frames.q.len() {
             let k = base + f;
             let (q, qd) = (self.reference.q_at(k), self.reference.qd_at(k));
-            let blend = if self.end == EndMode::Blend && k >= len {
+            let blend = if matches!(self.end, EndMode::Blend | EndMode::Stand) && k >= len {
                 ((k - len + 1) as f64 / end_ticks as f64).min(1.0)
             } else {
                 0.0
