@@ -46,6 +46,16 @@ fn player(
     .unwrap()
 }
 
+/// Steps `p` through the 20 ms ticks `ticks` (1-based: tick k ends at k × 20 ms), the buses
+/// cycling in between.
+fn run_ticks(p: &mut MirrorPlayer, clock: &mut LockstepClock, ticks: std::ops::RangeInclusive<u32>) {
+    let period = Duration::from_millis(20);
+    for k in ticks {
+        p.step(clock).unwrap();
+        p.wait_until(clock, period * k);
+    }
+}
+
 fn follower() -> PathBuf {
     biped("policies/reference_follower.toml")
 }
@@ -261,17 +271,10 @@ fn a_steady_state_tick_allocates_nothing() {
     .unwrap();
     let mut p = p.with_telemetry(sink);
     p.identify().unwrap();
-    let period = Duration::from_millis(20);
-    for k in 1..=80u32 {
-        p.step(&clock).unwrap();
-        p.wait_until(&mut clock, period * k);
-    }
+    run_ticks(&mut p, &mut clock, 1..=80u32);
     assert_eq!(p.mode(), Mode::Running);
     let (_, stats) = count_allocations(|| {
-        for k in 81..=180u32 {
-            p.step(&clock).unwrap();
-            p.wait_until(&mut clock, period * k);
-        }
+        run_ticks(&mut p, &mut clock, 81..=180u32);
     });
     assert_eq!(p.mode(), Mode::Running);
     assert!(stats.is_zero(), "{stats:?}");
@@ -358,18 +361,12 @@ fn each_mit_motor_gets_one_round_trip_per_bus_cycle_at_the_bus_rate() {
     };
     use robot_link::RobotLink;
     let cycles = |p: &MirrorPlayer| -> Vec<u64> { p.link().bus_stats().iter().map(|s| s.cycles).collect() };
-    for k in 1..=80u32 {
-        p.step(&clock).unwrap();
-        p.wait_until(&mut clock, period * k);
-    }
+    run_ticks(&mut p, &mut clock, 1..=80u32);
     assert_eq!(p.mode(), Mode::Running);
     p.step(&clock).unwrap();
     let (before, cycles_before) = (frames(&world), cycles(&p));
     p.wait_until(&mut clock, period * 81);
-    for k in 82..=130u32 {
-        p.step(&clock).unwrap();
-        p.wait_until(&mut clock, period * k);
-    }
+    run_ticks(&mut p, &mut clock, 82..=130u32);
     assert_eq!(p.mode(), Mode::Running);
     p.step(&clock).unwrap();
     let cycles_after = cycles(&p);
@@ -836,10 +833,7 @@ fn end_stand_keeps_the_robot_standing_under_the_policy_until_the_operator_stops(
     // Soft start, ramp, the 7 s squat, the blend: then 3 s more of standing.
     let clip_ticks = p.reference_ticks() as u32;
     let until = clip_ticks + 200 + 150;
-    for k in 1..=until {
-        p.step(&clock).unwrap();
-        p.wait_until(&mut clock, period * k);
-    }
+    run_ticks(&mut p, &mut clock, 1..=until);
     assert_eq!(p.mode(), Mode::Running, "{:?}", p.transitions());
     let robot = p.robot().clone();
     for (t, j) in p.targets().iter().zip(&robot.config.joints) {

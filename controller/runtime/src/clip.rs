@@ -148,7 +148,8 @@ impl MotionSidecar {
 }
 
 impl Clip {
-    /// Joint names for `count` columns: the sidecar's, or placeholders for the robot's order.
+    /// Joint names for `count` columns: the sidecar's, or numbered names (`joint 0`, …) marking
+    /// columns that are the robot's joints in its order (named at mapping, see `robot_order`).
     fn column_names(
         path: &Path,
         sidecar: Option<&MotionSidecar>,
