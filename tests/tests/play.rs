@@ -612,7 +612,10 @@ onnx.save(m, {out:?})
     );
     assert_eq!(layout.robot_index[0], 19);
     assert!((layout.kp[3] - robot.config.joints[3].kp * 0.9).abs() < 1e-9);
-    assert_eq!(layout.manifest.action.scale, Some(1.0));
+    assert_eq!(
+        layout.manifest.action.scale,
+        Some(controller::policy::ActionScale::One(1.0))
+    );
     let (mut p, mut clock, _w) = player(
         dir.join("meta.toml"),
         biped("clips/squat.csv"),
@@ -687,6 +690,9 @@ fn command_values_from_the_command_line_reach_the_observation() {
         fn body_pos(&self, _: usize) -> &[f64] {
             &[]
         }
+        fn anchor_pose(&self) -> [f64; 7] {
+            [0.0, 0.0, 0.45, 1.0, 0.0, 0.0, 0.0]
+        }
     }
     let robot = Robot::load(&reference_robot_path()).unwrap();
     let dir = std::env::temp_dir().join(format!("play-cmd-{}", std::process::id()));
@@ -732,6 +738,9 @@ fn command_values_from_the_command_line_reach_the_observation() {
             reference: &still,
             truth: None,
             trackers: None,
+            base_ang_vel: [0.0; 3],
+            robot_anchor: [0.0, 0.0, 0.45, 1.0, 0.0, 0.0, 0.0],
+            time_step: 0.0,
         },
         &mut obs,
     );

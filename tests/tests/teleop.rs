@@ -508,6 +508,9 @@ fn a_sparse_input_policy_sees_the_trackers_at_t_and_t_minus_one() {
         fn body_pos(&self, _: usize) -> &[f64] {
             &[]
         }
+        fn anchor_pose(&self) -> [f64; 7] {
+            [0.0, 0.0, 0.5, 1.0, 0.0, 0.0, 0.0]
+        }
     }
     let still = Still(zeros.clone());
     let mut obs = vec![0.0f32; 114];
@@ -528,6 +531,9 @@ fn a_sparse_input_policy_sees_the_trackers_at_t_and_t_minus_one() {
                 reference: &still,
                 truth: None,
                 trackers: Some(&trackers),
+                base_ang_vel: [0.0; 3],
+                robot_anchor: [0.0, 0.0, 0.5, 1.0, 0.0, 0.0, 0.0],
+                time_step: 0.0,
             },
             &mut obs,
         );

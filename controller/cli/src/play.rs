@@ -9,7 +9,8 @@ use clap::Args;
 use robots::Robot;
 
 use crate::sim::load_mirror_config;
-use controller::clip::{Clip, Reference};
+use controller::clip::Reference;
+use controller::motion::ReferenceSource;
 use controller::onnx::OnnxModel;
 use controller::player::{PlayOptions, PlaySummary, Player};
 use controller::policy::PolicyLayout;
@@ -88,7 +89,10 @@ struct Files {
     /// The robot description.
     #[arg(long, default_value_os_t = robots::reference_robot_path())]
     robot: PathBuf,
-    /// The policy manifest (TOML beside its ONNX file).
+    /// The policy: a manifest (TOML beside its ONNX file), or an ONNX export whose metadata
+    /// carries the contract, as BeyondMimic and mjlab write it (joint_names, gains,
+    /// default_joint_pos, action_scale, observation_names, anchor_body_name, body_names): no
+    /// manifest needed. A manifest naming such an export may override any of its fields.
     #[arg(long, default_value_os_t = robots::reference_robot_path().with_file_name("policies/reference_follower.toml"))]
     policy: PathBuf,
     /// The clip. CSV: `time,root_x,root_y,root_z,root_qw,root_qx,root_qy,root_qz,<joints…>` (joints
@@ -97,15 +101,27 @@ struct Files {
     /// beside them (fps, joints, quaternion order, root body): BeyondMimic/mjlab motion NPZ
     /// (`fps`, `joint_pos`, `body_pos_w`, `body_quat_w` w x y z) and headerless CSV rows of root
     /// x y z, quaternion, joints (the LAFAN1 retargets: `quaternion = "xyzw"`).
-    #[arg(long, default_value_os_t = robots::reference_robot_path().with_file_name("clips/squat.csv"))]
-    clip: PathBuf,
+    /// Default: the motion the policy's export carries (its `time_step` input and motion
+    /// outputs), else robots/biped/clips/squat.csv.
+    #[arg(long)]
+    clip: Option<PathBuf>,
+    /// The frame of the motion the policy's export carries that the run starts from.
+    #[arg(long, default_value_t = 0, value_parser = crate::args::whole_within(0, controller::motion::MAX_FRAMES as u64))]
+    start_step: u64,
+}
+
+impl Files {
+    /// The clip file a run names (the export itself when it plays the export's motion).
+    fn default_clip() -> PathBuf {
+        robots::reference_robot_path().with_file_name("clips/squat.csv")
+    }
 }
 
 struct Loaded {
     robot: Robot,
     layout: PolicyLayout,
     reference: Reference,
-    clip: Clip,
+    source: ReferenceSource,
 }
 
 fn load(files: &Files) -> Result<Loaded> {
@@ -113,13 +129,19 @@ fn load(files: &Files) -> Result<Loaded> {
     let mut layout = PolicyLayout::load(&files.policy, &robot)?;
     let model = OnnxModel::load(&layout.onnx_path)?;
     layout.bind_model(model.inputs(), model.output().1)?;
-    let clip = Clip::load(&files.clip)?;
-    let reference = Reference::from_clip(&clip, &robot, layout.manifest.rate_hz)?;
+    drop(model);
+    let (reference, source) = controller::motion::load_reference(
+        files.clip.as_deref(),
+        &Files::default_clip(),
+        &layout,
+        &robot,
+        files.start_step as usize,
+    )?;
     Ok(Loaded {
         robot,
         layout,
         reference,
-        clip,
+        source,
     })
 }
 
@@ -152,19 +174,34 @@ pub fn check(args: &CheckArgs) -> Result<()> {
         l.layout.manifest.rate_hz, l.layout.manifest.action.kind, l.layout.obs_len
     );
     print!("{}", l.layout.describe());
-    if l.layout.needs_ground_truth() {
+    if let Some(a) = &l.layout.manifest.anchor_body {
+        println!("       anchor body {a}");
+    }
+    if !l.layout.manifest.motion_bodies.is_empty() {
         println!(
-            "       note: some terms need simulation ground truth; on hardware they need a state estimator"
+            "       motion bodies {}",
+            l.layout.manifest.motion_bodies.join(", ")
         );
     }
-    println!(
-        "clip   {}: {:.2} s at {} frames → {} ticks at {} Hz, within every joint and speed limit",
-        l.clip.path.display(),
-        l.clip.duration(),
-        l.clip.times.len(),
-        l.reference.len(),
-        l.reference.rate_hz
-    );
+    if let Some(m) = ground_truth_note(&l.layout) {
+        println!("       note: {m}");
+    }
+    match &l.source {
+        ReferenceSource::Clip(clip) => println!(
+            "clip   {}: {:.2} s at {} frames → {} ticks at {} Hz, within every joint and speed limit",
+            clip.path.display(),
+            clip.duration(),
+            clip.times.len(),
+            l.reference.len(),
+            l.reference.rate_hz
+        ),
+        source => println!(
+            "clip   {source}: {} ticks ({:.2} s) at {} Hz, within every joint and speed limit",
+            l.reference.len(),
+            l.reference.len() as f64 / l.reference.rate_hz,
+            l.reference.rate_hz
+        ),
+    }
     if !l.reference.held_joints.is_empty() {
         println!(
             "       joints not in the clip, held at the default pose: {}",
@@ -178,7 +215,7 @@ pub fn check(args: &CheckArgs) -> Result<()> {
     if !problems.is_empty() {
         bail!(
             "{}: the robot should not play this clip:\n  {}",
-            l.clip.path.display(),
+            l.source,
             problems.join("\n  ")
         );
     }
@@ -187,8 +224,13 @@ pub fn check(args: &CheckArgs) -> Result<()> {
 }
 
 /// Adds the recorder and the e-stop a run asked for.
-fn with_estop<L: RobotLink>(player: Player<L>, args: &PlayArgs, options: &PlayOptions) -> Result<Player<L>> {
-    let player = with_recorder(player, args, options)?;
+fn with_estop<L: RobotLink>(
+    player: Player<L>,
+    args: &PlayArgs,
+    options: &PlayOptions,
+    embedded: bool,
+) -> Result<Player<L>> {
+    let player = with_recorder(player, args, options, embedded)?;
     let Some(addr) = args.estop_udp else {
         return Ok(player);
     };
@@ -202,6 +244,7 @@ fn with_recorder<L: RobotLink>(
     mut player: Player<L>,
     args: &PlayArgs,
     options: &PlayOptions,
+    embedded: bool,
 ) -> Result<Player<L>> {
     if args.no_record {
         return Ok(player);
@@ -235,6 +278,8 @@ fn with_recorder<L: RobotLink>(
             let clip = args
                 .files
                 .clip
+                .as_deref()
+                .unwrap_or(&args.files.policy)
                 .file_stem()
                 .map_or("run".into(), |s| s.to_string_lossy().into_owned());
             let (path, file) = claim(Path::new("out/runs"), &format!("{robot}-{clip}"))?;
@@ -251,7 +296,14 @@ fn with_recorder<L: RobotLink>(
     let run = controller::options::RunMetadata {
         robot: absolute(&args.files.robot),
         policy: absolute(&args.files.policy),
-        clip: absolute(&args.files.clip),
+        clip: absolute(&args.files.clip.clone().unwrap_or_else(|| {
+            // What the run played: the export's own motion, else the default clip.
+            if embedded {
+                args.files.policy.clone()
+            } else {
+                Files::default_clip()
+            }
+        })),
         command: args.command.clone(),
         options: *options,
     };
@@ -273,6 +325,26 @@ fn with_recorder<L: RobotLink>(
         None => TelemetrySink::start(&path, 1024, backpressure, &info)?,
     };
     Ok(player.with_telemetry(sink))
+}
+
+/// Which terms of `layout` need state only simulation ground truth gives today, and what would
+/// give it on a robot.
+fn ground_truth_note(layout: &PolicyLayout) -> Option<String> {
+    let terms: Vec<&str> = layout
+        .slots
+        .iter()
+        .filter(|s| s.term.needs_ground_truth())
+        .map(|s| s.term.name())
+        .collect();
+    (!terms.is_empty()).then(|| {
+        format!(
+            "{} need{} the robot's position or velocity in the world, which only simulation ground \
+             truth gives (a state estimator would, on hardware; robodeploy has none yet): use the \
+             policy's variant without state estimation",
+            terms.join(", "),
+            if terms.len() == 1 { "s" } else { "" }
+        )
+    })
 }
 
 /// Silent cycles tolerated by default over a mirror served on this machine: its socket and
@@ -304,6 +376,7 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         None => None,
     };
     let options = PlayOptions {
+        start_step: args.files.start_step as usize,
         ramp_s: args.ramp,
         end: args.end.into(),
         max_ticks,
@@ -331,17 +404,15 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         signal_hook::flag::register(signal, Arc::clone(&stop))
             .context("cannot install the stop signal handlers")?;
     }
+    let embedded = matches!(l.source, ReferenceSource::Embedded { .. });
     if args.hardware {
-        if l.layout.needs_ground_truth() {
-            bail!(
-                "{}: this policy reads simulation ground truth; the hardware has no state estimator yet",
-                l.layout.path.display()
-            );
+        if let Some(m) = ground_truth_note(&l.layout) {
+            bail!("{}: {m}", l.layout.path.display());
         }
         println!(
             "{}: {} ({} ticks) on the hardware",
             l.robot.config.name,
-            l.clip.path.display(),
+            l.source,
             l.reference.len()
         );
         let io = robot_link::hardware::open_with(&l.robot, bus_threads(args.realtime))?;
@@ -350,6 +421,7 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
             Player::new(l.robot, l.layout, l.reference, options, io, stop)?,
             args,
             &options,
+            embedded,
         )?;
         let summary = player.run(&mut clock)?;
         print!("{summary}");
@@ -360,13 +432,13 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         None => sim2real::config::MirrorConfig::default(),
     };
     config.gantry |= args.gantry;
-    if l.layout.needs_ground_truth() {
-        eprintln!("note: the policy reads simulation ground truth (no state estimator yet)");
+    if let Some(m) = ground_truth_note(&l.layout) {
+        eprintln!("note: {m}; the mirror provides it");
     }
     println!(
         "{}: {} ({} ticks) on the mirror{}",
         l.robot.config.name,
-        l.clip.path.display(),
+        l.source,
         l.reference.len(),
         if args.wall {
             " in real time over socketcand and pseudo-terminals"
@@ -384,12 +456,12 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
             stop,
             bus_threads(args.realtime),
         )?;
-        let mut player = with_estop(player, args, &options)?;
+        let mut player = with_estop(player, args, &options, embedded)?;
         player.run(&mut clock)?
     } else {
         let (player, mut clock, _world) =
             lockstep_player(l.robot, l.layout, l.reference, options, config, stop)?;
-        let mut player = with_estop(player, args, &options)?;
+        let mut player = with_estop(player, args, &options, embedded)?;
         player.run(&mut clock)?
     };
     print!("{summary}");

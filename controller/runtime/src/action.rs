@@ -77,7 +77,7 @@ impl ActionMapper {
             let a = spec.clip.map_or(a, |c| a.clamp(-c, c));
             targets[r] = match spec.kind {
                 ActionKind::Position => {
-                    let wanted = layout.default_q[r] + spec.scale.unwrap_or(1.0) * a;
+                    let wanted = layout.default_q[r] + layout.action_scale[r] * a;
                     self.filtered[r] += alpha * (wanted - self.filtered[r]);
                     let previous = targets[r].q;
                     let governed =

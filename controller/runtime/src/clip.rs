@@ -581,6 +581,13 @@ pub struct Reference {
     pub bodies: Vec<String>,
     /// Body positions per tick relative to the reference root in its heading frame, 3 per body.
     pub body_pos: Vec<f64>,
+    /// Bodies the motion tracks (a tracking policy's `body_names`), whose world poses
+    /// [`Self::motion_poses`] holds.
+    pub motion_bodies: Vec<String>,
+    /// World poses `[x, y, z, w, qx, qy, qz]` of the motion bodies, per tick.
+    pub motion_poses: Vec<[f64; 7]>,
+    /// Which motion body is the anchor.
+    pub anchor: Option<usize>,
 }
 
 impl Reference {
@@ -598,6 +605,13 @@ impl Reference {
     pub fn q_at(&self, k: usize) -> &[f64] {
         let k = k.min(self.len() - 1);
         &self.q[k * self.n..(k + 1) * self.n]
+    }
+
+    /// World poses of the motion bodies at tick `k` (clamped to the last).
+    pub fn motion_poses_at(&self, k: usize) -> &[[f64; 7]] {
+        let w = self.motion_bodies.len();
+        let k = k.min(self.len() - 1);
+        &self.motion_poses[k * w..(k + 1) * w]
     }
 
     /// Body positions at tick `k` (clamped to the last), 3 per body of [`Self::bodies`].
@@ -625,6 +639,9 @@ impl Reference {
             held_joints: Vec::new(),
             bodies: Vec::new(),
             body_pos: Vec::new(),
+            motion_bodies: Vec::new(),
+            motion_poses: Vec::new(),
+            anchor: None,
         }
     }
 
@@ -724,6 +741,9 @@ impl Reference {
             held_joints,
             bodies: Vec::new(),
             body_pos: Vec::new(),
+            motion_bodies: Vec::new(),
+            motion_poses: Vec::new(),
+            anchor: None,
         };
         // Can the robot follow it? Positions first (the clearer message), then speeds; each
         // names the first offending frame.

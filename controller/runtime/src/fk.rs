@@ -1,6 +1,7 @@
 //! Forward kinematics of a reference on the robot's own model: where each named body is when the
 //! robot stands in the reference's pose, for policies that observe reference body positions.
 
+use mujoco_rs::prelude::{MjData, MjModel};
 use robots::{Robot, spatial};
 use sim2real::model_index::{self, ModelIndex};
 
@@ -49,4 +50,138 @@ pub fn body_positions(
         }
     }
     Ok(out)
+}
+
+/// World poses `[x, y, z, w, qx, qy, qz]` of `bodies` at every tick of `reference` (the robot's
+/// model posed as the reference): `ticks × bodies` poses.
+pub fn body_poses(
+    robot: &Robot,
+    reference: &Reference,
+    bodies: &[String],
+) -> Result<Vec<[f64; 7]>, KinematicsError> {
+    let model = sim2real::mujoco::load_model(&robot.mjcf_path)?;
+    let index = ModelIndex::of_robot(&model, robot)?;
+    let body_ids = bodies
+        .iter()
+        .map(|b| model_index::body(&model, b))
+        .collect::<Result<Vec<_>, _>>()?;
+    let mut data = model.make_data();
+    let mut out = Vec::with_capacity(reference.len() * bodies.len());
+    for k in 0..reference.len() {
+        let r = index.root.qpos;
+        data.qpos_mut()[r..r + 7].copy_from_slice(&reference.root[k]);
+        for (j, &q) in index.joints.iter().zip(reference.q_at(k)) {
+            data.qpos_mut()[j.qpos] = q;
+        }
+        data.kinematics();
+        for &b in &body_ids {
+            let (p, q) = (data.xpos()[b], data.xquat()[b]);
+            out.push([p[0], p[1], p[2], q[0], q[1], q[2], q[3]]);
+        }
+    }
+    Ok(out)
+}
+
+/// The robot as it measures itself, through its own model, once per tick: the joints as
+/// measured, the root turned so the IMU's frame has the IMU's orientation, and placed where the
+/// run knows the robot is (simulation ground truth; the model's origin otherwise). Gives the
+/// anchor's pose, the tracked bodies' positions and the root's angular velocity. Allocates
+/// nothing per tick (MuJoCo's kinematics works in its own arena).
+pub struct RobotKinematics {
+    data: MjData<Box<MjModel>>,
+    root_qpos: usize,
+    joint_qpos: Vec<usize>,
+    imu: model_index::FrameId,
+    anchor: Option<usize>,
+    bodies: Vec<usize>,
+    /// Root → world, this tick.
+    root_rotation: [f64; 4],
+    root_position: [f64; 3],
+    /// The IMU frame's orientation in the root's frame, this tick.
+    imu_in_root: [f64; 4],
+}
+
+impl std::fmt::Debug for RobotKinematics {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RobotKinematics")
+            .field("anchor", &self.anchor)
+            .field("bodies", &self.bodies)
+            .finish_non_exhaustive()
+    }
+}
+
+impl RobotKinematics {
+    /// Kinematics of `robot` for `anchor` and `bodies` (MJCF body names).
+    pub fn new(robot: &Robot, anchor: Option<&str>, bodies: &[String]) -> Result<Self, KinematicsError> {
+        let model = sim2real::mujoco::load_model(&robot.mjcf_path)?;
+        let index = ModelIndex::of_robot(&model, robot)?;
+        let imu = model_index::frame(&model, &robot.config.imu.site)?;
+        let anchor = anchor.map(|a| model_index::body(&model, a)).transpose()?;
+        let bodies = bodies
+            .iter()
+            .map(|b| model_index::body(&model, b))
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(Self {
+            root_qpos: index.root.qpos,
+            joint_qpos: index.joints.iter().map(|j| j.qpos).collect(),
+            data: MjData::new(Box::new(model)),
+            imu,
+            anchor,
+            bodies,
+            root_rotation: [1.0, 0.0, 0.0, 0.0],
+            root_position: [0.0; 3],
+            imu_in_root: [1.0, 0.0, 0.0, 0.0],
+        })
+    }
+
+    /// Poses the model: `imu_quat` the IMU frame's measured orientation, `q` the joints (robot
+    /// order), `root_position` where the root is, if known.
+    pub fn update(&mut self, imu_quat: [f64; 4], q: &[f64], root_position: Option<[f64; 3]>) {
+        // The model at its origin, unturned: every frame's pose is then relative to the root.
+        let r = self.root_qpos;
+        let qpos = self.data.qpos_mut();
+        qpos[r..r + 7].copy_from_slice(&[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]);
+        for (&adr, &v) in self.joint_qpos.iter().zip(q) {
+            qpos[adr] = v;
+        }
+        self.data.kinematics();
+        let m = match self.imu {
+            model_index::FrameId::Body(b) => self.data.xmat()[b],
+            model_index::FrameId::Site { site, .. } => self.data.site_xmat()[site],
+        };
+        self.imu_in_root = spatial::quat_of_mat(&[[m[0], m[1], m[2]], [m[3], m[4], m[5]], [m[6], m[7], m[8]]]);
+        self.root_rotation =
+            spatial::quat_normalize(spatial::quat_mul(imu_quat, spatial::quat_conj(self.imu_in_root)));
+        self.root_position = root_position.unwrap_or([0.0; 3]);
+    }
+
+    /// World pose of a body posed relative to the root.
+    fn world(&self, body: usize) -> [f64; 7] {
+        let (p, q) = (self.data.xpos()[body], self.data.xquat()[body]);
+        let p = spatial::add(spatial::quat_rotate(self.root_rotation, p), self.root_position);
+        let q = spatial::quat_mul(self.root_rotation, q);
+        [p[0], p[1], p[2], q[0], q[1], q[2], q[3]]
+    }
+
+    /// The anchor's world pose `[x, y, z, w, qx, qy, qz]` (the root's without an anchor).
+    pub fn anchor_pose(&self) -> [f64; 7] {
+        match self.anchor {
+            Some(a) => self.world(a),
+            None => {
+                let (p, q) = (self.root_position, self.root_rotation);
+                [p[0], p[1], p[2], q[0], q[1], q[2], q[3]]
+            }
+        }
+    }
+
+    /// World position of tracked body `k`.
+    pub fn body_position(&self, k: usize) -> [f64; 3] {
+        let w = self.world(self.bodies[k]);
+        [w[0], w[1], w[2]]
+    }
+
+    /// A vector in the IMU's frame (a gyro reading), in the root's frame.
+    pub fn imu_to_root(&self, v: [f64; 3]) -> [f64; 3] {
+        spatial::quat_rotate(self.imu_in_root, v)
+    }
 }

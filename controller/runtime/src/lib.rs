@@ -11,6 +11,7 @@ pub mod clip;
 pub mod estop;
 pub mod fk;
 pub mod metrics;
+pub mod motion;
 pub mod native;
 pub mod npy;
 pub mod onnx;

@@ -114,6 +114,10 @@ pub struct PlaySummary {
     pub root_max_error: Option<(f64, f64)>,
     /// Share of the reference played (1 = to its end; live references count as played).
     pub played: f64,
+    /// Position RMSE of each tracked motion body over the clip, m (simulation).
+    pub body_rmse: Vec<(String, f64)>,
+    /// Which of them is the anchor.
+    pub anchor: Option<usize>,
     /// What the telemetry logger wrote, when recording.
     pub telemetry: Option<crate::telemetry::TelemetryReport>,
     /// Why the recording failed, if it did (the run itself went on).
@@ -130,6 +134,25 @@ impl std::fmt::Display for PlaySummary {
         writeln!(f, "joint tracking RMSE: {:.2}°", self.joint_rmse.to_degrees())?;
         if let Some(r) = self.root_rmse {
             writeln!(f, "root position RMSE:  {:.1} cm", r * 100.0)?;
+        }
+        if !self.body_rmse.is_empty() {
+            let worst = self
+                .body_rmse
+                .iter()
+                .max_by(|a, b| a.1.total_cmp(&b.1))
+                .expect("not empty");
+            writeln!(
+                f,
+                "body position RMSE:  {:.1} cm mean over {} bodies, worst {} {:.1} cm",
+                100.0 * self.body_rmse.iter().map(|b| b.1).sum::<f64>() / self.body_rmse.len() as f64,
+                self.body_rmse.len(),
+                worst.0,
+                100.0 * worst.1
+            )?;
+            if let Some(a) = self.anchor {
+                let (name, e) = &self.body_rmse[a];
+                writeln!(f, "anchor ({name}) RMSE: {:.1} cm", 100.0 * e)?;
+            }
         }
         writeln!(f, "fell: {}", if self.fell { "YES" } else { "no" })?;
         writeln!(f, "reference played: {:.0} %", 100.0 * self.played)?;
@@ -291,6 +314,11 @@ pub struct RunMetrics {
     pub jitter: Histogram,
     /// Live input arrival to bus write.
     pub live_latency: Histogram,
+    /// The motion's tracked bodies, their summed squared position errors, and the anchor.
+    bodies: Vec<String>,
+    sq_body_error: Vec<f64>,
+    body_samples: u64,
+    anchor: Option<usize>,
 }
 
 impl RunMetrics {
@@ -308,6 +336,21 @@ impl RunMetrics {
             self.root_samples += 1;
             self.root_max = (self.root_max.0.max(d), self.root_max.1.max(a));
         }
+    }
+
+    /// Measures the position errors of these motion bodies (one of them the anchor).
+    pub fn track_bodies(&mut self, names: &[String], anchor: Option<usize>) {
+        self.bodies = names.to_vec();
+        self.sq_body_error = vec![0.0; names.len()];
+        self.anchor = anchor;
+    }
+
+    /// Adds one tick's position errors of the tracked bodies, m, in their order.
+    pub fn add_bodies(&mut self, errors: impl Iterator<Item = f64>) {
+        for (sum, e) in self.sq_body_error.iter_mut().zip(errors) {
+            *sum += e * e;
+        }
+        self.body_samples += 1;
     }
 
     /// The summary of a run of `ticks` over `took`, of a reference `reference_ticks` long.
@@ -343,6 +386,16 @@ impl RunMetrics {
             } else {
                 (self.played_ticks as f64 / reference_ticks.max(1) as f64).min(1.0)
             },
+            body_rmse: if self.body_samples > 0 {
+                self.bodies
+                    .iter()
+                    .zip(&self.sq_body_error)
+                    .map(|(b, s)| (b.clone(), (s / self.body_samples as f64).sqrt()))
+                    .collect()
+            } else {
+                Vec::new()
+            },
+            anchor: self.anchor.filter(|_| self.body_samples > 0),
             telemetry: None,
             telemetry_error: None,
         }

@@ -104,8 +104,13 @@ fn environment_for(path: &Path) -> Result<&'static Environment, OnnxError> {
     environment()
 }
 
-/// The custom metadata properties of a model file (empty when it has none).
-pub fn read_metadata(path: &Path) -> Result<std::collections::BTreeMap<String, String>, OnnxError> {
+/// What a model file says of itself without running it: its custom metadata properties (empty
+/// when it has none) and its input names.
+pub fn read_facts(path: &Path) -> Result<crate::policy::export::ModelFacts, OnnxError> {
+    robots::check_regular_file(path).map_err(|reason| OnnxError::Load {
+        path: path.to_path_buf(),
+        reason,
+    })?;
     let env = environment_for(path)?;
     let load_err = load_error(path);
     let session = Session::builder(env)
@@ -113,17 +118,21 @@ pub fn read_metadata(path: &Path) -> Result<std::collections::BTreeMap<String, S
         .commit_from_file(path)
         .map_err(&load_err)?;
     let meta = session.metadata().map_err(&load_err)?;
-    let mut out = std::collections::BTreeMap::new();
+    let mut metadata = std::collections::BTreeMap::new();
     for key in meta.custom_keys().map_err(&load_err)? {
         if let Some(v) = meta.custom(&key) {
-            out.insert(key, v);
+            metadata.insert(key, v);
         }
     }
-    Ok(out)
+    Ok(crate::policy::export::ModelFacts {
+        metadata,
+        inputs: session.inputs().iter().map(|i| i.name().to_owned()).collect(),
+    })
 }
 
-/// A loaded model with float vector inputs (one or several, named) and one float vector output
-/// (batch 1).
+/// A loaded model with float vector inputs (one or several, named), a float vector output of
+/// actions (batch 1) and, beside it, any other float outputs of fixed shape (e.g. the reference
+/// motion a tracking export carries), read after each run with [`OnnxModel::extra_output`].
 #[derive(Debug)]
 pub struct OnnxModel {
     session: Session,
@@ -132,7 +141,36 @@ pub struct OnnxModel {
     input_len: usize,
     output_name: String,
     output_len: usize,
+    /// The other outputs with their shapes (batch dimension included), in the model's order.
+    extra_outputs: Vec<(String, Vec<i64>)>,
     bound: bound::BoundTensors,
+}
+
+/// The name of the action output when a model has several outputs.
+pub const ACTION_OUTPUT: &str = "actions";
+
+/// The shape of a float tensor of fixed size with batch 1 (a free leading dimension counts as
+/// the batch), or why it is not one.
+fn fixed_shape(dtype: &ValueType) -> Result<Vec<i64>, String> {
+    let (Some(shape), Some(ty)) = (dtype.tensor_shape(), dtype.tensor_type()) else {
+        return Err(format!("is {dtype:?}, not a tensor"));
+    };
+    if ty != TensorElementType::Float32 {
+        return Err(format!("has element type {ty:?}, expected float32"));
+    }
+    let dims: &[i64] = shape;
+    let mut out = dims.to_vec();
+    if let Some(first) = out.first_mut()
+        && *first < 0
+    {
+        *first = 1;
+    }
+    if out.first() != Some(&1) || out.iter().any(|&d| d <= 0) || out.iter().product::<i64>() > 1 << 26 {
+        return Err(format!(
+            "has shape {dims:?}, expected [1, …] with fixed sizes (at most 2^26 values)"
+        ));
+    }
+    Ok(out)
 }
 
 /// Length of a `[batch?, n]` or `[n]` float tensor, or why it is not one.
@@ -153,7 +191,9 @@ fn vector_len(dtype: &ValueType) -> Result<usize, String> {
 }
 
 impl OnnxModel {
-    /// Loads a model and checks it has exactly one float vector input and one float vector output.
+    /// Loads a model and checks its signature: float vector inputs; one float vector output, or
+    /// several of which the one named [`ACTION_OUTPUT`] holds the actions and the others are
+    /// float tensors of fixed shape.
     pub fn load(path: &Path) -> Result<Self, OnnxError> {
         robots::check_regular_file(path).map_err(|reason| OnnxError::Load {
             path: path.to_path_buf(),
@@ -178,12 +218,14 @@ impl OnnxModel {
         };
         let output = match session.outputs() {
             [o] => o,
-            o => {
-                return Err(signature(format!(
-                    "has {} outputs; this loader takes one",
-                    o.len()
-                )));
-            }
+            [] => return Err(signature("has no outputs".into())),
+            many => many.iter().find(|o| o.name() == ACTION_OUTPUT).ok_or_else(|| {
+                signature(format!(
+                    "has {} outputs ({}) and none is named {ACTION_OUTPUT:?}, the actions",
+                    many.len(),
+                    many.iter().map(|o| o.name()).collect::<Vec<_>>().join(", ")
+                ))
+            })?,
         };
         if session.inputs().is_empty() {
             return Err(signature("has no inputs".into()));
@@ -196,14 +238,21 @@ impl OnnxModel {
         }
         let output_len =
             vector_len(output.dtype()).map_err(|w| signature(format!("output '{}' {w}", output.name())))?;
-        let bound = bound::BoundTensors::new(&inputs, output.name(), output_len).map_err(|reason| {
-            OnnxError::Load {
-                path: path.to_path_buf(),
-                reason,
-            }
+        let mut extra_outputs = Vec::new();
+        for o in session.outputs().iter().filter(|o| o.name() != output.name()) {
+            let shape =
+                fixed_shape(o.dtype()).map_err(|w| signature(format!("output '{}' {w}", o.name())))?;
+            extra_outputs.push((o.name().to_owned(), shape));
+        }
+        let mut bound_outputs = vec![(output.name().to_owned(), vec![1, output_len as i64])];
+        bound_outputs.extend(extra_outputs.iter().cloned());
+        let bound = bound::BoundTensors::new(&inputs, &bound_outputs).map_err(|reason| OnnxError::Load {
+            path: path.to_path_buf(),
+            reason,
         })?;
         Ok(Self {
             bound,
+            extra_outputs,
             input_len: inputs.iter().map(|i| i.1).sum(),
             inputs,
             output_name: output.name().to_owned(),
@@ -232,6 +281,17 @@ impl OnnxModel {
     /// Name and length of the output vector.
     pub fn output(&self) -> (&str, usize) {
         (&self.output_name, self.output_len)
+    }
+
+    /// The outputs other than the actions, with their shapes (batch included), in the model's
+    /// order; [`Self::extra_output`] takes an index into this list.
+    pub fn extra_outputs(&self) -> &[(String, Vec<i64>)] {
+        &self.extra_outputs
+    }
+
+    /// The values of extra output `k` as the last [`Self::run`] left them (zeros before).
+    pub fn extra_output(&self, k: usize) -> &[f32] {
+        self.bound.output(k + 1)
     }
 
     /// Runs one inference: `obs` (the inputs concatenated in the model's order) in, `actions` out.

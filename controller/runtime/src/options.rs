@@ -40,6 +40,9 @@ pub struct PlayOptions {
     pub limits: SafetyLimits,
     /// Stop after this many ticks in any case (loops, tests).
     pub max_ticks: Option<u64>,
+    /// The frame of a motion-carrying export the run starts from.
+    #[serde(default)]
+    pub start_step: usize,
 }
 
 impl Default for PlayOptions {
@@ -53,6 +56,7 @@ impl Default for PlayOptions {
             damping_s: 0.5,
             limits: SafetyLimits::default(),
             max_ticks: None,
+            start_step: 0,
         }
     }
 }

@@ -12,11 +12,13 @@ use std::time::{Duration, Instant};
 
 use human::live::LiveReader;
 use robot_link::{ErrorKind, GroundTruth, IoError, JointTarget, RobotLink, RobotState, TickClock};
-use robots::Robot;
+use robots::{Robot, spatial};
 
 use crate::action::ActionMapper;
 use crate::clip::Reference;
+use crate::fk::RobotKinematics;
 use crate::metrics::RunMetrics;
+use crate::motion::{Alignment, EmbeddedMotion};
 pub use crate::metrics::{Histogram, PlaySummary};
 use crate::onnx::OnnxModel;
 pub use crate::options::{EndMode, PlayOptions};
@@ -43,6 +45,9 @@ pub enum PlayError {
     /// Forward kinematics of the reference on the robot's model.
     #[error(transparent)]
     Kinematics(#[from] crate::fk::KinematicsError),
+    /// The clip.
+    #[error(transparent)]
+    Clip(#[from] crate::clip::ClipError),
     /// The inputs of a run do not fit together (reference and policy, model and robot).
     #[error("{0}")]
     Setup(String),
@@ -54,7 +59,9 @@ impl PlayError {
         match self {
             Self::Io(e) => e.kind(),
             Self::Onnx(crate::onnx::OnnxError::Runtime(_)) => ErrorKind::Unavailable,
-            Self::Onnx(_) | Self::Policy(_) | Self::Setup(_) | Self::Kinematics(_) => ErrorKind::BadInput,
+            Self::Onnx(_) | Self::Policy(_) | Self::Setup(_) | Self::Kinematics(_) | Self::Clip(_) => {
+                ErrorKind::BadInput
+            }
             Self::Telemetry(_) => ErrorKind::Io,
         }
     }
@@ -91,6 +98,10 @@ pub struct Player<L: RobotLink> {
     cursor: ReferenceCursor,
     mapper: ActionMapper,
     metrics: RunMetrics,
+    /// The motion a tracking export carries, when the policy is one.
+    embedded: Option<EmbeddedMotion>,
+    /// The robot's anchor, bodies and root rate through its model, when the policy needs them.
+    kinematics: Option<RobotKinematics>,
     // Buffers, robot order unless named policy_.
     state: RobotState,
     targets: Vec<JointTarget>,
@@ -118,7 +129,7 @@ impl<L: RobotLink> Player<L> {
         mut io: L,
         stop: Arc<AtomicBool>,
     ) -> Result<Self, PlayError> {
-        let model = OnnxModel::load(&layout.onnx_path)?;
+        let mut model = OnnxModel::load(&layout.onnx_path)?;
         // The robot's own margin inside its joint limits, where robot.toml gives one.
         let mut options = options;
         if let Some(m) = robot.config.position_margin {
@@ -147,6 +158,19 @@ impl<L: RobotLink> Player<L> {
         }
         let body_width = 3 * reference.bodies.len();
         layout.bind_model(model.inputs(), model.output().1)?;
+        let mut embedded = EmbeddedMotion::find(&mut model, &layout, options.start_step).map_err(PlayError::Setup)?;
+        if let Some(e) = &embedded
+            && reference.len() != e.frames - e.start_step
+        {
+            return Err(PlayError::Setup(format!(
+                "{} carries a motion of {} frames from step {}; the reference given has {} ticks                  (play the export's own motion)",
+                layout.onnx_path.display(),
+                e.frames,
+                e.start_step,
+                reference.len()
+            )));
+        }
+        let kinematics = motion_setup(&robot, &layout, &mut reference, embedded.is_some())?;
         if (layout.manifest.rate_hz - reference.rate_hz).abs() > 1e-9 {
             return Err(PlayError::Setup(format!(
                 "reference resampled at {} Hz for a {} Hz policy",
@@ -184,12 +208,20 @@ impl<L: RobotLink> Player<L> {
             .unwrap_or(0);
         let dt = 1.0 / layout.manifest.rate_hz;
         let default_q = layout.default_q.clone();
+        let mut metrics = RunMetrics::default();
+        metrics.track_bodies(&reference.motion_bodies, reference.anchor);
+        if let Some(e) = &mut embedded {
+            // The first tick observes the first frame: one call before anything moves.
+            e.seek(&mut model, e.start_step).map_err(PlayError::Setup)?;
+        }
         Ok(Self {
+            embedded,
+            kinematics,
             dt,
             cursor: ReferenceCursor::new(reference, frames, body_width, &default_q, &options, dt),
             mapper: ActionMapper::new(n, k_actions, &default_q),
             monitor: SafetyMonitor::new(options.limits, n, dt, robot.config.imu.rate_hz),
-            metrics: RunMetrics::default(),
+            metrics,
             obs_builder: ObservationBuilder::new(&layout),
             obs: vec![0.0; layout.obs_len],
             model,
@@ -583,9 +615,32 @@ impl<L: RobotLink> Player<L> {
     }
 
     fn policy_tick(&mut self, has_truth: bool) {
+        let frame = self.embedded.as_ref().map(|e| e.frame(&self.model));
+        let (mut robot_anchor, mut base_ang_vel) = ([0.0; 7], self.state.gyro);
+        let q = self.state.quat;
+        robot_anchor[3..].copy_from_slice(&q);
+        if let Some(k) = &mut self.kinematics {
+            let p = self.truth.root_pose;
+            k.update(q, &self.state.q, has_truth.then_some([p[0], p[1], p[2]]));
+            robot_anchor = k.anchor_pose();
+            base_ang_vel = k.imu_to_root(self.state.gyro);
+        }
+        if self.cursor.tick() == 0
+            && let Some(first) = self.cursor.first_anchor(frame.as_ref())
+        {
+            // The run starts tracking: the motion is put under the robot.
+            let alignment = Alignment::new(first, robot_anchor, has_truth);
+            tracing::info!(
+                yaw_deg = alignment.yaw().to_degrees(),
+                "reference aligned to the robot's anchor"
+            );
+            self.cursor.align(alignment);
+        }
         let psi = self
             .cursor
-            .update(&self.layout.default_q, &self.layout.robot_index);
+            .update(&self.layout.default_q, &self.layout.robot_index, frame.as_ref());
+        let next = self.cursor.next_frame();
+        let time_step = self.embedded.as_ref().map_or(next as f64, |e| e.time_step(next));
         for (p, &r) in self.layout.robot_index.iter().enumerate() {
             self.policy_q[p] = self.state.q[r];
             self.policy_qd[p] = self.state.qd[r];
@@ -605,6 +660,9 @@ impl<L: RobotLink> Player<L> {
             reference: self.cursor.view(),
             truth: has_truth.then_some(&self.truth),
             trackers: self.cursor.trackers(),
+            base_ang_vel,
+            robot_anchor,
+            time_step,
         };
         self.obs_builder.build(&inputs, &mut self.obs);
         if !self.obs.iter().all(|x| x.is_finite()) {
@@ -649,6 +707,13 @@ impl<L: RobotLink> Player<L> {
             let root = has_truth.then(|| (self.truth.root_pose, self.cursor.current_root()));
             self.metrics
                 .add_tracking(&self.state.q, &self.aligned_reference, root);
+            if let (true, Some(k)) = (has_truth, &self.kinematics) {
+                let now = self.cursor.motion_now();
+                self.metrics.add_bodies((0..now.len()).map(|b| {
+                    let p = k.body_position(b);
+                    spatial::norm(spatial::sub(p, [now[b][0], now[b][1], now[b][2]]))
+                }));
+            }
         }
         self.previous_reference.copy_from_slice(current);
         self.cursor.step();
@@ -668,4 +733,43 @@ impl<L: RobotLink> Player<L> {
     pub fn request_stop(&self) {
         self.stop.store(true, Ordering::Relaxed);
     }
+}
+
+/// What a policy tracking a motion needs beyond the clip: the motion bodies' world poses on the
+/// reference (by forward kinematics of a clip; an export's own motion carries them) and the
+/// robot's kinematics, when the policy observes an anchor or the root's rate or tracks bodies.
+fn motion_setup(
+    robot: &Robot,
+    layout: &PolicyLayout,
+    reference: &mut Reference,
+    embedded: bool,
+) -> Result<Option<RobotKinematics>, PlayError> {
+    let m = &layout.manifest;
+    let mut bodies = m.motion_bodies.clone();
+    if let Some(a) = &m.anchor_body
+        && !bodies.contains(a)
+    {
+        if embedded {
+            return Err(PlayError::Setup(format!(
+                "anchor body {a:?} is not among the bodies the export's motion carries (body_names: {})",
+                bodies.join(", ")
+            )));
+        }
+        bodies.push(a.clone());
+    }
+    if !embedded && !bodies.is_empty() {
+        reference.motion_poses = crate::fk::body_poses(robot, reference, &bodies)?;
+        reference.anchor = m.anchor_body.as_ref().and_then(|a| bodies.iter().position(|b| b == a));
+        reference.motion_bodies = bodies.clone();
+    }
+    let needs = !bodies.is_empty()
+        || layout
+            .slots
+            .iter()
+            .any(|s| s.term.needs_anchor() || matches!(s.term, Term::BaseAngVel(_)));
+    Ok(if needs {
+        Some(RobotKinematics::new(robot, m.anchor_body.as_deref(), &bodies)?)
+    } else {
+        None
+    })
 }

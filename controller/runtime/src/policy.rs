@@ -7,6 +7,8 @@ use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 use human::live::TRACKER_VALUES;
+
+pub mod export;
 use robot_link::GroundTruth;
 use robots::{Robot, spatial};
 
@@ -112,6 +114,20 @@ pub enum Term {
         #[serde(flatten)]
         shaping: Shaping,
     },
+    /// The reference motion's joint positions then velocities at this tick, policy order (the
+    /// `command` of a motion-tracking export).
+    MotionCommand(#[serde(default)] Shaping),
+    /// The reference anchor's position in the robot anchor's frame (3): needs the robot's
+    /// position (simulation ground truth; a state estimator on hardware).
+    MotionAnchorPosB(#[serde(default)] Shaping),
+    /// The first two columns of `R(q_robot_anchor⁻¹ ⊗ q_ref_anchor)`, row by row (6).
+    MotionAnchorOriB(#[serde(default)] Shaping),
+    /// Angular velocity of the root body in its own frame (the gyro, turned from the IMU's
+    /// frame into the root's).
+    BaseAngVel(#[serde(default)] Shaping),
+    /// The frame of the motion a tracking export carries that the next call should return
+    /// (goes to the model's `time_step` input).
+    TimeStep(#[serde(default)] Shaping),
     /// Positions of the reference's bodies (forward kinematics of the robot model at the
     /// reference pose) relative to the reference root, in the reference's heading frame: 3 per
     /// body per frame.
@@ -152,9 +168,26 @@ pub struct Shaping {
     #[serde(default = "one")]
     pub history: usize,
     /// The ONNX input this term goes to, for models with several named inputs (default: the
-    /// model's first input).
+    /// input named `obs`, else the model's first input).
     #[serde(default)]
     pub input: Option<String>,
+    /// A multiplier per value, replacing `scale` (one per value of a history step).
+    #[serde(default)]
+    pub scales: Option<Vec<f64>>,
+    /// The order of the stacked history.
+    #[serde(default)]
+    pub history_order: HistoryOrder,
+}
+
+/// How a term's history is stacked.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum HistoryOrder {
+    /// The current value first (this project's manifests).
+    #[default]
+    NewestFirst,
+    /// The current value last (Isaac Lab's and mjlab's history buffers).
+    OldestFirst,
 }
 
 fn unit() -> f64 {
@@ -169,6 +202,8 @@ impl Default for Shaping {
             clip: None,
             history: 1,
             input: None,
+            scales: None,
+            history_order: HistoryOrder::NewestFirst,
         }
     }
 }
@@ -186,7 +221,12 @@ impl Term {
             | Self::JointVel(s)
             | Self::LastTargets(s)
             | Self::FootContacts(s)
-            | Self::Ramp(s) => s,
+            | Self::Ramp(s)
+            | Self::MotionCommand(s)
+            | Self::MotionAnchorPosB(s)
+            | Self::MotionAnchorOriB(s)
+            | Self::BaseAngVel(s)
+            | Self::TimeStep(s) => s,
             Self::JointPos { shaping, .. }
             | Self::LastActions { shaping, .. }
             | Self::Command { shaping, .. }
@@ -221,15 +261,27 @@ impl Term {
             Self::RefRootPose { .. } => "ref_root_pose",
             Self::RefBodyPos { .. } => "ref_body_pos",
             Self::TrackerPoses { .. } => "tracker_poses",
+            Self::MotionCommand(_) => "motion_command",
+            Self::MotionAnchorPosB(_) => "motion_anchor_pos_b",
+            Self::MotionAnchorOriB(_) => "motion_anchor_ori_b",
+            Self::BaseAngVel(_) => "base_ang_vel",
+            Self::TimeStep(_) => "time_step",
         }
     }
 
     /// Values per history step, for `joints` joints and `feet` feet.
     pub fn width(&self, joints: usize, feet: usize) -> usize {
         match self {
-            Self::Gyro(_) | Self::Accelerometer(_) | Self::ProjectedGravity(_) | Self::BaseLinVel(_) => 3,
+            Self::Gyro(_)
+            | Self::Accelerometer(_)
+            | Self::ProjectedGravity(_)
+            | Self::BaseLinVel(_)
+            | Self::BaseAngVel(_)
+            | Self::MotionAnchorPosB(_) => 3,
             Self::BaseOrientation(_) => 4,
-            Self::BaseHeight(_) | Self::Ramp(_) => 1,
+            Self::MotionAnchorOriB(_) => 6,
+            Self::MotionCommand(_) => 2 * joints,
+            Self::BaseHeight(_) | Self::Ramp(_) | Self::TimeStep(_) => 1,
             Self::JointPos { .. } | Self::JointVel(_) | Self::LastTargets(_) => joints,
             Self::LastActions { k, .. } => joints * k,
             Self::FootContacts(_) => feet,
@@ -252,8 +304,17 @@ impl Term {
     pub fn needs_ground_truth(&self) -> bool {
         matches!(
             self,
-            Self::BaseHeight(_) | Self::BaseLinVel(_) | Self::FootContacts(_) | Self::RefRootPose { .. }
+            Self::BaseHeight(_)
+                | Self::BaseLinVel(_)
+                | Self::FootContacts(_)
+                | Self::RefRootPose { .. }
+                | Self::MotionAnchorPosB(_)
         )
+    }
+
+    /// Whether the term needs the pose of the reference's anchor and of the robot's.
+    pub fn needs_anchor(&self) -> bool {
+        matches!(self, Self::MotionAnchorPosB(_) | Self::MotionAnchorOriB(_))
     }
 }
 
@@ -312,16 +373,38 @@ pub enum ActionKind {
     Torque,
 }
 
+/// Scale of position actions.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(untagged)]
+pub enum ActionScale {
+    /// The same for every joint.
+    One(f64),
+    /// Per joint, policy order.
+    PerJoint(Vec<f64>),
+}
+
+impl Default for ActionSpec {
+    fn default() -> Self {
+        Self {
+            kind: ActionKind::Position,
+            scale: None,
+            clip: None,
+            rate_limit: None,
+            lowpass_hz: None,
+        }
+    }
+}
+
 /// The action side of the contract.
 #[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct ActionSpec {
     /// What an action means.
     pub kind: ActionKind,
-    /// Scale of a position action, rad per unit (default: the ONNX metadata's `action_scale`,
-    /// else 1).
+    /// Scale of a position action, rad per unit: one number, or one per joint in policy order
+    /// (default: the ONNX metadata's `action_scale`, else 1).
     #[serde(default)]
-    pub scale: Option<f64>,
+    pub scale: Option<ActionScale>,
     /// Clip of the raw action.
     #[serde(default)]
     pub clip: Option<f64>,
@@ -333,15 +416,18 @@ pub struct ActionSpec {
     pub lowpass_hz: Option<f64>,
 }
 
-/// A policy manifest.
+/// A policy manifest. Every field but `onnx` may be left to the ONNX file's metadata, as
+/// training frameworks export it (see [`export`]).
 #[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct PolicyManifest {
-    /// What this policy is (shown by `check` and `play`).
+    /// What this policy is (shown by `check` and `play`; default: the metadata's `run_path`).
+    #[serde(default)]
     pub description: String,
     /// ONNX file, relative to the manifest.
     pub onnx: PathBuf,
-    /// Control rate the policy was trained at, Hz.
+    /// Control rate the policy was trained at, Hz (default: the robot's `control_rate_hz`).
+    #[serde(default)]
     pub rate_hz: f64,
     /// Joint names in the policy's order, mapped to the robot's joints by name (default: the
     /// ONNX metadata's `joint_names`).
@@ -357,10 +443,39 @@ pub struct PolicyManifest {
     /// PD damping per joint, policy order (default: metadata `joint_damping`, else robot.toml).
     #[serde(default)]
     pub damping: Option<Vec<f64>>,
-    /// Action mapping.
+    /// Action mapping (default: position actions).
+    #[serde(default)]
     pub action: ActionSpec,
-    /// Observation terms, in order.
+    /// Observation terms, in order (default: the metadata's `observation_names`).
+    #[serde(default)]
     pub observation: Vec<Term>,
+    /// The body the reference motion is anchored to, for `motion_anchor_*` terms (default: the
+    /// metadata's `anchor_body_name`).
+    #[serde(default)]
+    pub anchor_body: Option<String>,
+    /// The bodies the reference motion tracks, MJCF names (default: the metadata's
+    /// `body_names`): their position errors are reported.
+    #[serde(default)]
+    pub motion_bodies: Vec<String>,
+}
+
+impl PolicyManifest {
+    /// A manifest that leaves everything to the metadata of `onnx`.
+    pub fn for_onnx(onnx: PathBuf) -> Self {
+        Self {
+            description: String::new(),
+            onnx,
+            rate_hz: 0.0,
+            joints: Vec::new(),
+            default_pose: None,
+            stiffness: None,
+            damping: None,
+            action: ActionSpec::default(),
+            observation: Vec::new(),
+            anchor_body: None,
+            motion_bodies: Vec::new(),
+        }
+    }
 }
 
 /// A manifest that does not fit: the file, the place, what is wrong.
@@ -375,64 +490,47 @@ pub struct PolicyError {
     pub message: String,
 }
 
-/// Fills what the manifest leaves out from the ONNX file's metadata properties, as training
-/// frameworks export them (comma-separated `joint_names`, `action_scale`, `default_joint_pos`,
-/// `joint_stiffness`, `joint_damping`).
+/// Fills what the manifest leaves out from the ONNX file's metadata (see [`export`]); the file
+/// is opened only when something is left out.
 fn fill_from_metadata(m: &mut PolicyManifest, onnx: &Path) -> Result<(), (String, String)> {
+    let needs_anchor = m.observation.iter().any(Term::needs_anchor) && m.anchor_body.is_none();
     let needs = m.joints.is_empty()
         || m.action.scale.is_none()
         || m.default_pose.is_none()
         || m.stiffness.is_none()
-        || m.damping.is_none();
+        || m.damping.is_none()
+        || m.observation.is_empty()
+        || needs_anchor;
     if !needs {
         return Ok(());
     }
-    let meta = crate::onnx::read_metadata(onnx).map_err(|e| ("onnx".to_owned(), e.to_string()))?;
-    let numbers = |key: &str| -> Result<Option<Vec<f64>>, (String, String)> {
-        meta.get(key)
-            .map(|text| {
-                text.split(',')
-                    .map(|v| {
-                        v.trim()
-                            .parse::<f64>()
-                            .map_err(|_| (format!("ONNX metadata {key}"), format!("{v:?} is not a number")))
-                    })
-                    .collect()
-            })
-            .transpose()
-    };
-    if m.joints.is_empty() {
-        let names = meta.get("joint_names").ok_or((
-            "joints".to_owned(),
-            "missing, and the ONNX file has no joint_names metadata".to_owned(),
-        ))?;
-        m.joints = names.split(',').map(|s| s.trim().to_owned()).collect();
-    }
-    if m.action.scale.is_none()
-        && let Some(v) = numbers("action_scale")?
+    let facts = crate::onnx::read_facts(onnx).map_err(|e| ("onnx".to_owned(), e.to_string()))?;
+    export::fill(m, &facts)
+}
+
+/// The anchor and the motion's bodies must be bodies of the robot's compiled model.
+fn check_bodies(robot: &Robot, m: &PolicyManifest) -> Result<(), (String, String)> {
+    let model = sim2real::mujoco::load_model(&robot.mjcf_path)
+        .map_err(|e| ("anchor_body".to_owned(), e.to_string()))?;
+    let missing = |name: &str| sim2real::model_index::body(&model, name).is_err();
+    if let Some(a) = &m.anchor_body
+        && missing(a)
     {
-        // One scale for every joint is what this loop applies.
-        match v.as_slice() {
-            [s] => m.action.scale = Some(*s),
-            many if many.iter().all(|x| (x - many[0]).abs() < 1e-12) && !many.is_empty() => {
-                m.action.scale = Some(many[0]);
-            }
-            _ => {
-                return Err((
-                    "ONNX metadata action_scale".into(),
-                    "per-joint scales differ; give action.scale in the manifest".into(),
-                ));
-            }
-        }
+        return Err((
+            "anchor_body".into(),
+            format!("{a:?} is not a body of {}", robot.mjcf_path.display()),
+        ));
     }
-    if m.default_pose.is_none() {
-        m.default_pose = numbers("default_joint_pos")?;
-    }
-    if m.stiffness.is_none() {
-        m.stiffness = numbers("joint_stiffness")?;
-    }
-    if m.damping.is_none() {
-        m.damping = numbers("joint_damping")?;
+    let absent: Vec<&str> = m.motion_bodies.iter().map(String::as_str).filter(|b| missing(b)).collect();
+    if !absent.is_empty() {
+        return Err((
+            "motion_bodies".into(),
+            format!(
+                "not bodies of {}: {}",
+                robot.mjcf_path.display(),
+                absent.join(", ")
+            ),
+        ));
     }
     Ok(())
 }
@@ -469,11 +567,22 @@ pub struct PolicyLayout {
     pub kp: Vec<f64>,
     /// Damping per joint, robot order.
     pub kd: Vec<f64>,
+    /// Scale of position actions per joint, robot order.
+    pub action_scale: Vec<f64>,
 }
 
+/// How far outside its joint limits an exported default pose may lie and be clamped: the
+/// exporters round to 3 decimals.
+pub const METADATA_ROUNDING: f64 = 5e-4;
+
 impl PolicyLayout {
-    /// Loads `path` and resolves it against `robot`.
+    /// Loads `path` and resolves it against `robot`. `path` is a manifest (TOML), or an ONNX
+    /// export whose metadata carries the whole contract (no manifest).
     pub fn load(path: &Path, robot: &Robot) -> Result<Self, PolicyError> {
+        if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("onnx")) {
+            let file = path.file_name().map(PathBuf::from).unwrap_or_default();
+            return Self::resolve(path, PolicyManifest::for_onnx(file), robot);
+        }
         let text = robots::read_text(path).map_err(|message| PolicyError {
             file: path.to_path_buf(),
             place: "file".to_owned(),
@@ -490,14 +599,28 @@ impl PolicyLayout {
             place: place.to_owned(),
             message,
         };
-        let mut manifest: PolicyManifest = toml::from_str(text).map_err(|e| {
+        let manifest: PolicyManifest = toml::from_str(text).map_err(|e| {
             let line = e
                 .span()
                 .map_or(0, |s| text[..s.start.min(text.len())].matches('\n').count() + 1);
             err(&format!("line {line}"), e.message().to_owned())
         })?;
+        Self::resolve(path, manifest, robot)
+    }
+
+    /// Resolves `manifest` (from `path`) against `robot`, filling what it leaves out from the
+    /// ONNX file's metadata.
+    fn resolve(path: &Path, mut manifest: PolicyManifest, robot: &Robot) -> Result<Self, PolicyError> {
+        let err = |place: &str, message: String| PolicyError {
+            file: path.to_path_buf(),
+            place: place.to_owned(),
+            message,
+        };
         let onnx_path = path.parent().unwrap_or(Path::new(".")).join(&manifest.onnx);
         fill_from_metadata(&mut manifest, &onnx_path).map_err(|(place, m)| err(&place, m))?;
+        if manifest.rate_hz == 0.0 {
+            manifest.rate_hz = robot.config.control_rate_hz;
+        }
         let names: Vec<&str> = robot.config.joints.iter().map(|j| j.name.as_str()).collect();
         let mut robot_index = Vec::with_capacity(manifest.joints.len());
         for (i, name) in manifest.joints.iter().enumerate() {
@@ -548,8 +671,26 @@ impl PolicyLayout {
         }
         let a = &manifest.action;
         let nyquist = manifest.rate_hz / 2.0;
+        let scales = match &a.scale {
+            None => vec![1.0; manifest.joints.len()],
+            Some(ActionScale::One(v)) => vec![*v; manifest.joints.len()],
+            Some(ActionScale::PerJoint(v)) if v.len() == manifest.joints.len() => v.clone(),
+            Some(ActionScale::PerJoint(v)) => {
+                return Err(err(
+                    "action.scale",
+                    format!("{} values for {} joints", v.len(), manifest.joints.len()),
+                ));
+            }
+        };
+        for (p, v) in scales.iter().enumerate() {
+            if !(1e-6..=10.0).contains(v) {
+                return Err(err(
+                    &format!("action.scale[{p}] ({})", manifest.joints[p]),
+                    format!("{} is outside [1e-06, 10]", robots::num(*v)),
+                ));
+            }
+        }
         for (field, v, range) in [
-            ("action.scale", a.scale, 1e-6..=10.0),
             ("action.clip", a.clip, 1e-6..=100.0),
             ("action.rate_limit", a.rate_limit, 1e-3..=100.0),
             ("action.lowpass_hz", a.lowpass_hz, 0.1..=nyquist),
@@ -619,6 +760,28 @@ impl PolicyLayout {
             });
             at += width * s.history;
         }
+        if let Some((i, s)) = slots.iter().enumerate().find(|(_, s)| s.term.needs_anchor())
+            && manifest.anchor_body.is_none()
+        {
+            return Err(err(
+                &format!("observation[{i}] ({})", s.term.name()),
+                "needs the motion's anchor body: give anchor_body (exports: anchor_body_name)".into(),
+            ));
+        }
+        for (i, s) in slots.iter().enumerate() {
+            let sh = s.term.shaping();
+            if let Some(v) = &sh.scales
+                && (v.len() != s.width || v.iter().any(|x| !x.is_finite() || x.abs() > 1e6))
+            {
+                return Err(err(
+                    &format!("observation[{i}] ({})", s.term.name()),
+                    format!("scales: {} finite values needed, one per value, got {}", s.width, v.len()),
+                ));
+            }
+        }
+        if manifest.anchor_body.is_some() || !manifest.motion_bodies.is_empty() {
+            check_bodies(robot, &manifest).map_err(|(place, m)| err(&place, m))?;
+        }
         // Per-joint vectors in robot order: the policy's where it declares them, else the robot's.
         let joints = &robot.config.joints;
         let per_joint = |field: &str, given: &Option<Vec<f64>>, robot_value: &dyn Fn(usize) -> f64| {
@@ -639,9 +802,21 @@ impl PolicyLayout {
             }
             Ok(out)
         };
-        let default_q = per_joint("default_pose", &manifest.default_pose, &|r| {
+        let mut default_q = per_joint("default_pose", &manifest.default_pose, &|r| {
             joints[r].default_position
         })?;
+        // An exported default pose is rounded to 3 decimals: a joint at its limit may come out
+        // just beyond it.
+        for (q, j) in default_q.iter_mut().zip(joints) {
+            let [lo, hi] = j.position_limits;
+            if (lo - METADATA_ROUNDING..=hi + METADATA_ROUNDING).contains(q) {
+                *q = q.clamp(lo, hi);
+            }
+        }
+        let mut action_scale = vec![1.0; joints.len()];
+        for (&r, &v) in robot_index.iter().zip(&scales) {
+            action_scale[r] = v;
+        }
         let kp = per_joint("stiffness", &manifest.stiffness, &|r| joints[r].kp)?;
         let kd = per_joint("damping", &manifest.damping, &|r| joints[r].kd)?;
         for (r, j) in joints.iter().enumerate() {
@@ -674,6 +849,7 @@ impl PolicyLayout {
             default_q,
             kp,
             kd,
+            action_scale,
         })
     }
 
@@ -744,10 +920,12 @@ impl PolicyLayout {
         }
         let mut at = 0;
         let mut ranges = vec![0..0; self.slots.len()];
+        // Terms without an input go to the one named `obs`, else the first.
+        let default_input = names.iter().position(|n| *n == "obs").unwrap_or(0);
         for (i, (name, len)) in inputs.iter().enumerate() {
             let start = at;
             for (k, s) in self.slots.iter().enumerate() {
-                if s.term.shaping().input.as_deref().map_or(i == 0, |n| n == name) {
+                if s.term.shaping().input.as_deref().map_or(i == default_input, |n| n == name) {
                     let n = s.range.len();
                     ranges[k] = at..at + n;
                     at += n;
@@ -834,6 +1012,13 @@ pub struct ObsInputs<'a> {
     pub truth: Option<&'a GroundTruth>,
     /// VR tracker poses (teleoperation), see [`Term::TrackerPoses`].
     pub trackers: Option<&'a [f64; TRACKER_VALUES]>,
+    /// The root body's angular velocity in its own frame.
+    pub base_ang_vel: [f64; 3],
+    /// The robot's anchor body in the world `[x, y, z, w, qx, qy, qz]` (the position only where
+    /// the run knows the robot's).
+    pub robot_anchor: [f64; 7],
+    /// The motion frame the next call should return (`time_step`).
+    pub time_step: f64,
 }
 
 /// Reference frames the observation can look at.
@@ -847,6 +1032,8 @@ pub trait ReferenceView: std::fmt::Debug {
     /// Positions of the reference bodies `offset` ticks ahead, 3 per body, relative to the
     /// reference root in its heading frame (bodies in the order the reference was built with).
     fn body_pos(&self, offset: usize) -> &[f64];
+    /// The reference's anchor body in the world, aligned to the robot: `[x, y, z, w, qx, qy, qz]`.
+    fn anchor_pose(&self) -> [f64; 7];
 }
 
 /// Fills observations for one layout; histories live in buffers made once.
@@ -873,21 +1060,35 @@ impl ObservationBuilder {
         for slot in &self.slots {
             let w = slot.width;
             let sh = slot.term.shaping();
-            // Age the history: shift older copies back by one step.
             let r = slot.range.clone();
-            if sh.history > 1 {
-                obs.copy_within(r.start..r.end - w, r.start + w);
-            }
+            // Age the history: move older copies one step away from the current value's place.
+            let current = match sh.history_order {
+                HistoryOrder::NewestFirst => {
+                    if sh.history > 1 {
+                        obs.copy_within(r.start..r.end - w, r.start + w);
+                    }
+                    r.start
+                }
+                HistoryOrder::OldestFirst => {
+                    if sh.history > 1 {
+                        obs.copy_within(r.start + w..r.end, r.start);
+                    }
+                    r.end - w
+                }
+            };
             let v = &mut self.scratch[..w];
             fill_term(&slot.term, inputs, v);
-            for (o, &x) in obs[r.start..r.start + w].iter_mut().zip(v.iter()) {
-                let y = (x - sh.offset) * sh.scale;
+            for (i, (o, &x)) in obs[current..current + w].iter_mut().zip(v.iter()).enumerate() {
+                let scale = sh.scales.as_ref().map_or(sh.scale, |s| s[i]);
+                let y = (x - sh.offset) * scale;
                 *o = sh.clip.map_or(y, |c| y.clamp(-c, c)) as f32;
             }
             if !self.filled && sh.history > 1 {
                 // First tick: the history starts full of the current value.
-                for k in 1..sh.history {
-                    obs.copy_within(r.start..r.start + w, r.start + k * w);
+                for k in 0..sh.history {
+                    if r.start + k * w != current {
+                        obs.copy_within(current..current + w, r.start + k * w);
+                    }
                 }
             }
         }
@@ -957,6 +1158,22 @@ fn fill_term(term: &Term, x: &ObsInputs<'_>, v: &mut [f64]) {
                     .copy_from_slice(&relative_pose_in_heading(robot, x.reference.root_pose(offset)));
             }
         }
+        Term::MotionCommand(_) => {
+            v[..n].copy_from_slice(x.reference.joint_pos(0));
+            v[n..].copy_from_slice(x.reference.joint_vel(0));
+        }
+        Term::MotionAnchorPosB(_) => {
+            v.copy_from_slice(&crate::motion::anchor_pos_b(x.robot_anchor, x.reference.anchor_pose()));
+        }
+        Term::MotionAnchorOriB(_) => {
+            let (r, m) = (x.robot_anchor, x.reference.anchor_pose());
+            v.copy_from_slice(&crate::motion::anchor_ori_b(
+                [r[3], r[4], r[5], r[6]],
+                [m[3], m[4], m[5], m[6]],
+            ));
+        }
+        Term::BaseAngVel(_) => v.copy_from_slice(&x.base_ang_vel),
+        Term::TimeStep(_) => v[0] = x.time_step,
         Term::RefBodyPos { bodies, frames, .. } => {
             let w = 3 * bodies.len();
             for (f, &offset) in frames.iter().enumerate() {

@@ -8,6 +8,7 @@ use std::time::Instant;
 use human::live::{LiveReader, TRACKER_VALUES};
 
 use crate::clip::Reference;
+use crate::motion::{Alignment, MotionFrame};
 use crate::options::{EndMode, PlayOptions};
 use crate::policy::ReferenceView;
 
@@ -18,6 +19,8 @@ struct Frames {
     qd: Vec<Vec<f64>>,
     root: Vec<[f64; 7]>,
     body: Vec<Vec<f64>>,
+    /// The anchor of this tick, aligned.
+    anchor: [f64; 7],
 }
 
 impl ReferenceView for Frames {
@@ -32,6 +35,9 @@ impl ReferenceView for Frames {
     }
     fn body_pos(&self, offset: usize) -> &[f64] {
         &self.body[offset.min(self.body.len() - 1)]
+    }
+    fn anchor_pose(&self) -> [f64; 7] {
+        self.anchor
     }
 }
 
@@ -59,6 +65,10 @@ pub struct ReferenceCursor {
     end_ticks: usize,
     end: EndMode,
     live: Option<Live>,
+    /// Where the motion was put for this run (set when a run starts tracking an anchor).
+    alignment: Option<Alignment>,
+    /// The motion bodies' poses of this tick, aligned.
+    motion_now: Vec<[f64; 7]>,
 }
 
 impl ReferenceCursor {
@@ -79,7 +89,10 @@ impl ReferenceCursor {
                 qd: vec![vec![0.0; n]; frames],
                 root: vec![[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]; frames],
                 body: vec![vec![0.0; body_width]; frames],
+                anchor: [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
             },
+            alignment: None,
+            motion_now: vec![[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]; reference.motion_bodies.len()],
             current_q: default_q.to_vec(),
             tick: 0,
             ramp_ticks: (options.ramp_s / dt).round() as usize,
@@ -123,6 +136,48 @@ impl ReferenceCursor {
     /// Moves to the next tick.
     pub fn step(&mut self) {
         self.tick += 1;
+    }
+
+    /// The reference frame tick `tick` plays (held at the first during the ramp, at the last
+    /// after the end, wrapped when looping).
+    pub fn frame_at(&self, tick: usize) -> usize {
+        let base = tick.saturating_sub(self.ramp_ticks);
+        let len = self.reference.len();
+        if self.end == EndMode::Loop {
+            base % len
+        } else {
+            base.min(len - 1)
+        }
+    }
+
+    /// The frame the next tick plays.
+    pub fn next_frame(&self) -> usize {
+        self.frame_at(self.tick + 1)
+    }
+
+    /// The anchor's first pose, unaligned: from `embedded` (the frame a tracking export's call
+    /// returned) or the reference's table. None without an anchor.
+    pub fn first_anchor(&self, embedded: Option<&MotionFrame<'_>>) -> Option<[f64; 7]> {
+        let a = self.reference.anchor?;
+        Some(match embedded {
+            Some(f) => f.body_pose(a),
+            None => self.reference.motion_poses_at(0)[a],
+        })
+    }
+
+    /// Puts the motion where `alignment` says, from this tick on.
+    pub fn align(&mut self, alignment: Alignment) {
+        self.alignment = Some(alignment);
+    }
+
+    /// Where the motion was put, once a run started tracking its anchor.
+    pub fn alignment(&self) -> Option<Alignment> {
+        self.alignment
+    }
+
+    /// The motion bodies' poses of this tick, aligned (empty without motion bodies).
+    pub fn motion_now(&self) -> &[[f64; 7]] {
+        &self.motion_now
     }
 
     /// The clip proper is playing (not its ramp, not its end).
@@ -174,8 +229,15 @@ impl ReferenceCursor {
     }
 
     /// Positions the frames for this tick and returns ψ (0 → 1 over the ramp). `default_q` is
-    /// robot order; `robot_index[p]` is the robot joint of policy joint `p`.
-    pub fn update(&mut self, default_q: &[f64], robot_index: &[usize]) -> f64 {
+    /// robot order; `robot_index[p]` is the robot joint of policy joint `p`. `embedded`: this
+    /// tick's frame as a tracking export's last call returned it (it replaces the table's
+    /// current frame; frames ahead come from the table read out of the same export).
+    pub fn update(
+        &mut self,
+        default_q: &[f64],
+        robot_index: &[usize],
+        embedded: Option<&MotionFrame<'_>>,
+    ) -> f64 {
         if let Some(live) = &mut self.live {
             let frame = live.reader.latest();
             let n = self.reference.n;
@@ -208,17 +270,36 @@ impl ReferenceCursor {
             } else {
                 0.0
             };
+            let called = embedded.filter(|_| f == 0);
             for (p, &r) in robot_index.iter().enumerate() {
-                self.frames.q[f][p] = q[r] + (default_q[r] - q[r]) * blend;
-                self.frames.qd[f][p] = if moving(k) { qd[r] } else { 0.0 };
+                let (q, qd) = called.map_or((q[r], qd[r]), |e| {
+                    (f64::from(e.joint_pos[p]), f64::from(e.joint_vel[p]))
+                });
+                self.frames.q[f][p] = q + (default_q[r] - q) * blend;
+                self.frames.qd[f][p] = if moving(k) { qd } else { 0.0 };
             }
-            self.frames.root[f] = self.reference.root[k.min(len - 1)];
+            let root = self.reference.root[k.min(len - 1)];
+            self.frames.root[f] = self.alignment.map_or(root, |a| a.apply(root));
             if !self.reference.bodies.is_empty() {
                 self.frames.body[f].copy_from_slice(self.reference.body_pos_at(k));
             }
         }
         for (p, &r) in robot_index.iter().enumerate() {
             self.current_q[r] = self.frames.q[0][p];
+        }
+        if !self.motion_now.is_empty() {
+            let align = self.alignment.unwrap_or_default();
+            let k = base.min(len - 1);
+            for (b, now) in self.motion_now.iter_mut().enumerate() {
+                let pose = match embedded {
+                    Some(e) => e.body_pose(b),
+                    None => self.reference.motion_poses_at(k)[b],
+                };
+                *now = align.apply(pose);
+            }
+            if let Some(a) = self.reference.anchor {
+                self.frames.anchor = self.motion_now[a];
+            }
         }
         psi
     }

@@ -28,10 +28,12 @@ struct Bound {
 pub(super) struct BoundTensors {
     memory: *mut OrtMemoryInfo,
     inputs: Vec<Bound>,
-    output: Bound,
+    /// The action output first, then the others in the model's order.
+    outputs: Vec<Bound>,
     input_names: Vec<*const c_char>,
     input_values: Vec<*const OrtValue>,
-    output_name: *const c_char,
+    output_names: Vec<*const c_char>,
+    output_values: Vec<*mut OrtValue>,
 }
 
 // SAFETY: the tensors and memory info are plain heap objects of ONNX Runtime owned by this struct
@@ -52,14 +54,14 @@ fn check(status: OrtStatusPtr) -> Result<(), String> {
     Err(message)
 }
 
-/// A `[1, n]` float tensor over a new buffer.
-fn tensor(memory: *mut OrtMemoryInfo, name: &str, n: usize) -> Result<Bound, String> {
+/// A float tensor of `shape` over a new buffer.
+fn tensor(memory: *mut OrtMemoryInfo, name: &str, shape: &[i64]) -> Result<Bound, String> {
+    let n = shape.iter().product::<i64>().max(0) as usize;
     let mut bound = Bound {
         _name: CString::new(name).map_err(|e| e.to_string())?,
         buffer: vec![0.0; n].into_boxed_slice(),
         value: std::ptr::null_mut(),
     };
-    let shape = [1i64, n as i64];
     // SAFETY: the buffer is owned by `bound` and outlives the value (released first in Drop).
     unsafe {
         check((ort::api().CreateTensorWithDataAsOrtValue)(
@@ -67,7 +69,7 @@ fn tensor(memory: *mut OrtMemoryInfo, name: &str, n: usize) -> Result<Bound, Str
             bound.buffer.as_mut_ptr().cast::<c_void>(),
             n * size_of::<f32>(),
             shape.as_ptr(),
-            2,
+            shape.len(),
             ONNXTensorElementDataType::ONNX_TENSOR_ELEMENT_DATA_TYPE_FLOAT,
             &mut bound.value,
         ))?;
@@ -76,8 +78,9 @@ fn tensor(memory: *mut OrtMemoryInfo, name: &str, n: usize) -> Result<Bound, Str
 }
 
 impl BoundTensors {
-    /// Tensors `[1, n]` for each input (in the session's order) and the output.
-    pub(super) fn new(inputs: &[(String, usize)], output_name: &str, n_out: usize) -> Result<Self, String> {
+    /// Tensors `[1, n]` for each input (in the session's order) and one of its shape for each
+    /// output (the action output first).
+    pub(super) fn new(inputs: &[(String, usize)], outputs: &[(String, Vec<i64>)]) -> Result<Self, String> {
         let mut memory = std::ptr::null_mut();
         // SAFETY: out-pointer to a local; released in Drop (or below on error).
         check(unsafe {
@@ -90,28 +93,34 @@ impl BoundTensors {
         let mut this = Self {
             memory,
             inputs: Vec::with_capacity(inputs.len()),
-            output: Bound {
-                _name: CString::default(),
-                buffer: Box::new([]),
-                value: std::ptr::null_mut(),
-            },
+            outputs: Vec::with_capacity(outputs.len()),
             input_names: Vec::with_capacity(inputs.len()),
             input_values: Vec::with_capacity(inputs.len()),
-            output_name: std::ptr::null(),
+            output_names: Vec::with_capacity(outputs.len()),
+            output_values: Vec::with_capacity(outputs.len()),
         };
         for (name, n) in inputs {
-            let b = tensor(memory, name, *n)?;
+            let b = tensor(memory, name, &[1, *n as i64])?;
             this.input_names.push(b._name.as_ptr());
             this.input_values.push(b.value.cast_const());
             this.inputs.push(b);
         }
-        this.output = tensor(memory, output_name, n_out)?;
-        this.output_name = this.output._name.as_ptr();
+        for (name, shape) in outputs {
+            let b = tensor(memory, name, shape)?;
+            this.output_names.push(b._name.as_ptr());
+            this.output_values.push(b.value);
+            this.outputs.push(b);
+        }
         Ok(this)
     }
 
+    /// The values output `k` (in the order given to [`Self::new`]) held after the last run.
+    pub(super) fn output(&self, k: usize) -> &[f32] {
+        &self.outputs[k].buffer
+    }
+
     /// Copies `obs` into the inputs (consecutive blocks, in input order), runs `session`, copies
-    /// the actions out. Buffer sizes are checked by the caller.
+    /// the actions out (the other outputs stay in their buffers, see [`Self::output`]). Buffer sizes are checked by the caller.
     pub(super) fn run(
         &mut self,
         session: &mut Session,
@@ -124,7 +133,6 @@ impl BoundTensors {
             input.buffer.copy_from_slice(&obs[at..at + n]);
             at += n;
         }
-        let mut outputs = [self.output.value];
         // SAFETY: the session is live (borrowed mutably for the call); names and tensors are owned
         // by `self` and outlive the call; the output tensor is pre-allocated with the model's shape,
         // so ONNX Runtime writes into our buffer instead of allocating.
@@ -135,12 +143,12 @@ impl BoundTensors {
                 self.input_names.as_ptr(),
                 self.input_values.as_ptr(),
                 self.inputs.len(),
-                &self.output_name,
-                1,
-                outputs.as_mut_ptr(),
+                self.output_names.as_ptr(),
+                self.outputs.len(),
+                self.output_values.as_mut_ptr(),
             ))?;
         }
-        actions.copy_from_slice(&self.output.buffer);
+        actions.copy_from_slice(&self.outputs[0].buffer);
         Ok(())
     }
 }
@@ -150,7 +158,7 @@ impl Drop for BoundTensors {
         let api = ort::api();
         // SAFETY: each pointer was created by the API, is released once, and null ones are skipped.
         unsafe {
-            for b in self.inputs.iter().chain(std::iter::once(&self.output)) {
+            for b in self.inputs.iter().chain(&self.outputs) {
                 if !b.value.is_null() {
                     (api.ReleaseValue)(b.value);
                 }

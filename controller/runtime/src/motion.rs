@@ -1,0 +1,472 @@
+//! The reference motion's anchor and the motion a tracking export carries.
+//!
+//! A motion-tracking policy observes the reference relative to the robot through one body, the
+//! anchor (`motion_anchor_pos_b`, `motion_anchor_ori_b`). When a run starts, the reference is
+//! moved so its first anchor frame lies on the robot's anchor, in heading and on the floor
+//! ([`Alignment`]); every later reference pose gets the same transform.
+//!
+//! BeyondMimic and mjlab exports bake the motion into the ONNX graph: with input `time_step`, the
+//! outputs `joint_pos`, `joint_vel` [1, J], `body_pos_w` [1, B, 3], `body_quat_w` [1, B, 4]
+//! (w x y z) are the motion's frame `min(time_step, T − 1)`. [`EmbeddedMotion`] finds those
+//! outputs, reads the whole motion out once before anything moves (for checks, the clip's length
+//! and the frames a policy looks ahead), and gives each tick the frame its call returned.
+
+use robots::{Robot, spatial};
+
+use std::path::{Path, PathBuf};
+
+use crate::clip::{Clip, Reference};
+use crate::onnx::OnnxModel;
+use crate::player::PlayError;
+use crate::policy::{PolicyLayout, Term};
+
+/// The reference anchor's position in the robot anchor's frame. Poses are `[x, y, z, w, qx, qy,
+/// qz]` in the world.
+pub fn anchor_pos_b(robot: [f64; 7], reference: [f64; 7]) -> [f64; 3] {
+    let q = [robot[3], robot[4], robot[5], robot[6]];
+    spatial::quat_rotate(
+        spatial::quat_conj(q),
+        spatial::sub(
+            [reference[0], reference[1], reference[2]],
+            [robot[0], robot[1], robot[2]],
+        ),
+    )
+}
+
+/// The first two columns of `R(q_robot⁻¹ ⊗ q_reference)`, row by row: `r00, r01, r10, r11, r20,
+/// r21`.
+pub fn anchor_ori_b(robot: [f64; 4], reference: [f64; 4]) -> [f64; 6] {
+    let m = spatial::mat_of_quat(spatial::quat_mul(spatial::quat_conj(robot), reference));
+    [m[0][0], m[0][1], m[1][0], m[1][1], m[2][0], m[2][1]]
+}
+
+/// The transform that puts a reference onto the robot: a turn about the vertical through the
+/// reference's first anchor position, then a horizontal shift.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Alignment {
+    turn: [f64; 4],
+    from: [f64; 3],
+    to: [f64; 3],
+}
+
+impl Default for Alignment {
+    fn default() -> Self {
+        Self {
+            turn: [1.0, 0.0, 0.0, 0.0],
+            from: [0.0; 3],
+            to: [0.0; 3],
+        }
+    }
+}
+
+impl Alignment {
+    /// Moves the reference anchor's first pose `first` onto the robot's anchor `robot`: the same
+    /// heading (yaw only: the reference keeps its own lean), and, when the robot's position is
+    /// known, the same horizontal position. The height is kept: robot and reference stand on the
+    /// same floor, and moving the reference by the robot's standing height would bake a crouch
+    /// into the whole motion.
+    pub fn new(first: [f64; 7], robot: [f64; 7], robot_position_known: bool) -> Self {
+        let heading = |p: [f64; 7]| spatial::heading_of_quat([p[3], p[4], p[5], p[6]]);
+        let turn = spatial::quat_of_rpy(0.0, 0.0, heading(robot) - heading(first));
+        let from = [first[0], first[1], first[2]];
+        let to = if robot_position_known {
+            [robot[0], robot[1], first[2]]
+        } else {
+            from
+        };
+        Self { turn, from, to }
+    }
+
+    /// The heading change, rad.
+    pub fn yaw(&self) -> f64 {
+        spatial::heading_of_quat(self.turn)
+    }
+
+    /// `pose` moved with the reference.
+    pub fn apply(&self, pose: [f64; 7]) -> [f64; 7] {
+        let p = spatial::add(
+            spatial::quat_rotate(
+                self.turn,
+                spatial::sub([pose[0], pose[1], pose[2]], self.from),
+            ),
+            self.to,
+        );
+        let q = spatial::quat_mul(self.turn, [pose[3], pose[4], pose[5], pose[6]]);
+        [p[0], p[1], p[2], q[0], q[1], q[2], q[3]]
+    }
+}
+
+/// The output names of a motion-tracking export.
+pub const OUTPUTS: [&str; 4] = ["joint_pos", "joint_vel", "body_pos_w", "body_quat_w"];
+
+/// Most frames an embedded motion may have (6 hours at 50 Hz).
+pub const MAX_FRAMES: usize = 1 << 20;
+
+/// One frame as a call returned it, joints in policy order.
+#[derive(Debug, Clone, Copy)]
+pub struct MotionFrame<'a> {
+    /// Joint positions.
+    pub joint_pos: &'a [f32],
+    /// Joint velocities.
+    pub joint_vel: &'a [f32],
+    /// Body positions, 3 per body.
+    pub body_pos: &'a [f32],
+    /// Body orientations, 4 per body (w x y z).
+    pub body_quat: &'a [f32],
+}
+
+impl MotionFrame<'_> {
+    /// Pose of body `b`, `[x, y, z, w, qx, qy, qz]`.
+    pub fn body_pose(&self, b: usize) -> [f64; 7] {
+        let p = &self.body_pos[3 * b..3 * b + 3];
+        let q = &self.body_quat[4 * b..4 * b + 4];
+        let q = spatial::quat_normalize([q[0], q[1], q[2], q[3]].map(f64::from));
+        [
+            f64::from(p[0]),
+            f64::from(p[1]),
+            f64::from(p[2]),
+            q[0],
+            q[1],
+            q[2],
+            q[3],
+        ]
+    }
+}
+
+/// The motion an export carries, and where its frames come out of the model.
+#[derive(Debug, Clone)]
+pub struct EmbeddedMotion {
+    /// Extra-output indices of `joint_pos`, `joint_vel`, `body_pos_w`, `body_quat_w`.
+    outputs: [usize; 4],
+    /// Bodies per frame.
+    pub bodies: usize,
+    /// Frames of the motion.
+    pub frames: usize,
+    /// The frame the run starts from.
+    pub start_step: usize,
+    /// Index of the `time_step` value in the model's concatenated inputs.
+    time_step_at: usize,
+    obs: Vec<f32>,
+    actions: Vec<f32>,
+}
+
+impl EmbeddedMotion {
+    /// The motion `model` carries, if it has the four motion outputs (checked against `layout`'s
+    /// joints and motion bodies, its `time_step` term bound). `start_step`: where runs start.
+    pub fn find(model: &mut OnnxModel, layout: &PolicyLayout, start_step: usize) -> Result<Option<Self>, String> {
+        let names: Vec<&str> = model.extra_outputs().iter().map(|o| o.0.as_str()).collect();
+        let present: Vec<Option<usize>> = OUTPUTS.iter().map(|o| names.iter().position(|n| n == o)).collect();
+        if present.iter().all(Option::is_none) {
+            if start_step != 0 {
+                return Err(format!(
+                    "--start-step {start_step}: {} carries no motion",
+                    layout.onnx_path.display()
+                ));
+            }
+            return Ok(None);
+        }
+        let mut outputs = [0; 4];
+        for (k, p) in present.iter().enumerate() {
+            outputs[k] = p.ok_or_else(|| {
+                format!(
+                    "{} has motion outputs but not {:?} (a tracking export has {})",
+                    layout.onnx_path.display(),
+                    OUTPUTS[k],
+                    OUTPUTS.join(", ")
+                )
+            })?;
+        }
+        let shape = |k: usize| &model.extra_outputs()[outputs[k]].1;
+        let j = layout.robot_index.len();
+        let b = layout.manifest.motion_bodies.len();
+        let expect = [vec![1, j as i64], vec![1, j as i64], vec![1, b as i64, 3], vec![1, b as i64, 4]];
+        for (k, want) in expect.iter().enumerate() {
+            if shape(k) != want {
+                return Err(format!(
+                    "{}: output {} has shape {:?}, but the policy has {j} joints and {b} motion bodies \
+                     (body_names) so {want:?} is expected",
+                    layout.onnx_path.display(),
+                    OUTPUTS[k],
+                    shape(k)
+                ));
+            }
+        }
+        let time_step_at = layout
+            .slots
+            .iter()
+            .find(|s| matches!(s.term, Term::TimeStep(_)))
+            .map(|s| s.range.start)
+            .ok_or_else(|| {
+                format!(
+                    "{} carries a motion but the policy has no time_step term to choose its frame",
+                    layout.onnx_path.display()
+                )
+            })?;
+        let mut motion = Self {
+            outputs,
+            bodies: b,
+            frames: 0,
+            start_step,
+            time_step_at,
+            obs: vec![0.0; layout.obs_len],
+            actions: vec![0.0; model.output().1],
+        };
+        motion.frames = motion.count_frames(model)?;
+        if start_step >= motion.frames {
+            return Err(format!(
+                "--start-step {start_step}: the motion {} carries has {} frames",
+                layout.onnx_path.display(),
+                motion.frames
+            ));
+        }
+        Ok(Some(motion))
+    }
+
+    /// Runs the model on a zero observation for frame `step`; its outputs then hold that frame.
+    pub fn seek(&mut self, model: &mut OnnxModel, step: usize) -> Result<(), String> {
+        self.obs.fill(0.0);
+        self.obs[self.time_step_at] = step as f32;
+        model.run(&self.obs, &mut self.actions).map_err(|e| e.to_string())
+    }
+
+    /// The frame the last call of `model` returned.
+    pub fn frame<'a>(&self, model: &'a OnnxModel) -> MotionFrame<'a> {
+        MotionFrame {
+            joint_pos: model.extra_output(self.outputs[0]),
+            joint_vel: model.extra_output(self.outputs[1]),
+            body_pos: model.extra_output(self.outputs[2]),
+            body_quat: model.extra_output(self.outputs[3]),
+        }
+    }
+
+    fn snapshot(&mut self, model: &mut OnnxModel, step: usize) -> Result<Vec<f32>, String> {
+        self.seek(model, step)?;
+        let f = self.frame(model);
+        Ok([f.joint_pos, f.joint_vel, f.body_pos, f.body_quat].concat())
+    }
+
+    /// The motion's length `T`: the graph returns frame `min(time_step, T − 1)`, so `T − 1` is
+    /// the first step from which every later step returns the same frame (found by bisection
+    /// against a step far beyond any motion). A motion that ends on a frame held exactly still
+    /// counts that hold once: the frames it drops are identical to the last.
+    fn count_frames(&mut self, model: &mut OnnxModel) -> Result<usize, String> {
+        let last = self.snapshot(model, MAX_FRAMES)?;
+        let (mut lo, mut hi) = (0usize, MAX_FRAMES);
+        if self.snapshot(model, 0)? == last {
+            return Ok(1);
+        }
+        // Invariant: frame lo differs from the last, frame hi equals it.
+        while hi - lo > 1 {
+            let mid = lo + (hi - lo) / 2;
+            if self.snapshot(model, mid)? == last {
+                hi = mid;
+            } else {
+                lo = mid;
+            }
+        }
+        if hi >= MAX_FRAMES {
+            return Err(format!("the embedded motion is longer than {MAX_FRAMES} frames"));
+        }
+        Ok(hi + 1)
+    }
+
+    /// Reads the motion out from `start_step` to its end as a reference at the policy's rate
+    /// (joints in robot order; the root is the robot's root body where the export tracks it,
+    /// else the anchor), then seeks back to `start_step`.
+    pub fn read(&mut self, model: &mut OnnxModel, layout: &PolicyLayout, robot: &Robot) -> Result<Reference, String> {
+        let n = robot.config.joints.len();
+        let ticks = self.frames - self.start_step;
+        let bodies = &layout.manifest.motion_bodies;
+        let root_body = bodies
+            .iter()
+            .position(|b| *b == robot.config.root_body)
+            .or_else(|| {
+                layout
+                    .manifest
+                    .anchor_body
+                    .as_ref()
+                    .and_then(|a| bodies.iter().position(|b| b == a))
+            })
+            .unwrap_or(0);
+        let mut reference = Reference {
+            n,
+            rate_hz: layout.manifest.rate_hz,
+            q: Vec::with_capacity(ticks * n),
+            qd: Vec::with_capacity(ticks * n),
+            root: Vec::with_capacity(ticks),
+            held_joints: Vec::new(),
+            bodies: Vec::new(),
+            body_pos: Vec::new(),
+            motion_bodies: bodies.clone(),
+            motion_poses: Vec::with_capacity(ticks * bodies.len()),
+            anchor: layout
+                .manifest
+                .anchor_body
+                .as_ref()
+                .and_then(|a| bodies.iter().position(|b| b == a)),
+        };
+        let mut q = vec![0.0; n];
+        let mut qd = vec![0.0; n];
+        for step in self.start_step..self.frames {
+            self.seek(model, step)?;
+            let f = self.frame(model);
+            for (p, &r) in layout.robot_index.iter().enumerate() {
+                q[r] = f64::from(f.joint_pos[p]);
+                qd[r] = f64::from(f.joint_vel[p]);
+            }
+            if let Some(bad) = q.iter().chain(&qd).position(|v| !v.is_finite()) {
+                return Err(format!("frame {step} of the embedded motion has a non-finite joint value ({bad})"));
+            }
+            for b in 0..self.bodies {
+                let pose = f.body_pose(b);
+                if pose.iter().any(|v| !v.is_finite()) {
+                    return Err(format!(
+                        "frame {step} of the embedded motion: body {} has a non-finite or zero pose",
+                        bodies[b]
+                    ));
+                }
+                reference.motion_poses.push(pose);
+            }
+            reference.q.extend_from_slice(&q);
+            reference.qd.extend_from_slice(&qd);
+            reference.root.push(f.body_pose(root_body));
+        }
+        self.seek(model, self.start_step)?;
+        Ok(reference)
+    }
+
+    /// The `time_step` value for frame `k` of the run (counted from the start step).
+    pub fn time_step(&self, k: usize) -> f64 {
+        (self.start_step + k) as f64
+    }
+}
+
+/// Where a run's reference comes from.
+#[derive(Debug)]
+pub enum ReferenceSource {
+    /// A clip file.
+    Clip(Clip),
+    /// The motion the policy's export carries.
+    Embedded {
+        /// The export.
+        onnx: PathBuf,
+        /// Its frames.
+        frames: usize,
+        /// The frame the run starts from.
+        start_step: usize,
+    },
+}
+
+impl ReferenceSource {
+    /// The file the reference came from (a run's recording names it).
+    pub fn path(&self) -> &Path {
+        match self {
+            Self::Clip(c) => &c.path,
+            Self::Embedded { onnx, .. } => onnx,
+        }
+    }
+}
+
+impl std::fmt::Display for ReferenceSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Clip(c) => write!(f, "{}", c.path.display()),
+            Self::Embedded {
+                onnx,
+                frames,
+                start_step,
+            } => write!(
+                f,
+                "the motion {} carries ({frames} frames, from step {start_step})",
+                onnx.display()
+            ),
+        }
+    }
+}
+
+fn same_file(a: &Path, b: &Path) -> bool {
+    match (std::fs::canonicalize(a), std::fs::canonicalize(b)) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => a == b,
+    }
+}
+
+/// The reference of a run: the motion the policy's export carries (from `start_step`), else
+/// the clip at `clip` (`default_clip` when none is given). A clip given for an export that
+/// carries its own motion is refused: one of them would be ignored. `layout` is bound to its
+/// model.
+pub fn load_reference(
+    clip: Option<&Path>,
+    default_clip: &Path,
+    layout: &PolicyLayout,
+    robot: &Robot,
+    start_step: usize,
+) -> Result<(Reference, ReferenceSource), PlayError> {
+    let mut model = OnnxModel::load(&layout.onnx_path)?;
+    if let Some(mut motion) = EmbeddedMotion::find(&mut model, layout, start_step).map_err(PlayError::Setup)? {
+        if let Some(c) = clip.filter(|c| !same_file(c, &layout.onnx_path)) {
+            return Err(PlayError::Setup(format!(
+                "{} carries its own motion; leave out the clip {} (or export the policy without one)",
+                layout.onnx_path.display(),
+                c.display()
+            )));
+        }
+        let reference = motion.read(&mut model, layout, robot).map_err(PlayError::Setup)?;
+        return Ok((
+            reference,
+            ReferenceSource::Embedded {
+                onnx: layout.onnx_path.clone(),
+                frames: motion.frames,
+                start_step,
+            },
+        ));
+    }
+    let clip = Clip::load(clip.unwrap_or(default_clip))?;
+    let reference = Reference::from_clip(&clip, robot, layout.manifest.rate_hz)?;
+    Ok((reference, ReferenceSource::Clip(clip)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const H: f64 = std::f64::consts::FRAC_1_SQRT_2;
+
+    #[test]
+    fn the_first_anchor_frame_lands_on_the_robot_in_heading_and_on_the_floor() {
+        // Reference anchor at (2, 0, 0.8) facing +x; robot anchor at (0, 1, 0.7) facing +y.
+        let first = [2.0, 0.0, 0.8, 1.0, 0.0, 0.0, 0.0];
+        let robot = [0.0, 1.0, 0.7, H, 0.0, 0.0, H];
+        let a = Alignment::new(first, robot, true);
+        let moved = a.apply(first);
+        assert!((moved[0]).abs() < 1e-12 && (moved[1] - 1.0).abs() < 1e-12, "{moved:?}");
+        assert!((moved[2] - 0.8).abs() < 1e-12, "height kept: {moved:?}");
+        assert!((a.yaw() - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
+        // A later frame 1 m ahead of the first (along +x) ends up 1 m along the robot's +y.
+        let later = a.apply([3.0, 0.0, 0.8, 1.0, 0.0, 0.0, 0.0]);
+        assert!((later[0]).abs() < 1e-12 && (later[1] - 2.0).abs() < 1e-12, "{later:?}");
+        // Its orientation turned with it.
+        assert!((spatial::heading_of_quat([later[3], later[4], later[5], later[6]]) - a.yaw()).abs() < 1e-12);
+    }
+
+    #[test]
+    fn anchor_terms_are_zero_and_identity_when_robot_and_reference_coincide() {
+        let pose = [0.3, -0.2, 0.9, H, 0.0, H, 0.0];
+        assert_eq!(anchor_pos_b(pose, pose), [0.0; 3]);
+        let o = anchor_ori_b([H, 0.0, H, 0.0], [H, 0.0, H, 0.0]);
+        for (v, want) in o.iter().zip([1.0, 0.0, 0.0, 1.0, 0.0, 0.0]) {
+            assert!((v - want).abs() < 1e-12, "{o:?}");
+        }
+    }
+
+    #[test]
+    fn the_reference_ahead_of_a_turned_robot_is_ahead_in_its_frame() {
+        // Robot facing +y at the origin; reference 1 m along +y: 1 m along the robot's x.
+        let robot = [0.0, 0.0, 0.0, H, 0.0, 0.0, H];
+        let p = anchor_pos_b(robot, [0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0]);
+        assert!((p[0] - 1.0).abs() < 1e-12 && p[1].abs() < 1e-12, "{p:?}");
+        // Reference facing +x, robot facing +y: relative yaw −90°: r01 = sin 90° = 1.
+        let o = anchor_ori_b([H, 0.0, 0.0, H], [1.0, 0.0, 0.0, 0.0]);
+        assert!((o[1] - 1.0).abs() < 1e-12 && (o[2] + 1.0).abs() < 1e-12, "{o:?}");
+    }
+}
