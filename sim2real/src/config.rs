@@ -129,6 +129,18 @@ pub struct MirrorConfig {
     pub pushes: Vec<Push>,
     /// The machine's true offsets, directions and IMU mounting (for calibration tests).
     pub hardware: HardwareTruth,
+    /// Where the robot stands when the run begins.
+    pub start: StartPose,
+}
+
+/// Where the mirrored robot starts, on the floor: a horizontal position and a heading.
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Deserialize, serde::Serialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct StartPose {
+    /// x and y of the root, m (within ±100).
+    pub position: [f64; 2],
+    /// Heading about the vertical, degrees (within ±360).
+    pub yaw_deg: f64,
 }
 
 impl MirrorConfig {
@@ -176,6 +188,23 @@ impl MirrorConfig {
             return Err((
                 "servo_return_delay_us".into(),
                 format!("{} is beyond the servos' 508 µs", self.servo_return_delay_us),
+            ));
+        }
+        if let Some(v) = self
+            .start
+            .position
+            .iter()
+            .find(|v| !(-100.0..=100.0).contains(*v))
+        {
+            return Err((
+                "start.position".into(),
+                format!("{} is outside [-100, 100] m", robots::num(*v)),
+            ));
+        }
+        if !(-360.0..=360.0).contains(&self.start.yaw_deg) {
+            return Err((
+                "start.yaw_deg".into(),
+                format!("{} is outside [-360, 360]°", robots::num(self.start.yaw_deg)),
             ));
         }
         for (k, f) in self.faults.iter().enumerate() {

@@ -432,9 +432,20 @@ impl Mirror {
             lowest = lowest.min(z);
         }
         let lift = if self.config.gantry { 0.05 } else { 0.0 };
+        let r = self.root_qpos;
         if lowest.is_finite() {
-            self.data.qpos_mut()[self.root_qpos + 2] += lift - lowest + 1e-4;
+            self.data.qpos_mut()[r + 2] += lift - lowest + 1e-4;
         }
+        // The configured start: moved on the floor and turned about the vertical.
+        let start = self.config.start;
+        let qpos = self.data.qpos_mut();
+        qpos[r] += start.position[0];
+        qpos[r + 1] += start.position[1];
+        let turned = quat_mul(
+            quat_of_rpy(0.0, 0.0, start.yaw_deg.to_radians()),
+            [qpos[r + 3], qpos[r + 4], qpos[r + 5], qpos[r + 6]],
+        );
+        qpos[r + 3..r + 7].copy_from_slice(&turned);
         self.data.forward();
         if self.config.gantry {
             let q = self.data.qpos();

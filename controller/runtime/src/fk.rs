@@ -149,7 +149,8 @@ impl RobotKinematics {
             model_index::FrameId::Body(b) => self.data.xmat()[b],
             model_index::FrameId::Site { site, .. } => self.data.site_xmat()[site],
         };
-        self.imu_in_root = spatial::quat_of_mat(&[[m[0], m[1], m[2]], [m[3], m[4], m[5]], [m[6], m[7], m[8]]]);
+        self.imu_in_root =
+            spatial::quat_of_mat(&[[m[0], m[1], m[2]], [m[3], m[4], m[5]], [m[6], m[7], m[8]]]);
         self.root_rotation =
             spatial::quat_normalize(spatial::quat_mul(imu_quat, spatial::quat_conj(self.imu_in_root)));
         self.root_position = root_position.unwrap_or([0.0; 3]);

@@ -85,10 +85,7 @@ impl Alignment {
     /// `pose` moved with the reference.
     pub fn apply(&self, pose: [f64; 7]) -> [f64; 7] {
         let p = spatial::add(
-            spatial::quat_rotate(
-                self.turn,
-                spatial::sub([pose[0], pose[1], pose[2]], self.from),
-            ),
+            spatial::quat_rotate(self.turn, spatial::sub([pose[0], pose[1], pose[2]], self.from)),
             self.to,
         );
         let q = spatial::quat_mul(self.turn, [pose[3], pose[4], pose[5], pose[6]]);
@@ -153,9 +150,16 @@ pub struct EmbeddedMotion {
 impl EmbeddedMotion {
     /// The motion `model` carries, if it has the four motion outputs (checked against `layout`'s
     /// joints and motion bodies, its `time_step` term bound). `start_step`: where runs start.
-    pub fn find(model: &mut OnnxModel, layout: &PolicyLayout, start_step: usize) -> Result<Option<Self>, String> {
+    pub fn find(
+        model: &mut OnnxModel,
+        layout: &PolicyLayout,
+        start_step: usize,
+    ) -> Result<Option<Self>, String> {
         let names: Vec<&str> = model.extra_outputs().iter().map(|o| o.0.as_str()).collect();
-        let present: Vec<Option<usize>> = OUTPUTS.iter().map(|o| names.iter().position(|n| n == o)).collect();
+        let present: Vec<Option<usize>> = OUTPUTS
+            .iter()
+            .map(|o| names.iter().position(|n| n == o))
+            .collect();
         if present.iter().all(Option::is_none) {
             if start_step != 0 {
                 return Err(format!(
@@ -179,7 +183,12 @@ impl EmbeddedMotion {
         let shape = |k: usize| &model.extra_outputs()[outputs[k]].1;
         let j = layout.robot_index.len();
         let b = layout.manifest.motion_bodies.len();
-        let expect = [vec![1, j as i64], vec![1, j as i64], vec![1, b as i64, 3], vec![1, b as i64, 4]];
+        let expect = [
+            vec![1, j as i64],
+            vec![1, j as i64],
+            vec![1, b as i64, 3],
+            vec![1, b as i64, 4],
+        ];
         for (k, want) in expect.iter().enumerate() {
             if shape(k) != want {
                 return Err(format!(
@@ -273,7 +282,12 @@ impl EmbeddedMotion {
     /// Reads the motion out from `start_step` to its end as a reference at the policy's rate
     /// (joints in robot order; the root is the robot's root body where the export tracks it,
     /// else the anchor), then seeks back to `start_step`.
-    pub fn read(&mut self, model: &mut OnnxModel, layout: &PolicyLayout, robot: &Robot) -> Result<Reference, String> {
+    pub fn read(
+        &mut self,
+        model: &mut OnnxModel,
+        layout: &PolicyLayout,
+        robot: &Robot,
+    ) -> Result<Reference, String> {
         let n = robot.config.joints.len();
         let ticks = self.frames - self.start_step;
         let bodies = &layout.manifest.motion_bodies;
@@ -315,7 +329,9 @@ impl EmbeddedMotion {
                 qd[r] = f64::from(f.joint_vel[p]);
             }
             if let Some(bad) = q.iter().chain(&qd).position(|v| !v.is_finite()) {
-                return Err(format!("frame {step} of the embedded motion has a non-finite joint value ({bad})"));
+                return Err(format!(
+                    "frame {step} of the embedded motion has a non-finite joint value ({bad})"
+                ));
             }
             for b in 0..self.bodies {
                 let pose = f.body_pose(b);
@@ -403,7 +419,9 @@ pub fn load_reference(
     start_step: usize,
 ) -> Result<(Reference, ReferenceSource), PlayError> {
     let mut model = OnnxModel::load(&layout.onnx_path)?;
-    if let Some(mut motion) = EmbeddedMotion::find(&mut model, layout, start_step).map_err(PlayError::Setup)? {
+    if let Some(mut motion) =
+        EmbeddedMotion::find(&mut model, layout, start_step).map_err(PlayError::Setup)?
+    {
         if let Some(c) = clip.filter(|c| !same_file(c, &layout.onnx_path)) {
             return Err(PlayError::Setup(format!(
                 "{} carries its own motion; leave out the clip {} (or export the policy without one)",
@@ -439,12 +457,18 @@ mod tests {
         let robot = [0.0, 1.0, 0.7, H, 0.0, 0.0, H];
         let a = Alignment::new(first, robot, true);
         let moved = a.apply(first);
-        assert!((moved[0]).abs() < 1e-12 && (moved[1] - 1.0).abs() < 1e-12, "{moved:?}");
+        assert!(
+            (moved[0]).abs() < 1e-12 && (moved[1] - 1.0).abs() < 1e-12,
+            "{moved:?}"
+        );
         assert!((moved[2] - 0.8).abs() < 1e-12, "height kept: {moved:?}");
         assert!((a.yaw() - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
         // A later frame 1 m ahead of the first (along +x) ends up 1 m along the robot's +y.
         let later = a.apply([3.0, 0.0, 0.8, 1.0, 0.0, 0.0, 0.0]);
-        assert!((later[0]).abs() < 1e-12 && (later[1] - 2.0).abs() < 1e-12, "{later:?}");
+        assert!(
+            (later[0]).abs() < 1e-12 && (later[1] - 2.0).abs() < 1e-12,
+            "{later:?}"
+        );
         // Its orientation turned with it.
         assert!((spatial::heading_of_quat([later[3], later[4], later[5], later[6]]) - a.yaw()).abs() < 1e-12);
     }

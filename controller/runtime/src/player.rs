@@ -18,8 +18,8 @@ use crate::action::ActionMapper;
 use crate::clip::Reference;
 use crate::fk::RobotKinematics;
 use crate::metrics::RunMetrics;
-use crate::motion::{Alignment, EmbeddedMotion};
 pub use crate::metrics::{Histogram, PlaySummary};
+use crate::motion::{Alignment, EmbeddedMotion};
 use crate::onnx::OnnxModel;
 pub use crate::options::{EndMode, PlayOptions};
 use crate::policy::{ObsInputs, ObservationBuilder, PolicyLayout, Term};
@@ -115,6 +115,8 @@ pub struct Player<L: RobotLink> {
     policy_last_targets: Vec<f64>,
     obs: Vec<f32>,
     truth: GroundTruth,
+    /// The robot's anchor and the reference's as the last policy tick observed them.
+    anchors: Option<([f64; 7], [f64; 7])>,
     telemetry: Option<TelemetrySink>,
     record: Box<TickRecord>,
 }
@@ -158,7 +160,8 @@ impl<L: RobotLink> Player<L> {
         }
         let body_width = 3 * reference.bodies.len();
         layout.bind_model(model.inputs(), model.output().1)?;
-        let mut embedded = EmbeddedMotion::find(&mut model, &layout, options.start_step).map_err(PlayError::Setup)?;
+        let mut embedded =
+            EmbeddedMotion::find(&mut model, &layout, options.start_step).map_err(PlayError::Setup)?;
         if let Some(e) = &embedded
             && reference.len() != e.frames - e.start_step
         {
@@ -250,6 +253,7 @@ impl<L: RobotLink> Player<L> {
                 foot_contacts: vec![false; robot.config.feet.len()],
                 ..GroundTruth::default()
             },
+            anchors: None,
             telemetry: None,
             record: Box::default(),
             robot,
@@ -468,6 +472,7 @@ impl<L: RobotLink> Player<L> {
                 reference_q: self.cursor.current_q(),
                 reference_root: self.cursor.current_root(),
                 tracking: self.machine.mode == Mode::Running && self.cursor.tracked(),
+                anchors: self.anchors,
                 actions: self.mapper.actions(),
                 obs: &self.obs,
                 truth: &self.truth,
@@ -665,6 +670,9 @@ impl<L: RobotLink> Player<L> {
             time_step,
         };
         self.obs_builder.build(&inputs, &mut self.obs);
+        if self.cursor.reference().anchor.is_some() {
+            self.anchors = Some((robot_anchor, self.cursor.view().anchor_pose()));
+        }
         if !self.obs.iter().all(|x| x.is_finite()) {
             self.fail(Cause::NonFinite { what: "observation" });
             self.hold_targets();
@@ -759,7 +767,10 @@ fn motion_setup(
     }
     if !embedded && !bodies.is_empty() {
         reference.motion_poses = crate::fk::body_poses(robot, reference, &bodies)?;
-        reference.anchor = m.anchor_body.as_ref().and_then(|a| bodies.iter().position(|b| b == a));
+        reference.anchor = m
+            .anchor_body
+            .as_ref()
+            .and_then(|a| bodies.iter().position(|b| b == a));
         reference.motion_bodies = bodies.clone();
     }
     let needs = !bodies.is_empty()

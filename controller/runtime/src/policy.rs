@@ -521,7 +521,12 @@ fn check_bodies(robot: &Robot, m: &PolicyManifest) -> Result<(), (String, String
             format!("{a:?} is not a body of {}", robot.mjcf_path.display()),
         ));
     }
-    let absent: Vec<&str> = m.motion_bodies.iter().map(String::as_str).filter(|b| missing(b)).collect();
+    let absent: Vec<&str> = m
+        .motion_bodies
+        .iter()
+        .map(String::as_str)
+        .filter(|b| missing(b))
+        .collect();
     if !absent.is_empty() {
         return Err((
             "motion_bodies".into(),
@@ -775,7 +780,11 @@ impl PolicyLayout {
             {
                 return Err(err(
                     &format!("observation[{i}] ({})", s.term.name()),
-                    format!("scales: {} finite values needed, one per value, got {}", s.width, v.len()),
+                    format!(
+                        "scales: {} finite values needed, one per value, got {}",
+                        s.width,
+                        v.len()
+                    ),
                 ));
             }
         }
@@ -925,7 +934,12 @@ impl PolicyLayout {
         for (i, (name, len)) in inputs.iter().enumerate() {
             let start = at;
             for (k, s) in self.slots.iter().enumerate() {
-                if s.term.shaping().input.as_deref().map_or(i == default_input, |n| n == name) {
+                if s.term
+                    .shaping()
+                    .input
+                    .as_deref()
+                    .map_or(i == default_input, |n| n == name)
+                {
                     let n = s.range.len();
                     ranges[k] = at..at + n;
                     at += n;
@@ -1163,7 +1177,10 @@ fn fill_term(term: &Term, x: &ObsInputs<'_>, v: &mut [f64]) {
             v[n..].copy_from_slice(x.reference.joint_vel(0));
         }
         Term::MotionAnchorPosB(_) => {
-            v.copy_from_slice(&crate::motion::anchor_pos_b(x.robot_anchor, x.reference.anchor_pose()));
+            v.copy_from_slice(&crate::motion::anchor_pos_b(
+                x.robot_anchor,
+                x.reference.anchor_pose(),
+            ));
         }
         Term::MotionAnchorOriB(_) => {
             let (r, m) = (x.robot_anchor, x.reference.anchor_pose());

@@ -79,6 +79,9 @@ pub struct TickRecord {
     pub reference_root: [f64; 7],
     /// Whether the reference is the clip itself (not the start-up ramp or the end).
     pub tracking: bool,
+    /// The robot's anchor and the reference's (aligned), `[x, y, z, w, qx, qy, qz]`, when the
+    /// policy observes an anchor.
+    pub anchors: Option<([f64; 7], [f64; 7])>,
     /// Raw policy actions (policy order).
     pub action: [f32; MAX_JOINTS],
     /// The observation the policy saw.
@@ -128,6 +131,7 @@ impl Default for TickRecord {
             reference_q: [0.0; MAX_JOINTS],
             reference_root: [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
             tracking: false,
+            anchors: None,
             action: [0.0; MAX_JOINTS],
             obs: [0.0; MAX_OBS],
             io_us: 0.0,
@@ -163,6 +167,8 @@ pub struct TickView<'a> {
     pub reference_root: [f64; 7],
     /// Whether the reference was the clip itself.
     pub tracking: bool,
+    /// The robot's anchor and the reference's, when the policy observes one.
+    pub anchors: Option<([f64; 7], [f64; 7])>,
     /// Raw actions.
     pub actions: &'a [f32],
     /// The observation.
@@ -207,6 +213,7 @@ impl TickRecord {
         }
         r.reference_root = v.reference_root;
         r.tracking = v.tracking;
+        r.anchors = v.anchors;
         let m = v.actions.len().min(MAX_JOINTS);
         r.action[..m].copy_from_slice(&v.actions[..m]);
         let k = v.obs.len().min(MAX_OBS);
@@ -397,7 +404,7 @@ const TOPICS: [(&str, &str); 8] = [
     ),
     (
         "/policy",
-        r#"{"type":"object","properties":{"obs":{"type":"array","items":{"type":"number"}},"action":{"type":"array","items":{"type":"number"}}}}"#,
+        r#"{"type":"object","properties":{"obs":{"type":"array","items":{"type":"number"}},"action":{"type":"array","items":{"type":"number"}},"robot_anchor":{"type":"array","items":{"type":"number"},"description":"the robot's anchor body in the world, x y z qw qx qy qz (tracking policies)"},"reference_anchor":{"type":"array","items":{"type":"number"},"description":"the reference's anchor, aligned to the robot, x y z qw qx qy qz"}}}"#,
     ),
     (
         "/safety",
@@ -722,6 +729,12 @@ fn encode(out: &mut String, k: usize, r: &TickRecord, root: &str, last_mode: &mu
             array(out, "obs", &r.obs[..usize::from(r.obs_len)]);
             out.push(',');
             array(out, "action", &r.action[..n]);
+            if let Some((robot, reference)) = r.anchors {
+                out.push(',');
+                array64(out, "robot_anchor", robot.iter().copied());
+                out.push(',');
+                array64(out, "reference_anchor", reference.iter().copied());
+            }
         }
         3 => {
             if r.mode == *last_mode {

@@ -89,8 +89,12 @@ impl Metadata<'_> {
 
     /// A list of names.
     pub fn names(&self, key: &str) -> Option<Vec<String>> {
-        self.text(key)
-            .map(|t| t.split(',').map(|s| s.trim().to_owned()).filter(|s| !s.is_empty()).collect())
+        self.text(key).map(|t| {
+            t.split(',')
+                .map(|s| s.trim().to_owned())
+                .filter(|s| !s.is_empty())
+                .collect()
+        })
     }
 
     /// A list of finite numbers.
@@ -103,7 +107,10 @@ impl Metadata<'_> {
             .map(|v| number(key, v))
             .collect::<Result<Vec<_>, _>>()?;
         if let Some(v) = values.iter().find(|v| !v.is_finite()) {
-            return Err((format!("ONNX metadata {key}"), format!("{v} is not a finite number")));
+            return Err((
+                format!("ONNX metadata {key}"),
+                format!("{v} is not a finite number"),
+            ));
         }
         Ok(Some(values))
     }
@@ -239,7 +246,10 @@ fn observation(meta: &Metadata<'_>, has_time_step: bool) -> Result<Vec<Term>, Pr
                 Element::List(v) if v.len() == 2 && v[0] == f64::NEG_INFINITY && v[1] == f64::INFINITY => {}
                 // The frameworks clip the raw value, then scale it; this loop scales, then clips.
                 Element::List(v)
-                    if v.len() == 2 && v[1].is_finite() && (v[0] + v[1]).abs() < 1e-9 && sh.scales.is_none() =>
+                    if v.len() == 2
+                        && v[1].is_finite()
+                        && (v[0] + v[1]).abs() < 1e-9
+                        && sh.scales.is_none() =>
                 {
                     sh.clip = Some(v[1] * sh.scale.abs());
                 }
@@ -354,7 +364,10 @@ mod tests {
     use super::*;
 
     fn meta(pairs: &[(&str, &str)]) -> BTreeMap<String, String> {
-        pairs.iter().map(|(k, v)| ((*k).to_owned(), (*v).to_owned())).collect()
+        pairs
+            .iter()
+            .map(|(k, v)| ((*k).to_owned(), (*v).to_owned()))
+            .collect()
     }
 
     fn manifest() -> PolicyManifest {
@@ -421,10 +434,7 @@ mod tests {
                 "time_step"
             ]
         );
-        assert_eq!(
-            m.observation[8].shaping().input.as_deref(),
-            Some("time_step")
-        );
+        assert_eq!(m.observation[8].shaping().input.as_deref(), Some("time_step"));
         assert_eq!(m.anchor_body.as_deref(), Some("torso_link"));
         assert_eq!(m.motion_bodies, ["pelvis", "torso_link"]);
     }
@@ -482,7 +492,10 @@ mod tests {
         pairs[6] = ("observation_names", "base_ang_vel,joint_pos,joint_vel,actions");
         pairs.push(("observation_terms_history_length", "0.000,3.000,3.000,0.000"));
         pairs.push(("observation_terms_scale", "1.000,1.000,0.050,[1.0, 2.0]"));
-        pairs.push(("observation_terms_clip", "[-inf, inf],-5.0;5.0,[-100.0, 100.0],[-inf, inf]"));
+        pairs.push((
+            "observation_terms_clip",
+            "[-inf, inf],-5.0;5.0,[-100.0, 100.0],[-inf, inf]",
+        ));
         let mut m = manifest();
         fill(&mut m, &facts(&pairs, false)).unwrap();
         let sh: Vec<_> = m.observation.iter().map(Term::shaping).collect();
@@ -496,7 +509,10 @@ mod tests {
         assert!((sh[2].clip.unwrap() - 5.0).abs() < 1e-12);
 
         pairs.retain(|(k, _)| *k != "observation_terms_clip");
-        pairs.push(("observation_terms_clip", "[-inf, inf],[0.0, 5.0],[-inf, inf],[-inf, inf]"));
+        pairs.push((
+            "observation_terms_clip",
+            "[-inf, inf],[0.0, 5.0],[-inf, inf],[-inf, inf]",
+        ));
         let e = fill(&mut manifest(), &facts(&pairs, false)).unwrap_err();
         assert!(e.0.contains("observation_terms_clip[1] (joint_pos)"), "{e:?}");
 

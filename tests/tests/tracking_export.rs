@@ -1,0 +1,262 @@
+//! Policies as BeyondMimic and mjlab export them (fixtures in that convention, written by
+//! scripts/gen_tracking_export.py): the contract comes from the ONNX metadata, the reference from
+//! the motion the graph carries, the anchor terms from the robot's kinematics.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+
+use controller::motion::ReferenceSource;
+use controller::onnx::OnnxModel;
+use controller::player::{PlayOptions, PlaySummary};
+use controller::policy::PolicyLayout;
+use controller::sim::lockstep_player;
+use controller::telemetry::{Backpressure, RecordingInfo, TelemetrySink};
+use robots::{Robot, reference_robot_path};
+use sim2real::config::{MirrorConfig, StartPose};
+use test_support::fixtures::fixture;
+
+fn squat() -> PathBuf {
+    reference_robot_path().with_file_name("clips/squat.csv")
+}
+
+/// The export's layout, bound to its model, and the motion it carries.
+fn load(export: &Path, start_step: usize) -> (Robot, PolicyLayout, controller::clip::Reference) {
+    let robot = Robot::load(&reference_robot_path()).unwrap();
+    let mut layout = PolicyLayout::load(export, &robot).unwrap();
+    let model = OnnxModel::load(export).unwrap();
+    layout.bind_model(model.inputs(), model.output().1).unwrap();
+    let (reference, source) =
+        controller::motion::load_reference(None, &squat(), &layout, &robot, start_step).unwrap();
+    assert!(matches!(source, ReferenceSource::Embedded { .. }), "{source}");
+    (robot, layout, reference)
+}
+
+fn play(export: &Path, mirror: MirrorConfig, record: Option<&Path>) -> (PolicyLayout, PlaySummary) {
+    let (robot, layout, reference) = load(export, 0);
+    let kept = layout.clone();
+    let names = robot.config.joints.iter().map(|j| j.name.clone()).collect();
+    let (p, mut clock, _w) = lockstep_player(
+        robot,
+        layout,
+        reference,
+        PlayOptions::default(),
+        mirror,
+        Arc::new(AtomicBool::new(false)),
+    )
+    .unwrap();
+    let mut p = match record {
+        Some(path) => {
+            let info = RecordingInfo {
+                joint_names: names,
+                root_frame: "pelvis".into(),
+                ..Default::default()
+            };
+            p.with_telemetry(TelemetrySink::start(path, 64, Backpressure::Block, &info).unwrap())
+        }
+        None => p,
+    };
+    (kept, p.run(&mut clock).unwrap())
+}
+
+fn assert_tracks(s: &PlaySummary) {
+    assert!(s.success(), "{s}");
+    assert!(s.joint_rmse.to_degrees() < 3.0, "{s}");
+    assert_eq!(s.body_rmse.len(), 9, "{s}");
+    for (body, e) in &s.body_rmse {
+        assert!(*e < 0.04, "{body}: {:.1} cm\n{s}", e * 100.0);
+    }
+    let mean = s.body_rmse.iter().map(|b| b.1).sum::<f64>() / 9.0;
+    assert!(mean < 0.02, "{s}");
+}
+
+#[test]
+fn each_export_variant_plays_on_the_mirror_without_a_manifest_and_tracks() {
+    for name in [
+        "rd_biped_tracking.onnx",
+        "rd_biped_tracking_wose.onnx",
+        "rd_biped_tracking_history.onnx",
+    ] {
+        let (layout, s) = play(&fixture(name), MirrorConfig::default(), None);
+        assert_eq!(
+            layout.manifest.joints.first().map(String::as_str),
+            Some("head_yaw"),
+            "{name}: the metadata's joint order (the MJCF's), not robot.toml's"
+        );
+        assert_tracks(&s);
+        assert!((s.played - 1.0).abs() < 1e-9, "{name}: {s}");
+    }
+}
+
+#[test]
+fn the_reference_is_put_under_a_robot_that_starts_1_m_away_and_turned_90_degrees() {
+    let mirror = MirrorConfig {
+        start: StartPose {
+            position: [0.6, -0.8],
+            yaw_deg: 90.0,
+        },
+        ..MirrorConfig::default()
+    };
+    let path = std::env::temp_dir().join(format!("tracking-aligned-{}.mcap", std::process::id()));
+    let (_, s) = play(&fixture("rd_biped_tracking.onnx"), mirror, Some(&path));
+    // Bodies are compared with the aligned reference: without the alignment every one of them
+    // would be a metre off.
+    assert_tracks(&s);
+    let root = s.root_rmse.expect("the mirror knows the root");
+    assert!(root < 0.03, "{s}");
+    // The first tracked tick: the reference anchor lies on the robot's, in heading and on the
+    // floor plane.
+    let first = first_anchors(&path);
+    let (robot, reference) = (&first[..7], &first[7..]);
+    let horizontal = ((robot[0] - reference[0]).powi(2) + (robot[1] - reference[1]).powi(2)).sqrt();
+    assert!(horizontal < 0.005, "{first:?}");
+    let heading = |p: &[f64]| robots::spatial::heading_of_quat([p[3], p[4], p[5], p[6]]);
+    let turn = (heading(robot) - heading(reference)).abs();
+    assert!(turn.to_degrees() < 1.0, "{first:?}");
+    assert!((heading(robot).to_degrees() - 90.0).abs() < 2.0, "{first:?}");
+    std::fs::remove_file(&path).unwrap();
+}
+
+/// The robot's and the reference's anchor of the first policy tick a recording holds.
+fn first_anchors(path: &Path) -> Vec<f64> {
+    let script = "import json,sys\nfrom mcap.reader import make_reader\n\
+        for _,c,m in make_reader(open(sys.argv[1],'rb')).iter_messages(topics=['/policy']):\n\
+        \x20   d=json.loads(m.data)\n\
+        \x20   if 'robot_anchor' in d:\n\
+        \x20       print(json.dumps(d['robot_anchor']+d['reference_anchor'])); break\n";
+    let out = std::process::Command::new(test_support::fixtures::venv_python())
+        .args(["-c", script])
+        .arg(path)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+#[test]
+fn anchor_terms_and_the_command_match_numpy_and_onnx_runtime_on_a_recorded_run() {
+    for (name, has_pos) in [
+        ("rd_biped_tracking.onnx", true),
+        ("rd_biped_tracking_wose.onnx", false),
+    ] {
+        let path = std::env::temp_dir().join(format!("tracking-{}-{name}.mcap", std::process::id()));
+        let mirror = MirrorConfig {
+            start: StartPose {
+                position: [0.3, 0.2],
+                yaw_deg: -40.0,
+            },
+            ..MirrorConfig::default()
+        };
+        let (layout, s) = play(&fixture(name), mirror, Some(&path));
+        assert_tracks(&s);
+        let at = |term: &str| {
+            layout
+                .slots
+                .iter()
+                .find(|s| s.term.name() == term)
+                .map_or(-1, |s| s.range.start as i64)
+        };
+        assert_eq!(at("motion_anchor_pos_b") >= 0, has_pos);
+        let script = test_support::fixtures::workspace_root().join("tests/python/check_tracking_export.py");
+        let out = std::process::Command::new(test_support::fixtures::venv_python())
+            .arg(script)
+            .arg(&path)
+            .arg(fixture(name))
+            .args(
+                [
+                    at("motion_anchor_ori_b"),
+                    at("motion_anchor_pos_b"),
+                    at("motion_command"),
+                    20,
+                    (PlayOptions::default().ramp_s * 50.0).round() as i64,
+                ]
+                .map(|v| v.to_string()),
+            )
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        assert!(v["ticks"].as_u64().unwrap() > 300, "{v}");
+        assert!(v["ori_max_err"].as_f64().unwrap() < 1e-6, "{name}: {v}");
+        assert!(v["pos_max_err"].as_f64().unwrap() < 1e-6, "{name}: {v}");
+        // Every policy tick observed the export's own frame for its time, none early or late.
+        assert_eq!(v["frames_mismatched"], 0, "{name}: {v}");
+        assert_eq!(v["frames_matched"], v["ticks"], "{name}: {v}");
+        std::fs::remove_file(&path).unwrap();
+    }
+}
+
+#[test]
+fn a_run_can_start_part_way_into_the_motion() {
+    let (_, _, whole) = load(&fixture("rd_biped_tracking_wose.onnx"), 0);
+    let (_, _, tail) = load(&fixture("rd_biped_tracking_wose.onnx"), 100);
+    assert_eq!(tail.len(), whole.len() - 100);
+    assert_eq!(tail.q_at(0), whole.q_at(100));
+}
+
+#[test]
+fn a_manifest_may_override_the_exports_fields() {
+    let robot = Robot::load(&reference_robot_path()).unwrap();
+    let dir = std::env::temp_dir().join(format!("tracking-manifest-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let export = fixture("rd_biped_tracking_wose.onnx");
+    let write = |text: &str| {
+        let path = dir.join("policy.toml");
+        std::fs::write(
+            &path,
+            format!("onnx = {:?}\n{text}", export.display().to_string()),
+        )
+        .unwrap();
+        PolicyLayout::load(&path, &robot)
+    };
+    let layout = write("[action]\nkind = \"position\"\nscale = 0.1\nrate_limit = 6.0\n").unwrap();
+    assert!(layout.action_scale.iter().all(|&s| s == 0.1));
+    assert_eq!(layout.manifest.action.rate_limit, Some(6.0));
+    assert_eq!(layout.manifest.anchor_body.as_deref(), Some("torso"));
+    let e = write("anchor_body = \"chest\"\n").unwrap_err().to_string();
+    assert!(
+        e.contains("anchor_body") && e.contains("\"chest\" is not a body"),
+        "{e}"
+    );
+    let e = write("motion_bodies = [\"pelvis\", \"tail\"]\n")
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("motion_bodies") && e.contains("tail"), "{e}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn what_a_run_cannot_provide_or_does_not_fit_is_refused_before_anything_moves() {
+    let run = |args: &[&str]| {
+        let (ok, _, err) = test_support::bin::run(args);
+        (ok, err)
+    };
+    let full = fixture("rd_biped_tracking.onnx");
+    let full = full.to_str().unwrap();
+    // The anchor position and base velocity need a state estimator on hardware.
+    let (code, err) = run(&["play", "--hardware", "--policy", full, "--no-record"]);
+    assert!(!code);
+    assert!(
+        err.contains("motion_anchor_pos_b, base_lin_vel need the robot's position"),
+        "{err}"
+    );
+    // A clip beside an export that carries its motion: one of them would be ignored.
+    let squat = squat();
+    let (code, err) = run(&[
+        "play",
+        "--policy",
+        full,
+        "--clip",
+        squat.to_str().unwrap(),
+        "--no-record",
+    ]);
+    assert!(!code);
+    assert!(err.contains("carries its own motion"), "{err}");
+    // A start beyond the motion.
+    let (code, err) = run(&["play", "--policy", full, "--start-step", "5000", "--no-record"]);
+    assert!(!code);
+    assert!(
+        err.contains("--start-step 5000") && err.contains("frames"),
+        "{err}"
+    );
+}
