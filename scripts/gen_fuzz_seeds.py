@@ -14,6 +14,9 @@ mutates them into the ones it must refuse. None is third-party material:
   policy_toml/     the project's reference-follower manifest with its default pose, stiffness and
                    damping written out (so the target never needs the ONNX file's metadata).
   mirror_toml/     the project's own randomized-with-faults mirror settings (sim2real/configs/).
+  onnx_metadata/   the metadata of rd-biped tracking exports as scripts/gen_tracking_export.py
+                   writes them (a byte for the time_step input, then key TAB value lines): the
+                   BeyondMimic keys, and mjlab's per-term history/scale/clip keys.
   mcap_recording/  a tiny recording (two channels, three messages), lz4- and zstd-compressed
                    chunks, written with the `mcap` Python package of the project's venv.
 
@@ -121,6 +124,37 @@ joints = head.count('",') + head.count('"\n]')
 explicit = "default_pose = [%s]\nstiffness = [%s]\ndamping = [%s]\n" % (
     ", ".join(["0.0"] * joints), ", ".join(["20.0"] * joints), ", ".join(["1.0"] * joints))
 write("policy_toml", "reference_follower.toml", head + "\n" + explicit + "\n[" + tables)
+
+import tomllib  # noqa: E402
+
+robot = tomllib.loads((POLICY.parent.parent / "robot.toml").read_text())
+names = [j["name"] for j in robot["joints"]]
+
+
+def csv3(values):
+    return ",".join(f"{v:.3f}" if isinstance(v, (int, float)) else str(v) for v in values)
+
+
+common = {
+    "run_path": "fuzz-seed",
+    "joint_names": csv3(names),
+    "joint_stiffness": csv3([j["kp"] for j in robot["joints"]]),
+    "joint_damping": csv3([j["kd"] for j in robot["joints"]]),
+    "default_joint_pos": csv3([j["default_position"] for j in robot["joints"]]),
+    "action_scale": csv3([0.25 * j["torque_limit"] / j["kp"] for j in robot["joints"]]),
+    "command_names": "motion",
+    "anchor_body_name": "torso",
+    "body_names": "pelvis,torso,left_foot",
+}
+terms = ["command", "motion_anchor_ori_b", "base_ang_vel", "joint_pos", "joint_vel", "actions"]
+beyondmimic = {**common, "observation_names": csv3(terms), "observation_history_lengths": csv3([1] * 6)}
+mjlab = {**common, "observation_names": csv3(terms),
+         "observation_terms_history_length": csv3([0, 0, 0, 3, 3, 3]),
+         "observation_terms_scale": csv3([1.0, 1.0, 1.0, 1.0, 0.05, 1.0]),
+         "observation_terms_clip": csv3([[float("-inf"), float("inf")]] * 4 + [[-100.0, 100.0],
+                                        [float("-inf"), float("inf")]])}
+for name, meta in [("beyondmimic", beyondmimic), ("mjlab_history", mjlab)]:
+    write("onnx_metadata", f"{name}.txt", b"\x01" + "".join(f"{k}\t{v}\n" for k, v in meta.items()).encode())
 
 from mcap.writer import CompressionType, Writer  # noqa: E402
 

@@ -101,20 +101,26 @@ fn joint_ids(model: &MjModel, id: usize) -> JointIds {
     }
 }
 
+/// The id of `name` among objects of `kind`; a name with a NUL byte names nothing (MuJoCo's
+/// names are C strings).
+fn id_of(model: &MjModel, kind: MjtObjBase, name: &str) -> Option<usize> {
+    if name.contains('\0') {
+        return None;
+    }
+    model.name_to_id(kind, name)
+}
+
 /// A body's id.
 pub fn body(model: &MjModel, name: &str) -> Result<usize, ModelIndexError> {
-    model
-        .name_to_id(MjtObjBase::mjOBJ_BODY, name)
-        .ok_or_else(|| ModelIndexError::Missing {
-            kind: "body",
-            name: name.to_owned(),
-        })
+    id_of(model, MjtObjBase::mjOBJ_BODY, name).ok_or_else(|| ModelIndexError::Missing {
+        kind: "body",
+        name: name.to_owned(),
+    })
 }
 
 /// A joint's ids.
 pub fn joint(model: &MjModel, name: &str) -> Result<JointIds, ModelIndexError> {
-    model
-        .name_to_id(MjtObjBase::mjOBJ_JOINT, name)
+    id_of(model, MjtObjBase::mjOBJ_JOINT, name)
         .map(|id| joint_ids(model, id))
         .ok_or_else(|| ModelIndexError::Missing {
             kind: "joint",
@@ -124,8 +130,7 @@ pub fn joint(model: &MjModel, name: &str) -> Result<JointIds, ModelIndexError> {
 
 /// A sensor's address in `sensordata`.
 pub fn sensor_address(model: &MjModel, name: &str) -> Result<usize, ModelIndexError> {
-    model
-        .name_to_id(MjtObjBase::mjOBJ_SENSOR, name)
+    id_of(model, MjtObjBase::mjOBJ_SENSOR, name)
         .map(|id| model.sensor_adr()[id] as usize)
         .ok_or_else(|| ModelIndexError::Missing {
             kind: "sensor",
@@ -135,11 +140,10 @@ pub fn sensor_address(model: &MjModel, name: &str) -> Result<usize, ModelIndexEr
 
 /// A body, else a site, of that name.
 pub fn frame(model: &MjModel, name: &str) -> Result<FrameId, ModelIndexError> {
-    if let Some(b) = model.name_to_id(MjtObjBase::mjOBJ_BODY, name) {
+    if let Some(b) = id_of(model, MjtObjBase::mjOBJ_BODY, name) {
         return Ok(FrameId::Body(b));
     }
-    model
-        .name_to_id(MjtObjBase::mjOBJ_SITE, name)
+    id_of(model, MjtObjBase::mjOBJ_SITE, name)
         .map(|site| FrameId::Site {
             site,
             body: model.site_bodyid()[site] as usize,

@@ -16,6 +16,9 @@ use robots::{Robot, reference_robot_path};
 use sim2real::config::{MirrorConfig, StartPose};
 use test_support::fixtures::fixture;
 
+#[global_allocator]
+static ALLOC: test_support::alloc::CountingAllocator = test_support::alloc::CountingAllocator;
+
 fn squat() -> PathBuf {
     reference_robot_path().with_file_name("clips/squat.csv")
 }
@@ -222,6 +225,11 @@ fn a_manifest_may_override_the_exports_fields() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("motion_bodies") && e.contains("tail"), "{e}");
+    // A NUL byte in a name (MuJoCo's names are C strings) names no body; found by fuzzing.
+    let e = write("motion_bodies = [\"pe\\u0000\"]\n")
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("motion_bodies: not bodies of"), "{e}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -259,4 +267,63 @@ fn what_a_run_cannot_provide_or_does_not_fit_is_refused_before_anything_moves() 
         err.contains("--start-step 5000") && err.contains("frames"),
         "{err}"
     );
+}
+
+#[test]
+fn a_steady_state_tick_with_the_exports_motion_and_kinematics_allocates_nothing() {
+    use controller::safety::Mode;
+    let (robot, layout, reference) = load(&fixture("rd_biped_tracking.onnx"), 0);
+    let (mut p, mut clock, _w) = lockstep_player(
+        robot,
+        layout,
+        reference,
+        PlayOptions::default(),
+        MirrorConfig::default(),
+        Arc::new(AtomicBool::new(false)),
+    )
+    .unwrap();
+    p.identify().unwrap();
+    let period = std::time::Duration::from_millis(20);
+    let mut ticks = |range: std::ops::RangeInclusive<u32>| {
+        for k in range {
+            p.step(&clock).unwrap();
+            p.wait_until(&mut clock, period * k);
+        }
+    };
+    ticks(1..=80);
+    let (_, stats) = test_support::alloc::count_allocations(|| ticks(81..=180));
+    assert_eq!(p.mode(), Mode::Running);
+    assert!(stats.is_zero(), "{stats:?}");
+}
+
+#[test]
+fn an_anchor_above_the_imus_body_is_reached_through_the_joints_between() {
+    use controller::fk::RobotKinematics;
+    use robots::spatial;
+    let robot = Robot::load(&reference_robot_path()).unwrap();
+    // The head sits above the pelvis (the IMU's body) through head_yaw (about z) and head_pitch.
+    let mut k = RobotKinematics::new(&robot, Some("head"), &["head".to_owned()]).unwrap();
+    let head_yaw = robot
+        .config
+        .joints
+        .iter()
+        .position(|j| j.name == "head_yaw")
+        .unwrap();
+    let mut q = vec![0.0; robot.config.joints.len()];
+    q[head_yaw] = 0.5;
+    let imu = spatial::quat_of_rpy(0.0, 0.0, std::f64::consts::FRAC_PI_2);
+    k.update(imu, &q, Some([1.0, 2.0, 0.0]));
+    let a = k.anchor_pose();
+    let heading = spatial::heading_of_quat([a[3], a[4], a[5], a[6]]);
+    assert!(
+        (heading - (std::f64::consts::FRAC_PI_2 + 0.5)).abs() < 1e-9,
+        "{a:?}"
+    );
+    // Straight above the root (head on the torso's axis), at the root's place.
+    assert!(
+        (a[0] - 1.0).abs() < 1e-9 && (a[1] - 2.0).abs() < 1e-9 && a[2] > 0.2,
+        "{a:?}"
+    );
+    // The gyro turns from the IMU's frame into the root's (the same frame here).
+    assert_eq!(k.imu_to_root([0.1, 0.2, 0.3]), [0.1, 0.2, 0.3]);
 }
