@@ -7,7 +7,6 @@ use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 
 use controller::motion::ReferenceSource;
-use controller::onnx::OnnxModel;
 use controller::player::{PlayOptions, PlaySummary};
 use controller::policy::PolicyLayout;
 use controller::sim::lockstep_player;
@@ -27,10 +26,8 @@ fn squat() -> PathBuf {
 fn load(export: &Path, start_step: usize) -> (Robot, PolicyLayout, controller::clip::Reference) {
     let robot = Robot::load(&reference_robot_path()).unwrap();
     let mut layout = PolicyLayout::load(export, &robot).unwrap();
-    let model = OnnxModel::load(export).unwrap();
-    layout.bind_model(model.inputs(), model.output().1).unwrap();
     let (reference, source) =
-        controller::motion::load_reference(None, &squat(), &layout, &robot, start_step).unwrap();
+        controller::motion::load_reference(None, &squat(), &mut layout, &robot, start_step).unwrap();
     assert!(matches!(source, ReferenceSource::Embedded { .. }), "{source}");
     (robot, layout, reference)
 }
@@ -50,9 +47,12 @@ fn play(export: &Path, mirror: MirrorConfig, record: Option<&Path>) -> (PolicyLa
     .unwrap();
     let mut p = match record {
         Some(path) => {
+            let (bodies, anchor) = p.motion_bodies();
             let info = RecordingInfo {
                 joint_names: names,
                 root_frame: "pelvis".into(),
+                motion_bodies: bodies.to_vec(),
+                anchor,
                 ..Default::default()
             };
             p.with_telemetry(TelemetrySink::start(path, 64, Backpressure::Block, &info).unwrap())
@@ -117,6 +117,19 @@ fn the_reference_is_put_under_a_robot_that_starts_1_m_away_and_turned_90_degrees
     let turn = (heading(robot) - heading(reference)).abs();
     assert!(turn.to_degrees() < 1.0, "{first:?}");
     assert!((heading(robot).to_degrees() - 90.0).abs() < 2.0, "{first:?}");
+    // The report reads the same body errors back from the recording.
+    let dir = path.with_extension("report");
+    let r = analysis::report::write_report(&path, &dir).unwrap();
+    assert_eq!(r.body_rmse_cm.len(), 9);
+    for (body, e) in &s.body_rmse {
+        let reported = r.body_rmse_cm[body];
+        assert!(
+            (reported - 100.0 * e).abs() < 0.05,
+            "{body}: {reported} cm vs {e} m"
+        );
+    }
+    assert_eq!(r.anchor_rmse_cm, Some(r.body_rmse_cm["torso"]));
+    std::fs::remove_dir_all(&dir).unwrap();
     std::fs::remove_file(&path).unwrap();
 }
 
@@ -326,4 +339,54 @@ fn an_anchor_above_the_imus_body_is_reached_through_the_joints_between() {
     );
     // The gyro turns from the IMU's frame into the root's (the same frame here).
     assert_eq!(k.imu_to_root([0.1, 0.2, 0.3]), [0.1, 0.2, 0.3]);
+}
+
+#[test]
+fn a_recorded_export_run_replays_bit_for_bit() {
+    // Through the CLI: the recording names the export as the run's clip, and replay plays the
+    // motion it carries again.
+    let path = std::env::temp_dir().join(format!("tracking-replay-{}.mcap", std::process::id()));
+    let export = fixture("rd_biped_tracking_wose.onnx");
+    let (ok, _, err) = test_support::bin::run(&[
+        "play",
+        "--policy",
+        export.to_str().unwrap(),
+        "--start-step",
+        "40",
+        "--record",
+        path.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let report = analysis::replay::replay(&path).unwrap();
+    assert!(report.ticks > 300, "{report}");
+    assert!(report.first_difference.is_none(), "{report}");
+    std::fs::remove_file(&path).unwrap();
+}
+
+#[test]
+fn an_exported_default_pose_just_past_a_limit_by_the_rounding_is_clamped() {
+    let robot = Robot::load(&reference_robot_path()).unwrap();
+    let follower = reference_robot_path().with_file_name("policies/reference_follower.toml");
+    let text = std::fs::read_to_string(&follower).unwrap().replace(
+        "reference_follower.onnx",
+        follower.with_extension("onnx").to_str().unwrap(),
+    );
+    let (head, tables) = text.split_once("\n[").unwrap();
+    let manifest = |hip_yaw: f64| {
+        let mut pose = vec!["0.0".to_owned(); 20];
+        pose[0] = format!("{hip_yaw}");
+        format!(
+            "{head}\ndefault_pose = [{}]\nstiffness = [{}]\ndamping = [{}]\n\n[{tables}",
+            pose.join(", "),
+            ["20.0"; 20].join(", "),
+            ["1.0"; 20].join(", ")
+        )
+    };
+    // left_hip_yaw's limits are ±0.5 rad: 0.5004 is 0.500 written with 3 decimals, then rounded up.
+    let layout = PolicyLayout::parse(&follower, &manifest(0.5004), &robot).unwrap();
+    assert_eq!(layout.default_q[0], 0.5);
+    let e = PolicyLayout::parse(&follower, &manifest(0.502), &robot)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("default_pose") && e.contains("left_hip_yaw"), "{e}");
 }

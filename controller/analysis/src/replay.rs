@@ -11,7 +11,6 @@ use std::time::Duration;
 
 use robots::Robot;
 
-use controller::clip::{Clip, Reference};
 use controller::options::RunMetadata;
 
 use crate::AnalysisError;
@@ -353,8 +352,14 @@ pub fn replay(path: &Path) -> Result<ReplayReport, AnalysisError> {
     if let Some(values) = &run.command {
         layout.set_command(values)?;
     }
-    let clip = Clip::load(&run.clip)?;
-    let reference = Reference::from_clip(&clip, &robot, layout.manifest.rate_hz)?;
+    // The clip the run played, or the motion its export carries (the recording names the export).
+    let (reference, _) = controller::motion::load_reference(
+        Some(&run.clip),
+        &run.clip,
+        &mut layout,
+        &robot,
+        run.options.start_step,
+    )?;
     let options = run.options;
     let joints = robot.config.joints.iter().map(|j| j.name.clone()).collect();
     let ticks = Arc::new(rec.ticks);

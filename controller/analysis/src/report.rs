@@ -46,6 +46,11 @@ pub struct RunSummary {
     pub io_us: [f64; 3],
     /// Compute per tick: p50, p99, max, µs.
     pub compute_us: [f64; 3],
+    /// Position RMSE of each tracked motion body over the tracking window, cm (simulation runs
+    /// of policies that track bodies).
+    pub body_rmse_cm: BTreeMap<String, f64>,
+    /// The anchor body's, cm.
+    pub anchor_rmse_cm: Option<f64>,
 }
 
 #[derive(Debug, Default)]
@@ -67,6 +72,10 @@ struct Series {
     reference_ticks: Option<usize>,
     /// The run's tilt limit, rad (the default when the recording does not say).
     tilt_limit: f64,
+    /// Tracked motion bodies, their anchor, and their position errors per tick (m).
+    motion_bodies: Vec<String>,
+    anchor_body: Option<String>,
+    body_errors: Vec<Vec<f64>>,
 }
 
 fn floats(v: &serde_json::Value) -> Vec<f64> {
@@ -118,6 +127,16 @@ fn read_series(path: &Path) -> Result<Series, String> {
                 let p = floats(&v["base_pose"]);
                 s.base_pose
                     .push(std::array::from_fn(|i| p.get(i).copied().unwrap_or(f64::NAN)));
+            }
+            "/policy" => {
+                if s.motion_bodies.is_empty() {
+                    s.motion_bodies = m
+                        .metadata
+                        .get("motion_bodies")
+                        .map_or_else(Vec::new, |n| n.split(',').map(str::to_owned).collect());
+                    s.anchor_body = m.metadata.get("anchor_body").cloned();
+                }
+                s.body_errors.push(floats(&v["body_errors_m"]));
             }
             "/timing" => {
                 s.io.push(v["io_us"].as_f64().unwrap_or(0.0));
@@ -222,7 +241,30 @@ fn summarize(s: &Series) -> RunSummary {
             jitter.1 += 1;
         }
     }
+    // Tracked bodies: their position errors over the window.
+    let mut body_sq = vec![(0.0, 0usize); s.motion_bodies.len()];
+    for &k in &window {
+        for (sum, &e) in body_sq
+            .iter_mut()
+            .zip(s.body_errors.get(k).map_or(&[][..], Vec::as_slice))
+        {
+            if e.is_finite() {
+                sum.0 += e * e;
+                sum.1 += 1;
+            }
+        }
+    }
+    let body_rmse_cm: BTreeMap<String, f64> = s
+        .motion_bodies
+        .iter()
+        .zip(&body_sq)
+        .filter(|(_, (_, n))| *n > 0)
+        .map(|(b, (sq, n))| (b.clone(), (sq / *n as f64).sqrt() * 100.0))
+        .collect();
+    let anchor_rmse_cm = s.anchor_body.as_ref().and_then(|a| body_rmse_cm.get(a).copied());
     RunSummary {
+        body_rmse_cm,
+        anchor_rmse_cm,
         ticks: s.q.len(),
         tracking_ticks: window.len(),
         joint_rmse_deg,
@@ -365,6 +407,13 @@ pub fn write_report(log: &Path, dir: &Path) -> Result<RunSummary, AnalysisError>
         "| compute p50 / p99 / max | {:.0} / {:.0} / {:.0} µs |",
         summary.compute_us[0], summary.compute_us[1], summary.compute_us[2]
     );
+    if let Some(a) = summary.anchor_rmse_cm {
+        let _ = writeln!(
+            md,
+            "| anchor ({}) position RMSE | {a:.1} cm |",
+            s.anchor_body.as_deref().unwrap_or("?")
+        );
+    }
     let _ = writeln!(md, "\n## Safety events\n");
     for (tick, mode, cause) in &summary.safety_events {
         let _ = writeln!(md, "- tick {tick}: {mode} ({cause})");
@@ -372,6 +421,12 @@ pub fn write_report(log: &Path, dir: &Path) -> Result<RunSummary, AnalysisError>
     let _ = writeln!(md, "\n## Joint RMSE\n");
     for (j, e) in &summary.joint_rmse_deg {
         let _ = writeln!(md, "- {j}: {e:.2}°");
+    }
+    if !summary.body_rmse_cm.is_empty() {
+        let _ = writeln!(md, "\n## Tracked bodies: position RMSE\n");
+        for (b, e) in &summary.body_rmse_cm {
+            let _ = writeln!(md, "- {b}: {e:.1} cm");
+        }
     }
     write(&dir.join("summary.md"), &md)?;
 
@@ -421,6 +476,40 @@ pub fn write_report(log: &Path, dir: &Path) -> Result<RunSummary, AnalysisError>
             })
             .collect();
         html.push_str(&svg_plot("root position error", "cm", &[("error", "#36c", err)]));
+    }
+    if !summary.body_rmse_cm.is_empty() {
+        // Mean and worst body at each tick, and the anchor.
+        let anchor = s
+            .anchor_body
+            .as_ref()
+            .and_then(|a| s.motion_bodies.iter().position(|b| b == a));
+        let per_tick = |f: &dyn Fn(&[f64]) -> f64| -> Vec<(f64, f64)> {
+            s.time
+                .iter()
+                .zip(&s.body_errors)
+                .map(|(&t, e)| (t, if e.is_empty() { f64::NAN } else { 100.0 * f(e) }))
+                .collect()
+        };
+        let mut lines = vec![
+            (
+                "mean",
+                "#36c",
+                per_tick(&|e| e.iter().sum::<f64>() / e.len() as f64),
+            ),
+            (
+                "worst",
+                "#c33",
+                per_tick(&|e| e.iter().copied().fold(0.0, f64::max)),
+            ),
+        ];
+        if let Some(a) = anchor {
+            lines.push((
+                "anchor",
+                "#393",
+                per_tick(&|e| e.get(a).copied().unwrap_or(f64::NAN)),
+            ));
+        }
+        html.push_str(&svg_plot("tracked bodies: position error", "cm", &lines));
     }
     let io: Vec<(f64, f64)> = s.time.iter().zip(&s.io).map(|(&t, &v)| (t, v)).collect();
     let compute: Vec<(f64, f64)> = s.time.iter().zip(&s.compute).map(|(&t, &v)| (t, v)).collect();

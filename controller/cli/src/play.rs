@@ -11,7 +11,6 @@ use robots::Robot;
 use crate::sim::load_mirror_config;
 use controller::clip::Reference;
 use controller::motion::ReferenceSource;
-use controller::onnx::OnnxModel;
 use controller::player::{PlayOptions, PlaySummary, Player};
 use controller::policy::PolicyLayout;
 use controller::sim::{lockstep_player, wired_player};
@@ -127,13 +126,10 @@ struct Loaded {
 fn load(files: &Files) -> Result<Loaded> {
     let robot = Robot::load(&files.robot)?;
     let mut layout = PolicyLayout::load(&files.policy, &robot)?;
-    let model = OnnxModel::load(&layout.onnx_path)?;
-    layout.bind_model(model.inputs(), model.output().1)?;
-    drop(model);
     let (reference, source) = controller::motion::load_reference(
         files.clip.as_deref(),
         &Files::default_clip(),
-        &layout,
+        &mut layout,
         &robot,
         files.start_step as usize,
     )?;
@@ -319,6 +315,8 @@ fn with_recorder<L: RobotLink>(
             robot.config.joints.iter().map(|j| j.mjcf_joint.clone()).collect(),
         )),
         bus_cycles,
+        motion_bodies: player.motion_bodies().0.to_vec(),
+        anchor: player.motion_bodies().1,
     };
     let sink = match claimed {
         Some(file) => TelemetrySink::start_in(file, &path, 1024, backpressure, &info)?,

@@ -25,15 +25,23 @@ use test_support::stats::Summary;
 
 #[path = "common/mod.rs"]
 mod common;
-use common::{files, tracking_export};
+use common::files;
+use controller::clip::Reference;
+use controller::policy::PolicyLayout;
+use robots::{Robot, reference_robot_path};
 
-fn lockstep_compute(
-    (robot, layout, reference): (
-        robots::Robot,
-        controller::policy::PolicyLayout,
-        controller::clip::Reference,
-    ),
-) -> Summary {
+/// The reference robot and the squat as a BeyondMimic-convention export carrying its motion
+/// (`.local/fixtures/rd_biped_tracking.onnx`, made by `scripts/setup`), with that motion.
+fn tracking_export() -> (Robot, PolicyLayout, Reference) {
+    let robot = Robot::load(&reference_robot_path()).unwrap();
+    let export = test_support::fixtures::fixture("rd_biped_tracking.onnx");
+    let mut layout = PolicyLayout::load(&export, &robot).unwrap();
+    let squat = reference_robot_path().with_file_name("clips/squat.csv");
+    let (reference, _) = controller::motion::load_reference(None, &squat, &mut layout, &robot, 0).unwrap();
+    (robot, layout, reference)
+}
+
+fn lockstep_compute((robot, layout, reference): (Robot, PolicyLayout, Reference)) -> Summary {
     let options = PlayOptions {
         end: EndMode::Loop,
         ..PlayOptions::default()

@@ -96,6 +96,9 @@ impl Alignment {
 /// The output names of a motion-tracking export.
 pub const OUTPUTS: [&str; 4] = ["joint_pos", "joint_vel", "body_pos_w", "body_quat_w"];
 
+/// How far from 1 the norm of a motion's quaternion may be (float32 tables).
+const UNIT_TOLERANCE: f64 = 1e-3;
+
 /// Most frames an embedded motion may have (6 hours at 50 Hz).
 pub const MAX_FRAMES: usize = 1 << 20;
 
@@ -333,12 +336,19 @@ impl EmbeddedMotion {
                     "frame {step} of the embedded motion has a non-finite joint value ({bad})"
                 ));
             }
-            for b in 0..self.bodies {
+            for (b, name) in bodies.iter().enumerate() {
+                let q = &f.body_quat[4 * b..4 * b + 4];
+                let norm = q.iter().map(|v| f64::from(*v).powi(2)).sum::<f64>().sqrt();
+                if !((1.0 - UNIT_TOLERANCE)..=(1.0 + UNIT_TOLERANCE)).contains(&norm) {
+                    return Err(format!(
+                        "frame {step} of the embedded motion: body {name}'s body_quat_w {q:?} has norm \
+                         {norm:.4}, not a unit quaternion (w x y z expected)"
+                    ));
+                }
                 let pose = f.body_pose(b);
                 if pose.iter().any(|v| !v.is_finite()) {
                     return Err(format!(
-                        "frame {step} of the embedded motion: body {} has a non-finite or zero pose",
-                        bodies[b]
+                        "frame {step} of the embedded motion: body {name} has a non-finite or zero pose"
                     ));
                 }
                 reference.motion_poses.push(pose);
@@ -409,16 +419,18 @@ fn same_file(a: &Path, b: &Path) -> bool {
 
 /// The reference of a run: the motion the policy's export carries (from `start_step`), else
 /// the clip at `clip` (`default_clip` when none is given). A clip given for an export that
-/// carries its own motion is refused: one of them would be ignored. `layout` is bound to its
-/// model.
+/// carries its own motion is refused: one of them would be ignored. Binds `layout` to its model
+/// on the way (its terms' sizes checked against the model's inputs and outputs).
 pub fn load_reference(
     clip: Option<&Path>,
     default_clip: &Path,
-    layout: &PolicyLayout,
+    layout: &mut PolicyLayout,
     robot: &Robot,
     start_step: usize,
 ) -> Result<(Reference, ReferenceSource), PlayError> {
     let mut model = OnnxModel::load(&layout.onnx_path)?;
+    layout.bind_model(model.inputs(), model.output().1)?;
+    let layout = &*layout;
     if let Some(mut motion) =
         EmbeddedMotion::find(&mut model, layout, start_step).map_err(PlayError::Setup)?
     {

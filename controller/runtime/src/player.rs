@@ -117,6 +117,10 @@ pub struct Player<L: RobotLink> {
     truth: GroundTruth,
     /// The robot's anchor and the reference's as the last policy tick observed them.
     anchors: Option<([f64; 7], [f64; 7])>,
+    /// Position error of each tracked motion body at the last policy tick, m (simulation).
+    body_errors: Vec<f64>,
+    /// Whether `body_errors` holds this run's errors (ground truth and tracked bodies).
+    has_body_errors: bool,
     telemetry: Option<TelemetrySink>,
     record: Box<TickRecord>,
 }
@@ -213,6 +217,7 @@ impl<L: RobotLink> Player<L> {
         let default_q = layout.default_q.clone();
         let mut metrics = RunMetrics::default();
         metrics.track_bodies(&reference.motion_bodies, reference.anchor);
+        let tracked_bodies = reference.motion_bodies.len();
         if let Some(e) = &mut embedded {
             // The first tick observes the first frame: one call before anything moves.
             e.seek(&mut model, e.start_step).map_err(PlayError::Setup)?;
@@ -254,6 +259,8 @@ impl<L: RobotLink> Player<L> {
                 ..GroundTruth::default()
             },
             anchors: None,
+            body_errors: vec![0.0; tracked_bodies],
+            has_body_errors: false,
             telemetry: None,
             record: Box::default(),
             robot,
@@ -332,6 +339,12 @@ impl<L: RobotLink> Player<L> {
     /// The last commanded targets (robot order).
     pub fn targets(&self) -> &[JointTarget] {
         &self.targets
+    }
+
+    /// The motion bodies the run measures, and which is the anchor.
+    pub fn motion_bodies(&self) -> (&[String], Option<usize>) {
+        let r = self.cursor.reference();
+        (&r.motion_bodies, r.anchor)
     }
 
     /// Ticks of the reference at the policy rate.
@@ -473,6 +486,11 @@ impl<L: RobotLink> Player<L> {
                 reference_root: self.cursor.current_root(),
                 tracking: self.machine.mode == Mode::Running && self.cursor.tracked(),
                 anchors: self.anchors,
+                body_errors: if self.has_body_errors {
+                    &self.body_errors
+                } else {
+                    &[]
+                },
                 actions: self.mapper.actions(),
                 obs: &self.obs,
                 truth: &self.truth,
@@ -696,6 +714,17 @@ impl<L: RobotLink> Player<L> {
         if limited > 0 {
             self.metrics.limited_ticks += 1;
         }
+        // Where each tracked body is against the reference's (simulation: the robot's place is
+        // known).
+        self.has_body_errors = false;
+        if let (true, Some(k)) = (has_truth, &self.kinematics) {
+            let now = self.cursor.motion_now();
+            for (b, e) in self.body_errors.iter_mut().enumerate() {
+                let p = k.body_position(b);
+                *e = spatial::norm(spatial::sub(p, [now[b][0], now[b][1], now[b][2]]));
+            }
+            self.has_body_errors = !self.body_errors.is_empty();
+        }
         // Tracking error against the clip (not during the ramp or the end).
         // Each joint's sample is compared with the reference at the time it was taken (`age`
         // before the tick, between this tick's frame and the last): the error of the motion, not
@@ -715,12 +744,8 @@ impl<L: RobotLink> Player<L> {
             let root = has_truth.then(|| (self.truth.root_pose, self.cursor.current_root()));
             self.metrics
                 .add_tracking(&self.state.q, &self.aligned_reference, root);
-            if let (true, Some(k)) = (has_truth, &self.kinematics) {
-                let now = self.cursor.motion_now();
-                self.metrics.add_bodies((0..now.len()).map(|b| {
-                    let p = k.body_position(b);
-                    spatial::norm(spatial::sub(p, [now[b][0], now[b][1], now[b][2]]))
-                }));
+            if self.has_body_errors {
+                self.metrics.add_bodies(self.body_errors.iter().copied());
             }
         }
         self.previous_reference.copy_from_slice(current);

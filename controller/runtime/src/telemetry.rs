@@ -18,6 +18,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 pub const MAX_JOINTS: usize = 48;
 /// Most observation values a record carries (longer observations are truncated in the log).
 pub const MAX_OBS: usize = 512;
+/// Tracked motion bodies a tick record holds errors for.
+pub const MAX_BODIES: usize = 32;
 
 /// Most feet a record carries.
 pub const MAX_FEET: usize = 8;
@@ -82,6 +84,10 @@ pub struct TickRecord {
     /// The robot's anchor and the reference's (aligned), `[x, y, z, w, qx, qy, qz]`, when the
     /// policy observes an anchor.
     pub anchors: Option<([f64; 7], [f64; 7])>,
+    /// Position error of each tracked motion body, m (simulation), `bodies` in use.
+    pub body_errors: [f32; MAX_BODIES],
+    /// Tracked bodies with an error this tick.
+    pub bodies: u8,
     /// Raw policy actions (policy order).
     pub action: [f32; MAX_JOINTS],
     /// The observation the policy saw.
@@ -132,6 +138,8 @@ impl Default for TickRecord {
             reference_root: [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
             tracking: false,
             anchors: None,
+            body_errors: [0.0; MAX_BODIES],
+            bodies: 0,
             action: [0.0; MAX_JOINTS],
             obs: [0.0; MAX_OBS],
             io_us: 0.0,
@@ -169,6 +177,8 @@ pub struct TickView<'a> {
     pub tracking: bool,
     /// The robot's anchor and the reference's, when the policy observes one.
     pub anchors: Option<([f64; 7], [f64; 7])>,
+    /// Position errors of the tracked motion bodies, m (empty when unknown).
+    pub body_errors: &'a [f64],
     /// Raw actions.
     pub actions: &'a [f32],
     /// The observation.
@@ -214,6 +224,11 @@ impl TickRecord {
         r.reference_root = v.reference_root;
         r.tracking = v.tracking;
         r.anchors = v.anchors;
+        let b = v.body_errors.len().min(MAX_BODIES);
+        r.bodies = b as u8;
+        for (slot, e) in r.body_errors.iter_mut().zip(&v.body_errors[..b]) {
+            *slot = *e as f32;
+        }
         let m = v.actions.len().min(MAX_JOINTS);
         r.action[..m].copy_from_slice(&v.actions[..m]);
         let k = v.obs.len().min(MAX_OBS);
@@ -338,6 +353,11 @@ pub struct RecordingInfo {
     /// Joints of each bus (robot indices), in the order of `bus_names`: with them the recording
     /// gets a `/bus/<name>` channel per bus for its cycles ([`TelemetrySink::push_cycle`]).
     pub bus_cycles: Option<Vec<Vec<usize>>>,
+    /// The motion bodies whose position errors `/policy` carries (`body_errors_m`), and which
+    /// of them is the anchor.
+    pub motion_bodies: Vec<String>,
+    /// The anchor's index in `motion_bodies`.
+    pub anchor: Option<usize>,
 }
 
 /// What travels through the ring: a tick, or one bus cycle.
@@ -404,7 +424,7 @@ const TOPICS: [(&str, &str); 8] = [
     ),
     (
         "/policy",
-        r#"{"type":"object","properties":{"obs":{"type":"array","items":{"type":"number"}},"action":{"type":"array","items":{"type":"number"}},"robot_anchor":{"type":"array","items":{"type":"number"},"description":"the robot's anchor body in the world, x y z qw qx qy qz (tracking policies)"},"reference_anchor":{"type":"array","items":{"type":"number"},"description":"the reference's anchor, aligned to the robot, x y z qw qx qy qz"}}}"#,
+        r#"{"type":"object","properties":{"obs":{"type":"array","items":{"type":"number"}},"action":{"type":"array","items":{"type":"number"}},"robot_anchor":{"type":"array","items":{"type":"number"},"description":"the robot's anchor body in the world, x y z qw qx qy qz (tracking policies)"},"reference_anchor":{"type":"array","items":{"type":"number"},"description":"the reference's anchor, aligned to the robot, x y z qw qx qy qz"},"body_errors_m":{"type":"array","items":{"type":"number"},"description":"position error of each motion body (channel metadata motion_bodies), m, simulation"}}}"#,
     ),
     (
         "/safety",
@@ -502,6 +522,13 @@ impl TelemetrySink {
         let mut writer = std::mem::ManuallyDrop::new(writer);
         let meta: BTreeMap<String, String> = [("joint_names".to_owned(), joint_names.join(","))].into();
         // The replay channel also says how to rebuild the run: files and options.
+        let mut policy_meta = meta.clone();
+        if !info.motion_bodies.is_empty() {
+            policy_meta.insert("motion_bodies".into(), info.motion_bodies.join(","));
+        }
+        if let Some(a) = info.anchor.and_then(|a| info.motion_bodies.get(a)) {
+            policy_meta.insert("anchor_body".into(), a.clone());
+        }
         let mut timing_meta = meta.clone();
         timing_meta.insert("bus_names".into(), info.bus_names.join(","));
         let mut replay_meta = meta.clone();
@@ -524,6 +551,7 @@ impl TelemetrySink {
             let m = match topic {
                 "/replay" => &replay_meta,
                 "/timing" => &timing_meta,
+                "/policy" => &policy_meta,
                 _ => &meta,
             };
             channels.push(
@@ -734,6 +762,10 @@ fn encode(out: &mut String, k: usize, r: &TickRecord, root: &str, last_mode: &mu
                 array64(out, "robot_anchor", robot.iter().copied());
                 out.push(',');
                 array64(out, "reference_anchor", reference.iter().copied());
+            }
+            if r.bodies > 0 {
+                out.push(',');
+                array(out, "body_errors_m", &r.body_errors[..usize::from(r.bodies)]);
             }
         }
         3 => {
