@@ -27,7 +27,10 @@ mjlab writes it), not robot.toml's.
                                   joint_pos, joint_vel, actions; oldest first), _scale (0.05 on
                                   joint_vel), _clip ([-inf, inf] or [-c, c])
 
-Usage: gen_tracking_export.py --out DIR
+With --broken-quaternion-order it also writes rd_biped_tracking_xyzw.onnx: the first variant with
+body_quat_w stored x y z w, a deliberately wrong export for the tests of robodeploy's check.
+
+Usage: gen_tracking_export.py --out DIR [--broken-quaternion-order]
 """
 import argparse
 import csv
@@ -164,6 +167,7 @@ def build(name, tables, meta, terms, history):
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", type=pathlib.Path, required=True)
+    ap.add_argument("--broken-quaternion-order", action="store_true")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     robot = tomllib.loads((ROBOT / "robot.toml").read_text())
@@ -204,8 +208,11 @@ def main():
                                        for t in hist_terms],
         }),
     ]
-    for name, terms, hist, extra in variants:
-        m = build(name, tables, meta, terms, hist)
+    if args.broken_quaternion_order:
+        broken = {**tables, "body_quat_w": np.roll(tables["body_quat_w"], -1, axis=2)}
+        variants.append(("rd_biped_tracking_xyzw", full, {}, variants[0][3], broken))
+    for name, terms, hist, extra, *motion_tables in variants:
+        m = build(name, motion_tables[0] if motion_tables else tables, meta, terms, hist)
         for key, value in {**common, "observation_names": terms, **extra}.items():
             entry = m.metadata_props.add()
             entry.key, entry.value = key, csv3(value) if isinstance(value, list) else str(value)

@@ -273,6 +273,15 @@ fn what_a_run_cannot_provide_or_does_not_fit_is_refused_before_anything_moves() 
     ]);
     assert!(!code);
     assert!(err.contains("carries its own motion"), "{err}");
+    // An export whose body quaternions are x y z w: its bodies do not fit the model at its
+    // joints.
+    let xyzw = fixture("rd_biped_tracking_xyzw.onnx");
+    let (code, err) = run(&["check", "--policy", xyzw.to_str().unwrap()]);
+    assert!(!code);
+    assert!(
+        err.contains("does not fit the robot's model") && err.contains("quaternion order"),
+        "{err}"
+    );
     // A start beyond the motion.
     let (code, err) = run(&["play", "--policy", full, "--start-step", "5000", "--no-record"]);
     assert!(!code);

@@ -191,12 +191,20 @@ pub fn check(args: &CheckArgs) -> Result<()> {
             l.reference.len(),
             l.reference.rate_hz
         ),
-        source => println!(
-            "clip   {source}: {} ticks ({:.2} s) at {} Hz, within every joint and speed limit",
-            l.reference.len(),
-            l.reference.len() as f64 / l.reference.rate_hz,
-            l.reference.rate_hz
-        ),
+        source => {
+            println!(
+                "clip   {source}: {} ticks ({:.2} s) at {} Hz, within every joint and speed limit",
+                l.reference.len(),
+                l.reference.len() as f64 / l.reference.rate_hz,
+                l.reference.rate_hz
+            );
+            if let Some((body, d, frame)) = controller::motion::worst_body_mismatch(&l.robot, &l.reference)? {
+                println!(
+                    "       its body poses against the robot's model at its joints: worst {body} {:.2} cm (frame {frame})",
+                    100.0 * d
+                );
+            }
+        }
     }
     if !l.reference.held_joints.is_empty() {
         println!(

@@ -257,17 +257,11 @@ impl Clip {
         }
         let mut clip = Self::parse_csv(path, &text)?;
         clip.robot_order = robot_order;
-        let r = clip.root[0];
-        let up = robots::spatial::quat_rotate([r[3], r[4], r[5], r[6]], [0.0, 0.0, 1.0]);
-        if up[2] < 0.0 {
+        if let Some(message) = upside_down(clip.root[0]) {
             return Err(ClipError {
                 file: path.to_path_buf(),
                 place: "frame 0".into(),
-                message: format!(
-                    "the root starts upside down (its z axis points {:.2} down): is the quaternion order right? (read as w x y z: {:?})",
-                    -up[2],
-                    [r[3], r[4], r[5], r[6]]
-                ),
+                message,
             });
         }
         Ok(clip)
@@ -561,6 +555,20 @@ pub const MAX_CLIP_S: f64 = 3600.0;
 
 /// Largest time between two frames of a clip, s.
 pub const MAX_FRAME_GAP_S: f64 = 10.0;
+
+/// Why a root pose `[x, y, z, w, qx, qy, qz]` that starts a motion looks wrong: upside down, the
+/// usual sign of a quaternion read in the wrong order.
+pub fn upside_down(root: [f64; 7]) -> Option<String> {
+    let q = [root[3], root[4], root[5], root[6]];
+    let up = robots::spatial::quat_rotate(q, [0.0, 0.0, 1.0]);
+    (up[2] < 0.0).then(|| {
+        format!(
+            "the root starts upside down (its z axis points {:.2} down): is the quaternion order right? \
+             (read as w x y z: {q:?})",
+            -up[2]
+        )
+    })
+}
 
 /// A clip resampled to the control rate, in the robot's joint order, ready to track.
 #[derive(Debug, Clone, PartialEq)]

@@ -357,6 +357,9 @@ impl EmbeddedMotion {
             reference.qd.extend_from_slice(&qd);
             reference.root.push(f.body_pose(root_body));
         }
+        if let Some(m) = reference.root.first().and_then(|r| crate::clip::upside_down(*r)) {
+            return Err(format!("the motion {} carries: {m}", layout.onnx_path.display()));
+        }
         self.seek(model, self.start_step)?;
         Ok(reference)
     }
@@ -365,6 +368,35 @@ impl EmbeddedMotion {
     pub fn time_step(&self, k: usize) -> f64 {
         (self.start_step + k) as f64
     }
+}
+
+/// How far a motion's body may lie from where the robot's model puts it at the motion's root
+/// pose and joint positions, m.
+pub const MODEL_MISMATCH_M: f64 = 0.05;
+
+/// The motion body farthest from where the robot's model puts it, given the motion's own root
+/// pose and joint positions: `(body, distance m, frame)`; None without motion bodies. The
+/// frameworks computed their body poses with the same kinematics, so a large distance means the
+/// motion was read wrong.
+pub fn worst_body_mismatch(
+    robot: &Robot,
+    reference: &Reference,
+) -> Result<Option<(String, f64, usize)>, crate::fk::KinematicsError> {
+    let bodies = &reference.motion_bodies;
+    // The model is posed from the motion's root: only a motion that tracks the root body says
+    // where that is.
+    if !bodies.contains(&robot.config.root_body) {
+        return Ok(None);
+    }
+    let model = crate::fk::body_poses(robot, reference, bodies)?;
+    let mut worst: Option<(String, f64, usize)> = None;
+    for (k, (m, r)) in model.iter().zip(&reference.motion_poses).enumerate() {
+        let d = spatial::norm(spatial::sub([m[0], m[1], m[2]], [r[0], r[1], r[2]]));
+        if worst.as_ref().is_none_or(|w| d > w.1) {
+            worst = Some((bodies[k % bodies.len()].clone(), d, k / bodies.len()));
+        }
+    }
+    Ok(worst)
 }
 
 /// Where a run's reference comes from.
@@ -442,6 +474,19 @@ pub fn load_reference(
             )));
         }
         let reference = motion.read(&mut model, layout, robot).map_err(PlayError::Setup)?;
+        if let Some((body, error, frame)) = worst_body_mismatch(robot, &reference)?
+            && error > MODEL_MISMATCH_M
+        {
+            return Err(PlayError::Setup(format!(
+                "the motion {} carries does not fit the robot's model: at frame {frame}, body {body} \
+                 lies {:.1} cm from where the model puts it at the motion's own root pose and joint \
+                 positions (at most {:.0} cm): a wrong quaternion order (w x y z expected), joint \
+                 order or body names, or another robot's motion",
+                layout.onnx_path.display(),
+                100.0 * error,
+                100.0 * MODEL_MISMATCH_M
+            )));
+        }
         return Ok((
             reference,
             ReferenceSource::Embedded {
