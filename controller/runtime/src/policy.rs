@@ -689,10 +689,11 @@ impl PolicyLayout {
         };
         for (p, v) in scales.iter().enumerate() {
             if !(1e-6..=10.0).contains(v) {
-                return Err(err(
-                    &format!("action.scale[{p}] ({})", manifest.joints[p]),
-                    format!("{} is outside [1e-06, 10]", robots::num(*v)),
-                ));
+                let place = match a.scale {
+                    Some(ActionScale::PerJoint(_)) => format!("action.scale[{p}] ({})", manifest.joints[p]),
+                    _ => "action.scale".to_owned(),
+                };
+                return Err(err(&place, format!("{} is outside [1e-06, 10]", robots::num(*v))));
             }
         }
         for (field, v, range) in [
