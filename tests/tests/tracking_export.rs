@@ -334,7 +334,7 @@ fn an_anchor_above_the_imus_body_is_reached_through_the_joints_between() {
     let mut q = vec![0.0; robot.config.joints.len()];
     q[head_yaw] = 0.5;
     let imu = spatial::quat_of_rpy(0.0, 0.0, std::f64::consts::FRAC_PI_2);
-    k.update(imu, &q, Some([1.0, 2.0, 0.0]));
+    k.update(imu, &q, &vec![0.0; q.len()], Some([1.0, 2.0, 0.0]));
     let a = k.anchor_pose();
     let heading = spatial::heading_of_quat([a[3], a[4], a[5], a[6]]);
     assert!(

@@ -129,6 +129,29 @@ fn recording(path: &Path) -> Result<Recording, String> {
         state.accel = [imu[3], imu[4], imu[5]];
         state.quat = [imu[6], imu[7], imu[8], imu[9]];
         state.imu_missed = v["imu_missed"].as_u64().unwrap_or(0) as u32;
+        // The IMU samples the tick integrated (recordings before the estimator have none).
+        let samples = if v.get("imu_samples").is_some() {
+            numbers(&v, "imu_samples")?
+        } else {
+            Vec::new()
+        };
+        if samples.len() % 11 != 0 || samples.len() / 11 > robot_link::IMU_HISTORY {
+            return Err(format!(
+                "/replay tick {}: imu_samples has {} values (11 per sample, at most {})",
+                v["tick"],
+                samples.len(),
+                robot_link::IMU_HISTORY
+            ));
+        }
+        state.imu_samples = samples
+            .chunks_exact(11)
+            .map(|s| robot_link::ImuSample {
+                at: Duration::try_from_secs_f64(s[0]).unwrap_or_default(),
+                gyro: [s[1], s[2], s[3]],
+                accel: [s[4], s[5], s[6]],
+                quat: [s[7], s[8], s[9], s[10]],
+            })
+            .collect();
         let pose = numbers(&v, "base_pose")?;
         let lin = numbers(&v, "base_lin_vel")?;
         if pose.len() != 7 || lin.len() != 3 {

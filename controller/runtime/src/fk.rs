@@ -2,6 +2,7 @@
 //! robot stands in the reference's pose, for policies that observe reference body positions.
 
 use mujoco_rs::prelude::{MjData, MjModel};
+use mujoco_rs::wrappers::mj_model::MjtObjBase;
 use robots::{Robot, spatial};
 use sim2real::model_index::{self, ModelIndex};
 
@@ -94,6 +95,12 @@ pub struct RobotKinematics {
     imu: model_index::FrameId,
     anchor: Option<usize>,
     bodies: Vec<usize>,
+    /// The robot's feet (robot.toml order), and how far each foot's origin sits above its sole.
+    feet: Vec<usize>,
+    sole_depth: Vec<f64>,
+    /// Root degrees of freedom in `qvel`, and the joints'.
+    root_dof: usize,
+    joint_dof: Vec<usize>,
     /// Root → world, this tick.
     root_rotation: [f64; 4],
     root_position: [f64; 3],
@@ -121,9 +128,14 @@ impl RobotKinematics {
             .iter()
             .map(|b| model_index::body(&model, b))
             .collect::<Result<Vec<_>, _>>()?;
+        let sole_depth = index.feet.iter().map(|&f| sole_depth(&model, f)).collect();
         Ok(Self {
             root_qpos: index.root.qpos,
             joint_qpos: index.joints.iter().map(|j| j.qpos).collect(),
+            root_dof: index.root.dof,
+            joint_dof: index.joints.iter().map(|j| j.dof).collect(),
+            feet: index.feet.clone(),
+            sole_depth,
             data: MjData::new(Box::new(model)),
             imu,
             anchor,
@@ -134,17 +146,28 @@ impl RobotKinematics {
         })
     }
 
-    /// Poses the model: `imu_quat` the IMU frame's measured orientation, `q` the joints (robot
-    /// order), `root_position` where the root is, if known.
-    pub fn update(&mut self, imu_quat: [f64; 4], q: &[f64], root_position: Option<[f64; 3]>) {
-        // The model at its origin, unturned: every frame's pose is then relative to the root.
+    /// Poses the model: `imu_quat` the IMU frame's measured orientation, `q` and `qd` the joints
+    /// (robot order), `root_position` where the root is, if known.
+    pub fn update(&mut self, imu_quat: [f64; 4], q: &[f64], qd: &[f64], root_position: Option<[f64; 3]>) {
+        // The model at its origin, unturned and still: every frame's pose and velocity is then
+        // relative to the root.
         let r = self.root_qpos;
         let qpos = self.data.qpos_mut();
         qpos[r..r + 7].copy_from_slice(&[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]);
         for (&adr, &v) in self.joint_qpos.iter().zip(q) {
             qpos[adr] = v;
         }
+        let d = self.root_dof;
+        let qvel = self.data.qvel_mut();
+        qvel[d..d + 6].fill(0.0);
+        for (&adr, &v) in self.joint_dof.iter().zip(qd) {
+            qvel[adr] = v;
+        }
         self.data.kinematics();
+        if !self.feet.is_empty() {
+            self.data.com_pos();
+            self.data.com_vel();
+        }
         let m = match self.imu {
             model_index::FrameId::Body(b) => self.data.xmat()[b],
             model_index::FrameId::Site { site, .. } => self.data.site_xmat()[site],
@@ -153,7 +176,24 @@ impl RobotKinematics {
             spatial::quat_of_mat(&[[m[0], m[1], m[2]], [m[3], m[4], m[5]], [m[6], m[7], m[8]]]);
         self.root_rotation =
             spatial::quat_normalize(spatial::quat_mul(imu_quat, spatial::quat_conj(self.imu_in_root)));
+        self.set_root_position(root_position);
+    }
+
+    /// Places the root, when its position is known (else at the origin).
+    pub fn set_root_position(&mut self, root_position: Option<[f64; 3]>) {
         self.root_position = root_position.unwrap_or([0.0; 3]);
+    }
+
+    /// The model's gravity, m/s².
+    pub fn gravity(&self) -> [f64; 3] {
+        self.data.model().opt().gravity
+    }
+
+    /// World position of tracked body `k` with the root at `root_position` (this tick's
+    /// orientation and joints).
+    pub fn body_position_from(&self, k: usize, root_position: [f64; 3]) -> [f64; 3] {
+        let p = self.data.xpos()[self.bodies[k]];
+        spatial::add(spatial::quat_rotate(self.root_rotation, p), root_position)
     }
 
     /// World pose of a body posed relative to the root.
@@ -181,8 +221,67 @@ impl RobotKinematics {
         [w[0], w[1], w[2]]
     }
 
+    /// The root's orientation in the world this tick (from the IMU).
+    pub fn root_rotation(&self) -> [f64; 4] {
+        self.root_rotation
+    }
+
+    /// Feet (robot.toml's `feet`).
+    pub fn feet(&self) -> usize {
+        self.feet.len()
+    }
+
+    /// Foot `k`'s origin relative to the root, in the root's frame.
+    pub fn foot_in_root(&self, k: usize) -> [f64; 3] {
+        self.data.xpos()[self.feet[k]]
+    }
+
+    /// Foot `k`'s origin velocity relative to the root (the joints moving, the root still), in
+    /// the root's frame.
+    pub fn foot_velocity_in_root(&self, k: usize) -> [f64; 3] {
+        let v = self
+            .data
+            .object_velocity(MjtObjBase::mjOBJ_BODY, self.feet[k], false);
+        [v[3], v[4], v[5]]
+    }
+
+    /// How far foot `k`'s origin sits above the lowest point of its geoms (its sole), in its own
+    /// frame.
+    pub fn sole_depth(&self, k: usize) -> f64 {
+        self.sole_depth[k]
+    }
+
     /// A vector in the IMU's frame (a gyro reading), in the root's frame.
     pub fn imu_to_root(&self, v: [f64; 3]) -> [f64; 3] {
         spatial::quat_rotate(self.imu_in_root, v)
     }
+}
+
+/// How far below `body`'s origin the lowest point of its geoms lies, along the body's own z
+/// (boxes, spheres, capsules, cylinders, ellipsoids exactly; other shapes by their bounding
+/// sphere).
+fn sole_depth(model: &MjModel, body: usize) -> f64 {
+    use mujoco_rs::mujoco_c::_mjtGeomBase as G;
+    let mut lowest = 0.0f64;
+    for g in 0..model.ffi().ngeom as usize {
+        if model.geom_bodyid()[g] as usize != body {
+            continue;
+        }
+        let (p, q, s) = (model.geom_pos()[g], model.geom_quat()[g], model.geom_size()[g]);
+        let m = spatial::mat_of_quat(q);
+        // The geom's axes' z components in the body frame.
+        let z = [m[2][0].abs(), m[2][1].abs(), m[2][2].abs()];
+        let extent = match model.geom_type()[g] {
+            G::mjGEOM_SPHERE => s[0],
+            G::mjGEOM_CAPSULE => s[0] + z[2] * s[1],
+            G::mjGEOM_CYLINDER => s[0] * (1.0 - z[2] * z[2]).sqrt() + z[2] * s[1],
+            G::mjGEOM_BOX => z[0] * s[0] + z[1] * s[1] + z[2] * s[2],
+            G::mjGEOM_ELLIPSOID => {
+                ((z[0] * s[0]).powi(2) + (z[1] * s[1]).powi(2) + (z[2] * s[2]).powi(2)).sqrt()
+            }
+            _ => model.geom_rbound()[g],
+        };
+        lowest = lowest.min(p[2] - extent);
+    }
+    -lowest
 }

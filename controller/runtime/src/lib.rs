@@ -8,6 +8,7 @@
 
 pub mod action;
 pub mod clip;
+pub mod estimator;
 pub mod estop;
 pub mod fk;
 pub mod metrics;

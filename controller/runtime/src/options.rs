@@ -43,6 +43,21 @@ pub struct PlayOptions {
     /// The frame of a motion-carrying export the run starts from.
     #[serde(default)]
     pub start_step: usize,
+    /// Where the terms that need the robot's place in the world (base velocity and height,
+    /// foot contacts, anchor position) come from.
+    #[serde(default)]
+    pub estimator: EstimatorKind,
+}
+
+/// The source of the robot's place in the world.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum EstimatorKind {
+    /// The state estimator on the measured data (what hardware runs).
+    #[default]
+    Kf,
+    /// The simulation's ground truth (the mirror only).
+    GroundTruth,
 }
 
 impl Default for PlayOptions {
@@ -57,6 +72,7 @@ impl Default for PlayOptions {
             limits: SafetyLimits::default(),
             max_ticks: None,
             start_step: 0,
+            estimator: EstimatorKind::Kf,
         }
     }
 }

@@ -16,11 +16,13 @@ use robots::{Robot, spatial};
 
 use crate::action::ActionMapper;
 use crate::clip::Reference;
+use crate::estimator::{Estimate, Estimator, EstimatorConfig, LegKinematics, MAX_FEET};
 use crate::fk::RobotKinematics;
 use crate::metrics::RunMetrics;
 pub use crate::metrics::{Histogram, PlaySummary};
 use crate::motion::{Alignment, EmbeddedMotion};
 use crate::onnx::OnnxModel;
+use crate::options::EstimatorKind;
 pub use crate::options::{EndMode, PlayOptions};
 use crate::policy::{ObsInputs, ObservationBuilder, PolicyLayout, Term};
 use crate::reference::ReferenceCursor;
@@ -67,6 +69,9 @@ impl PlayError {
     }
 }
 
+/// Ticks without an IMU sample the estimator still counts as fresh.
+const IMU_FRESH_TICKS: u32 = 2;
+
 /// The state machine's place.
 #[derive(Debug)]
 struct Machine {
@@ -100,8 +105,22 @@ pub struct Player<L: RobotLink> {
     metrics: RunMetrics,
     /// The motion a tracking export carries, when the policy is one.
     embedded: Option<EmbeddedMotion>,
-    /// The robot's anchor, bodies and root rate through its model, when the policy needs them.
+    /// The robot's anchor, bodies, feet and root rate through its model (when it has feet or
+    /// the policy needs them).
     kinematics: Option<RobotKinematics>,
+    /// The state estimator, for a robot with feet.
+    estimator: Option<Estimator>,
+    /// Its estimate this tick.
+    estimate: Estimate,
+    /// The robot's place in the world as the observation reads it: the estimate, or the
+    /// simulation's ground truth with `--estimator ground-truth`; and whether it is usable.
+    world: GroundTruth,
+    world_valid: bool,
+    /// Ground truth (simulation) into the estimate's world: where the estimator started, for
+    /// the tracking metrics, which compare the true robot with a reference placed by the
+    /// estimate.
+    truth_to_world: Alignment,
+    truth_mapped: bool,
     // Buffers, robot order unless named policy_.
     state: RobotState,
     targets: Vec<JointTarget>,
@@ -178,6 +197,15 @@ impl<L: RobotLink> Player<L> {
             )));
         }
         let kinematics = motion_setup(&robot, &layout, &mut reference, embedded.is_some())?;
+        let estimator = match &kinematics {
+            Some(k) if k.feet() > 0 => Some(Estimator::new(
+                EstimatorConfig::default(),
+                k.feet(),
+                k.gravity(),
+                robot.config.imu.rate_hz,
+            )),
+            _ => None,
+        };
         if (layout.manifest.rate_hz - reference.rate_hz).abs() > 1e-9 {
             return Err(PlayError::Setup(format!(
                 "reference resampled at {} Hz for a {} Hz policy",
@@ -225,6 +253,15 @@ impl<L: RobotLink> Player<L> {
         Ok(Self {
             embedded,
             kinematics,
+            estimator,
+            estimate: Estimate::default(),
+            world: GroundTruth {
+                foot_contacts: vec![false; robot.config.feet.len()],
+                ..GroundTruth::default()
+            },
+            world_valid: false,
+            truth_to_world: Alignment::default(),
+            truth_mapped: false,
             dt,
             cursor: ReferenceCursor::new(reference, frames, body_width, &default_q, &options, dt),
             mapper: ActionMapper::new(n, k_actions, &default_q),
@@ -465,6 +502,7 @@ impl<L: RobotLink> Player<L> {
             let p = self.truth.root_pose;
             self.metrics.fell |= in_control && tilt_of([p[3], p[4], p[5], p[6]]) > self.options.limits.tilt;
         }
+        self.estimate_world(has_truth);
         self.advance(has_truth);
         let compute = c0.elapsed();
         self.metrics.compute.record(compute);
@@ -491,6 +529,11 @@ impl<L: RobotLink> Player<L> {
                 } else {
                     &[]
                 },
+                estimate: self.estimator.as_ref().map(|_| &self.estimate),
+                truth_in_world: has_truth.then(|| {
+                    let t = self.truth_to_world.apply(self.truth.root_pose);
+                    (t, self.truth.base_lin_vel)
+                }),
                 actions: self.mapper.actions(),
                 obs: &self.obs,
                 truth: &self.truth,
@@ -568,6 +611,54 @@ impl<L: RobotLink> Player<L> {
         }
     }
 
+    /// The robot's place in the world this tick: the kinematics posed from the measured joints
+    /// and IMU, the estimator fed every IMU sample since the last tick and corrected by the legs,
+    /// then what the observation reads — the estimate, or ground truth when the run asks for it.
+    fn estimate_world(&mut self, has_truth: bool) {
+        let Some(k) = &mut self.kinematics else {
+            self.world_valid = has_truth;
+            if has_truth {
+                self.world.clone_from(&self.truth);
+            }
+            return;
+        };
+        k.update(self.state.quat, &self.state.q, &self.state.qd, None);
+        if let Some(e) = &mut self.estimator {
+            for sample in &self.state.imu_samples {
+                e.propagate(sample);
+            }
+            let mut legs = LegKinematics::default();
+            for f in 0..k.feet().min(MAX_FEET) {
+                legs.position[f] = k.foot_in_root(f);
+                legs.velocity[f] = k.foot_velocity_in_root(f);
+                legs.sole_depth[f] = k.sole_depth(f);
+            }
+            self.estimate = e.correct(&legs, self.state.imu_missed <= IMU_FRESH_TICKS);
+        }
+        let ground_truth = self.options.estimator == EstimatorKind::GroundTruth;
+        if ground_truth || self.estimator.is_none() {
+            self.world_valid = has_truth;
+            if has_truth {
+                self.world.clone_from(&self.truth);
+            }
+        } else {
+            let (p, q) = (self.estimate.position, k.root_rotation());
+            self.world.root_pose = [p[0], p[1], p[2], q[0], q[1], q[2], q[3]];
+            self.world.base_lin_vel = self.estimate.velocity_base;
+            for (c, e) in self.world.foot_contacts.iter_mut().zip(&self.estimate.contacts) {
+                *c = *e;
+            }
+            self.world.simulation_failed = false;
+            if has_truth && self.estimate.valid && !self.truth_mapped {
+                self.truth_to_world = Alignment::new(self.truth.root_pose, self.world.root_pose, true);
+                self.truth_mapped = true;
+            }
+            self.world_valid = self.estimate.valid;
+        }
+        let p = self.world.root_pose;
+        k.set_root_position(self.world_valid.then_some([p[0], p[1], p[2]]));
+    }
+
     fn soft_start_targets(&mut self) {
         let s = ((self.machine.ticks + 1) as f64 * self.dt / self.options.soft_start_s).min(1.0);
         let g = self.options.soft_start_gain + (1.0 - self.options.soft_start_gain) * s;
@@ -640,19 +731,21 @@ impl<L: RobotLink> Player<L> {
     fn policy_tick(&mut self, has_truth: bool) {
         let frame = self.embedded.as_ref().map(|e| e.frame(&self.model));
         let (mut robot_anchor, mut base_ang_vel) = ([0.0; 7], self.state.gyro);
-        let q = self.state.quat;
-        robot_anchor[3..].copy_from_slice(&q);
-        if let Some(k) = &mut self.kinematics {
-            let p = self.truth.root_pose;
-            k.update(q, &self.state.q, has_truth.then_some([p[0], p[1], p[2]]));
+        robot_anchor[3..].copy_from_slice(&self.state.quat);
+        if let Some(k) = &self.kinematics {
             robot_anchor = k.anchor_pose();
             base_ang_vel = k.imu_to_root(self.state.gyro);
+        }
+        if self.layout.needs_ground_truth() && !self.world_valid {
+            self.fail(Cause::EstimateInvalid);
+            self.hold_targets();
+            return;
         }
         if self.cursor.tick() == 0
             && let Some(first) = self.cursor.first_anchor(frame.as_ref())
         {
             // The run starts tracking: the motion is put under the robot.
-            let alignment = Alignment::new(first, robot_anchor, has_truth);
+            let alignment = Alignment::new(first, robot_anchor, self.world_valid);
             tracing::info!(
                 yaw_deg = alignment.yaw().to_degrees(),
                 "reference aligned to the robot's anchor"
@@ -681,7 +774,7 @@ impl<L: RobotLink> Player<L> {
             time_s: self.cursor.tick() as f64 * self.dt,
             ramp: psi,
             reference: self.cursor.view(),
-            truth: has_truth.then_some(&self.truth),
+            truth: self.world_valid.then_some(&self.world),
             trackers: self.cursor.trackers(),
             base_ang_vel,
             robot_anchor,
@@ -719,8 +812,10 @@ impl<L: RobotLink> Player<L> {
         self.has_body_errors = false;
         if let (true, Some(k)) = (has_truth, &self.kinematics) {
             let now = self.cursor.motion_now();
+            let t = self.truth_to_world.apply(self.truth.root_pose);
             for (b, e) in self.body_errors.iter_mut().enumerate() {
-                let p = k.body_position(b);
+                // Where the body really is: the true root, the measured joints.
+                let p = k.body_position_from(b, [t[0], t[1], t[2]]);
                 *e = spatial::norm(spatial::sub(p, [now[b][0], now[b][1], now[b][2]]));
             }
             self.has_body_errors = !self.body_errors.is_empty();
@@ -741,7 +836,12 @@ impl<L: RobotLink> Player<L> {
             *r = now + (before - now) * back;
         }
         if self.cursor.in_clip() {
-            let root = has_truth.then(|| (self.truth.root_pose, self.cursor.current_root()));
+            let root = has_truth.then(|| {
+                (
+                    self.truth_to_world.apply(self.truth.root_pose),
+                    self.cursor.current_root(),
+                )
+            });
             self.metrics
                 .add_tracking(&self.state.q, &self.aligned_reference, root);
             if self.has_body_errors {
@@ -798,7 +898,9 @@ fn motion_setup(
             .and_then(|a| bodies.iter().position(|b| b == a));
         reference.motion_bodies = bodies.clone();
     }
+    // The estimator needs the legs: every robot with feet gets its kinematics.
     let needs = !bodies.is_empty()
+        || !robot.config.feet.is_empty()
         || layout
             .slots
             .iter()

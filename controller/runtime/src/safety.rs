@@ -92,6 +92,9 @@ pub enum Cause {
     },
     /// The mirrored simulation diverged (unstable or non-finite physics).
     SimulationFailed,
+    /// The state estimate a policy reads is not usable (uninitialised, fed non-finite or stale
+    /// data).
+    EstimateInvalid,
     /// An e-stop input fired.
     EStop,
     /// A bus failed as a whole.
@@ -124,6 +127,7 @@ impl std::fmt::Display for Cause {
                 error.to_degrees()
             ),
             Self::SimulationFailed => write!(f, "the mirror's simulation diverged"),
+            Self::EstimateInvalid => write!(f, "the state estimate the policy reads is invalid"),
             Self::EStop => write!(f, "e-stop"),
             Self::BusFailure => write!(f, "bus failure"),
             Self::HoldDone => write!(f, "hold or blend done"),

@@ -14,10 +14,23 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
+use robot_link::IMU_HISTORY;
+
 /// Most joints a record carries.
 pub const MAX_JOINTS: usize = 48;
 /// Most observation values a record carries (longer observations are truncated in the log).
 pub const MAX_OBS: usize = 512;
+/// A tick's state estimate for the recording.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct EstimateRecord {
+    /// The robot has an estimator.
+    pub present: bool,
+    /// What it said.
+    pub estimate: crate::estimator::Estimate,
+    /// Ground truth in the estimate's frame, root pose and base-frame velocity (simulation).
+    pub truth: Option<([f64; 7], [f64; 3])>,
+}
+
 /// Tracked motion bodies a tick record holds errors for.
 pub const MAX_BODIES: usize = 32;
 
@@ -84,6 +97,12 @@ pub struct TickRecord {
     /// The robot's anchor and the reference's (aligned), `[x, y, z, w, qx, qy, qz]`, when the
     /// policy observes an anchor.
     pub anchors: Option<([f64; 7], [f64; 7])>,
+    /// The state estimate of the tick (and, in simulation, the truth in its frame).
+    pub estimate: EstimateRecord,
+    /// The IMU samples the tick integrated: time s, gyro, accel, quaternion (11 values each).
+    pub imu_samples: [[f64; 11]; IMU_HISTORY],
+    /// Samples in use.
+    pub imu_sample_count: u8,
     /// Position error of each tracked motion body, m (simulation), `bodies` in use.
     pub body_errors: [f32; MAX_BODIES],
     /// Tracked bodies with an error this tick.
@@ -138,6 +157,9 @@ impl Default for TickRecord {
             reference_root: [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
             tracking: false,
             anchors: None,
+            estimate: EstimateRecord::default(),
+            imu_samples: [[0.0; 11]; IMU_HISTORY],
+            imu_sample_count: 0,
             body_errors: [0.0; MAX_BODIES],
             bodies: 0,
             action: [0.0; MAX_JOINTS],
@@ -179,6 +201,10 @@ pub struct TickView<'a> {
     pub anchors: Option<([f64; 7], [f64; 7])>,
     /// Position errors of the tracked motion bodies, m (empty when unknown).
     pub body_errors: &'a [f64],
+    /// The state estimate, for a robot with an estimator.
+    pub estimate: Option<&'a crate::estimator::Estimate>,
+    /// Ground truth in the estimate's frame: root pose and base-frame velocity (simulation).
+    pub truth_in_world: Option<([f64; 7], [f64; 3])>,
     /// Raw actions.
     pub actions: &'a [f32],
     /// The observation.
@@ -224,6 +250,22 @@ impl TickRecord {
         r.reference_root = v.reference_root;
         r.tracking = v.tracking;
         r.anchors = v.anchors;
+        r.estimate = match v.estimate {
+            Some(e) => EstimateRecord {
+                present: true,
+                estimate: *e,
+                truth: v.truth_in_world,
+            },
+            None => EstimateRecord::default(),
+        };
+        let samples = &state.imu_samples;
+        r.imu_sample_count = samples.len().min(IMU_HISTORY) as u8;
+        for (slot, s) in r.imu_samples.iter_mut().zip(samples) {
+            slot[0] = s.at.as_secs_f64();
+            slot[1..4].copy_from_slice(&s.gyro);
+            slot[4..7].copy_from_slice(&s.accel);
+            slot[7..].copy_from_slice(&s.quat);
+        }
         let b = v.body_errors.len().min(MAX_BODIES);
         r.bodies = b as u8;
         for (slot, e) in r.body_errors.iter_mut().zip(&v.body_errors[..b]) {
@@ -413,7 +455,7 @@ pub struct TelemetrySink {
 }
 
 /// Topics, their JSON schemas, and how a record becomes their messages.
-const TOPICS: [(&str, &str); 8] = [
+const TOPICS: [(&str, &str); 9] = [
     (
         "/joint_state",
         r#"{"type":"object","properties":{"q":{"type":"array","items":{"type":"number"}},"qd":{"type":"array","items":{"type":"number"}},"tau":{"type":"array","items":{"type":"number"}},"missed":{"type":"array","items":{"type":"number"},"description":"bus cycles in a row without a reply"},"stale":{"type":"array","items":{"type":"number"},"description":"1: the joint's bus damped itself for its silence"},"age_ms":{"type":"array","items":{"type":"number"},"description":"age of each joint's sample when the tick read it, ms"}}}"#,
@@ -443,7 +485,10 @@ const TOPICS: [(&str, &str); 8] = [
         "/replay",
         r#"{"type":"object","description":"full-precision loop inputs and outputs of one tick, for robodeploy replay"}"#,
     ),
+    ("/estimator", ESTIMATOR_SCHEMA),
 ];
+
+const ESTIMATOR_SCHEMA: &str = r#"{"type":"object","description":"The state estimate of the tick (world frame: the robot's start; floor at z = 0), with its standard deviations; in simulation the ground truth in the same frame beside it.","properties":{"valid":{"type":"boolean"},"position":{"type":"array","items":{"type":"number"},"description":"base position, m"},"velocity":{"type":"array","items":{"type":"number"},"description":"base velocity, world axes, m/s"},"velocity_base":{"type":"array","items":{"type":"number"},"description":"base velocity, base axes, m/s"},"position_std":{"type":"array","items":{"type":"number"}},"velocity_std":{"type":"array","items":{"type":"number"}},"accel_bias":{"type":"array","items":{"type":"number"},"description":"accelerometer bias, base axes, m/s²"},"contacts":{"type":"array","items":{"type":"number"},"description":"1: the foot is on the ground (robot.toml feet order)"},"truth_position":{"type":"array","items":{"type":"number"}},"truth_velocity_base":{"type":"array","items":{"type":"number"}},"truth_contacts":{"type":"array","items":{"type":"number"}}}}"#;
 
 /// `foxglove.FrameTransform` as a JSON schema (the names Foxglove's 3D panel matches).
 const FRAME_TRANSFORM_SCHEMA: &str = r#"{"title":"foxglove.FrameTransform","type":"object","properties":{"timestamp":{"type":"object","properties":{"sec":{"type":"integer"},"nsec":{"type":"integer"}}},"parent_frame_id":{"type":"string"},"child_frame_id":{"type":"string"},"translation":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}}},"rotation":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"},"w":{"type":"number"}}}}}"#;
@@ -594,7 +639,7 @@ impl TelemetrySink {
                     Some((mjcf, joints)) => Some(Links::new(mjcf, joints, &root)?),
                     None => None,
                 };
-                let tf = channels[TOPICS.len() - 2];
+                let tf = channels[TOPICS.iter().position(|t| t.0 == "/tf").expect("a /tf topic")];
                 let mut sent = Sent::default();
                 let mut written = 0u64;
                 let mut text = String::with_capacity(16 * 1024);
@@ -811,6 +856,12 @@ fn encode(out: &mut String, k: usize, r: &TickRecord, root: &str, last_mode: &mu
             out.push(',');
             array64(out, "imu", r.imu.iter().copied());
             out.push(',');
+            array64(
+                out,
+                "imu_samples",
+                r.imu_samples[..usize::from(r.imu_sample_count)].iter().flatten().copied(),
+            );
+            out.push(',');
             array64(out, "base_pose", r.base_pose.iter().copied());
             out.push(',');
             array64(out, "base_lin_vel", r.base_lin_vel.iter().copied());
@@ -832,6 +883,42 @@ fn encode(out: &mut String, k: usize, r: &TickRecord, root: &str, last_mode: &mu
                 "enabled",
                 r.enabled[..n].iter().map(|&b| f64::from(u8::from(b))),
             );
+        }
+        8 => {
+            let e = &r.estimate;
+            if !e.present {
+                out.clear();
+                return false;
+            }
+            let x = &e.estimate;
+            let f = x.feet;
+            let _ = write!(out, "\"valid\":{},", x.valid);
+            array64(out, "position", x.position);
+            out.push(',');
+            array64(out, "velocity", x.velocity);
+            out.push(',');
+            array64(out, "velocity_base", x.velocity_base);
+            out.push(',');
+            array64(out, "position_std", x.position_std);
+            out.push(',');
+            array64(out, "velocity_std", x.velocity_std);
+            out.push(',');
+            array64(out, "accel_bias", x.accel_bias);
+            out.push(',');
+            array64(out, "contacts", x.contacts[..f].iter().map(|&c| f64::from(u8::from(c))));
+            if let Some((pose, vel)) = e.truth {
+                out.push(',');
+                array64(out, "truth_position", pose[..3].iter().copied());
+                out.push(',');
+                array64(out, "truth_velocity_base", vel);
+                out.push(',');
+                let feet = usize::from(r.feet).min(f);
+                array64(
+                    out,
+                    "truth_contacts",
+                    r.foot_contacts[..feet].iter().map(|&c| f64::from(u8::from(c))),
+                );
+            }
         }
         _ => {
             if r.base_pose[0].is_nan() {

@@ -648,6 +648,7 @@ impl<S: ByteStream> BusRobot<S> {
             (None, Some(c)) => c.newest,
             (None, None) => return Err(IoError::Setup("the IMU has no reader".into())),
         };
+        newest.samples_since(self.imu_seen, &mut state.imu_samples);
         if newest.count != self.imu_seen {
             self.imu_seen = newest.count;
             state.gyro = newest.gyro;

@@ -14,6 +14,7 @@ use robots::spatial;
 use triple_buffer::{Output, triple_buffer};
 
 use crate::clock::{TickClock, WallClock};
+use crate::{IMU_HISTORY, ImuSample};
 
 /// The newest IMU sample in the base's axes.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -25,6 +26,20 @@ pub(crate) struct ImuNewest {
     pub(crate) count: u64,
     /// When the newest arrived (the link's time).
     pub(crate) arrived_at: Duration,
+    /// The last [`IMU_HISTORY`] samples: sample number `c` sits at `c % IMU_HISTORY`.
+    pub(crate) recent: [ImuSample; IMU_HISTORY],
+}
+
+impl ImuNewest {
+    /// The samples after number `seen` up to the newest, oldest first, into `out` (at most
+    /// [`IMU_HISTORY`]: the newest of a longer gap).
+    pub(crate) fn samples_since(&self, seen: u64, out: &mut Vec<ImuSample>) {
+        out.clear();
+        let first = seen.max(self.count.saturating_sub(IMU_HISTORY as u64)) + 1;
+        for c in first..=self.count {
+            out.push(self.recent[(c % IMU_HISTORY as u64) as usize]);
+        }
+    }
 }
 
 impl Default for ImuNewest {
@@ -35,6 +50,7 @@ impl Default for ImuNewest {
             quat: [1.0, 0.0, 0.0, 0.0],
             count: 0,
             arrived_at: Duration::ZERO,
+            recent: [ImuSample::default(); IMU_HISTORY],
         }
     }
 }
@@ -86,6 +102,12 @@ impl<S: ByteStream> ImuCycle<S> {
             n.quat = spatial::quat_mul(r.sample.quat, spatial::quat_conj(m));
             n.count += 1;
             n.arrived_at = now;
+            n.recent[(n.count % IMU_HISTORY as u64) as usize] = ImuSample {
+                gyro: n.gyro,
+                accel: n.accel,
+                quat: n.quat,
+                at: now,
+            };
         }
         Ok(())
     }

@@ -24,4 +24,4 @@ pub use bus_robot::{BusPorts, BusRobot};
 pub use clock::{TickClock, WallClock};
 pub use cycle::{BusStats, CycleRecord, CycleTimes, MAX_RECORDED_JOINTS, STALE_CYCLES};
 pub use link::{ErrorKind, IoError, RobotLink, message_chain};
-pub use state::{DeviceIdentity, GroundTruth, JointTarget, RobotState};
+pub use state::{DeviceIdentity, GroundTruth, IMU_HISTORY, ImuSample, JointTarget, RobotState};

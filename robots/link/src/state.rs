@@ -18,6 +18,22 @@ pub struct JointTarget {
     pub enabled: bool,
 }
 
+/// One IMU sample, in the base's axes.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ImuSample {
+    /// Angular velocity, rad/s.
+    pub gyro: [f64; 3],
+    /// Specific force, m/s².
+    pub accel: [f64; 3],
+    /// Orientation `[w, x, y, z]`.
+    pub quat: [f64; 4],
+    /// When it arrived (the link's time).
+    pub at: std::time::Duration,
+}
+
+/// IMU samples a read hands over at most (the newest; older ones of a longer gap are dropped).
+pub const IMU_HISTORY: usize = 16;
+
 /// The robot's measured state, robot joint order.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RobotState {
@@ -48,6 +64,9 @@ pub struct RobotState {
     pub imu_missed: u32,
     /// How old the IMU sample was when read: since it arrived.
     pub imu_age: std::time::Duration,
+    /// Every IMU sample that arrived since the previous read, oldest first (at most
+    /// [`IMU_HISTORY`]): what a state estimator integrates at the IMU's rate.
+    pub imu_samples: Vec<ImuSample>,
 }
 
 impl RobotState {
@@ -66,6 +85,7 @@ impl RobotState {
             quat: [1.0, 0.0, 0.0, 0.0],
             imu_missed: u32::MAX,
             imu_age: std::time::Duration::ZERO,
+            imu_samples: Vec::with_capacity(IMU_HISTORY),
         }
     }
 }
@@ -85,6 +105,8 @@ impl RobotState {
         self.quat = other.quat;
         self.imu_missed = other.imu_missed;
         self.imu_age = other.imu_age;
+        self.imu_samples.clear();
+        self.imu_samples.extend_from_slice(&other.imu_samples);
     }
 }
 

@@ -1,0 +1,523 @@
+//! State estimation from what the robot measures: the base's position and velocity, the
+//! accelerometer's bias and the feet's positions, by the linear Kalman filter of legged robots
+//! (Bloesch et al., "State Estimation for Legged Robots", RSS 2012, in its linear form). Every IMU
+//! sample propagates (specific force turned into the world by the IMU's orientation, gravity
+//! added); every tick the legs correct: each foot's position relative to the base from the
+//! joints (forward kinematics of the robot's model), and for each foot on the ground, the base
+//! velocity that keeps it still. A foot in the air gets a large process noise, so it follows the
+//! kinematics without moving the base. Orientation is the IMU's own.
+//!
+//! Contact comes from foot switches where the robot has them, otherwise from the kinematics: a
+//! foot lands when it comes back within `contact_on_m` of the height it last stood at, slowly, and
+//! lifts off when it rises beyond `contact_off_m` (hysteresis).
+//!
+//! The world frame is the robot's start: the base above the origin, the floor at z = 0 under
+//! feet that stand on it, the IMU's heading. Measurements are processed one scalar at a time
+//! (equivalent for independent noises): no matrix inverse, nothing allocated after construction.
+
+use robots::spatial;
+
+/// Feet the filter tracks at most.
+pub const MAX_FEET: usize = 4;
+
+/// The filter's noises and the contact thresholds.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct EstimatorConfig {
+    /// Accelerometer white noise, m/s²/√Hz.
+    pub accel_noise: f64,
+    /// Accelerometer bias random walk, m/s²/√s.
+    pub bias_walk: f64,
+    /// A standing foot's drift, m/√s (slip).
+    pub stance_foot_walk: f64,
+    /// A foot in the air, m/√s: large, so it follows the kinematics alone.
+    pub swing_foot_walk: f64,
+    /// Leg kinematics: foot position relative to the base, m (1σ).
+    pub kinematic_position_noise: f64,
+    /// Leg kinematics: base velocity from a standing foot, m/s (1σ).
+    pub kinematic_velocity_noise: f64,
+    /// A foot lands within this height of where it last stood, m.
+    pub contact_on_m: f64,
+    /// A foot lifts off beyond this height, m.
+    pub contact_off_m: f64,
+    /// A landing foot moves slower than this, m/s.
+    pub contact_speed: f64,
+}
+
+impl Default for EstimatorConfig {
+    fn default() -> Self {
+        Self {
+            accel_noise: 0.2,
+            bias_walk: 0.005,
+            stance_foot_walk: 0.002,
+            swing_foot_walk: 2.0,
+            kinematic_position_noise: 0.003,
+            kinematic_velocity_noise: 0.03,
+            contact_on_m: 0.012,
+            contact_off_m: 0.02,
+            contact_speed: 0.35,
+        }
+    }
+}
+
+/// What the filter says this tick.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Estimate {
+    /// Base (root body) position in the world, m.
+    pub position: [f64; 3],
+    /// Base velocity in the world, m/s.
+    pub velocity: [f64; 3],
+    /// Base velocity in the base's own frame, m/s.
+    pub velocity_base: [f64; 3],
+    /// Standard deviations of position and velocity (world axes).
+    pub position_std: [f64; 3],
+    /// …
+    pub velocity_std: [f64; 3],
+    /// Accelerometer bias estimate, m/s² (base axes).
+    pub accel_bias: [f64; 3],
+    /// Feet on the ground (robot.toml order; `feet` of them in use).
+    pub contacts: [bool; MAX_FEET],
+    /// Feet in use.
+    pub feet: usize,
+    /// The outputs can be used: initialised, fed finite, fresh data.
+    pub valid: bool,
+}
+
+impl Default for Estimate {
+    fn default() -> Self {
+        Self {
+            position: [0.0; 3],
+            velocity: [0.0; 3],
+            velocity_base: [0.0; 3],
+            position_std: [0.0; 3],
+            velocity_std: [0.0; 3],
+            accel_bias: [0.0; 3],
+            contacts: [false; MAX_FEET],
+            feet: 0,
+            valid: false,
+        }
+    }
+}
+
+/// The legs as the kinematics sees them this tick, in the base's frame.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct LegKinematics {
+    /// Foot origins relative to the base.
+    pub position: [[f64; 3]; MAX_FEET],
+    /// Their velocities relative to the base (the joints moving, the base still).
+    pub velocity: [[f64; 3]; MAX_FEET],
+    /// How far each foot's origin sits above its sole.
+    pub sole_depth: [f64; MAX_FEET],
+    /// Foot switches, where the robot has them.
+    pub switches: Option<[bool; MAX_FEET]>,
+}
+
+const P: usize = 0;
+const V: usize = 3;
+const B: usize = 6;
+const FEET: usize = 9;
+
+/// The filter.
+#[derive(Debug, Clone)]
+pub struct Estimator {
+    config: EstimatorConfig,
+    feet: usize,
+    n: usize,
+    x: Vec<f64>,
+    p: Vec<f64>,
+    /// The gain of a scalar update.
+    gain: Vec<f64>,
+    gravity: [f64; 3],
+    /// The latest IMU orientation and rate (base axes).
+    quat: [f64; 4],
+    gyro: [f64; 3],
+    last_sample: Option<std::time::Duration>,
+    nominal_dt: f64,
+    contacts: [bool; MAX_FEET],
+    /// The height each foot last stood at.
+    ground: [f64; MAX_FEET],
+    initialised: bool,
+    /// Inputs were bad this tick (non-finite or stale).
+    input_fault: bool,
+}
+
+/// Samples of a longer gap are integrated as this many nominal periods at most.
+const MAX_GAP_PERIODS: f64 = 4.0;
+
+impl Estimator {
+    /// A filter for `feet` feet (at most [`MAX_FEET`]), gravity `gravity` (the model's), an IMU
+    /// streaming at `imu_rate_hz`.
+    pub fn new(config: EstimatorConfig, feet: usize, gravity: [f64; 3], imu_rate_hz: f64) -> Self {
+        let feet = feet.min(MAX_FEET);
+        let n = FEET + 3 * feet;
+        Self {
+            config,
+            feet,
+            n,
+            x: vec![0.0; n],
+            p: vec![0.0; n * n],
+            gain: vec![0.0; n],
+            gravity,
+            quat: [1.0, 0.0, 0.0, 0.0],
+            gyro: [0.0; 3],
+            last_sample: None,
+            nominal_dt: 1.0 / imu_rate_hz.max(1.0),
+            contacts: [true; MAX_FEET],
+            ground: [0.0; MAX_FEET],
+            initialised: false,
+            input_fault: false,
+        }
+    }
+
+    /// Starts over: the next tick initialises again.
+    pub fn reset(&mut self) {
+        self.initialised = false;
+        self.last_sample = None;
+    }
+
+    /// Integrates one IMU sample (base axes): propagates the state and its covariance.
+    pub fn propagate(&mut self, sample: &robot_link::ImuSample) {
+        let finite = sample
+            .gyro
+            .iter()
+            .chain(&sample.accel)
+            .chain(&sample.quat)
+            .all(|v| v.is_finite());
+        if !finite {
+            self.input_fault = true;
+            return;
+        }
+        let dt = match self.last_sample {
+            Some(t) => sample
+                .at
+                .saturating_sub(t)
+                .as_secs_f64()
+                .clamp(0.0, MAX_GAP_PERIODS * self.nominal_dt),
+            None => self.nominal_dt,
+        };
+        self.last_sample = Some(sample.at);
+        self.quat = spatial::quat_normalize(sample.quat);
+        self.gyro = sample.gyro;
+        if !self.initialised || dt == 0.0 {
+            return;
+        }
+        let r = spatial::mat_of_quat(self.quat);
+        let bias = [self.x[B], self.x[B + 1], self.x[B + 2]];
+        let a = spatial::add(
+            spatial::mat_apply(&r, spatial::sub(sample.accel, bias)),
+            self.gravity,
+        );
+        for k in 0..3 {
+            self.x[P + k] += self.x[V + k] * dt + 0.5 * a[k] * dt * dt;
+            self.x[V + k] += a[k] * dt;
+        }
+        // P ← F P Fᵀ + Q. F is the identity but for three blocks (p/v: dt·I, p/b: −½dt²·R,
+        // v/b: −dt·R), so only the rows, then the columns, of p and v change.
+        let n = self.n;
+        let (h, q) = (dt, -0.5 * dt * dt);
+        for j in 0..n {
+            let pb = &self.p;
+            let bias_r: [f64; 3] =
+                std::array::from_fn(|k| (0..3).map(|m| r[k][m] * pb[(B + m) * n + j]).sum());
+            for k in 0..3 {
+                let (pk, vk) = (self.p[(P + k) * n + j], self.p[(V + k) * n + j]);
+                self.p[(P + k) * n + j] = pk + h * vk + q * bias_r[k];
+                self.p[(V + k) * n + j] = vk - dt * bias_r[k];
+            }
+        }
+        for i in 0..n {
+            let row = i * n;
+            let bias_r: [f64; 3] =
+                std::array::from_fn(|k| (0..3).map(|m| r[k][m] * self.p[row + B + m]).sum());
+            for k in 0..3 {
+                let (pk, vk) = (self.p[row + P + k], self.p[row + V + k]);
+                self.p[row + P + k] = pk + h * vk + q * bias_r[k];
+                self.p[row + V + k] = vk - dt * bias_r[k];
+            }
+        }
+        let c = &self.config;
+        for k in 0..3 {
+            self.p[(V + k) * n + V + k] += c.accel_noise.powi(2) * dt;
+            self.p[(P + k) * n + P + k] += c.accel_noise.powi(2) * dt.powi(3) / 3.0;
+            self.p[(B + k) * n + B + k] += c.bias_walk.powi(2) * dt;
+        }
+        for foot in 0..self.feet {
+            let walk = if self.contacts[foot] {
+                c.stance_foot_walk
+            } else {
+                c.swing_foot_walk
+            };
+            for k in 0..3 {
+                let i = FEET + 3 * foot + k;
+                self.p[i * n + i] += walk * walk * dt;
+            }
+        }
+    }
+
+    /// One scalar measurement `y = xᵢ − xⱼ` (`j`: none) with variance `r`.
+    fn measure(&mut self, i: usize, j: Option<usize>, y: f64, r: f64) {
+        let n = self.n;
+        // g = P hᵀ
+        for row in 0..n {
+            self.gain[row] = self.p[row * n + i] - j.map_or(0.0, |j| self.p[row * n + j]);
+        }
+        let s = self.gain[i] - j.map_or(0.0, |j| self.gain[j]) + r;
+        if !(s.is_finite() && s > 0.0) {
+            self.input_fault = true;
+            return;
+        }
+        let innovation = y - (self.x[i] - j.map_or(0.0, |j| self.x[j]));
+        // x += g/s · innovation; P −= g gᵀ / s
+        for row in 0..n {
+            self.x[row] += self.gain[row] / s * innovation;
+        }
+        for row in 0..n {
+            let gr = self.gain[row] / s;
+            for col in 0..n {
+                self.p[row * n + col] -= gr * self.gain[col];
+            }
+        }
+    }
+
+    /// Corrects with this tick's leg kinematics. `imu_fresh`: the IMU delivered recently.
+    pub fn correct(&mut self, legs: &LegKinematics, imu_fresh: bool) -> Estimate {
+        let finite = legs.position[..self.feet]
+            .iter()
+            .chain(&legs.velocity[..self.feet])
+            .flatten()
+            .all(|v| v.is_finite());
+        if !finite {
+            self.input_fault = true;
+        }
+        let r = spatial::mat_of_quat(self.quat);
+        if !self.initialised && finite && self.last_sample.is_some() {
+            self.initialise(legs, &r);
+        }
+        if self.initialised && finite {
+            let omega = self.gyro;
+            let world_foot = |legs: &LegKinematics, f: usize| spatial::mat_apply(&r, legs.position[f]);
+            // Contacts first: they decide which feet correct the velocity.
+            for f in 0..self.feet {
+                let was = self.contacts[f];
+                self.contacts[f] = match legs.switches {
+                    Some(s) => s[f],
+                    None => {
+                        let rel = world_foot(legs, f);
+                        let height = self.x[P + 2] + rel[2] - self.ground[f];
+                        let speed = spatial::norm(spatial::add(
+                            [self.x[V], self.x[V + 1], self.x[V + 2]],
+                            spatial::mat_apply(
+                                &r,
+                                spatial::add(spatial::cross(omega, legs.position[f]), legs.velocity[f]),
+                            ),
+                        ));
+                        if self.contacts[f] {
+                            height < self.config.contact_off_m
+                        } else {
+                            height < self.config.contact_on_m && speed < self.config.contact_speed
+                        }
+                    }
+                };
+                if was && !self.contacts[f] {
+                    self.release_foot(f);
+                }
+            }
+            let c = self.config;
+            for f in 0..self.feet {
+                let rel = world_foot(legs, f);
+                for k in 0..3 {
+                    self.measure(
+                        FEET + 3 * f + k,
+                        Some(P + k),
+                        rel[k],
+                        c.kinematic_position_noise.powi(2),
+                    );
+                }
+            }
+            for f in 0..self.feet {
+                if !self.contacts[f] {
+                    continue;
+                }
+                // The foot is still: the base moves opposite to the foot's motion relative to it.
+                let v_rel = spatial::mat_apply(
+                    &r,
+                    spatial::add(spatial::cross(omega, legs.position[f]), legs.velocity[f]),
+                );
+                for (k, v) in v_rel.iter().enumerate() {
+                    self.measure(V + k, None, -v, c.kinematic_velocity_noise.powi(2));
+                }
+                self.ground[f] = self.x[FEET + 3 * f + 2];
+            }
+            self.symmetrise();
+        }
+        let valid = self.initialised
+            && !self.input_fault
+            && imu_fresh
+            && self.x.iter().chain(&self.p).all(|v| v.is_finite());
+        self.input_fault = false;
+        let std = |i: usize| self.p[i * self.n + i].max(0.0).sqrt();
+        let velocity = [self.x[V], self.x[V + 1], self.x[V + 2]];
+        let mut contacts = [false; MAX_FEET];
+        contacts[..self.feet].copy_from_slice(&self.contacts[..self.feet]);
+        Estimate {
+            position: [self.x[P], self.x[P + 1], self.x[P + 2]],
+            velocity,
+            velocity_base: spatial::mat_apply(&spatial::transpose(&r), velocity),
+            position_std: [std(P), std(P + 1), std(P + 2)],
+            velocity_std: [std(V), std(V + 1), std(V + 2)],
+            accel_bias: [self.x[B], self.x[B + 1], self.x[B + 2]],
+            contacts,
+            feet: self.feet,
+            valid,
+        }
+    }
+
+    /// The robot stands on its feet at the world's origin: the base above them so the soles
+    /// touch z = 0, still.
+    fn initialise(&mut self, legs: &LegKinematics, r: &spatial::Mat3) {
+        let n = self.n;
+        self.x.fill(0.0);
+        self.p.fill(0.0);
+        let mut height = 0.0;
+        for f in 0..self.feet {
+            height += legs.sole_depth[f] - spatial::mat_apply(r, legs.position[f])[2];
+        }
+        self.x[P + 2] = if self.feet > 0 {
+            height / self.feet as f64
+        } else {
+            0.0
+        };
+        for f in 0..self.feet {
+            let w = spatial::mat_apply(r, legs.position[f]);
+            for k in 0..3 {
+                self.x[FEET + 3 * f + k] = self.x[P + k] + w[k];
+            }
+            self.ground[f] = self.x[FEET + 3 * f + 2];
+        }
+        let mut var = |i: usize, v: f64| self.p[i * n + i] = v;
+        for k in 0..3 {
+            var(P + k, 1e-6);
+            var(V + k, 1e-4);
+            var(B + k, 0.3f64.powi(2));
+        }
+        for i in FEET..n {
+            var(i, 1e-4);
+        }
+        self.contacts = [true; MAX_FEET];
+        self.initialised = true;
+    }
+
+    /// A foot left the ground: where it is no longer says anything about the base (its state
+    /// forgets its correlations and becomes uncertain).
+    fn release_foot(&mut self, f: usize) {
+        let n = self.n;
+        for k in 0..3 {
+            let i = FEET + 3 * f + k;
+            for j in 0..n {
+                self.p[i * n + j] = 0.0;
+                self.p[j * n + i] = 0.0;
+            }
+            self.p[i * n + i] = self.config.swing_foot_walk.powi(2);
+        }
+    }
+
+    fn symmetrise(&mut self) {
+        let n = self.n;
+        for i in 0..n {
+            for j in i + 1..n {
+                let m = 0.5 * (self.p[i * n + j] + self.p[j * n + i]);
+                self.p[i * n + j] = m;
+                self.p[j * n + i] = m;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::Duration;
+
+    fn sample(k: u64, accel: [f64; 3]) -> robot_link::ImuSample {
+        robot_link::ImuSample {
+            gyro: [0.0; 3],
+            accel,
+            quat: [1.0, 0.0, 0.0, 0.0],
+            at: Duration::from_millis(5 * k),
+        }
+    }
+
+    fn standing_legs() -> LegKinematics {
+        LegKinematics {
+            position: [[0.0, 0.1, -0.4], [0.0, -0.1, -0.4], [0.0; 3], [0.0; 3]],
+            sole_depth: [0.04; MAX_FEET],
+            ..LegKinematics::default()
+        }
+    }
+
+    #[test]
+    fn a_robot_standing_still_stays_put_and_learns_its_accelerometer_bias() {
+        let mut e = Estimator::new(EstimatorConfig::default(), 2, [0.0, 0.0, -9.81], 200.0);
+        let legs = standing_legs();
+        // The accelerometer reads gravity plus a bias of 0.3 m/s² along x.
+        let mut last = Estimate::default();
+        for tick in 0..3000u64 {
+            for k in 0..4 {
+                e.propagate(&sample(4 * tick + k, [0.3, 0.0, 9.81]));
+            }
+            last = e.correct(&legs, true);
+        }
+        assert!(last.valid);
+        assert!((last.position[2] - 0.44).abs() < 1e-3, "{last:?}");
+        assert!(
+            spatial::norm([last.position[0], last.position[1], 0.0]) < 0.01,
+            "{last:?}"
+        );
+        assert!(spatial::norm(last.velocity) < 0.01, "{last:?}");
+        assert!((last.accel_bias[0] - 0.3).abs() < 0.05, "{last:?}");
+        assert_eq!(&last.contacts[..2], &[true, true]);
+    }
+
+    #[test]
+    fn a_lifted_foot_is_in_the_air_and_lands_again() {
+        let mut e = Estimator::new(EstimatorConfig::default(), 2, [0.0, 0.0, -9.81], 200.0);
+        let mut legs = standing_legs();
+        let mut tick = 0u64;
+        let mut step = |e: &mut Estimator, legs: &LegKinematics| {
+            for k in 0..4 {
+                e.propagate(&sample(4 * tick + k, [0.0, 0.0, 9.81]));
+            }
+            tick += 1;
+            e.correct(legs, true)
+        };
+        for _ in 0..50 {
+            step(&mut e, &legs);
+        }
+        legs.position[0][2] = -0.35;
+        let up = step(&mut e, &legs);
+        assert_eq!(&up.contacts[..2], &[false, true], "{up:?}");
+        assert!(
+            (up.position[2] - 0.44).abs() < 2e-3,
+            "the standing foot holds the base: {up:?}"
+        );
+        legs.position[0][2] = -0.4;
+        let down = step(&mut e, &legs);
+        assert_eq!(&down.contacts[..2], &[true, true], "{down:?}");
+    }
+
+    #[test]
+    fn non_finite_or_stale_input_makes_the_estimate_invalid() {
+        let mut e = Estimator::new(EstimatorConfig::default(), 2, [0.0, 0.0, -9.81], 200.0);
+        let legs = standing_legs();
+        e.propagate(&sample(0, [0.0, 0.0, 9.81]));
+        assert!(e.correct(&legs, true).valid);
+        e.propagate(&sample(1, [f64::NAN, 0.0, 9.81]));
+        assert!(!e.correct(&legs, true).valid);
+        e.propagate(&sample(2, [0.0, 0.0, 9.81]));
+        assert!(e.correct(&legs, true).valid, "a good sample again: valid again");
+        assert!(!e.correct(&legs, false).valid, "stale IMU");
+        let mut bad = legs;
+        bad.velocity[1][0] = f64::INFINITY;
+        assert!(!e.correct(&bad, true).valid);
+    }
+}
