@@ -28,6 +28,11 @@ pub struct Randomization {
     pub usb_latency_us: Range,
     /// Scale of the IMU's noise and bias.
     pub imu_noise_scale: f64,
+    /// The IMU's gyro bias drifts by this, °/s per √s (a random walk; its heading drifts with
+    /// it). 0: constant biases.
+    pub imu_gyro_bias_walk_dps: f64,
+    /// The IMU's accelerometer bias drifts by this, m/s² per √s.
+    pub imu_accel_bias_walk: f64,
 }
 
 impl Default for Randomization {
@@ -38,6 +43,8 @@ impl Default for Randomization {
             strength_scale: Range::fixed(1.0),
             usb_latency_us: Range::fixed(0.0),
             imu_noise_scale: 1.0,
+            imu_gyro_bias_walk_dps: 0.0,
+            imu_accel_bias_walk: 0.0,
         }
     }
 }
@@ -131,9 +138,11 @@ pub struct MirrorConfig {
     pub hardware: HardwareTruth,
     /// Where the robot stands when the run begins.
     pub start: StartPose,
+    /// The floor tilted about the world's x and y axes, degrees (each within ±20): a slope.
+    pub floor_tilt_deg: [f64; 2],
 }
 
-/// Where the mirrored robot starts, on the floor: a horizontal position and a heading.
+/// Where the mirrored robot starts: a horizontal position, a heading, and a height to drop from.
 #[derive(Debug, Clone, Copy, PartialEq, Default, serde::Deserialize, serde::Serialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct StartPose {
@@ -141,6 +150,8 @@ pub struct StartPose {
     pub position: [f64; 2],
     /// Heading about the vertical, degrees (within ±360).
     pub yaw_deg: f64,
+    /// The soles start this far above the floor, m (0–2): the robot drops.
+    pub height_m: f64,
 }
 
 impl MirrorConfig {
@@ -200,6 +211,29 @@ impl MirrorConfig {
                 "start.position".into(),
                 format!("{} is outside [-100, 100] m", robots::num(*v)),
             ));
+        }
+        if !(0.0..=2.0).contains(&self.start.height_m) {
+            return Err((
+                "start.height_m".into(),
+                format!("{} is outside [0, 2] m", robots::num(self.start.height_m)),
+            ));
+        }
+        if let Some(v) = self.floor_tilt_deg.iter().find(|v| !(-20.0..=20.0).contains(*v)) {
+            return Err((
+                "floor_tilt_deg".into(),
+                format!("{} is outside [-20, 20]°", robots::num(*v)),
+            ));
+        }
+        for (field, v, hi) in [
+            ("imu_gyro_bias_walk_dps", r.imu_gyro_bias_walk_dps, 10.0),
+            ("imu_accel_bias_walk", r.imu_accel_bias_walk, 10.0),
+        ] {
+            if !(0.0..=hi).contains(&v) {
+                return Err((
+                    format!("randomization.{field}"),
+                    format!("{} is outside [0, {hi}]", robots::num(v)),
+                ));
+            }
         }
         if !(-360.0..=360.0).contains(&self.start.yaw_deg) {
             return Err((

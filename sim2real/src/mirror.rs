@@ -199,6 +199,19 @@ impl Mirror {
                 model.body_inertia_mut()[b][k] *= scale;
             }
         }
+        // A slope: the world's planes (the floor) turned about x, then y.
+        let [roll, pitch] = config.floor_tilt_deg.map(f64::to_radians);
+        if roll != 0.0 || pitch != 0.0 {
+            let tilt = quat_of_rpy(roll, pitch, 0.0);
+            for g in 0..model.ffi().ngeom as usize {
+                if model.geom_bodyid()[g] == 0
+                    && model.geom_type()[g] == mujoco_rs::mujoco_c::_mjtGeomBase::mjGEOM_PLANE
+                {
+                    let q = model.geom_quat()[g];
+                    model.geom_quat_mut()[g] = quat_mul(tilt, q);
+                }
+            }
+        }
         let physics_dt = Duration::try_from_secs_f64(model.ffi().opt.timestep)
             .ok()
             .filter(|d| !d.is_zero())
@@ -319,6 +332,8 @@ impl Mirror {
                 accel_noise: d.accel_noise * n,
                 accel_bias: d.accel_bias * n,
                 attitude_noise: d.attitude_noise * n,
+                gyro_bias_walk: rnd.imu_gyro_bias_walk_dps.to_radians(),
+                accel_bias_walk: rnd.imu_accel_bias_walk,
             },
             config.seed ^ 0x1u64.rotate_left(40),
         );
@@ -431,7 +446,11 @@ impl Mirror {
             let z = self.data.geom_xpos()[g][2] - size[2].max(size[0].min(size[1]).min(size[2]));
             lowest = lowest.min(z);
         }
-        let lift = if self.config.gantry { 0.05 } else { 0.0 };
+        let lift = if self.config.gantry {
+            0.05
+        } else {
+            self.config.start.height_m
+        };
         let r = self.root_qpos;
         if lowest.is_finite() {
             self.data.qpos_mut()[r + 2] += lift - lowest + 1e-4;

@@ -97,6 +97,7 @@ fn the_reference_is_put_under_a_robot_that_starts_1_m_away_and_turned_90_degrees
         start: StartPose {
             position: [0.6, -0.8],
             yaw_deg: 90.0,
+            ..StartPose::default()
         },
         ..MirrorConfig::default()
     };
@@ -160,6 +161,7 @@ fn anchor_terms_and_the_command_match_numpy_and_onnx_runtime_on_a_recorded_run()
             start: StartPose {
                 position: [0.3, 0.2],
                 yaw_deg: -40.0,
+                ..StartPose::default()
             },
             ..MirrorConfig::default()
         };
@@ -254,13 +256,19 @@ fn what_a_run_cannot_provide_or_does_not_fit_is_refused_before_anything_moves() 
     };
     let full = fixture("rd_biped_tracking.onnx");
     let full = full.to_str().unwrap();
-    // The anchor position and base velocity need a state estimator on hardware.
-    let (code, err) = run(&["play", "--hardware", "--policy", full, "--no-record"]);
+    // The anchor position and base velocity come from the estimator on hardware: there is no
+    // ground truth there.
+    let (code, err) = run(&[
+        "play",
+        "--hardware",
+        "--estimator",
+        "ground-truth",
+        "--policy",
+        full,
+        "--no-record",
+    ]);
     assert!(!code);
-    assert!(
-        err.contains("motion_anchor_pos_b, base_lin_vel need the robot's position"),
-        "{err}"
-    );
+    assert!(err.contains("the hardware has no ground truth"), "{err}");
     // A clip beside an export that carries its motion: one of them would be ignored.
     let squat = squat();
     let (code, err) = run(&[

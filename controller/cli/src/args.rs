@@ -150,6 +150,24 @@ impl From<EndArg> for controller::player::EndMode {
     }
 }
 
+/// Where the world terms of the observation come from (`--estimator`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum EstimatorArg {
+    /// The state estimator on what the robot measures (IMU, joints): what the hardware runs.
+    Kf,
+    /// The simulation's ground truth (the mirror only).
+    GroundTruth,
+}
+
+impl From<EstimatorArg> for controller::options::EstimatorKind {
+    fn from(a: EstimatorArg) -> Self {
+        match a {
+            EstimatorArg::Kf => Self::Kf,
+            EstimatorArg::GroundTruth => Self::GroundTruth,
+        }
+    }
+}
+
 /// The robot's pose matching the human's nominal frame (`--nominal`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum NominalArg {

@@ -41,6 +41,12 @@ pub struct PlayArgs {
     /// Seconds of the start-up ramp ψ (clip held at its first frame).
     #[arg(long, default_value_t = 1.5, value_parser = crate::args::within(0.0, 60.0))]
     ramp: f64,
+    /// Where the base velocity and height, foot contacts and anchor position a policy observes
+    /// come from: the state estimator (a Kalman filter on the IMU and leg kinematics; recorded on
+    /// /estimator with the mirror's truth beside it), or the mirror's ground truth. The hardware
+    /// always runs the estimator.
+    #[arg(long, value_enum, default_value_t = crate::args::EstimatorArg::Kf)]
+    estimator: crate::args::EstimatorArg,
     /// Stop (softly) after this many seconds of the run, whatever the clip.
     #[arg(long, value_parser = crate::args::within(0.02, 86_400.0))]
     max_seconds: Option<f64>,
@@ -179,7 +185,7 @@ pub fn check(args: &CheckArgs) -> Result<()> {
             l.layout.manifest.motion_bodies.join(", ")
         );
     }
-    if let Some(m) = ground_truth_note(&l.layout) {
+    if let Some(m) = world_terms_note(&l.layout, &l.robot, controller::options::EstimatorKind::Kf) {
         println!("       note: {m}");
     }
     match &l.source {
@@ -333,9 +339,8 @@ fn with_recorder<L: RobotLink>(
     Ok(player.with_telemetry(sink))
 }
 
-/// Which terms of `layout` need state only simulation ground truth gives today, and what would
-/// give it on a robot.
-fn ground_truth_note(layout: &PolicyLayout) -> Option<String> {
+/// Which terms of `layout` read the robot's place in the world, and where it comes from.
+fn world_terms_note(layout: &PolicyLayout, robot: &Robot, estimator: controller::options::EstimatorKind) -> Option<String> {
     let terms: Vec<&str> = layout
         .slots
         .iter()
@@ -343,10 +348,15 @@ fn ground_truth_note(layout: &PolicyLayout) -> Option<String> {
         .map(|s| s.term.name())
         .collect();
     (!terms.is_empty()).then(|| {
+        let source = if estimator == controller::options::EstimatorKind::GroundTruth {
+            "the mirror's ground truth (--estimator ground-truth)".to_owned()
+        } else if robot.config.feet.is_empty() {
+            "nothing: the robot names no feet for the estimator's leg kinematics".to_owned()
+        } else {
+            "the state estimator (IMU and leg kinematics)".to_owned()
+        };
         format!(
-            "{} need{} the robot's position or velocity in the world, which only simulation ground \
-             truth gives (a state estimator would, on hardware; robodeploy has none yet): use the \
-             policy's variant without state estimation",
+            "{} read{} the robot's place in the world: from {source}",
             terms.join(", "),
             if terms.len() == 1 { "s" } else { "" }
         )
@@ -381,7 +391,11 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         Some(s) => bail!("--max-seconds {s} is not a duration"),
         None => None,
     };
+    if args.hardware && args.estimator == crate::args::EstimatorArg::GroundTruth {
+        bail!("--estimator ground-truth: the hardware has no ground truth; it runs the estimator (kf)");
+    }
     let options = PlayOptions {
+        estimator: args.estimator.into(),
         start_step: args.files.start_step as usize,
         ramp_s: args.ramp,
         end: args.end.into(),
@@ -412,7 +426,9 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
     }
     let embedded = matches!(l.source, ReferenceSource::Embedded { .. });
     if args.hardware {
-        if let Some(m) = ground_truth_note(&l.layout) {
+        if l.robot.config.feet.is_empty()
+            && let Some(m) = world_terms_note(&l.layout, &l.robot, options.estimator)
+        {
             bail!("{}: {m}", l.layout.path.display());
         }
         println!(
@@ -438,8 +454,8 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         None => sim2real::config::MirrorConfig::default(),
     };
     config.gantry |= args.gantry;
-    if let Some(m) = ground_truth_note(&l.layout) {
-        eprintln!("note: {m}; the mirror provides it");
+    if let Some(m) = world_terms_note(&l.layout, &l.robot, options.estimator) {
+        eprintln!("note: {m}");
     }
     println!(
         "{}: {} ({} ticks) on the mirror{}",

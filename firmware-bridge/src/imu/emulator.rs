@@ -21,6 +21,11 @@ pub struct ImuEmulatorConfig {
     pub accel_bias: f64,
     /// Orientation noise, rad (1σ, small-angle about each axis).
     pub attitude_noise: f64,
+    /// Gyro bias random walk, rad/s per √s (0: a constant bias). Without a magnetometer the
+    /// AHRS integrates the z bias into its heading, which drifts with it.
+    pub gyro_bias_walk: f64,
+    /// Accelerometer bias random walk, m/s² per √s.
+    pub accel_bias_walk: f64,
 }
 
 impl Default for ImuEmulatorConfig {
@@ -34,6 +39,8 @@ impl Default for ImuEmulatorConfig {
             accel_noise: 0.01 * wit::G,
             accel_bias: 0.05 * wit::G,
             attitude_noise: 0.1_f64.to_radians(),
+            gyro_bias_walk: 0.0,
+            accel_bias_walk: 0.0,
         }
     }
 }
@@ -56,6 +63,9 @@ pub struct WitImuEmulator {
     rng: SimRng,
     gyro_bias: [f64; 3],
     accel_bias: [f64; 3],
+    /// Heading error the drifting z bias has built up, rad.
+    yaw_drift: f64,
+    initial_gyro_z: f64,
     next_output: SimInstant,
 }
 
@@ -71,6 +81,8 @@ impl WitImuEmulator {
             rng,
             gyro_bias,
             accel_bias,
+            yaw_drift: 0.0,
+            initial_gyro_z: gyro_bias[2],
             next_output: SimInstant::ZERO,
         }
     }
@@ -89,11 +101,27 @@ impl WitImuEmulator {
     pub fn output(&mut self, now: SimInstant, truth: &ImuTruth, out: &mut [u8; 4 * PACKET_LEN]) {
         self.next_output = self.next_output.max(now) + self.period();
         let c = self.config;
+        let dt = self.period().as_secs_f64();
+        if c.gyro_bias_walk > 0.0 || c.accel_bias_walk > 0.0 {
+            for i in 0..3 {
+                self.gyro_bias[i] += c.gyro_bias_walk * dt.sqrt() * self.rng.gaussian();
+                self.accel_bias[i] += c.accel_bias_walk * dt.sqrt() * self.rng.gaussian();
+            }
+            // Relative to the bias it started with: a calibrated heading drifts by the change.
+            self.yaw_drift += (self.gyro_bias[2] - self.initial_gyro_z) * dt;
+        }
         let mut noise = |sigma: f64| sigma * self.rng.gaussian();
         let gyro = [0, 1, 2].map(|i| truth.gyro[i] + self.gyro_bias[i] + noise(c.gyro_noise));
         let accel = [0, 1, 2].map(|i| truth.accel[i] + self.accel_bias[i] + noise(c.accel_noise));
         let tilt = [0; 3].map(|_| noise(c.attitude_noise) / 2.0);
-        let (quat, rpy) = reported_attitude(truth.quat, tilt);
+        let (half_s, half_c) = (0.5 * self.yaw_drift).sin_cos();
+        let drifted = [
+            half_c * truth.quat[0] - half_s * truth.quat[3],
+            half_c * truth.quat[1] - half_s * truth.quat[2],
+            half_c * truth.quat[2] + half_s * truth.quat[1],
+            half_c * truth.quat[3] + half_s * truth.quat[0],
+        ];
+        let (quat, rpy) = reported_attitude(drifted, tilt);
         let sample = ImuSample {
             accel,
             gyro,
