@@ -119,6 +119,8 @@ fn the_same_seed_gives_the_same_log_and_another_seed_does_not() {
             strength_scale: Range(0.9, 1.0),
             usb_latency_us: Range(0.0, 500.0),
             imu_noise_scale: 1.0,
+            imu_gyro_bias_walk_dps: 0.01,
+            imu_accel_bias_walk: 0.005,
         },
         ..MirrorConfig::default()
     };
