@@ -49,7 +49,7 @@ impl Default for EstimatorConfig {
         Self {
             accel_noise: 0.2,
             bias_walk: 0.005,
-            stance_foot_walk: 0.002,
+            stance_foot_walk: 0.0005,
             swing_foot_walk: 2.0,
             kinematic_position_noise: 0.003,
             kinematic_velocity_noise: 0.03,
@@ -104,8 +104,10 @@ impl Default for Estimate {
 pub struct LegKinematics {
     /// Foot origins relative to the base.
     pub position: [[f64; 3]; MAX_FEET],
-    /// Their velocities relative to the base (the joints moving, the base still).
-    pub velocity: [[f64; 3]; MAX_FEET],
+    /// Where each foot would touch the floor (its sole's lowest points) relative to the base.
+    pub contact: [[f64; 3]; MAX_FEET],
+    /// That point's velocity relative to the base (the joints moving, the base still).
+    pub contact_velocity: [[f64; 3]; MAX_FEET],
     /// How far each foot's origin sits above its sole.
     pub sole_depth: [f64; MAX_FEET],
     /// Foot switches, where the robot has them.
@@ -283,7 +285,8 @@ impl Estimator {
     pub fn correct(&mut self, legs: &LegKinematics, imu_fresh: bool) -> Estimate {
         let finite = legs.position[..self.feet]
             .iter()
-            .chain(&legs.velocity[..self.feet])
+            .chain(&legs.contact[..self.feet])
+            .chain(&legs.contact_velocity[..self.feet])
             .flatten()
             .all(|v| v.is_finite());
         if !finite {
@@ -308,7 +311,7 @@ impl Estimator {
                             [self.x[V], self.x[V + 1], self.x[V + 2]],
                             spatial::mat_apply(
                                 &r,
-                                spatial::add(spatial::cross(omega, legs.position[f]), legs.velocity[f]),
+                                spatial::add(spatial::cross(omega, legs.contact[f]), legs.contact_velocity[f]),
                             ),
                         ));
                         if self.contacts[f] {
@@ -338,10 +341,11 @@ impl Estimator {
                 if !self.contacts[f] {
                     continue;
                 }
-                // The foot is still: the base moves opposite to the foot's motion relative to it.
+                // Where the foot touches stays still: the base moves opposite to that point's
+                // motion relative to it (a foot rolling onto its edge keeps the edge still).
                 let v_rel = spatial::mat_apply(
                     &r,
-                    spatial::add(spatial::cross(omega, legs.position[f]), legs.velocity[f]),
+                    spatial::add(spatial::cross(omega, legs.contact[f]), legs.contact_velocity[f]),
                 );
                 for (k, v) in v_rel.iter().enumerate() {
                     self.measure(V + k, None, -v, c.kinematic_velocity_noise.powi(2));
@@ -450,6 +454,7 @@ mod tests {
     fn standing_legs() -> LegKinematics {
         LegKinematics {
             position: [[0.0, 0.1, -0.4], [0.0, -0.1, -0.4], [0.0; 3], [0.0; 3]],
+            contact: [[0.0, 0.1, -0.44], [0.0, -0.1, -0.44], [0.0; 3], [0.0; 3]],
             sole_depth: [0.04; MAX_FEET],
             ..LegKinematics::default()
         }
@@ -494,6 +499,7 @@ mod tests {
             step(&mut e, &legs);
         }
         legs.position[0][2] = -0.35;
+        legs.contact[0][2] = -0.39;
         let up = step(&mut e, &legs);
         assert_eq!(&up.contacts[..2], &[false, true], "{up:?}");
         assert!(
@@ -501,6 +507,7 @@ mod tests {
             "the standing foot holds the base: {up:?}"
         );
         legs.position[0][2] = -0.4;
+        legs.contact[0][2] = -0.44;
         let down = step(&mut e, &legs);
         assert_eq!(&down.contacts[..2], &[true, true], "{down:?}");
     }
@@ -517,7 +524,7 @@ mod tests {
         assert!(e.correct(&legs, true).valid, "a good sample again: valid again");
         assert!(!e.correct(&legs, false).valid, "stale IMU");
         let mut bad = legs;
-        bad.velocity[1][0] = f64::INFINITY;
+        bad.contact_velocity[1][0] = f64::INFINITY;
         assert!(!e.correct(&bad, true).valid);
     }
 }

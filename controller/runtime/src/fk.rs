@@ -97,7 +97,8 @@ pub struct RobotKinematics {
     bodies: Vec<usize>,
     /// The robot's feet (robot.toml order), and how far each foot's origin sits above its sole.
     feet: Vec<usize>,
-    sole_depth: Vec<f64>,
+    /// Each foot's sole: the points of its geoms that can touch the floor, in its own frame.
+    soles: Vec<Sole>,
     /// Root degrees of freedom in `qvel`, and the joints'.
     root_dof: usize,
     joint_dof: Vec<usize>,
@@ -128,14 +129,14 @@ impl RobotKinematics {
             .iter()
             .map(|b| model_index::body(&model, b))
             .collect::<Result<Vec<_>, _>>()?;
-        let sole_depth = index.feet.iter().map(|&f| sole_depth(&model, f)).collect();
+        let soles = index.feet.iter().map(|&f| Sole::of(&model, f)).collect();
         Ok(Self {
             root_qpos: index.root.qpos,
             joint_qpos: index.joints.iter().map(|j| j.qpos).collect(),
             root_dof: index.root.dof,
             joint_dof: index.joints.iter().map(|j| j.dof).collect(),
             feet: index.feet.clone(),
-            sole_depth,
+            soles,
             data: MjData::new(Box::new(model)),
             imu,
             anchor,
@@ -236,19 +237,40 @@ impl RobotKinematics {
         self.data.xpos()[self.feet[k]]
     }
 
-    /// Foot `k`'s origin velocity relative to the root (the joints moving, the root still), in
-    /// the root's frame.
-    pub fn foot_velocity_in_root(&self, k: usize) -> [f64; 3] {
-        let v = self
-            .data
-            .object_velocity(MjtObjBase::mjOBJ_BODY, self.feet[k], false);
-        [v[3], v[4], v[5]]
-    }
-
     /// How far foot `k`'s origin sits above the lowest point of its geoms (its sole), in its own
     /// frame.
     pub fn sole_depth(&self, k: usize) -> f64 {
-        self.sole_depth[k]
+        -self.soles[k].points[..self.soles[k].len]
+            .iter()
+            .map(|p| p[2])
+            .fold(0.0, f64::min)
+    }
+
+    /// Where foot `k` touches the floor and how that point moves, relative to the root in the
+    /// root's frame: the middle of the sole points lowest in the world (within 5 mm of the
+    /// lowest) — the sole's centre when the foot is flat, its edge when it rolls onto it, which
+    /// stays put while the origin moves.
+    pub fn foot_contact(&self, k: usize) -> ([f64; 3], [f64; 3]) {
+        let (body, sole) = (self.feet[k], &self.soles[k]);
+        let (x, m) = (self.data.xpos()[body], self.data.xmat()[body]);
+        let r = [[m[0], m[1], m[2]], [m[3], m[4], m[5]], [m[6], m[7], m[8]]];
+        let mut points = [[0.0; 3]; MAX_SOLE_POINTS];
+        let mut lowest = f64::INFINITY;
+        for (out, p) in points.iter_mut().zip(&sole.points[..sole.len]) {
+            *out = spatial::add(x, spatial::mat_apply(&r, *p));
+            lowest = lowest.min(spatial::quat_rotate(self.root_rotation, *out)[2]);
+        }
+        let (mut sum, mut count) = ([0.0; 3], 0.0f64);
+        for p in &points[..sole.len] {
+            if spatial::quat_rotate(self.root_rotation, *p)[2] <= lowest + PATCH_BAND_M {
+                sum = spatial::add(sum, *p);
+                count += 1.0;
+            }
+        }
+        let c = spatial::scale(sum, 1.0 / count.max(1.0));
+        let v = self.data.object_velocity(MjtObjBase::mjOBJ_BODY, body, false);
+        let velocity = spatial::add([v[3], v[4], v[5]], spatial::cross([v[0], v[1], v[2]], spatial::sub(c, x)));
+        (c, velocity)
     }
 
     /// A vector in the IMU's frame (a gyro reading), in the root's frame.
@@ -257,31 +279,67 @@ impl RobotKinematics {
     }
 }
 
-/// How far below `body`'s origin the lowest point of its geoms lies, along the body's own z
-/// (boxes, spheres, capsules, cylinders, ellipsoids exactly; other shapes by their bounding
-/// sphere).
-fn sole_depth(model: &MjModel, body: usize) -> f64 {
-    use mujoco_rs::mujoco_c::_mjtGeomBase as G;
-    let mut lowest = 0.0f64;
-    for g in 0..model.ffi().ngeom as usize {
-        if model.geom_bodyid()[g] as usize != body {
-            continue;
-        }
-        let (p, q, s) = (model.geom_pos()[g], model.geom_quat()[g], model.geom_size()[g]);
-        let m = spatial::mat_of_quat(q);
-        // The geom's axes' z components in the body frame.
-        let z = [m[2][0].abs(), m[2][1].abs(), m[2][2].abs()];
-        let extent = match model.geom_type()[g] {
-            G::mjGEOM_SPHERE => s[0],
-            G::mjGEOM_CAPSULE => s[0] + z[2] * s[1],
-            G::mjGEOM_CYLINDER => s[0] * (1.0 - z[2] * z[2]).sqrt() + z[2] * s[1],
-            G::mjGEOM_BOX => z[0] * s[0] + z[1] * s[1] + z[2] * s[2],
-            G::mjGEOM_ELLIPSOID => {
-                ((z[0] * s[0]).powi(2) + (z[1] * s[1]).powi(2) + (z[2] * s[2]).powi(2)).sqrt()
-            }
-            _ => model.geom_rbound()[g],
+/// Sole points a foot keeps at most.
+const MAX_SOLE_POINTS: usize = 8;
+
+/// Sole points this close to the lowest one touch the floor with it, m.
+const PATCH_BAND_M: f64 = 0.005;
+
+/// The points of a foot that can touch the floor, in its own frame: the four corners of each
+/// box's lowest face; for other shapes the lowest point along the body's z (spheres, capsules,
+/// cylinders, ellipsoids exactly, others by their bounding sphere).
+#[derive(Debug, Clone, Copy)]
+struct Sole {
+    points: [[f64; 3]; MAX_SOLE_POINTS],
+    len: usize,
+}
+
+impl Sole {
+    fn of(model: &MjModel, body: usize) -> Self {
+        use mujoco_rs::mujoco_c::_mjtGeomBase as G;
+        let mut sole = Self {
+            points: [[0.0; 3]; MAX_SOLE_POINTS],
+            len: 0,
         };
-        lowest = lowest.min(p[2] - extent);
+        fn push(sole: &mut Sole, p: [f64; 3]) {
+            if sole.len < MAX_SOLE_POINTS {
+                sole.points[sole.len] = p;
+                sole.len += 1;
+            }
+        }
+        for g in 0..model.ffi().ngeom as usize {
+            if model.geom_bodyid()[g] as usize != body {
+                continue;
+            }
+            let (p, q, s) = (model.geom_pos()[g], model.geom_quat()[g], model.geom_size()[g]);
+            let m = spatial::mat_of_quat(q);
+            // The geom's axes' z components in the body frame.
+            let z = [m[2][0].abs(), m[2][1].abs(), m[2][2].abs()];
+            let extent = match model.geom_type()[g] {
+                G::mjGEOM_BOX => {
+                    let mut corners = [[0.0; 3]; 8];
+                    for (k, c) in corners.iter_mut().enumerate() {
+                        let sign = |bit: usize| if k & bit == 0 { -1.0 } else { 1.0 };
+                        let local = [sign(1) * s[0], sign(2) * s[1], sign(4) * s[2]];
+                        *c = spatial::add(p, spatial::mat_apply(&m, local));
+                    }
+                    corners.sort_by(|a, b| a[2].total_cmp(&b[2]));
+                    corners[..4].iter().for_each(|c| push(&mut sole, *c));
+                    continue;
+                }
+                G::mjGEOM_SPHERE => s[0],
+                G::mjGEOM_CAPSULE => s[0] + z[2] * s[1],
+                G::mjGEOM_CYLINDER => s[0] * (1.0 - z[2] * z[2]).sqrt() + z[2] * s[1],
+                G::mjGEOM_ELLIPSOID => {
+                    ((z[0] * s[0]).powi(2) + (z[1] * s[1]).powi(2) + (z[2] * s[2]).powi(2)).sqrt()
+                }
+                _ => model.geom_rbound()[g],
+            };
+            push(&mut sole, [p[0], p[1], p[2] - extent]);
+        }
+        if sole.len == 0 {
+            push(&mut sole, [0.0; 3]);
+        }
+        sole
     }
-    -lowest
 }

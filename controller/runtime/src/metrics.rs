@@ -118,6 +118,8 @@ pub struct PlaySummary {
     pub body_rmse: Vec<(String, f64)>,
     /// Which of them is the anchor.
     pub anchor: Option<usize>,
+    /// The state estimate against the simulation's truth (runs with both).
+    pub estimator: Option<EstimatorAccuracy>,
     /// What the telemetry logger wrote, when recording.
     pub telemetry: Option<crate::telemetry::TelemetryReport>,
     /// Why the recording failed, if it did (the run itself went on).
@@ -153,6 +155,9 @@ impl std::fmt::Display for PlaySummary {
                 let (name, e) = &self.body_rmse[a];
                 writeln!(f, "anchor ({name}) RMSE: {:.1} cm", 100.0 * e)?;
             }
+        }
+        if let Some(e) = &self.estimator {
+            writeln!(f, "state estimate: {e}")?;
         }
         writeln!(f, "fell: {}", if self.fell { "YES" } else { "no" })?;
         writeln!(f, "reference played: {:.0} %", 100.0 * self.played)?;
@@ -290,6 +295,55 @@ impl PlaySummary {
     }
 }
 
+/// Sums of the estimator's errors against the truth, tick by tick.
+#[derive(Debug, Clone, Default)]
+struct EstimatorErrors {
+    ticks: u64,
+    sq_velocity: f64,
+    sq_vertical_velocity: f64,
+    sq_height: f64,
+    position_error: f64,
+    max_position_error: f64,
+    feet_agreeing: u64,
+    feet_compared: u64,
+}
+
+/// How well the state estimate followed the simulation's truth over a run.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct EstimatorAccuracy {
+    /// Ticks compared (the estimate valid, the truth known).
+    pub ticks: u64,
+    /// Base velocity RMSE (norm of the error vector), m/s.
+    pub velocity_rmse: f64,
+    /// Vertical velocity RMSE, m/s.
+    pub vertical_velocity_rmse: f64,
+    /// Base height RMSE, m.
+    pub height_rmse: f64,
+    /// Base position error at the end, m (drift from the start).
+    pub final_position_error: f64,
+    /// Largest base position error, m.
+    pub max_position_error: f64,
+    /// Share of foot-ticks whose contact agreed with the truth.
+    pub contact_agreement: f64,
+}
+
+impl std::fmt::Display for EstimatorAccuracy {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "velocity RMSE {:.3} m/s (vertical {:.3}), height RMSE {:.1} mm, position error {:.1} cm at the end \
+             ({:.1} cm max), contacts agree {:.1} % over {} ticks",
+            self.velocity_rmse,
+            self.vertical_velocity_rmse,
+            1000.0 * self.height_rmse,
+            100.0 * self.final_position_error,
+            100.0 * self.max_position_error,
+            100.0 * self.contact_agreement,
+            self.ticks
+        )
+    }
+}
+
 /// The running sums behind a [`PlaySummary`], updated in the tick without allocating.
 #[derive(Debug, Clone, Default)]
 pub struct RunMetrics {
@@ -314,6 +368,8 @@ pub struct RunMetrics {
     pub jitter: Histogram,
     /// Live input arrival to bus write.
     pub live_latency: Histogram,
+    /// The state estimate against the simulation's truth.
+    estimator: EstimatorErrors,
     /// The motion's tracked bodies, their summed squared position errors, and the anchor.
     bodies: Vec<String>,
     sq_body_error: Vec<f64>,
@@ -335,6 +391,31 @@ impl RunMetrics {
             self.sq_root_error += d * d;
             self.root_samples += 1;
             self.root_max = (self.root_max.0.max(d), self.root_max.1.max(a));
+        }
+    }
+
+    /// Adds one tick of the estimate against the truth in the estimate's frame: its world
+    /// position, world velocity and the feet's contacts.
+    pub fn add_estimate(
+        &mut self,
+        estimate: &crate::estimator::Estimate,
+        truth_position: [f64; 3],
+        truth_velocity: [f64; 3],
+        truth_contacts: &[bool],
+    ) {
+        use robots::spatial::{dot, norm, sub};
+        let e = &mut self.estimator;
+        let dv = sub(estimate.velocity, truth_velocity);
+        e.ticks += 1;
+        e.sq_velocity += dot(dv, dv);
+        e.sq_vertical_velocity += dv[2] * dv[2];
+        let dz = estimate.position[2] - truth_position[2];
+        e.sq_height += dz * dz;
+        e.position_error = norm(sub(estimate.position, truth_position));
+        e.max_position_error = e.max_position_error.max(e.position_error);
+        for (c, t) in estimate.contacts[..estimate.feet].iter().zip(truth_contacts) {
+            e.feet_compared += 1;
+            e.feet_agreeing += u64::from(c == t);
         }
     }
 
@@ -396,6 +477,23 @@ impl RunMetrics {
                 Vec::new()
             },
             anchor: self.anchor.filter(|_| self.body_samples > 0),
+            estimator: (self.estimator.ticks > 0).then(|| {
+                let e = &self.estimator;
+                let n = e.ticks as f64;
+                EstimatorAccuracy {
+                    ticks: e.ticks,
+                    velocity_rmse: (e.sq_velocity / n).sqrt(),
+                    vertical_velocity_rmse: (e.sq_vertical_velocity / n).sqrt(),
+                    height_rmse: (e.sq_height / n).sqrt(),
+                    final_position_error: e.position_error,
+                    max_position_error: e.max_position_error,
+                    contact_agreement: if e.feet_compared > 0 {
+                        e.feet_agreeing as f64 / e.feet_compared as f64
+                    } else {
+                        1.0
+                    },
+                }
+            }),
             telemetry: None,
             telemetry_error: None,
         }

@@ -630,7 +630,7 @@ impl<L: RobotLink> Player<L> {
             let mut legs = LegKinematics::default();
             for f in 0..k.feet().min(MAX_FEET) {
                 legs.position[f] = k.foot_in_root(f);
-                legs.velocity[f] = k.foot_velocity_in_root(f);
+                (legs.contact[f], legs.contact_velocity[f]) = k.foot_contact(f);
                 legs.sole_depth[f] = k.sole_depth(f);
             }
             self.estimate = e.correct(&legs, self.state.imu_missed <= IMU_FRESH_TICKS);
@@ -652,6 +652,16 @@ impl<L: RobotLink> Player<L> {
             if has_truth && self.estimate.valid && !self.truth_mapped {
                 self.truth_to_world = Alignment::new(self.truth.root_pose, self.world.root_pose, true);
                 self.truth_mapped = true;
+            }
+            if has_truth && self.estimate.valid {
+                let t = self.truth_to_world.apply(self.truth.root_pose);
+                let velocity = spatial::quat_rotate([t[3], t[4], t[5], t[6]], self.truth.base_lin_vel);
+                self.metrics.add_estimate(
+                    &self.estimate,
+                    [t[0], t[1], t[2]],
+                    velocity,
+                    &self.truth.foot_contacts,
+                );
             }
             self.world_valid = self.estimate.valid;
         }
