@@ -136,7 +136,7 @@ pub struct Estimator {
     last_sample: Option<std::time::Duration>,
     nominal_dt: f64,
     contacts: [bool; MAX_FEET],
-    /// The height each foot last stood at.
+    /// The height each foot's sole last stood at.
     ground: [f64; MAX_FEET],
     initialised: bool,
     /// Inputs were bad this tick (non-finite or stale).
@@ -299,14 +299,21 @@ impl Estimator {
         if self.initialised && finite {
             let omega = self.gyro;
             let world_foot = |legs: &LegKinematics, f: usize| spatial::mat_apply(&r, legs.position[f]);
-            // Contacts first: they decide which feet correct the velocity.
+            // Contacts first: they decide which feet correct the velocity. A foot's height above
+            // where it last stood is measured against another standing foot where there is one
+            // (the legs alone, the base cancels), else through the base's estimated height.
+            let patch_z = |f: usize| spatial::mat_apply(&r, legs.contact[f])[2];
+            let standing = self.contacts;
             for f in 0..self.feet {
                 let was = self.contacts[f];
                 self.contacts[f] = match legs.switches {
                     Some(s) => s[f],
                     None => {
-                        let rel = world_foot(legs, f);
-                        let height = self.x[P + 2] + rel[2] - self.ground[f];
+                        let other = (0..self.feet).find(|&j| j != f && standing[j]);
+                        let height = match other {
+                            Some(j) => patch_z(f) - patch_z(j) + self.ground[j] - self.ground[f],
+                            None => self.x[P + 2] + patch_z(f) - self.ground[f],
+                        };
                         let speed = spatial::norm(spatial::add(
                             [self.x[V], self.x[V + 1], self.x[V + 2]],
                             spatial::mat_apply(
@@ -350,7 +357,12 @@ impl Estimator {
                 for (k, v) in v_rel.iter().enumerate() {
                     self.measure(V + k, None, -v, c.kinematic_velocity_noise.powi(2));
                 }
-                self.ground[f] = self.x[FEET + 3 * f + 2];
+            }
+            // Where each standing foot's sole is now: the height it stands at.
+            for f in 0..self.feet {
+                if self.contacts[f] {
+                    self.ground[f] = self.x[P + 2] + patch_z(f);
+                }
             }
             self.symmetrise();
         }
@@ -396,7 +408,7 @@ impl Estimator {
             for k in 0..3 {
                 self.x[FEET + 3 * f + k] = self.x[P + k] + w[k];
             }
-            self.ground[f] = self.x[FEET + 3 * f + 2];
+            self.ground[f] = self.x[P + 2] + spatial::mat_apply(r, legs.contact[f])[2];
         }
         let mut var = |i: usize, v: f64| self.p[i * n + i] = v;
         for k in 0..3 {
