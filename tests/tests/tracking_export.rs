@@ -363,7 +363,9 @@ fn a_recorded_export_run_replays_bit_for_bit() {
     // Through the CLI: the recording names the export as the run's clip, and replay plays the
     // motion it carries again.
     let path = std::env::temp_dir().join(format!("tracking-replay-{}.mcap", std::process::id()));
-    let export = fixture("rd_biped_tracking_wose.onnx");
+    // The full variant: the anchor position and base velocity come from the state estimator,
+    // which the replay feeds the recorded IMU samples again.
+    let export = fixture("rd_biped_tracking.onnx");
     let (ok, _, err) = test_support::bin::run(&[
         "play",
         "--policy",

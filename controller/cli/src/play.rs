@@ -340,7 +340,11 @@ fn with_recorder<L: RobotLink>(
 }
 
 /// Which terms of `layout` read the robot's place in the world, and where it comes from.
-fn world_terms_note(layout: &PolicyLayout, robot: &Robot, estimator: controller::options::EstimatorKind) -> Option<String> {
+fn world_terms_note(
+    layout: &PolicyLayout,
+    robot: &Robot,
+    estimator: controller::options::EstimatorKind,
+) -> Option<String> {
     let terms: Vec<&str> = layout
         .slots
         .iter()

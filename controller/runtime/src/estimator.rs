@@ -318,7 +318,10 @@ impl Estimator {
                             [self.x[V], self.x[V + 1], self.x[V + 2]],
                             spatial::mat_apply(
                                 &r,
-                                spatial::add(spatial::cross(omega, legs.contact[f]), legs.contact_velocity[f]),
+                                spatial::add(
+                                    spatial::cross(omega, legs.contact[f]),
+                                    legs.contact_velocity[f],
+                                ),
                             ),
                         ));
                         if self.contacts[f] {

@@ -269,7 +269,10 @@ impl RobotKinematics {
         }
         let c = spatial::scale(sum, 1.0 / count.max(1.0));
         let v = self.data.object_velocity(MjtObjBase::mjOBJ_BODY, body, false);
-        let velocity = spatial::add([v[3], v[4], v[5]], spatial::cross([v[0], v[1], v[2]], spatial::sub(c, x)));
+        let velocity = spatial::add(
+            [v[3], v[4], v[5]],
+            spatial::cross([v[0], v[1], v[2]], spatial::sub(c, x)),
+        );
         (c, velocity)
     }
 

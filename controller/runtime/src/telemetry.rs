@@ -859,7 +859,10 @@ fn encode(out: &mut String, k: usize, r: &TickRecord, root: &str, last_mode: &mu
             array64(
                 out,
                 "imu_samples",
-                r.imu_samples[..usize::from(r.imu_sample_count)].iter().flatten().copied(),
+                r.imu_samples[..usize::from(r.imu_sample_count)]
+                    .iter()
+                    .flatten()
+                    .copied(),
             );
             out.push(',');
             array64(out, "base_pose", r.base_pose.iter().copied());
@@ -905,7 +908,11 @@ fn encode(out: &mut String, k: usize, r: &TickRecord, root: &str, last_mode: &mu
             out.push(',');
             array64(out, "accel_bias", x.accel_bias);
             out.push(',');
-            array64(out, "contacts", x.contacts[..f].iter().map(|&c| f64::from(u8::from(c))));
+            array64(
+                out,
+                "contacts",
+                x.contacts[..f].iter().map(|&c| f64::from(u8::from(c))),
+            );
             if let Some((pose, vel)) = e.truth {
                 out.push(',');
                 array64(out, "truth_position", pose[..3].iter().copied());

@@ -1,0 +1,225 @@
+//! The state estimator on the mirror, through the real buses and the emulated IMU (its noise and
+//! bias uncalibrated), against the simulation's ground truth: standing, squatting, pushed; and
+//! what a policy reading an invalid estimate does.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+use std::time::Duration;
+
+use controller::clip::{Clip, Reference};
+use controller::player::{EndMode, PlayOptions, PlaySummary};
+use controller::policy::PolicyLayout;
+use controller::safety::{Cause, Mode};
+use controller::sim::lockstep_player;
+use robot_link::{IoError, JointTarget, RobotLink, RobotState, TickClock};
+use robots::{Robot, reference_robot_path};
+use sim2real::config::{MirrorConfig, Push};
+
+fn biped(file: &str) -> PathBuf {
+    reference_robot_path().with_file_name(file)
+}
+
+fn follower(robot: &Robot) -> PolicyLayout {
+    PolicyLayout::load(&biped("policies/reference_follower.toml"), robot).unwrap()
+}
+
+fn run(
+    reference: impl FnOnce(&Robot) -> Reference,
+    options: PlayOptions,
+    mirror: MirrorConfig,
+) -> PlaySummary {
+    let robot = Robot::load(&reference_robot_path()).unwrap();
+    let layout = follower(&robot);
+    let reference = reference(&robot);
+    let (mut p, mut clock, _w) = lockstep_player(
+        robot,
+        layout,
+        reference,
+        options,
+        mirror,
+        Arc::new(AtomicBool::new(false)),
+    )
+    .unwrap();
+    p.run(&mut clock).unwrap()
+}
+
+fn squat(robot: &Robot) -> Reference {
+    Reference::from_clip(&Clip::load(&biped("clips/squat.csv")).unwrap(), robot, 50.0).unwrap()
+}
+
+#[test]
+fn standing_a_minute_the_estimate_drifts_less_than_2_cm() {
+    let stand = |robot: &Robot| {
+        let q: Vec<f64> = robot.config.joints.iter().map(|j| j.default_position).collect();
+        Reference::hold(&q, [0.0, 0.0, 0.45, 1.0, 0.0, 0.0, 0.0], 50.0)
+    };
+    let options = PlayOptions {
+        end: EndMode::Stand,
+        max_ticks: Some(61 * 50),
+        ..PlayOptions::default()
+    };
+    let s = run(stand, options, MirrorConfig::default());
+    let e = s.estimator.expect("the mirror knows the truth");
+    assert!(e.ticks >= 60 * 50, "{s}");
+    assert!(
+        e.final_position_error < 0.02 && e.max_position_error < 0.02,
+        "{e}"
+    );
+    assert!(e.velocity_rmse < 0.02, "{e}");
+    assert!(e.contact_agreement == 1.0, "{e}");
+}
+
+#[test]
+fn squatting_the_height_and_its_rate_follow_the_truth() {
+    let s = run(squat, PlayOptions::default(), MirrorConfig::default());
+    let e = s.estimator.expect("the mirror knows the truth");
+    assert!(e.height_rmse < 0.01, "{e}");
+    assert!(e.vertical_velocity_rmse < 0.05, "{e}");
+    assert!(e.velocity_rmse < 0.05, "{e}");
+}
+
+#[test]
+fn pushed_30_n_s_the_velocity_estimate_follows_within_0_1_m_s_after_50_ms() {
+    let robot = Robot::load(&reference_robot_path()).unwrap();
+    let mirror = MirrorConfig {
+        pushes: vec![Push {
+            at_s: 5.0,
+            duration_s: 0.1,
+            force_n: [300.0, 0.0, 0.0],
+        }],
+        ..MirrorConfig::default()
+    };
+    let path = std::env::temp_dir().join(format!("estimator-push-{}.mcap", std::process::id()));
+    let names = robot.config.joints.iter().map(|j| j.name.clone()).collect();
+    let layout = follower(&robot);
+    let reference = squat(&robot);
+    let (p, mut clock, _w) = lockstep_player(
+        robot,
+        layout,
+        reference,
+        PlayOptions::default(),
+        mirror,
+        Arc::new(AtomicBool::new(false)),
+    )
+    .unwrap();
+    let info = controller::telemetry::RecordingInfo {
+        joint_names: names,
+        root_frame: "pelvis".into(),
+        ..Default::default()
+    };
+    let sink = controller::telemetry::TelemetrySink::start(
+        &path,
+        64,
+        controller::telemetry::Backpressure::Block,
+        &info,
+    )
+    .unwrap();
+    let mut p = p.with_telemetry(sink);
+    p.run(&mut clock).unwrap();
+    // From 50 ms into the push to 200 ms after it: the base flies off at ~1.8 m/s.
+    let bytes = analysis::recording::read(&path).unwrap();
+    let (mut worst, mut compared, mut fastest) = (0.0f64, 0, 0.0f64);
+    analysis::recording::for_each_message(&bytes, |m| {
+        let t = m.log_time as f64 * 1e-9;
+        if m.topic != "/estimator" || !(5.05..=5.3).contains(&t) {
+            return Ok(());
+        }
+        let v: serde_json::Value = serde_json::from_slice(m.data).unwrap();
+        let num = |k: &str| -> Vec<f64> {
+            v[k].as_array()
+                .unwrap()
+                .iter()
+                .map(|x| x.as_f64().unwrap())
+                .collect()
+        };
+        let (est, truth) = (num("velocity_base"), num("truth_velocity_base"));
+        let d = est
+            .iter()
+            .zip(&truth)
+            .map(|(a, b)| (a - b).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        worst = worst.max(d);
+        fastest = fastest.max(truth[0]);
+        compared += 1;
+        Ok(())
+    })
+    .unwrap();
+    assert!(compared >= 12, "{compared} ticks compared");
+    assert!(fastest > 1.0, "the push moved the base at {fastest} m/s");
+    assert!(worst < 0.1, "velocity error up to {worst} m/s");
+    std::fs::remove_file(&path).unwrap();
+}
+
+/// A link whose IMU samples turn non-finite from some read on (the newest sample stays good, so
+/// only the estimator sees it).
+#[derive(Debug)]
+struct NanImu<L> {
+    inner: L,
+    reads: u32,
+    from: u32,
+}
+
+impl<L: RobotLink> RobotLink for NanImu<L> {
+    fn identify(&mut self) -> Result<(), IoError> {
+        self.inner.identify()
+    }
+    fn read(&mut self, state: &mut RobotState) -> Result<(), IoError> {
+        self.inner.read(state)?;
+        self.reads += 1;
+        if self.reads >= self.from
+            && let Some(s) = state.imu_samples.first_mut()
+        {
+            s.accel[0] = f64::NAN;
+        }
+        Ok(())
+    }
+    fn write(&mut self, targets: &[JointTarget]) -> Result<(), IoError> {
+        self.inner.write(targets)
+    }
+    fn wait_until(&mut self, clock: &mut dyn TickClock, deadline: Duration) -> bool {
+        self.inner.wait_until(clock, deadline)
+    }
+    fn torque_off(&mut self) -> Result<(), IoError> {
+        self.inner.torque_off()
+    }
+    fn set_stale_cycles(&mut self, cycles: u32) {
+        self.inner.set_stale_cycles(cycles);
+    }
+}
+
+#[test]
+fn a_policy_reading_an_estimate_fed_nan_goes_to_the_safe_state() {
+    // The BeyondMimic-convention export reads the base velocity and the anchor position.
+    let robot = Robot::load(&reference_robot_path()).unwrap();
+    let export = test_support::fixtures::fixture("rd_biped_tracking.onnx");
+    let mut layout = PolicyLayout::load(&export, &robot).unwrap();
+    let (reference, _) =
+        controller::motion::load_reference(None, &biped("clips/squat.csv"), &mut layout, &robot, 0).unwrap();
+    let world = Arc::new(std::sync::Mutex::new(
+        sim2real::mirror::Mirror::new(robot.clone(), MirrorConfig::default()).unwrap(),
+    ));
+    let io = NanImu {
+        inner: sim2real::link::lockstep_robot(&robot, &world).unwrap(),
+        reads: 0,
+        from: 120,
+    };
+    let mut clock = sim2real::link::LockstepClock::new(Arc::clone(&world));
+    let mut p = controller::player::Player::new(
+        robot,
+        layout,
+        reference,
+        PlayOptions::default(),
+        io,
+        Arc::new(AtomicBool::new(false)),
+    )
+    .unwrap();
+    let s = p.run(&mut clock).unwrap();
+    let t = p.transitions();
+    let stop = t.iter().find(|t| t.to == Mode::Stopping).expect("a stop");
+    assert_eq!(stop.cause, Cause::EstimateInvalid, "{s}");
+    // The first tick whose read carried the bad sample (the link counts identify's read too).
+    assert!((117..=119).contains(&stop.tick), "{s}");
+    assert!(t.iter().any(|t| t.to == Mode::Damped), "{s}");
+}
