@@ -71,29 +71,37 @@ fn standing_a_minute_the_estimate_drifts_less_than_2_cm() {
 }
 
 #[test]
-fn squatting_the_height_and_its_rate_follow_the_truth() {
-    let s = run(squat, PlayOptions::default(), MirrorConfig::default());
+fn squatting_the_height_and_its_rate_follow_the_truth_and_the_report_says_so() {
+    let path = std::env::temp_dir().join(format!("estimator-squat-{}.mcap", std::process::id()));
+    let s = run_recorded(squat, MirrorConfig::default(), &path);
     let e = s.estimator.expect("the mirror knows the truth");
     assert!(e.height_rmse < 0.01, "{e}");
     assert!(e.vertical_velocity_rmse < 0.05, "{e}");
     assert!(e.velocity_rmse < 0.05, "{e}");
+    // The report reads the same figures back from the recording's /estimator channel.
+    let dir = path.with_extension("report");
+    let r = analysis::report::write_report(&path, &dir).unwrap();
+    let f = r.estimator.expect("estimator figures");
+    assert_eq!(f.ticks as u64, e.ticks);
+    assert!(
+        (f.height_rmse_mm - 1000.0 * e.height_rmse).abs() < 0.01,
+        "{f:?} vs {e}"
+    );
+    assert!((f.contact_agreement_pct - 100.0 * e.contact_agreement).abs() < 1e-9);
+    std::fs::remove_dir_all(&dir).unwrap();
+    std::fs::remove_file(&path).unwrap();
 }
 
-#[test]
-fn pushed_30_n_s_the_velocity_estimate_follows_within_0_1_m_s_after_50_ms() {
+/// A run of the squat (or `reference`) recorded to `path`.
+fn run_recorded(
+    reference: impl FnOnce(&Robot) -> Reference,
+    mirror: MirrorConfig,
+    path: &std::path::Path,
+) -> PlaySummary {
     let robot = Robot::load(&reference_robot_path()).unwrap();
-    let mirror = MirrorConfig {
-        pushes: vec![Push {
-            at_s: 5.0,
-            duration_s: 0.1,
-            force_n: [300.0, 0.0, 0.0],
-        }],
-        ..MirrorConfig::default()
-    };
-    let path = std::env::temp_dir().join(format!("estimator-push-{}.mcap", std::process::id()));
     let names = robot.config.joints.iter().map(|j| j.name.clone()).collect();
     let layout = follower(&robot);
-    let reference = squat(&robot);
+    let reference = reference(&robot);
     let (p, mut clock, _w) = lockstep_player(
         robot,
         layout,
@@ -109,14 +117,27 @@ fn pushed_30_n_s_the_velocity_estimate_follows_within_0_1_m_s_after_50_ms() {
         ..Default::default()
     };
     let sink = controller::telemetry::TelemetrySink::start(
-        &path,
+        path,
         64,
         controller::telemetry::Backpressure::Block,
         &info,
     )
     .unwrap();
-    let mut p = p.with_telemetry(sink);
-    p.run(&mut clock).unwrap();
+    p.with_telemetry(sink).run(&mut clock).unwrap()
+}
+
+#[test]
+fn pushed_30_n_s_the_velocity_estimate_follows_within_0_1_m_s_after_50_ms() {
+    let mirror = MirrorConfig {
+        pushes: vec![Push {
+            at_s: 5.0,
+            duration_s: 0.1,
+            force_n: [300.0, 0.0, 0.0],
+        }],
+        ..MirrorConfig::default()
+    };
+    let path = std::env::temp_dir().join(format!("estimator-push-{}.mcap", std::process::id()));
+    run_recorded(squat, mirror, &path);
     // From 50 ms into the push to 200 ms after it: the base flies off at ~1.8 m/s.
     let bytes = analysis::recording::read(&path).unwrap();
     let (mut worst, mut compared, mut fastest) = (0.0f64, 0, 0.0f64);

@@ -51,6 +51,24 @@ pub struct RunSummary {
     pub body_rmse_cm: BTreeMap<String, f64>,
     /// The anchor body's, cm.
     pub anchor_rmse_cm: Option<f64>,
+    /// The state estimate against the truth over the whole run (simulation runs with an
+    /// estimator).
+    pub estimator: Option<EstimatorFigures>,
+}
+
+/// How well the state estimate followed the simulation's truth, from a recording's `/estimator`.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct EstimatorFigures {
+    /// Ticks with a valid estimate and the truth beside it.
+    pub ticks: usize,
+    /// Base velocity RMSE (base axes), m/s.
+    pub velocity_rmse: f64,
+    /// Base height RMSE, mm.
+    pub height_rmse_mm: f64,
+    /// Base position error at the end, cm.
+    pub final_position_error_cm: f64,
+    /// Share of foot-ticks whose contact agreed with the truth, %.
+    pub contact_agreement_pct: f64,
 }
 
 #[derive(Debug, Default)]
@@ -72,6 +90,9 @@ struct Series {
     reference_ticks: Option<usize>,
     /// The run's tilt limit, rad (the default when the recording does not say).
     tilt_limit: f64,
+    /// Per tick with a valid estimate and truth: velocity error (m/s), height error (m), position
+    /// error (m), contacts agreeing and compared.
+    estimator: Vec<(f64, f64, f64, f64, usize, usize)>,
     /// Tracked motion bodies, their anchor, and their position errors per tick (m).
     motion_bodies: Vec<String>,
     anchor_body: Option<String>,
@@ -137,6 +158,29 @@ fn read_series(path: &Path) -> Result<Series, String> {
                     s.anchor_body = m.metadata.get("anchor_body").cloned();
                 }
                 s.body_errors.push(floats(&v["body_errors_m"]));
+            }
+            "/estimator" => {
+                if v["valid"].as_bool() == Some(true) && v.get("truth_position").is_some() {
+                    let d = |a: &str, b: &str| {
+                        floats(&v[a])
+                            .iter()
+                            .zip(floats(&v[b]))
+                            .map(|(x, y)| (x - y).powi(2))
+                            .sum::<f64>()
+                            .sqrt()
+                    };
+                    let (p, t) = (floats(&v["position"]), floats(&v["truth_position"]));
+                    let (c, tc) = (floats(&v["contacts"]), floats(&v["truth_contacts"]));
+                    let agree = c.iter().zip(&tc).filter(|(a, b)| a == b).count();
+                    s.estimator.push((
+                        m.log_time as f64 * 1e-9,
+                        d("velocity_base", "truth_velocity_base"),
+                        p.get(2).zip(t.get(2)).map_or(f64::NAN, |(a, b)| a - b),
+                        d("position", "truth_position"),
+                        agree,
+                        c.len().min(tc.len()),
+                    ));
+                }
             }
             "/timing" => {
                 s.io.push(v["io_us"].as_f64().unwrap_or(0.0));
@@ -262,7 +306,26 @@ fn summarize(s: &Series) -> RunSummary {
         .map(|(b, (sq, n))| (b.clone(), (sq / *n as f64).sqrt() * 100.0))
         .collect();
     let anchor_rmse_cm = s.anchor_body.as_ref().and_then(|a| body_rmse_cm.get(a).copied());
+    let estimator = (!s.estimator.is_empty()).then(|| {
+        let n = s.estimator.len() as f64;
+        let rms = |f: &dyn Fn(&(f64, f64, f64, f64, usize, usize)) -> f64| {
+            (s.estimator.iter().map(|e| f(e).powi(2)).sum::<f64>() / n).sqrt()
+        };
+        let (agree, compared) = s.estimator.iter().fold((0, 0), |(a, c), e| (a + e.4, c + e.5));
+        EstimatorFigures {
+            ticks: s.estimator.len(),
+            velocity_rmse: rms(&|e| e.1),
+            height_rmse_mm: 1000.0 * rms(&|e| e.2),
+            final_position_error_cm: 100.0 * s.estimator.last().map_or(0.0, |e| e.3),
+            contact_agreement_pct: if compared > 0 {
+                100.0 * agree as f64 / compared as f64
+            } else {
+                100.0
+            },
+        }
+    });
     RunSummary {
+        estimator,
         body_rmse_cm,
         anchor_rmse_cm,
         ticks: s.q.len(),
@@ -414,6 +477,13 @@ pub fn write_report(log: &Path, dir: &Path) -> Result<RunSummary, AnalysisError>
             s.anchor_body.as_deref().unwrap_or("?")
         );
     }
+    if let Some(e) = &summary.estimator {
+        let _ = writeln!(
+            md,
+            "| state estimate vs truth | velocity RMSE {:.3} m/s, height RMSE {:.1} mm, position error {:.1} cm at the end, contacts agree {:.1} % ({} ticks) |",
+            e.velocity_rmse, e.height_rmse_mm, e.final_position_error_cm, e.contact_agreement_pct, e.ticks
+        );
+    }
     let _ = writeln!(md, "\n## Safety events\n");
     for (tick, mode, cause) in &summary.safety_events {
         let _ = writeln!(md, "- tick {tick}: {mode} ({cause})");
@@ -510,6 +580,23 @@ pub fn write_report(log: &Path, dir: &Path) -> Result<RunSummary, AnalysisError>
             ));
         }
         html.push_str(&svg_plot("tracked bodies: position error", "cm", &lines));
+    }
+    if summary.estimator.is_some() {
+        let series = |k: usize, scale: f64| -> Vec<(f64, f64)> {
+            s.estimator
+                .iter()
+                .map(|e| (e.0, scale * [e.1, e.2.abs(), e.3][k]))
+                .collect()
+        };
+        html.push_str(&svg_plot(
+            "state estimate: error against the truth",
+            "m/s · cm",
+            &[
+                ("velocity m/s", "#c33", series(0, 1.0)),
+                ("height cm", "#36c", series(1, 100.0)),
+                ("position cm", "#393", series(2, 100.0)),
+            ],
+        ));
     }
     let io: Vec<(f64, f64)> = s.time.iter().zip(&s.io).map(|(&t, &v)| (t, v)).collect();
     let compute: Vec<(f64, f64)> = s.time.iter().zip(&s.compute).map(|(&t, &v)| (t, v)).collect();
