@@ -202,6 +202,25 @@ pub struct RobotConfig {
     /// How human motion maps onto this robot (retargeting, teleoperation).
     #[serde(default)]
     pub retarget: Option<RetargetConfig>,
+    /// Foot switches on Linux GPIO lines, for the state estimator's contacts (none: contact is
+    /// estimated from the legs' kinematics).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub contacts: Vec<ContactSwitch>,
+}
+
+/// A foot switch on a GPIO line (the Linux character-device interface).
+#[derive(Debug, Clone, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ContactSwitch {
+    /// The foot (one of `feet`).
+    pub foot: String,
+    /// The GPIO chip's character device, e.g. `/dev/gpiochip0`.
+    pub chip: PathBuf,
+    /// The line's offset on the chip (0–1023).
+    pub line: u32,
+    /// The switch pulls the line low when the foot is down.
+    #[serde(default)]
+    pub active_low: bool,
 }
 
 /// A human body the retargeting map knows (BVH skeletons and VR trackers are mapped onto these).
@@ -623,6 +642,40 @@ impl Robot {
                 "feet".into(),
                 "no feet: name the bodies the robot stands on".into(),
             ));
+        }
+        if !c.contacts.is_empty()
+            && let Some(f) = c
+                .feet
+                .iter()
+                .find(|f| !c.contacts.iter().any(|sw| sw.foot == **f))
+        {
+            return Err((
+                "contacts".into(),
+                format!("foot {f:?} has no switch: give every foot one, or none (contact is then estimated)"),
+            ));
+        }
+        for (i, sw) in c.contacts.iter().enumerate() {
+            if !c.feet.contains(&sw.foot) {
+                return Err((
+                    format!("contacts[{i}].foot"),
+                    format!("{:?} is not one of feet ({})", sw.foot, c.feet.join(", ")),
+                ));
+            }
+            if c.contacts[..i].iter().any(|o| o.foot == sw.foot) {
+                return Err((
+                    format!("contacts[{i}].foot"),
+                    format!("{:?} has a switch already", sw.foot),
+                ));
+            }
+            if sw.line > 1023 || sw.chip.as_os_str().is_empty() {
+                return Err((
+                    format!("contacts[{i}]"),
+                    format!(
+                        "chip {:?} line {}: a chip path and a line in [0, 1023]",
+                        sw.chip, sw.line
+                    ),
+                ));
+            }
         }
         if !(1.0..=1000.0).contains(&c.control_rate_hz) {
             return Err((

@@ -34,7 +34,7 @@ pub fn lockstep_robot(robot: &Robot, world: &Arc<Mutex<Mirror>>) -> Result<Locks
         expected_return_delay: Duration::ZERO,
         ..DxlDriverOptions::default()
     };
-    BusRobot::new(
+    let link = BusRobot::new(
         robot,
         BusPorts {
             can: ports.can,
@@ -43,7 +43,45 @@ pub fn lockstep_robot(robot: &Robot, world: &Arc<Mutex<Mirror>>) -> Result<Locks
         },
         LOCKSTEP_REPLY,
         options,
-    )
+    )?;
+    // A robot with foot switches gets the mirror's contacts behind the same trait as GPIO lines.
+    Ok(if robot.config.contacts.is_empty() {
+        link
+    } else {
+        link.with_contacts(Box::new(MirrorSwitches {
+            world: Arc::clone(world),
+            wired: robot
+                .config
+                .feet
+                .iter()
+                .map(|f| robot.config.contacts.iter().any(|c| c.foot == *f))
+                .collect(),
+        }))
+    })
+}
+
+/// Foot switches on the mirror: each configured foot's contact with the floor, as the simulation
+/// has it this instant (the loop's own thread steps the lockstep mirror, so the lock is free).
+#[derive(Debug)]
+struct MirrorSwitches {
+    world: Arc<Mutex<Mirror>>,
+    /// Which feet have a switch.
+    wired: Vec<bool>,
+}
+
+impl robot_link::contacts::ContactSource for MirrorSwitches {
+    fn read(&mut self, out: &mut [bool]) -> Result<(), IoError> {
+        let world = self
+            .world
+            .lock()
+            .map_err(|_| IoError::Setup("the mirror's lock is poisoned".into()))?;
+        let (mut pose, mut velocity) = ([0.0; 7], [0.0; 3]);
+        world.ground_truth(&mut pose, &mut velocity, out);
+        for (o, &wired) in out.iter_mut().zip(&self.wired) {
+            *o &= wired;
+        }
+        Ok(())
+    }
 }
 
 /// Drivers on every bus of a served mirror, connected as to hardware, each bus on its own thread.

@@ -244,3 +244,62 @@ fn a_policy_reading_an_estimate_fed_nan_goes_to_the_safe_state() {
     assert!((117..=119).contains(&stop.tick), "{s}");
     assert!(t.iter().any(|t| t.to == Mode::Damped), "{s}");
 }
+
+/// rd-biped with foot switches on GPIO lines (`[[contacts]]` added to its robot.toml), in a
+/// folder of its own beside a copy of its MJCF (removed by the caller).
+fn robot_with_switches(tag: &str, feet: &[&str]) -> (Result<Robot, String>, PathBuf) {
+    let dir = std::env::temp_dir().join(format!("estimator-switches-{tag}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::copy(biped("biped.xml"), dir.join("biped.xml")).unwrap();
+    let mut text = std::fs::read_to_string(reference_robot_path()).unwrap();
+    for (line, foot) in feet.iter().enumerate() {
+        text.push_str(&format!(
+            "\n[[contacts]]\nfoot = \"{foot}\"\nchip = \"/dev/gpiochip-robodeploy-test-{tag}\"\nline = {line}\nactive_low = true\n"
+        ));
+    }
+    std::fs::write(dir.join("robot.toml"), text).unwrap();
+    (
+        Robot::load(&dir.join("robot.toml")).map_err(|e| e.to_string()),
+        dir,
+    )
+}
+
+#[test]
+fn foot_switches_give_the_contacts_on_the_mirror_and_a_missing_gpio_chip_is_named() {
+    let (robot, dir) = robot_with_switches("mirror", &["left_foot", "right_foot"]);
+    let robot = robot.unwrap();
+    // On the mirror the switches read the simulation's contacts, behind the same trait as GPIO.
+    let layout = follower(&robot);
+    let reference = squat(&robot);
+    let (mut p, mut clock, _w) = lockstep_player(
+        robot.clone(),
+        layout,
+        reference,
+        PlayOptions::default(),
+        MirrorConfig::default(),
+        Arc::new(AtomicBool::new(false)),
+    )
+    .unwrap();
+    let s = p.run(&mut clock).unwrap();
+    assert_eq!(p.state().foot_switches.len(), 2);
+    let e = s.estimator.expect("truth");
+    assert_eq!(e.contact_agreement, 1.0, "{e}");
+    // On hardware they are GPIO lines: a chip that is not there is named with its entry.
+    let err = robot_link::contacts::GpioContacts::open(&robot)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("contacts[0] (left_foot switch)")
+            && err.contains("/dev/gpiochip-robodeploy-test-mirror"),
+        "{err}"
+    );
+    // One foot with a switch and one without is refused at load.
+    let (half, half_dir) = robot_with_switches("half", &["left_foot"]);
+    let err = half.unwrap_err();
+    assert!(
+        err.contains("contacts") && err.contains("\"right_foot\" has no switch"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+    std::fs::remove_dir_all(&half_dir).unwrap();
+}

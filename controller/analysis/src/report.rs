@@ -71,6 +71,21 @@ pub struct EstimatorFigures {
     pub contact_agreement_pct: f64,
 }
 
+/// One tick of the estimate against the truth.
+#[derive(Debug, Clone, Copy)]
+struct EstimateTick {
+    time: f64,
+    /// Base velocity error, m/s.
+    velocity: f64,
+    /// Height error (estimate − truth), m.
+    height: f64,
+    /// Position error, m.
+    position: f64,
+    /// Feet whose contact agreed, of those compared.
+    agree: usize,
+    compared: usize,
+}
+
 #[derive(Debug, Default)]
 struct Series {
     time: Vec<f64>,
@@ -90,9 +105,8 @@ struct Series {
     reference_ticks: Option<usize>,
     /// The run's tilt limit, rad (the default when the recording does not say).
     tilt_limit: f64,
-    /// Per tick with a valid estimate and truth: velocity error (m/s), height error (m), position
-    /// error (m), contacts agreeing and compared.
-    estimator: Vec<(f64, f64, f64, f64, usize, usize)>,
+    /// Each tick with a valid estimate and the truth beside it.
+    estimator: Vec<EstimateTick>,
     /// Tracked motion bodies, their anchor, and their position errors per tick (m).
     motion_bodies: Vec<String>,
     anchor_body: Option<String>,
@@ -159,28 +173,25 @@ fn read_series(path: &Path) -> Result<Series, String> {
                 }
                 s.body_errors.push(floats(&v["body_errors_m"]));
             }
-            "/estimator" => {
-                if v["valid"].as_bool() == Some(true) && v.get("truth_position").is_some() {
-                    let d = |a: &str, b: &str| {
-                        floats(&v[a])
-                            .iter()
-                            .zip(floats(&v[b]))
-                            .map(|(x, y)| (x - y).powi(2))
-                            .sum::<f64>()
-                            .sqrt()
-                    };
-                    let (p, t) = (floats(&v["position"]), floats(&v["truth_position"]));
-                    let (c, tc) = (floats(&v["contacts"]), floats(&v["truth_contacts"]));
-                    let agree = c.iter().zip(&tc).filter(|(a, b)| a == b).count();
-                    s.estimator.push((
-                        m.log_time as f64 * 1e-9,
-                        d("velocity_base", "truth_velocity_base"),
-                        p.get(2).zip(t.get(2)).map_or(f64::NAN, |(a, b)| a - b),
-                        d("position", "truth_position"),
-                        agree,
-                        c.len().min(tc.len()),
-                    ));
-                }
+            "/estimator" if v["valid"].as_bool() == Some(true) && v.get("truth_position").is_some() => {
+                let d = |a: &str, b: &str| {
+                    floats(&v[a])
+                        .iter()
+                        .zip(floats(&v[b]))
+                        .map(|(x, y)| (x - y).powi(2))
+                        .sum::<f64>()
+                        .sqrt()
+                };
+                let (p, t) = (floats(&v["position"]), floats(&v["truth_position"]));
+                let (c, tc) = (floats(&v["contacts"]), floats(&v["truth_contacts"]));
+                s.estimator.push(EstimateTick {
+                    time: m.log_time as f64 * 1e-9,
+                    velocity: d("velocity_base", "truth_velocity_base"),
+                    height: p.get(2).zip(t.get(2)).map_or(f64::NAN, |(a, b)| a - b),
+                    position: d("position", "truth_position"),
+                    agree: c.iter().zip(&tc).filter(|(a, b)| a == b).count(),
+                    compared: c.len().min(tc.len()),
+                });
             }
             "/timing" => {
                 s.io.push(v["io_us"].as_f64().unwrap_or(0.0));
@@ -308,15 +319,18 @@ fn summarize(s: &Series) -> RunSummary {
     let anchor_rmse_cm = s.anchor_body.as_ref().and_then(|a| body_rmse_cm.get(a).copied());
     let estimator = (!s.estimator.is_empty()).then(|| {
         let n = s.estimator.len() as f64;
-        let rms = |f: &dyn Fn(&(f64, f64, f64, f64, usize, usize)) -> f64| {
+        let rms = |f: &dyn Fn(&EstimateTick) -> f64| {
             (s.estimator.iter().map(|e| f(e).powi(2)).sum::<f64>() / n).sqrt()
         };
-        let (agree, compared) = s.estimator.iter().fold((0, 0), |(a, c), e| (a + e.4, c + e.5));
+        let (agree, compared) = s
+            .estimator
+            .iter()
+            .fold((0, 0), |(a, c), e| (a + e.agree, c + e.compared));
         EstimatorFigures {
             ticks: s.estimator.len(),
-            velocity_rmse: rms(&|e| e.1),
-            height_rmse_mm: 1000.0 * rms(&|e| e.2),
-            final_position_error_cm: 100.0 * s.estimator.last().map_or(0.0, |e| e.3),
+            velocity_rmse: rms(&|e| e.velocity),
+            height_rmse_mm: 1000.0 * rms(&|e| e.height),
+            final_position_error_cm: 100.0 * s.estimator.last().map_or(0.0, |e| e.position),
             contact_agreement_pct: if compared > 0 {
                 100.0 * agree as f64 / compared as f64
             } else {
@@ -585,7 +599,7 @@ pub fn write_report(log: &Path, dir: &Path) -> Result<RunSummary, AnalysisError>
         let series = |k: usize, scale: f64| -> Vec<(f64, f64)> {
             s.estimator
                 .iter()
-                .map(|e| (e.0, scale * [e.1, e.2.abs(), e.3][k]))
+                .map(|e| (e.time, scale * [e.velocity, e.height.abs(), e.position][k]))
                 .collect()
         };
         html.push_str(&svg_plot(

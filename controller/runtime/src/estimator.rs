@@ -209,9 +209,9 @@ impl Estimator {
             spatial::mat_apply(&r, spatial::sub(sample.accel, bias)),
             self.gravity,
         );
-        for k in 0..3 {
-            self.x[P + k] += self.x[V + k] * dt + 0.5 * a[k] * dt * dt;
-            self.x[V + k] += a[k] * dt;
+        for (k, ak) in a.iter().enumerate() {
+            self.x[P + k] += self.x[V + k] * dt + 0.5 * ak * dt * dt;
+            self.x[V + k] += ak * dt;
         }
         // P ← F P Fᵀ + Q. F is the identity but for three blocks (p/v: dt·I, p/b: −½dt²·R,
         // v/b: −dt·R), so only the rows, then the columns, of p and v change.
@@ -221,20 +221,20 @@ impl Estimator {
             let pb = &self.p;
             let bias_r: [f64; 3] =
                 std::array::from_fn(|k| (0..3).map(|m| r[k][m] * pb[(B + m) * n + j]).sum());
-            for k in 0..3 {
+            for (k, br) in bias_r.iter().enumerate() {
                 let (pk, vk) = (self.p[(P + k) * n + j], self.p[(V + k) * n + j]);
-                self.p[(P + k) * n + j] = pk + h * vk + q * bias_r[k];
-                self.p[(V + k) * n + j] = vk - dt * bias_r[k];
+                self.p[(P + k) * n + j] = pk + h * vk + q * br;
+                self.p[(V + k) * n + j] = vk - dt * br;
             }
         }
         for i in 0..n {
             let row = i * n;
             let bias_r: [f64; 3] =
                 std::array::from_fn(|k| (0..3).map(|m| r[k][m] * self.p[row + B + m]).sum());
-            for k in 0..3 {
+            for (k, br) in bias_r.iter().enumerate() {
                 let (pk, vk) = (self.p[row + P + k], self.p[row + V + k]);
-                self.p[row + P + k] = pk + h * vk + q * bias_r[k];
-                self.p[row + V + k] = vk - dt * bias_r[k];
+                self.p[row + P + k] = pk + h * vk + q * br;
+                self.p[row + V + k] = vk - dt * br;
             }
         }
         let c = &self.config;
@@ -338,11 +338,11 @@ impl Estimator {
             let c = self.config;
             for f in 0..self.feet {
                 let rel = world_foot(legs, f);
-                for k in 0..3 {
+                for (k, y) in rel.into_iter().enumerate() {
                     self.measure(
                         FEET + 3 * f + k,
                         Some(P + k),
-                        rel[k],
+                        y,
                         c.kinematic_position_noise.powi(2),
                     );
                 }
@@ -408,8 +408,8 @@ impl Estimator {
         };
         for f in 0..self.feet {
             let w = spatial::mat_apply(r, legs.position[f]);
-            for k in 0..3 {
-                self.x[FEET + 3 * f + k] = self.x[P + k] + w[k];
+            for (k, wk) in w.iter().enumerate() {
+                self.x[FEET + 3 * f + k] = self.x[P + k] + wk;
             }
             self.ground[f] = self.x[P + 2] + spatial::mat_apply(r, legs.contact[f])[2];
         }

@@ -633,6 +633,12 @@ impl<L: RobotLink> Player<L> {
                 (legs.contact[f], legs.contact_velocity[f]) = k.foot_contact(f);
                 legs.sole_depth[f] = k.sole_depth(f);
             }
+            // Foot switches where the robot has them (robot.toml [[contacts]], one per foot).
+            if self.state.foot_switches.len() == k.feet() && k.feet() <= MAX_FEET {
+                let mut switches = [false; MAX_FEET];
+                switches[..k.feet()].copy_from_slice(&self.state.foot_switches);
+                legs.switches = Some(switches);
+            }
             self.estimate = e.correct(&legs, self.state.imu_missed <= IMU_FRESH_TICKS);
         }
         let ground_truth = self.options.estimator == EstimatorKind::GroundTruth;

@@ -403,6 +403,9 @@ pub struct BusRobot<S: ByteStream> {
     imu_next: Duration,
     /// Samples the loop has seen.
     imu_seen: u64,
+    /// Foot switches, when the robot has them, and how many feet.
+    contacts: Option<Box<dyn crate::contacts::ContactSource>>,
+    feet: usize,
     names: Vec<String>,
     times: Vec<Duration>,
     stats: Vec<BusStats>,
@@ -525,11 +528,19 @@ impl<S: ByteStream> BusRobot<S> {
             imu_worker: None,
             imu_next: Duration::ZERO,
             imu_seen: 0,
+            contacts: None,
+            feet: robot.config.feet.len(),
             times: vec![Duration::ZERO; k],
             stats: vec![BusStats::default(); k],
             logs: Vec::new(),
             names,
         })
+    }
+
+    /// Reads the feet's switches from `source` with every read (robot.toml `feet` order).
+    pub fn with_contacts(mut self, source: Box<dyn crate::contacts::ContactSource>) -> Self {
+        self.contacts = Some(source);
+        self
     }
 
     /// Cycles in a row a joint may stay silent before its bus damps itself (at least 1); set
@@ -649,6 +660,13 @@ impl<S: ByteStream> BusRobot<S> {
             (None, None) => return Err(IoError::Setup("the IMU has no reader".into())),
         };
         newest.samples_since(self.imu_seen, &mut state.imu_samples);
+        match &mut self.contacts {
+            Some(c) => {
+                state.foot_switches.resize(self.feet, false);
+                c.read(&mut state.foot_switches)?;
+            }
+            None => state.foot_switches.clear(),
+        }
         if newest.count != self.imu_seen {
             self.imu_seen = newest.count;
             state.gyro = newest.gyro;

@@ -58,10 +58,15 @@ pub fn open_sequential(robot: &Robot) -> Result<HardwareRobot, IoError> {
         reply_slack: Duration::from_millis(3),
         ..DxlDriverOptions::default()
     };
-    BusRobot::new(
+    let link = BusRobot::new(
         robot,
         BusPorts { can, dxl, imu },
         Duration::from_millis(2),
         options,
-    )
+    )?;
+    // Foot switches on GPIO lines, where robot.toml has them.
+    Ok(match crate::contacts::GpioContacts::open(robot)? {
+        Some(switches) => link.with_contacts(Box::new(switches)),
+        None => link,
+    })
 }

@@ -13,6 +13,7 @@
 
 pub mod bus_robot;
 pub mod clock;
+pub mod contacts;
 pub mod cycle;
 pub mod hardware;
 mod imu_cycle;

@@ -67,6 +67,8 @@ pub struct RobotState {
     /// Every IMU sample that arrived since the previous read, oldest first (at most
     /// [`IMU_HISTORY`]): what a state estimator integrates at the IMU's rate.
     pub imu_samples: Vec<ImuSample>,
+    /// Foot switches, robot.toml's `feet` order; empty when the robot has none.
+    pub foot_switches: Vec<bool>,
 }
 
 impl RobotState {
@@ -86,6 +88,7 @@ impl RobotState {
             imu_missed: u32::MAX,
             imu_age: std::time::Duration::ZERO,
             imu_samples: Vec::with_capacity(IMU_HISTORY),
+            foot_switches: Vec::new(),
         }
     }
 }
@@ -107,6 +110,8 @@ impl RobotState {
         self.imu_age = other.imu_age;
         self.imu_samples.clear();
         self.imu_samples.extend_from_slice(&other.imu_samples);
+        self.foot_switches.clear();
+        self.foot_switches.extend_from_slice(&other.foot_switches);
     }
 }
 
