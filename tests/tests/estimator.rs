@@ -303,3 +303,39 @@ fn foot_switches_give_the_contacts_on_the_mirror_and_a_missing_gpio_chip_is_name
     std::fs::remove_dir_all(&dir).unwrap();
     std::fs::remove_dir_all(&half_dir).unwrap();
 }
+
+#[test]
+fn dropped_on_a_slope_with_drifting_imu_biases_the_estimate_still_holds() {
+    use sim2real::config::{Randomization, StartPose};
+    let stand = |robot: &Robot| {
+        let q: Vec<f64> = robot.config.joints.iter().map(|j| j.default_position).collect();
+        Reference::hold(&q, [0.0, 0.0, 0.45, 1.0, 0.0, 0.0, 0.0], 50.0)
+    };
+    let options = PlayOptions {
+        end: EndMode::Stand,
+        max_ticks: Some(30 * 50),
+        ..PlayOptions::default()
+    };
+    // Dropped from 5 cm (the filter waits until the robot is still), a 4° slope, biases that
+    // drift (and the heading with them).
+    let mirror = MirrorConfig {
+        start: StartPose {
+            height_m: 0.05,
+            ..StartPose::default()
+        },
+        floor_tilt_deg: [0.0, 4.0],
+        randomization: Randomization {
+            imu_gyro_bias_walk_dps: 0.01,
+            imu_accel_bias_walk: 0.005,
+            ..Randomization::default()
+        },
+        ..MirrorConfig::default()
+    };
+    let s = run(stand, options, mirror);
+    assert!(!s.fell, "{s}");
+    let e = s.estimator.expect("the mirror knows the truth");
+    assert!(e.max_position_error < 0.02, "{e}");
+    assert!(e.height_rmse < 0.01, "{e}");
+    assert!(e.velocity_rmse < 0.02, "{e}");
+    assert_eq!(e.contact_agreement, 1.0, "{e}");
+}

@@ -139,9 +139,15 @@ pub struct Estimator {
     /// The height each foot's sole last stood at.
     ground: [f64; MAX_FEET],
     initialised: bool,
+    /// IMU samples in a row that looked like standing still (specific force ≈ g, slow turn):
+    /// the filter starts only after [`STILL_S`] of them, not in the middle of a drop.
+    still: u32,
     /// Inputs were bad this tick (non-finite or stale).
     input_fault: bool,
 }
+
+/// How long the IMU must look still before the filter starts, s.
+const STILL_S: f64 = 0.2;
 
 /// Samples of a longer gap are integrated as this many nominal periods at most.
 const MAX_GAP_PERIODS: f64 = 4.0;
@@ -167,6 +173,7 @@ impl Estimator {
             contacts: [true; MAX_FEET],
             ground: [0.0; MAX_FEET],
             initialised: false,
+            still: 0,
             input_fault: false,
         }
     }
@@ -175,6 +182,7 @@ impl Estimator {
     pub fn reset(&mut self) {
         self.initialised = false;
         self.last_sample = None;
+        self.still = 0;
     }
 
     /// Integrates one IMU sample (base axes): propagates the state and its covariance.
@@ -200,6 +208,9 @@ impl Estimator {
         self.last_sample = Some(sample.at);
         self.quat = spatial::quat_normalize(sample.quat);
         self.gyro = sample.gyro;
+        let g = spatial::norm(self.gravity);
+        let resting = (spatial::norm(sample.accel) - g).abs() < 0.1 * g && spatial::norm(sample.gyro) < 0.3;
+        self.still = if resting { self.still.saturating_add(1) } else { 0 };
         if !self.initialised || dt == 0.0 {
             return;
         }
@@ -293,7 +304,8 @@ impl Estimator {
             self.input_fault = true;
         }
         let r = spatial::mat_of_quat(self.quat);
-        if !self.initialised && finite && self.last_sample.is_some() {
+        let settled = f64::from(self.still) * self.nominal_dt >= STILL_S;
+        if !self.initialised && finite && settled {
             self.initialise(legs, &r);
         }
         if self.initialised && finite {
@@ -531,11 +543,16 @@ mod tests {
     fn non_finite_or_stale_input_makes_the_estimate_invalid() {
         let mut e = Estimator::new(EstimatorConfig::default(), 2, [0.0, 0.0, -9.81], 200.0);
         let legs = standing_legs();
-        e.propagate(&sample(0, [0.0, 0.0, 9.81]));
+        // Not before the IMU has looked still for 0.2 s (40 samples at 200 Hz).
+        for k in 0..39 {
+            e.propagate(&sample(k, [0.0, 0.0, 9.81]));
+        }
+        assert!(!e.correct(&legs, true).valid, "not settled yet");
+        e.propagate(&sample(39, [0.0, 0.0, 9.81]));
         assert!(e.correct(&legs, true).valid);
-        e.propagate(&sample(1, [f64::NAN, 0.0, 9.81]));
+        e.propagate(&sample(40, [f64::NAN, 0.0, 9.81]));
         assert!(!e.correct(&legs, true).valid);
-        e.propagate(&sample(2, [0.0, 0.0, 9.81]));
+        e.propagate(&sample(41, [0.0, 0.0, 9.81]));
         assert!(e.correct(&legs, true).valid, "a good sample again: valid again");
         assert!(!e.correct(&legs, false).valid, "stale IMU");
         let mut bad = legs;
