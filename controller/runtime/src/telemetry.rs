@@ -896,18 +896,17 @@ fn encode(out: &mut String, k: usize, r: &TickRecord, root: &str, last_mode: &mu
             let x = &e.estimate;
             let f = x.feet;
             let _ = write!(out, "\"valid\":{},", x.valid);
-            array64(out, "position", x.position);
-            out.push(',');
-            array64(out, "velocity", x.velocity);
-            out.push(',');
-            array64(out, "velocity_base", x.velocity_base);
-            out.push(',');
-            array64(out, "position_std", x.position_std);
-            out.push(',');
-            array64(out, "velocity_std", x.velocity_std);
-            out.push(',');
-            array64(out, "accel_bias", x.accel_bias);
-            out.push(',');
+            for (name, v) in [
+                ("position", x.position),
+                ("velocity", x.velocity),
+                ("velocity_base", x.velocity_base),
+                ("position_std", x.position_std),
+                ("velocity_std", x.velocity_std),
+                ("accel_bias", x.accel_bias),
+            ] {
+                array64(out, name, v);
+                out.push(',');
+            }
             array64(
                 out,
                 "contacts",
