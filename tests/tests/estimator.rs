@@ -339,3 +339,16 @@ fn dropped_on_a_slope_with_drifting_imu_biases_the_estimate_still_holds() {
     assert!(e.velocity_rmse < 0.02, "{e}");
     assert_eq!(e.contact_agreement, 1.0, "{e}");
 }
+
+#[test]
+fn marching_in_place_the_contacts_agree_and_the_velocity_follows() {
+    let march = |robot: &Robot| {
+        let path = test_support::fixtures::workspace_root().join("tests/fixtures/motion/march.csv");
+        Reference::from_clip(&Clip::load(&path).unwrap(), robot, 50.0).unwrap()
+    };
+    let s = run(march, PlayOptions::default(), MirrorConfig::default());
+    assert!(!s.fell && s.success(), "{s}");
+    let e = s.estimator.expect("the mirror knows the truth");
+    assert!(e.contact_agreement >= 0.98, "{e}");
+    assert!(e.velocity_rmse < 0.05, "{e}");
+}

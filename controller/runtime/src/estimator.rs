@@ -7,9 +7,11 @@
 //! velocity that keeps it still. A foot in the air gets a large process noise, so it follows the
 //! kinematics without moving the base. Orientation is the IMU's own.
 //!
-//! Contact comes from foot switches where the robot has them, otherwise from the kinematics: a
-//! foot lands when it comes back within `contact_on_m` of the height it last stood at, slowly, and
-//! lifts off when it rises beyond `contact_off_m` (hysteresis).
+//! Contact comes from foot switches where the robot has them, otherwise from the legs: a foot
+//! lands when it comes back within `contact_on_m` of the height it last stood at, slowly, and
+//! takes a share of the weight (the ground's push on it, from the joint torques the buses
+//! report); it lifts off when it rises beyond `contact_off_m` or carries almost nothing
+//! (hysteresis on both).
 //!
 //! The world frame is the robot's start: the base above the origin, the floor at z = 0 under
 //! feet that stand on it, the IMU's heading. Measurements are processed one scalar at a time
@@ -42,6 +44,11 @@ pub struct EstimatorConfig {
     pub contact_off_m: f64,
     /// A landing foot moves slower than this, m/s.
     pub contact_speed: f64,
+    /// Where the legs' torques give a foot's load: it lands once carrying this share of the
+    /// robot's weight…
+    pub contact_load: f64,
+    /// …and lifts off below this share.
+    pub contact_unload: f64,
 }
 
 impl Default for EstimatorConfig {
@@ -56,6 +63,8 @@ impl Default for EstimatorConfig {
             contact_on_m: 0.012,
             contact_off_m: 0.02,
             contact_speed: 0.35,
+            contact_load: 0.03,
+            contact_unload: 0.01,
         }
     }
 }
@@ -77,6 +86,8 @@ pub struct Estimate {
     pub accel_bias: [f64; 3],
     /// Feet on the ground (robot.toml order; `feet` of them in use).
     pub contacts: [bool; MAX_FEET],
+    /// The load on each foot from the joint torques, N (NaN: unknown).
+    pub loads: [f64; MAX_FEET],
     /// Feet in use.
     pub feet: usize,
     /// The outputs can be used: initialised, fed finite, fresh data.
@@ -93,6 +104,7 @@ impl Default for Estimate {
             velocity_std: [0.0; 3],
             accel_bias: [0.0; 3],
             contacts: [false; MAX_FEET],
+            loads: [f64::NAN; MAX_FEET],
             feet: 0,
             valid: false,
         }
@@ -100,7 +112,7 @@ impl Default for Estimate {
 }
 
 /// The legs as the kinematics sees them this tick, in the base's frame.
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Debug, Clone, Copy)]
 pub struct LegKinematics {
     /// Foot origins relative to the base.
     pub position: [[f64; 3]; MAX_FEET],
@@ -112,6 +124,21 @@ pub struct LegKinematics {
     pub sole_depth: [f64; MAX_FEET],
     /// Foot switches, where the robot has them.
     pub switches: Option<[bool; MAX_FEET]>,
+    /// The ground's vertical push on each foot from the legs' joint torques, N (NaN: unknown).
+    pub load: [f64; MAX_FEET],
+}
+
+impl Default for LegKinematics {
+    fn default() -> Self {
+        Self {
+            position: [[0.0; 3]; MAX_FEET],
+            contact: [[0.0; 3]; MAX_FEET],
+            contact_velocity: [[0.0; 3]; MAX_FEET],
+            sole_depth: [0.0; MAX_FEET],
+            switches: None,
+            load: [f64::NAN; MAX_FEET],
+        }
+    }
 }
 
 const P: usize = 0;
@@ -130,6 +157,8 @@ pub struct Estimator {
     /// The gain of a scalar update.
     gain: Vec<f64>,
     gravity: [f64; 3],
+    /// The robot's weight, N.
+    weight: f64,
     /// The latest IMU orientation and rate (base axes).
     quat: [f64; 4],
     gyro: [f64; 3],
@@ -153,9 +182,15 @@ const STILL_S: f64 = 0.2;
 const MAX_GAP_PERIODS: f64 = 4.0;
 
 impl Estimator {
-    /// A filter for `feet` feet (at most [`MAX_FEET`]), gravity `gravity` (the model's), an IMU
-    /// streaming at `imu_rate_hz`.
-    pub fn new(config: EstimatorConfig, feet: usize, gravity: [f64; 3], imu_rate_hz: f64) -> Self {
+    /// A filter for `feet` feet (at most [`MAX_FEET`]), gravity `gravity` (the model's), a robot
+    /// weighing `weight` N, an IMU streaming at `imu_rate_hz`.
+    pub fn new(
+        config: EstimatorConfig,
+        feet: usize,
+        gravity: [f64; 3],
+        weight: f64,
+        imu_rate_hz: f64,
+    ) -> Self {
         let feet = feet.min(MAX_FEET);
         let n = FEET + 3 * feet;
         Self {
@@ -166,6 +201,7 @@ impl Estimator {
             p: vec![0.0; n * n],
             gain: vec![0.0; n],
             gravity,
+            weight,
             quat: [1.0, 0.0, 0.0, 0.0],
             gyro: [0.0; 3],
             last_sample: None,
@@ -336,10 +372,15 @@ impl Estimator {
                                 ),
                             ),
                         ));
+                        // The legs' torques, where they tell: an unloaded foot is not standing
+                        // (it hovers, or is about to lift), a landing one takes weight.
+                        let load = legs.load[f];
+                        let unloaded = load.is_finite() && load < self.config.contact_unload * self.weight;
+                        let loaded = !load.is_finite() || load > self.config.contact_load * self.weight;
                         if self.contacts[f] {
-                            height < self.config.contact_off_m
+                            height < self.config.contact_off_m && !unloaded
                         } else {
-                            height < self.config.contact_on_m && speed < self.config.contact_speed
+                            height < self.config.contact_on_m && speed < self.config.contact_speed && loaded
                         }
                     }
                 };
@@ -373,9 +414,10 @@ impl Estimator {
                     self.measure(V + k, None, -v, c.kinematic_velocity_noise.powi(2));
                 }
             }
-            // Where each standing foot's sole is now: the height it stands at.
+            // A foot that just landed stands at this height until it lifts off again (latched:
+            // a foot that rises slowly must not carry its ground up with it).
             for f in 0..self.feet {
-                if self.contacts[f] {
+                if self.contacts[f] && !standing[f] {
                     self.ground[f] = self.x[P + 2] + patch_z(f);
                 }
             }
@@ -398,6 +440,7 @@ impl Estimator {
             velocity_std: [std(V), std(V + 1), std(V + 2)],
             accel_bias: [self.x[B], self.x[B + 1], self.x[B + 2]],
             contacts,
+            loads: legs.load,
             feet: self.feet,
             valid,
         }
@@ -489,7 +532,7 @@ mod tests {
 
     #[test]
     fn a_robot_standing_still_stays_put_and_learns_its_accelerometer_bias() {
-        let mut e = Estimator::new(EstimatorConfig::default(), 2, [0.0, 0.0, -9.81], 200.0);
+        let mut e = Estimator::new(EstimatorConfig::default(), 2, [0.0, 0.0, -9.81], 160.0, 200.0);
         let legs = standing_legs();
         // The accelerometer reads gravity plus a bias of 0.3 m/s² along x.
         let mut last = Estimate::default();
@@ -512,7 +555,7 @@ mod tests {
 
     #[test]
     fn a_lifted_foot_is_in_the_air_and_lands_again() {
-        let mut e = Estimator::new(EstimatorConfig::default(), 2, [0.0, 0.0, -9.81], 200.0);
+        let mut e = Estimator::new(EstimatorConfig::default(), 2, [0.0, 0.0, -9.81], 160.0, 200.0);
         let mut legs = standing_legs();
         let mut tick = 0u64;
         let mut step = |e: &mut Estimator, legs: &LegKinematics| {
@@ -541,7 +584,7 @@ mod tests {
 
     #[test]
     fn non_finite_or_stale_input_makes_the_estimate_invalid() {
-        let mut e = Estimator::new(EstimatorConfig::default(), 2, [0.0, 0.0, -9.81], 200.0);
+        let mut e = Estimator::new(EstimatorConfig::default(), 2, [0.0, 0.0, -9.81], 160.0, 200.0);
         let legs = standing_legs();
         // Not before the IMU has looked still for 0.2 s (40 samples at 200 Hz).
         for k in 0..39 {

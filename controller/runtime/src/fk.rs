@@ -86,6 +86,11 @@ pub struct RobotKinematics {
     feet: Vec<usize>,
     /// Each foot's sole: the points of its geoms that can touch the floor, in its own frame.
     soles: Vec<Sole>,
+    /// Each foot's leg: the degrees of freedom between the root and the foot, each with its
+    /// robot joint.
+    legs: Vec<Vec<(usize, usize)>>,
+    /// Scratch for a point's Jacobian (3 × nv).
+    jac: Vec<f64>,
     /// Root degrees of freedom in `qvel`, and the joints'.
     root_dof: usize,
     joint_dof: Vec<usize>,
@@ -117,6 +122,25 @@ impl RobotKinematics {
             .map(|b| model_index::body(&model, b))
             .collect::<Result<Vec<_>, _>>()?;
         let soles = index.feet.iter().map(|&f| Sole::of(&model, f)).collect();
+        let legs = index
+            .feet
+            .iter()
+            .map(|&foot| {
+                let mut dofs = Vec::new();
+                let mut body = foot;
+                while body != index.root_body && body != 0 {
+                    let (adr, num) = (model.body_dofadr()[body], model.body_dofnum()[body]);
+                    for dof in adr.max(0) as usize..(adr.max(0) + num) as usize {
+                        if let Some(r) = index.joints.iter().position(|j| j.dof == dof) {
+                            dofs.push((dof, r));
+                        }
+                    }
+                    body = model.body_parentid()[body] as usize;
+                }
+                dofs
+            })
+            .collect();
+        let nv = model.ffi().nv as usize;
         Ok(Self {
             root_qpos: index.root.qpos,
             joint_qpos: index.joints.iter().map(|j| j.qpos).collect(),
@@ -124,6 +148,8 @@ impl RobotKinematics {
             joint_dof: index.joints.iter().map(|j| j.dof).collect(),
             feet: index.feet.clone(),
             soles,
+            legs,
+            jac: vec![0.0; 3 * nv],
             data: MjData::new(Box::new(model)),
             imu,
             anchor,
@@ -153,8 +179,9 @@ impl RobotKinematics {
         }
         self.data.kinematics();
         if !self.feet.is_empty() {
+            // Velocities, and the bias forces (gravity, Coriolis) the legs' loads are read against.
             self.data.com_pos();
-            self.data.com_vel();
+            self.data.fwd_velocity();
         }
         let m = match self.imu {
             model_index::FrameId::Body(b) => self.data.xmat()[b],
@@ -222,6 +249,56 @@ impl RobotKinematics {
     /// Foot `k`'s origin relative to the root, in the root's frame.
     pub fn foot_in_root(&self, k: usize) -> [f64; 3] {
         self.data.xpos()[self.feet[k]]
+    }
+
+    /// The ground's vertical push on foot `k`, N, from the joint torques the legs report
+    /// (`tau`, robot order): the static balance of the leg, `Jᵀ f = bias − τ`, solved for the
+    /// force `f` at the foot's contact point in least squares. NaN without three leg joints.
+    #[allow(
+        unsafe_code,
+        reason = "MuJoCo's mj_jac into a buffer this struct owns (the safe wrapper allocates)"
+    )]
+    pub fn foot_load(&mut self, k: usize, tau: &[f64]) -> f64 {
+        let leg = &self.legs[k];
+        if leg.len() < 3 {
+            return f64::NAN;
+        }
+        let (point, _) = self.foot_contact(k);
+        let nv = self.jac.len() / 3;
+        // SAFETY: model and data are live and matched; `jac` holds 3 × nv values; `point` is a
+        // 3-vector; the body id comes from the model.
+        unsafe {
+            mujoco_rs::mujoco_c::mj_jac(
+                self.data.model().ffi(),
+                self.data.ffi(),
+                self.jac.as_mut_ptr(),
+                std::ptr::null_mut(),
+                &point,
+                self.feet[k] as i32,
+            );
+        }
+        let bias = self.data.qfrc_bias();
+        // Normal equations (J Jᵀ) f = J (bias − τ) over the leg's degrees of freedom.
+        let (mut jjt, mut rhs) = ([[0.0; 3]; 3], [0.0; 3]);
+        for &(dof, joint) in leg {
+            let b = bias[dof] - tau.get(joint).copied().unwrap_or(f64::NAN);
+            for r in 0..3 {
+                let jr = self.jac[r * nv + dof];
+                rhs[r] += jr * b;
+                for c in 0..3 {
+                    jjt[r][c] += jr * self.jac[c * nv + dof];
+                }
+            }
+        }
+        let inverse = spatial::rows(spatial::mat(&jjt).inverse());
+        let f = spatial::mat_apply(&inverse, rhs);
+        spatial::quat_rotate(self.root_rotation, f)[2]
+    }
+
+    /// The robot's weight, N.
+    pub fn weight(&self) -> f64 {
+        let m = self.data.model();
+        m.body_mass().iter().sum::<f64>() * spatial::norm(m.opt().gravity)
     }
 
     /// How far foot `k`'s origin sits above the lowest point of its geoms (its sole), in its own

@@ -202,6 +202,7 @@ impl<L: RobotLink> Player<L> {
                 EstimatorConfig::default(),
                 k.feet(),
                 k.gravity(),
+                k.weight(),
                 robot.config.imu.rate_hz,
             )),
             _ => None,
@@ -632,6 +633,7 @@ impl<L: RobotLink> Player<L> {
                 legs.position[f] = k.foot_in_root(f);
                 (legs.contact[f], legs.contact_velocity[f]) = k.foot_contact(f);
                 legs.sole_depth[f] = k.sole_depth(f);
+                legs.load[f] = k.foot_load(f, &self.state.tau);
             }
             // Foot switches where the robot has them (robot.toml [[contacts]], one per foot).
             if self.state.foot_switches.len() == k.feet() && k.feet() <= MAX_FEET {

@@ -488,7 +488,7 @@ const TOPICS: [(&str, &str); 9] = [
     ("/estimator", ESTIMATOR_SCHEMA),
 ];
 
-const ESTIMATOR_SCHEMA: &str = r#"{"type":"object","description":"The state estimate of the tick (world frame: the robot's start; floor at z = 0), with its standard deviations; in simulation the ground truth in the same frame beside it.","properties":{"valid":{"type":"boolean"},"position":{"type":"array","items":{"type":"number"},"description":"base position, m"},"velocity":{"type":"array","items":{"type":"number"},"description":"base velocity, world axes, m/s"},"velocity_base":{"type":"array","items":{"type":"number"},"description":"base velocity, base axes, m/s"},"position_std":{"type":"array","items":{"type":"number"}},"velocity_std":{"type":"array","items":{"type":"number"}},"accel_bias":{"type":"array","items":{"type":"number"},"description":"accelerometer bias, base axes, m/s²"},"contacts":{"type":"array","items":{"type":"number"},"description":"1: the foot is on the ground (robot.toml feet order)"},"truth_position":{"type":"array","items":{"type":"number"}},"truth_velocity_base":{"type":"array","items":{"type":"number"}},"truth_contacts":{"type":"array","items":{"type":"number"}}}}"#;
+const ESTIMATOR_SCHEMA: &str = r#"{"type":"object","description":"The state estimate of the tick (world frame: the robot's start; floor at z = 0), with its standard deviations; in simulation the ground truth in the same frame beside it.","properties":{"valid":{"type":"boolean"},"position":{"type":"array","items":{"type":"number"},"description":"base position, m"},"velocity":{"type":"array","items":{"type":"number"},"description":"base velocity, world axes, m/s"},"velocity_base":{"type":"array","items":{"type":"number"},"description":"base velocity, base axes, m/s"},"position_std":{"type":"array","items":{"type":"number"}},"velocity_std":{"type":"array","items":{"type":"number"}},"accel_bias":{"type":"array","items":{"type":"number"},"description":"accelerometer bias, base axes, m/s²"},"contacts":{"type":"array","items":{"type":"number"},"description":"1: the foot is on the ground (robot.toml feet order)"},"loads":{"type":"array","items":{"type":"number"},"description":"the ground's vertical push on each foot from the joint torques, N"},"truth_position":{"type":"array","items":{"type":"number"}},"truth_velocity_base":{"type":"array","items":{"type":"number"}},"truth_contacts":{"type":"array","items":{"type":"number"}}}}"#;
 
 /// `foxglove.FrameTransform` as a JSON schema (the names Foxglove's 3D panel matches).
 const FRAME_TRANSFORM_SCHEMA: &str = r#"{"title":"foxglove.FrameTransform","type":"object","properties":{"timestamp":{"type":"object","properties":{"sec":{"type":"integer"},"nsec":{"type":"integer"}}},"parent_frame_id":{"type":"string"},"child_frame_id":{"type":"string"},"translation":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}}},"rotation":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"},"w":{"type":"number"}}}}}"#;
@@ -912,6 +912,8 @@ fn encode(out: &mut String, k: usize, r: &TickRecord, root: &str, last_mode: &mu
                 "contacts",
                 x.contacts[..f].iter().map(|&c| f64::from(u8::from(c))),
             );
+            out.push(',');
+            array64(out, "loads", x.loads[..f].iter().copied());
             if let Some((pose, vel)) = e.truth {
                 out.push(',');
                 array64(out, "truth_position", pose[..3].iter().copied());
