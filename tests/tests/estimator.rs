@@ -99,7 +99,6 @@ fn run_recorded(
     path: &std::path::Path,
 ) -> PlaySummary {
     let robot = Robot::load(&reference_robot_path()).unwrap();
-    let names = robot.config.joints.iter().map(|j| j.name.clone()).collect();
     let layout = follower(&robot);
     let reference = reference(&robot);
     let (p, mut clock, _w) = lockstep_player(
@@ -111,16 +110,11 @@ fn run_recorded(
         Arc::new(AtomicBool::new(false)),
     )
     .unwrap();
-    let info = controller::telemetry::RecordingInfo {
-        joint_names: names,
-        root_frame: "pelvis".into(),
-        ..Default::default()
-    };
     let sink = controller::telemetry::TelemetrySink::start(
         path,
         64,
         controller::telemetry::Backpressure::Block,
-        &info,
+        &p.recording_info(),
     )
     .unwrap();
     p.with_telemetry(sink).run(&mut clock).unwrap()

@@ -10,7 +10,7 @@ use controller::motion::ReferenceSource;
 use controller::player::{PlayOptions, PlaySummary};
 use controller::policy::PolicyLayout;
 use controller::sim::lockstep_player;
-use controller::telemetry::{Backpressure, RecordingInfo, TelemetrySink};
+use controller::telemetry::{Backpressure, TelemetrySink};
 use robots::{Robot, reference_robot_path};
 use sim2real::config::{MirrorConfig, StartPose};
 use test_support::fixtures::fixture;
@@ -35,7 +35,6 @@ fn load(export: &Path, start_step: usize) -> (Robot, PolicyLayout, controller::c
 fn play(export: &Path, mirror: MirrorConfig, record: Option<&Path>) -> (PolicyLayout, PlaySummary) {
     let (robot, layout, reference) = load(export, 0);
     let kept = layout.clone();
-    let names = robot.config.joints.iter().map(|j| j.name.clone()).collect();
     let (p, mut clock, _w) = lockstep_player(
         robot,
         layout,
@@ -47,14 +46,7 @@ fn play(export: &Path, mirror: MirrorConfig, record: Option<&Path>) -> (PolicyLa
     .unwrap();
     let mut p = match record {
         Some(path) => {
-            let (bodies, anchor) = p.motion_bodies();
-            let info = RecordingInfo {
-                joint_names: names,
-                root_frame: "pelvis".into(),
-                motion_bodies: bodies.to_vec(),
-                anchor,
-                ..Default::default()
-            };
+            let info = p.recording_info();
             p.with_telemetry(TelemetrySink::start(path, 64, Backpressure::Block, &info).unwrap())
         }
         None => p,

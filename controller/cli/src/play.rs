@@ -317,20 +317,10 @@ fn with_recorder<L: RobotLink>(
         command: args.command.clone(),
         options: *options,
     };
-    let robot = player.robot();
     let info = controller::telemetry::RecordingInfo {
-        joint_names: player.joint_names(),
-        root_frame: player.root_frame(),
         run: Some(run),
-        reference_ticks: Some(player.reference_ticks()),
-        bus_names: player.link().bus_names().to_vec(),
-        kinematics: Some((
-            robot.mjcf_path.clone(),
-            robot.config.joints.iter().map(|j| j.mjcf_joint.clone()).collect(),
-        )),
         bus_cycles,
-        motion_bodies: player.motion_bodies().0.to_vec(),
-        anchor: player.motion_bodies().1,
+        ..player.recording_info()
     };
     let sink = match claimed {
         Some(file) => TelemetrySink::start_in(file, &path, 1024, backpressure, &info)?,

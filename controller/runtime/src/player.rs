@@ -379,6 +379,32 @@ impl<L: RobotLink> Player<L> {
         &self.targets
     }
 
+    /// What a recording of this run says of it: joint names, root frame, buses, the robot's
+    /// kinematics (for the `/tf` links), the reference's length, the motion bodies. The caller
+    /// adds how the run was made and the bus cycles, where it has them.
+    pub fn recording_info(&self) -> crate::telemetry::RecordingInfo {
+        let (bodies, anchor) = self.motion_bodies();
+        crate::telemetry::RecordingInfo {
+            joint_names: self.joint_names(),
+            root_frame: self.root_frame(),
+            run: None,
+            reference_ticks: Some(self.reference_ticks()),
+            bus_names: self.io.bus_names().to_vec(),
+            kinematics: Some((
+                self.robot.mjcf_path.clone(),
+                self.robot
+                    .config
+                    .joints
+                    .iter()
+                    .map(|j| j.mjcf_joint.clone())
+                    .collect(),
+            )),
+            bus_cycles: None,
+            motion_bodies: bodies.to_vec(),
+            anchor,
+        }
+    }
+
     /// The motion bodies the run measures, and which is the anchor.
     pub fn motion_bodies(&self) -> (&[String], Option<usize>) {
         let r = self.cursor.reference();
