@@ -416,8 +416,8 @@ impl Estimator {
             }
             // A foot that just landed stands at this height until it lifts off again (latched:
             // a foot that rises slowly must not carry its ground up with it).
-            for f in 0..self.feet {
-                if self.contacts[f] && !standing[f] {
+            for (f, stood) in standing.iter().enumerate().take(self.feet) {
+                if self.contacts[f] && !stood {
                     self.ground[f] = self.x[P + 2] + patch_z(f);
                 }
             }

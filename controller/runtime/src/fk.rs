@@ -282,11 +282,11 @@ impl RobotKinematics {
         let (mut jjt, mut rhs) = ([[0.0; 3]; 3], [0.0; 3]);
         for &(dof, joint) in leg {
             let b = bias[dof] - tau.get(joint).copied().unwrap_or(f64::NAN);
-            for r in 0..3 {
+            for (r, (row, rhs_r)) in jjt.iter_mut().zip(rhs.iter_mut()).enumerate() {
                 let jr = self.jac[r * nv + dof];
-                rhs[r] += jr * b;
-                for c in 0..3 {
-                    jjt[r][c] += jr * self.jac[c * nv + dof];
+                *rhs_r += jr * b;
+                for (c, cell) in row.iter_mut().enumerate() {
+                    *cell += jr * self.jac[c * nv + dof];
                 }
             }
         }
