@@ -230,12 +230,6 @@ impl RobotKinematics {
         }
     }
 
-    /// World position of tracked body `k`.
-    pub fn body_position(&self, k: usize) -> [f64; 3] {
-        let w = self.world(self.bodies[k]);
-        [w[0], w[1], w[2]]
-    }
-
     /// The root's orientation in the world this tick (from the IMU).
     pub fn root_rotation(&self) -> [f64; 4] {
         self.root_rotation
@@ -253,17 +247,17 @@ impl RobotKinematics {
 
     /// The ground's vertical push on foot `k`, N, from the joint torques the legs report
     /// (`tau`, robot order): the static balance of the leg, `Jᵀ f = bias − τ`, solved for the
-    /// force `f` at the foot's contact point in least squares. NaN without three leg joints.
+    /// force `f` at `point`, the foot's contact point relative to the root ([`Self::foot_contact`]),
+    /// in least squares. NaN without three leg joints.
     #[allow(
         unsafe_code,
         reason = "MuJoCo's mj_jac into a buffer this struct owns (the safe wrapper allocates)"
     )]
-    pub fn foot_load(&mut self, k: usize, tau: &[f64]) -> f64 {
+    pub fn foot_load(&mut self, k: usize, point: [f64; 3], tau: &[f64]) -> f64 {
         let leg = &self.legs[k];
         if leg.len() < 3 {
             return f64::NAN;
         }
-        let (point, _) = self.foot_contact(k);
         let nv = self.jac.len() / 3;
         // SAFETY: model and data are live and matched; `jac` holds 3 × nv values; `point` is a
         // 3-vector; the body id comes from the model.

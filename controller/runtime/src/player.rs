@@ -116,6 +116,8 @@ pub struct Player<L: RobotLink> {
     /// simulation's ground truth with `--estimator ground-truth`; and whether it is usable.
     world: GroundTruth,
     world_valid: bool,
+    /// The policy observes the robot's place in the world (decided once, at start).
+    reads_world: bool,
     /// Ground truth (simulation) into the estimate's world: where the estimator started, for
     /// the tracking metrics, which compare the true robot with a reference placed by the
     /// estimate.
@@ -261,6 +263,7 @@ impl<L: RobotLink> Player<L> {
                 ..GroundTruth::default()
             },
             world_valid: false,
+            reads_world: layout.needs_ground_truth(),
             truth_to_world: Alignment::default(),
             truth_mapped: false,
             dt,
@@ -659,7 +662,7 @@ impl<L: RobotLink> Player<L> {
                 legs.position[f] = k.foot_in_root(f);
                 (legs.contact[f], legs.contact_velocity[f]) = k.foot_contact(f);
                 legs.sole_depth[f] = k.sole_depth(f);
-                legs.load[f] = k.foot_load(f, &self.state.tau);
+                legs.load[f] = k.foot_load(f, legs.contact[f], &self.state.tau);
             }
             // Foot switches where the robot has them (robot.toml [[contacts]], one per foot).
             if self.state.foot_switches.len() == k.feet() && k.feet() <= MAX_FEET {
@@ -780,7 +783,7 @@ impl<L: RobotLink> Player<L> {
             robot_anchor = k.anchor_pose();
             base_ang_vel = k.imu_to_root(self.state.gyro);
         }
-        if self.layout.needs_ground_truth() && !self.world_valid {
+        if self.reads_world && !self.world_valid {
             self.fail(Cause::EstimateInvalid);
             self.hold_targets();
             return;
