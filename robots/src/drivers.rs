@@ -24,7 +24,8 @@ pub fn mit_joint(j: &JointConfig) -> MitJointConfig {
 /// own position loop runs in servo ticks, so a gear between servo and joint is folded into the
 /// joint's limits by the robot file, not here. Servos that sense current run current-based
 /// position control, so the goal current caps their torque at the joint's limit
-/// ([`goal_current_for`]); the others run plain position control.
+/// ([`goal_current_for`]); the others run plain position control under a PWM Limit that caps
+/// their stall torque at the joint's limit ([`pwm_limit_for`]).
 ///
 /// # Panics
 /// When the joint's model is not a Dynamixel servo (loading a [`crate::Robot`] checks this).
@@ -37,8 +38,18 @@ pub fn dxl_joint(j: &JointConfig) -> DxlJointConfig {
     c.position_gains = Some(position_gains_for(j.kp, j.kd, model));
     if model.current_sensing {
         c.mode = DxlMode::CurrentBasedPosition;
+    } else {
+        c.pwm_limit = Some(pwm_limit_for(j.torque_limit, model));
     }
     c
+}
+
+/// The PWM Limit that caps the stall torque of a servo without current sensing at `torque`
+/// (N·m): at stall the winding current, and so the torque, is proportional to the duty. Rounded
+/// down so the cap stays at or under the limit; at least 1 (0 would disable the servo).
+pub fn pwm_limit_for(torque: f64, model: &dxl_models::DxlModel) -> u16 {
+    let duty = torque.abs() / model.stall_torque * dxl_models::PWM_FULL_SCALE;
+    duty.floor().clamp(1.0, f64::from(model.pwm_limit)) as u16
 }
 
 /// The goal current (A) that caps a current-sensing servo's torque at `torque` (N·m), within the

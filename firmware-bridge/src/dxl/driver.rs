@@ -131,6 +131,10 @@ pub struct DxlJointConfig {
     /// Current Limit to set, A (EEPROM; XM only).
     #[serde(default)]
     pub current_limit: Option<f64>,
+    /// PWM Limit to set (EEPROM, 0–885 = 0–100 % duty): the torque cap of a servo that cannot
+    /// sense its current, whose stall torque scales with the duty.
+    #[serde(default)]
+    pub pwm_limit: Option<u16>,
 }
 
 impl DxlJointConfig {
@@ -146,6 +150,7 @@ impl DxlJointConfig {
             mode: DxlMode::Position,
             position_gains: None,
             current_limit: None,
+            pwm_limit: None,
         }
     }
 
@@ -495,6 +500,14 @@ impl<T: DxlTransport> DxlBusDriver<T> {
                     )));
                 }
             }
+            if let Some(limit) = j.pwm_limit
+                && !(1..=model.pwm_limit).contains(&limit)
+            {
+                return Err(DxlError::Config(format!(
+                    "joint {:?}: pwm_limit = {limit} (must be in [1, {}])",
+                    j.name, model.pwm_limit
+                )));
+            }
             resolved.push(model);
         }
         let n = joints.len();
@@ -678,6 +691,9 @@ impl<T: DxlTransport> DxlBusDriver<T> {
         if let Some(limit) = j.current_limit {
             let units = (limit / models::CURRENT_UNIT_A).round() as u16;
             self.write(id, addr::CURRENT_LIMIT, &units.to_le_bytes())?;
+        }
+        if let Some(limit) = j.pwm_limit {
+            self.write(id, addr::PWM_LIMIT, &limit.to_le_bytes())?;
         }
         let [p, ii, d] = j.position_gains.unwrap_or(model.position_gains);
         let mut gains = [0u8; 6];

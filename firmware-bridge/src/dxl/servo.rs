@@ -152,6 +152,8 @@ pub struct XSeriesServo {
     boot_turn_pending: bool,
     temperature: f64,
     overload_seconds: f64,
+    /// Torque the motor applied in the last control period, N·m (servo side).
+    applied_torque: f64,
     last_instruction_at: SimInstant,
     offline_until: Option<SimInstant>,
     vanished: bool,
@@ -175,6 +177,7 @@ impl XSeriesServo {
             multi_turn_base: 0,
             boot_turn_pending: true,
             overload_seconds: 0.0,
+            applied_torque: 0.0,
             last_instruction_at: SimInstant::ZERO,
             offline_until: None,
             vanished: false,
@@ -215,6 +218,11 @@ impl XSeriesServo {
         let field = table::field_at(address).expect("a control table field");
         assert_eq!(field.addr, address, "address {address} is inside a field");
         table::read_field(&self.table, field)
+    }
+
+    /// Torque the motor applied in its last control period, N·m (servo side, signed).
+    pub fn applied_torque(&self) -> f64 {
+        self.applied_torque
     }
 
     /// Whether torque is on.
@@ -863,6 +871,7 @@ impl XSeriesServo {
             self.previous_error = 0.0;
         }
         let torque = kt * current;
+        self.applied_torque = torque;
         plant.apply_torque(reverse * torque);
         self.set_reg(addr::PRESENT_PWM, pwm.round() as i64);
         let reported = if self.model.current_sensing {
