@@ -64,6 +64,8 @@ struct ActuatorPlant {
     torque: f64,
     /// The firmware's position goal (actuator frame), for models with position actuators.
     goal: Option<f64>,
+    /// The most torque the firmware lets its motor give, N·m (actuator side).
+    torque_cap: f64,
 }
 
 impl MotorPlant for ActuatorPlant {
@@ -622,12 +624,14 @@ impl Mirror {
                 m.firmware
                     .tick(t, self.firmware_period, &mut self.plants[m.joint]);
                 self.plants[m.joint].goal = m.firmware.position_goal();
+                self.plants[m.joint].torque_cap = m.firmware.torque_cap();
             }
         }
         for line in &mut self.dxl {
             for (servo, &j) in line.wire.chain_mut().servos_mut().iter_mut().zip(&line.joints) {
                 servo.tick(t, &mut self.plants[j]);
                 self.plants[j].goal = servo.position_goal();
+                self.plants[j].torque_cap = servo.torque_cap();
             }
         }
         self.stats.firmware_ticks += 1;
@@ -642,7 +646,8 @@ impl Mirror {
                     // off) it holds where the joint is, as a position actuator cannot go limp.
                     let q = self.data.qpos()[j.qpos];
                     let goal = p.goal.map_or(q, |g| (g - j.zero_offset) / (j.direction * j.gear));
-                    self.data.ctrl_mut()[a] = goal;
+                    let ctrl = self.capped_position_control(a, j, goal, p.torque_cap);
+                    self.data.ctrl_mut()[a] = ctrl;
                     self.data.qfrc_applied_mut()[j.dof] = 0.0;
                 }
                 None => {
@@ -687,6 +692,23 @@ impl Mirror {
             }
         }
         self.stats.physics_steps += 1;
+    }
+
+    /// The control of position actuator `a` that tracks `goal` (joint angle) with the model's own
+    /// gains but never asks more torque of the joint than the firmware's motor gives
+    /// (`torque_cap`, actuator side): the force the actuator would make, clamped, and turned back
+    /// into the setpoint that makes it.
+    fn capped_position_control(&self, a: usize, j: &MirrorJoint, goal: f64, torque_cap: f64) -> f64 {
+        let m = self.data.model();
+        let kp = m.actuator_gainprm()[a][0];
+        let bias = m.actuator_biasprm()[a];
+        let gear = m.actuator_gear()[a][0];
+        let (length, velocity) = (gear * self.data.qpos()[j.qpos], gear * self.data.qvel()[j.dof]);
+        let free = bias[0] + bias[1] * length + bias[2] * velocity;
+        let limit = (torque_cap * j.gear / gear.abs()).max(0.0);
+        // The setpoint is an actuator length: gear × joint angle.
+        let force = (kp * gear * goal + free).clamp(-limit, limit);
+        (force - free) / kp
     }
 
     /// Why the simulation can no longer be trusted, if it cannot: MuJoCo's own instability

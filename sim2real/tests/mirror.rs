@@ -208,11 +208,11 @@ fn a_rendered_frame_shows_the_robot_against_floor_and_sky() {
     std::fs::remove_file(&path).unwrap();
 }
 
-#[test]
-fn models_with_their_own_position_actuators_track_the_firmware_goals() {
+/// The reference robot, its MJCF given a `<position>` actuator per joint (in joint order) with
+/// robot.toml's gains, written into `dir`.
+fn position_actuated_robot(dir: &std::path::Path) -> Robot {
     let base = Robot::load(&reference_robot_path()).unwrap();
-    let dir = std::env::temp_dir().join(format!("mirror-position-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::create_dir_all(dir).unwrap();
     let servos: String = base
         .config
         .joints
@@ -230,8 +230,13 @@ fn models_with_their_own_position_actuators_track_the_firmware_goals() {
     );
     std::fs::write(dir.join("biped.xml"), xml).unwrap();
     let text = std::fs::read_to_string(reference_robot_path()).unwrap();
-    let robot = Robot::from_str(&dir.join("robot.toml"), &text).unwrap();
-    let mut h = host_of(robot, on_gantry());
+    Robot::from_str(&dir.join("robot.toml"), &text).unwrap()
+}
+
+#[test]
+fn models_with_their_own_position_actuators_track_the_firmware_goals() {
+    let dir = std::env::temp_dir().join(format!("mirror-position-{}", std::process::id()));
+    let mut h = host_of(position_actuated_robot(&dir), on_gantry());
     assert_eq!(h.inner.world.lock().unwrap().position_actuated_joints(), 20);
     h.run(2.0);
     let w = h.inner.world.lock().unwrap();
@@ -248,6 +253,41 @@ fn models_with_their_own_position_actuators_track_the_firmware_goals() {
     }
     assert!(w.data().qfrc_applied().iter().all(|&f| f == 0.0));
     drop(w);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_position_actuator_gives_no_more_torque_than_the_servo_it_stands_for() {
+    // The model's own servo for head_pitch has kp 4 N·m/rad: 0.6 rad against the jig asks it for
+    // 2.4 N·m, where the XL430 under its PWM Limit gives 1.2 N·m (the joint's limit).
+    let dir = std::env::temp_dir().join(format!("mirror-position-cap-{}", std::process::id()));
+    let mut h = host_of(position_actuated_robot(&dir), on_gantry());
+    let robot = h.robot.clone();
+    let j = robot
+        .config
+        .joints
+        .iter()
+        .position(|x| x.name == "head_pitch")
+        .unwrap();
+    h.inner
+        .world
+        .lock()
+        .unwrap()
+        .set_jig(Some(h.default_pose.clone()));
+    let mut pose = h.default_pose.clone();
+    pose[j] += 0.6;
+    let start = h.inner.now();
+    let mut worst = 0.0f64;
+    for k in 1..=100u32 {
+        h.inner.command_positions(&robot, &pose).unwrap();
+        h.inner.wait_until(start + TICK * k);
+        let force = h.inner.world.lock().unwrap().data().actuator_force()[j];
+        worst = worst.max(force.abs());
+    }
+    assert!(
+        worst <= 1.2 + 1e-6 && worst > 1.1,
+        "actuator force {worst:.3} N·m"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -220,6 +220,21 @@ impl XSeriesServo {
         table::read_field(&self.table, field)
     }
 
+    /// The most torque the servo gives with its present settings, N·m: the stall torque at its
+    /// PWM Limit, and in current-based position control the torque of its Goal Current (within
+    /// its Current Limit).
+    pub fn torque_cap(&self) -> f64 {
+        let m = &self.model;
+        let by_pwm = self.reg(addr::PWM_LIMIT) as f64 / PWM_FULL_SCALE * m.stall_torque;
+        if m.current_sensing && self.reg(addr::OPERATING_MODE) == 5 {
+            let amps = (self.reg(addr::GOAL_CURRENT).abs()).min(self.reg(addr::CURRENT_LIMIT)) as f64
+                * models::CURRENT_UNIT_A;
+            by_pwm.min(amps * m.torque_constant())
+        } else {
+            by_pwm
+        }
+    }
+
     /// Torque the motor applied in its last control period, N·m (servo side, signed).
     pub fn applied_torque(&self) -> f64 {
         self.applied_torque

@@ -104,6 +104,11 @@ impl MitMotorFirmware {
         (self.enabled && self.command.kp > 0.0).then_some(self.command.p + self.zero)
     }
 
+    /// The most torque the motor gives, N·m: its model's clamp.
+    pub fn torque_cap(&self) -> f64 {
+        self.cfg.model.t_max
+    }
+
     /// The command being executed (motor units), as last received.
     pub fn command(&self) -> MitCommand {
         self.command
