@@ -615,14 +615,6 @@ impl Robot {
     fn check_body(&self) -> Result<(), (String, String)> {
         let c = &self.config;
         let m = &self.mjcf;
-        for file in &m.mesh_files {
-            if !file.exists() {
-                return Err((
-                    "mjcf".into(),
-                    format!("mesh file {} does not exist", file.display()),
-                ));
-            }
-        }
         if !m.bodies.contains(&c.root_body) {
             return Err((
                 "root_body".into(),
@@ -784,10 +776,10 @@ impl Robot {
                     format!("{:?} is not a joint of the MJCF", j.mjcf_joint),
                 ));
             };
-            if mj.kind != "hinge" {
+            if mj.kind != mjcf::JointKind::Hinge {
                 return Err((
                     at("mjcf_joint"),
-                    format!("{:?} is a {} joint, not a hinge", j.mjcf_joint, mj.kind),
+                    format!("{:?} is a {} joint, not a hinge", j.mjcf_joint, mj.kind.name()),
                 ));
             }
             if !mjcf_joints.insert(&j.mjcf_joint) {

@@ -91,7 +91,7 @@ fn a_missing_mesh_and_a_broken_mjcf_are_named() {
         .unwrap_err()
         .to_string();
     assert!(
-        e.contains("mesh file") && e.contains("meshes/shell.stl") && e.contains("does not exist"),
+        e.contains("mesh file") && e.contains("meshes/shell.stl") && e.contains("cannot read"),
         "{e}"
     );
     std::fs::write(dir.join("biped.xml"), "<mujoco><worldbody>").unwrap();

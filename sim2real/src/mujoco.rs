@@ -1,78 +1,13 @@
-//! MuJoCo as this project pins it: version check and model loading with errors that say what to do.
-
-use std::path::Path;
+//! MuJoCo as this project pins it: version check and model loading with errors that say what to do
+//! (owned by `robots::mjcf`, which compiles every robot's model), and a model's sizes.
 
 use mujoco_rs::prelude::MjModel;
 use mujoco_rs::wrappers::mj_model::MjtObjBase;
 
-/// The MuJoCo release mujoco-rs 7.0.0+mj-3.17.0 is written against, as `mj_version()` reports it.
-pub const PINNED_MUJOCO_VERSION: i32 = 3_017_000;
-
-/// What can go wrong before a simulation starts.
-#[derive(Debug, thiserror::Error)]
-#[non_exhaustive]
-pub enum MujocoError {
-    /// The loaded `libmujoco` is not the pinned release.
-    #[error(
-        "libmujoco reports version {found} but this build needs {PINNED_MUJOCO_VERSION} (3.17.0); \
-         run `scripts/setup` to reinstall the pinned library into .local/lib"
-    )]
-    WrongVersion {
-        /// `mj_version()` of the loaded library.
-        found: i32,
-    },
-    /// MuJoCo refused the model.
-    #[error("cannot load MJCF model {path}: {reason}")]
-    Model {
-        /// The file, or `<inline>` for a string.
-        path: String,
-        /// MuJoCo's own message.
-        reason: String,
-    },
-}
-
-/// `mj_version()` of the loaded library (3017000 for 3.17.0).
-pub fn loaded_version() -> i32 {
-    #[allow(unsafe_code)] // plain C getter with no arguments and no preconditions
-    // SAFETY: mj_version reads a compile-time constant of the loaded library.
-    unsafe {
-        mujoco_rs::mujoco_c::mj_version()
-    }
-}
-
-/// `mj_versionString()` of the loaded library, e.g. `3.17.0`.
-pub fn loaded_version_string() -> String {
-    #[allow(unsafe_code)] // C getter returning a pointer to a static, NUL-terminated string
-    // SAFETY: mj_versionString returns a non-null pointer to a static C string owned by the library.
-    let s = unsafe { std::ffi::CStr::from_ptr(mujoco_rs::mujoco_c::mj_versionString()) };
-    s.to_string_lossy().into_owned()
-}
-
-/// Fails unless the loaded `libmujoco` is the pinned 3.17.0.
-pub fn check_version() -> Result<(), MujocoError> {
-    match loaded_version() {
-        PINNED_MUJOCO_VERSION => Ok(()),
-        found => Err(MujocoError::WrongVersion { found }),
-    }
-}
-
-/// Loads an MJCF file after checking the library version.
-pub fn load_model(path: &Path) -> Result<MjModel, MujocoError> {
-    check_version()?;
-    MjModel::from_xml(path).map_err(|e| MujocoError::Model {
-        path: path.display().to_string(),
-        reason: e.to_string(),
-    })
-}
-
-/// Loads an MJCF document from a string after checking the library version.
-pub fn load_model_str(xml: &str) -> Result<MjModel, MujocoError> {
-    check_version()?;
-    MjModel::from_xml_string(xml).map_err(|e| MujocoError::Model {
-        path: "<inline>".into(),
-        reason: e.to_string(),
-    })
-}
+pub use robots::mjcf::{
+    MujocoError, PINNED_MUJOCO_VERSION, check_version, load_model, load_model_str, loaded_version,
+    loaded_version_string,
+};
 
 /// Sizes of a model, named as MuJoCo names them.
 #[derive(Debug, Clone, Copy, PartialEq)]
