@@ -173,7 +173,30 @@ pub struct ImuConfig {
     /// Accelerometer bias to subtract, m/s² (from calibration).
     #[serde(default)]
     pub accel_bias: [f64; 3],
+    /// The model's gyro sensor the mirror's IMU reads (default: the model's gyro on `site`, else
+    /// one the mirror adds there).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gyro: Option<String>,
+    /// The model's accelerometer sensor (default: the one on `site`, else one the mirror adds).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub accelerometer: Option<String>,
+    /// The model's orientation sensor, a `framequat` (default: the one on `site`, else one the
+    /// mirror adds).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub orientation: Option<String>,
 }
+
+/// The three sensors of the IMU in the model, by the kind MJCF gives them.
+pub const IMU_SENSOR_KINDS: [(&str, &str); 3] = [
+    ("gyro", "gyro"),
+    ("accelerometer", "accelerometer"),
+    ("orientation", "framequat"),
+];
+
+/// Where the mirror's IMU reads each of its values: the model's sensors by name, or `None` for one
+/// the mirror adds to the IMU site (the model has none there). Order: gyro, accelerometer,
+/// orientation.
+pub type ImuSensorNames = [Option<String>; 3];
 
 /// A robot description.
 #[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
@@ -202,6 +225,11 @@ pub struct RobotConfig {
     /// How human motion maps onto this robot (retargeting, teleoperation).
     #[serde(default)]
     pub retarget: Option<RetargetConfig>,
+    /// The model's keyframe the mirror starts the robot in (joints, and the base's position
+    /// across the floor and heading), placed on the floor by its geometry. Default: the default
+    /// pose, upright.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub start_keyframe: Option<String>,
     /// Foot switches on Linux GPIO lines, for the state estimator's contacts (none: contact is
     /// estimated from the legs' kinematics).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
@@ -402,6 +430,113 @@ impl Robot {
         Some([lo, hi])
     }
 
+    /// The model's sensors the mirror's IMU reads (checked at load).
+    pub fn imu_sensors(&self) -> ImuSensorNames {
+        self.resolve_imu_sensors().unwrap_or_default()
+    }
+
+    /// robot.toml's IMU sensor names checked against the model (the kind, and the IMU's site),
+    /// or the model's own sensors of each kind on the IMU site.
+    fn resolve_imu_sensors(&self) -> Result<ImuSensorNames, (String, String)> {
+        let imu = &self.config.imu;
+        let m = &self.mjcf;
+        let named = [&imu.gyro, &imu.accelerometer, &imu.orientation];
+        let mut out: ImuSensorNames = Default::default();
+        for ((field, kind), (name, slot)) in IMU_SENSOR_KINDS.iter().zip(named.into_iter().zip(&mut out)) {
+            let on_site = |s: &&mjcf::MjcfSensor| s.kind == *kind && s.object.as_deref() == Some(&imu.site);
+            *slot = match name {
+                None => m.sensors.iter().find(on_site).map(|s| s.name.clone()),
+                Some(name) => {
+                    let Some(sensor) = m.sensor(name) else {
+                        let of_kind: Vec<&str> = m
+                            .sensors
+                            .iter()
+                            .filter(|s| s.kind == *kind)
+                            .map(|s| s.name.as_str())
+                            .collect();
+                        return Err((
+                            format!("imu.{field}"),
+                            format!(
+                                "{name:?} is not a sensor of the MJCF (its {kind} sensors: {})",
+                                if of_kind.is_empty() {
+                                    "none".into()
+                                } else {
+                                    of_kind.join(", ")
+                                }
+                            ),
+                        ));
+                    };
+                    if sensor.kind != *kind {
+                        return Err((
+                            format!("imu.{field}"),
+                            format!("{name:?} is a {} sensor, not a {kind}", sensor.kind),
+                        ));
+                    }
+                    if !on_site(&sensor) {
+                        return Err((
+                            format!("imu.{field}"),
+                            format!(
+                                "{name:?} sits on {:?}, not on the IMU's site {:?}",
+                                sensor.object.as_deref().unwrap_or("?"),
+                                imu.site
+                            ),
+                        ));
+                    }
+                    Some(name.clone())
+                }
+            };
+        }
+        Ok(out)
+    }
+
+    /// The keyframe the mirror starts in, if robot.toml names one (checked at load).
+    pub fn start_keyframe(&self) -> Option<&mjcf::MjcfKeyframe> {
+        self.mjcf.keyframe(self.config.start_keyframe.as_deref()?)
+    }
+
+    /// The keyframe exists, and puts every joint inside its position limits.
+    fn check_start_keyframe(&self) -> Result<(), (String, String)> {
+        let Some(name) = &self.config.start_keyframe else {
+            return Ok(());
+        };
+        let field = || "start_keyframe".to_owned();
+        let Some(key) = self.mjcf.keyframe(name) else {
+            let names: Vec<&str> = self.mjcf.keyframes.iter().map(|k| k.name.as_str()).collect();
+            return Err((
+                field(),
+                format!(
+                    "{name:?} is not a keyframe of the MJCF (its keyframes: {})",
+                    if names.is_empty() {
+                        "none".into()
+                    } else {
+                        names.join(", ")
+                    }
+                ),
+            ));
+        };
+        for j in &self.config.joints {
+            let Some(q) = self
+                .mjcf
+                .joints
+                .get(&j.mjcf_joint)
+                .and_then(|mj| key.qpos.get(mj.qpos))
+            else {
+                continue;
+            };
+            let [lo, hi] = j.position_limits;
+            if !(lo..=hi).contains(q) {
+                return Err((
+                    field(),
+                    format!(
+                        "{name:?} puts joint {} at {q:.4} rad, outside its position_limits [{lo}, {hi}]",
+                        j.name
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+
     /// The bus called `name`.
     pub fn bus(&self, name: &str) -> Option<&BusConfig> {
         self.config.buses.iter().find(|b| b.name == name)
@@ -418,6 +553,7 @@ impl Robot {
 
     fn check(&self) -> Result<(), (String, String)> {
         self.check_body()?;
+        self.check_start_keyframe()?;
         self.check_bus_timing()?;
         self.check_retarget()
     }
@@ -747,6 +883,7 @@ impl Robot {
                 format!("{:?} is not a site of the MJCF", c.imu.site),
             ));
         }
+        self.resolve_imu_sensors()?;
         if !(c.imu.rate_hz > 0.0 && c.imu.rate_hz <= 1000.0) {
             return Err((
                 "imu.rate_hz".into(),

@@ -11,8 +11,9 @@ pub mod mjcf;
 pub mod spatial;
 
 pub use config::{
-    BodyPair, BusConfig, BusKind, BusTiming, HumanBody, ImuConfig, Interpolation, JointConfig,
-    OrientationCompare, RetargetConfig, Robot, RobotConfig, RobotError, check_gains, default_command_timeout,
+    BodyPair, BusConfig, BusKind, BusTiming, HumanBody, IMU_SENSOR_KINDS, ImuConfig, ImuSensorNames,
+    Interpolation, JointConfig, OrientationCompare, RetargetConfig, Robot, RobotConfig, RobotError,
+    check_gains, default_command_timeout,
 };
 
 /// A file that could not be read, parsed or written, and what was wrong with it.

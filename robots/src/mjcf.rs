@@ -77,6 +77,18 @@ pub fn load_model(path: &Path) -> Result<MjModel, MujocoError> {
     MjModel::from_xml(path).map_err(|e| model_error(e.to_string()))
 }
 
+/// Parses an MJCF file into an editable specification (after the same checks as [`load_model`]),
+/// for callers that add to the model before compiling it.
+pub fn load_spec(path: &Path) -> Result<mujoco_rs::prelude::MjSpec, MujocoError> {
+    check_version()?;
+    let model_error = |reason: String| MujocoError::Model {
+        path: path.display().to_string(),
+        reason,
+    };
+    check_files(path).map_err(model_error)?;
+    mujoco_rs::prelude::MjSpec::from_xml(path).map_err(|e| model_error(e.to_string()))
+}
+
 /// Loads an MJCF document from a string after checking the library version.
 pub fn load_model_str(xml: &str) -> Result<MjModel, MujocoError> {
     check_version()?;

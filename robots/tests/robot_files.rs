@@ -257,3 +257,51 @@ fn a_position_margin_the_joints_cannot_give_is_named() {
         ],
     );
 }
+
+#[test]
+fn the_compiled_model_is_summarised_with_its_sensors_actuators_and_floor() {
+    let robot = Robot::load(&reference_robot_path()).unwrap();
+    let m = &robot.mjcf;
+    assert_eq!(m.floor.len(), 1, "{:?}", m.floor);
+    let gyro = m.sensor("imu_gyro").unwrap();
+    assert_eq!((gyro.kind, gyro.object.as_deref()), ("gyro", Some("imu")));
+    // The IMU's sensors are found on its site, whatever their names.
+    assert_eq!(
+        robot.imu_sensors(),
+        [
+            Some("imu_gyro".into()),
+            Some("imu_accel".into()),
+            Some("imu_quat".into())
+        ]
+    );
+    let knee = &m.joints["left_knee"];
+    assert_eq!(knee.kind, robots::mjcf::JointKind::Hinge);
+    assert_eq!(knee.range, Some((0.0, 2.2)));
+}
+
+#[test]
+fn imu_sensor_names_and_a_start_keyframe_the_model_lacks_are_named() {
+    let with =
+        |extra: &str| reference_text().replacen("site = \"imu\"\n", &format!("site = \"imu\"\n{extra}\n"), 1);
+    expect_error(
+        &with("gyro = \"body_gyro\""),
+        &[
+            "imu.gyro",
+            "\"body_gyro\" is not a sensor of the MJCF",
+            "imu_gyro",
+        ],
+    );
+    expect_error(
+        &with("accelerometer = \"imu_gyro\""),
+        &["imu.accelerometer", "is a gyro sensor, not a accelerometer"],
+    );
+    let keyed = reference_text().replacen(
+        "control_rate_hz = 50.0",
+        "control_rate_hz = 50.0\nstart_keyframe = \"home\"",
+        1,
+    );
+    expect_error(
+        &keyed,
+        &["start_keyframe", "\"home\" is not a keyframe of the MJCF", "none"],
+    );
+}

@@ -184,12 +184,59 @@ pub struct Mirror {
     stats: MirrorStats,
 }
 
+/// Names the mirror gives the IMU sensors it adds to a model that has none on the IMU's site.
+pub const ADDED_IMU_SENSORS: [&str; 3] = [
+    "robodeploy_imu_gyro",
+    "robodeploy_imu_accelerometer",
+    "robodeploy_imu_orientation",
+];
+
+/// The robot's compiled model with the IMU's three sensors, and their names: the model's own
+/// (robot.toml's names, or the ones on the IMU site), and through MuJoCo's model-editing API a
+/// gyro, an accelerometer or a frame orientation on the IMU site for each the model lacks.
+fn model_with_imu_sensors(robot: &Robot) -> Result<(MjModel, [String; 3]), MirrorError> {
+    use mujoco_rs::mujoco_c::mjtSensor;
+    use mujoco_rs::prelude::SpecItem;
+    let found = robot.imu_sensors();
+    if let [Some(g), Some(a), Some(o)] = &found {
+        return Ok((load_model(&robot.mjcf_path)?, [g.clone(), a.clone(), o.clone()]));
+    }
+    let mut spec = robots::mjcf::load_spec(&robot.mjcf_path)?;
+    let kinds = [
+        mjtSensor::mjSENS_GYRO,
+        mjtSensor::mjSENS_ACCELEROMETER,
+        mjtSensor::mjSENS_FRAMEQUAT,
+    ];
+    let mut names = [String::new(), String::new(), String::new()];
+    for (((have, kind), added), name) in found.iter().zip(kinds).zip(ADDED_IMU_SENSORS).zip(&mut names) {
+        *name = match have {
+            Some(n) => n.clone(),
+            None => {
+                spec.add_sensor()
+                    .with_type(kind)
+                    .with_objtype(MjtObjBase::mjOBJ_SITE)
+                    .with_objname(&robot.config.imu.site)
+                    .set_name(added)
+                    .map_err(|e| MirrorError::Robot(format!("cannot add IMU sensor {added}: {e}")))?;
+                added.to_owned()
+            }
+        };
+    }
+    let model = spec.compile().map_err(|e| {
+        MirrorError::Robot(format!(
+            "{}: cannot compile with the IMU sensors added: {e}",
+            robot.mjcf_path.display()
+        ))
+    })?;
+    Ok((model, names))
+}
+
 /// Serial line numbers: Dynamixel lines first (in robot.toml order), then the IMU.
 impl Mirror {
     /// Builds the mirror of `robot`: loads and randomises its model, places it in its default
     /// pose standing on the floor (or on the gantry), and wires emulated devices to every bus.
     pub fn new(robot: Robot, config: MirrorConfig) -> Result<Self, MirrorError> {
-        let mut model = load_model(&robot.mjcf_path)?;
+        let (mut model, imu_sensors) = model_with_imu_sensors(&robot)?;
         let mut rng = SimRng::new(config.seed);
         let mut draw = |r: Range| r.0 + (r.1 - r.0) * rng.next_f64();
         let rnd = config.randomization.clone();
@@ -260,13 +307,10 @@ impl Mirror {
             model.dof_damping_mut()[j.dof] *= scale;
         }
         let sensor = |name: &str| {
-            model_index::sensor_address(&model, name).map_err(|e| {
-                MirrorError::Robot(format!(
-                    "{e} (the IMU needs imu_gyro, imu_accel, imu_quat at its site)"
-                ))
-            })
+            model_index::sensor_address(&model, name).map_err(|e| MirrorError::Robot(e.to_string()))
         };
-        let (gyro, accel, quat) = (sensor("imu_gyro")?, sensor("imu_accel")?, sensor("imu_quat")?);
+        let [gyro, accel, quat] = &imu_sensors;
+        let (gyro, accel, quat) = (sensor(gyro)?, sensor(accel)?, sensor(quat)?);
         let (root_qpos, root_dof, root_body) = (index.root.qpos, index.root.dof, index.root_body);
         let feet = index.feet.clone();
 
