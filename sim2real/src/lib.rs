@@ -8,5 +8,6 @@ pub mod link;
 pub mod mirror;
 pub mod model_index;
 pub mod mujoco;
+pub mod placement;
 pub mod render;
 pub mod serve;

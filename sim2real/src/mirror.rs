@@ -475,31 +475,29 @@ impl Mirror {
         Ok(mirror)
     }
 
-    /// Default joint angles; feet on the floor, or lifted 5 cm and held when on the gantry.
+    /// The start: robot.toml's keyframe, else the default joint angles upright; placed by the
+    /// compiled geometry with its lowest point on the floor, or lifted 5 cm and held when on the
+    /// gantry.
     fn place_in_default_pose(&mut self) {
-        for (j, cfg) in self.joints.iter().zip(&self.robot.config.joints) {
-            self.data.qpos_mut()[j.qpos] = cfg.default_position;
+        let r = self.root_qpos;
+        match self.robot.start_keyframe().map(|k| k.qpos.clone()) {
+            Some(qpos) if qpos.len() == self.data.qpos().len() => {
+                self.data.qpos_mut().copy_from_slice(&qpos);
+            }
+            _ => {
+                for (j, cfg) in self.joints.iter().zip(&self.robot.config.joints) {
+                    self.data.qpos_mut()[j.qpos] = cfg.default_position;
+                }
+            }
         }
         self.data.forward();
-        let model = self.data.model();
-        let mut lowest = f64::INFINITY;
-        for g in 0..model.ffi().ngeom as usize {
-            let body = model.geom_bodyid()[g] as usize;
-            if body == 0 || model.geom_contype()[g] == 0 {
-                continue;
-            }
-            let size = model.geom_size()[g];
-            let z = self.data.geom_xpos()[g][2] - size[2].max(size[0].min(size[1]).min(size[2]));
-            lowest = lowest.min(z);
-        }
         let lift = if self.config.gantry {
             0.05
         } else {
             self.config.start.height_m
         };
-        let r = self.root_qpos;
-        if lowest.is_finite() {
-            self.data.qpos_mut()[r + 2] += lift - lowest + 1e-4;
+        if let Some(lowest) = crate::placement::lowest_point(&self.data, self.root_body) {
+            self.data.qpos_mut()[r + 2] += lift - lowest;
         }
         // The configured start: moved on the floor and turned about the vertical.
         let start = self.config.start;
