@@ -4,6 +4,7 @@
 //! loop (teleoperation, handed over lock-free), and a VR sender that plays a BVH as trackers.
 
 pub mod body_map;
+pub mod commands;
 pub mod bvh;
 pub mod error;
 pub mod ik;

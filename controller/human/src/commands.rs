@@ -1,0 +1,948 @@
+//! An operator's commands for command-driven policies (a velocity-command "joystick" policy):
+//! from the keyboard of a terminal, a gamepad (`gilrs`) or UDP datagrams, each source on its own
+//! thread, handed to the control loop through a triple buffer (no lock, no allocation on the
+//! loop's side). What the commands mean, their ranges, ramps and key steps are the policy
+//! manifest's `[commands]` section ([`CommandSpec`]).
+//!
+//! Sources publish *targets*: the loop clamps them to the ranges, moves its commands towards them
+//! no faster than the ramps allow, and falls back to the defaults when a source has been silent
+//! for `timeout_s` (a dropped link does not leave the robot walking).
+
+use std::io::Read;
+use std::net::{SocketAddr, UdpSocket};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+/// Commands a manifest may declare.
+pub const MAX_COMMANDS: usize = 8;
+
+/// The version of the UDP command message this build reads.
+pub const UDP_MESSAGE_VERSION: u64 = 1;
+
+/// What a command means, for the run's metrics (commanded against achieved).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CommandKind {
+    /// Forward speed in the robot's heading frame, m/s.
+    LinVelX,
+    /// Leftward speed in the robot's heading frame, m/s.
+    LinVelY,
+    /// Turning rate about the vertical, rad/s (left positive).
+    AngVelZ,
+    /// Anything else (a height, a gait index, …).
+    Other,
+}
+
+impl CommandKind {
+    /// The meaning of a command called `name`, by the names training frameworks use.
+    pub fn of_name(name: &str) -> Self {
+        match name.to_ascii_lowercase().as_str() {
+            "lin_vel_x" | "vx" | "x_vel" | "vel_x" | "forward" | "base_lin_vel_x" => Self::LinVelX,
+            "lin_vel_y" | "vy" | "y_vel" | "vel_y" | "lateral" | "base_lin_vel_y" => Self::LinVelY,
+            "ang_vel_z" | "wz" | "yaw_rate" | "ang_vel_yaw" | "heading_rate" | "base_ang_vel_z" => {
+                Self::AngVelZ
+            }
+            _ => Self::Other,
+        }
+    }
+}
+
+/// A gamepad axis, as `gilrs` names the standard layout's.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PadAxis {
+    /// Left stick, right positive.
+    LeftX,
+    /// Left stick, up positive.
+    LeftY,
+    /// Right stick, right positive.
+    RightX,
+    /// Right stick, up positive.
+    RightY,
+}
+
+/// Which gamepad axis drives a command, and in which sense.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct AxisBinding {
+    /// The axis.
+    pub axis: PadAxis,
+    /// Flip it (a stick pushed right commands a negative, rightward `lin_vel_y`).
+    #[serde(default)]
+    pub invert: bool,
+}
+
+/// The manifest's `[commands]`: the live commands of a command-driven policy.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct CommandSpec {
+    /// Names, in the order the policy's `command` term observes them (at most [`MAX_COMMANDS`]).
+    pub names: Vec<String>,
+    /// `[low, high]` per command: what every source is clamped to and `--command` must respect.
+    pub ranges: Vec<[f64; 2]>,
+    /// The commands before any source speaks, and after one falls silent (default: 0, or the
+    /// range's nearest end when 0 is outside it).
+    #[serde(default)]
+    pub default: Option<Vec<f64>>,
+    /// Fastest change per command, units per second (default: none, commands jump).
+    #[serde(default)]
+    pub ramp: Option<Vec<f64>>,
+    /// What one key press adds, per command (default: a tenth of the range's larger end).
+    #[serde(default)]
+    pub step: Option<Vec<f64>>,
+    /// What each command means (default: from its name: `lin_vel_x`, `lin_vel_y`, `ang_vel_z`
+    /// and their common aliases, else `other`).
+    #[serde(default)]
+    pub kinds: Option<Vec<CommandKind>>,
+    /// Gamepad axis per command (default: left stick up → command 0, left stick left →
+    /// command 1, right stick left → command 2).
+    #[serde(default)]
+    pub gamepad: Option<Vec<AxisBinding>>,
+    /// A gamepad or UDP source silent this long (s) hands back to the defaults (0.05–10).
+    #[serde(default = "default_timeout_s")]
+    pub timeout_s: f64,
+}
+
+fn default_timeout_s() -> f64 {
+    0.5
+}
+
+impl CommandSpec {
+    /// Checks every documented range. `Err((field, message))`.
+    pub fn check(&self) -> Result<(), (String, String)> {
+        let n = self.names.len();
+        let field = |f: &str| format!("commands.{f}");
+        if n == 0 || n > MAX_COMMANDS {
+            return Err((
+                field("names"),
+                format!("{n} commands: one to {MAX_COMMANDS}"),
+            ));
+        }
+        for (i, name) in self.names.iter().enumerate() {
+            if name.is_empty() || self.names[..i].contains(name) {
+                return Err((field("names"), format!("{name:?} is empty or named twice")));
+            }
+        }
+        let same_length = |what: &str, len: usize| {
+            if len == n {
+                Ok(())
+            } else {
+                Err((field(what), format!("{len} entries for {n} commands")))
+            }
+        };
+        same_length("ranges", self.ranges.len())?;
+        for (name, [lo, hi]) in self.names.iter().zip(&self.ranges) {
+            if !(lo.is_finite() && hi.is_finite() && lo <= hi && lo.abs() <= 1e6 && hi.abs() <= 1e6) {
+                return Err((
+                    field("ranges"),
+                    format!("{name}: [{lo}, {hi}] is not an interval (low ≤ high, finite, within ±1e6)"),
+                ));
+            }
+        }
+        if let Some(d) = &self.default {
+            same_length("default", d.len())?;
+            self.check_values(d).map_err(|m| (field("default"), m))?;
+        }
+        for (what, values) in [("ramp", &self.ramp), ("step", &self.step)] {
+            if let Some(v) = values {
+                same_length(what, v.len())?;
+                if let Some((name, x)) = self
+                    .names
+                    .iter()
+                    .zip(v)
+                    .find(|(_, x)| !(x.is_finite() && **x > 0.0 && **x <= 1e6))
+                {
+                    return Err((field(what), format!("{name}: {x} is not in (0, 1e6]")));
+                }
+            }
+        }
+        if let Some(k) = &self.kinds {
+            same_length("kinds", k.len())?;
+        }
+        if let Some(g) = &self.gamepad {
+            same_length("gamepad", g.len())?;
+        }
+        if !(0.05..=10.0).contains(&self.timeout_s) {
+            return Err((
+                field("timeout_s"),
+                format!("{} s is outside [0.05, 10]", self.timeout_s),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Whether `values` are as many as the commands and each within its range; the message names
+    /// the first that is not.
+    pub fn check_values(&self, values: &[f64]) -> Result<(), String> {
+        if values.len() != self.names.len() {
+            return Err(format!(
+                "{} values for {} commands ({})",
+                values.len(),
+                self.names.len(),
+                self.names.join(", ")
+            ));
+        }
+        for ((name, [lo, hi]), v) in self.names.iter().zip(&self.ranges).zip(values) {
+            if !(v.is_finite() && (*lo..=*hi).contains(v)) {
+                return Err(format!("{name} = {v} is outside its range [{lo}, {hi}]"));
+            }
+        }
+        Ok(())
+    }
+
+    /// The commands before any source speaks.
+    pub fn defaults(&self) -> Vec<f64> {
+        self.default.clone().unwrap_or_else(|| {
+            self.ranges
+                .iter()
+                .map(|&[lo, hi]| 0.0f64.clamp(lo, hi))
+                .collect()
+        })
+    }
+
+    /// Key press increments.
+    pub fn steps(&self) -> Vec<f64> {
+        self.step.clone().unwrap_or_else(|| {
+            self.ranges
+                .iter()
+                .map(|[lo, hi]| lo.abs().max(hi.abs()) / 10.0)
+                .map(|s| if s > 0.0 { s } else { 1.0 })
+                .collect()
+        })
+    }
+
+    /// What each command means.
+    pub fn kinds(&self) -> Vec<CommandKind> {
+        self.kinds
+            .clone()
+            .unwrap_or_else(|| self.names.iter().map(|n| CommandKind::of_name(n)).collect())
+    }
+
+    /// The gamepad axis of each command (`None`: no axis drives it).
+    pub fn gamepad_bindings(&self) -> Vec<Option<AxisBinding>> {
+        match &self.gamepad {
+            Some(g) => g.iter().copied().map(Some).collect(),
+            None => {
+                let standard = [
+                    AxisBinding {
+                        axis: PadAxis::LeftY,
+                        invert: false,
+                    },
+                    AxisBinding {
+                        axis: PadAxis::LeftX,
+                        invert: true,
+                    },
+                    AxisBinding {
+                        axis: PadAxis::RightX,
+                        invert: true,
+                    },
+                ];
+                (0..self.names.len()).map(|i| standard.get(i).copied()).collect()
+            }
+        }
+    }
+
+    /// `values` clamped into the ranges.
+    pub fn clamp(&self, values: &mut [f64]) {
+        for (v, [lo, hi]) in values.iter_mut().zip(&self.ranges) {
+            *v = if v.is_finite() { v.clamp(*lo, *hi) } else { 0.0f64.clamp(*lo, *hi) };
+        }
+    }
+}
+
+/// What a source published last: targets for the commands, and when.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CommandTargets {
+    /// Targets, the first `n` used.
+    pub values: [f64; MAX_COMMANDS],
+    /// When the source published them; `None` before it did.
+    pub at: Option<Instant>,
+}
+
+impl Default for CommandTargets {
+    fn default() -> Self {
+        Self {
+            values: [0.0; MAX_COMMANDS],
+            at: None,
+        }
+    }
+}
+
+/// Counts a source keeps, readable from any thread.
+#[derive(Debug, Default)]
+pub struct CommandStats {
+    /// Messages or events taken.
+    pub accepted: AtomicU64,
+    /// Messages that did not parse, had the wrong version or the wrong number of values.
+    pub malformed: AtomicU64,
+    /// Messages with a value outside its range.
+    pub out_of_range: AtomicU64,
+    /// Messages older than one already taken (sequence number not above the newest).
+    pub stale: AtomicU64,
+}
+
+impl CommandStats {
+    /// Messages dropped, for any reason.
+    pub fn dropped(&self) -> u64 {
+        self.malformed.load(Ordering::Relaxed)
+            + self.out_of_range.load(Ordering::Relaxed)
+            + self.stale.load(Ordering::Relaxed)
+    }
+}
+
+impl std::fmt::Display for CommandStats {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} accepted, {} dropped ({} malformed, {} out of range, {} out of order)",
+            self.accepted.load(Ordering::Relaxed),
+            self.dropped(),
+            self.malformed.load(Ordering::Relaxed),
+            self.out_of_range.load(Ordering::Relaxed),
+            self.stale.load(Ordering::Relaxed)
+        )
+    }
+}
+
+/// The publishing half, owned by a source's thread.
+#[derive(Debug)]
+pub struct CommandWriter {
+    input: triple_buffer::Input<CommandTargets>,
+    n: usize,
+}
+
+/// The loop's half.
+#[derive(Debug)]
+pub struct CommandReader {
+    output: triple_buffer::Output<CommandTargets>,
+}
+
+/// A writer and a reader for `n` commands.
+pub fn command_channel(n: usize) -> (CommandWriter, CommandReader) {
+    let (input, output) = triple_buffer::triple_buffer(&CommandTargets::default());
+    (
+        CommandWriter {
+            input,
+            n: n.min(MAX_COMMANDS),
+        },
+        CommandReader { output },
+    )
+}
+
+impl CommandWriter {
+    /// Publishes targets (the first `n` of `values`), stamped now.
+    pub fn publish(&mut self, values: &[f64]) {
+        let mut t = CommandTargets {
+            at: Some(Instant::now()),
+            ..CommandTargets::default()
+        };
+        for (o, v) in t.values.iter_mut().zip(values.iter().take(self.n)) {
+            *o = *v;
+        }
+        self.input.write(t);
+    }
+}
+
+impl CommandReader {
+    /// The newest targets. Lock- and allocation-free.
+    pub fn latest(&mut self) -> CommandTargets {
+        *self.output.read()
+    }
+}
+
+/// The commands the loop feeds its policy: the newest targets of a source, clamped, ramped, and
+/// back to the defaults when the source falls silent. Sized once; `update` does not allocate.
+#[derive(Debug)]
+pub struct LiveCommands {
+    spec: CommandSpec,
+    reader: Option<CommandReader>,
+    current: Vec<f64>,
+    target: Vec<f64>,
+    defaults: Vec<f64>,
+    /// Largest change per tick.
+    step_per_tick: Vec<f64>,
+    timeout: Duration,
+    /// Ticks a source was silent for longer than the timeout while it had spoken before.
+    pub silent_ticks: u64,
+}
+
+impl LiveCommands {
+    /// Commands starting at `initial` (checked against `spec`), updated every `dt` seconds from
+    /// `reader` (none: they stay at `initial`).
+    pub fn new(spec: &CommandSpec, initial: &[f64], reader: Option<CommandReader>, dt: f64) -> Self {
+        let n = spec.names.len();
+        let ramp = spec.ramp.clone().unwrap_or_else(|| vec![f64::INFINITY; n]);
+        Self {
+            spec: spec.clone(),
+            reader,
+            current: initial.to_vec(),
+            target: initial.to_vec(),
+            defaults: spec.defaults(),
+            step_per_tick: ramp.iter().map(|r| r * dt).collect(),
+            timeout: Duration::try_from_secs_f64(spec.timeout_s).unwrap_or(Duration::from_millis(500)),
+            silent_ticks: 0,
+        }
+    }
+
+    /// Moves the commands one tick towards the newest targets and returns them.
+    pub fn update(&mut self, now: Instant) -> &[f64] {
+        if let Some(reader) = &mut self.reader {
+            let t = reader.latest();
+            match t.at {
+                Some(at) if now.saturating_duration_since(at) <= self.timeout => {
+                    let n = self.target.len();
+                    self.target.copy_from_slice(&t.values[..n]);
+                    self.spec.clamp(&mut self.target);
+                }
+                Some(_) => {
+                    self.silent_ticks += 1;
+                    self.target.copy_from_slice(&self.defaults);
+                }
+                None => {}
+            }
+        }
+        for ((c, t), s) in self.current.iter_mut().zip(&self.target).zip(&self.step_per_tick) {
+            *c += (t - *c).clamp(-s, *s);
+        }
+        &self.current
+    }
+
+    /// The commands of the last update.
+    pub fn current(&self) -> &[f64] {
+        &self.current
+    }
+
+    /// What the commands mean.
+    pub fn spec(&self) -> &CommandSpec {
+        &self.spec
+    }
+}
+
+// ---- Keyboard ------------------------------------------------------------------------------
+
+/// What a key does.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum KeyAction {
+    /// Adds `sign ×` its step to command `index`.
+    Nudge {
+        /// The command.
+        index: usize,
+        /// +1 or −1.
+        sign: f64,
+    },
+    /// Every command back to its default.
+    Reset,
+}
+
+/// The keys: W/S and ↑/↓ drive command 0 (forward), A/D command 1 (left/right), Q/E and ←/→
+/// command 2 (turn left/right), space resets. Parses a byte stream as a terminal sends it
+/// (arrows as `ESC [ A…D`).
+#[derive(Debug, Default)]
+pub struct KeyParser {
+    escape: u8,
+}
+
+impl KeyParser {
+    /// The action of the next byte, if it completes one.
+    pub fn feed(&mut self, byte: u8) -> Option<KeyAction> {
+        let nudge = |index, sign| Some(KeyAction::Nudge { index, sign });
+        match (self.escape, byte) {
+            (0, 0x1b) => {
+                self.escape = 1;
+                None
+            }
+            (1, b'[' | b'O') => {
+                self.escape = 2;
+                None
+            }
+            (2, arrow) => {
+                self.escape = 0;
+                match arrow {
+                    b'A' => nudge(0, 1.0),
+                    b'B' => nudge(0, -1.0),
+                    b'D' => nudge(2, 1.0),
+                    b'C' => nudge(2, -1.0),
+                    _ => None,
+                }
+            }
+            (_, key) => {
+                self.escape = 0;
+                match key.to_ascii_lowercase() {
+                    b'w' => nudge(0, 1.0),
+                    b's' => nudge(0, -1.0),
+                    b'a' => nudge(1, 1.0),
+                    b'd' => nudge(1, -1.0),
+                    b'q' => nudge(2, 1.0),
+                    b'e' => nudge(2, -1.0),
+                    b' ' => Some(KeyAction::Reset),
+                    _ => None,
+                }
+            }
+        }
+    }
+}
+
+/// The keyboard's targets: each key press moves one command by its step, within its range.
+#[derive(Debug)]
+pub struct KeyboardTeleop {
+    spec: CommandSpec,
+    steps: Vec<f64>,
+    targets: Vec<f64>,
+    parser: KeyParser,
+}
+
+impl KeyboardTeleop {
+    /// Starting from `initial`.
+    pub fn new(spec: &CommandSpec, initial: &[f64]) -> Self {
+        Self {
+            spec: spec.clone(),
+            steps: spec.steps(),
+            targets: initial.to_vec(),
+            parser: KeyParser::default(),
+        }
+    }
+
+    /// Takes one byte; returns the new targets when it changed them.
+    pub fn feed(&mut self, byte: u8) -> Option<&[f64]> {
+        match self.parser.feed(byte)? {
+            KeyAction::Nudge { index, sign } => {
+                let step = *self.steps.get(index)?;
+                self.targets[index] += sign * step;
+            }
+            KeyAction::Reset => self.targets.copy_from_slice(&self.spec.defaults()),
+        }
+        self.spec.clamp(&mut self.targets);
+        Some(&self.targets)
+    }
+}
+
+/// The terminal put into cbreak mode (keys arrive one by one, unechoed; Ctrl-C still signals and
+/// output still ends lines properly), restored when dropped.
+#[derive(Debug)]
+pub struct TerminalGuard {
+    saved: Option<rustix::termios::Termios>,
+}
+
+impl TerminalGuard {
+    /// Cbreak mode on standard input when it is a terminal (otherwise nothing to do).
+    pub fn cbreak() -> Self {
+        use rustix::termios::{LocalModes, OptionalActions, isatty, tcgetattr, tcsetattr};
+        let stdin = rustix::stdio::stdin();
+        if !isatty(stdin) {
+            return Self { saved: None };
+        }
+        let Ok(saved) = tcgetattr(stdin) else {
+            return Self { saved: None };
+        };
+        let mut raw = saved.clone();
+        raw.local_modes.remove(LocalModes::ICANON | LocalModes::ECHO);
+        if tcsetattr(stdin, OptionalActions::Now, &raw).is_err() {
+            return Self { saved: None };
+        }
+        Self { saved: Some(saved) }
+    }
+}
+
+impl Drop for TerminalGuard {
+    fn drop(&mut self) {
+        if let Some(saved) = &self.saved {
+            let _ = rustix::termios::tcsetattr(
+                rustix::stdio::stdin(),
+                rustix::termios::OptionalActions::Now,
+                saved,
+            );
+        }
+    }
+}
+
+/// Reads keys from `input` on a thread of its own and publishes the targets they set.
+pub fn spawn_keyboard(
+    spec: &CommandSpec,
+    initial: &[f64],
+    mut writer: CommandWriter,
+    mut input: impl Read + Send + 'static,
+    stats: Arc<CommandStats>,
+) -> std::io::Result<std::thread::JoinHandle<()>> {
+    let mut teleop = KeyboardTeleop::new(spec, initial);
+    writer.publish(initial);
+    std::thread::Builder::new()
+        .name("keyboard".into())
+        .spawn(move || {
+            let mut byte = [0u8; 1];
+            // Keys are published as they come; the targets are re-published every read so a
+            // held command does not time out (a keyboard holds its state).
+            while let Ok(1) = input.read(&mut byte) {
+                if let Some(t) = teleop.feed(byte[0]) {
+                    stats.accepted.fetch_add(1, Ordering::Relaxed);
+                    writer.publish(t);
+                }
+            }
+        })
+}
+
+// ---- Gamepad -------------------------------------------------------------------------------
+
+/// What a gamepad reports.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum PadEvent {
+    /// An axis moved to a value in [−1, 1].
+    Axis(PadAxis, f32),
+    /// The pad's south button (A / cross): every command back to its default.
+    Reset,
+    /// The pad is gone.
+    Disconnected,
+}
+
+/// Where gamepad events come from: `gilrs` on a real machine, a script in tests.
+pub trait PadEvents: Send {
+    /// The next event, waiting at most `timeout`.
+    fn next(&mut self, timeout: Duration) -> Option<PadEvent>;
+}
+
+/// Gamepads through `gilrs` (udev/evdev on Linux): the first pad that speaks.
+pub struct GilrsPad {
+    gilrs: gilrs::Gilrs,
+}
+
+impl std::fmt::Debug for GilrsPad {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("GilrsPad").finish_non_exhaustive()
+    }
+}
+
+impl GilrsPad {
+    /// Opens the gamepad subsystem; the message says why it cannot.
+    pub fn open() -> Result<Self, String> {
+        let gilrs = gilrs::Gilrs::new().map_err(|e| format!("cannot open gamepads: {e}"))?;
+        Ok(Self { gilrs })
+    }
+
+    /// Names of the gamepads connected now.
+    pub fn connected(&self) -> Vec<String> {
+        self.gilrs.gamepads().map(|(_, g)| g.name().to_owned()).collect()
+    }
+}
+
+impl PadEvents for GilrsPad {
+    fn next(&mut self, timeout: Duration) -> Option<PadEvent> {
+        use gilrs::{Axis, Button, EventType};
+        let ev = self.gilrs.next_event_blocking(Some(timeout))?;
+        match ev.event {
+            EventType::AxisChanged(axis, v, _) => {
+                let axis = match axis {
+                    Axis::LeftStickX => PadAxis::LeftX,
+                    Axis::LeftStickY => PadAxis::LeftY,
+                    Axis::RightStickX => PadAxis::RightX,
+                    Axis::RightStickY => PadAxis::RightY,
+                    _ => return None,
+                };
+                Some(PadEvent::Axis(axis, v))
+            }
+            EventType::ButtonPressed(Button::South, _) => Some(PadEvent::Reset),
+            EventType::Disconnected => Some(PadEvent::Disconnected),
+            _ => None,
+        }
+    }
+}
+
+/// Stick deflection below which an axis reads zero (worn sticks rest a little off centre).
+pub const STICK_DEADZONE: f32 = 0.08;
+
+/// The gamepad's targets: each bound axis scales its command between the range's ends (full
+/// deflection = the end of the range in that direction), outside a small dead zone.
+#[derive(Debug)]
+pub struct GamepadTeleop {
+    spec: CommandSpec,
+    bindings: Vec<Option<AxisBinding>>,
+    targets: Vec<f64>,
+}
+
+impl GamepadTeleop {
+    /// Starting at the defaults.
+    pub fn new(spec: &CommandSpec) -> Self {
+        Self {
+            spec: spec.clone(),
+            bindings: spec.gamepad_bindings(),
+            targets: spec.defaults(),
+        }
+    }
+
+    /// Takes one event; returns the targets.
+    pub fn apply(&mut self, event: PadEvent) -> &[f64] {
+        match event {
+            PadEvent::Axis(axis, raw) => {
+                let a = if raw.abs() < STICK_DEADZONE || !raw.is_finite() {
+                    0.0
+                } else {
+                    f64::from(raw.clamp(-1.0, 1.0))
+                };
+                let defaults = self.spec.defaults();
+                for (((t, b), [lo, hi]), d) in self
+                    .targets
+                    .iter_mut()
+                    .zip(&self.bindings)
+                    .zip(&self.spec.ranges)
+                    .zip(defaults)
+                {
+                    let Some(b) = b.filter(|b| b.axis == axis) else {
+                        continue;
+                    };
+                    let a = if b.invert { -a } else { a };
+                    *t = if a >= 0.0 { d + a * (hi - d) } else { d + a * (d - lo) };
+                }
+            }
+            PadEvent::Reset | PadEvent::Disconnected => self.targets = self.spec.defaults(),
+        }
+        &self.targets
+    }
+}
+
+/// How often the gamepad's thread re-publishes its targets while the sticks rest (pads report
+/// changes only; the loop's timeout must not take a held stick for a lost pad).
+pub const PAD_REPUBLISH: Duration = Duration::from_millis(50);
+
+/// Reads `pad` on a thread of its own and publishes the targets it sets until `stop`.
+pub fn spawn_gamepad(
+    spec: &CommandSpec,
+    mut writer: CommandWriter,
+    mut pad: impl PadEvents + 'static,
+    stats: Arc<CommandStats>,
+    stop: Arc<AtomicBool>,
+) -> std::io::Result<std::thread::JoinHandle<()>> {
+    let mut teleop = GamepadTeleop::new(spec);
+    std::thread::Builder::new()
+        .name("gamepad".into())
+        .spawn(move || {
+            let mut connected = true;
+            while !stop.load(Ordering::Relaxed) {
+                match pad.next(PAD_REPUBLISH) {
+                    Some(PadEvent::Disconnected) => {
+                        tracing::warn!("gamepad disconnected: commands fall back to their defaults");
+                        teleop.apply(PadEvent::Disconnected);
+                        connected = false;
+                    }
+                    Some(e) => {
+                        stats.accepted.fetch_add(1, Ordering::Relaxed);
+                        let t = teleop.apply(e);
+                        writer.publish(t);
+                        connected = true;
+                    }
+                    // Quiet: the sticks rest where they are.
+                    None if connected => writer.publish(&teleop.targets),
+                    None => {}
+                }
+            }
+        })
+}
+
+// ---- UDP -----------------------------------------------------------------------------------
+
+/// The UDP command message, version 1: one JSON object per datagram,
+/// `{"version": 1, "seq": 17, "command": [0.3, 0.0, 0.0]}` — `seq` rising (a datagram whose
+/// `seq` is not above the newest taken is dropped as out of order), `command` one value per
+/// manifest command, in its order and within its range (a message outside is dropped whole).
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct UdpCommand {
+    /// Message version: [`UDP_MESSAGE_VERSION`].
+    pub version: u64,
+    /// Sequence number, rising.
+    pub seq: u64,
+    /// The commands.
+    pub command: Vec<f64>,
+}
+
+/// Largest datagram read; anything longer is malformed.
+pub const MAX_DATAGRAM: usize = 1024;
+
+/// Why a datagram was dropped.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Dropped {
+    /// Not a version-1 message with the right number of values.
+    Malformed(String),
+    /// A value outside its range.
+    OutOfRange(String),
+    /// Not newer than the newest taken.
+    OutOfOrder,
+}
+
+/// Checks one datagram against `spec` and the newest sequence number taken.
+pub fn parse_datagram(spec: &CommandSpec, bytes: &[u8], newest_seq: Option<u64>) -> Result<UdpCommand, Dropped> {
+    let m: UdpCommand = serde_json::from_slice(bytes).map_err(|e| Dropped::Malformed(e.to_string()))?;
+    if m.version != UDP_MESSAGE_VERSION {
+        return Err(Dropped::Malformed(format!(
+            "version {} (this build reads {UDP_MESSAGE_VERSION})",
+            m.version
+        )));
+    }
+    if m.command.len() != spec.names.len() {
+        return Err(Dropped::Malformed(format!(
+            "{} values for {} commands",
+            m.command.len(),
+            spec.names.len()
+        )));
+    }
+    spec.check_values(&m.command).map_err(Dropped::OutOfRange)?;
+    if newest_seq.is_some_and(|s| m.seq <= s) {
+        return Err(Dropped::OutOfOrder);
+    }
+    Ok(m)
+}
+
+/// Binds `addr` (loopback unless configured otherwise by the caller) and publishes every valid
+/// datagram's commands on a thread of its own until `stop`; returns the bound address.
+pub fn spawn_udp(
+    spec: &CommandSpec,
+    addr: SocketAddr,
+    mut writer: CommandWriter,
+    stats: Arc<CommandStats>,
+    stop: Arc<AtomicBool>,
+) -> std::io::Result<(SocketAddr, std::thread::JoinHandle<()>)> {
+    let socket = UdpSocket::bind(addr)?;
+    socket.set_read_timeout(Some(Duration::from_millis(50)))?;
+    let local = socket.local_addr()?;
+    let spec = spec.clone();
+    let handle = std::thread::Builder::new()
+        .name("udp-commands".into())
+        .spawn(move || {
+            let mut buf = [0u8; MAX_DATAGRAM + 1];
+            let mut newest = None;
+            while !stop.load(Ordering::Relaxed) {
+                let Ok(len) = socket.recv(&mut buf) else {
+                    continue;
+                };
+                let counted = if len > MAX_DATAGRAM {
+                    Err(Dropped::Malformed(format!("longer than {MAX_DATAGRAM} bytes")))
+                } else {
+                    parse_datagram(&spec, &buf[..len], newest)
+                };
+                match counted {
+                    Ok(m) => {
+                        newest = Some(m.seq);
+                        stats.accepted.fetch_add(1, Ordering::Relaxed);
+                        writer.publish(&m.command);
+                    }
+                    Err(why) => {
+                        let counter = match &why {
+                            Dropped::Malformed(_) => &stats.malformed,
+                            Dropped::OutOfRange(_) => &stats.out_of_range,
+                            Dropped::OutOfOrder => &stats.stale,
+                        };
+                        // The first of each kind is worth a line; a flood is counted.
+                        if counter.fetch_add(1, Ordering::Relaxed) == 0 {
+                            tracing::warn!("udp command dropped: {why:?}");
+                        }
+                    }
+                }
+            }
+        })?;
+    Ok((local, handle))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn walk() -> CommandSpec {
+        toml::from_str(
+            r#"
+            names = ["lin_vel_x", "lin_vel_y", "ang_vel_z"]
+            ranges = [[-0.2, 0.4], [-0.2, 0.2], [-1.0, 1.0]]
+            ramp = [0.5, 0.5, 2.0]
+            "#,
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn keys_nudge_within_the_ranges_and_space_resets() {
+        let spec = walk();
+        spec.check().unwrap();
+        let mut k = KeyboardTeleop::new(&spec, &spec.defaults());
+        for _ in 0..3 {
+            k.feed(b'w');
+        }
+        // A tenth of the larger end, three times: 3 × 0.04.
+        assert!((k.targets[0] - 0.12).abs() < 1e-12, "{:?}", k.targets);
+        for _ in 0..20 {
+            k.feed(b'w');
+        }
+        assert_eq!(k.targets[0], 0.4);
+        // ← is ESC [ D: turn left.
+        for b in [0x1b, b'[', b'D'] {
+            k.feed(b);
+        }
+        assert!((k.targets[2] - 0.1).abs() < 1e-12, "{:?}", k.targets);
+        assert_eq!(k.feed(b'x'), None);
+        assert_eq!(k.feed(b' ').unwrap(), &[0.0, 0.0, 0.0]);
+    }
+
+    #[test]
+    fn the_loop_ramps_to_targets_and_falls_back_when_a_source_goes_silent() {
+        let spec = walk();
+        let (mut w, r) = command_channel(3);
+        let mut live = LiveCommands::new(&spec, &spec.defaults(), Some(r), 0.02);
+        w.publish(&[9.0, 0.1, -1.0]);
+        let now = Instant::now();
+        // 0.5 m/s² × 0.02 s per tick.
+        assert_eq!(live.update(now)[0], 0.01);
+        for _ in 0..100 {
+            live.update(now);
+        }
+        // Clamped to the range.
+        assert_eq!(live.current(), &[0.4, 0.1, -1.0]);
+        // Silent past the timeout: back to the defaults, ramped.
+        let later = now + Duration::from_secs(2);
+        live.update(later);
+        assert!(live.current()[0] < 0.4 && live.silent_ticks == 1);
+        for _ in 0..100 {
+            live.update(later);
+        }
+        assert_eq!(live.current(), &[0.0, 0.0, 0.0]);
+    }
+
+    #[test]
+    fn a_stick_spans_each_range_from_the_default_and_is_still_within_its_dead_zone() {
+        let spec = walk();
+        let mut pad = GamepadTeleop::new(&spec);
+        assert_eq!(pad.apply(PadEvent::Axis(PadAxis::LeftY, 1.0))[0], 0.4);
+        assert_eq!(pad.apply(PadEvent::Axis(PadAxis::LeftY, -0.5))[0], -0.1);
+        assert_eq!(pad.apply(PadEvent::Axis(PadAxis::LeftY, 0.05))[0], 0.0);
+        // Stick right: rightward, a negative lin_vel_y; right stick right turns right.
+        assert_eq!(pad.apply(PadEvent::Axis(PadAxis::LeftX, 1.0))[1], -0.2);
+        assert_eq!(pad.apply(PadEvent::Axis(PadAxis::RightX, 1.0))[2], -1.0);
+        assert_eq!(pad.apply(PadEvent::Reset), &[0.0, 0.0, 0.0]);
+    }
+
+    #[test]
+    fn datagrams_outside_the_contract_are_named_and_dropped() {
+        let spec = walk();
+        let ok = br#"{"version": 1, "seq": 5, "command": [0.3, 0.0, 0.5]}"#;
+        assert_eq!(parse_datagram(&spec, ok, None).unwrap().command, [0.3, 0.0, 0.5]);
+        assert_eq!(parse_datagram(&spec, ok, Some(5)), Err(Dropped::OutOfOrder));
+        let far = br#"{"version": 1, "seq": 6, "command": [0.9, 0.0, 0.5]}"#;
+        assert!(matches!(parse_datagram(&spec, far, None), Err(Dropped::OutOfRange(m)) if m.contains("lin_vel_x = 0.9")));
+        for bad in [
+            &br#"{"version": 2, "seq": 6, "command": [0.1, 0.0, 0.5]}"#[..],
+            br#"{"version": 1, "seq": 6, "command": [0.1, 0.0]}"#,
+            br#"{"version": 1, "seq": 6, "command": [0.1, 0.0, 0.5], "extra": 1}"#,
+            b"\xff\xfe",
+            b"ESTOP",
+        ] {
+            assert!(matches!(parse_datagram(&spec, bad, None), Err(Dropped::Malformed(_))), "{bad:?}");
+        }
+    }
+
+    #[test]
+    fn a_spec_with_inverted_ranges_or_mismatched_lists_is_named() {
+        let mut spec = walk();
+        spec.ranges[1] = [0.2, -0.2];
+        let (field, m) = spec.check().unwrap_err();
+        assert_eq!(field, "commands.ranges");
+        assert!(m.contains("lin_vel_y"), "{m}");
+        let mut spec = walk();
+        spec.ramp = Some(vec![1.0]);
+        assert_eq!(spec.check().unwrap_err().0, "commands.ramp");
+    }
+}
