@@ -120,6 +120,11 @@ pub struct PlaySummary {
     pub anchor: Option<usize>,
     /// The state estimate against the simulation's truth (runs with both).
     pub estimator: Option<EstimatorAccuracy>,
+    /// A command-driven run (no clip): where the robot went against its commands. Such a run
+    /// reports no clip-tracking numbers.
+    pub locomotion: Option<LocomotionSummary>,
+    /// The commands' sources: what they accepted and dropped (with live commands).
+    pub command_sources: Option<String>,
     /// What the telemetry logger wrote, when recording.
     pub telemetry: Option<crate::telemetry::TelemetryReport>,
     /// Why the recording failed, if it did (the run itself went on).
@@ -133,7 +138,14 @@ impl std::fmt::Display for PlaySummary {
             "ran {} ticks ({:.2} s), {} overruns",
             self.ticks, self.duration_s, self.overruns
         )?;
-        writeln!(f, "joint tracking RMSE: {:.2}°", self.joint_rmse.to_degrees())?;
+        if let Some(l) = &self.locomotion {
+            write!(f, "{l}")?;
+        } else {
+            writeln!(f, "joint tracking RMSE: {:.2}°", self.joint_rmse.to_degrees())?;
+        }
+        if let Some(c) = &self.command_sources {
+            writeln!(f, "commands: {c}")?;
+        }
         if let Some(r) = self.root_rmse {
             writeln!(f, "root position RMSE:  {:.1} cm", r * 100.0)?;
         }
@@ -160,12 +172,20 @@ impl std::fmt::Display for PlaySummary {
             writeln!(f, "state estimate: {e}")?;
         }
         writeln!(f, "fell: {}", if self.fell { "YES" } else { "no" })?;
-        writeln!(f, "reference played: {:.0} %", 100.0 * self.played)?;
-        writeln!(
-            f,
-            "success (no fall, no safety stop, played to the end, root within 1 m and 45°): {}",
-            if self.success() { "yes" } else { "NO" }
-        )?;
+        if self.locomotion.is_some() {
+            writeln!(
+                f,
+                "success (no fall, no safety stop): {}",
+                if self.success() { "yes" } else { "NO" }
+            )?;
+        } else {
+            writeln!(f, "reference played: {:.0} %", 100.0 * self.played)?;
+            writeln!(
+                f,
+                "success (no fall, no safety stop, played to the end, root within 1 m and 45°): {}",
+                if self.success() { "yes" } else { "NO" }
+            )?;
+        }
         writeln!(
             f,
             "ticks where the governor limited a command: {}",
@@ -295,6 +315,130 @@ impl PlaySummary {
     }
 }
 
+/// What a command-driven run (no clip) did: where the robot went against what it was commanded.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct LocomotionSummary {
+    /// Policy ticks measured.
+    pub ticks: u64,
+    /// Length of the base's path over the floor, m.
+    pub distance_m: f64,
+    /// From the first measured position to the last, m.
+    pub displacement_m: f64,
+    /// Heading turned through, rad (left positive, unwrapped: two turns are 4π).
+    pub heading_change: f64,
+    /// Mean commanded forward, leftward speed (m/s) and turning rate (rad/s), for the commands
+    /// the manifest has (`None` where it has no such command).
+    pub commanded: [Option<f64>; 3],
+    /// Mean achieved forward, leftward speed and turning rate, in the heading frame.
+    pub achieved: [f64; 3],
+    /// RMS of commanded − achieved per tick, for the commanded ones.
+    pub error_rms: [Option<f64>; 3],
+}
+
+impl std::fmt::Display for LocomotionSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(
+            f,
+            "distance: {:.2} m travelled, {:.2} m from the start, heading turned {:+.1}°",
+            self.distance_m,
+            self.displacement_m,
+            self.heading_change.to_degrees()
+        )?;
+        for (k, (name, unit)) in [("forward", "m/s"), ("leftward", "m/s"), ("turning", "rad/s")]
+            .iter()
+            .enumerate()
+        {
+            match (self.commanded[k], self.error_rms[k]) {
+                (Some(c), Some(e)) => writeln!(
+                    f,
+                    "{name:<9} commanded {c:+.3} {unit}, achieved {:+.3} {unit} (RMS error {e:.3})",
+                    self.achieved[k]
+                )?,
+                _ => writeln!(f, "{name:<9} achieved {:+.3} {unit} (not commanded)", self.achieved[k])?,
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Running sums of a command-driven run, fed each policy tick with the base's world pose.
+#[derive(Debug, Clone, Default)]
+pub struct LocomotionMetrics {
+    /// Which command index drives forward, leftward speed and turning.
+    slots: [Option<usize>; 3],
+    start: Option<[f64; 3]>,
+    last: Option<([f64; 3], f64)>,
+    ticks: u64,
+    distance: f64,
+    heading: f64,
+    sum_commanded: [f64; 3],
+    sum_achieved: [f64; 3],
+    sq_error: [f64; 3],
+}
+
+impl LocomotionMetrics {
+    /// Metrics for commands of these kinds.
+    pub fn new(kinds: &[human::commands::CommandKind]) -> Self {
+        use human::commands::CommandKind as K;
+        let find = |k: K| kinds.iter().position(|&x| x == k);
+        Self {
+            slots: [find(K::LinVelX), find(K::LinVelY), find(K::AngVelZ)],
+            ..Self::default()
+        }
+    }
+
+    /// One policy tick `dt` after the last: the base's world pose `[x, y, z, w, qx, qy, qz]` and
+    /// the commands in force.
+    pub fn add(&mut self, pose: [f64; 7], commands: &[f64], dt: f64) {
+        let p = [pose[0], pose[1], pose[2]];
+        let yaw = spatial::heading_of_quat([pose[3], pose[4], pose[5], pose[6]]);
+        self.start.get_or_insert(p);
+        if let Some((q, last_yaw)) = self.last {
+            let (dx, dy) = (p[0] - q[0], p[1] - q[1]);
+            let turned = wrap_angle(yaw - last_yaw);
+            // Speeds in the heading frame halfway through the step.
+            let mid = last_yaw + turned / 2.0;
+            let achieved = [
+                (dx * mid.cos() + dy * mid.sin()) / dt,
+                (-dx * mid.sin() + dy * mid.cos()) / dt,
+                turned / dt,
+            ];
+            self.distance += dx.hypot(dy);
+            self.heading += turned;
+            self.ticks += 1;
+            for k in 0..3 {
+                self.sum_achieved[k] += achieved[k];
+                if let Some(c) = self.slots[k].and_then(|i| commands.get(i)) {
+                    self.sum_commanded[k] += c;
+                    self.sq_error[k] += (c - achieved[k]).powi(2);
+                }
+            }
+        }
+        self.last = Some((p, yaw));
+    }
+
+    /// What the run did, once it measured a step.
+    pub fn summary(&self) -> Option<LocomotionSummary> {
+        let n = self.ticks as f64;
+        let (start, (end, _)) = (self.start?, self.last?);
+        (self.ticks > 0).then(|| LocomotionSummary {
+            ticks: self.ticks,
+            distance_m: self.distance,
+            displacement_m: (end[0] - start[0]).hypot(end[1] - start[1]),
+            heading_change: self.heading,
+            commanded: std::array::from_fn(|k| self.slots[k].map(|_| self.sum_commanded[k] / n)),
+            achieved: self.sum_achieved.map(|s| s / n),
+            error_rms: std::array::from_fn(|k| self.slots[k].map(|_| (self.sq_error[k] / n).sqrt())),
+        })
+    }
+}
+
+/// An angle in (−π, π].
+fn wrap_angle(a: f64) -> f64 {
+    let t = std::f64::consts::TAU;
+    a - t * ((a + std::f64::consts::PI) / t).floor()
+}
+
 /// Sums of the estimator's errors against the truth, tick by tick.
 #[derive(Debug, Clone, Default)]
 struct EstimatorErrors {
@@ -370,6 +514,8 @@ pub struct RunMetrics {
     pub live_latency: Histogram,
     /// The state estimate against the simulation's truth.
     estimator: EstimatorErrors,
+    /// A command-driven run's course.
+    pub locomotion: Option<LocomotionMetrics>,
     /// The motion's tracked bodies, their summed squared position errors, and the anchor.
     bodies: Vec<String>,
     sq_body_error: Vec<f64>,
@@ -462,7 +608,7 @@ impl RunMetrics {
             jitter: self.jitter.clone(),
             live_latency: live.then(|| self.live_latency.clone()),
             root_max_error: (self.root_samples > 0).then_some(self.root_max),
-            played: if live {
+            played: if live || self.locomotion.is_some() {
                 1.0
             } else {
                 (self.played_ticks as f64 / reference_ticks.max(1) as f64).min(1.0)
@@ -494,6 +640,8 @@ impl RunMetrics {
                     },
                 }
             }),
+            locomotion: self.locomotion.as_ref().and_then(LocomotionMetrics::summary),
+            command_sources: None,
             telemetry: None,
             telemetry_error: None,
         }

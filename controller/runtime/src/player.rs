@@ -10,6 +10,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
+use human::commands::{CommandReader, LiveCommands};
 use human::live::LiveReader;
 use robot_link::{ErrorKind, GroundTruth, IoError, JointTarget, RobotLink, RobotState, TickClock};
 use robots::{Robot, spatial};
@@ -144,6 +145,13 @@ pub struct Player<L: RobotLink> {
     has_body_errors: bool,
     telemetry: Option<TelemetrySink>,
     record: Box<TickRecord>,
+    /// The live commands of a command-driven policy (the manifest's `[commands]`).
+    commands: Option<LiveCommands>,
+    /// The policy observes no reference: the run stands in for a clip with the default pose and
+    /// measures where the robot goes instead of how it tracks.
+    command_driven: bool,
+    /// Steps the policy took since it took control (its phase counter).
+    policy_steps: u64,
 }
 
 impl<L: RobotLink> Player<L> {
@@ -248,6 +256,15 @@ impl<L: RobotLink> Player<L> {
         let default_q = layout.default_q.clone();
         let mut metrics = RunMetrics::default();
         metrics.track_bodies(&reference.motion_bodies, reference.anchor);
+        let command_driven = !layout.reads_reference();
+        let commands = match (&layout.manifest.commands, layout.command_values()) {
+            (Some(spec), Some(initial)) => Some(LiveCommands::new(spec, initial, None, dt)),
+            _ => None,
+        };
+        if command_driven {
+            let kinds = commands.as_ref().map(|c| c.spec().kinds()).unwrap_or_default();
+            metrics.locomotion = Some(crate::metrics::LocomotionMetrics::new(&kinds));
+        }
         let tracked_bodies = reference.motion_bodies.len();
         if let Some(e) = &mut embedded {
             // The first tick observes the first frame: one call before anything moves.
@@ -304,9 +321,31 @@ impl<L: RobotLink> Player<L> {
             has_body_errors: false,
             telemetry: None,
             record: Box::default(),
+            commands,
+            command_driven,
+            policy_steps: 0,
             robot,
             layout,
         })
+    }
+
+    /// Takes the commands of a command-driven policy from a live source (keyboard, gamepad,
+    /// UDP): each policy tick the newest targets, clamped to the manifest's ranges and ramped.
+    /// Without one the commands stay at their initial values (`--command`, the defaults).
+    pub fn with_commands(mut self, reader: CommandReader) -> Result<Self, PlayError> {
+        let (Some(spec), Some(initial)) = (&self.layout.manifest.commands, self.layout.command_values()) else {
+            return Err(PlayError::Setup(format!(
+                "{}: the policy has no [commands] section, so nothing takes live commands",
+                self.layout.path.display()
+            )));
+        };
+        self.commands = Some(LiveCommands::new(spec, initial, Some(reader), self.dt));
+        Ok(self)
+    }
+
+    /// Whether the policy observes no reference (it runs with no clip, on its commands).
+    pub fn is_command_driven(&self) -> bool {
+        self.command_driven
     }
 
     /// An e-stop input: when the flag is set, the robot goes to damping at once (a fault, unlike
@@ -620,6 +659,7 @@ impl<L: RobotLink> Player<L> {
             Mode::SoftStart if elapsed >= self.options.soft_start_s => {
                 self.mapper.reset(&self.layout.default_q);
                 self.cursor.restart();
+                self.policy_steps = 0;
                 self.go(Mode::Running, Cause::SoftStartDone);
                 self.policy_tick(has_truth);
             }
@@ -818,7 +858,9 @@ impl<L: RobotLink> Player<L> {
             default_q: &self.policy_default,
             past_actions: self.mapper.past(),
             last_targets: &self.policy_last_targets,
-            time_s: self.cursor.tick() as f64 * self.dt,
+            step: self.policy_steps,
+            dt: self.dt,
+            command: self.commands.as_mut().map(|c| &*c.update(Instant::now())),
             ramp: psi,
             reference: self.cursor.view(),
             truth: self.world_valid.then_some(&self.world),
@@ -882,7 +924,7 @@ impl<L: RobotLink> Player<L> {
             let back = (age.as_secs_f64() / self.dt).min(1.0);
             *r = now + (before - now) * back;
         }
-        if self.cursor.in_clip() {
+        if self.cursor.in_clip() && !self.command_driven {
             let root = has_truth.then(|| {
                 (
                     self.truth_to_world.apply(self.truth.root_pose),
@@ -897,6 +939,17 @@ impl<L: RobotLink> Player<L> {
         }
         self.previous_reference.copy_from_slice(current);
         self.cursor.step();
+        self.policy_steps += 1;
+        // Where the robot went: the simulation's truth where there is one, else the estimate.
+        let pose = if has_truth {
+            Some(self.truth.root_pose)
+        } else {
+            self.world_valid.then_some(self.world.root_pose)
+        };
+        if let (Some(l), Some(pose)) = (&mut self.metrics.locomotion, pose) {
+            let commands = self.commands.as_ref().map_or(&[][..], LiveCommands::current);
+            l.add(pose, commands, self.dt);
+        }
     }
 
     fn summary(&self, took: Duration) -> PlaySummary {

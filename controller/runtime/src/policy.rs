@@ -6,6 +6,7 @@
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 
+use human::commands::CommandSpec;
 use human::live::TRACKER_VALUES;
 
 pub mod export;
@@ -52,18 +53,33 @@ pub enum Term {
     LastTargets(#[serde(default)] Shaping),
     /// Foot contact flags (simulation ground truth only).
     FootContacts(#[serde(default)] Shaping),
-    /// Constant commands (e.g. velocity commands of a locomotion policy).
+    /// Commands (e.g. the velocity command of a locomotion policy): constants, or with the
+    /// manifest's `[commands]` the live commands of an operator (keyboard, gamepad, UDP,
+    /// `--command`), starting at these values (default: the section's defaults).
     Command {
         /// The values.
+        #[serde(default)]
         values: Vec<f64>,
         /// Scaling.
         #[serde(flatten)]
         shaping: Shaping,
     },
-    /// `[cos, sin]` of a phase with this period.
+    /// `[cos, sin]` (or `[sin, cos]`) of a gait phase: `2π (k + a) / P` at the policy's `k`-th
+    /// step (0 at the first), `a` = 1 when the phase advances before the observation is built
+    /// (a counter incremented at the top of the step), `P` the period in ticks.
     Phase {
-        /// Period, s.
-        period_s: f64,
+        /// Period, s (give this or `period_ticks`).
+        #[serde(default)]
+        period_s: Option<f64>,
+        /// Period, policy ticks.
+        #[serde(default)]
+        period_ticks: Option<u64>,
+        /// The phase advances before the first observation (pre-increment).
+        #[serde(default)]
+        advance_first: bool,
+        /// `[sin, cos]` instead of `[cos, sin]`.
+        #[serde(default)]
+        sin_first: bool,
         /// Scaling.
         #[serde(flatten)]
         shaping: Shaping,
@@ -356,9 +372,18 @@ fn check_term(term: &Term) -> Result<(), String> {
         Term::Command { values, .. } if values.iter().any(|v| !v.is_finite()) || values.len() > 64 => {
             Err(format!("values {values:?}: at most 64 finite numbers"))
         }
-        Term::Phase { period_s, .. } if !(0.01..=3600.0).contains(period_s) => {
-            Err(format!("period_s = {period_s} is outside [0.01, 3600] s"))
-        }
+        Term::Phase {
+            period_s,
+            period_ticks,
+            ..
+        } => match (period_s, period_ticks) {
+            (Some(p), None) if !(0.01..=3600.0).contains(p) => Err(format!("period_s = {p} is outside [0.01, 3600] s")),
+            (None, Some(p)) if !(1..=1_000_000).contains(p) => {
+                Err(format!("period_ticks = {p} is outside [1, 1000000]"))
+            }
+            (Some(_), Some(_)) | (None, None) => Err("give exactly one of period_s and period_ticks".into()),
+            _ => Ok(()),
+        },
         _ => Ok(()),
     }
 }
@@ -457,6 +482,10 @@ pub struct PolicyManifest {
     /// `body_names`): their position errors are reported.
     #[serde(default)]
     pub motion_bodies: Vec<String>,
+    /// Live commands of a command-driven policy (its `command` term): names, ranges, ramps,
+    /// keys, gamepad axes.
+    #[serde(default)]
+    pub commands: Option<CommandSpec>,
 }
 
 impl PolicyManifest {
@@ -474,6 +503,7 @@ impl PolicyManifest {
             observation: Vec::new(),
             anchor_body: None,
             motion_bodies: Vec::new(),
+            commands: None,
         }
     }
 }
@@ -733,6 +763,34 @@ impl PolicyLayout {
                 ),
             ));
         }
+        if let Some(spec) = &manifest.commands {
+            spec.check().map_err(|(place, m)| err(&place, m))?;
+        }
+        for (i, term) in manifest.observation.iter_mut().enumerate() {
+            let Term::Command { values, .. } = term else {
+                continue;
+            };
+            let place = format!("observation[{i}] (command).values");
+            match &manifest.commands {
+                Some(spec) if values.is_empty() => *values = spec.defaults(),
+                Some(spec) => spec.check_values(values).map_err(|m| err(&place, m))?,
+                None if values.is_empty() => {
+                    return Err(err(
+                        &place,
+                        "no values, and no [commands] section to take them from".into(),
+                    ));
+                }
+                None => {}
+            }
+        }
+        if manifest.commands.is_some()
+            && manifest.observation.iter().filter(|t| matches!(t, Term::Command { .. })).count() != 1
+        {
+            return Err(err(
+                "commands",
+                "live commands need exactly one `command` term in the observation".into(),
+            ));
+        }
         let n = names.len();
         let feet = robot.config.feet.len();
         let mut slots = Vec::with_capacity(manifest.observation.len());
@@ -749,11 +807,6 @@ impl PolicyLayout {
                         s.history, s.scale, s.offset
                     ),
                 ));
-            }
-            if let Term::Phase { period_s, .. } = term
-                && !(period_s.is_finite() && *period_s > 0.0)
-            {
-                return Err(err(&place, format!("period_s = {period_s} is not a period")));
             }
             let width = term.width(n, feet);
             if width == 0 {
@@ -885,8 +938,42 @@ impl PolicyLayout {
                 current.len()
             )));
         }
+        if let Some(spec) = &self.manifest.commands {
+            spec.check_values(values).map_err(|m| PolicyError {
+                file: self.path.clone(),
+                place: "commands.ranges".into(),
+                message: m,
+            })?;
+        }
         current.copy_from_slice(values);
         Ok(())
+    }
+
+    /// The values the `command` term starts with (what `--command` or the defaults set).
+    pub fn command_values(&self) -> Option<&[f64]> {
+        self.slots.iter().find_map(|s| match &s.term {
+            Term::Command { values, .. } => Some(values.as_slice()),
+            _ => None,
+        })
+    }
+
+    /// Whether any term reads the reference (a clip, a motion, the start-up ramp ψ aside): a
+    /// policy without one is command-driven and runs with no clip.
+    pub fn reads_reference(&self) -> bool {
+        self.slots.iter().any(|s| {
+            matches!(
+                s.term,
+                Term::RefJointPos { .. }
+                    | Term::RefJointVel { .. }
+                    | Term::RefRootPose { .. }
+                    | Term::RefBodyPos { .. }
+                    | Term::MotionCommand(_)
+                    | Term::MotionAnchorPosB(_)
+                    | Term::MotionAnchorOriB(_)
+                    | Term::TimeStep(_)
+                    | Term::TrackerPoses { .. }
+            )
+        })
     }
 
     /// Whether any term needs simulation ground truth.
@@ -1017,8 +1104,13 @@ pub struct ObsInputs<'a> {
     pub past_actions: &'a [f32],
     /// Targets applied last tick.
     pub last_targets: &'a [f64],
-    /// Seconds since tracking began.
-    pub time_s: f64,
+    /// Policy steps taken before this one since the policy took control (0 at its first).
+    pub step: u64,
+    /// The policy's period, s.
+    pub dt: f64,
+    /// The live commands of this tick (with the manifest's `[commands]`), replacing the
+    /// `command` term's values.
+    pub command: Option<&'a [f64]>,
     /// Start-up ramp.
     pub ramp: f64,
     /// Reference joint positions per frame offset: `ref_q(offset)` → n values.
@@ -1144,11 +1236,20 @@ fn fill_term(term: &Term, x: &ObsInputs<'_>, v: &mut [f64]) {
                 *o = f64::from(u8::from(*c));
             }
         }
-        Term::Command { values, .. } => v.copy_from_slice(values),
-        Term::Phase { period_s, .. } => {
-            let a = std::f64::consts::TAU * x.time_s / period_s;
-            v[0] = a.cos();
-            v[1] = a.sin();
+        Term::Command { values, .. } => v.copy_from_slice(x.command.unwrap_or(values)),
+        Term::Phase {
+            period_s,
+            period_ticks,
+            advance_first,
+            sin_first,
+            ..
+        } => {
+            let period = period_ticks.map_or_else(|| period_s.unwrap_or(1.0) / x.dt, |p| p as f64);
+            let k = x.step + u64::from(*advance_first);
+            // The phase within its cycle: exact at every whole period however long the run.
+            let a = std::f64::consts::TAU * ((k as f64 % period) / period);
+            let (c, s) = (a.cos(), a.sin());
+            (v[0], v[1]) = if *sin_first { (s, c) } else { (c, s) };
         }
         Term::Ramp(_) => v[0] = x.ramp,
         Term::RefJointPos { frames, relative, .. } => {

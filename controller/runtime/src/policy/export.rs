@@ -371,19 +371,7 @@ mod tests {
     }
 
     fn manifest() -> PolicyManifest {
-        PolicyManifest {
-            description: String::new(),
-            onnx: "p.onnx".into(),
-            rate_hz: 0.0,
-            joints: vec![],
-            default_pose: None,
-            stiffness: None,
-            damping: None,
-            action: super::super::ActionSpec::default(),
-            observation: vec![],
-            anchor_body: None,
-            motion_bodies: vec![],
-        }
+        PolicyManifest::for_onnx("p.onnx".into())
     }
 
     fn facts(pairs: &[(&str, &str)], time_step: bool) -> ModelFacts {
