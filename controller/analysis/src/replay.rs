@@ -33,6 +33,8 @@ pub struct RecordedTick {
     pub stop: bool,
     /// The targets sent.
     pub targets: Vec<JointTarget>,
+    /// The live commands in force (command-driven policies; empty without).
+    pub commands: Vec<f64>,
 }
 
 /// A recording read back.
@@ -188,6 +190,11 @@ fn recording(path: &Path) -> Result<Recording, String> {
             truth: truth.transpose()?,
             stop: v["stop"].as_bool().unwrap_or(false),
             targets,
+            commands: if v.get("commands").is_some() {
+                numbers(&v, "commands")?
+            } else {
+                Vec::new()
+            },
         });
         Ok(())
     })?;
@@ -375,10 +382,11 @@ pub fn replay(path: &Path) -> Result<ReplayReport, AnalysisError> {
     if let Some(values) = &run.command {
         layout.set_command(values)?;
     }
-    // The clip the run played, or the motion its export carries (the recording names the export).
+    // The clip the run played, the motion its export carries (the recording names the export),
+    // or none for a command-driven policy.
     let (reference, _) = controller::motion::load_reference(
-        Some(&run.clip),
-        &run.clip,
+        run.clip.as_deref(),
+        run.clip.as_deref().unwrap_or(&run.policy),
         &mut layout,
         &robot,
         run.options.start_step,
@@ -403,6 +411,10 @@ pub fn replay(path: &Path) -> Result<ReplayReport, AnalysisError> {
     player.identify()?;
     for t in ticks.iter() {
         stop.store(t.stop, Ordering::Relaxed);
+        // Live commands as the run had them.
+        if !t.commands.is_empty() {
+            player.set_commands(&t.commands);
+        }
         player.step(&clock)?;
     }
     Ok(ReplayReport {

@@ -9,6 +9,7 @@ mod args;
 mod batch;
 mod bus;
 mod calibrate;
+mod commands;
 mod can;
 mod console;
 mod dxl;

@@ -64,9 +64,12 @@ pub struct PlayArgs {
     #[arg(long)]
     estop_udp: Option<std::net::SocketAddr>,
     /// Values of the policy's `command` term (e.g. a velocity command `0.3,0,0`), replacing the
-    /// manifest's constants.
+    /// manifest's constants; with a `[commands]` section each must lie within its range, and a
+    /// live source below starts from them.
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
     command: Option<Vec<f64>>,
+    #[command(flatten)]
+    live: crate::commands::CommandArgs,
     /// Record the run as MCAP here (default: out/runs/ROBOT-CLIP.mcap; opens in Foxglove).
     #[arg(long)]
     record: Option<PathBuf>,
@@ -188,7 +191,26 @@ pub fn check(args: &CheckArgs) -> Result<()> {
     if let Some(m) = world_terms_note(&l.layout, &l.robot, controller::options::EstimatorKind::Kf) {
         println!("       note: {m}");
     }
+    if let Some(spec) = &l.layout.manifest.commands {
+        println!("       live commands (play --command, --keyboard, --gamepad, --command-udp):");
+        let initial = l.layout.command_values().unwrap_or(&[]);
+        let ramps = spec.ramp.clone().unwrap_or_default();
+        for (k, ((name, [lo, hi]), kind)) in spec.names.iter().zip(&spec.ranges).zip(spec.kinds()).enumerate() {
+            println!(
+                "         {name:<12} [{lo}, {hi}] ({kind:?}), starts at {}, key step {}, ramp {}",
+                initial.get(k).copied().unwrap_or(0.0),
+                spec.steps()[k],
+                ramps.get(k).map_or("none".to_owned(), |r| format!("{r}/s"))
+            );
+        }
+        println!("         a silent gamepad or UDP source hands back to the defaults after {} s", spec.timeout_s);
+    }
     match &l.source {
+        ReferenceSource::Commands => {
+            println!("clip   none: the policy observes no reference; `play` runs it on its commands until stopped");
+            println!("ok: nothing moved");
+            return Ok(());
+        }
         ReferenceSource::Clip(clip) => println!(
             "clip   {}: {:.2} s at {} frames → {} ticks at {} Hz, within every joint and speed limit",
             clip.path.display(),
@@ -233,14 +255,18 @@ pub fn check(args: &CheckArgs) -> Result<()> {
     Ok(())
 }
 
-/// Adds the recorder and the e-stop a run asked for.
+/// Adds the recorder, the e-stop and the live commands a run asked for.
 fn with_estop<L: RobotLink>(
     player: Player<L>,
     args: &PlayArgs,
     options: &PlayOptions,
-    embedded: bool,
+    source: &ReferenceSource,
+    commands: Option<human::commands::CommandReader>,
 ) -> Result<Player<L>> {
-    let player = with_recorder(player, args, options, embedded)?;
+    let mut player = with_recorder(player, args, options, source)?;
+    if let Some(reader) = commands {
+        player = player.with_commands(reader)?;
+    }
     let Some(addr) = args.estop_udp else {
         return Ok(player);
     };
@@ -254,7 +280,7 @@ fn with_recorder<L: RobotLink>(
     mut player: Player<L>,
     args: &PlayArgs,
     options: &PlayOptions,
-    embedded: bool,
+    source: &ReferenceSource,
 ) -> Result<Player<L>> {
     if args.no_record {
         return Ok(player);
@@ -285,10 +311,8 @@ fn with_recorder<L: RobotLink>(
             (p.clone(), None)
         }
         None => {
-            let clip = args
-                .files
-                .clip
-                .as_deref()
+            let clip = source
+                .path()
                 .unwrap_or(&args.files.policy)
                 .file_stem()
                 .map_or("run".into(), |s| s.to_string_lossy().into_owned());
@@ -306,15 +330,10 @@ fn with_recorder<L: RobotLink>(
     let run = controller::options::RunMetadata {
         robot: absolute(&args.files.robot),
         policy: absolute(&args.files.policy),
-        clip: absolute(&args.files.clip.clone().unwrap_or_else(|| {
-            // What the run played: the export's own motion, else the default clip.
-            if embedded {
-                args.files.policy.clone()
-            } else {
-                Files::default_clip()
-            }
-        })),
+        // What the run played: the clip, the export's own motion, or nothing (commands).
+        clip: source.path().map(|p| absolute(&p.to_path_buf())),
         command: args.command.clone(),
+        command_source: args.live.source(),
         options: *options,
     };
     let info = controller::telemetry::RecordingInfo {
@@ -355,6 +374,14 @@ fn world_terms_note(
             if terms.len() == 1 { "s" } else { "" }
         )
     })
+}
+
+/// What a run plays, for its first line.
+fn what_plays(l: &Loaded) -> String {
+    match &l.source {
+        ReferenceSource::Commands => format!("{} until stopped (Ctrl-C)", l.source),
+        source => format!("{source} ({} ticks)", l.reference.len()),
+    }
 }
 
 /// Silent cycles tolerated by default over a mirror served on this machine: its socket and
@@ -418,7 +445,15 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         signal_hook::flag::register(signal, Arc::clone(&stop))
             .context("cannot install the stop signal handlers")?;
     }
-    let embedded = matches!(l.source, ReferenceSource::Embedded { .. });
+    let mut options = options;
+    if matches!(l.source, ReferenceSource::Commands) {
+        // Nothing ends a command-driven run but the operator (Ctrl-C, the e-stop) or
+        // --max-seconds: the robot stands on its commands until then.
+        options.end = controller::player::EndMode::Stand;
+    }
+    let initial = l.layout.command_values().unwrap_or(&[]).to_vec();
+    let commands = crate::commands::start(&args.live, l.layout.manifest.commands.as_ref(), &initial)?;
+    let (reader, command_source) = commands.map_or((None, None), |(r, s)| (Some(r), Some(s)));
     if args.hardware {
         if l.robot.config.feet.is_empty()
             && let Some(m) = world_terms_note(&l.layout, &l.robot, options.estimator)
@@ -426,10 +461,9 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
             bail!("{}: {m}", l.layout.path.display());
         }
         println!(
-            "{}: {} ({} ticks) on the hardware",
+            "{}: {} on the hardware",
             l.robot.config.name,
-            l.source,
-            l.reference.len()
+            what_plays(&l)
         );
         let io = robot_link::hardware::open_with(&l.robot, bus_threads(args.realtime))?;
         let mut clock = robot_link::WallClock::start();
@@ -437,9 +471,11 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
             Player::new(l.robot, l.layout, l.reference, options, io, stop)?,
             args,
             &options,
-            embedded,
+            &l.source,
+            reader,
         )?;
-        let summary = player.run(&mut clock)?;
+        let mut summary = player.run(&mut clock)?;
+        summary.command_sources = command_source.map(|s| s.stats.to_string());
         print!("{summary}");
         return Ok(finish(&summary));
     }
@@ -452,10 +488,9 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         eprintln!("note: {m}");
     }
     println!(
-        "{}: {} ({} ticks) on the mirror{}",
+        "{}: {} on the mirror{}",
         l.robot.config.name,
-        l.source,
-        l.reference.len(),
+        what_plays(&l),
         if args.wall {
             " in real time over socketcand and pseudo-terminals"
         } else {
@@ -472,14 +507,16 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
             stop,
             bus_threads(args.realtime),
         )?;
-        let mut player = with_estop(player, args, &options, embedded)?;
+        let mut player = with_estop(player, args, &options, &l.source, reader)?;
         player.run(&mut clock)?
     } else {
         let (player, mut clock, _world) =
             lockstep_player(l.robot, l.layout, l.reference, options, config, stop)?;
-        let mut player = with_estop(player, args, &options, embedded)?;
+        let mut player = with_estop(player, args, &options, &l.source, reader)?;
         player.run(&mut clock)?
     };
+    let mut summary = summary;
+    summary.command_sources = command_source.map(|s| s.stats.to_string());
     print!("{summary}");
     if let (Some(dir), Some(t)) = (&args.report, &summary.telemetry) {
         let r = analysis::report::write_report(&t.path, dir)?;

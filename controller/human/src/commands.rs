@@ -408,6 +408,15 @@ impl LiveCommands {
         &self.current
     }
 
+    /// Puts the commands at `values` (clamped) with no source and no ramp: a replay's way to
+    /// feed back what a run recorded.
+    pub fn set(&mut self, values: &[f64]) {
+        self.reader = None;
+        for ((c, t), v) in self.current.iter_mut().zip(self.target.iter_mut()).zip(values) {
+            (*c, *t) = (*v, *v);
+        }
+    }
+
     /// The commands of the last update.
     pub fn current(&self) -> &[f64] {
         &self.current

@@ -404,6 +404,9 @@ pub fn worst_body_mismatch(
 pub enum ReferenceSource {
     /// A clip file.
     Clip(Clip),
+    /// No clip: a command-driven policy observes no reference; it stands in for one with the
+    /// default pose and runs on its commands until stopped.
+    Commands,
     /// The motion the policy's export carries.
     Embedded {
         /// The export.
@@ -416,11 +419,12 @@ pub enum ReferenceSource {
 }
 
 impl ReferenceSource {
-    /// The file the reference came from (a run's recording names it).
-    pub fn path(&self) -> &Path {
+    /// The file the reference came from (a run's recording names it); none for commands.
+    pub fn path(&self) -> Option<&Path> {
         match self {
-            Self::Clip(c) => &c.path,
-            Self::Embedded { onnx, .. } => onnx,
+            Self::Clip(c) => Some(&c.path),
+            Self::Embedded { onnx, .. } => Some(onnx),
+            Self::Commands => None,
         }
     }
 }
@@ -429,6 +433,7 @@ impl std::fmt::Display for ReferenceSource {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             Self::Clip(c) => write!(f, "{}", c.path.display()),
+            Self::Commands => write!(f, "no clip (a command-driven policy, on its commands)"),
             Self::Embedded {
                 onnx,
                 frames,
@@ -450,7 +455,8 @@ fn same_file(a: &Path, b: &Path) -> bool {
 }
 
 /// The reference of a run: the motion the policy's export carries (from `start_step`), else
-/// the clip at `clip` (`default_clip` when none is given). A clip given for an export that
+/// the clip at `clip`; with no clip, a command-driven policy (one that observes no reference)
+/// holds the default pose, and any other plays `default_clip`. A clip given for an export that
 /// carries its own motion is refused: one of them would be ignored. Binds `layout` to its model
 /// on the way (its terms' sizes checked against the model's inputs and outputs).
 pub fn load_reference(
@@ -495,6 +501,11 @@ pub fn load_reference(
                 start_step,
             },
         ));
+    }
+    if clip.is_none() && !layout.reads_reference() {
+        // Nothing to track: the default pose, upright, is the reference the loop holds.
+        let reference = Reference::hold(&layout.default_q, [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0], layout.manifest.rate_hz);
+        return Ok((reference, ReferenceSource::Commands));
     }
     let clip = Clip::load(clip.unwrap_or(default_clip))?;
     let reference = Reference::from_clip(&clip, robot, layout.manifest.rate_hz)?;

@@ -86,11 +86,16 @@ pub struct RunMetadata {
     pub robot: PathBuf,
     /// The policy manifest.
     pub policy: PathBuf,
-    /// The clip.
-    pub clip: PathBuf,
+    /// The clip (none: a command-driven policy ran on its commands).
+    #[serde(default)]
+    pub clip: Option<PathBuf>,
     /// Command values given on the command line, if any.
     #[serde(default)]
     pub command: Option<Vec<f64>>,
+    /// Where live commands came from (`keyboard`, `gamepad`, `udp ADDR`), if anywhere; the
+    /// commands themselves are recorded tick by tick on `/policy`.
+    #[serde(default)]
+    pub command_source: Option<String>,
     /// The options.
     pub options: PlayOptions,
 }
@@ -116,7 +121,8 @@ mod tests {
         let m = RunMetadata {
             robot: "robots/biped/robot.toml".into(),
             policy: "p.toml".into(),
-            clip: "c.csv".into(),
+            clip: Some("c.csv".into()),
+            command_source: None,
             command: Some(vec![0.1, -2.5e-7]),
             options: PlayOptions {
                 soft_start_s: 0.1 + 0.2,

@@ -343,6 +343,14 @@ impl<L: RobotLink> Player<L> {
         Ok(self)
     }
 
+    /// Sets the commands in force to `values` from now on, bypassing sources and ramps (a replay
+    /// feeding back what a run recorded). No effect without `[commands]`.
+    pub fn set_commands(&mut self, values: &[f64]) {
+        if let Some(c) = &mut self.commands {
+            c.set(values);
+        }
+    }
+
     /// Whether the policy observes no reference (it runs with no clip, on its commands).
     pub fn is_command_driven(&self) -> bool {
         self.command_driven
@@ -605,6 +613,7 @@ impl<L: RobotLink> Player<L> {
                 }),
                 actions: self.mapper.actions(),
                 obs: &self.obs,
+                commands: self.commands.as_ref().map_or(&[][..], LiveCommands::current),
                 truth: &self.truth,
                 has_truth,
                 stop_requested: self.stop_seen,

@@ -111,6 +111,10 @@ pub struct TickRecord {
     pub action: [f32; MAX_JOINTS],
     /// The observation the policy saw.
     pub obs: [f32; MAX_OBS],
+    /// The live commands in force (command-driven policies), `command_count` in use.
+    pub commands: [f64; human::commands::MAX_COMMANDS],
+    /// Commands in use.
+    pub command_count: u8,
     /// Bus I/O time of the tick, µs.
     pub io_us: f32,
     /// Compute time, µs.
@@ -164,6 +168,8 @@ impl Default for TickRecord {
             bodies: 0,
             action: [0.0; MAX_JOINTS],
             obs: [0.0; MAX_OBS],
+            commands: [0.0; human::commands::MAX_COMMANDS],
+            command_count: 0,
             io_us: 0.0,
             compute_us: 0.0,
             bus_us: [0.0; 8],
@@ -209,6 +215,8 @@ pub struct TickView<'a> {
     pub actions: &'a [f32],
     /// The observation.
     pub obs: &'a [f32],
+    /// The live commands in force (empty without).
+    pub commands: &'a [f64],
     /// Simulation ground truth (its pose counts only with `has_truth`).
     pub truth: &'a robot_link::GroundTruth,
     /// Whether the clock had ground truth this tick.
@@ -276,6 +284,9 @@ impl TickRecord {
         let k = v.obs.len().min(MAX_OBS);
         r.obs_len = k as u16;
         r.obs[..k].copy_from_slice(&v.obs[..k]);
+        let c = v.commands.len().min(r.commands.len());
+        r.command_count = c as u8;
+        r.commands[..c].copy_from_slice(&v.commands[..c]);
         r.imu[..3].copy_from_slice(&state.gyro);
         r.imu[3..6].copy_from_slice(&state.accel);
         r.imu[6..].copy_from_slice(&state.quat);
@@ -466,7 +477,7 @@ const TOPICS: [(&str, &str); 9] = [
     ),
     (
         "/policy",
-        r#"{"type":"object","properties":{"obs":{"type":"array","items":{"type":"number"}},"action":{"type":"array","items":{"type":"number"}},"robot_anchor":{"type":"array","items":{"type":"number"},"description":"the robot's anchor body in the world, x y z qw qx qy qz (tracking policies)"},"reference_anchor":{"type":"array","items":{"type":"number"},"description":"the reference's anchor, aligned to the robot, x y z qw qx qy qz"},"body_errors_m":{"type":"array","items":{"type":"number"},"description":"position error of each motion body (channel metadata motion_bodies), m, simulation"}}}"#,
+        r#"{"type":"object","properties":{"obs":{"type":"array","items":{"type":"number"}},"action":{"type":"array","items":{"type":"number"}},"robot_anchor":{"type":"array","items":{"type":"number"},"description":"the robot's anchor body in the world, x y z qw qx qy qz (tracking policies)"},"reference_anchor":{"type":"array","items":{"type":"number"},"description":"the reference's anchor, aligned to the robot, x y z qw qx qy qz"},"body_errors_m":{"type":"array","items":{"type":"number"},"description":"position error of each motion body (channel metadata motion_bodies), m, simulation"},"commands":{"type":"array","items":{"type":"number"},"description":"the live commands in force (command-driven policies), in the manifest's [commands] order and units"}}}"#,
     ),
     (
         "/safety",
@@ -812,6 +823,10 @@ fn encode(out: &mut String, k: usize, r: &TickRecord, root: &str, last_mode: &mu
                 out.push(',');
                 array(out, "body_errors_m", &r.body_errors[..usize::from(r.bodies)]);
             }
+            if r.command_count > 0 {
+                out.push(',');
+                array64(out, "commands", r.commands[..usize::from(r.command_count)].iter().copied());
+            }
         }
         3 => {
             if r.mode == *last_mode {
@@ -864,6 +879,10 @@ fn encode(out: &mut String, k: usize, r: &TickRecord, root: &str, last_mode: &mu
                     .flatten()
                     .copied(),
             );
+            if r.command_count > 0 {
+                out.push(',');
+                array64(out, "commands", r.commands[..usize::from(r.command_count)].iter().copied());
+            }
             out.push(',');
             array64(out, "base_pose", r.base_pose.iter().copied());
             out.push(',');

@@ -1,0 +1,112 @@
+//! `play --keyboard | --gamepad | --command-udp`: where a command-driven policy's live commands
+//! come from, each source on its own thread.
+
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use human::commands::{self, CommandReader, CommandSpec, CommandStats, GilrsPad, TerminalGuard};
+
+/// Where live commands come from (the policy manifest's `[commands]` says what they mean).
+#[derive(Debug, Args)]
+#[group(multiple = false)]
+pub struct CommandArgs {
+    /// Live commands from this terminal's keyboard: W/S or ↑/↓ forward and back, A/D sideways,
+    /// Q/E or ←/→ turn, space back to the defaults; each press moves a command by the manifest's
+    /// `step`, within its `ranges`, ramped by its `ramp`.
+    #[arg(long)]
+    pub keyboard: bool,
+    /// Live commands from the first gamepad (gilrs): left stick walks, right stick turns, A
+    /// (south) resets; full deflection is the end of a command's range. A pad silent longer
+    /// than the manifest's `timeout_s` (a dropped link) hands back to the defaults.
+    #[arg(long)]
+    pub gamepad: bool,
+    /// Live commands from UDP datagrams on ADDR (default 127.0.0.1:9870; another address only
+    /// when given): one JSON object each, {"version": 1, "seq": N, "command": [..]}, seq rising,
+    /// one value per manifest command within its range. Malformed, out-of-range and
+    /// out-of-order datagrams are dropped and counted; silence longer than `timeout_s` hands
+    /// back to the defaults.
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:9870")]
+    pub command_udp: Option<SocketAddr>,
+}
+
+impl CommandArgs {
+    /// The source named, as the recording's metadata says it.
+    pub fn source(&self) -> Option<String> {
+        if self.keyboard {
+            Some("keyboard".into())
+        } else if self.gamepad {
+            Some("gamepad".into())
+        } else {
+            self.command_udp.map(|a| format!("udp {a}"))
+        }
+    }
+}
+
+/// A running command source: its counts, and what to stop or restore when it is dropped.
+#[derive(Debug)]
+pub struct CommandSource {
+    /// Accepted and dropped messages.
+    pub stats: Arc<CommandStats>,
+    stop: Arc<AtomicBool>,
+    _terminal: Option<TerminalGuard>,
+}
+
+impl Drop for CommandSource {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+    }
+}
+
+/// Starts the source `args` names for commands `spec` starting at `initial`, with the reader the
+/// loop takes; `None` when no source is named.
+pub fn start(
+    args: &CommandArgs,
+    spec: Option<&CommandSpec>,
+    initial: &[f64],
+) -> Result<Option<(CommandReader, CommandSource)>> {
+    let Some(name) = args.source() else {
+        return Ok(None);
+    };
+    let Some(spec) = spec else {
+        let flag = match name.as_str() {
+            "keyboard" | "gamepad" => name.clone(),
+            _ => "command-udp".into(),
+        };
+        bail!("--{flag}: the policy's manifest has no [commands] section to take live commands");
+    };
+    let (writer, reader) = commands::command_channel(spec.names.len());
+    let stats = Arc::new(CommandStats::default());
+    let stop = Arc::new(AtomicBool::new(false));
+    let mut terminal = None;
+    if args.keyboard {
+        terminal = Some(TerminalGuard::cbreak());
+        commands::spawn_keyboard(spec, initial, writer, std::io::stdin(), Arc::clone(&stats))
+            .context("cannot start the keyboard thread")?;
+        println!("commands: keyboard — W/S ↑/↓ forward, A/D sideways, Q/E ←/→ turn, space resets; Ctrl-C stops");
+    } else if args.gamepad {
+        let pad = GilrsPad::open().map_err(anyhow::Error::msg)?;
+        let pads = pad.connected();
+        if pads.is_empty() {
+            println!("commands: gamepad — none connected yet; the commands stay at their defaults until one speaks");
+        } else {
+            println!("commands: gamepad — {}", pads.join(", "));
+        }
+        commands::spawn_gamepad(spec, writer, pad, Arc::clone(&stats), Arc::clone(&stop))
+            .context("cannot start the gamepad thread")?;
+    } else if let Some(addr) = args.command_udp {
+        let (local, _) = commands::spawn_udp(spec, addr, writer, Arc::clone(&stats), Arc::clone(&stop))
+            .with_context(|| format!("--command-udp: cannot listen on {addr}"))?;
+        println!("commands: send to udp://{local}");
+    }
+    Ok(Some((
+        reader,
+        CommandSource {
+            stats,
+            stop,
+            _terminal: terminal,
+        },
+    )))
+}
