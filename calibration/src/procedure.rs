@@ -7,7 +7,6 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use firmware_bridge::dxl::models as dxl_models;
-use firmware_bridge::mit::models as mit_models;
 use robots::calibration::{Calibration, ImuCalibration, JointCalibration};
 use robots::{BusKind, Robot, spatial};
 
@@ -549,7 +548,10 @@ impl<'a, R: Rig + ?Sized, O: Operator + ?Sized> Session<'a, R, O> {
                 }
             }
             _ => {
-                let p_max = mit_models::find(&joint.model).map_or(f64::INFINITY, |m| m.p_max);
+                let p_max = self
+                    .robot
+                    .mit_model(&joint.model)
+                    .map_or(f64::INFINITY, |m| m.p_max);
                 solve::check_mit_range(mapping, joint.gear, range, p_max).map_err(fail)?;
                 JointCalibration {
                     zero_offset: mapping.zero,

@@ -230,10 +230,85 @@ pub struct RobotConfig {
     /// pose, upright.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub start_keyframe: Option<String>,
+    /// MIT-mode motor models of this robot's own, beside the shipped table (a name here
+    /// shadows a shipped one).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub mit_models: Vec<MitModelConfig>,
     /// Foot switches on Linux GPIO lines, for the state estimator's contacts (none: contact is
     /// estimated from the legs' kinematics).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub contacts: Vec<ContactSwitch>,
+}
+
+/// An MIT-mode motor model as a robot.toml defines it: the ranges its firmware maps the 16- and
+/// 12-bit command and reply fields onto (position, velocity and torque symmetric about zero,
+/// gains from zero), and its reply format.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct MitModelConfig {
+    /// The name joints' `model` refers to.
+    pub name: String,
+    /// Reply format: `cubemars`, `damiao` or `mini_cheetah`.
+    pub reply: mit::models::MotorFamily,
+    /// Position range, rad: `[-p_max, p_max]`.
+    pub position: [f64; 2],
+    /// Velocity range, rad/s: `[-v_max, v_max]`.
+    pub velocity: [f64; 2],
+    /// Torque range, N·m: `[-t_max, t_max]` (also the firmware's clamp).
+    pub torque: [f64; 2],
+    /// Stiffness range, N·m/rad: `[0, kp_max]`.
+    pub kp: [f64; 2],
+    /// Damping range, N·m·s/rad: `[0, kd_max]`.
+    pub kd: [f64; 2],
+    /// Torque the motor sustains without overheating, N·m (0 < rated ≤ t_max).
+    pub rated_torque: f64,
+}
+
+impl MitModelConfig {
+    /// The model, or the field that is wrong and why.
+    pub fn model(&self) -> Result<mit::models::MotorModel, (&'static str, String)> {
+        let symmetric = |field: &'static str, [lo, hi]: [f64; 2]| {
+            if !(lo.is_finite() && hi.is_finite() && lo < hi) {
+                return Err((field, format!("[{lo}, {hi}] is not a range (low < high, finite)")));
+            }
+            if lo != -hi {
+                return Err((
+                    field,
+                    format!("[{lo}, {hi}]: MIT mode maps it symmetric about zero, give [-{hi}, {hi}]"),
+                ));
+            }
+            Ok(hi)
+        };
+        let from_zero = |field: &'static str, [lo, hi]: [f64; 2]| {
+            if !(lo.is_finite() && hi.is_finite() && lo < hi) {
+                return Err((field, format!("[{lo}, {hi}] is not a range (low < high, finite)")));
+            }
+            if lo != 0.0 {
+                return Err((field, format!("[{lo}, {hi}]: gains start at 0, give [0, {hi}]")));
+            }
+            Ok(hi)
+        };
+        let model = mit::models::MotorModel {
+            name: self.name.clone(),
+            family: self.reply,
+            p_max: symmetric("position", self.position)?,
+            v_max: symmetric("velocity", self.velocity)?,
+            t_max: symmetric("torque", self.torque)?,
+            kp_max: from_zero("kp", self.kp)?,
+            kd_max: from_zero("kd", self.kd)?,
+            rated_torque: self.rated_torque,
+        };
+        if !(model.rated_torque > 0.0 && model.rated_torque <= model.t_max) {
+            return Err((
+                "rated_torque",
+                format!(
+                    "{} must be in (0, {}] (the torque range)",
+                    model.rated_torque, model.t_max
+                ),
+            ));
+        }
+        Ok(model)
+    }
 }
 
 /// A foot switch on a GPIO line (the Linux character-device interface).
@@ -358,6 +433,8 @@ pub struct Robot {
     pub mjcf_path: PathBuf,
     /// What the MJCF declares.
     pub mjcf: MjcfSummary,
+    /// The robot's own MIT-mode models (robot.toml's `mit_models`), checked.
+    pub mit_models: Vec<mit::models::MotorModel>,
 }
 
 impl Robot {
@@ -413,11 +490,23 @@ impl Robot {
         }
         let mjcf_path = path.parent().unwrap_or(Path::new(".")).join(&config.mjcf);
         let mjcf = mjcf::summarize(&mjcf_path).map_err(|e| err("mjcf", e.to_string()))?;
+        let mut mit_models = Vec::with_capacity(config.mit_models.len());
+        for (i, m) in config.mit_models.iter().enumerate() {
+            let at = |field: &str| format!("mit_models[{i}] ({}).{field}", m.name);
+            if m.name.is_empty() || config.mit_models[..i].iter().any(|o| o.name == m.name) {
+                return Err(err(
+                    &at("name"),
+                    format!("{:?} is empty or defined twice", m.name),
+                ));
+            }
+            mit_models.push(m.model().map_err(|(field, message)| err(&at(field), message))?);
+        }
         let robot = Self {
             config,
             path: path.to_path_buf(),
             mjcf_path,
             mjcf,
+            mit_models,
         };
         robot.check().map_err(|(place, message)| err(&place, message))?;
         Ok(robot)
@@ -535,6 +624,27 @@ impl Robot {
             }
         }
         Ok(())
+    }
+
+    /// The MIT-mode motor model called `name`: the robot's own, else the shipped table's.
+    pub fn mit_model(&self, name: &str) -> Option<&mit::models::MotorModel> {
+        self.mit_models
+            .iter()
+            .find(|m| m.name == name)
+            .or_else(|| mit::models::find(name))
+    }
+
+    /// Whether `kp`/`kd` (joint side) fit `j`'s actuator: the error names the actuator's ranges.
+    /// For gains that come from elsewhere (a policy manifest) than robot.toml.
+    pub fn check_gains(&self, j: &JointConfig, kp: f64, kd: f64) -> Result<(), String> {
+        let Some(bus) = self.bus(&j.bus) else {
+            return Ok(());
+        };
+        let probe = JointConfig { kp, kd, ..j.clone() };
+        match check_actuator(&probe, bus.kind, &self.mit_models) {
+            Err(("kp", message)) => Err(message),
+            _ => Ok(()),
+        }
     }
 
     /// The bus called `name`.
@@ -993,7 +1103,7 @@ impl Robot {
                     return Err((at(field), format!("{v} is not allowed")));
                 }
             }
-            check_actuator(j, bus.kind).map_err(|(f, msg)| (at(f), msg))?;
+            check_actuator(j, bus.kind, &self.mit_models).map_err(|(f, msg)| (at(f), msg))?;
         }
         Ok(())
     }
@@ -1010,22 +1120,25 @@ pub const WIT_BAUDS: [u32; 9] = [
 /// Largest Homing Offset of an X-series servo, ticks (the control table's range).
 pub const HOMING_OFFSET_MAX: i32 = 1_044_479;
 
-/// Whether `kp`/`kd` (joint side) fit `j`'s actuator: the error names the actuator's ranges. For
-/// gains that come from elsewhere (a policy manifest) than robot.toml.
-pub fn check_gains(j: &JointConfig, kind: BusKind, kp: f64, kd: f64) -> Result<(), String> {
-    let probe = JointConfig { kp, kd, ..j.clone() };
-    match check_actuator(&probe, kind) {
-        Err(("kp", message)) => Err(message),
-        _ => Ok(()),
-    }
-}
-
-/// Joint limits must fit what the actuator can do (through the gear).
-fn check_actuator(j: &JointConfig, kind: BusKind) -> Result<(), (&'static str, String)> {
+/// Joint limits must fit what the actuator can do (through the gear); `own` are the robot's own
+/// MIT-mode models.
+fn check_actuator(
+    j: &JointConfig,
+    kind: BusKind,
+    own: &[mit::models::MotorModel],
+) -> Result<(), (&'static str, String)> {
     match kind {
         BusKind::MitCan => {
-            let Some(motor) = mit::models::find(&j.model) else {
-                let known: Vec<_> = mit::models::builtin().iter().map(|m| m.name.as_str()).collect();
+            let Some(motor) = own
+                .iter()
+                .find(|m| m.name == j.model)
+                .or_else(|| mit::models::find(&j.model))
+            else {
+                let known: Vec<_> = own
+                    .iter()
+                    .chain(mit::models::builtin())
+                    .map(|m| m.name.as_str())
+                    .collect();
                 return Err((
                     "model",
                     format!(

@@ -3,16 +3,17 @@
 use firmware_bridge::dxl::driver::{DxlJointConfig, DxlMode};
 use firmware_bridge::dxl::models as dxl_models;
 use firmware_bridge::mit::driver::MitJointConfig;
-use firmware_bridge::mit::models as mit_models;
 
 use crate::config::JointConfig;
 
-/// The MIT driver's view of a joint on an `mit_can` bus.
+/// The MIT driver's view of a joint of `robot` on an `mit_can` bus.
 ///
 /// # Panics
 /// When the joint's model is not an MIT motor (loading a [`crate::Robot`] checks this).
-pub fn mit_joint(j: &JointConfig) -> MitJointConfig {
-    let model = mit_models::find(&j.model).expect("an MIT-mode motor (checked at load)");
+pub fn mit_joint(robot: &crate::Robot, j: &JointConfig) -> MitJointConfig {
+    let model = robot
+        .mit_model(&j.model)
+        .expect("an MIT-mode motor (checked at load)");
     let mut c = MitJointConfig::new(&j.name, j.id, model);
     c.direction = j.direction;
     c.offset = j.zero_offset;

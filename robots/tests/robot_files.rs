@@ -305,3 +305,51 @@ fn imu_sensor_names_and_a_start_keyframe_the_model_lacks_are_named() {
         &["start_keyframe", "\"home\" is not a keyframe of the MJCF", "none"],
     );
 }
+
+/// rd-biped with its left knee on a motor model robot.toml defines itself, `ranges` replacing
+/// the model's ranges.
+fn with_own_knee_motor(ranges: &str) -> String {
+    let own =
+        format!("\n[[mit_models]]\nname = \"RD-X10\"\nreply = \"cubemars\"\n{ranges}\nrated_torque = 20.0\n");
+    let text = reference_text().replacen(
+        "name = \"left_knee\"\nmjcf_joint = \"left_knee\"\nbus = \"can0\"\nid = 4\nmodel = \"AK10-9\"",
+        "name = \"left_knee\"\nmjcf_joint = \"left_knee\"\nbus = \"can0\"\nid = 4\nmodel = \"RD-X10\"",
+        1,
+    );
+    // Top-level tables go before the first array of tables.
+    text.replacen("\n[[buses]]", &format!("{own}\n[[buses]]"), 1)
+}
+
+const RD_X10: &str = "position = [-12.5, 12.5]\nvelocity = [-30.0, 30.0]\ntorque = [-45.0, 45.0]\nkp = [0.0, 500.0]\nkd = [0.0, 5.0]";
+
+#[test]
+fn a_robot_may_define_its_own_mit_motor_model_checked_like_the_shipped_ones() {
+    let robot = load_variant(&with_own_knee_motor(RD_X10)).unwrap();
+    let m = robot.mit_model("RD-X10").unwrap();
+    assert_eq!((m.p_max, m.v_max, m.t_max, m.kp_max), (12.5, 30.0, 45.0, 500.0));
+    // The shipped table is still there for the other joints.
+    assert_eq!(robot.mit_model("AK10-9").unwrap().t_max, 65.0);
+    // Limits beyond the model name it, as for a shipped model.
+    let weak = RD_X10.replace("[-45.0, 45.0]", "[-30.0, 30.0]");
+    expect_error(
+        &with_own_knee_motor(&weak).replace("rated_torque = 20.0", "rated_torque = 10.0"),
+        &["joints[3] (left_knee).torque_limit", "RD-X10", "30"],
+    );
+    // Inverted, lopsided and nonsense ranges are named by field.
+    expect_error(
+        &with_own_knee_motor(&RD_X10.replace("[-12.5, 12.5]", "[12.5, -12.5]")),
+        &["mit_models[0] (RD-X10).position", "[12.5, -12.5] is not a range"],
+    );
+    expect_error(
+        &with_own_knee_motor(&RD_X10.replace("[-30.0, 30.0]", "[-10.0, 30.0]")),
+        &["mit_models[0] (RD-X10).velocity", "symmetric about zero"],
+    );
+    expect_error(
+        &with_own_knee_motor(&RD_X10.replace("kd = [0.0, 5.0]", "kd = [1.0, 5.0]")),
+        &["mit_models[0] (RD-X10).kd", "gains start at 0"],
+    );
+    expect_error(
+        &with_own_knee_motor(&RD_X10).replace("rated_torque = 20.0", "rated_torque = 50.0"),
+        &["mit_models[0] (RD-X10).rated_torque", "(0, 45]"],
+    );
+}

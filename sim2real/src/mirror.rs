@@ -11,6 +11,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use firmware_bridge::can::virtual_bus::{LockstepCanPort, VirtualCanBus, VirtualCanNode};
+use firmware_bridge::dxl;
 use firmware_bridge::dxl::servo::{ReplyFault, ServoConfig, XSeriesServo};
 use firmware_bridge::dxl::table::hw;
 use firmware_bridge::dxl::transport::LockstepDxlPort;
@@ -22,7 +23,6 @@ use firmware_bridge::plant::MotorPlant;
 use firmware_bridge::serial::{LockstepStream, SerialSimWorld, StreamLine};
 use firmware_bridge::time::SimWorld;
 use firmware_bridge::time::{SimInstant, SimRng};
-use firmware_bridge::{dxl, mit};
 use mujoco_rs::prelude::*;
 use robots::spatial::{quat_conj, quat_mul, quat_of_rpy, quat_rotate};
 use robots::{BusKind, Robot};
@@ -325,7 +325,7 @@ impl Mirror {
                     let motors = robot
                         .joints_on(&bus.name)
                         .map(|(i, j)| {
-                            let m = mit::models::find(&j.model).expect("checked at load");
+                            let m = robot.mit_model(&j.model).expect("checked at load");
                             MitMotor {
                                 node: wire.attach(),
                                 firmware: MitMotorFirmware::new(MitFirmwareConfig {

@@ -608,3 +608,34 @@ fn a_dynamixel_joint_pushed_against_an_obstacle_never_exceeds_its_torque_limit()
     // PWM Limit the driver programs caps it (0.02 N·m: Present Load's 0.1 % steps).
     assert_eq!(push_against_the_jig("head_pitch", 0.6, 0.02), 1.2);
 }
+
+#[test]
+fn a_motor_model_of_the_robots_own_drives_driver_and_firmware_alike() {
+    // The left knee on "RD-X20", a model robot.toml defines: ±20 rad where the AK10-9 maps
+    // ±12.5. Driver and emulated firmware both take the robot's table: a knee held at its
+    // default shows it (with either on the shipped table the angle would scale by 12.5/20).
+    let text = std::fs::read_to_string(reference_robot_path())
+        .unwrap()
+        .replacen("id = 4\nmodel = \"AK10-9\"", "id = 4\nmodel = \"RD-X20\"", 1)
+        .replacen(
+            "\n[[buses]]",
+            "\n[[mit_models]]\nname = \"RD-X20\"\nreply = \"cubemars\"\nposition = [-20.0, 20.0]\n\
+             velocity = [-40.0, 40.0]\ntorque = [-60.0, 60.0]\nkp = [0.0, 500.0]\nkd = [0.0, 5.0]\n\
+             rated_torque = 20.0\n\n[[buses]]",
+            1,
+        );
+    let robot = Robot::from_str(&reference_robot_path(), &text).unwrap();
+    let knee = robot
+        .config
+        .joints
+        .iter()
+        .position(|j| j.name == "left_knee")
+        .unwrap();
+    assert_eq!(robot.config.joints[knee].model, "RD-X20");
+    let mut h = host_of(robot, on_gantry());
+    h.run(2.0);
+    let mut w = h.inner.world.lock().unwrap();
+    assert_eq!(w.motor_mut(knee).unwrap().config().model.p_max, 20.0);
+    let q = w.joint_positions().nth(knee).unwrap();
+    assert!((q - 0.5).abs() < 0.02, "knee at {q:.3} rad, default 0.5");
+}

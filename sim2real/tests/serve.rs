@@ -44,7 +44,7 @@ fn drivers_hold_the_served_biped_over_socketcand_and_pseudo_terminals() {
         let client = SocketcandClient::connect(addr, name, Duration::from_secs(2)).unwrap();
         let (idx, cfg): (Vec<_>, Vec<_>) = robot
             .joints_on(name)
-            .map(|(i, j)| (i, drivers::mit_joint(j)))
+            .map(|(i, j)| (i, drivers::mit_joint(&robot, j)))
             .unzip();
         let mut d = MitBusDriver::new(client, cfg, Duration::from_millis(20)).unwrap();
         d.enable_all().unwrap();

@@ -135,7 +135,9 @@ fn print_timing(robot: &Robot, bus: &str) {
 
 fn scan_mit<B: CanBus>(robot: &Robot, bus: &str, port: &mut B, timeout: Duration) -> Result<usize> {
     let joints: Vec<_> = robot.joints_on(bus).map(|(_, j)| j).collect();
-    let model = mit::models::find(&joints[0].model).context("model checked at load")?;
+    let model = robot
+        .mit_model(&joints[0].model)
+        .context("model checked at load")?;
     let last = joints
         .iter()
         .map(|j| j.id)

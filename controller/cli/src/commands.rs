@@ -85,12 +85,16 @@ pub fn start(
         terminal = Some(TerminalGuard::cbreak());
         commands::spawn_keyboard(spec, initial, writer, std::io::stdin(), Arc::clone(&stats))
             .context("cannot start the keyboard thread")?;
-        println!("commands: keyboard — W/S ↑/↓ forward, A/D sideways, Q/E ←/→ turn, space resets; Ctrl-C stops");
+        println!(
+            "commands: keyboard — W/S ↑/↓ forward, A/D sideways, Q/E ←/→ turn, space resets; Ctrl-C stops"
+        );
     } else if args.gamepad {
         let pad = GilrsPad::open().map_err(anyhow::Error::msg)?;
         let pads = pad.connected();
         if pads.is_empty() {
-            println!("commands: gamepad — none connected yet; the commands stay at their defaults until one speaks");
+            println!(
+                "commands: gamepad — none connected yet; the commands stay at their defaults until one speaks"
+            );
         } else {
             println!("commands: gamepad — {}", pads.join(", "));
         }

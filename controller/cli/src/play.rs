@@ -195,7 +195,8 @@ pub fn check(args: &CheckArgs) -> Result<()> {
         println!("       live commands (play --command, --keyboard, --gamepad, --command-udp):");
         let initial = l.layout.command_values().unwrap_or(&[]);
         let ramps = spec.ramp.clone().unwrap_or_default();
-        for (k, ((name, [lo, hi]), kind)) in spec.names.iter().zip(&spec.ranges).zip(spec.kinds()).enumerate() {
+        for (k, ((name, [lo, hi]), kind)) in spec.names.iter().zip(&spec.ranges).zip(spec.kinds()).enumerate()
+        {
             println!(
                 "         {name:<12} [{lo}, {hi}] ({kind:?}), starts at {}, key step {}, ramp {}",
                 initial.get(k).copied().unwrap_or(0.0),
@@ -203,11 +204,16 @@ pub fn check(args: &CheckArgs) -> Result<()> {
                 ramps.get(k).map_or("none".to_owned(), |r| format!("{r}/s"))
             );
         }
-        println!("         a silent gamepad or UDP source hands back to the defaults after {} s", spec.timeout_s);
+        println!(
+            "         a silent gamepad or UDP source hands back to the defaults after {} s",
+            spec.timeout_s
+        );
     }
     match &l.source {
         ReferenceSource::Commands => {
-            println!("clip   none: the policy observes no reference; `play` runs it on its commands until stopped");
+            println!(
+                "clip   none: the policy observes no reference; `play` runs it on its commands until stopped"
+            );
             println!("ok: nothing moved");
             return Ok(());
         }
@@ -460,11 +466,7 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         {
             bail!("{}: {m}", l.layout.path.display());
         }
-        println!(
-            "{}: {} on the hardware",
-            l.robot.config.name,
-            what_plays(&l)
-        );
+        println!("{}: {} on the hardware", l.robot.config.name, what_plays(&l));
         let io = robot_link::hardware::open_with(&l.robot, bus_threads(args.realtime))?;
         let mut clock = robot_link::WallClock::start();
         let mut player = with_estop(

@@ -114,10 +114,7 @@ impl CommandSpec {
         let n = self.names.len();
         let field = |f: &str| format!("commands.{f}");
         if n == 0 || n > MAX_COMMANDS {
-            return Err((
-                field("names"),
-                format!("{n} commands: one to {MAX_COMMANDS}"),
-            ));
+            return Err((field("names"), format!("{n} commands: one to {MAX_COMMANDS}")));
         }
         for (i, name) in self.names.iter().enumerate() {
             if name.is_empty() || self.names[..i].contains(name) {
@@ -193,12 +190,9 @@ impl CommandSpec {
 
     /// The commands before any source speaks.
     pub fn defaults(&self) -> Vec<f64> {
-        self.default.clone().unwrap_or_else(|| {
-            self.ranges
-                .iter()
-                .map(|&[lo, hi]| 0.0f64.clamp(lo, hi))
-                .collect()
-        })
+        self.default
+            .clone()
+            .unwrap_or_else(|| self.ranges.iter().map(|&[lo, hi]| 0.0f64.clamp(lo, hi)).collect())
     }
 
     /// Key press increments.
@@ -246,7 +240,11 @@ impl CommandSpec {
     /// `values` clamped into the ranges.
     pub fn clamp(&self, values: &mut [f64]) {
         for (v, [lo, hi]) in values.iter_mut().zip(&self.ranges) {
-            *v = if v.is_finite() { v.clamp(*lo, *hi) } else { 0.0f64.clamp(*lo, *hi) };
+            *v = if v.is_finite() {
+                v.clamp(*lo, *hi)
+            } else {
+                0.0f64.clamp(*lo, *hi)
+            };
         }
     }
 }
@@ -698,7 +696,11 @@ impl GamepadTeleop {
                         continue;
                     };
                     let a = if b.invert { -a } else { a };
-                    *t = if a >= 0.0 { d + a * (hi - d) } else { d + a * (d - lo) };
+                    *t = if a >= 0.0 {
+                        d + a * (hi - d)
+                    } else {
+                        d + a * (d - lo)
+                    };
                 }
             }
             PadEvent::Reset | PadEvent::Disconnected => self.targets = self.spec.defaults(),
@@ -720,29 +722,27 @@ pub fn spawn_gamepad(
     stop: Arc<AtomicBool>,
 ) -> std::io::Result<std::thread::JoinHandle<()>> {
     let mut teleop = GamepadTeleop::new(spec);
-    std::thread::Builder::new()
-        .name("gamepad".into())
-        .spawn(move || {
-            let mut connected = true;
-            while !stop.load(Ordering::Relaxed) {
-                match pad.next(PAD_REPUBLISH) {
-                    Some(PadEvent::Disconnected) => {
-                        tracing::warn!("gamepad disconnected: commands fall back to their defaults");
-                        teleop.apply(PadEvent::Disconnected);
-                        connected = false;
-                    }
-                    Some(e) => {
-                        stats.accepted.fetch_add(1, Ordering::Relaxed);
-                        let t = teleop.apply(e);
-                        writer.publish(t);
-                        connected = true;
-                    }
-                    // Quiet: the sticks rest where they are.
-                    None if connected => writer.publish(&teleop.targets),
-                    None => {}
+    std::thread::Builder::new().name("gamepad".into()).spawn(move || {
+        let mut connected = true;
+        while !stop.load(Ordering::Relaxed) {
+            match pad.next(PAD_REPUBLISH) {
+                Some(PadEvent::Disconnected) => {
+                    tracing::warn!("gamepad disconnected: commands fall back to their defaults");
+                    teleop.apply(PadEvent::Disconnected);
+                    connected = false;
                 }
+                Some(e) => {
+                    stats.accepted.fetch_add(1, Ordering::Relaxed);
+                    let t = teleop.apply(e);
+                    writer.publish(t);
+                    connected = true;
+                }
+                // Quiet: the sticks rest where they are.
+                None if connected => writer.publish(&teleop.targets),
+                None => {}
             }
-        })
+        }
+    })
 }
 
 // ---- UDP -----------------------------------------------------------------------------------
@@ -777,7 +777,11 @@ pub enum Dropped {
 }
 
 /// Checks one datagram against `spec` and the newest sequence number taken.
-pub fn parse_datagram(spec: &CommandSpec, bytes: &[u8], newest_seq: Option<u64>) -> Result<UdpCommand, Dropped> {
+pub fn parse_datagram(
+    spec: &CommandSpec,
+    bytes: &[u8],
+    newest_seq: Option<u64>,
+) -> Result<UdpCommand, Dropped> {
     let m: UdpCommand = serde_json::from_slice(bytes).map_err(|e| Dropped::Malformed(e.to_string()))?;
     if m.version != UDP_MESSAGE_VERSION {
         return Err(Dropped::Malformed(format!(
@@ -931,7 +935,9 @@ mod tests {
         assert_eq!(parse_datagram(&spec, ok, None).unwrap().command, [0.3, 0.0, 0.5]);
         assert_eq!(parse_datagram(&spec, ok, Some(5)), Err(Dropped::OutOfOrder));
         let far = br#"{"version": 1, "seq": 6, "command": [0.9, 0.0, 0.5]}"#;
-        assert!(matches!(parse_datagram(&spec, far, None), Err(Dropped::OutOfRange(m)) if m.contains("lin_vel_x = 0.9")));
+        assert!(
+            matches!(parse_datagram(&spec, far, None), Err(Dropped::OutOfRange(m)) if m.contains("lin_vel_x = 0.9"))
+        );
         for bad in [
             &br#"{"version": 2, "seq": 6, "command": [0.1, 0.0, 0.5]}"#[..],
             br#"{"version": 1, "seq": 6, "command": [0.1, 0.0]}"#,
@@ -939,7 +945,10 @@ mod tests {
             b"\xff\xfe",
             b"ESTOP",
         ] {
-            assert!(matches!(parse_datagram(&spec, bad, None), Err(Dropped::Malformed(_))), "{bad:?}");
+            assert!(
+                matches!(parse_datagram(&spec, bad, None), Err(Dropped::Malformed(_))),
+                "{bad:?}"
+            );
         }
     }
 

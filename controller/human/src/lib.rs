@@ -4,8 +4,8 @@
 //! loop (teleoperation, handed over lock-free), and a VR sender that plays a BVH as trackers.
 
 pub mod body_map;
-pub mod commands;
 pub mod bvh;
+pub mod commands;
 pub mod error;
 pub mod ik;
 pub mod live;

@@ -354,7 +354,11 @@ impl std::fmt::Display for LocomotionSummary {
                     "{name:<9} commanded {c:+.3} {unit}, achieved {:+.3} {unit} (RMS error {e:.3})",
                     self.achieved[k]
                 )?,
-                _ => writeln!(f, "{name:<9} achieved {:+.3} {unit} (not commanded)", self.achieved[k])?,
+                _ => writeln!(
+                    f,
+                    "{name:<9} achieved {:+.3} {unit} (not commanded)",
+                    self.achieved[k]
+                )?,
             }
         }
         Ok(())

@@ -504,7 +504,11 @@ pub fn load_reference(
     }
     if clip.is_none() && !layout.reads_reference() {
         // Nothing to track: the default pose, upright, is the reference the loop holds.
-        let reference = Reference::hold(&layout.default_q, [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0], layout.manifest.rate_hz);
+        let reference = Reference::hold(
+            &layout.default_q,
+            [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
+            layout.manifest.rate_hz,
+        );
         return Ok((reference, ReferenceSource::Commands));
     }
     let clip = Clip::load(clip.unwrap_or(default_clip))?;

@@ -333,7 +333,8 @@ impl<L: RobotLink> Player<L> {
     /// UDP): each policy tick the newest targets, clamped to the manifest's ranges and ramped.
     /// Without one the commands stay at their initial values (`--command`, the defaults).
     pub fn with_commands(mut self, reader: CommandReader) -> Result<Self, PlayError> {
-        let (Some(spec), Some(initial)) = (&self.layout.manifest.commands, self.layout.command_values()) else {
+        let (Some(spec), Some(initial)) = (&self.layout.manifest.commands, self.layout.command_values())
+        else {
             return Err(PlayError::Setup(format!(
                 "{}: the policy has no [commands] section, so nothing takes live commands",
                 self.layout.path.display()

@@ -377,7 +377,9 @@ fn check_term(term: &Term) -> Result<(), String> {
             period_ticks,
             ..
         } => match (period_s, period_ticks) {
-            (Some(p), None) if !(0.01..=3600.0).contains(p) => Err(format!("period_s = {p} is outside [0.01, 3600] s")),
+            (Some(p), None) if !(0.01..=3600.0).contains(p) => {
+                Err(format!("period_s = {p} is outside [0.01, 3600] s"))
+            }
             (None, Some(p)) if !(1..=1_000_000).contains(p) => {
                 Err(format!("period_ticks = {p} is outside [1, 1000000]"))
             }
@@ -784,7 +786,12 @@ impl PolicyLayout {
             }
         }
         if manifest.commands.is_some()
-            && manifest.observation.iter().filter(|t| matches!(t, Term::Command { .. })).count() != 1
+            && manifest
+                .observation
+                .iter()
+                .filter(|t| matches!(t, Term::Command { .. }))
+                .count()
+                != 1
         {
             return Err(err(
                 "commands",
@@ -896,9 +903,7 @@ impl PolicyLayout {
                     format!("{}: kp {} / kd {} must not be negative", j.name, kp[r], kd[r]),
                 ));
             }
-            if let Some(bus) = robot.bus(&j.bus)
-                && let Err(m) = robots::check_gains(j, bus.kind, kp[r], kd[r])
-            {
+            if let Err(m) = robot.check_gains(j, kp[r], kd[r]) {
                 return Err(err("stiffness", format!("{}: {m}", j.name)));
             }
         }

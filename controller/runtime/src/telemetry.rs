@@ -825,7 +825,11 @@ fn encode(out: &mut String, k: usize, r: &TickRecord, root: &str, last_mode: &mu
             }
             if r.command_count > 0 {
                 out.push(',');
-                array64(out, "commands", r.commands[..usize::from(r.command_count)].iter().copied());
+                array64(
+                    out,
+                    "commands",
+                    r.commands[..usize::from(r.command_count)].iter().copied(),
+                );
             }
         }
         3 => {
@@ -881,7 +885,11 @@ fn encode(out: &mut String, k: usize, r: &TickRecord, root: &str, last_mode: &mu
             );
             if r.command_count > 0 {
                 out.push(',');
-                array64(out, "commands", r.commands[..usize::from(r.command_count)].iter().copied());
+                array64(
+                    out,
+                    "commands",
+                    r.commands[..usize::from(r.command_count)].iter().copied(),
+                );
             }
             out.push(',');
             array64(out, "base_pose", r.base_pose.iter().copied());

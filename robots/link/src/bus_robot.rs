@@ -465,7 +465,7 @@ impl<S: ByteStream> BusRobot<S> {
             let timing = timing(&name)?;
             let (idx, cfg): (Vec<_>, Vec<_>) = robot
                 .joints_on(&name)
-                .map(|(i, j)| (i, drivers::mit_joint(j)))
+                .map(|(i, j)| (i, drivers::mit_joint(robot, j)))
                 .unzip();
             let window = reply_timeout.min(Cycler::reply_window(&timing));
             let bus = Bus {
