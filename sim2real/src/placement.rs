@@ -14,31 +14,17 @@ pub fn lowest_point(data: &MjData<Box<MjModel>>, root_body: usize) -> Option<f64
     let mut lowest = f64::INFINITY;
     for g in 0..ngeom {
         let body = usize::try_from(model.geom_bodyid()[g]).unwrap_or(0);
-        let collides = model.geom_contype()[g] != 0 || model.geom_conaffinity()[g] != 0;
-        if body == 0 || !collides || !in_tree(model, body, root_body) {
+        if body == 0 || !collides(model, g) || !in_tree(model, body, root_body) {
             continue;
         }
         let p = data.geom_xpos()[g];
-        // Row-major: R[row][col] at 3·row + col; column k is the geom's k-th axis in the world.
+        // Row-major: R[row][col] at 3·row + col; the world's down in the geom's frame is minus
+        // the matrix's third row.
         let r = data.geom_xmat()[g];
-        let axis_z = |k: usize| r[6 + k];
-        let size = model.geom_size()[g];
-        let low = match model.geom_type()[g] {
-            G::mjGEOM_SPHERE => p[2] - size[0],
-            G::mjGEOM_CAPSULE => p[2] - size[1] * axis_z(2).abs() - size[0],
-            G::mjGEOM_CYLINDER => {
-                let tilt = (1.0 - axis_z(2) * axis_z(2)).max(0.0).sqrt();
-                p[2] - size[1] * axis_z(2).abs() - size[0] * tilt
-            }
-            G::mjGEOM_BOX => p[2] - (0..3).map(|k| size[k] * axis_z(k).abs()).sum::<f64>(),
-            G::mjGEOM_ELLIPSOID => p[2] - (0..3).map(|k| (size[k] * axis_z(k)).powi(2)).sum::<f64>().sqrt(),
-            G::mjGEOM_MESH => match mesh_lowest(model, g, p, &r) {
-                Some(z) => z,
-                None => continue,
-            },
-            // Planes, height fields and the rest have no extent a robot stands on.
-            _ => continue,
+        let Some(down) = reach(model, g, [-r[6], -r[7], -r[8]]) else {
+            continue;
         };
+        let low = p[2] - down;
         lowest = lowest.min(low);
     }
     lowest.is_finite().then_some(lowest)
@@ -57,13 +43,39 @@ fn in_tree(model: &MjModel, mut body: usize, root: usize) -> bool {
     }
 }
 
-/// The lowest world height of mesh geom `g`'s vertices (stored in the geom's frame once compiled).
-fn mesh_lowest(model: &MjModel, g: usize, p: [f64; 3], r: &[f64; 9]) -> Option<f64> {
+/// How far geom `g` reaches from its centre along the unit direction `d` (in the geom's own
+/// frame): its support function, exact for spheres, capsules, cylinders, boxes, ellipsoids and
+/// meshes (their vertices, stored in the geom's frame once compiled). `None` for shapes without
+/// an extent to stand on (planes, height fields).
+pub fn reach(model: &MjModel, g: usize, d: [f64; 3]) -> Option<f64> {
+    let s = model.geom_size()[g];
+    let across = (d[0] * d[0] + d[1] * d[1]).sqrt();
+    Some(match model.geom_type()[g] {
+        G::mjGEOM_SPHERE => s[0],
+        G::mjGEOM_CAPSULE => s[0] + s[1] * d[2].abs(),
+        G::mjGEOM_CYLINDER => s[0] * across + s[1] * d[2].abs(),
+        G::mjGEOM_BOX => (0..3).map(|k| s[k] * d[k].abs()).sum(),
+        G::mjGEOM_ELLIPSOID => (0..3).map(|k| (s[k] * d[k]).powi(2)).sum::<f64>().sqrt(),
+        G::mjGEOM_MESH => mesh_vertices(model, g)?
+            .iter()
+            .map(|v| f64::from(v[0]) * d[0] + f64::from(v[1]) * d[1] + f64::from(v[2]) * d[2])
+            .max_by(f64::total_cmp)?,
+        _ => return None,
+    })
+}
+
+/// The vertices of mesh geom `g`, in the geom's own frame.
+pub fn mesh_vertices(model: &MjModel, g: usize) -> Option<&[[f32; 3]]> {
+    if model.geom_type()[g] != G::mjGEOM_MESH {
+        return None;
+    }
     let mesh = usize::try_from(model.geom_dataid()[g]).ok()?;
     let start = usize::try_from(model.mesh_vertadr()[mesh]).ok()?;
     let count = usize::try_from(model.mesh_vertnum()[mesh]).ok()?;
-    model.mesh_vert()[start..start + count]
-        .iter()
-        .map(|v| p[2] + r[6] * f64::from(v[0]) + r[7] * f64::from(v[1]) + r[8] * f64::from(v[2]))
-        .min_by(f64::total_cmp)
+    model.mesh_vert().get(start..start + count)
+}
+
+/// Whether geom `g` takes part in collisions (visual-only geoms have neither bit).
+pub fn collides(model: &MjModel, g: usize) -> bool {
+    model.geom_contype()[g] != 0 || model.geom_conaffinity()[g] != 0
 }

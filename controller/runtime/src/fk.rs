@@ -346,9 +346,10 @@ const MAX_SOLE_POINTS: usize = 8;
 /// Sole points this close to the lowest one touch the floor with it, m.
 const PATCH_BAND_M: f64 = 0.005;
 
-/// The points of a foot that can touch the floor, in its own frame: the four corners of each
-/// box's lowest face; for other shapes the lowest point along the body's z (spheres, capsules,
-/// cylinders, ellipsoids exactly, others by their bounding sphere).
+/// The points of a foot that can touch the floor, in its own frame: of each collision geom, the
+/// four corners of a box's lowest face, a mesh's extreme vertices (front, back, sides) among
+/// those within the patch band of its lowest, and the lowest point along the body's z of other
+/// shapes (`sim2real::placement::reach`).
 #[derive(Debug, Clone, Copy)]
 struct Sole {
     points: [[f64; 3]; MAX_SOLE_POINTS],
@@ -358,6 +359,7 @@ struct Sole {
 impl Sole {
     fn of(model: &MjModel, body: usize) -> Self {
         use mujoco_rs::mujoco_c::_mjtGeomBase as G;
+        use sim2real::placement::{collides, mesh_vertices, reach};
         let mut sole = Self {
             points: [[0.0; 3]; MAX_SOLE_POINTS],
             len: 0,
@@ -369,14 +371,12 @@ impl Sole {
             }
         }
         for g in 0..model.ffi().ngeom as usize {
-            if model.geom_bodyid()[g] as usize != body {
+            if model.geom_bodyid()[g] as usize != body || !collides(model, g) {
                 continue;
             }
             let (p, q, s) = (model.geom_pos()[g], model.geom_quat()[g], model.geom_size()[g]);
             let m = spatial::mat_of_quat(q);
-            // The geom's axes' z components in the body frame.
-            let z = [m[2][0].abs(), m[2][1].abs(), m[2][2].abs()];
-            let extent = match model.geom_type()[g] {
+            match model.geom_type()[g] {
                 G::mjGEOM_BOX => {
                     let mut corners = [[0.0; 3]; 8];
                     for (k, c) in corners.iter_mut().enumerate() {
@@ -386,17 +386,40 @@ impl Sole {
                     }
                     corners.sort_by(|a, b| a[2].total_cmp(&b[2]));
                     corners[..4].iter().for_each(|c| push(&mut sole, *c));
-                    continue;
                 }
-                G::mjGEOM_SPHERE => s[0],
-                G::mjGEOM_CAPSULE => s[0] + z[2] * s[1],
-                G::mjGEOM_CYLINDER => s[0] * (1.0 - z[2] * z[2]).sqrt() + z[2] * s[1],
-                G::mjGEOM_ELLIPSOID => {
-                    ((z[0] * s[0]).powi(2) + (z[1] * s[1]).powi(2) + (z[2] * s[2]).powi(2)).sqrt()
+                G::mjGEOM_MESH => {
+                    let in_body = |v: &[f32; 3]| spatial::add(p, spatial::mat_apply(&m, v.map(f64::from)));
+                    let Some(vertices) = mesh_vertices(model, g) else {
+                        continue;
+                    };
+                    let lowest = vertices
+                        .iter()
+                        .map(|v| in_body(v)[2])
+                        .fold(f64::INFINITY, f64::min);
+                    let flat = vertices
+                        .iter()
+                        .map(in_body)
+                        .filter(|v| v[2] <= lowest + PATCH_BAND_M);
+                    // Front, back, left, right of the flat part: the patch's extent.
+                    let mut extreme = [[0.0; 3], [0.0; 3], [0.0; 3], [0.0; 3]];
+                    let mut best = [f64::NEG_INFINITY; 4];
+                    for v in flat {
+                        for (k, score) in [v[0], -v[0], v[1], -v[1]].into_iter().enumerate() {
+                            if score > best[k] {
+                                (best[k], extreme[k]) = (score, v);
+                            }
+                        }
+                    }
+                    extreme.iter().for_each(|c| push(&mut sole, [c[0], c[1], lowest]));
                 }
-                _ => model.geom_rbound()[g],
-            };
-            push(&mut sole, [p[0], p[1], p[2] - extent]);
+                _ => {
+                    // The body's down in the geom's frame: minus the third row of its rotation.
+                    let Some(extent) = reach(model, g, [-m[2][0], -m[2][1], -m[2][2]]) else {
+                        continue;
+                    };
+                    push(&mut sole, [p[0], p[1], p[2] - extent]);
+                }
+            }
         }
         if sole.len == 0 {
             push(&mut sole, [0.0; 3]);
