@@ -312,7 +312,7 @@ impl MitModelConfig {
 }
 
 /// A foot switch on a GPIO line (the Linux character-device interface).
-#[derive(Debug, Clone, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct ContactSwitch {
     /// The foot (one of `feet`).
@@ -324,6 +324,17 @@ pub struct ContactSwitch {
     /// The switch pulls the line low when the foot is down.
     #[serde(default)]
     pub active_low: bool,
+    /// The model's `touch` sensor that stands for this switch in the mirror (default: the
+    /// foot's contacts with anything, as the simulation has them).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sensor: Option<String>,
+    /// Force (N) on the touch sensor above which the switch reads closed (0–1000, default 2).
+    #[serde(default = "default_touch_threshold")]
+    pub threshold_n: f64,
+}
+
+fn default_touch_threshold() -> f64 {
+    2.0
 }
 
 /// A human body the retargeting map knows (BVH skeletons and VR trackers are mapped onto these).
@@ -903,6 +914,42 @@ impl Robot {
                 return Err((
                     format!("contacts[{i}].foot"),
                     format!("{:?} has a switch already", sw.foot),
+                ));
+            }
+            if let Some(name) = &sw.sensor {
+                match m.sensor(name) {
+                    Some(t) if t.kind == "touch" => {}
+                    Some(t) => {
+                        return Err((
+                            format!("contacts[{i}].sensor"),
+                            format!("{name:?} is a {} sensor, not a touch sensor", t.kind),
+                        ));
+                    }
+                    None => {
+                        let touch: Vec<&str> = m
+                            .sensors
+                            .iter()
+                            .filter(|s| s.kind == "touch")
+                            .map(|s| s.name.as_str())
+                            .collect();
+                        return Err((
+                            format!("contacts[{i}].sensor"),
+                            format!(
+                                "{name:?} is not a sensor of the MJCF (its touch sensors: {})",
+                                if touch.is_empty() {
+                                    "none".into()
+                                } else {
+                                    touch.join(", ")
+                                }
+                            ),
+                        ));
+                    }
+                }
+            }
+            if !(sw.threshold_n.is_finite() && (0.0..=1000.0).contains(&sw.threshold_n)) {
+                return Err((
+                    format!("contacts[{i}].threshold_n"),
+                    format!("{} N is outside [0, 1000]", crate::num(sw.threshold_n)),
                 ));
             }
             if sw.line > 1023 || sw.chip.as_os_str().is_empty() {

@@ -48,6 +48,27 @@ pub fn lockstep_robot(robot: &Robot, world: &Arc<Mutex<Mirror>>) -> Result<Locks
     Ok(if robot.config.contacts.is_empty() {
         link
     } else {
+        let touch = {
+            let w = world
+                .lock()
+                .map_err(|_| IoError::Setup("the mirror's lock is poisoned".into()))?;
+            let model = w.data().model();
+            let mut touch = Vec::with_capacity(robot.config.feet.len());
+            for f in &robot.config.feet {
+                let sw = robot.config.contacts.iter().find(|c| c.foot == *f);
+                touch.push(
+                    match sw.and_then(|c| c.sensor.as_ref().map(|s| (s, c.threshold_n))) {
+                        Some((name, threshold)) => Some((
+                            crate::model_index::sensor_address(model, name)
+                                .map_err(|e| IoError::Setup(e.to_string()))?,
+                            threshold,
+                        )),
+                        None => None,
+                    },
+                );
+            }
+            touch
+        };
         link.with_contacts(Box::new(MirrorSwitches {
             world: Arc::clone(world),
             wired: robot
@@ -56,6 +77,7 @@ pub fn lockstep_robot(robot: &Robot, world: &Arc<Mutex<Mirror>>) -> Result<Locks
                 .iter()
                 .map(|f| robot.config.contacts.iter().any(|c| c.foot == *f))
                 .collect(),
+            touch,
         }))
     })
 }
@@ -67,6 +89,9 @@ struct MirrorSwitches {
     world: Arc<Mutex<Mirror>>,
     /// Which feet have a switch.
     wired: Vec<bool>,
+    /// Per foot, the touch sensor standing for its switch (its `sensordata` address) and the
+    /// force that closes it; `None`: the foot's contacts.
+    touch: Vec<Option<(usize, f64)>>,
 }
 
 impl robot_link::contacts::ContactSource for MirrorSwitches {
@@ -77,7 +102,11 @@ impl robot_link::contacts::ContactSource for MirrorSwitches {
             .map_err(|_| IoError::Setup("the mirror's lock is poisoned".into()))?;
         let (mut pose, mut velocity) = ([0.0; 7], [0.0; 3]);
         world.ground_truth(&mut pose, &mut velocity, out);
-        for (o, &wired) in out.iter_mut().zip(&self.wired) {
+        let sensors = world.data().sensordata();
+        for ((o, &wired), touch) in out.iter_mut().zip(&self.wired).zip(&self.touch) {
+            if let Some((address, threshold)) = touch {
+                *o = sensors[*address] > *threshold;
+            }
             *o &= wired;
         }
         Ok(())
