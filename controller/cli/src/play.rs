@@ -159,6 +159,7 @@ pub fn check(args: &CheckArgs) -> Result<()> {
         l.robot.config.joints.len(),
         l.robot.path.display()
     );
+    print_model(&l.robot);
     for b in &l.robot.config.buses {
         if let Some(line) = crate::bus::schedule(&l.robot, &b.name) {
             println!("       {:<6} {line}", b.name);
@@ -179,6 +180,7 @@ pub fn check(args: &CheckArgs) -> Result<()> {
         l.layout.manifest.rate_hz, l.layout.manifest.action.kind, l.layout.obs_len
     );
     print!("{}", l.layout.describe());
+    print!("{}", l.layout.describe_action());
     if let Some(a) = &l.layout.manifest.anchor_body {
         println!("       anchor body {a}");
     }
@@ -259,6 +261,84 @@ pub fn check(args: &CheckArgs) -> Result<()> {
     }
     println!("ok: nothing moved");
     Ok(())
+}
+
+/// What MuJoCo compiled of the robot's model: floor, actuators per joint, sensors, keyframes,
+/// and where the mirror's IMU reads.
+fn print_model(robot: &Robot) {
+    let m = &robot.mjcf;
+    let list = |v: Vec<String>| {
+        if v.is_empty() {
+            "none".to_owned()
+        } else {
+            v.join(", ")
+        }
+    };
+    println!(
+        "model  {} as MuJoCo compiled it: {} bodies, {} joints, {} meshes; floor: {}",
+        robot.mjcf_path.display(),
+        m.bodies.len(),
+        m.joints.len(),
+        m.meshes,
+        list(m.floor.clone())
+    );
+    let mut kinds = std::collections::BTreeMap::<&str, Vec<&str>>::new();
+    let mut bare = Vec::new();
+    for j in &robot.config.joints {
+        let mut acts = m.actuators_of(&j.mjcf_joint).peekable();
+        if acts.peek().is_none() {
+            bare.push(j.name.as_str());
+        }
+        for a in acts {
+            kinds.entry(a.kind.name()).or_default().push(j.name.as_str());
+        }
+    }
+    for (kind, joints) in &kinds {
+        println!("       {} {kind} actuators: {}", joints.len(), joints.join(", "));
+    }
+    if !bare.is_empty() {
+        println!(
+            "       joints without an actuator in the model (the mirror applies the firmware's torque): {}",
+            bare.join(", ")
+        );
+    }
+    println!(
+        "       sensors: {}",
+        list(
+            m.sensors
+                .iter()
+                .map(|s| format!("{} ({})", s.name, s.kind))
+                .collect()
+        )
+    );
+    let start = robot.config.start_keyframe.as_deref();
+    println!(
+        "       keyframes: {}",
+        list(
+            m.keyframes
+                .iter()
+                .map(|k| if Some(k.name.as_str()) == start {
+                    format!("{} (the mirror's start)", k.name)
+                } else {
+                    k.name.clone()
+                })
+                .collect()
+        )
+    );
+    let imu = robot.imu_sensors();
+    let named: Vec<String> = robots::IMU_SENSOR_KINDS
+        .iter()
+        .zip(&imu)
+        .map(|((field, _), s)| match s {
+            Some(name) => format!("{field} {name}"),
+            None => format!("{field} (none on the site: the mirror adds one)"),
+        })
+        .collect();
+    println!(
+        "       imu on site {}: {}",
+        robot.config.imu.site,
+        named.join(", ")
+    );
 }
 
 /// Adds the recorder, the e-stop and the live commands a run asked for.

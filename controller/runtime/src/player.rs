@@ -675,8 +675,13 @@ impl<L: RobotLink> Player<L> {
             }
             Mode::SoftStart => self.soft_start_targets(),
             Mode::Running if self.clip_done() => {
-                self.go(Mode::Stopping, Cause::ClipFinished);
-                self.machine.pending = Some(Cause::ClipFinished);
+                let cause = if self.cursor.finished() {
+                    Cause::ClipFinished
+                } else {
+                    Cause::TimeUp
+                };
+                self.go(Mode::Stopping, cause);
+                self.machine.pending = Some(cause);
                 self.hold_targets();
             }
             Mode::Running => self.policy_tick(has_truth),

@@ -1070,22 +1070,120 @@ impl PolicyLayout {
         let mut out = String::new();
         for s in &self.slots {
             let sh = s.term.shaping();
+            let scale = match &sh.scales {
+                Some(v) => format!("scales {v:?}"),
+                None => format!("scale {}", sh.scale),
+            };
+            let mut extra = sh.clip.map_or(String::new(), |c| format!(" clip ±{c}"));
+            if sh.history > 1 && sh.history_order == HistoryOrder::OldestFirst {
+                extra.push_str(" oldest first");
+            }
+            match &s.term {
+                Term::Phase {
+                    period_s,
+                    period_ticks,
+                    advance_first,
+                    sin_first,
+                    ..
+                } => {
+                    let period = period_ticks.map_or_else(
+                        || format!("{} s", period_s.unwrap_or(0.0)),
+                        |t| format!("{t} ticks"),
+                    );
+                    extra.push_str(&format!(
+                        "  period {period}, {}, {}",
+                        if *advance_first {
+                            "advances before the first observation"
+                        } else {
+                            "0 at the first observation"
+                        },
+                        if *sin_first { "[sin, cos]" } else { "[cos, sin]" }
+                    ));
+                }
+                Term::Command { values, .. } => {
+                    let live = if self.manifest.commands.is_some() {
+                        "live, starting at"
+                    } else {
+                        "constant"
+                    };
+                    extra.push_str(&format!("  {live} {values:?}"));
+                }
+                Term::JointPos { relative: true, .. } | Term::RefJointPos { relative: true, .. } => {
+                    extra.push_str("  minus the default pose");
+                }
+                _ => {}
+            }
+            if let Some(i) = &sh.input {
+                extra.push_str(&format!("  → input {i:?}"));
+            }
             out.push_str(&format!(
-                "  [{:>4}..{:<4}) {:<18} {:>3} × {} history  scale {} offset {}{}\n",
+                "  [{:>4}..{:<4}) {:<18} {:>3} × {} history  {scale} offset {}{extra}\n",
                 s.range.start,
                 s.range.end,
                 s.term.name(),
                 s.width,
                 sh.history,
-                sh.scale,
                 sh.offset,
-                sh.clip.map_or(String::new(), |c| format!(" clip ±{c}"))
-                    + &sh
-                        .input
-                        .as_ref()
-                        .map_or(String::new(), |i| format!("  → input {i:?}"))
             ));
         }
+        out
+    }
+
+    /// What the action side and the per-joint values resolved to, one line each: the joint
+    /// mapping, the action mapping, the default pose and gains (policy order).
+    pub fn describe_action(&self) -> String {
+        let a = &self.manifest.action;
+        let names = &self.manifest.joints;
+        let per_joint = |v: &[f64]| {
+            let first = v.first().copied().unwrap_or(0.0);
+            if v.iter().all(|x| (x - first).abs() < 1e-12) {
+                format!("{first} for every joint")
+            } else {
+                let p: Vec<String> = self.robot_index.iter().map(|&r| format!("{}", v[r])).collect();
+                format!("[{}] (policy order)", p.join(", "))
+            }
+        };
+        let mapping: Vec<String> = names
+            .iter()
+            .zip(&self.robot_index)
+            .enumerate()
+            .map(|(p, (n, &r))| if p == r { n.clone() } else { format!("{n}→{r}") })
+            .collect();
+        let mut out = format!(
+            "  joints   {} in policy order (→ robot.toml index where it differs): {}\n",
+            names.len(),
+            mapping.join(", ")
+        );
+        out.push_str(&format!(
+            "  action   {:?}: {}; scale {}; clip {}; rate limit {}; low-pass {}\n",
+            a.kind,
+            match a.kind {
+                ActionKind::Position => "target = default pose + scale · action",
+                ActionKind::Torque => "torque = action · the joint's torque limit",
+            },
+            per_joint(&self.action_scale),
+            a.clip.map_or("none".into(), |c| format!("±{c}")),
+            a.rate_limit.map_or("none".into(), |r| format!("{r} rad/s")),
+            a.lowpass_hz.map_or("none".into(), |f| format!("{f} Hz")),
+        ));
+        fn from(given: bool, what: &'static str) -> &'static str {
+            if given { "the policy's" } else { what }
+        }
+        out.push_str(&format!(
+            "  default  {} ({})\n",
+            per_joint(&self.default_q),
+            from(
+                self.manifest.default_pose.is_some(),
+                "robot.toml's default_position"
+            )
+        ));
+        out.push_str(&format!(
+            "  gains    kp {} ({}); kd {} ({})\n",
+            per_joint(&self.kp),
+            from(self.manifest.stiffness.is_some(), "robot.toml's"),
+            per_joint(&self.kd),
+            from(self.manifest.damping.is_some(), "robot.toml's"),
+        ));
         out
     }
 }

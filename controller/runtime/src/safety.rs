@@ -49,6 +49,8 @@ pub enum Cause {
     SoftStartDone,
     /// The clip (and its end hold or blend) finished.
     ClipFinished,
+    /// The run's time budget (`--max-seconds`) ran out.
+    TimeUp,
     /// SIGINT, SIGTERM or an e-stop input asked to stop.
     StopRequested,
     /// A joint's feedback was stale for the allowed bus cycles (its bus damped itself).
@@ -112,6 +114,7 @@ impl std::fmt::Display for Cause {
             Self::Start => write!(f, "start"),
             Self::SoftStartDone => write!(f, "soft start done"),
             Self::ClipFinished => write!(f, "clip finished"),
+            Self::TimeUp => write!(f, "run time up"),
             Self::StopRequested => write!(f, "stop requested"),
             Self::StaleFeedback { joint, cycles } => {
                 write!(f, "joint {joint}: no feedback for {cycles} bus cycles")
@@ -151,6 +154,7 @@ impl Cause {
                 | Self::Start
                 | Self::SoftStartDone
                 | Self::ClipFinished
+                | Self::TimeUp
                 | Self::StopRequested
                 | Self::HoldDone
                 | Self::DampingDone
