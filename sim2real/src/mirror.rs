@@ -116,7 +116,16 @@ struct Imu {
 struct Gantry {
     pos: [f64; 3],
     quat: [f64; 4],
+    /// Spring and damper on the base's position (N/m, N·s/m) and orientation (N·m/rad,
+    /// N·m·s/rad), sized for the robot held.
+    gains: [f64; 4],
 }
+
+/// How stiff the gantry is: the held robot's natural frequency on it, rad/s, and its damping
+/// ratio. Gains follow from the robot's mass and inertia, so a 2 kg robot and a 17 kg one sit
+/// alike on the stand, and the explicit damping stays far inside its stable step.
+const GANTRY_OMEGA: f64 = 35.0;
+const GANTRY_ZETA: f64 = 0.7;
 
 /// Counters of a mirror run.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -513,9 +522,17 @@ impl Mirror {
         if self.config.gantry {
             let q = self.data.qpos();
             let r = self.root_qpos;
+            let (mass, inertia) = self.held_mass_and_inertia();
+            let (w, z) = (GANTRY_OMEGA, GANTRY_ZETA);
             self.gantry = Some(Gantry {
                 pos: [q[r], q[r + 1], q[r + 2]],
                 quat: [q[r + 3], q[r + 4], q[r + 5], q[r + 6]],
+                gains: [
+                    mass * w * w,
+                    2.0 * z * mass * w,
+                    inertia * w * w,
+                    2.0 * z * inertia * w,
+                ],
             });
         }
         self.sync_plants();
@@ -791,10 +808,35 @@ impl Mirror {
         }
     }
 
+    /// The robot's mass (kg) and its mean moment of inertia about the root (kg·m²), in the
+    /// present pose.
+    fn held_mass_and_inertia(&self) -> (f64, f64) {
+        let m = self.data.model();
+        let root = self.data.xpos()[self.root_body];
+        let (mut mass, mut inertia) = (0.0, 0.0);
+        for b in 1..m.ffi().nbody as usize {
+            let mut a = b;
+            while a != 0 && a != self.root_body {
+                a = m.body_parentid()[a] as usize;
+            }
+            if a != self.root_body {
+                continue;
+            }
+            let bm = m.body_mass()[b];
+            let d = self.data.xipos()[b];
+            let r2 = (0..3).map(|i| (d[i] - root[i]).powi(2)).sum::<f64>();
+            let own = m.body_inertia()[b];
+            mass += bm;
+            // Averaged over the three axes: ⅔ m r² from the offset, a third of the trace.
+            inertia += 2.0 / 3.0 * bm * r2 + (own[0] + own[1] + own[2]) / 3.0;
+        }
+        (mass.max(1e-3), inertia.max(1e-6))
+    }
+
     fn hold_on_gantry(&mut self, g: Gantry) {
         let r = self.root_qpos;
         let (q, v) = (self.data.qpos(), self.data.qvel());
-        let (k, c, kr, cr) = (2.0e4, 8.0e2, 2.0e3, 8.0e1);
+        let [k, c, kr, cr] = g.gains;
         let force: [f64; 3] = std::array::from_fn(|i| k * (g.pos[i] - q[r + i]) - c * v[i]);
         // Orientation error as a rotation vector (world frame), angular velocity is body-frame.
         let cur = [q[r + 3], q[r + 4], q[r + 5], q[r + 6]];
