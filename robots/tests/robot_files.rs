@@ -349,7 +349,7 @@ fn a_robot_may_define_its_own_mit_motor_model_checked_like_the_shipped_ones() {
         &["mit_models[0] (RD-X10).kd", "gains start at 0"],
     );
     expect_error(
-        &with_own_knee_motor(&RD_X10).replace("rated_torque = 20.0", "rated_torque = 50.0"),
+        &with_own_knee_motor(RD_X10).replace("rated_torque = 20.0", "rated_torque = 50.0"),
         &["mit_models[0] (RD-X10).rated_torque", "(0, 45]"],
     );
 }

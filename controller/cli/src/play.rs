@@ -487,7 +487,10 @@ fn bus_threads(realtime: bool) -> fn() {
 pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
     let mut l = load(&args.files)?;
     if let Some(values) = &args.command {
-        l.layout.set_command(values)?;
+        l.layout.set_command(values).with_context(|| {
+            let given: Vec<String> = values.iter().map(f64::to_string).collect();
+            format!("--command {}", given.join(","))
+        })?;
     }
     if !(args.ramp.is_finite() && args.ramp >= 0.0) {
         bail!("--ramp {} is not a duration", args.ramp);

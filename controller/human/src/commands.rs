@@ -256,6 +256,8 @@ pub struct CommandTargets {
     pub values: [f64; MAX_COMMANDS],
     /// When the source published them; `None` before it did.
     pub at: Option<Instant>,
+    /// They stand until the source says otherwise (a keyboard holds its state): no timeout.
+    pub lasting: bool,
 }
 
 impl Default for CommandTargets {
@@ -263,6 +265,7 @@ impl Default for CommandTargets {
         Self {
             values: [0.0; MAX_COMMANDS],
             at: None,
+            lasting: false,
         }
     }
 }
@@ -329,10 +332,21 @@ pub fn command_channel(n: usize) -> (CommandWriter, CommandReader) {
 }
 
 impl CommandWriter {
-    /// Publishes targets (the first `n` of `values`), stamped now.
+    /// Publishes targets (the first `n` of `values`), stamped now; they fall back to the
+    /// defaults once older than the manifest's `timeout_s` (a stream that stops is a link lost).
     pub fn publish(&mut self, values: &[f64]) {
+        self.write(values, false);
+    }
+
+    /// Publishes targets that stand until the next (a keyboard's state), with no timeout.
+    pub fn publish_lasting(&mut self, values: &[f64]) {
+        self.write(values, true);
+    }
+
+    fn write(&mut self, values: &[f64], lasting: bool) {
         let mut t = CommandTargets {
             at: Some(Instant::now()),
+            lasting,
             ..CommandTargets::default()
         };
         for (o, v) in t.values.iter_mut().zip(values.iter().take(self.n)) {
@@ -388,7 +402,7 @@ impl LiveCommands {
         if let Some(reader) = &mut self.reader {
             let t = reader.latest();
             match t.at {
-                Some(at) if now.saturating_duration_since(at) <= self.timeout => {
+                Some(at) if t.lasting || now.saturating_duration_since(at) <= self.timeout => {
                     let n = self.target.len();
                     self.target.copy_from_slice(&t.values[..n]);
                     self.spec.clamp(&mut self.target);
@@ -572,17 +586,16 @@ pub fn spawn_keyboard(
     stats: Arc<CommandStats>,
 ) -> std::io::Result<std::thread::JoinHandle<()>> {
     let mut teleop = KeyboardTeleop::new(spec, initial);
-    writer.publish(initial);
+    writer.publish_lasting(initial);
     std::thread::Builder::new()
         .name("keyboard".into())
         .spawn(move || {
             let mut byte = [0u8; 1];
-            // Keys are published as they come; the targets are re-published every read so a
-            // held command does not time out (a keyboard holds its state).
+            // A keyboard holds its state: its targets stand until the next key.
             while let Ok(1) = input.read(&mut byte) {
                 if let Some(t) = teleop.feed(byte[0]) {
                     stats.accepted.fetch_add(1, Ordering::Relaxed);
-                    writer.publish(t);
+                    writer.publish_lasting(t);
                 }
             }
         })

@@ -410,11 +410,11 @@ impl LocomotionMetrics {
             self.distance += dx.hypot(dy);
             self.heading += turned;
             self.ticks += 1;
-            for k in 0..3 {
-                self.sum_achieved[k] += achieved[k];
+            for (k, a) in achieved.into_iter().enumerate() {
+                self.sum_achieved[k] += a;
                 if let Some(c) = self.slots[k].and_then(|i| commands.get(i)) {
                     self.sum_commanded[k] += c;
-                    self.sq_error[k] += (c - achieved[k]).powi(2);
+                    self.sq_error[k] += (c - a).powi(2);
                 }
             }
         }

@@ -352,6 +352,11 @@ impl<L: RobotLink> Player<L> {
         }
     }
 
+    /// The live commands in force (with the manifest's `[commands]`).
+    pub fn commands(&self) -> Option<&[f64]> {
+        self.commands.as_ref().map(LiveCommands::current)
+    }
+
     /// Whether the policy observes no reference (it runs with no clip, on its commands).
     pub fn is_command_driven(&self) -> bool {
         self.command_driven
@@ -875,7 +880,7 @@ impl<L: RobotLink> Player<L> {
             last_targets: &self.policy_last_targets,
             step: self.policy_steps,
             dt: self.dt,
-            command: self.commands.as_mut().map(|c| &*c.update(Instant::now())),
+            command: self.commands.as_mut().map(|c| c.update(Instant::now())),
             ramp: psi,
             reference: self.cursor.view(),
             truth: self.world_valid.then_some(&self.world),

@@ -96,11 +96,33 @@ impl Running {
     /// # Panics
     /// When the process cannot start.
     pub fn start<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> Self {
+        Self::spawn(args, false)
+    }
+
+    /// Starts `robodeploy ARGS` with a pipe on its standard input ([`Self::stdin`]), for
+    /// processes that read keys.
+    ///
+    /// # Panics
+    /// When the process cannot start.
+    pub fn start_with_stdin<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> Self {
+        Self::spawn(args, true)
+    }
+
+    /// The pipe to the process's standard input (processes started with
+    /// [`Self::start_with_stdin`]).
+    ///
+    /// # Panics
+    /// When the process was started without one.
+    pub fn stdin(&mut self) -> &mut std::process::ChildStdin {
+        self.child.stdin.as_mut().expect("started with start_with_stdin")
+    }
+
+    fn spawn<S: AsRef<std::ffi::OsStr>>(args: &[S], stdin: bool) -> Self {
         use std::io::BufRead;
         use std::process::Stdio;
         let mut child = robodeploy()
             .args(args)
-            .stdin(Stdio::null())
+            .stdin(if stdin { Stdio::piped() } else { Stdio::null() })
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
             .spawn()

@@ -1,0 +1,443 @@
+//! rd-mini, the second robot, brought as a user brings theirs: a scene file that includes the
+//! robot, degrees, default classes, mesh feet in millimetres, position actuators, its own sensor
+//! names and a keyframe, a command-driven policy with no clip — and commands from the keyboard,
+//! UDP and a gamepad.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use human::commands::{PadAxis, PadEvent, PadEvents};
+use robots::Robot;
+use test_support::bin::{Running, run_within};
+use test_support::fixtures::{venv_python, workspace_root};
+
+fn mini(file: &str) -> PathBuf {
+    workspace_root().join("robots/mini").join(file)
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("mini-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// `play` on rd-mini's command-driven fixture, lockstep, recording into `record`.
+fn play_args(record: &Path, seconds: &str, extra: &[&str]) -> Vec<String> {
+    let mut args: Vec<String> = [
+        "play",
+        "--robot",
+        mini("robot.toml").to_str().unwrap(),
+        "--policy",
+        mini("policies/stand_walk.toml").to_str().unwrap(),
+        "--max-seconds",
+        seconds,
+        "--record",
+        record.to_str().unwrap(),
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
+    args.extend(extra.iter().map(|s| s.to_string()));
+    args
+}
+
+/// The `/policy` messages of a recording: (running, observation, commands) per tick.
+fn policy_ticks(path: &Path) -> Vec<(bool, Vec<f64>, Vec<f64>)> {
+    let bytes = analysis::recording::read(path).unwrap();
+    let mut out = Vec::new();
+    analysis::recording::for_each_message(&bytes, |m| {
+        if m.topic == "/policy" {
+            let v: serde_json::Value = serde_json::from_slice(m.data).unwrap();
+            let numbers = |k: &str| -> Vec<f64> {
+                v[k].as_array()
+                    .map(|a| a.iter().map(|x| x.as_f64().unwrap()).collect())
+                    .unwrap_or_default()
+            };
+            out.push((
+                v["running"].as_bool().unwrap(),
+                numbers("obs"),
+                numbers("commands"),
+            ));
+        }
+        Ok(())
+    })
+    .unwrap();
+    out
+}
+
+#[test]
+fn the_scene_loads_through_its_include_with_the_models_own_names() {
+    let robot = Robot::load(&mini("robot.toml")).unwrap();
+    let m = &robot.mjcf;
+    assert_eq!(robot.config.joints.len(), 16);
+    assert_eq!(m.floor, ["ground"]);
+    assert_eq!(m.meshes, 2);
+    assert_eq!(m.position_actuated().count(), 16);
+    assert_eq!(m.keyframes.len(), 1);
+    assert_eq!(m.keyframes[0].name, "home");
+    // Degrees in the MJCF, radians compiled: the knee's 130°.
+    let (_, hi) = m.joints["l_knee"].range.unwrap();
+    assert!((hi - 130f64.to_radians()).abs() < 1e-12, "{hi}");
+    assert_eq!(
+        robot.imu_sensors(),
+        [
+            Some("body_gyro".into()),
+            Some("body_acc".into()),
+            Some("body_orientation".into())
+        ]
+    );
+    assert_eq!(robot.start_keyframe().unwrap().qpos.len(), m.nq);
+}
+
+#[test]
+fn the_mesh_feet_start_with_their_soles_on_the_floor() {
+    use mujoco_rs::wrappers::mj_model::MjtObjBase;
+    let robot = Robot::load(&mini("robot.toml")).unwrap();
+    let key = robot.start_keyframe().unwrap().qpos.clone();
+    let mirror =
+        sim2real::mirror::Mirror::new(robot.clone(), sim2real::config::MirrorConfig::default()).unwrap();
+    let data = mirror.data();
+    let model = data.model();
+    for sole in ["l_sole", "r_sole"] {
+        let g = model.name_to_id(MjtObjBase::mjOBJ_GEOM, sole).unwrap();
+        let r = data.geom_xmat()[g];
+        // The vertex lowest in the world, from the mesh's own vertices.
+        let down = sim2real::placement::reach(model, g, [-r[6], -r[7], -r[8]]).unwrap();
+        let lowest = data.geom_xpos()[g][2] - down;
+        assert!(
+            lowest.abs() < 0.002,
+            "{sole}: lowest point {:.4} m from the floor",
+            lowest
+        );
+    }
+    // The keyframe's joints, its base lowered onto the floor (it was 0.3 m up).
+    let q = data.qpos();
+    assert_eq!(&q[7..], &key[7..]);
+    assert!(q[2] < 0.3 - 0.03, "base at {:.3} m", q[2]);
+    // The position actuators' own geometry is the model's: the sole meshes are offset in their
+    // bodies (the compiled geom sits 33.5 mm below the ankle).
+    let g = model.name_to_id(MjtObjBase::mjOBJ_GEOM, "l_sole").unwrap();
+    assert!(model.geom_pos()[g][2] < -0.03, "{:?}", model.geom_pos()[g]);
+}
+
+#[test]
+fn it_stands_ten_seconds_on_a_command_driven_policy_with_no_clip() {
+    let dir = scratch("stand");
+    let record = dir.join("run.mcap");
+    let (code, stdout, stderr) = run_within(&play_args(&record, "10", &[]), Duration::from_secs(300));
+    assert_eq!(code, Some(0), "{stdout}{stderr}");
+    assert!(stdout.contains("no clip (a command-driven policy"), "{stdout}");
+    assert!(stdout.contains("fell: no"), "{stdout}");
+    assert!(
+        stdout.contains("success (no fall, no safety stop): yes"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("Running → Stopping (run time up)"), "{stdout}");
+    // No clip-tracking numbers against a made-up clip: where it went instead.
+    assert!(!stdout.contains("joint tracking RMSE"), "{stdout}");
+    let distance = stdout
+        .lines()
+        .find_map(|l| l.strip_prefix("distance: "))
+        .and_then(|l| l.split(" m").next())
+        .and_then(|d| d.parse::<f64>().ok())
+        .unwrap_or_else(|| panic!("{stdout}"));
+    assert!(distance < 0.05, "standing still, it went {distance} m");
+    // The recording replays bit for bit (the commands it had are fed back).
+    let (code, out, err) = run_within(&["replay", record.to_str().unwrap()], Duration::from_secs(300));
+    assert_eq!(code, Some(0), "{out}{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn keys_drive_the_commands_within_their_ranges_and_ramps() {
+    let dir = scratch("keys");
+    let record = dir.join("run.mcap");
+    let mut p = Running::start_with_stdin(&play_args(&record, "30", &["--keyboard"]));
+    p.wait_for("commands: keyboard", Duration::from_secs(120));
+    // Forward three times (0.05 each), turn left twice (0.2 each), and once an unknown key.
+    use std::io::Write;
+    p.stdin().write_all(b"www\x1b[D\x1b[Dx").unwrap();
+    p.stdin().flush().unwrap();
+    let done = p.finish();
+    assert!(done.status.success(), "{}{}", done.stdout, done.stderr);
+    assert!(
+        done.stdout.contains("commands: 5 accepted, 0 dropped"),
+        "{}",
+        done.stdout
+    );
+    let ticks = policy_ticks(&record);
+    let running: Vec<&Vec<f64>> = ticks.iter().filter(|t| t.0).map(|t| &t.2).collect();
+    let last = running.last().unwrap();
+    assert!(
+        (last[0] - 0.15).abs() < 1e-9 && last[1] == 0.0 && (last[2] - 0.4).abs() < 1e-9,
+        "{last:?}"
+    );
+    // Ramped: at most 0.5 m/s² × 0.02 s and 2 rad/s² × 0.02 s per tick.
+    for w in running.windows(2) {
+        assert!((w[1][0] - w[0][0]).abs() <= 0.01 + 1e-12, "{w:?}");
+        assert!((w[1][2] - w[0][2]).abs() <= 0.04 + 1e-12, "{w:?}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn datagrams_drive_the_commands_and_bad_ones_are_dropped_and_counted() {
+    let dir = scratch("udp");
+    let record = dir.join("run.mcap");
+    let mut p = Running::start(&play_args(&record, "60", &["--command-udp", "127.0.0.1:0"]));
+    let line = p.wait_for("commands: send to udp://", Duration::from_secs(120));
+    let addr: std::net::SocketAddr = line.rsplit("udp://").next().unwrap().trim().parse().unwrap();
+    let socket = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    let send = |text: &str| {
+        socket.send_to(text.as_bytes(), addr).unwrap();
+    };
+    send("not json");
+    send(r#"{"version": 1, "seq": 1, "command": [0.9, 0.0, 0.0]}"#);
+    send(r#"{"version": 2, "seq": 1, "command": [0.1, 0.0, 0.0]}"#);
+    // The operator keeps sending (as a joystick bridge does) until the run ends.
+    let stop = Arc::new(AtomicBool::new(false));
+    let sender = {
+        let stop = Arc::clone(&stop);
+        let socket = socket.try_clone().unwrap();
+        std::thread::Builder::new()
+            .name("udp-operator".into())
+            .spawn(move || {
+                let mut seq = 10u64;
+                while !stop.load(Ordering::Relaxed) {
+                    let m = format!(r#"{{"version": 1, "seq": {seq}, "command": [0.2, 0.05, -0.4]}}"#);
+                    let _ = socket.send_to(m.as_bytes(), addr);
+                    seq += 1;
+                    if seq == 12 {
+                        // One from the past: dropped as out of order.
+                        let _ =
+                            socket.send_to(br#"{"version": 1, "seq": 3, "command": [0.0, 0.0, 0.0]}"#, addr);
+                    }
+                    std::thread::sleep(Duration::from_millis(10));
+                }
+            })
+            .unwrap()
+    };
+    let done = p.finish();
+    stop.store(true, Ordering::Relaxed);
+    sender.join().unwrap();
+    assert!(done.status.success(), "{}{}", done.stdout, done.stderr);
+    let counts = done
+        .stdout
+        .lines()
+        .find(|l| l.starts_with("commands: ") && l.contains("accepted"))
+        .unwrap_or_else(|| panic!("{}", done.stdout));
+    assert!(
+        counts.contains("(2 malformed, 1 out of range, 1 out of order)"),
+        "{counts}"
+    );
+    let ticks = policy_ticks(&record);
+    let last = &ticks.iter().rfind(|t| t.0).unwrap().2;
+    assert_eq!(last, &vec![0.2, 0.05, -0.4]);
+    // Nothing outside the manifest's ranges ever reached the policy.
+    assert!(
+        ticks
+            .iter()
+            .all(|t| t.2.first().is_none_or(|&x| (-0.15..=0.25).contains(&x)))
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A gamepad whose events a test scripts (as gilrs would deliver them).
+struct ScriptedPad(std::sync::mpsc::Receiver<PadEvent>);
+
+impl PadEvents for ScriptedPad {
+    fn next(&mut self, timeout: Duration) -> Option<PadEvent> {
+        self.0.recv_timeout(timeout).ok()
+    }
+}
+
+#[test]
+fn a_gamepads_sticks_drive_the_commands() {
+    use controller::policy::PolicyLayout;
+    let robot = Robot::load(&mini("robot.toml")).unwrap();
+    let mut layout = PolicyLayout::load(&mini("policies/stand_walk.toml"), &robot).unwrap();
+    let spec = layout.manifest.commands.clone().unwrap();
+    let (reference, _) =
+        controller::motion::load_reference(None, Path::new("unused"), &mut layout, &robot, 0).unwrap();
+    let options = controller::player::PlayOptions {
+        end: controller::player::EndMode::Stand,
+        ..Default::default()
+    };
+    let stop = Arc::new(AtomicBool::new(false));
+    let (player, mut clock, _world) = controller::sim::lockstep_player(
+        robot,
+        layout,
+        reference,
+        options,
+        sim2real::config::MirrorConfig::default(),
+        Arc::clone(&stop),
+    )
+    .unwrap();
+    let (writer, reader) = human::commands::command_channel(spec.names.len());
+    let mut player = player.with_commands(reader).unwrap();
+    let (events, script) = std::sync::mpsc::sync_channel(16);
+    let stats = Arc::new(human::commands::CommandStats::default());
+    let pad_stop = Arc::new(AtomicBool::new(false));
+    let pad = human::commands::spawn_gamepad(
+        &spec,
+        writer,
+        ScriptedPad(script),
+        Arc::clone(&stats),
+        Arc::clone(&pad_stop),
+    )
+    .unwrap();
+    // Left stick full forward, right stick half right.
+    events.send(PadEvent::Axis(PadAxis::LeftY, 1.0)).unwrap();
+    events.send(PadEvent::Axis(PadAxis::RightX, 0.5)).unwrap();
+    while stats.accepted.load(Ordering::Relaxed) < 2 {
+        std::thread::yield_now();
+    }
+    player.identify().unwrap();
+    let period = Duration::from_millis(20);
+    for _ in 0..200 {
+        player.step(&clock).unwrap();
+        player.wait_until(&mut clock, period * player.ticks() as u32);
+    }
+    // Full deflection is the end of the range; half right is half the rightward turning range.
+    assert_eq!(player.commands().unwrap(), &[0.25, 0.0, -0.4]);
+    // South resets to the defaults (the ramp brings them back).
+    events.send(PadEvent::Reset).unwrap();
+    while stats.accepted.load(Ordering::Relaxed) < 3 {
+        std::thread::yield_now();
+    }
+    for _ in 0..100 {
+        player.step(&clock).unwrap();
+        player.wait_until(&mut clock, period * player.ticks() as u32);
+    }
+    assert_eq!(player.commands().unwrap(), &[0.0, 0.0, 0.0]);
+    pad_stop.store(true, Ordering::Relaxed);
+    pad.join().unwrap();
+}
+
+#[test]
+fn the_phase_term_advances_before_the_first_observation_as_numpy_says() {
+    let dir = scratch("phase");
+    let record = dir.join("run.mcap");
+    let (code, out, err) = run_within(&play_args(&record, "4", &[]), Duration::from_secs(300));
+    assert_eq!(code, Some(0), "{out}{err}");
+    let running: Vec<Vec<f64>> = policy_ticks(&record)
+        .into_iter()
+        .filter(|t| t.0)
+        .map(|t| t.1[57..59].to_vec())
+        .collect();
+    assert!(running.len() > 100, "{} policy steps", running.len());
+    let numpy = std::process::Command::new(venv_python())
+        .arg(workspace_root().join("tests/python/phase_trace.py"))
+        .args(["--period", "40", "--advance-first", "--steps"])
+        .arg(running.len().to_string())
+        .output()
+        .unwrap();
+    assert!(
+        numpy.status.success(),
+        "{}",
+        String::from_utf8_lossy(&numpy.stderr)
+    );
+    let want: Vec<Vec<f64>> = serde_json::from_slice(&numpy.stdout).unwrap();
+    for (k, (got, want)) in running.iter().zip(&want).enumerate() {
+        for (g, w) in got.iter().zip(want) {
+            assert!((g - w).abs() < 1e-6, "step {k}: {got:?} vs NumPy's {want:?}");
+        }
+    }
+    // Pre-increment: the first observation is one step into the cycle, not at its start.
+    assert!(
+        (running[0][1] - (std::f64::consts::TAU / 40.0).sin()).abs() < 1e-6,
+        "{:?}",
+        running[0]
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn commands_outside_their_ranges_are_refused_by_name() {
+    let dir = scratch("range");
+    let record = dir.join("run.mcap");
+    let (code, out, err) = run_within(
+        &play_args(&record, "1", &["--command", "0.9,0,0"]),
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, Some(2), "{out}{err}");
+    assert!(
+        err.contains("--command 0.9,0,0")
+            && err.contains("stand_walk.toml")
+            && err.contains("lin_vel_x = 0.9 is outside its range [-0.15, 0.25]"),
+        "{err}"
+    );
+    assert!(!record.exists(), "nothing ran, nothing was recorded");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn check_bus_scan_and_calibration_work_on_it_unchanged() {
+    let robot = mini("robot.toml");
+    let robot = robot.to_str().unwrap();
+    let policy = mini("policies/stand_walk.toml");
+    let (code, out, err) = run_within(
+        &["check", "--robot", robot, "--policy", policy.to_str().unwrap()],
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, Some(0), "{out}{err}");
+    for needle in [
+        "floor: ground",
+        "16 position actuators",
+        "body_gyro (gyro)",
+        "keyframes: home (the mirror's start)",
+        "phase                2 × 1 history",
+        "period 40 ticks, advances before the first observation",
+        "lin_vel_x    [-0.15, 0.25]",
+    ] {
+        assert!(out.contains(needle), "{needle:?} not in:\n{out}");
+    }
+    let (code, out, err) = run_within(
+        &["bus", "scan", "--sim", "--robot", robot],
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, Some(0), "{out}{err}");
+    assert!(
+        out.contains("every device of rd-mini answered as configured"),
+        "{out}"
+    );
+    // Calibration writes beside a copy of the robot, not into the repository.
+    let dir = scratch("calibrate");
+    for f in ["robot.toml", "scene.xml", "mini.xml"] {
+        std::fs::copy(mini(f), dir.join(f)).unwrap();
+    }
+    std::fs::create_dir_all(dir.join("meshes")).unwrap();
+    for f in ["left_foot.stl", "right_foot.stl"] {
+        std::fs::copy(mini("meshes").join(f), dir.join("meshes").join(f)).unwrap();
+    }
+    let copy = dir.join("robot.toml");
+    let (code, out, err) = run_within(
+        &["calibrate", "run", "--yes", "--robot", copy.to_str().unwrap()],
+        Duration::from_secs(300),
+    );
+    assert_eq!(code, Some(0), "{out}{err}");
+    assert!(out.contains("directions wrong: 0"), "{out}");
+    assert!(dir.join("calibration.toml").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn the_foot_meshes_are_what_the_script_makes() {
+    let dir = scratch("meshes");
+    let out = std::process::Command::new(venv_python())
+        .arg(workspace_root().join("scripts/gen_mini_feet.py"))
+        .arg(&dir)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    for f in ["left_foot.stl", "right_foot.stl"] {
+        assert_eq!(
+            std::fs::read(dir.join(f)).unwrap(),
+            std::fs::read(mini("meshes").join(f)).unwrap(),
+            "{f}: run scripts/gen_mini_feet.py robots/mini/meshes"
+        );
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
