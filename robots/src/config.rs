@@ -637,6 +637,25 @@ impl Robot {
         Ok(())
     }
 
+    /// The smallest step joint `j`'s bus reports of its position (rad) and velocity (rad/s), at
+    /// the joint: an MIT reply's 16- and 12-bit fields over the model's ranges, a Dynamixel's
+    /// encoder tick and velocity unit, through the gear. `None` for a joint the robot lacks.
+    pub fn joint_resolution(&self, j: usize) -> Option<[f64; 2]> {
+        let joint = self.config.joints.get(j)?;
+        let (position, velocity) = match self.bus(&joint.bus)?.kind {
+            BusKind::MitCan => {
+                let m = self.mit_model(&joint.model)?;
+                (2.0 * m.p_max / 65535.0, 2.0 * m.v_max / 4095.0)
+            }
+            BusKind::Dynamixel => (
+                dxl::models::rad_per_tick(),
+                dxl::models::rad_s_per_velocity_unit(),
+            ),
+            BusKind::ImuSerial => return None,
+        };
+        Some([position / joint.gear, velocity / joint.gear])
+    }
+
     /// The MIT-mode motor model called `name`: the robot's own, else the shipped table's.
     pub fn mit_model(&self, name: &str) -> Option<&mit::models::MotorModel> {
         self.mit_models

@@ -441,3 +441,95 @@ fn the_foot_meshes_are_what_the_script_makes() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn compare_aligns_a_trainers_trace_and_judges_each_term_against_the_buses_resolution() {
+    let dir = scratch("compare");
+    let run = dir.join("run.mcap");
+    let (code, out, err) = run_within(
+        &play_args(&run, "6", &["--command", "0.25,0,0.4"]),
+        Duration::from_secs(300),
+    );
+    assert_eq!(code, Some(0), "{out}{err}");
+    // The trainer's trace, as NumPy writes it: it starts 7 steps later, its joint angles read one
+    // encoder tick apart on every other step, and its gravity is off by 0.01 from its step 150.
+    let train = dir.join("train.csv");
+    let script = format!(
+        r#"
+import json, numpy as np
+from mcap.reader import make_reader
+rows = [json.loads(m.data)["obs"] for s, c, m in make_reader(open({run:?}, "rb")).iter_messages(topics=["/policy"]) if json.loads(m.data)["running"]]
+obs = np.array(rows, dtype=np.float64)[7:]
+obs[::2, 9:25] += 2 * np.pi / 4096
+obs[150:, 3:6] += 0.01
+np.savetxt({train:?}, obs.astype(np.float32), delimiter=",", header=",".join(f"o{{i}}" for i in range(obs.shape[1])))
+"#,
+        run = run.display().to_string(),
+        train = train.display().to_string()
+    );
+    let py = std::process::Command::new(venv_python())
+        .args(["-c", &script])
+        .output()
+        .unwrap();
+    assert!(py.status.success(), "{}", String::from_utf8_lossy(&py.stderr));
+    let compare = |extra: &[&str]| {
+        let mut args = vec!["compare", run.to_str().unwrap(), train.to_str().unwrap()];
+        args.extend_from_slice(extra);
+        let (code, out, err) = run_within(&args, Duration::from_secs(120));
+        assert_eq!(code, Some(0), "{out}{err}");
+        out
+    };
+    let verdict = |out: &str, term: &str| {
+        out.lines()
+            .find(|l| l.starts_with(&format!("{term} ")))
+            .unwrap_or_else(|| panic!("{term} missing:\n{out}"))
+            .to_owned()
+    };
+    let out = compare(&["--align", "joint_pos"]);
+    assert!(
+        out.contains("aligned on joint_pos: step k of the run meets step k-7 of the other"),
+        "{out}"
+    );
+    assert!(
+        verdict(&out, "joint_pos").ends_with("within the buses' quantisation"),
+        "{out}"
+    );
+    assert!(
+        verdict(&out, "projected_gravity").ends_with("BEYOND the buses' quantisation"),
+        "{out}"
+    );
+    assert!(
+        verdict(&out, "command").ends_with("equal (not measured by a bus)"),
+        "{out}"
+    );
+    // The same shift given, over the first 100 steps only: the gravity offset is not reached.
+    let out = compare(&["--offset=-7", "--steps", "100"]);
+    assert!(out.contains("compared 100 steps, offset -7"), "{out}");
+    assert!(
+        verdict(&out, "projected_gravity").ends_with("within the buses' quantisation"),
+        "{out}"
+    );
+    // Unaligned, the gait's joints do not meet at all.
+    let out = compare(&[]);
+    assert!(
+        verdict(&out, "joint_pos").ends_with("BEYOND the buses' quantisation"),
+        "{out}"
+    );
+    // A term the policy lacks is named.
+    let (code, _, err) = run_within(
+        &[
+            "compare",
+            run.to_str().unwrap(),
+            train.to_str().unwrap(),
+            "--align",
+            "joint_position",
+        ],
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, Some(2), "{err}");
+    assert!(
+        err.contains("--align joint_position: not a term of the policy"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}

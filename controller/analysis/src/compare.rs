@@ -116,35 +116,180 @@ pub struct TermDiff {
     pub term: String,
     /// Its observation index range.
     pub range: std::ops::Range<usize>,
-    /// First step where some value differs by more than the tolerance.
+    /// First step (of the first trace) where some value differs by more than the tolerance.
     pub first_step: Option<usize>,
     /// Largest difference over all steps.
     pub max_abs: f64,
     /// RMS difference over all steps and values.
     pub rms: f64,
+    /// The buses' resolution of what the term observes, in observation units (its largest value
+    /// over the term): `None` for terms no bus measures (commands, actions, phase, references).
+    pub quantum: Option<f64>,
 }
 
-/// Compares `a` and `b` step by step over their common length, term by term; terms in the order
-/// they first diverge (never-diverging terms last).
+impl TermDiff {
+    /// Whether the difference is within what the buses can tell apart: two readings of the same
+    /// quantity each rounded to the device's step differ by at most one step, two when the term
+    /// is derived from several readings.
+    pub fn within_quantisation(&self) -> Option<bool> {
+        self.quantum.map(|q| self.max_abs <= 2.0 * q + 1e-7)
+    }
+}
+
+/// Which steps of the second trace meet which of the first: step `k` of the first against step
+/// `k + offset` of the second, at most `steps` of them.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Alignment {
+    /// The second trace's shift, steps (negative: it starts later).
+    pub offset: i64,
+    /// Compare at most this many steps.
+    pub steps: Option<usize>,
+}
+
+impl Alignment {
+    /// How many steps of traces `a` and `b` steps long it compares.
+    pub fn steps_compared(&self, a: usize, b: usize) -> usize {
+        self.pairs(a, b).count()
+    }
+
+    /// The pairs of step indices compared: (first trace, second trace).
+    fn pairs(&self, a: usize, b: usize) -> impl Iterator<Item = (usize, usize)> {
+        let start = if self.offset < 0 {
+            self.offset.unsigned_abs() as usize
+        } else {
+            0
+        };
+        let offset = self.offset;
+        (start..a)
+            .map(move |k| (k, (k as i64 + offset) as usize))
+            .take_while(move |&(_, j)| j < b)
+            .take(self.steps.unwrap_or(usize::MAX))
+    }
+}
+
+/// Shifts the alignment may search, steps either way.
+pub const MAX_SHIFT: i64 = 500;
+
+/// Steps two traces must share for an automatic alignment to count.
+pub const MIN_OVERLAP: usize = 10;
+
+/// The shift of `b` against `a` (within ±`MAX_SHIFT`) that makes term `term` agree best (least RMS
+/// difference over at least `MIN_OVERLAP` shared steps), and that RMS.
+pub fn best_offset(
+    a: &ObsTrace,
+    b: &ObsTrace,
+    layout: &PolicyLayout,
+    term: &str,
+) -> Result<(i64, f64), AnalysisError> {
+    let slot = layout
+        .slots
+        .iter()
+        .find(|s| s.term.name() == term)
+        .ok_or_else(|| {
+            let names: Vec<&str> = layout.slots.iter().map(|s| s.term.name()).collect();
+            AnalysisError::Mismatch(format!(
+                "--align {term}: not a term of the policy (its terms: {})",
+                names.join(", ")
+            ))
+        })?;
+    let mut best: Option<(i64, f64)> = None;
+    for offset in -MAX_SHIFT..=MAX_SHIFT {
+        let align = Alignment { offset, steps: None };
+        let (mut sq, mut n, mut steps) = (0.0f64, 0usize, 0usize);
+        for (i, j) in align.pairs(a.steps.len(), b.steps.len()) {
+            let (x, y) = (
+                a.steps[i].get(slot.range.clone()),
+                b.steps[j].get(slot.range.clone()),
+            );
+            let (Some(x), Some(y)) = (x, y) else { continue };
+            for (p, q) in x.iter().zip(y) {
+                let d = f64::from(*p) - f64::from(*q);
+                sq += if d.is_finite() { d * d } else { 1e12 };
+                n += 1;
+            }
+            steps += 1;
+        }
+        if steps < MIN_OVERLAP || n == 0 {
+            continue;
+        }
+        let rms = (sq / n as f64).sqrt();
+        // Ties go to the smallest shift.
+        if best.is_none_or(|(o, r)| rms < r - 1e-12 || (rms <= r + 1e-12 && offset.abs() < o.abs())) {
+            best = Some((offset, rms));
+        }
+    }
+    best.ok_or_else(|| {
+        AnalysisError::Mismatch(format!(
+            "--align {term}: the traces ({} and {} steps) share fewer than {MIN_OVERLAP} steps at any shift",
+            a.steps.len(),
+            b.steps.len()
+        ))
+    })
+}
+
+/// The buses' resolution of each observation value, in observation units (`None` where no bus
+/// measures it): joint positions and velocities from each joint's device, the IMU's outputs.
+pub fn quanta(layout: &PolicyLayout, robot: &robots::Robot) -> Vec<Option<f64>> {
+    use controller::policy::Term;
+    use firmware_bridge::imu::wit;
+    let mut out = vec![None; layout.obs_len];
+    for slot in &layout.slots {
+        let sh = slot.term.shaping();
+        let joint = |p: usize, which: usize| {
+            layout
+                .robot_index
+                .get(p)
+                .and_then(|&r| robot.joint_resolution(r))
+                .map(|res| res[which])
+        };
+        let raw: Vec<Option<f64>> = (0..slot.width)
+            .map(|i| match &slot.term {
+                Term::JointPos { .. } => joint(i, 0),
+                Term::JointVel(_) => joint(i, 1),
+                Term::Gyro(_) | Term::BaseAngVel(_) => Some(wit::GYRO_RESOLUTION),
+                Term::Accelerometer(_) => Some(wit::ACCEL_RESOLUTION),
+                // Gravity and orientation come from the quaternion: a step of each component.
+                Term::ProjectedGravity(_) | Term::BaseOrientation(_) => {
+                    Some(2.0 * wit::QUATERNION_RESOLUTION)
+                }
+                _ => None,
+            })
+            .collect();
+        // Every history step of the term alike.
+        for chunk in out[slot.range.clone()].chunks_mut(slot.width) {
+            for (i, (o, r)) in chunk.iter_mut().zip(&raw).enumerate() {
+                let scale = sh.scales.as_ref().map_or(sh.scale, |v| v[i]);
+                *o = r.map(|r| r * scale.abs());
+            }
+        }
+    }
+    out
+}
+
+/// Compares `a` and `b` as `align` pairs their steps, term by term (with `quanta` per value, from
+/// [`quanta`]); terms in the order they first diverge (never-diverging terms last).
 pub fn compare(
     a: &ObsTrace,
     b: &ObsTrace,
     layout: &PolicyLayout,
     tolerance: f64,
+    align: Alignment,
+    quanta: &[Option<f64>],
 ) -> Result<Vec<TermDiff>, AnalysisError> {
-    let steps = a.steps.len().min(b.steps.len());
-    if steps == 0 {
+    let pairs: Vec<(usize, usize)> = align.pairs(a.steps.len(), b.steps.len()).collect();
+    if pairs.is_empty() {
         return Err(AnalysisError::Mismatch(format!(
-            "nothing to compare: the traces have {} and {} steps",
+            "nothing to compare: the traces have {} and {} steps, offset {}",
             a.steps.len(),
-            b.steps.len()
+            b.steps.len(),
+            align.offset
         )));
     }
-    for (name, t) in [("first", a), ("second", b)] {
-        if let Some(s) = t.steps.iter().take(steps).find(|s| s.len() != layout.obs_len) {
+    for (name, t, side) in [("first", a, 0), ("second", b, 1)] {
+        let len = |&(i, j): &(usize, usize)| t.steps[if side == 0 { i } else { j }].len();
+        if let Some(s) = pairs.iter().map(len).find(|&l| l != layout.obs_len) {
             return Err(AnalysisError::Mismatch(format!(
-                "the {name} trace has {} values per step; the policy's observation has {}",
-                s.len(),
+                "the {name} trace has {s} values per step; the policy's observation has {}",
                 layout.obs_len
             )));
         }
@@ -155,8 +300,8 @@ pub fn compare(
         .map(|slot| {
             let mut first = None;
             let (mut max_abs, mut sq, mut count) = (0.0f64, 0.0f64, 0usize);
-            for k in 0..steps {
-                let (x, y) = (&a.steps[k][slot.range.clone()], &b.steps[k][slot.range.clone()]);
+            for &(i, j) in &pairs {
+                let (x, y) = (&a.steps[i][slot.range.clone()], &b.steps[j][slot.range.clone()]);
                 for (p, q) in x.iter().zip(y) {
                     let d = (f64::from(*p) - f64::from(*q)).abs();
                     let d = if d.is_nan() { f64::INFINITY } else { d };
@@ -164,10 +309,14 @@ pub fn compare(
                     sq += if d.is_finite() { d * d } else { 0.0 };
                     count += 1;
                     if d > tolerance && first.is_none() {
-                        first = Some(k);
+                        first = Some(i);
                     }
                 }
             }
+            let quantum = quanta
+                .get(slot.range.clone())
+                .and_then(|q| q.iter().copied().collect::<Option<Vec<f64>>>())
+                .and_then(|q| q.into_iter().reduce(f64::max));
             TermDiff {
                 term: slot.term.name().to_owned(),
                 range: slot.range.clone(),
@@ -178,6 +327,7 @@ pub fn compare(
                 } else {
                     0.0
                 },
+                quantum,
             }
         })
         .collect();

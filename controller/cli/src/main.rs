@@ -99,6 +99,12 @@ enum Command {
     /// Compare the observations of two runs, or of a run and an export from training (NPZ with an
     /// `obs` array, or CSV rows), term by term: which term diverges first, at which step, by how
     /// much. The first file must be a run (its manifest names the terms).
+    ///
+    /// The traces are paired step by step from their first policy steps, or shifted (`--offset`,
+    /// or `--align TERM` to find the shift that makes one term agree best), for `--steps` steps at
+    /// most. Each term's difference is judged against what the buses can resolve of it (encoder
+    /// ticks, the MIT fields' steps, the IMU's output steps, through the term's scale): within
+    /// quantisation, or beyond it.
     Compare {
         /// A recorded run (MCAP from `play`).
         run: PathBuf,
@@ -107,6 +113,15 @@ enum Command {
         /// Differences up to this are equal.
         #[arg(long, default_value_t = 1e-3, value_parser = crate::args::within(0.0, 1e6))]
         tolerance: f64,
+        /// Step k of RUN meets step k + OFFSET of OTHER (−500 to 500).
+        #[arg(long, allow_hyphen_values = true, conflicts_with = "align", value_parser = clap::value_parser!(i64).range(-500..=500))]
+        offset: Option<i64>,
+        /// Find the offset (within ±500 steps) at which this term agrees best, e.g. joint_pos.
+        #[arg(long, value_name = "TERM")]
+        align: Option<String>,
+        /// Compare at most this many steps (1 to 10 000 000).
+        #[arg(long, value_parser = crate::args::whole_within(1, 10_000_000))]
+        steps: Option<u64>,
     },
     /// Write the report of a recorded run: tracking plots, root error, success, RMSE, jitter,
     /// timing, bus misses, safety events (report.html with plots, summary.md, summary.json).
@@ -181,7 +196,10 @@ fn dispatch(command: Command) -> Result<std::process::ExitCode> {
             run,
             other,
             tolerance,
-        } => done(compare(&run, &other, tolerance)),
+            offset,
+            align,
+            steps,
+        } => done(compare(&run, &other, tolerance, offset, align.as_deref(), steps)),
         Command::Report { run, out } => {
             let s = analysis::report::write_report(&run, &out)?;
             println!(
@@ -203,8 +221,15 @@ fn dispatch(command: Command) -> Result<std::process::ExitCode> {
     }
 }
 
-fn compare(run: &std::path::Path, other: &std::path::Path, tolerance: f64) -> Result<()> {
-    use analysis::compare::{compare, trace_from_export, trace_from_run};
+fn compare(
+    run: &std::path::Path,
+    other: &std::path::Path,
+    tolerance: f64,
+    offset: Option<i64>,
+    align: Option<&str>,
+    steps: Option<u64>,
+) -> Result<()> {
+    use analysis::compare::{Alignment, best_offset, compare, quanta, trace_from_export, trace_from_run};
     let (a, meta) = trace_from_run(run)?;
     let robot = robots::Robot::load(&meta.robot)?;
     let mut layout = controller::policy::PolicyLayout::load(&meta.policy, &robot)?;
@@ -216,8 +241,21 @@ fn compare(run: &std::path::Path, other: &std::path::Path, tolerance: f64) -> Re
     } else {
         trace_from_export(other)?
     };
-    let diffs = compare(&a, &b, &layout, tolerance)?;
-    let steps = a.steps.len().min(b.steps.len());
+    let offset = match (offset, align) {
+        (Some(o), _) => o,
+        (None, Some(term)) => {
+            let (o, rms) = best_offset(&a, &b, &layout, term)?;
+            println!("aligned on {term}: step k of the run meets step k{o:+} of the other (RMS Δ {rms:.5})");
+            o
+        }
+        (None, None) => 0,
+    };
+    let alignment = Alignment {
+        offset,
+        steps: steps.map(|s| s as usize),
+    };
+    let diffs = compare(&a, &b, &layout, tolerance, alignment, &quanta(&layout, &robot))?;
+    let compared = alignment.steps_compared(a.steps.len(), b.steps.len());
     match diffs.first().filter(|d| d.first_step.is_some()) {
         Some(d) => {
             let step = d.first_step.unwrap_or(0);
@@ -231,15 +269,25 @@ fn compare(run: &std::path::Path, other: &std::path::Path, tolerance: f64) -> Re
                 d.max_abs
             );
         }
-        None => println!("no term differs by more than {tolerance} over {steps} steps"),
+        None => println!("no term differs by more than {tolerance} over {compared} steps"),
     }
+    println!("compared {compared} steps, offset {offset:+}");
     println!(
-        "{:<18} {:>11} {:>12} {:>12}",
-        "term", "first step", "max |Δ|", "RMS Δ"
+        "{:<20} {:>11} {:>12} {:>12} {:>12}  verdict",
+        "term", "first step", "max |Δ|", "RMS Δ", "bus step"
     );
     for d in &diffs {
         let first = d.first_step.map_or("-".to_owned(), |s| s.to_string());
-        println!("{:<18} {first:>11} {:>12.5} {:>12.5}", d.term, d.max_abs, d.rms);
+        let (quantum, verdict) = match (d.quantum, d.within_quantisation()) {
+            (Some(q), Some(true)) => (format!("{q:.2e}"), "within the buses' quantisation"),
+            (Some(q), _) => (format!("{q:.2e}"), "BEYOND the buses' quantisation"),
+            (None, _) if d.max_abs <= tolerance => ("-".to_owned(), "equal (not measured by a bus)"),
+            (None, _) => ("-".to_owned(), "differs (not measured by a bus)"),
+        };
+        println!(
+            "{:<20} {first:>11} {:>12.5} {:>12.5} {quantum:>12}  {verdict}",
+            d.term, d.max_abs, d.rms
+        );
     }
     Ok(())
 }

@@ -32,6 +32,13 @@ pub mod kind {
 const ACCEL_FS: f64 = 16.0 * G;
 const GYRO_FS: f64 = 2000.0 * PI / 180.0;
 
+/// One step of the acceleration output, m/s².
+pub const ACCEL_RESOLUTION: f64 = ACCEL_FS / 32768.0;
+/// One step of the angular velocity output, rad/s.
+pub const GYRO_RESOLUTION: f64 = GYRO_FS / 32768.0;
+/// One step of a quaternion component.
+pub const QUATERNION_RESOLUTION: f64 = 1.0 / 32768.0;
+
 /// One complete output cycle, in SI units and the sensor's own axes.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct ImuSample {
