@@ -230,6 +230,10 @@ pub struct RobotConfig {
     /// pose, upright.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub start_keyframe: Option<String>,
+    /// The model's keyframe whose joint angles a controlled sit-down ends in (`play --on-stop
+    /// sit`), before the joints go limp.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sit_keyframe: Option<String>,
     /// MIT-mode motor models of this robot's own, beside the shipped table (a name here
     /// shadows a shipped one).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
@@ -594,12 +598,37 @@ impl Robot {
         self.mjcf.keyframe(self.config.start_keyframe.as_deref()?)
     }
 
-    /// The keyframe exists, and puts every joint inside its position limits.
-    fn check_start_keyframe(&self) -> Result<(), (String, String)> {
-        let Some(name) = &self.config.start_keyframe else {
-            return Ok(());
-        };
-        let field = || "start_keyframe".to_owned();
+    /// The joint angles (robot order) keyframe `name` holds, when the model has it.
+    pub fn keyframe_joints(&self, name: &str) -> Option<Vec<f64>> {
+        let key = self.mjcf.keyframe(name)?;
+        self.config
+            .joints
+            .iter()
+            .map(|j| {
+                self.mjcf
+                    .joints
+                    .get(&j.mjcf_joint)
+                    .and_then(|mj| key.qpos.get(mj.qpos))
+                    .copied()
+            })
+            .collect()
+    }
+
+    /// The keyframes robot.toml names exist, and put every joint inside its position limits.
+    fn check_keyframes(&self) -> Result<(), (String, String)> {
+        for (field, name) in [
+            ("start_keyframe", &self.config.start_keyframe),
+            ("sit_keyframe", &self.config.sit_keyframe),
+        ] {
+            if let Some(name) = name {
+                self.check_keyframe(field, name)?;
+            }
+        }
+        Ok(())
+    }
+
+    fn check_keyframe(&self, field: &str, name: &str) -> Result<(), (String, String)> {
+        let field = || field.to_owned();
         let Some(key) = self.mjcf.keyframe(name) else {
             let names: Vec<&str> = self.mjcf.keyframes.iter().map(|k| k.name.as_str()).collect();
             return Err((
@@ -693,7 +722,7 @@ impl Robot {
 
     fn check(&self) -> Result<(), (String, String)> {
         self.check_body()?;
-        self.check_start_keyframe()?;
+        self.check_keyframes()?;
         self.check_bus_timing()?;
         self.check_retarget()
     }

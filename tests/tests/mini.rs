@@ -75,8 +75,8 @@ fn the_scene_loads_through_its_include_with_the_models_own_names() {
     assert_eq!(m.floor, ["ground"]);
     assert_eq!(m.meshes, 2);
     assert_eq!(m.position_actuated().count(), 16);
-    assert_eq!(m.keyframes.len(), 1);
-    assert_eq!(m.keyframes[0].name, "home");
+    let keys: Vec<&str> = m.keyframes.iter().map(|k| k.name.as_str()).collect();
+    assert_eq!(keys, ["home", "sit"]);
     // Degrees in the MJCF, radians compiled: the knee's 130°.
     let (_, hi) = m.joints["l_knee"].range.unwrap();
     assert!((hi - 130f64.to_radians()).abs() < 1e-12, "{hi}");
@@ -387,7 +387,7 @@ fn check_bus_scan_and_calibration_work_on_it_unchanged() {
         "floor: ground",
         "16 position actuators",
         "body_gyro (gyro)",
-        "keyframes: home (the mirror's start)",
+        "keyframes: home (the mirror's start), sit",
         "phase                2 × 1 history",
         "period 40 ticks, advances before the first observation",
         "lin_vel_x    [-0.15, 0.25]",
@@ -531,5 +531,123 @@ np.savetxt({train:?}, obs.astype(np.float32), delimiter=",", header=",".join(f"o
         err.contains("--align joint_position: not a term of the policy"),
         "{err}"
     );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// The base's height (m) and tilt from upright (rad) at every tick of a recording (the mirror's
+/// truth on `/replay`).
+fn base_course(path: &Path) -> Vec<(f64, f64)> {
+    let rec = analysis::replay::read_recording(path).unwrap();
+    rec.ticks
+        .iter()
+        .map(|t| {
+            let p = t.truth.as_ref().unwrap().root_pose;
+            (p[2], controller::safety::tilt_of([p[3], p[4], p[5], p[6]]))
+        })
+        .collect()
+}
+
+#[test]
+fn a_soft_stop_can_end_standing_or_in_a_controlled_sit_down() {
+    let dir = scratch("on-stop");
+    let course = |mode: &str| {
+        let record = dir.join(format!("{mode}.mcap"));
+        let (code, out, err) = run_within(
+            &play_args(&record, "3", &["--on-stop", mode, "--stand-for", "5"]),
+            Duration::from_secs(300),
+        );
+        assert_eq!(code, Some(0), "{out}{err}");
+        assert!(out.contains("fell: no"), "{mode}: {out}");
+        (base_course(&record), out)
+    };
+    // Policy until tick 150 (3 s), then the stop.
+    let (stand, out) = course("stand");
+    let height = stand[140].0;
+    assert!(out.contains("tick   425: Stopping → Damped"), "{out}");
+    // Five seconds later it still stands where the policy left it.
+    assert!(
+        (stand[420].0 - height).abs() < 0.01,
+        "{} vs {height}",
+        stand[420].0
+    );
+    let (sit, out) = course("sit");
+    assert!(out.contains("tick   300: Stopping → Damped"), "{out}");
+    // Three seconds of sitting down: lower, still upright, no fall.
+    assert!(
+        sit[299].0 < height - 0.04,
+        "sat to {:.3} from {height:.3}",
+        sit[299].0
+    );
+    assert!(
+        sit[150..300].iter().all(|(_, tilt)| *tilt < 0.3),
+        "it tipped over sitting down"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_standing_robot_waits_for_a_second_stop_before_it_lets_go() {
+    use controller::player::Player;
+    use controller::safety::Mode;
+    let robot = Robot::load(&mini("robot.toml")).unwrap();
+    let mut layout =
+        controller::policy::PolicyLayout::load(&mini("policies/stand_walk.toml"), &robot).unwrap();
+    let (reference, _) =
+        controller::motion::load_reference(None, Path::new("unused"), &mut layout, &robot, 0).unwrap();
+    let options = controller::player::PlayOptions {
+        end: controller::player::EndMode::Stand,
+        on_stop: controller::options::OnStop::Stand,
+        ..Default::default()
+    };
+    let stop = Arc::new(AtomicBool::new(false));
+    let (mut player, mut clock, _world) = controller::sim::lockstep_player(
+        robot,
+        layout,
+        reference,
+        options,
+        sim2real::config::MirrorConfig::default(),
+        Arc::clone(&stop),
+    )
+    .unwrap();
+    player.identify().unwrap();
+    let period = Duration::from_millis(20);
+    let mut tick = |p: &mut Player<_>| {
+        p.step(&clock).unwrap();
+        p.wait_until(&mut clock, period * p.ticks() as u32);
+    };
+    for _ in 0..100 {
+        tick(&mut player);
+    }
+    assert_eq!(player.mode(), Mode::Running);
+    player.request_stop();
+    // The blend, then as long as nobody asks again (here 20 s): standing, torque on.
+    for _ in 0..1000 {
+        tick(&mut player);
+        assert_eq!(player.mode(), Mode::Stopping);
+    }
+    player.request_stop();
+    for _ in 0..3 {
+        tick(&mut player);
+    }
+    assert_eq!(player.mode(), Mode::Damped);
+}
+
+#[test]
+fn a_sit_down_needs_a_sit_keyframe_and_says_so() {
+    let dir = scratch("nosit");
+    let (code, out, err) = run_within(
+        &[
+            "play",
+            "--on-stop",
+            "sit",
+            "--max-seconds",
+            "1",
+            "--record",
+            dir.join("r.mcap").to_str().unwrap(),
+        ],
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, Some(2), "{out}{err}");
+    assert!(err.contains("names no sit_keyframe"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -150,6 +150,27 @@ impl From<EndArg> for controller::player::EndMode {
     }
 }
 
+/// What a soft stop ends in (`--on-stop`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum OnStopArg {
+    /// Blend to the default pose, then damp and let go.
+    Damp,
+    /// Blend to the default pose and stand until stopped again (or --stand-for).
+    Stand,
+    /// Sit down slowly into robot.toml's sit_keyframe, then let go.
+    Sit,
+}
+
+impl From<OnStopArg> for controller::options::OnStop {
+    fn from(a: OnStopArg) -> Self {
+        match a {
+            OnStopArg::Damp => Self::Damp,
+            OnStopArg::Stand => Self::Stand,
+            OnStopArg::Sit => Self::Sit,
+        }
+    }
+}
+
 /// Where the world terms of the observation come from (`--estimator`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum EstimatorArg {

@@ -38,6 +38,18 @@ pub struct PlayArgs {
     /// What to do when the clip ends.
     #[arg(long, value_enum, default_value_t = crate::args::EndArg::Hold)]
     end: crate::args::EndArg,
+    /// What a soft stop (Ctrl-C, --max-seconds, the clip's end) ends in: damp (blend to the
+    /// default pose, then let go), stand (blend there and stand on the joints' stiffness until a
+    /// second Ctrl-C or --stand-for), or sit (a slow sit-down into robot.toml's sit_keyframe, then
+    /// let go). Faults damp at once whatever this says.
+    #[arg(long, value_enum, default_value_t = crate::args::OnStopArg::Damp)]
+    on_stop: crate::args::OnStopArg,
+    /// With --on-stop stand: stand at most this long, s (default: until stopped again).
+    #[arg(long, value_parser = crate::args::within(0.0, 86_400.0))]
+    stand_for: Option<f64>,
+    /// With --on-stop sit: how long the sit-down takes, s (0.1–60).
+    #[arg(long, default_value_t = 3.0, value_parser = crate::args::within(0.1, 60.0))]
+    sit_seconds: f64,
     /// Seconds of the start-up ramp ψ (clip held at its first frame).
     #[arg(long, default_value_t = 1.5, value_parser = crate::args::within(0.0, 60.0))]
     ramp: f64,
@@ -509,6 +521,9 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         start_step: args.files.start_step as usize,
         ramp_s: args.ramp,
         end: args.end.into(),
+        on_stop: args.on_stop.into(),
+        stand_s: args.stand_for,
+        sit_s: args.sit_seconds,
         max_ticks,
         limits: controller::safety::SafetyLimits {
             stale_cycles: args.stale_cycles.map_or(

@@ -20,6 +20,21 @@ pub enum EndMode {
     Stand,
 }
 
+/// What the robot does once the run is asked to stop softly (Ctrl-C, `--max-seconds`, the
+/// clip's end): faults always damp at once.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum OnStop {
+    /// Blend to the default pose, then damp and let go (a robot on a stand, an arm).
+    #[default]
+    Damp,
+    /// Blend to the default pose and stand there on the joints' own stiffness until the operator
+    /// stops again (a second Ctrl-C) or `stand_s` has passed; then damp.
+    Stand,
+    /// Blend slowly into robot.toml's `sit_keyframe` (a controlled sit-down), then damp.
+    Sit,
+}
+
 /// How a run goes. Recorded with every run (as part of [`RunMetadata`]) and read back by replays.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -47,6 +62,19 @@ pub struct PlayOptions {
     /// foot contacts, anchor position) come from.
     #[serde(default)]
     pub estimator: EstimatorKind,
+    /// What a soft stop ends in.
+    #[serde(default)]
+    pub on_stop: OnStop,
+    /// With [`OnStop::Stand`]: stand at most this long, s (none: until stopped again).
+    #[serde(default)]
+    pub stand_s: Option<f64>,
+    /// With [`OnStop::Sit`]: the sit-down's length, s.
+    #[serde(default = "default_sit_s")]
+    pub sit_s: f64,
+}
+
+fn default_sit_s() -> f64 {
+    3.0
 }
 
 /// The source of the robot's place in the world.
@@ -73,6 +101,9 @@ impl Default for PlayOptions {
             max_ticks: None,
             start_step: 0,
             estimator: EstimatorKind::Kf,
+            on_stop: OnStop::Damp,
+            stand_s: None,
+            sit_s: default_sit_s(),
         }
     }
 }

@@ -152,6 +152,10 @@ pub struct Player<L: RobotLink> {
     command_driven: bool,
     /// Steps the policy took since it took control (its phase counter).
     policy_steps: u64,
+    /// Where a soft stop goes (robot order): the default pose, or the sit keyframe.
+    stop_pose: Vec<f64>,
+    /// The tick the robot started standing after a soft stop (`OnStop::Stand`).
+    standing_since: Option<u64>,
 }
 
 impl<L: RobotLink> Player<L> {
@@ -257,6 +261,30 @@ impl<L: RobotLink> Player<L> {
         let mut metrics = RunMetrics::default();
         metrics.track_bodies(&reference.motion_bodies, reference.anchor);
         let command_driven = !layout.reads_reference();
+        let stop_pose = match options.on_stop {
+            crate::options::OnStop::Sit => {
+                let name = robot.config.sit_keyframe.as_deref().ok_or_else(|| {
+                    PlayError::Setup(format!(
+                        "on-stop sit: {} names no sit_keyframe (a keyframe of its model to sit down into)",
+                        robot.path.display()
+                    ))
+                })?;
+                robot.keyframe_joints(name).ok_or_else(|| {
+                    PlayError::Setup(format!("on-stop sit: the model has no keyframe {name:?}"))
+                })?
+            }
+            _ => layout.default_q.clone(),
+        };
+        if !(options.sit_s.is_finite() && (0.1..=60.0).contains(&options.sit_s))
+            || options
+                .stand_s
+                .is_some_and(|s| !(s.is_finite() && (0.0..=86_400.0).contains(&s)))
+        {
+            return Err(PlayError::Setup(format!(
+                "sit_s = {} (0.1–60 s) or stand_s = {:?} (0–86400 s) out of range",
+                options.sit_s, options.stand_s
+            )));
+        }
         let commands = match (&layout.manifest.commands, layout.command_values()) {
             (Some(spec), Some(initial)) => Some(LiveCommands::new(spec, initial, None, dt)),
             _ => None,
@@ -324,6 +352,8 @@ impl<L: RobotLink> Player<L> {
             commands,
             command_driven,
             policy_steps: 0,
+            stop_pose,
+            standing_since: None,
             robot,
             layout,
         })
@@ -783,15 +813,36 @@ impl<L: RobotLink> Player<L> {
         }
     }
 
-    /// After a fault: hold one tick. After a stop request or the clip's end: blend towards the
-    /// default pose from where the targets are. Then damping.
+    /// After a fault: hold one tick. After a stop request or the clip's end: blend from where the
+    /// targets are towards the stop pose (the default pose, or the sit keyframe), then damp — or,
+    /// with [`OnStop::Stand`], stand there until the operator stops again.
+    ///
+    /// [`OnStop::Stand`]: crate::options::OnStop::Stand
     fn stopping_targets(&mut self) {
+        use crate::options::OnStop;
         let soft = self.machine.pending.is_some_and(|c| !c.is_fault());
+        let blend_s = match self.options.on_stop {
+            OnStop::Sit => self.options.sit_s,
+            OnStop::Damp | OnStop::Stand => self.options.end_s,
+        };
         let stop_ticks = if soft {
-            (self.options.end_s / self.dt).round() as u64
+            (blend_s / self.dt).round().max(1.0) as u64
         } else {
             1
         };
+        if soft && self.options.on_stop == OnStop::Stand && self.machine.ticks >= stop_ticks {
+            let since = *self.standing_since.get_or_insert_with(|| {
+                // A fresh stop request ends the stand: the one that began it is spent.
+                self.stop.store(false, Ordering::Relaxed);
+                self.tick
+            });
+            let stood = (self.tick - since) as f64 * self.dt;
+            let again = self.stop_seen && self.tick > since;
+            if !again && self.options.stand_s.is_none_or(|s| stood < s) {
+                self.hold_targets();
+                return;
+            }
+        }
         if self.machine.ticks >= stop_ticks {
             self.go(Mode::Damped, Cause::HoldDone);
             self.damping_targets();
@@ -799,9 +850,9 @@ impl<L: RobotLink> Player<L> {
             let a = 1.0 / (stop_ticks - self.machine.ticks) as f64;
             let margin = self.options.limits.position_margin;
             let joints = &self.robot.config.joints;
-            for ((t, d), j) in self.targets.iter_mut().zip(&self.layout.default_q).zip(joints) {
+            for ((t, d), j) in self.targets.iter_mut().zip(&self.stop_pose).zip(joints) {
                 // The blend is governed from the previous target like any command: far from the
-                // default pose with few ticks left it would otherwise outrun the joint's speed.
+                // stop pose with few ticks left it would otherwise outrun the joint's speed.
                 let wanted = t.q + (d - t.q) * a;
                 t.q = govern_position(j, t.q, wanted, self.dt, margin, None);
             }
