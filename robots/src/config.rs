@@ -238,6 +238,10 @@ pub struct RobotConfig {
     /// shadows a shipped one).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub mit_models: Vec<MitModelConfig>,
+    /// Serial servo variants of this robot's own: a shipped Dynamixel model with other motor
+    /// constants (a winding, a gearing, a supply voltage), speaking as the shipped one.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub servo_models: Vec<ServoModelConfig>,
     /// Foot switches on Linux GPIO lines, for the state estimator's contacts (none: contact is
     /// estimated from the legs' kinematics).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
@@ -312,6 +316,63 @@ impl MitModelConfig {
             ));
         }
         Ok(model)
+    }
+}
+
+/// A serial servo variant as a robot.toml defines it: a shipped model (its protocol, control
+/// table and identity) with the motor constants of the variant the robot carries. Each given
+/// constant must be a positive number; the ones left out are the shipped model's.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ServoModelConfig {
+    /// The name joints' `model` refers to.
+    pub name: String,
+    /// The shipped model it is a variant of (what the bus identifies).
+    pub base: String,
+    /// Supply voltage the constants refer to (and the mirror supplies), V.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub nominal_voltage: Option<f64>,
+    /// Output torque at stall, N·m.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stall_torque: Option<f64>,
+    /// Current at stall, A.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stall_current: Option<f64>,
+    /// Output speed without load, rpm.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub no_load_speed: Option<f64>,
+}
+
+impl ServoModelConfig {
+    /// The variant, or the field that is wrong and why.
+    pub fn model(&self) -> Result<dxl::models::DxlModel, (&'static str, String)> {
+        let Some(base) = dxl::models::find(&self.base) else {
+            let known: Vec<&str> = dxl::models::builtin().iter().map(|m| m.name.as_str()).collect();
+            return Err((
+                "base",
+                format!(
+                    "{:?} is not a shipped servo model (known: {})",
+                    self.base,
+                    known.join(", ")
+                ),
+            ));
+        };
+        let mut m = base.clone();
+        m.name = self.name.clone();
+        for (field, given, slot) in [
+            ("nominal_voltage", self.nominal_voltage, &mut m.nominal_voltage),
+            ("stall_torque", self.stall_torque, &mut m.stall_torque),
+            ("stall_current", self.stall_current, &mut m.stall_current),
+            ("no_load_speed", self.no_load_speed, &mut m.no_load_speed),
+        ] {
+            if let Some(v) = given {
+                if !(v.is_finite() && v > 0.0 && v <= 1e4) {
+                    return Err((field, format!("{} must be a positive number", crate::num(v))));
+                }
+                *slot = v;
+            }
+        }
+        Ok(m)
     }
 }
 
@@ -450,6 +511,9 @@ pub struct Robot {
     pub mjcf: MjcfSummary,
     /// The robot's own MIT-mode models (robot.toml's `mit_models`), checked.
     pub mit_models: Vec<mit::models::MotorModel>,
+    /// The robot's own servo variants (robot.toml's `servo_models`), checked, with the shipped
+    /// model each speaks as.
+    pub servo_models: Vec<(dxl::models::DxlModel, String)>,
 }
 
 impl Robot {
@@ -516,12 +580,25 @@ impl Robot {
             }
             mit_models.push(m.model().map_err(|(field, message)| err(&at(field), message))?);
         }
+        let mut servo_models = Vec::with_capacity(config.servo_models.len());
+        for (i, m) in config.servo_models.iter().enumerate() {
+            let at = |field: &str| format!("servo_models[{i}] ({}).{field}", m.name);
+            if m.name.is_empty() || config.servo_models[..i].iter().any(|o| o.name == m.name) {
+                return Err(err(
+                    &at("name"),
+                    format!("{:?} is empty or defined twice", m.name),
+                ));
+            }
+            let model = m.model().map_err(|(field, message)| err(&at(field), message))?;
+            servo_models.push((model, m.base.clone()));
+        }
         let robot = Self {
             config,
             path: path.to_path_buf(),
             mjcf_path,
             mjcf,
             mit_models,
+            servo_models,
         };
         robot.check().map_err(|(place, message)| err(&place, message))?;
         Ok(robot)
@@ -685,6 +762,23 @@ impl Robot {
         Some([position / joint.gear, velocity / joint.gear])
     }
 
+    /// The serial servo model called `name`: the robot's own variant, else the shipped table's.
+    pub fn dxl_model(&self, name: &str) -> Option<&dxl::models::DxlModel> {
+        self.servo_models
+            .iter()
+            .find(|(m, _)| m.name == name)
+            .map(|(m, _)| m)
+            .or_else(|| dxl::models::find(name))
+    }
+
+    /// The shipped servo model `name` speaks as on the bus (itself, or a variant's base).
+    pub fn dxl_protocol_model<'a>(&'a self, name: &'a str) -> &'a str {
+        self.servo_models
+            .iter()
+            .find(|(m, _)| m.name == name)
+            .map_or(name, |(_, base)| base.as_str())
+    }
+
     /// The MIT-mode motor model called `name`: the robot's own, else the shipped table's.
     pub fn mit_model(&self, name: &str) -> Option<&mit::models::MotorModel> {
         self.mit_models
@@ -700,7 +794,7 @@ impl Robot {
             return Ok(());
         };
         let probe = JointConfig { kp, kd, ..j.clone() };
-        match check_actuator(&probe, bus.kind, &self.mit_models) {
+        match check_actuator(&probe, bus.kind, &self.mit_models, &self.servo_models) {
             Err(("kp", message)) => Err(message),
             _ => Ok(()),
         }
@@ -1198,7 +1292,8 @@ impl Robot {
                     return Err((at(field), format!("{v} is not allowed")));
                 }
             }
-            check_actuator(j, bus.kind, &self.mit_models).map_err(|(f, msg)| (at(f), msg))?;
+            check_actuator(j, bus.kind, &self.mit_models, &self.servo_models)
+                .map_err(|(f, msg)| (at(f), msg))?;
         }
         Ok(())
     }
@@ -1221,6 +1316,7 @@ fn check_actuator(
     j: &JointConfig,
     kind: BusKind,
     own: &[mit::models::MotorModel],
+    servos: &[(dxl::models::DxlModel, String)],
 ) -> Result<(), (&'static str, String)> {
     match kind {
         BusKind::MitCan => {
@@ -1289,8 +1385,18 @@ fn check_actuator(
             }
         }
         BusKind::Dynamixel => {
-            let Some(servo) = dxl::models::find(&j.model) else {
-                let known: Vec<_> = dxl::models::builtin().iter().map(|m| m.name.as_str()).collect();
+            let Some(servo) = servos
+                .iter()
+                .map(|(m, _)| m)
+                .find(|m| m.name == j.model)
+                .or_else(|| dxl::models::find(&j.model))
+            else {
+                let known: Vec<_> = servos
+                    .iter()
+                    .map(|(m, _)| m)
+                    .chain(dxl::models::builtin())
+                    .map(|m| m.name.as_str())
+                    .collect();
                 return Err((
                     "model",
                     format!(

@@ -21,7 +21,7 @@ pub fn mit_joint(robot: &crate::Robot, j: &JointConfig) -> MitJointConfig {
     c
 }
 
-/// The Dynamixel driver's view of a joint on a `dynamixel` bus. Direct drive only: the servo's
+/// The Dynamixel driver's view of a joint of `robot` on a `dynamixel` bus. Direct drive only: the servo's
 /// own position loop runs in servo ticks, so a gear between servo and joint is folded into the
 /// joint's limits by the robot file, not here. Servos that sense current run current-based
 /// position control, so the goal current caps their torque at the joint's limit
@@ -30,9 +30,15 @@ pub fn mit_joint(robot: &crate::Robot, j: &JointConfig) -> MitJointConfig {
 ///
 /// # Panics
 /// When the joint's model is not a Dynamixel servo (loading a [`crate::Robot`] checks this).
-pub fn dxl_joint(j: &JointConfig) -> DxlJointConfig {
-    let model = dxl_models::find(&j.model).expect("a Dynamixel servo (checked at load)");
-    let mut c = DxlJointConfig::new(&j.name, j.id, &model.name);
+pub fn dxl_joint(robot: &crate::Robot, j: &JointConfig) -> DxlJointConfig {
+    let model = robot
+        .dxl_model(&j.model)
+        .expect("a Dynamixel servo (checked at load)");
+    // The bus knows it by the shipped model it speaks as; its constants are the variant's.
+    let mut c = DxlJointConfig::new(&j.name, j.id, robot.dxl_protocol_model(&j.model));
+    if model.name != c.model {
+        c.constants = Some(model.clone());
+    }
     c.direction = j.direction;
     c.zero_ticks = 2048.0 + j.zero_offset / dxl_models::rad_per_tick();
     c.homing_offset = j.homing_offset_ticks;

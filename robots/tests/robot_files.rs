@@ -353,3 +353,41 @@ fn a_robot_may_define_its_own_mit_motor_model_checked_like_the_shipped_ones() {
         &["mit_models[0] (RD-X10).rated_torque", "(0, 45]"],
     );
 }
+
+#[test]
+fn a_servo_variant_is_checked_against_its_own_constants() {
+    let variant = |extra: &str| {
+        reference_text()
+            .replacen("id = 8\nmodel = \"XL430-W250\"", "id = 8\nmodel = \"XL-SLOW\"", 1)
+            .replacen(
+                "\n[[buses]]",
+                &format!(
+                    "\n[[servo_models]]\nname = \"XL-SLOW\"\nbase = \"XL430-W250\"\n{extra}\n\n[[buses]]"
+                ),
+                1,
+            )
+    };
+    // 30 rpm is 3.14 rad/s: head_pitch's 6 rad/s is beyond it, named with the variant.
+    expect_error(
+        &variant("no_load_speed = 30.0"),
+        &["joints[19] (head_pitch).velocity_limit", "XL-SLOW", "3.14"],
+    );
+    expect_error(
+        &variant("stall_torque = -1.0"),
+        &[
+            "servo_models[0] (XL-SLOW).stall_torque",
+            "-1 must be a positive number",
+        ],
+    );
+    expect_error(
+        &variant("").replacen("base = \"XL430-W250\"", "base = \"AX-12\"", 1),
+        &[
+            "servo_models[0] (XL-SLOW).base",
+            "\"AX-12\" is not a shipped servo model",
+            "XL430-W250",
+        ],
+    );
+    // Within its constants it loads, and speaks as the shipped model.
+    let robot = load_variant(&variant("no_load_speed = 61.0")).unwrap();
+    assert_eq!(robot.dxl_protocol_model("XL-SLOW"), "XL430-W250");
+}

@@ -11,7 +11,6 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use firmware_bridge::can::virtual_bus::{LockstepCanPort, VirtualCanBus, VirtualCanNode};
-use firmware_bridge::dxl;
 use firmware_bridge::dxl::servo::{ReplyFault, ServoConfig, XSeriesServo};
 use firmware_bridge::dxl::table::hw;
 use firmware_bridge::dxl::transport::LockstepDxlPort;
@@ -356,8 +355,10 @@ impl Mirror {
                     let mut servos = Vec::new();
                     let mut idx = Vec::new();
                     for (i, j) in robot.joints_on(&bus.name) {
-                        let m = dxl::models::find(&j.model).expect("checked at load");
+                        let m = robot.dxl_model(&j.model).expect("checked at load");
                         let mut cfg = ServoConfig::new(j.id).on_line(bus.rate, config.servo_return_delay());
+                        // The robot supplies its servos at their rated voltage.
+                        cfg.supply_voltage = m.nominal_voltage;
                         cfg.control_period = firmware_period;
                         servos.push(XSeriesServo::new(m, cfg));
                         idx.push(i);

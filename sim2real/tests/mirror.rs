@@ -556,7 +556,11 @@ fn feedback_is_exactly_one_bus_period_old_at_each_tick_in_lockstep() {
 /// further for 300 bus cycles, and asserts that the torque its actuator applied and the torque its
 /// bus reported reach the joint's limit but never exceed it by more than `slack`. Returns the limit.
 fn push_against_the_jig(joint: &str, push: f64, slack: f64) -> f64 {
-    let mut h = host(on_gantry());
+    push_against_the_jig_of(Robot::load(&reference_robot_path()).unwrap(), joint, push, slack)
+}
+
+fn push_against_the_jig_of(robot: Robot, joint: &str, push: f64, slack: f64) -> f64 {
+    let mut h = host_of(robot, on_gantry());
     let robot = h.robot.clone();
     let j = robot.config.joints.iter().position(|x| x.name == joint).unwrap();
     let limit = robot.config.joints[j].torque_limit;
@@ -638,4 +642,39 @@ fn a_motor_model_of_the_robots_own_drives_driver_and_firmware_alike() {
     assert_eq!(w.motor_mut(knee).unwrap().config().model.p_max, 20.0);
     let q = w.joint_positions().nth(knee).unwrap();
     assert!((q - 0.5).abs() < 0.02, "knee at {q:.3} rad, default 0.5");
+}
+
+#[test]
+fn a_servo_variant_of_the_robots_own_is_driven_and_emulated_with_its_constants() {
+    // head_pitch on a 7.4 V winding of the XL430-W250 (stall 0.9 N·m there), limited to 0.8 N·m:
+    // the driver's PWM Limit comes from the variant's stall torque and the emulated servo runs on
+    // the variant's constants and supply; with either side on the shipped 12 V constants the
+    // joint would stall at 0.48 N·m instead of reaching its limit.
+    let text = std::fs::read_to_string(reference_robot_path())
+        .unwrap()
+        .replacen(
+            "id = 8\nmodel = \"XL430-W250\"",
+            "id = 8\nmodel = \"XL430-W250-7V4\"",
+            1,
+        )
+        .replacen(
+            "\n[[buses]]",
+            "\n[[servo_models]]\nname = \"XL430-W250-7V4\"\nbase = \"XL430-W250\"\nnominal_voltage = 7.4\n\
+             stall_torque = 0.9\nstall_current = 0.85\nno_load_speed = 38.0\n\n[[buses]]",
+            1,
+        );
+    let text = {
+        // The head's limits fit the slower, weaker variant.
+        let at = text.find("name = \"head_pitch\"").unwrap();
+        let (head, tail) = text.split_at(at);
+        format!(
+            "{head}{}",
+            tail.replacen("velocity_limit = 6.0", "velocity_limit = 3.9", 1)
+                .replacen("torque_limit = 1.2", "torque_limit = 0.8", 1)
+        )
+    };
+    let robot = Robot::from_str(&reference_robot_path(), &text).unwrap();
+    assert_eq!(robot.dxl_model("XL430-W250-7V4").unwrap().stall_torque, 0.9);
+    assert_eq!(robot.dxl_protocol_model("XL430-W250-7V4"), "XL430-W250");
+    assert_eq!(push_against_the_jig_of(robot, "head_pitch", 0.6, 0.02), 0.8);
 }

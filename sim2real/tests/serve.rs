@@ -54,7 +54,7 @@ fn drivers_hold_the_served_biped_over_socketcand_and_pseudo_terminals() {
     let rate = robot.bus(name).unwrap().rate;
     let (dxl_idx, cfg): (Vec<_>, Vec<_>) = robot
         .joints_on(name)
-        .map(|(i, j)| (i, drivers::dxl_joint(j)))
+        .map(|(i, j)| (i, drivers::dxl_joint(&robot, j)))
         .unzip();
     let options = DxlDriverOptions {
         reply_slack: Duration::from_millis(30),

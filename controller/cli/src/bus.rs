@@ -186,7 +186,7 @@ fn scan_dxl<T: DxlTransport>(robot: &Robot, bus: &str, port: &mut T, timeout: Du
     print_timing(robot, bus);
     let mut problems = 0;
     for j in &joints {
-        let expected = dxl::models::find(&j.model).map_or(0, |m| m.model_number);
+        let expected = robot.dxl_model(&j.model).map_or(0, |m| m.model_number);
         match hits.iter().find(|h| h.id == j.id) {
             Some(h) if h.model_number == expected => {
                 println!(

@@ -135,6 +135,10 @@ pub struct DxlJointConfig {
     /// sense its current, whose stall torque scales with the duty.
     #[serde(default)]
     pub pwm_limit: Option<u16>,
+    /// The motor constants of a variant of `model` (another winding, gearing or supply): the
+    /// driver turns load and current into torque with these. Its identity must be `model`'s.
+    #[serde(skip)]
+    pub constants: Option<DxlModel>,
 }
 
 impl DxlJointConfig {
@@ -151,6 +155,7 @@ impl DxlJointConfig {
             position_gains: None,
             current_limit: None,
             pwm_limit: None,
+            constants: None,
         }
     }
 
@@ -433,7 +438,8 @@ pub struct DxlDriverStats {
 pub struct DxlBusDriver<T: DxlTransport> {
     transport: T,
     joints: Vec<DxlJointConfig>,
-    models: Vec<&'static DxlModel>,
+    /// Each joint's model: the shipped one, or a variant's constants.
+    models: Vec<DxlModel>,
     options: DxlDriverOptions,
     feedback: Vec<DxlFeedback<T::Instant>>,
     received: Vec<bool>,
@@ -452,7 +458,7 @@ impl<T: DxlTransport> DxlBusDriver<T> {
     ) -> Result<Self, DxlError> {
         let mut resolved = Vec::with_capacity(joints.len());
         for (i, j) in joints.iter().enumerate() {
-            let model = models::find(&j.model).ok_or_else(|| {
+            let shipped = models::find(&j.model).ok_or_else(|| {
                 let known: Vec<_> = models::builtin().iter().map(|m| m.name.as_str()).collect();
                 DxlError::Config(format!(
                     "joint {:?}: model {:?} is not one of {}",
@@ -461,6 +467,19 @@ impl<T: DxlTransport> DxlBusDriver<T> {
                     known.join(", ")
                 ))
             })?;
+            let model = match &j.constants {
+                Some(c)
+                    if c.model_number != shipped.model_number
+                        || c.current_sensing != shipped.current_sensing =>
+                {
+                    return Err(DxlError::Config(format!(
+                        "joint {:?}: the constants of {:?} are not a variant of {} (model number {}, current sensing {})",
+                        j.name, c.name, shipped.name, shipped.model_number, shipped.current_sensing
+                    )));
+                }
+                Some(c) => c,
+                None => shipped,
+            };
             if j.id > 252 {
                 return Err(DxlError::Config(format!(
                     "joint {:?}: id {} is above 252",
@@ -508,7 +527,7 @@ impl<T: DxlTransport> DxlBusDriver<T> {
                     j.name, model.pwm_limit
                 )));
             }
-            resolved.push(model);
+            resolved.push(model.clone());
         }
         let n = joints.len();
         Ok(Self {
@@ -641,13 +660,13 @@ impl<T: DxlTransport> DxlBusDriver<T> {
     pub fn check_servos(&mut self) -> Result<(), DxlError> {
         let mut problems = Vec::new();
         for i in 0..self.joints.len() {
-            let (id, expected) = (self.joints[i].id, self.models[i]);
+            let (id, number_wanted) = (self.joints[i].id, self.models[i].model_number);
             match self.ping(id) {
-                Ok((number, _)) if number == expected.model_number => {}
+                Ok((number, _)) if number == number_wanted => {}
                 Ok((found, _)) => problems.push(ScanProblem::WrongModel {
                     joint: self.joints[i].name.clone(),
                     id,
-                    expected: expected.name.clone(),
+                    expected: self.models[i].name.clone(),
                     found,
                 }),
                 Err(DxlError::Link(e)) => return Err(DxlError::Link(e)),
@@ -677,7 +696,7 @@ impl<T: DxlTransport> DxlBusDriver<T> {
 
     fn configure_joint(&mut self, i: usize) -> Result<(), DxlError> {
         let j = self.joints[i].clone();
-        let model = self.models[i];
+        let model = self.models[i].clone();
         let id = j.id;
         self.write(id, addr::STATUS_RETURN_LEVEL, &[2])?;
         if let Some(delay) = self.options.return_delay {
@@ -943,7 +962,7 @@ impl<T: DxlTransport> DxlBusDriver<T> {
                         (i, Some(DxlFault::Malformed { id: s.id }), false)
                     }
                     Some(i) => {
-                        self.feedback[i] = decode_feedback(&self.joints[i], self.models[i], s.params);
+                        self.feedback[i] = decode_feedback(&self.joints[i], &self.models[i], s.params);
                         let bits = self.feedback[i].hardware_error;
                         (
                             i,

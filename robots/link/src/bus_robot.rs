@@ -171,7 +171,8 @@ struct DxlBus<D: DxlTransport> {
     driver: DxlBusDriver<D>,
     joints: Vec<usize>,
     commands: Vec<DxlCommand>,
-    models: Vec<&'static dxl_models::DxlModel>,
+    /// Each joint's servo model (a robot's own variant where it has one).
+    models: Vec<dxl_models::DxlModel>,
     /// Goal current per joint, A: its torque limit (ignored by servos without current control).
     current_caps: Vec<f64>,
     /// Stiffness and damping the servos hold now (NaN: unknown, write before use).
@@ -189,11 +190,11 @@ impl<D: DxlTransport> DxlBus<D> {
         let mut current_caps = Vec::with_capacity(n);
         for &i in &joints {
             let j = &robot.config.joints[i];
-            let model = dxl_models::find(&j.model).ok_or_else(|| {
+            let model = robot.dxl_model(&j.model).ok_or_else(|| {
                 IoError::Setup(format!("joint {}: {} is no Dynamixel model", j.name, j.model))
             })?;
-            models.push(model);
             current_caps.push(drivers::goal_current_for(j.torque_limit, model));
+            models.push(model.clone());
         }
         Ok(Self {
             driver,
@@ -230,7 +231,7 @@ impl<D: DxlTransport> DxlBus<D> {
         }
         for (k, &i) in self.joints.iter().enumerate() {
             let t = &targets[i];
-            self.gains[k] = drivers::position_gains_for(t.kp, t.kd, self.models[k]);
+            self.gains[k] = drivers::position_gains_for(t.kp, t.kd, &self.models[k]);
         }
         self.driver.write_gains(&self.gains)?;
         for (held, &i) in self.gains_held.iter_mut().zip(&self.joints) {
@@ -305,7 +306,7 @@ where
         for k in 0..self.driver.joints().len() {
             let j = self.driver.joints()[k].clone();
             let (number, firmware) = self.driver.ping(j.id)?;
-            let model = dxl_models::find(&j.model);
+            let model = self.models.get(k);
             let current_limit_a = match model {
                 Some(m) if m.current_sensing => {
                     let mut raw = [0u8; 2];
@@ -320,7 +321,7 @@ where
                 joint: j.name.clone(),
                 bus: bus.to_owned(),
                 id: j.id,
-                model: j.model.clone(),
+                model: model.map_or_else(|| j.model.clone(), |m| m.name.clone()),
                 answer: format!("model {number} ({found})"),
                 firmware: Some(firmware),
                 current_limit_a,
@@ -482,7 +483,7 @@ impl<S: ByteStream> BusRobot<S> {
             let timing = timing(&name)?;
             let (idx, cfg): (Vec<_>, Vec<_>) = robot
                 .joints_on(&name)
-                .map(|(i, j)| (i, drivers::dxl_joint(j)))
+                .map(|(i, j)| (i, drivers::dxl_joint(robot, j)))
                 .unzip();
             let options = DxlDriverOptions {
                 max_reply_wait: Some(Cycler::reply_window(&timing)),
