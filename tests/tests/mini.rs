@@ -144,6 +144,32 @@ fn it_stands_ten_seconds_on_a_command_driven_policy_with_no_clip() {
         .and_then(|d| d.parse::<f64>().ok())
         .unwrap_or_else(|| panic!("{stdout}"));
     assert!(distance < 0.05, "standing still, it went {distance} m");
+    // Its report says the same: where it went, no joint errors against a made-up clip.
+    let report = dir.join("report");
+    let (code, out, err) = run_within(
+        &[
+            "report",
+            record.to_str().unwrap(),
+            "--out",
+            report.to_str().unwrap(),
+        ],
+        Duration::from_secs(300),
+    );
+    assert_eq!(code, Some(0), "{out}{err}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(report.join("summary.json")).unwrap()).unwrap();
+    assert!(summary["joints_rmse_deg"].is_null(), "{summary}");
+    assert_eq!(summary["success"], true);
+    assert!(
+        summary["locomotion"]["distance_m"].as_f64().unwrap() < 0.05,
+        "{summary}"
+    );
+    assert_eq!(summary["locomotion"]["commanded"][0], 0.0, "{summary}");
+    let md = std::fs::read_to_string(report.join("summary.md")).unwrap();
+    assert!(
+        md.contains("| forward: commanded / achieved | +0.000 m/s /"),
+        "{md}"
+    );
     // The recording replays bit for bit (the commands it had are fed back).
     let (code, out, err) = run_within(&["replay", record.to_str().unwrap()], Duration::from_secs(300));
     assert_eq!(code, Some(0), "{out}{err}");

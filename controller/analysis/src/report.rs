@@ -54,6 +54,9 @@ pub struct RunSummary {
     /// The state estimate against the truth over the whole run (simulation runs with an
     /// estimator).
     pub estimator: Option<EstimatorFigures>,
+    /// A command-driven run (no clip): where the robot went against its commands, while the
+    /// policy was in control (simulation runs). Such a run has no clip-tracking numbers.
+    pub locomotion: Option<controller::metrics::LocomotionSummary>,
 }
 
 /// How well the state estimate followed the simulation's truth, from a recording's `/estimator`.
@@ -111,6 +114,12 @@ struct Series {
     motion_bodies: Vec<String>,
     anchor_body: Option<String>,
     body_errors: Vec<Vec<f64>>,
+    /// The run played no clip (a command-driven policy).
+    command_driven: bool,
+    /// What its commands mean, and per `/policy` message whether the policy ran and the commands.
+    command_kinds: Vec<controller::metrics::CommandKind>,
+    running: Vec<bool>,
+    commands: Vec<Vec<f64>>,
 }
 
 fn floats(v: &serde_json::Value) -> Vec<f64> {
@@ -154,10 +163,11 @@ fn read_series(path: &Path) -> Result<Series, String> {
                 if s.base_pose.is_empty() {
                     let meta = &m.metadata;
                     s.reference_ticks = meta.get("reference_ticks").and_then(|n| n.parse().ok());
-                    s.tilt_limit = meta
+                    let run = meta
                         .get("run")
-                        .and_then(|j| controller::options::RunMetadata::from_json(j).ok())
-                        .map_or(s.tilt_limit, |r| r.options.limits.tilt);
+                        .and_then(|j| controller::options::RunMetadata::from_json(j).ok());
+                    s.tilt_limit = run.as_ref().map_or(s.tilt_limit, |r| r.options.limits.tilt);
+                    s.command_driven = run.is_some_and(|r| r.clip.is_none());
                 }
                 let p = floats(&v["base_pose"]);
                 s.base_pose
@@ -170,8 +180,18 @@ fn read_series(path: &Path) -> Result<Series, String> {
                         .get("motion_bodies")
                         .map_or_else(Vec::new, |n| n.split(',').map(str::to_owned).collect());
                     s.anchor_body = m.metadata.get("anchor_body").cloned();
+                    s.command_kinds = m.metadata.get("command_kinds").map_or_else(Vec::new, |k| {
+                        k.split(',')
+                            .map(|k| {
+                                serde_json::from_value(serde_json::Value::String(k.to_owned()))
+                                    .unwrap_or(controller::metrics::CommandKind::Other)
+                            })
+                            .collect()
+                    });
                 }
                 s.body_errors.push(floats(&v["body_errors_m"]));
+                s.running.push(v["running"].as_bool().unwrap_or(false));
+                s.commands.push(floats(&v["commands"]));
             }
             "/estimator" if v["valid"].as_bool() == Some(true) && v.get("truth_position").is_some() => {
                 let d = |a: &str, b: &str| {
@@ -225,11 +245,49 @@ fn quantiles(v: &[f64]) -> [f64; 3] {
     [at(0.5), at(0.99), s[s.len() - 1]]
 }
 
+/// A command-driven run's measure over the ticks its policy ran, and per tick the commanded and
+/// achieved forward speed and turning rate: (time, commanded, achieved).
+#[allow(clippy::type_complexity)]
+fn locomotion_course(
+    s: &Series,
+) -> (
+    Option<controller::metrics::LocomotionSummary>,
+    Vec<(f64, [f64; 2], [f64; 2])>,
+) {
+    let mut l = controller::metrics::LocomotionMetrics::new(&s.command_kinds);
+    let [forward, _, turning] = l.slots();
+    let mut course = Vec::new();
+    for k in 1..s.q.len() {
+        let (Some(&pose), true) = (s.base_pose.get(k), s.running.get(k).copied().unwrap_or(false)) else {
+            continue;
+        };
+        let dt = s.time[k] - s.time[k - 1];
+        if dt.is_nan() || dt <= 0.0 || pose[0].is_nan() {
+            continue;
+        }
+        let commands = s.commands.get(k).map_or(&[][..], Vec::as_slice);
+        if let Some(a) = l.add(pose, commands, dt) {
+            let c = |slot: Option<usize>| slot.and_then(|i| commands.get(i).copied()).unwrap_or(f64::NAN);
+            course.push((s.time[k], [c(forward), c(turning)], [a[0], a[2]]));
+        }
+    }
+    (l.summary(), course)
+}
+
 fn summarize(s: &Series) -> RunSummary {
     let n = s.joints.len().max(s.q.first().map_or(0, Vec::len));
+    // The metrics' window: the ticks tracking the clip; for a command-driven run (no clip) the
+    // ticks its policy ran, over which only the robot's own motion is measured.
     let window: Vec<usize> = (0..s.q.len())
-        .filter(|&k| s.tracking.get(k).copied().unwrap_or(false))
+        .filter(|&k| {
+            if s.command_driven {
+                s.running.get(k).copied().unwrap_or(false)
+            } else {
+                s.tracking.get(k).copied().unwrap_or(false)
+            }
+        })
         .collect();
+    let reference_window: &[usize] = if s.command_driven { &[] } else { &window };
     let mut per_joint = vec![0.0; n];
     for &k in &window {
         for (j, sum) in per_joint.iter_mut().enumerate() {
@@ -255,7 +313,7 @@ fn summarize(s: &Series) -> RunSummary {
         .to_degrees();
     let has_truth = s.base_pose.iter().any(|p| !p[0].is_nan());
     let (mut pos_sq, mut ori_sq, mut root_max) = (0.0, 0.0, (0.0f64, 0.0f64));
-    for &k in &window {
+    for &k in reference_window {
         let (Some(p), Some(r)) = (s.base_pose.get(k), s.reference_root.get(k)) else {
             continue;
         };
@@ -274,12 +332,16 @@ fn summarize(s: &Series) -> RunSummary {
     let played = s
         .reference_ticks
         .map(|n| (window.len() as f64 / n.max(1) as f64).min(1.0));
-    let success = tracking_success(
-        fell.unwrap_or(false),
-        s.faulted,
-        played,
-        has_truth.then_some(root_max),
-    );
+    let success = if s.command_driven {
+        !fell.unwrap_or(false) && !s.faulted
+    } else {
+        tracking_success(
+            fell.unwrap_or(false),
+            s.faulted,
+            played,
+            has_truth.then_some(root_max),
+        )
+    };
     // Jitter: third derivative by finite differences over the tracking window.
     let mut jitter = (0.0, 0usize);
     for w in window.windows(4) {
@@ -338,16 +400,31 @@ fn summarize(s: &Series) -> RunSummary {
             },
         }
     });
+    // A command-driven run: the same measure the loop keeps, over the ticks the policy ran.
+    let locomotion = (s.command_driven && has_truth)
+        .then(|| locomotion_course(s).0)
+        .flatten();
     RunSummary {
+        locomotion,
         estimator,
         body_rmse_cm,
         anchor_rmse_cm,
         ticks: s.q.len(),
         tracking_ticks: window.len(),
-        joint_rmse_deg,
-        joints_rmse_deg,
-        root_position_rmse_cm: has_truth.then(|| (pos_sq / count).sqrt() * 100.0),
-        root_orientation_rmse_deg: has_truth.then(|| (ori_sq / count).sqrt().to_degrees()),
+        // Against a made-up reference (the default pose), joint errors mean nothing.
+        joint_rmse_deg: if s.command_driven {
+            BTreeMap::new()
+        } else {
+            joint_rmse_deg
+        },
+        joints_rmse_deg: if s.command_driven {
+            f64::NAN
+        } else {
+            joints_rmse_deg
+        },
+        root_position_rmse_cm: (has_truth && !s.command_driven).then(|| (pos_sq / count).sqrt() * 100.0),
+        root_orientation_rmse_deg: (has_truth && !s.command_driven)
+            .then(|| (ori_sq / count).sqrt().to_degrees()),
         fell,
         safety_stop: s.faulted,
         played,
@@ -444,7 +521,32 @@ pub fn write_report(log: &Path, dir: &Path) -> Result<RunSummary, AnalysisError>
         "| ticks (tracking) | {} ({}) |",
         summary.ticks, summary.tracking_ticks
     );
-    let _ = writeln!(md, "| joint RMSE | {:.2}° |", summary.joints_rmse_deg);
+    match &summary.locomotion {
+        Some(l) => {
+            let _ = writeln!(
+                md,
+                "| distance travelled / from the start | {:.2} m / {:.2} m |\n| heading turned | {:+.1}° |",
+                l.distance_m,
+                l.displacement_m,
+                l.heading_change.to_degrees()
+            );
+            for (k, (name, unit)) in [("forward", "m/s"), ("leftward", "m/s"), ("turning", "rad/s")]
+                .iter()
+                .enumerate()
+            {
+                let commanded =
+                    l.commanded[k].map_or("not commanded".to_owned(), |c| format!("{c:+.3} {unit}"));
+                let _ = writeln!(
+                    md,
+                    "| {name}: commanded / achieved | {commanded} / {:+.3} {unit} |",
+                    l.achieved[k]
+                );
+            }
+        }
+        None => {
+            let _ = writeln!(md, "| joint RMSE | {:.2}° |", summary.joints_rmse_deg);
+        }
+    }
     if let (Some(p), Some(o)) = (summary.root_position_rmse_cm, summary.root_orientation_rmse_deg) {
         let _ = writeln!(
             md,
@@ -460,14 +562,22 @@ pub fn write_report(log: &Path, dir: &Path) -> Result<RunSummary, AnalysisError>
         "| safety stop | {} |",
         if summary.safety_stop { "YES" } else { "no" }
     );
-    if let Some(p) = summary.played {
-        let _ = writeln!(md, "| reference played | {:.0} % |", 100.0 * p);
+    if summary.locomotion.is_some() {
+        let _ = writeln!(
+            md,
+            "| success (no fall, no safety stop) | {} |",
+            yes(summary.success)
+        );
+    } else {
+        if let Some(p) = summary.played {
+            let _ = writeln!(md, "| reference played | {:.0} % |", 100.0 * p);
+        }
+        let _ = writeln!(
+            md,
+            "| success (no fall, no safety stop, played to the end, root within 1 m and 45°) | {} |",
+            yes(summary.success)
+        );
     }
-    let _ = writeln!(
-        md,
-        "| success (no fall, no safety stop, played to the end, root within 1 m and 45°) | {} |",
-        yes(summary.success)
-    );
     let _ = writeln!(
         md,
         "| jitter (mean \\|d³q/dt³\\|) | {:.2} rad/s³ |",
@@ -502,7 +612,9 @@ pub fn write_report(log: &Path, dir: &Path) -> Result<RunSummary, AnalysisError>
     for (tick, mode, cause) in &summary.safety_events {
         let _ = writeln!(md, "- tick {tick}: {mode} ({cause})");
     }
-    let _ = writeln!(md, "\n## Joint RMSE\n");
+    if !summary.joint_rmse_deg.is_empty() {
+        let _ = writeln!(md, "\n## Joint RMSE\n");
+    }
     for (j, e) in &summary.joint_rmse_deg {
         let _ = writeln!(md, "- {j}: {e:.2}°");
     }
@@ -523,6 +635,21 @@ pub fn write_report(log: &Path, dir: &Path) -> Result<RunSummary, AnalysisError>
         log.display(),
         md.replace('<', "&lt;")
     );
+    if s.command_driven {
+        let (_, course) = locomotion_course(&s);
+        for (k, (title, unit)) in [("forward speed", "m/s"), ("turning rate", "rad/s")]
+            .iter()
+            .enumerate()
+        {
+            let commanded = course.iter().map(|(t, c, _)| (*t, c[k])).collect();
+            let achieved = course.iter().map(|(t, _, a)| (*t, a[k])).collect();
+            html.push_str(&svg_plot(
+                title,
+                unit,
+                &[("commanded", "#888", commanded), ("achieved", "#c33", achieved)],
+            ));
+        }
+    }
     // The joints that moved most, measured against reference.
     let mut order: Vec<usize> = (0..s.joints.len()).collect();
     let span = |j: usize| {
@@ -541,7 +668,18 @@ pub fn write_report(log: &Path, dir: &Path) -> Result<RunSummary, AnalysisError>
         html.push_str(&svg_plot(
             &format!("{} tracking", s.joints[j]),
             "rad",
-            &[("reference", "#888", reference), ("measured", "#c33", measured)],
+            &[
+                (
+                    if s.command_driven {
+                        "default pose"
+                    } else {
+                        "reference"
+                    },
+                    "#888",
+                    reference,
+                ),
+                ("measured", "#c33", measured),
+            ],
         ));
     }
     if summary.root_position_rmse_cm.is_some() {

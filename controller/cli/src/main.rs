@@ -202,10 +202,17 @@ fn dispatch(command: Command) -> Result<std::process::ExitCode> {
         } => done(compare(&run, &other, tolerance, offset, align.as_deref(), steps)),
         Command::Report { run, out } => {
             let s = analysis::report::write_report(&run, &out)?;
+            let headline = match &s.locomotion {
+                Some(l) => format!(
+                    "{:.2} m travelled, heading {:+.1}°",
+                    l.distance_m,
+                    l.heading_change.to_degrees()
+                ),
+                None => format!("joint RMSE {:.2}°", s.joints_rmse_deg),
+            };
             println!(
-                "report in {}: joint RMSE {:.2}°, {} safety events",
+                "report in {}: {headline}, {} safety events",
                 out.display(),
-                s.joints_rmse_deg,
                 s.safety_events.len()
             );
             Ok(std::process::ExitCode::SUCCESS)

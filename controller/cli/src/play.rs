@@ -620,11 +620,11 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
     print!("{summary}");
     if let (Some(dir), Some(t)) = (&args.report, &summary.telemetry) {
         let r = analysis::report::write_report(&t.path, dir)?;
-        println!(
-            "report: {} (joint RMSE {:.2}°)",
-            dir.join("report.html").display(),
-            r.joints_rmse_deg
-        );
+        let headline = match &r.locomotion {
+            Some(l) => format!("{:.2} m travelled", l.distance_m),
+            None => format!("joint RMSE {:.2}°", r.joints_rmse_deg),
+        };
+        println!("report: {} ({headline})", dir.join("report.html").display());
     }
     Ok(finish(&summary))
 }

@@ -3,6 +3,7 @@
 
 use std::time::Duration;
 
+pub use human::commands::CommandKind;
 use robots::spatial;
 
 use crate::safety::Transition;
@@ -382,7 +383,7 @@ pub struct LocomotionMetrics {
 
 impl LocomotionMetrics {
     /// Metrics for commands of these kinds.
-    pub fn new(kinds: &[human::commands::CommandKind]) -> Self {
+    pub fn new(kinds: &[CommandKind]) -> Self {
         use human::commands::CommandKind as K;
         let find = |k: K| kinds.iter().position(|&x| x == k);
         Self {
@@ -392,11 +393,13 @@ impl LocomotionMetrics {
     }
 
     /// One policy tick `dt` after the last: the base's world pose `[x, y, z, w, qx, qy, qz]` and
-    /// the commands in force.
-    pub fn add(&mut self, pose: [f64; 7], commands: &[f64], dt: f64) {
+    /// the commands in force. Returns the forward and leftward speed and turning rate achieved
+    /// since the last tick (none at the first).
+    pub fn add(&mut self, pose: [f64; 7], commands: &[f64], dt: f64) -> Option<[f64; 3]> {
         let p = [pose[0], pose[1], pose[2]];
         let yaw = spatial::heading_of_quat([pose[3], pose[4], pose[5], pose[6]]);
         self.start.get_or_insert(p);
+        let mut step = None;
         if let Some((q, last_yaw)) = self.last {
             let (dx, dy) = (p[0] - q[0], p[1] - q[1]);
             let turned = wrap_angle(yaw - last_yaw);
@@ -417,8 +420,15 @@ impl LocomotionMetrics {
                     self.sq_error[k] += (c - a).powi(2);
                 }
             }
+            step = Some(achieved);
         }
         self.last = Some((p, yaw));
+        step
+    }
+
+    /// Which command index drives forward speed, leftward speed and turning, where one does.
+    pub fn slots(&self) -> [Option<usize>; 3] {
+        self.slots
     }
 
     /// What the run did, once it measured a step.

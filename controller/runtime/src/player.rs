@@ -488,6 +488,9 @@ impl<L: RobotLink> Player<L> {
             bus_cycles: None,
             motion_bodies: bodies.to_vec(),
             anchor,
+            commands: self.commands.as_ref().map_or_else(Vec::new, |c| {
+                c.spec().names.iter().cloned().zip(c.spec().kinds()).collect()
+            }),
         }
     }
 
@@ -1019,7 +1022,7 @@ impl<L: RobotLink> Player<L> {
         };
         if let (Some(l), Some(pose)) = (&mut self.metrics.locomotion, pose) {
             let commands = self.commands.as_ref().map_or(&[][..], LiveCommands::current);
-            l.add(pose, commands, self.dt);
+            let _ = l.add(pose, commands, self.dt);
         }
     }
 

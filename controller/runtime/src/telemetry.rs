@@ -411,6 +411,9 @@ pub struct RecordingInfo {
     pub motion_bodies: Vec<String>,
     /// The anchor's index in `motion_bodies`.
     pub anchor: Option<usize>,
+    /// The live commands `/policy` carries (`commands`): each one's name and meaning
+    /// (`lin_vel_x`, `lin_vel_y`, `ang_vel_z`, `other`).
+    pub commands: Vec<(String, human::commands::CommandKind)>,
 }
 
 /// What travels through the ring: a tick, or one bus cycle.
@@ -584,6 +587,21 @@ impl TelemetrySink {
         }
         if let Some(a) = info.anchor.and_then(|a| info.motion_bodies.get(a)) {
             policy_meta.insert("anchor_body".into(), a.clone());
+        }
+        if !info.commands.is_empty() {
+            let names: Vec<&str> = info.commands.iter().map(|(n, _)| n.as_str()).collect();
+            let kinds: Vec<String> = info
+                .commands
+                .iter()
+                .map(|(_, k)| {
+                    serde_json::to_string(k)
+                        .unwrap_or_default()
+                        .trim_matches('"')
+                        .to_owned()
+                })
+                .collect();
+            policy_meta.insert("command_names".into(), names.join(","));
+            policy_meta.insert("command_kinds".into(), kinds.join(","));
         }
         let mut timing_meta = meta.clone();
         timing_meta.insert("bus_names".into(), info.bus_names.join(","));
