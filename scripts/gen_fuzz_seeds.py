@@ -4,6 +4,8 @@
 Every seed is made here, small and valid, so the fuzzer starts from inputs the parser accepts and
 mutates them into the ones it must refuse. None is third-party material:
 
+  udp_command/     operator command datagrams (`play --command-udp`): a valid version-1 message,
+                   and one with a value out of range.
   osc_vmc/         VMC tracker datagrams as a VR bridge sends them (a bundle of headset and
                    controller poses, one bare message).
   bvh_text/        a two-joint BVH skeleton with three frames.
@@ -58,6 +60,8 @@ left = osc_message("/VMC/Ext/Con/Pos", ["LeftHand", -0.3, 1.0, 0.2, 0.0, 0.0, 0.
 right = osc_message("/VMC/Ext/Con/Pos", ["RightHand", 0.3, 1.0, 0.2, 0.0, 0.0, 0.0, 1.0])
 write("osc_vmc", "bundle", osc_bundle([hmd, left, right]))
 write("osc_vmc", "message", hmd)
+write("udp_command", "walk", b'{"version": 1, "seq": 17, "command": [0.3, 0.0, -0.5]}')
+write("udp_command", "too_fast", b'{"version": 1, "seq": 18, "command": [3.0, 0.0, 0.0]}')
 
 write("bvh_text", "two_joints.bvh", """HIERARCHY
 ROOT Hips
