@@ -13,6 +13,9 @@ use robots::Robot;
 use test_support::bin::{Running, run_within};
 use test_support::fixtures::{venv_python, workspace_root};
 
+#[global_allocator]
+static ALLOC: test_support::alloc::CountingAllocator = test_support::alloc::CountingAllocator;
+
 fn mini(file: &str) -> PathBuf {
     workspace_root().join("robots/mini").join(file)
 }
@@ -675,5 +678,58 @@ fn a_sit_down_needs_a_sit_keyframe_and_says_so() {
     );
     assert_eq!(code, Some(2), "{out}{err}");
     assert!(err.contains("names no sit_keyframe"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_steady_command_driven_tick_with_live_commands_and_recording_allocates_nothing() {
+    use controller::safety::Mode;
+    let robot = Robot::load(&mini("robot.toml")).unwrap();
+    let mut layout =
+        controller::policy::PolicyLayout::load(&mini("policies/stand_walk.toml"), &robot).unwrap();
+    let (reference, _) =
+        controller::motion::load_reference(None, Path::new("unused"), &mut layout, &robot, 0).unwrap();
+    let options = controller::player::PlayOptions {
+        end: controller::player::EndMode::Stand,
+        ..Default::default()
+    };
+    let (player, mut clock, _world) = controller::sim::lockstep_player(
+        robot,
+        layout,
+        reference,
+        options,
+        sim2real::config::MirrorConfig::default(),
+        Arc::new(AtomicBool::new(false)),
+    )
+    .unwrap();
+    let (mut writer, reader) = human::commands::command_channel(3);
+    let dir = scratch("alloc");
+    let info = player.recording_info();
+    let sink = controller::telemetry::TelemetrySink::start(
+        &dir.join("run.mcap"),
+        256,
+        controller::telemetry::Backpressure::Drop,
+        &info,
+    )
+    .unwrap();
+    let mut player = player.with_commands(reader).unwrap().with_telemetry(sink);
+    player.identify().unwrap();
+    let period = Duration::from_millis(20);
+    let mut ticks =
+        |p: &mut controller::player::Player<_>, w: &mut human::commands::CommandWriter, n: u32| {
+            for k in 0..n {
+                // The operator's source publishes every tick (on its own thread in a run).
+                w.publish(&[0.2, 0.0, f64::from(k % 10) * 0.05]);
+                p.step(&clock).unwrap();
+                p.wait_until(&mut clock, period * p.ticks() as u32);
+            }
+        };
+    ticks(&mut player, &mut writer, 80);
+    assert_eq!(player.mode(), Mode::Running);
+    let (_, stats) = test_support::alloc::count_allocations(|| ticks(&mut player, &mut writer, 100));
+    assert_eq!(player.mode(), Mode::Running);
+    assert!(stats.is_zero(), "{stats:?}");
+    assert_eq!(player.commands().unwrap()[0], 0.2);
+    drop(player);
     std::fs::remove_dir_all(&dir).unwrap();
 }

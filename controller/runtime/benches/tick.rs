@@ -5,7 +5,9 @@
 //!    ONNX inference, governor) minus the time spent inside the mirror (physics, firmware,
 //!    wires), p50/p99 over the squat clip. Target: p99 under 100 µs. Again with the squat as a
 //!    motion-tracking export (BeyondMimic convention: the motion's frame out of the same call,
-//!    the anchor terms through the robot's kinematics, 9 tracked bodies): same target.
+//!    the anchor terms through the robot's kinematics, 9 tracked bodies): same target. And
+//!    rd-mini (16 Dynamixel servos on one line, touch-sensor foot switches) on its
+//!    command-driven fixture with no clip: live commands, gait phase, locomotion metrics.
 //! 2. Period jitter in wall-clock mode: the mirror served in real time over socketcand and
 //!    pseudo-terminals, the loop on absolute deadlines; how late each tick starts, p50/p99/max
 //!    (60 s with `--bench`, 3 s in the smoke run).
@@ -38,6 +40,17 @@ fn tracking_export() -> (Robot, PolicyLayout, Reference) {
     let mut layout = PolicyLayout::load(&export, &robot).unwrap();
     let squat = reference_robot_path().with_file_name("clips/squat.csv");
     let (reference, _) = controller::motion::load_reference(None, &squat, &mut layout, &robot, 0).unwrap();
+    (robot, layout, reference)
+}
+
+/// rd-mini and its command-driven fixture, no clip, walking orders in force.
+fn command_driven() -> (Robot, PolicyLayout, Reference) {
+    let root = test_support::fixtures::workspace_root().join("robots/mini");
+    let robot = Robot::load(&root.join("robot.toml")).unwrap();
+    let mut layout = PolicyLayout::load(&root.join("policies/stand_walk.toml"), &robot).unwrap();
+    layout.set_command(&[0.2, 0.0, 0.4]).unwrap();
+    let unused = root.join("unused.csv");
+    let (reference, _) = controller::motion::load_reference(None, &unused, &mut layout, &robot, 0).unwrap();
     (robot, layout, reference)
 }
 
@@ -99,6 +112,11 @@ fn main() {
         "the squat as a tracking export (116-value observation with time_step, motion out of the call, \
          anchor kinematics): {}",
         lockstep_compute(tracking_export())
+    );
+    println!(
+        "rd-mini on a command-driven policy, no clip (16 servos on one line, 59-value observation, \
+         live commands, phase, locomotion metrics): {}",
+        lockstep_compute(command_driven())
     );
     let seconds = if quick { 3.0 } else { 60.0 };
     println!(
