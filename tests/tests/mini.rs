@@ -26,6 +26,28 @@ fn scratch(name: &str) -> PathBuf {
     dir
 }
 
+/// rd-mini on its command-driven fixture in lockstep on the mirror, no clip, with `options`.
+fn command_driven_player(
+    options: controller::player::PlayOptions,
+) -> (controller::sim::LockstepRun, human::commands::CommandSpec) {
+    let robot = Robot::load(&mini("robot.toml")).unwrap();
+    let mut layout =
+        controller::policy::PolicyLayout::load(&mini("policies/stand_walk.toml"), &robot).unwrap();
+    let spec = layout.manifest.commands.clone().unwrap();
+    let (reference, _) =
+        controller::motion::load_reference(None, Path::new("unused"), &mut layout, &robot, 0).unwrap();
+    let run = controller::sim::lockstep_player(
+        robot,
+        layout,
+        reference,
+        options,
+        sim2real::config::MirrorConfig::default(),
+        Arc::new(AtomicBool::new(false)),
+    )
+    .unwrap();
+    (run, spec)
+}
+
 /// `play` on rd-mini's command-driven fixture, lockstep, recording into `record`.
 fn play_args(record: &Path, seconds: &str, extra: &[&str]) -> Vec<String> {
     let mut args: Vec<String> = [
@@ -284,26 +306,10 @@ impl PadEvents for ScriptedPad {
 
 #[test]
 fn a_gamepads_sticks_drive_the_commands() {
-    use controller::policy::PolicyLayout;
-    let robot = Robot::load(&mini("robot.toml")).unwrap();
-    let mut layout = PolicyLayout::load(&mini("policies/stand_walk.toml"), &robot).unwrap();
-    let spec = layout.manifest.commands.clone().unwrap();
-    let (reference, _) =
-        controller::motion::load_reference(None, Path::new("unused"), &mut layout, &robot, 0).unwrap();
-    let options = controller::player::PlayOptions {
+    let ((player, mut clock, _world), spec) = command_driven_player(controller::player::PlayOptions {
         end: controller::player::EndMode::Stand,
         ..Default::default()
-    };
-    let stop = Arc::new(AtomicBool::new(false));
-    let (player, mut clock, _world) = controller::sim::lockstep_player(
-        robot,
-        layout,
-        reference,
-        options,
-        sim2real::config::MirrorConfig::default(),
-        Arc::clone(&stop),
-    )
-    .unwrap();
+    });
     let (writer, reader) = human::commands::command_channel(spec.names.len());
     let mut player = player.with_commands(reader).unwrap();
     let (events, script) = std::sync::mpsc::sync_channel(16);
@@ -618,26 +624,11 @@ fn a_soft_stop_can_end_standing_or_in_a_controlled_sit_down() {
 fn a_standing_robot_waits_for_a_second_stop_before_it_lets_go() {
     use controller::player::Player;
     use controller::safety::Mode;
-    let robot = Robot::load(&mini("robot.toml")).unwrap();
-    let mut layout =
-        controller::policy::PolicyLayout::load(&mini("policies/stand_walk.toml"), &robot).unwrap();
-    let (reference, _) =
-        controller::motion::load_reference(None, Path::new("unused"), &mut layout, &robot, 0).unwrap();
-    let options = controller::player::PlayOptions {
+    let ((mut player, mut clock, _world), _) = command_driven_player(controller::player::PlayOptions {
         end: controller::player::EndMode::Stand,
         on_stop: controller::options::OnStop::Stand,
         ..Default::default()
-    };
-    let stop = Arc::new(AtomicBool::new(false));
-    let (mut player, mut clock, _world) = controller::sim::lockstep_player(
-        robot,
-        layout,
-        reference,
-        options,
-        sim2real::config::MirrorConfig::default(),
-        Arc::clone(&stop),
-    )
-    .unwrap();
+    });
     player.identify().unwrap();
     let period = Duration::from_millis(20);
     let mut tick = |p: &mut Player<_>| {
@@ -684,24 +675,10 @@ fn a_sit_down_needs_a_sit_keyframe_and_says_so() {
 #[test]
 fn a_steady_command_driven_tick_with_live_commands_and_recording_allocates_nothing() {
     use controller::safety::Mode;
-    let robot = Robot::load(&mini("robot.toml")).unwrap();
-    let mut layout =
-        controller::policy::PolicyLayout::load(&mini("policies/stand_walk.toml"), &robot).unwrap();
-    let (reference, _) =
-        controller::motion::load_reference(None, Path::new("unused"), &mut layout, &robot, 0).unwrap();
-    let options = controller::player::PlayOptions {
+    let ((player, mut clock, _world), _) = command_driven_player(controller::player::PlayOptions {
         end: controller::player::EndMode::Stand,
         ..Default::default()
-    };
-    let (player, mut clock, _world) = controller::sim::lockstep_player(
-        robot,
-        layout,
-        reference,
-        options,
-        sim2real::config::MirrorConfig::default(),
-        Arc::new(AtomicBool::new(false)),
-    )
-    .unwrap();
+    });
     let (mut writer, reader) = human::commands::command_channel(3);
     let dir = scratch("alloc");
     let info = player.recording_info();

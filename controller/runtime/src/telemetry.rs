@@ -808,6 +808,18 @@ fn joint_state_fields(out: &mut String, r: &TickRecord, n: usize) {
     array64(out, "age_ms", r.age_ms[..n].iter().map(|&a| f64::from(a)));
 }
 
+/// `,"commands":[…]` when the tick had live commands.
+fn commands_field(out: &mut String, r: &TickRecord) {
+    if r.command_count > 0 {
+        out.push(',');
+        array64(
+            out,
+            "commands",
+            r.commands[..usize::from(r.command_count)].iter().copied(),
+        );
+    }
+}
+
 /// Encodes topic `k` of `r` as JSON into `out`; false when the topic has nothing this tick.
 fn encode(out: &mut String, k: usize, r: &TickRecord, root: &str, last_mode: &mut u8) -> bool {
     let n = usize::from(r.joints);
@@ -841,14 +853,7 @@ fn encode(out: &mut String, k: usize, r: &TickRecord, root: &str, last_mode: &mu
                 out.push(',');
                 array(out, "body_errors_m", &r.body_errors[..usize::from(r.bodies)]);
             }
-            if r.command_count > 0 {
-                out.push(',');
-                array64(
-                    out,
-                    "commands",
-                    r.commands[..usize::from(r.command_count)].iter().copied(),
-                );
-            }
+            commands_field(out, r);
         }
         3 => {
             if r.mode == *last_mode {
@@ -901,14 +906,7 @@ fn encode(out: &mut String, k: usize, r: &TickRecord, root: &str, last_mode: &mu
                     .flatten()
                     .copied(),
             );
-            if r.command_count > 0 {
-                out.push(',');
-                array64(
-                    out,
-                    "commands",
-                    r.commands[..usize::from(r.command_count)].iter().copied(),
-                );
-            }
+            commands_field(out, r);
             out.push(',');
             array64(out, "base_pose", r.base_pose.iter().copied());
             out.push(',');
