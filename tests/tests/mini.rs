@@ -710,3 +710,78 @@ fn a_steady_command_driven_tick_with_live_commands_and_recording_allocates_nothi
     drop(player);
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn per_value_scales_and_offsets_shape_a_term_and_wrong_lengths_are_named() {
+    use controller::policy::{ObsInputs, ObservationBuilder, PolicyLayout, ReferenceView};
+    #[derive(Debug)]
+    struct NoReference(Vec<f64>);
+    impl ReferenceView for NoReference {
+        fn joint_pos(&self, _: usize) -> &[f64] {
+            &self.0
+        }
+        fn joint_vel(&self, _: usize) -> &[f64] {
+            &self.0
+        }
+        fn root_pose(&self, _: usize) -> [f64; 7] {
+            [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]
+        }
+        fn body_pos(&self, _: usize) -> &[f64] {
+            &[]
+        }
+        fn anchor_pose(&self) -> [f64; 7] {
+            [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]
+        }
+    }
+    let robot = Robot::load(&mini("robot.toml")).unwrap();
+    let path = mini("policies/stand_walk.toml");
+    let text = std::fs::read_to_string(&path).unwrap();
+    let shaped = |shaping: &str| {
+        text.replacen(
+            "term = \"base_ang_vel\"\nscale = 0.25",
+            &format!("term = \"base_ang_vel\"\n{shaping}"),
+            1,
+        )
+    };
+    let layout = PolicyLayout::parse(
+        &path,
+        &shaped("offsets = [1.0, 1.0, 1.0]\nscales = [1.0, 10.0, 100.0]"),
+        &robot,
+    )
+    .unwrap();
+    let zeros = vec![0.0; 16];
+    let past = vec![0.0f32; 16];
+    let mut obs = vec![0.0f32; layout.obs_len];
+    ObservationBuilder::new(&layout).build(
+        &ObsInputs {
+            gyro: [0.0; 3],
+            accel: [0.0; 3],
+            quat: [1.0, 0.0, 0.0, 0.0],
+            q: &zeros,
+            qd: &zeros,
+            default_q: &zeros,
+            past_actions: &past,
+            last_targets: &zeros,
+            step: 0,
+            dt: 0.02,
+            command: None,
+            ramp: 1.0,
+            reference: &NoReference(zeros.clone()),
+            truth: None,
+            trackers: None,
+            base_ang_vel: [1.0, 2.0, 3.0],
+            robot_anchor: [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
+            time_step: 0.0,
+        },
+        &mut obs,
+    );
+    // (value − offset) · scale, value by value.
+    assert_eq!(&obs[..3], &[0.0, 10.0, 200.0]);
+    let e = PolicyLayout::parse(&path, &shaped("offsets = [1.0, 1.0]"), &robot)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("observation[0] (base_ang_vel)") && e.contains("offsets: 3 finite values"),
+        "{e}"
+    );
+}

@@ -190,6 +190,9 @@ pub struct Shaping {
     /// A multiplier per value, replacing `scale` (one per value of a history step).
     #[serde(default)]
     pub scales: Option<Vec<f64>>,
+    /// An offset per value, replacing `offset` (one per value of a history step).
+    #[serde(default)]
+    pub offsets: Option<Vec<f64>>,
     /// The order of the stacked history.
     #[serde(default)]
     pub history_order: HistoryOrder,
@@ -219,6 +222,7 @@ impl Default for Shaping {
             history: 1,
             input: None,
             scales: None,
+            offsets: None,
             history_order: HistoryOrder::NewestFirst,
         }
     }
@@ -836,17 +840,19 @@ impl PolicyLayout {
         }
         for (i, s) in slots.iter().enumerate() {
             let sh = s.term.shaping();
-            if let Some(v) = &sh.scales
-                && (v.len() != s.width || v.iter().any(|x| !x.is_finite() || x.abs() > 1e6))
-            {
-                return Err(err(
-                    &format!("observation[{i}] ({})", s.term.name()),
-                    format!(
-                        "scales: {} finite values needed, one per value, got {}",
-                        s.width,
-                        v.len()
-                    ),
-                ));
+            for (field, values) in [("scales", &sh.scales), ("offsets", &sh.offsets)] {
+                if let Some(v) = values
+                    && (v.len() != s.width || v.iter().any(|x| !x.is_finite() || x.abs() > 1e6))
+                {
+                    return Err(err(
+                        &format!("observation[{i}] ({})", s.term.name()),
+                        format!(
+                            "{field}: {} finite values within ±1e6 needed, one per value, got {}",
+                            s.width,
+                            v.len()
+                        ),
+                    ));
+                }
             }
         }
         if manifest.anchor_body.is_some() || !manifest.motion_bodies.is_empty() {
@@ -1074,6 +1080,10 @@ impl PolicyLayout {
                 Some(v) => format!("scales {v:?}"),
                 None => format!("scale {}", sh.scale),
             };
+            let offset = match &sh.offsets {
+                Some(v) => format!("offsets {v:?}"),
+                None => format!("offset {}", sh.offset),
+            };
             let mut extra = sh.clip.map_or(String::new(), |c| format!(" clip ±{c}"));
             if sh.history > 1 && sh.history_order == HistoryOrder::OldestFirst {
                 extra.push_str(" oldest first");
@@ -1117,13 +1127,12 @@ impl PolicyLayout {
                 extra.push_str(&format!("  → input {i:?}"));
             }
             out.push_str(&format!(
-                "  [{:>4}..{:<4}) {:<18} {:>3} × {} history  {scale} offset {}{extra}\n",
+                "  [{:>4}..{:<4}) {:<18} {:>3} × {} history  {scale} {offset}{extra}\n",
                 s.range.start,
                 s.range.end,
                 s.term.name(),
                 s.width,
                 sh.history,
-                sh.offset,
             ));
         }
         out
@@ -1290,7 +1299,8 @@ impl ObservationBuilder {
             fill_term(&slot.term, inputs, v);
             for (i, (o, &x)) in obs[current..current + w].iter_mut().zip(v.iter()).enumerate() {
                 let scale = sh.scales.as_ref().map_or(sh.scale, |s| s[i]);
-                let y = (x - sh.offset) * scale;
+                let offset = sh.offsets.as_ref().map_or(sh.offset, |o| o[i]);
+                let y = (x - offset) * scale;
                 *o = sh.clip.map_or(y, |c| y.clamp(-c, c)) as f32;
             }
             if !self.filled && sh.history > 1 {
