@@ -1,7 +1,8 @@
 //! Shared build script of every crate whose binaries, tests or benches link MuJoCo.
 //!
 //! `.cargo/config.toml` points `MUJOCO_DYNAMIC_LINK_DIR` at the project's `.local/lib`; this bakes
-//! the same directory into the binaries' run path, so they start without `LD_LIBRARY_PATH`.
+//! the same directory into the binaries' run path, so they start without `LD_LIBRARY_PATH` — after
+//! `lib/` beside the binary and one level up, where a shipped bundle keeps its libraries.
 //! A missing library is reported here, with the fix, before the linker fails less clearly.
 
 fn main() {
@@ -20,5 +21,7 @@ fn main() {
             lib.display()
         );
     }
-    println!("cargo::rustc-link-arg=-Wl,-rpath,{dir}");
+    // A bundle (bin/robodeploy beside lib/, as `robodeploy-ray` ships it to other machines) finds
+    // its libraries beside it first; a build in the workspace finds .local/lib.
+    println!("cargo::rustc-link-arg=-Wl,-rpath,$ORIGIN/lib:$ORIGIN/../lib:{dir}");
 }

@@ -26,6 +26,75 @@ pub struct BatchRun {
     pub result: Result<PlaySummary, String>,
 }
 
+/// One run of a batch as a table row: what a distributed run ships back and what `batch --json`
+/// writes, one JSON object per line. Only what a lockstep run determines (no wall-clock times), so
+/// the same clip, seed and mirror file give the same row on any machine, bit for bit.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct RunRow {
+    /// The clip, as given.
+    pub clip: String,
+    /// The seed.
+    pub seed: u64,
+    /// Why the run could not run at all, if it could not.
+    pub error: Option<String>,
+    /// No fall, no safety stop, played to the end, root within 1 m and 45° (the report's
+    /// criterion).
+    pub success: bool,
+    /// The base fell while in control.
+    pub fell: bool,
+    /// How it ended: `finished`, `stopped by the operator …`, `safety stop …`.
+    pub outcome: String,
+    /// Ticks run.
+    pub ticks: u64,
+    /// Share of the reference played.
+    pub played: f64,
+    /// Joint tracking RMSE, deg (none when the run never reached the clip).
+    pub joint_rmse_deg: Option<f64>,
+    /// Root position RMSE, cm.
+    pub root_rmse_cm: Option<f64>,
+    /// Largest root position (cm) and orientation (deg) error.
+    pub root_max_error: Option<(f64, f64)>,
+    /// Policy ticks where the governor limited a command.
+    pub limited_ticks: u64,
+}
+
+impl RunRow {
+    /// The row of `run`, whose clip is `clip`.
+    pub fn of(run: &BatchRun, clip: &std::path::Path) -> Self {
+        let clip = clip.display().to_string();
+        match &run.result {
+            Ok(s) => Self {
+                clip,
+                seed: run.seed,
+                error: None,
+                success: s.success(),
+                fell: s.fell,
+                outcome: s.outcome().to_string(),
+                ticks: s.ticks,
+                played: s.played,
+                joint_rmse_deg: s.joint_rmse.is_finite().then(|| s.joint_rmse.to_degrees()),
+                root_rmse_cm: s.root_rmse.map(|r| r * 100.0),
+                root_max_error: s.root_max_error.map(|(d, a)| (d * 100.0, a.to_degrees())),
+                limited_ticks: s.limited_ticks,
+            },
+            Err(e) => Self {
+                clip,
+                seed: run.seed,
+                error: Some(e.clone()),
+                success: false,
+                fell: false,
+                outcome: "error".into(),
+                ticks: 0,
+                played: 0.0,
+                joint_rmse_deg: None,
+                root_rmse_cm: None,
+                root_max_error: None,
+                limited_ticks: 0,
+            },
+        }
+    }
+}
+
 /// Per-clip totals.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ClipTotals {

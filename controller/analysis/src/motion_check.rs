@@ -15,7 +15,7 @@ pub const PENETRATION: f64 = 0.01;
 pub const CONTACT_HEIGHT: f64 = 0.02;
 
 /// One torque finding.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct TorqueUse {
     /// Joint name.
     pub joint: String,
@@ -28,7 +28,7 @@ pub struct TorqueUse {
 }
 
 /// What [`analyze`] found.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct MotionQuality {
     /// Ticks analysed.
     pub ticks: usize,

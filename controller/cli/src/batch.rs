@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use analysis::batch::{BatchSpec, run_batch};
-use anyhow::Result;
+use anyhow::{Context, Result};
 use clap::Args;
 use controller::player::PlayOptions;
 use robots::Robot;
@@ -31,6 +31,11 @@ pub struct BatchArgs {
     /// Parallel runs, 1–256 (default: the number of cores).
     #[arg(long, value_parser = crate::args::jobs)]
     jobs: Option<usize>,
+    /// Also write every run as one JSON object per line here (clip, seed, success, fall, outcome,
+    /// RMSEs, limited ticks): only what the lockstep run determines, bit for bit the same on any
+    /// machine. What `robodeploy-ray` gathers from its workers.
+    #[arg(long, value_name = "FILE")]
+    json: Option<PathBuf>,
 }
 
 fn parse_seeds(s: &str) -> Result<(u64, u64), String> {
@@ -73,8 +78,17 @@ pub fn run(args: &BatchArgs) -> Result<()> {
         options: PlayOptions::default(),
         jobs,
     };
-    let (totals, _) = run_batch(&spec, &|done, _| bar.set_position(done as u64))?;
+    let (totals, runs) = run_batch(&spec, &|done, _| bar.set_position(done as u64))?;
     bar.finish_and_clear();
+    if let Some(path) = &args.json {
+        let mut text = String::new();
+        for r in &runs {
+            let row = analysis::batch::RunRow::of(r, &args.clips[r.clip]);
+            text.push_str(&serde_json::to_string(&row)?);
+            text.push('\n');
+        }
+        std::fs::write(path, text).with_context(|| format!("--json: cannot write {}", path.display()))?;
+    }
     println!(
         "{:<28} {:>6} {:>9} {:>13} {:>12} {:>14}",
         "clip", "runs", "success", "joint RMSE °", "root RMSE cm", "limited ticks"

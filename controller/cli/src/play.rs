@@ -102,6 +102,11 @@ pub struct PlayArgs {
 pub struct CheckArgs {
     #[command(flatten)]
     files: Files,
+    /// Also write the clip's quality on the robot model as JSON here (penetration, sliding,
+    /// floating, limit and speed margins, torque use, and the problems that refuse it), written
+    /// whether or not the clip passes. What `robodeploy-ray check` gathers over a clip library.
+    #[arg(long, value_name = "FILE")]
+    json: Option<PathBuf>,
 }
 
 #[derive(Debug, Args)]
@@ -264,6 +269,15 @@ pub fn check(args: &CheckArgs) -> Result<()> {
     println!("clip quality on the robot model:");
     print!("{quality}");
     let problems = quality.problems();
+    if let Some(path) = &args.json {
+        let json = serde_json::json!({
+            "clip": l.source.path().map(|p| p.display().to_string()),
+            "quality": quality,
+            "problems": problems,
+        });
+        std::fs::write(path, format!("{json}\n"))
+            .with_context(|| format!("--json: cannot write {}", path.display()))?;
+    }
     if !problems.is_empty() {
         bail!(
             "{}: the robot should not play this clip:\n  {}",
