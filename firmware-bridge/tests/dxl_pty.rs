@@ -155,3 +155,24 @@ fn a_client_that_floods_and_never_reads_neither_stalls_nor_kills_the_line() {
         fresh += d.cycle(&commands).unwrap().fresh;
     }
 }
+
+#[test]
+fn bytes_that_need_stuffing_after_another_ff_cross_the_serial_line_intact() {
+    // FF FF FF FD: a velocity of −1 before a position ending in FD looks like this on the wire.
+    // The stuffed FD must go in after the second FF of the three, both ways (dynamixel2 0.9.1's
+    // own framing missed it and handed the status out a byte long).
+    use firmware_bridge::dxl::table::addr;
+    let models = ["XM430-W350", "XL430-W250"];
+    let (_world, pty) = serve(&models);
+    let mut d = shoulder_and_elbow(&pty, models);
+    for data in [
+        [0xFF, 0xFF, 0xFF, 0xFD],
+        [0xFF, 0xFF, 0xFD, 0xFD],
+        [0xFD, 0xFF, 0xFF, 0xFD],
+    ] {
+        d.write(2, addr::INDIRECT_DATA_1 + 4, &data).unwrap();
+        let mut back = [0u8; 4];
+        d.read(2, addr::INDIRECT_DATA_1 + 4, &mut back).unwrap();
+        assert_eq!(back, data);
+    }
+}

@@ -504,6 +504,34 @@ fn play_over_real_wires_tracks_in_real_time() {
 }
 
 #[test]
+fn play_over_real_wires_on_the_floor_keeps_every_servo_heard() {
+    // On the floor, 1.9 s in, the head's status carried FF FF FF FD (a velocity of −1 before a
+    // position ending in FD): the serial transport's framing (dynamixel2's) read it a byte long
+    // and refused it every cycle, until the safety monitor stopped the run. A generous stale
+    // limit keeps a loaded machine's late answers from deciding this test; a refused status does
+    // not come back in time whatever the limit.
+    let out = robodeploy()
+        .args([
+            "play",
+            "--no-record",
+            "--wall",
+            "--stale-cycles",
+            "30",
+            "--max-seconds",
+            "4",
+        ])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.contains("result: finished"), "{stdout}");
+}
+
+#[test]
 fn play_on_hardware_names_a_missing_bus_and_moves_nothing() {
     let out = robodeploy()
         .args(["play", "--no-record", "--hardware"])

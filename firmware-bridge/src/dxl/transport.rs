@@ -61,21 +61,103 @@ pub trait DxlTransport {
     fn recv_status(&mut self, deadline: Self::Instant) -> Result<StatusPacket<'_>, LinkError>;
 }
 
-/// The `dynamixel2` bus on a serial device, with buffers sized for whole sync reads.
+/// A serial device opened and set up by the `dynamixel2` crate, its packets framed by this
+/// project's codec ([`packet`]): dynamixel2 0.9.1's byte stuffing misses an `FF FF FD` that
+/// follows another `FF` (its pattern matcher restarts from scratch), both ways — a status with a
+/// velocity of −1 before a position ending in `FD` came out one byte long and was refused.
 #[derive(Debug)]
 pub struct SerialDxlPort {
     bus: dynamixel2::Bus<Vec<u8>, Vec<u8>>,
-    params: Vec<u8>,
+    /// A second handle on the bus's serial port, whose read timeout follows each deadline.
+    port: dynamixel2::serial2::SerialPort,
+    tx: Vec<u8>,
+    reader: StatusReader,
+    chunk: Vec<u8>,
 }
 
 impl SerialDxlPort {
     /// Opens `path` at `baud` (8N1, raw).
     pub fn open(path: &str, baud: u32) -> std::io::Result<Self> {
         let bus = dynamixel2::Bus::open_with_buffers(path, baud, vec![0; 8192], vec![0; 4096])?;
+        let port = bus.serial_port().try_clone()?;
         Ok(Self {
             bus,
-            params: vec![0; 8192],
+            port,
+            tx: vec![0; 8192],
+            reader: StatusReader::new(),
+            chunk: vec![0; 4096],
         })
+    }
+}
+
+/// Status packets out of the bytes a host has read, through the project's own codec (CRC, byte
+/// stuffing); buffers made once.
+#[derive(Debug)]
+struct StatusReader {
+    rx: Vec<u8>,
+    scratch: Vec<u8>,
+    /// Bytes of `rx` the status handed out last used.
+    consumed: usize,
+}
+
+impl StatusReader {
+    fn new() -> Self {
+        Self {
+            rx: Vec::with_capacity(8192),
+            scratch: vec![0; 8192],
+            consumed: 0,
+        }
+    }
+
+    /// Forgets what was read (a new instruction goes out).
+    fn clear(&mut self) {
+        self.rx.clear();
+        self.consumed = 0;
+    }
+
+    /// Drops the status handed out last, before looking for the next.
+    fn begin(&mut self) {
+        self.rx.drain(..self.consumed);
+        self.consumed = 0;
+    }
+
+    /// The next status in what has been read — `(id, error, parameter count)`, its parameters in
+    /// [`Self::params`] — an error for a broken packet (dropped), or `None`: more bytes needed.
+    fn take(&mut self) -> Option<Result<(u8, u8, usize), LinkError>> {
+        let outcome = match packet::decode(&self.rx, &mut self.scratch) {
+            Decoded::Packet(p, used) if p.instruction == packet::STATUS => {
+                Some(Ok((p.id, p.error.unwrap_or(0), p.params.len(), used)))
+            }
+            Decoded::Packet(_, used) => Some(Err((LinkError::Malformed, used))),
+            Decoded::Invalid(packet::PacketError::Crc { .. }, _, skip) => {
+                // Skip the whole packet, as `dynamixel2` does, not just its header.
+                let len = self
+                    .rx
+                    .get(skip + 1..skip + 3)
+                    .map_or(0, |l| usize::from(u16::from_le_bytes([l[0], l[1]])));
+                Some(Err((LinkError::Crc, (skip + 3 + len).min(self.rx.len()))))
+            }
+            Decoded::Invalid(_, _, skip) => Some(Err((LinkError::Malformed, skip))),
+            Decoded::Incomplete { skip } => {
+                self.rx.drain(..skip);
+                None
+            }
+        };
+        match outcome? {
+            Ok((id, error, len, used)) => {
+                self.consumed = used;
+                Some(Ok((id, error, len)))
+            }
+            Err((e, used)) => {
+                self.rx.drain(..used);
+                Some(Err(e))
+            }
+        }
+    }
+
+    /// The parameters of the status [`Self::take`] returned last.
+    fn params(&self, len: usize) -> &[u8] {
+        &self.scratch[2..2 + len]
     }
 }
 
@@ -91,39 +173,45 @@ impl DxlTransport for SerialDxlPort {
     }
 
     fn send(&mut self, id: u8, instruction: u8, params: &[u8]) -> Result<(), LinkError> {
-        self.bus
-            .write_instruction(id, instruction, params.len(), |buf| buf.copy_from_slice(params))
-            .map_err(|e| match e {
-                dynamixel2::WriteError::Write(e) | dynamixel2::WriteError::DiscardBuffer(e) => {
-                    LinkError::Io(e.kind())
-                }
-                _ => LinkError::Malformed,
-            })
+        // Encoded here too: dynamixel2's stuffing misses the same `FF FF FF FD` its reading does.
+        let n = packet::encode_instruction(id, instruction, params, &mut self.tx)
+            .map_err(|_| LinkError::Malformed)?;
+        // Like `dynamixel2`, drop whatever arrived unasked before the instruction goes out.
+        self.reader.clear();
+        self.port
+            .discard_input_buffer()
+            .map_err(|e| LinkError::Io(e.kind()))?;
+        self.port
+            .write_all(&self.tx[..n])
+            .map_err(|e| LinkError::Io(e.kind()))
     }
 
     fn recv_status(&mut self, deadline: std::time::Instant) -> Result<StatusPacket<'_>, LinkError> {
-        match self.bus.read_status_response_deadline(deadline) {
-            Ok(status) => {
-                let (id, error) = (status.packet_id(), status.error());
-                let n = status.parameters().len();
-                self.params[..n].copy_from_slice(status.parameters());
-                Ok(StatusPacket {
-                    id,
-                    error,
-                    params: &self.params[..n],
-                })
+        self.reader.begin();
+        loop {
+            match self.reader.take() {
+                Some(Ok((id, error, len))) => {
+                    return Ok(StatusPacket {
+                        id,
+                        error,
+                        params: self.reader.params(len),
+                    });
+                }
+                Some(Err(e)) => return Err(e),
+                None => {}
             }
-            Err(dynamixel2::ReadError::Io(e)) if e.kind() == std::io::ErrorKind::TimedOut => {
-                Err(LinkError::Timeout)
+            // What has arrived counts even at the deadline: a scheduler may collect late.
+            let left = deadline.saturating_duration_since(std::time::Instant::now());
+            self.port
+                .set_read_timeout(left.max(Duration::from_micros(1)))
+                .map_err(|e| LinkError::Io(e.kind()))?;
+            match self.port.read(&mut self.chunk) {
+                Ok(0) => return Err(LinkError::Timeout),
+                Ok(n) => self.reader.rx.extend_from_slice(&self.chunk[..n]),
+                Err(e) if e.kind() == std::io::ErrorKind::TimedOut => return Err(LinkError::Timeout),
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(LinkError::Io(e.kind())),
             }
-            Err(dynamixel2::ReadError::Io(e)) => Err(LinkError::Io(e.kind())),
-            Err(dynamixel2::ReadError::InvalidMessage(dynamixel2::InvalidMessage::InvalidChecksum(_))) => {
-                Err(LinkError::Crc)
-            }
-            Err(dynamixel2::ReadError::MotorError(e)) => Err(LinkError::ServoError(
-                e.error_number() | (u8::from(e.alert()) << 7),
-            )),
-            Err(_) => Err(LinkError::Malformed),
         }
     }
 }
@@ -136,9 +224,7 @@ pub struct LockstepDxlPort<W> {
     line: usize,
     baud: u32,
     tx: Vec<u8>,
-    rx: Vec<u8>,
-    scratch: Vec<u8>,
-    consumed: usize,
+    reader: StatusReader,
 }
 
 impl<W: SerialSimWorld> LockstepDxlPort<W> {
@@ -149,9 +235,7 @@ impl<W: SerialSimWorld> LockstepDxlPort<W> {
             line,
             baud,
             tx: vec![0; 8192],
-            rx: Vec::with_capacity(8192),
-            scratch: vec![0; 8192],
-            consumed: 0,
+            reader: StatusReader::new(),
         }
     }
 
@@ -179,62 +263,33 @@ impl<W: SerialSimWorld> DxlTransport for LockstepDxlPort<W> {
     fn send(&mut self, id: u8, instruction: u8, params: &[u8]) -> Result<(), LinkError> {
         let n = packet::encode_instruction(id, instruction, params, &mut self.tx)
             .map_err(|_| LinkError::Malformed)?;
-        self.rx.clear();
-        self.consumed = 0;
         let mut world = self.world.lock().unwrap_or_else(PoisonError::into_inner);
         // Like `dynamixel2`, drop whatever arrived unasked before the instruction goes out.
-        let mut stale = std::mem::take(&mut self.rx);
-        world.host_receive(self.line, &mut stale);
-        stale.clear();
-        self.rx = stale;
+        world.host_receive(self.line, &mut self.reader.rx);
+        self.reader.clear();
         world.host_transmit(self.line, &self.tx[..n]);
         Ok(())
     }
 
     fn recv_status(&mut self, deadline: SimInstant) -> Result<StatusPacket<'_>, LinkError> {
-        self.rx.drain(..self.consumed);
-        self.consumed = 0;
+        self.reader.begin();
         loop {
-            // Decode into the scratch buffer first, then hand out a borrow once decided.
-            let outcome = match packet::decode(&self.rx, &mut self.scratch) {
-                Decoded::Packet(p, used) if p.instruction == packet::STATUS => {
-                    Some(Ok((p.id, p.error.unwrap_or(0), p.params.len(), used)))
-                }
-                Decoded::Packet(_, used) => Some(Err((LinkError::Malformed, used))),
-                Decoded::Invalid(packet::PacketError::Crc { .. }, _, skip) => {
-                    // Skip the whole packet, as `dynamixel2` does, not just its header.
-                    let len = self
-                        .rx
-                        .get(skip + 1..skip + 3)
-                        .map_or(0, |l| usize::from(u16::from_le_bytes([l[0], l[1]])));
-                    Some(Err((LinkError::Crc, (skip + 3 + len).min(self.rx.len()))))
-                }
-                Decoded::Invalid(_, _, skip) => Some(Err((LinkError::Malformed, skip))),
-                Decoded::Incomplete { skip } => {
-                    self.rx.drain(..skip);
-                    None
-                }
-            };
-            match outcome {
-                Some(Ok((id, error, len, used))) => {
-                    self.consumed = used;
+            match self.reader.take() {
+                Some(Ok((id, error, len))) => {
                     return Ok(StatusPacket {
                         id,
                         error,
-                        params: &self.scratch[2..2 + len],
+                        params: self.reader.params(len),
                     });
                 }
-                Some(Err((e, used))) => {
-                    self.rx.drain(..used);
-                    return Err(e);
-                }
+                Some(Err(e)) => return Err(e),
                 None => {}
             }
             let mut world = self.world.lock().unwrap_or_else(PoisonError::into_inner);
             // What has arrived counts even at the deadline: a scheduler may collect late.
-            let had = self.rx.len();
-            world.host_receive(self.line, &mut self.rx);
-            if self.rx.len() > had {
+            let had = self.reader.rx.len();
+            world.host_receive(self.line, &mut self.reader.rx);
+            if self.reader.rx.len() > had {
                 continue;
             }
             if world.now() >= deadline {
@@ -242,7 +297,7 @@ impl<W: SerialSimWorld> DxlTransport for LockstepDxlPort<W> {
             }
             let from = world.now();
             world.step_until(deadline.max(from));
-            world.host_receive(self.line, &mut self.rx);
+            world.host_receive(self.line, &mut self.reader.rx);
         }
     }
 }
