@@ -109,6 +109,23 @@ fn robotis_dynamixel_sdk_pings_reads_writes_and_syncs_the_emulated_servos() {
         );
     }
     assert!(ok("hardware_error") && v["hardware_error"]["value"] == 0);
+    // Fast sync read and fast bulk read: one status packet, read by the SDK's own parser.
+    assert_eq!(v["fast_sync_read_ok"], true, "{v}");
+    for id in ["1", "2", "3"] {
+        let (fast, present) = (
+            v["fast_present"][id].as_i64().unwrap(),
+            v["present"][id].as_i64().unwrap(),
+        );
+        assert!(
+            (fast - present).abs() <= 5,
+            "servo {id}: fast {fast}, sync {present}"
+        );
+    }
+    assert_eq!(v["fast_bulk_read_ok"], true, "{v}");
+    let position = v["fast_bulk"]["position_1"].as_i64().unwrap();
+    assert!((position - v["present"]["1"].as_i64().unwrap()).abs() <= 5, "{v}");
+    assert_eq!(v["fast_bulk"]["model_2"], 1020);
+    assert_eq!(v["fast_bulk"]["temperature_3"], 25);
 }
 
 #[test]

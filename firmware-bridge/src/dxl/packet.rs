@@ -41,7 +41,17 @@ pub mod inst {
     pub const BULK_READ: u8 = 0x92;
     /// Bulk write.
     pub const BULK_WRITE: u8 = 0x93;
+    /// Fast sync read: the listed servos answer in one status packet (ID 0xFE).
+    pub const FAST_SYNC_READ: u8 = 0x8A;
+    /// Fast bulk read: one status packet for the listed servos' own addresses and lengths.
+    pub const FAST_BULK_READ: u8 = 0x9A;
 }
+
+/// The fixed part of a fast read's status packet: header, ID 0xFE, LEN, INST 0x55.
+pub const FAST_STATUS_PREFIX: usize = 8;
+
+/// Bytes each servo adds to a fast read's status packet besides its data: error, ID, CRC.
+pub const FAST_SEGMENT_OVERHEAD: usize = 4;
 
 /// Why bytes are not a packet.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]

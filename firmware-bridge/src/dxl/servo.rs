@@ -101,6 +101,8 @@ pub enum ReplySlot {
     InList(usize),
     /// After the servos with lower IDs, for a broadcast ping.
     ById,
+    /// Its segment of a fast read's one status packet, at this place in the list.
+    Fast(usize),
 }
 
 /// A status packet a servo wants to send, its parameters in the servo's reply buffer.
@@ -412,9 +414,15 @@ impl XSeriesServo {
         // A write that changes the Status Return Level is still answered per the old level.
         let level = self.table[usize::from(addr::STATUS_RETURN_LEVEL)];
         let (result, slot) = match (packet.instruction, broadcast) {
-            (inst::SYNC_READ | inst::SYNC_WRITE | inst::BULK_READ | inst::BULK_WRITE, true) => {
-                self.handle_group(packet)?
-            }
+            (
+                inst::SYNC_READ
+                | inst::SYNC_WRITE
+                | inst::BULK_READ
+                | inst::BULK_WRITE
+                | inst::FAST_SYNC_READ
+                | inst::FAST_BULK_READ,
+                true,
+            ) => self.handle_group(packet)?,
             (inst::PING, _) => (
                 Ok(self.ping_reply()),
                 if broadcast {
@@ -434,10 +442,13 @@ impl XSeriesServo {
                 (e, 0)
             }
         };
-        let reads = matches!(packet.instruction, inst::READ | inst::SYNC_READ | inst::BULK_READ);
+        let reads = matches!(
+            packet.instruction,
+            inst::READ | inst::SYNC_READ | inst::BULK_READ | inst::FAST_SYNC_READ | inst::FAST_BULK_READ
+        );
         let answers = match packet.instruction {
             inst::PING => true,
-            _ if broadcast && !matches!(slot, ReplySlot::InList(_)) => false,
+            _ if broadcast && !matches!(slot, ReplySlot::InList(_) | ReplySlot::Fast(_)) => false,
             _ if reads => level >= 1,
             _ => level >= 2,
         };
@@ -563,10 +574,15 @@ impl XSeriesServo {
         let id = self.id();
         let p = packet.params;
         match packet.instruction {
-            inst::SYNC_READ => {
+            inst::SYNC_READ | inst::FAST_SYNC_READ => {
                 let (address, len, ids) = split_sync_header(p)?;
                 let index = ids.iter().position(|&i| i == id)?;
-                Some((self.read_into_reply(address, len), ReplySlot::InList(index)))
+                let slot = if packet.instruction == inst::FAST_SYNC_READ {
+                    ReplySlot::Fast(index)
+                } else {
+                    ReplySlot::InList(index)
+                };
+                Some((self.read_into_reply(address, len), slot))
             }
             inst::SYNC_WRITE => {
                 let (address, len, body) = split_sync_header(p)?;
@@ -578,14 +594,19 @@ impl XSeriesServo {
                 // Sync write has no status packet; errors only show in the servo's counters.
                 Some((self.write(address, &chunk[1..]).map(|()| 0), ReplySlot::First))
             }
-            inst::BULK_READ => {
+            inst::BULK_READ | inst::FAST_BULK_READ => {
                 if !p.len().is_multiple_of(5) {
                     return None;
                 }
                 let (index, entry) = p.chunks_exact(5).enumerate().find(|(_, c)| c[0] == id)?;
                 let address = u16::from_le_bytes([entry[1], entry[2]]);
                 let len = u16::from_le_bytes([entry[3], entry[4]]);
-                Some((self.read_into_reply(address, len), ReplySlot::InList(index)))
+                let slot = if packet.instruction == inst::FAST_BULK_READ {
+                    ReplySlot::Fast(index)
+                } else {
+                    ReplySlot::InList(index)
+                };
+                Some((self.read_into_reply(address, len), slot))
             }
             _ => {
                 // Bulk write: [id, addr, len, data…] repeated.

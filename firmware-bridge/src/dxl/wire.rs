@@ -11,7 +11,7 @@ use std::collections::VecDeque;
 use std::time::Duration;
 
 use super::models::DxlModel;
-use super::packet::{self, Decoded, PacketError};
+use super::packet::{self, Decoded, PacketError, inst};
 use super::servo::{Reply, ReplySlot, ServoConfig, XSeriesServo};
 use crate::plant::InertiaPlant;
 use crate::serial::SerialSimWorld;
@@ -162,6 +162,7 @@ impl ServoChain {
                     let junk = used - packet_len_hint(&self.rx[..used]);
                     self.stats.junk_bytes += junk as u64;
                     let packet = packet::Packet { ..p };
+                    let fast = fast_read_layout(&packet);
                     let (servos, answers) = (&mut self.servos, &mut self.answers);
                     answers.clear();
                     for (index, servo) in servos.iter_mut().enumerate() {
@@ -171,13 +172,16 @@ impl ServoChain {
                         if let Some(reply) = servo.handle(&packet, now) {
                             let order = match reply.slot {
                                 ReplySlot::First => 0,
-                                ReplySlot::InList(k) => k,
+                                ReplySlot::InList(k) | ReplySlot::Fast(k) => k,
                                 ReplySlot::ById => usize::from(reply.id),
                             };
                             answers.push((order, index, reply));
                         }
                     }
-                    self.schedule_answers(now);
+                    match fast {
+                        Some(layout) => self.schedule_fast_answers(now, &layout),
+                        None => self.schedule_answers(now),
+                    }
                     used
                 }
                 Decoded::Incomplete { skip } => {
@@ -238,6 +242,59 @@ impl ServoChain {
         }
     }
 
+    /// A fast read's answers as its one status packet: the first servo listed sends the header
+    /// (ID 0xFE, LEN for every listed servo, INST 0x55) and its segment; each next servo its
+    /// segment — error, ID, data, and the CRC of all bytes on the wire so far — in the time slot
+    /// the list gives it, whether or not the servos before it answered (a silent one leaves a
+    /// gap and a short packet). Not byte-stuffed: no servo knows the whole packet.
+    fn schedule_fast_answers(&mut self, now: SimInstant, layout: &FastLayout) {
+        self.answers.sort_unstable_by_key(|&(order, _, _)| order);
+        if self.scheduled.is_empty() {
+            self.reply_bytes.clear();
+        }
+        let first_delay = self
+            .answers
+            .first()
+            .map_or(Duration::ZERO, |&(_, index, _)| self.servos[index].return_delay());
+        let t0 = now + first_delay;
+        let mut line_free = t0;
+        let mut crc = 0u16;
+        for &(k, index, reply) in &self.answers {
+            let servo = &self.servos[index];
+            let from = self.reply_bytes.len();
+            if k == 0 {
+                let len = u16::try_from(layout.len_field).unwrap_or(u16::MAX);
+                self.reply_bytes.extend_from_slice(&packet::HEADER);
+                self.reply_bytes.push(packet::BROADCAST_ID);
+                self.reply_bytes.extend_from_slice(&len.to_le_bytes());
+                self.reply_bytes.push(packet::STATUS);
+            }
+            self.reply_bytes.push(reply.error);
+            self.reply_bytes.push(reply.id);
+            self.reply_bytes.extend_from_slice(servo.reply_params(&reply));
+            crc = packet::crc16(crc, &self.reply_bytes[from..]);
+            let mut sent = crc;
+            if reply.corrupt_crc {
+                sent ^= 0x5A5A;
+            }
+            self.reply_bytes.extend_from_slice(&sent.to_le_bytes());
+            crc = packet::crc16(crc, &sent.to_le_bytes());
+            let n = self.reply_bytes.len() - from;
+            let slot = t0
+                + self
+                    .timing
+                    .bytes_time(layout.offsets[k.min(layout.offsets.len() - 1)]);
+            let start = line_free.max(slot) + reply.extra_delay;
+            line_free = start + self.timing.bytes_time(n);
+            self.scheduled.push_back(Scheduled {
+                start,
+                from,
+                to: from + n,
+            });
+            self.stats.replies += 1;
+        }
+    }
+
     /// When the next status packet starts, if one is pending.
     pub fn next_reply_at(&self) -> Option<SimInstant> {
         self.scheduled.iter().map(|s| s.start).min()
@@ -253,6 +310,42 @@ impl ServoChain {
             sink(s.start, &self.reply_bytes[s.from..s.to]);
         }
     }
+}
+
+/// Where each listed servo's segment of a fast read's status packet starts (bytes from the
+/// packet's start: the first after the 8-byte prefix), and the LEN field the packet carries.
+#[derive(Debug, Clone, PartialEq)]
+struct FastLayout {
+    offsets: Vec<usize>,
+    len_field: usize,
+}
+
+/// The layout of the answer to a fast sync or bulk read, `None` for any other packet.
+fn fast_read_layout(p: &packet::Packet<'_>) -> Option<FastLayout> {
+    let lengths: Vec<usize> = match p.instruction {
+        inst::FAST_SYNC_READ if p.params.len() >= 4 => {
+            let len = usize::from(u16::from_le_bytes([p.params[2], p.params[3]]));
+            vec![len; p.params.len() - 4]
+        }
+        inst::FAST_BULK_READ if p.params.len().is_multiple_of(5) => p
+            .params
+            .chunks_exact(5)
+            .map(|c| usize::from(u16::from_le_bytes([c[3], c[4]])))
+            .collect(),
+        _ => return None,
+    };
+    if lengths.is_empty() {
+        return None;
+    }
+    let mut offsets = Vec::with_capacity(lengths.len());
+    let mut at = packet::FAST_STATUS_PREFIX;
+    for l in &lengths {
+        offsets.push(at);
+        at += l + packet::FAST_SEGMENT_OVERHEAD;
+    }
+    // INST + every segment but the last CRC + the packet's CRC.
+    let len_field = at - packet::FAST_STATUS_PREFIX + 1;
+    Some(FastLayout { offsets, len_field })
 }
 
 /// Length of the packet at the end of `used` (for junk accounting): `used` minus leading junk.

@@ -6,7 +6,7 @@ import json
 import sys
 import time
 
-from dynamixel_sdk import COMM_SUCCESS, GroupSyncRead, GroupSyncWrite, PacketHandler, PortHandler
+from dynamixel_sdk import COMM_SUCCESS, GroupBulkRead, GroupSyncRead, GroupSyncWrite, PacketHandler, PortHandler
 
 device, baud = sys.argv[1], int(sys.argv[2])
 port = PortHandler(device)
@@ -56,6 +56,27 @@ for dxl_id in goals:
     present[str(dxl_id)] = value - (1 << 32) if value >= 1 << 31 else value
 out["present"] = present
 out["goals"] = {str(k): v for k, v in goals.items()}
+
+# The fast reads: one status packet for all (ID 0xFE), parsed by the SDK's own code.
+fast = GroupSyncRead(port, ph, 132, 4)
+for dxl_id in goals:
+    fast.addParam(dxl_id)
+out["fast_sync_read_ok"] = fast.fastSyncRead() == COMM_SUCCESS
+out["fast_present"] = {}
+for dxl_id in goals:
+    value = fast.getData(dxl_id, 132, 4)
+    out["fast_present"][str(dxl_id)] = value - (1 << 32) if value >= 1 << 31 else value
+bulk = GroupBulkRead(port, ph)
+# Each its own field: servo 1 its position, 2 its model number, 3 its temperature.
+bulk.addParam(1, 132, 4)
+bulk.addParam(2, 0, 2)
+bulk.addParam(3, 146, 1)
+out["fast_bulk_read_ok"] = bulk.fastBulkRead() == COMM_SUCCESS
+out["fast_bulk"] = {
+    "position_1": bulk.getData(1, 132, 4),
+    "model_2": bulk.getData(2, 0, 2),
+    "temperature_3": bulk.getData(3, 146, 1),
+}
 out["hardware_error"] = read(3, 70, 1)
 port.closePort()
 print(json.dumps(out))
