@@ -324,3 +324,83 @@ fn the_steady_state_cycle_does_not_allocate() {
     });
     assert!(stats.is_zero(), "{stats:?}");
 }
+
+/// Like `ready`, the driver reading the state with Fast Sync Read.
+fn ready_fast(models: &[&str]) -> (Arc<Mutex<DxlRig>>, Driver) {
+    let world = rig(models);
+    let port = LockstepDxlPort::new(Arc::clone(&world), 0, BAUD);
+    let options = DxlDriverOptions {
+        fast_reads: true,
+        ..DxlDriverOptions::default()
+    };
+    let mut d = DxlBusDriver::new(port, joints(models), options).unwrap();
+    d.configure().unwrap();
+    d.enable().unwrap();
+    (world, d)
+}
+
+#[test]
+fn fast_reads_read_every_servo_in_one_packet_and_a_fault_costs_only_its_servo() {
+    let models = ["XM430-W350"; 4];
+    let (world, mut d) = ready_fast(&models);
+    let commands = vec![DxlCommand { q: 0.1, current: 0.0 }; 4];
+    let start = world.lock().unwrap().now();
+    for k in 1..=5 {
+        assert_eq!(d.cycle(&commands).unwrap().fresh, 4);
+        wait_tick(&world, start, k);
+    }
+    assert_eq!(d.stats().fast_reads, 5);
+    // A silent servo in the middle: its slot stays empty, the ones after it are read where they
+    // are; a corrupt CRC costs that servo only (the CRC chain runs over what was on the wire).
+    type Expect = fn(&DxlFault) -> bool;
+    let cases: [(usize, ReplyFault, Expect); 3] = [
+        (1, ReplyFault::Silent, |f| *f == DxlFault::NoReply { id: 2 }),
+        (2, ReplyFault::CorruptCrc, |f| *f == DxlFault::Crc { id: 3 }),
+        // The first servo sends the packet's header: without it the cycle's fast packet is lost.
+        (0, ReplyFault::Silent, |f| *f == DxlFault::NoReply { id: 1 }),
+    ];
+    let mut tick = 5;
+    for (servo, fault, expected) in cases {
+        world.lock().unwrap().servo_mut(servo).inject(fault, Some(1));
+        tick += 1;
+        wait_tick(&world, start, tick);
+        let report = d.cycle(&commands).unwrap();
+        let f = d.feedback()[servo].last_fault.expect("a fault");
+        assert!(expected(&f), "{fault:?} gave {f:?}");
+        if servo != 0 {
+            // Everyone else was read from the same packet.
+            assert_eq!(report.fresh, 3, "{fault:?}");
+        }
+        // Then plain sync reads for a while: every servo answers on its own.
+        let fast_before = d.stats().fast_reads;
+        tick += 1;
+        wait_tick(&world, start, tick);
+        assert_eq!(d.cycle(&commands).unwrap().fresh, 4);
+        assert_eq!(d.stats().fast_reads, fast_before, "backed off to sync reads");
+        // Past the back-off, fast again.
+        for _ in 0..firmware_bridge::dxl::driver::FAST_READ_BACKOFF {
+            tick += 1;
+            wait_tick(&world, start, tick);
+            d.cycle(&commands).unwrap();
+        }
+        assert_eq!(d.stats().fast_reads, fast_before + 1);
+    }
+}
+
+#[test]
+fn a_steady_fast_read_cycle_allocates_nothing() {
+    let (world, mut d) = ready_fast(&["XM430-W350"; 8]);
+    let commands = vec![DxlCommand { q: 0.1, current: 0.0 }; 8];
+    let start = world.lock().unwrap().now();
+    for k in 1..=5 {
+        d.cycle(&commands).unwrap();
+        wait_tick(&world, start, k);
+    }
+    let (_, stats) = count_allocations(|| {
+        for k in 6..=25 {
+            assert_eq!(d.cycle(&commands).unwrap().fresh, 8);
+            wait_tick(&world, start, k);
+        }
+    });
+    assert!(stats.is_zero(), "{stats:?}");
+}

@@ -108,11 +108,16 @@ pub(crate) fn schedule(robot: &Robot, bus: &str) -> Option<String> {
         ));
     }
     let mut line = format!(
-        "cycles at {} Hz ({:.2} ms of {:.2} ms on the wire, {:.0} % load)",
+        "cycles at {} Hz ({:.2} ms of {:.2} ms on the wire, {:.0} % load{})",
         robots::num(t.rate_hz),
         t.wire_time.as_secs_f64() * 1e3,
         t.period.as_secs_f64() * 1e3,
         t.load() * 100.0,
+        if robot.bus(bus)?.fast_reads {
+            ", state by fast sync read"
+        } else {
+            ""
+        },
     );
     if robot.joints_on(bus).next().is_some() {
         line.push_str(&format!(

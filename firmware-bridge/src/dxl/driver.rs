@@ -62,6 +62,21 @@ pub fn cycle_wire_time(servos: usize, baud: u32, return_delay: Duration) -> Dura
         + return_delay * servos as u32
 }
 
+/// [`cycle_wire_time`] with the state read by a fast sync read: one status packet, and one
+/// return delay (the first servo's), for every servo.
+pub fn fast_cycle_wire_time(servos: usize, baud: u32, return_delay: Duration) -> Duration {
+    let sync_write = INSTRUCTION_OVERHEAD + 4 + servos * (1 + GOAL_MAP.len());
+    let sync_read = INSTRUCTION_OVERHEAD + 4 + servos;
+    super::wire::WireTiming::new(baud).bytes_time(sync_write + sync_read + fast_status_len(servos))
+        + return_delay
+}
+
+/// Bytes of a fast sync read's status packet for `servos` servos: the 8-byte prefix, and per
+/// servo its error, ID, feedback and CRC (the last CRC is the packet's).
+fn fast_status_len(servos: usize) -> usize {
+    super::packet::FAST_STATUS_PREFIX + servos * (FEEDBACK_MAP.len() + super::packet::FAST_SEGMENT_OVERHEAD)
+}
+
 /// How a joint's servo is driven.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -201,7 +216,16 @@ pub struct DxlDriverOptions {
     /// The longest a sync read waits for its statuses (a bus cycle's share of its period), or
     /// `None`: as long as the wire, the return delays and the slack take.
     pub max_reply_wait: Option<Duration>,
+    /// Read the state with Fast Sync Read (0x8A, X-series firmware 45 and later): one status
+    /// packet for every servo instead of one each. A cycle whose fast read misses a servo is
+    /// followed by [`FAST_READ_BACKOFF`] cycles of plain sync reads, so one silent servo costs
+    /// only its own joint.
+    pub fast_reads: bool,
 }
+
+/// Plain sync-read cycles after a fast read that missed a servo (a silent first servo loses the
+/// whole fast packet: its header is that servo's to send).
+pub const FAST_READ_BACKOFF: u32 = 50;
 
 impl Default for DxlDriverOptions {
     fn default() -> Self {
@@ -211,6 +235,7 @@ impl Default for DxlDriverOptions {
             watchdog: Some(Duration::from_millis(100)),
             reply_slack: Duration::from_millis(2),
             max_reply_wait: None,
+            fast_reads: false,
         }
     }
 }
@@ -431,6 +456,8 @@ pub struct DxlDriverStats {
     pub faults: u64,
     /// Statuses of an earlier sync read that arrived during a later one (skipped).
     pub late_statuses: u64,
+    /// Cycles read with a fast sync read.
+    pub fast_reads: u64,
 }
 
 /// The driver of one line of servos.
@@ -446,6 +473,13 @@ pub struct DxlBusDriver<T: DxlTransport> {
     tx: Vec<u8>,
     /// When the statuses of the sync read last sent are due.
     state_deadline: Option<T::Instant>,
+    /// The read last sent was a fast sync read.
+    fast_pending: bool,
+    /// A fast read's feedback bytes and outcome per joint, before they are decoded.
+    fast_data: Vec<u8>,
+    fast_outcomes: Vec<Result<(), DxlFault>>,
+    /// Plain sync reads to go before the next fast one.
+    fast_backoff: u32,
     stats: DxlDriverStats,
 }
 
@@ -539,6 +573,10 @@ impl<T: DxlTransport> DxlBusDriver<T> {
             tx: Vec::with_capacity(8 + n * (1 + GOAL_MAP.len()) + 16),
             joints,
             state_deadline: None,
+            fast_pending: false,
+            fast_data: vec![0; n * FEEDBACK_MAP.len()],
+            fast_outcomes: vec![Ok(()); n],
+            fast_backoff: 0,
             stats: DxlDriverStats::default(),
         })
     }
@@ -898,15 +936,111 @@ impl<T: DxlTransport> DxlBusDriver<T> {
         for j in &self.joints {
             self.tx.push(j.id);
         }
+        let fast = self.options.fast_reads && self.fast_backoff == 0;
+        self.fast_backoff = self.fast_backoff.saturating_sub(1);
+        let instruction = if fast {
+            inst::FAST_SYNC_READ
+        } else {
+            inst::SYNC_READ
+        };
         self.transport
-            .send(BROADCAST_ID, inst::SYNC_READ, &self.tx)
+            .send(BROADCAST_ID, instruction, &self.tx)
             .map_err(DxlError::Link)?;
         self.stats.reads += 1;
-        let mut deadline = self.deadline(10 + self.tx.len(), n * (STATUS_OVERHEAD + FEEDBACK_MAP.len()), n);
+        let reply = if fast {
+            fast_status_len(n)
+        } else {
+            n * (STATUS_OVERHEAD + FEEDBACK_MAP.len())
+        };
+        let mut deadline = self.deadline(10 + self.tx.len(), reply, n);
         if let Some(cap) = self.options.max_reply_wait {
             deadline = deadline.min(self.transport.now() + cap);
         }
         self.state_deadline = Some(deadline);
+        self.fast_pending = fast;
+        Ok(())
+    }
+
+    /// A fast sync read's one status packet, servo by servo: each segment's ID must be the next
+    /// listed servo's (else that servo did not answer and the next one's segment starts there),
+    /// and its CRC that of every byte on the wire before it.
+    fn collect_fast(&mut self, deadline: T::Instant, report: &mut ReadReport) -> Result<(), DxlError> {
+        let n = self.joints.len();
+        let width = FEEDBACK_MAP.len();
+        let seg = width + super::packet::FAST_SEGMENT_OVERHEAD;
+        self.stats.fast_reads += 1;
+        // Parse into buffers made once (the packet is borrowed from the transport meanwhile).
+        let (joints, data, outcomes) = (&self.joints, &mut self.fast_data, &mut self.fast_outcomes);
+        let bytes = match self.transport.recv_fast(fast_status_len(n), deadline) {
+            Ok(b) => b,
+            Err(LinkError::Io(e)) => return Err(DxlError::Link(LinkError::Io(e))),
+            Err(_) => &[][..],
+        };
+        let head_ok = bytes.len() >= super::packet::FAST_STATUS_PREFIX
+            && bytes[4] == BROADCAST_ID
+            && bytes[7] == super::packet::STATUS;
+        let mut at = super::packet::FAST_STATUS_PREFIX;
+        let mut crc = if head_ok {
+            super::packet::crc16(0, &bytes[..at])
+        } else {
+            0
+        };
+        for (k, (j, outcome)) in joints.iter().zip(outcomes.iter_mut()).enumerate() {
+            let id = j.id;
+            *outcome = if !head_ok || at + seg > bytes.len() || bytes[at + 1] != id {
+                // No segment, or not this servo's: it stayed silent, the slot is the next one's.
+                Err(DxlFault::NoReply { id })
+            } else {
+                let data_end = at + 2 + width;
+                let computed = super::packet::crc16(crc, &bytes[at..data_end]);
+                let received = u16::from_le_bytes([bytes[data_end], bytes[data_end + 1]]);
+                crc = super::packet::crc16(crc, &bytes[at..at + seg]);
+                let error = bytes[at];
+                data[k * width..(k + 1) * width].copy_from_slice(&bytes[at + 2..data_end]);
+                at += seg;
+                if computed != received {
+                    Err(DxlFault::Crc { id })
+                } else if error & 0x7F != 0 {
+                    Err(DxlFault::Status { id, error })
+                } else {
+                    Ok(())
+                }
+            };
+        }
+        let now = self.transport.now();
+        let mut missed_any = false;
+        for k in 0..n {
+            match self.fast_outcomes[k] {
+                Ok(()) => {
+                    let fb = decode_feedback(
+                        &self.joints[k],
+                        &self.models[k],
+                        &self.fast_data[k * width..(k + 1) * width],
+                    );
+                    self.feedback[k] = DxlFeedback {
+                        received_at: Some(now),
+                        ..fb
+                    };
+                    let bits = self.feedback[k].hardware_error;
+                    if bits != 0 {
+                        let f = DxlFault::Hardware {
+                            id: self.joints[k].id,
+                            bits,
+                        };
+                        self.feedback[k].last_fault = Some(f);
+                        report.first_fault.get_or_insert(f);
+                        self.stats.faults += 1;
+                    }
+                }
+                Err(f) => {
+                    missed_any = true;
+                    self.mark_missed(k, f, report);
+                }
+            }
+        }
+        if missed_any {
+            self.fast_backoff = FAST_READ_BACKOFF;
+        }
         Ok(())
     }
 
@@ -924,6 +1058,10 @@ impl<T: DxlTransport> DxlBusDriver<T> {
             fb.last_fault = None;
         }
         let mut report = ReadReport::default();
+        if std::mem::take(&mut self.fast_pending) {
+            self.collect_fast(deadline, &mut report)?;
+            return Ok(self.tally(report));
+        }
         let mut outstanding = n;
         while outstanding > 0 {
             // Replies come in list order: a packet that cannot name its sender belongs to the
@@ -1026,6 +1164,11 @@ impl<T: DxlTransport> DxlBusDriver<T> {
                 None => {}
             }
         }
+        Ok(self.tally(report))
+    }
+
+    /// Counts fresh and stale joints into `report`.
+    fn tally(&self, mut report: ReadReport) -> ReadReport {
         for fb in &self.feedback {
             if fb.is_stale() {
                 report.stale += 1;
@@ -1033,7 +1176,7 @@ impl<T: DxlTransport> DxlBusDriver<T> {
                 report.fresh += 1;
             }
         }
-        Ok(report)
+        report
     }
 
     fn mark_missed(&mut self, i: usize, fault: DxlFault, report: &mut ReadReport) {

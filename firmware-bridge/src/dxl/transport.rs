@@ -59,6 +59,11 @@ pub trait DxlTransport {
 
     /// The next status packet, waiting until `deadline` at most.
     fn recv_status(&mut self, deadline: Self::Instant) -> Result<StatusPacket<'_>, LinkError>;
+
+    /// The raw bytes of a fast read's status packet (no unstuffing: fast replies are not
+    /// stuffed), from its header on: `total` of them, or at `deadline` what has arrived (a
+    /// servo that did not answer leaves the packet short). `Timeout` when no header came.
+    fn recv_fast(&mut self, total: usize, deadline: Self::Instant) -> Result<&[u8], LinkError>;
 }
 
 /// A serial device opened and set up by the `dynamixel2` crate, its packets framed by this
@@ -159,6 +164,27 @@ impl StatusReader {
     fn params(&self, len: usize) -> &[u8] {
         &self.scratch[2..2 + len]
     }
+
+    /// Bytes from the first packet header on (junk before it dropped; a partial header kept).
+    fn align_to_header(&mut self) -> usize {
+        match self.rx.windows(4).position(|w| w == packet::HEADER) {
+            Some(start) => {
+                self.rx.drain(..start);
+                self.rx.len()
+            }
+            None => {
+                let keep = self.rx.len().min(3);
+                self.rx.drain(..self.rx.len() - keep);
+                0
+            }
+        }
+    }
+
+    /// Hands out the first `n` bytes (the fast packet) and marks them used.
+    fn hand_out(&mut self, n: usize) -> &[u8] {
+        self.consumed = n;
+        &self.rx[..n]
+    }
 }
 
 impl DxlTransport for SerialDxlPort {
@@ -210,6 +236,32 @@ impl DxlTransport for SerialDxlPort {
                 Ok(n) => self.reader.rx.extend_from_slice(&self.chunk[..n]),
                 Err(e) if e.kind() == std::io::ErrorKind::TimedOut => return Err(LinkError::Timeout),
                 Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(LinkError::Io(e.kind())),
+            }
+        }
+    }
+
+    fn recv_fast(&mut self, total: usize, deadline: std::time::Instant) -> Result<&[u8], LinkError> {
+        self.reader.begin();
+        loop {
+            let have = self.reader.align_to_header();
+            let now = std::time::Instant::now();
+            if have >= total || (now >= deadline && have > 0) {
+                return Ok(self.reader.hand_out(have.min(total)));
+            }
+            if now >= deadline {
+                return Err(LinkError::Timeout);
+            }
+            self.port
+                .set_read_timeout((deadline - now).max(Duration::from_micros(1)))
+                .map_err(|e| LinkError::Io(e.kind()))?;
+            match self.port.read(&mut self.chunk) {
+                Ok(n) => self.reader.rx.extend_from_slice(&self.chunk[..n]),
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        std::io::ErrorKind::TimedOut | std::io::ErrorKind::Interrupted
+                    ) => {}
                 Err(e) => return Err(LinkError::Io(e.kind())),
             }
         }
@@ -298,6 +350,29 @@ impl<W: SerialSimWorld> DxlTransport for LockstepDxlPort<W> {
             let from = world.now();
             world.step_until(deadline.max(from));
             world.host_receive(self.line, &mut self.reader.rx);
+        }
+    }
+
+    fn recv_fast(&mut self, total: usize, deadline: SimInstant) -> Result<&[u8], LinkError> {
+        self.reader.begin();
+        loop {
+            let have = self.reader.align_to_header();
+            let mut world = self.world.lock().unwrap_or_else(PoisonError::into_inner);
+            if have >= total || (world.now() >= deadline && have > 0) {
+                drop(world);
+                return Ok(self.reader.hand_out(have.min(total)));
+            }
+            let had = self.reader.rx.len();
+            world.host_receive(self.line, &mut self.reader.rx);
+            if self.reader.rx.len() > had {
+                continue;
+            }
+            if world.now() >= deadline {
+                return Err(LinkError::Timeout);
+            }
+            // The next byte's event, or the deadline.
+            let from = world.now();
+            world.step_until(deadline.max(from));
         }
     }
 }

@@ -93,6 +93,8 @@ pub struct ServoChain {
     rx: Vec<u8>,
     scratch: Vec<u8>,
     answers: Vec<(usize, usize, Reply)>,
+    /// Where each servo's segment of a fast read's packet starts (reused).
+    fast_offsets: Vec<usize>,
     scheduled: VecDeque<Scheduled>,
     reply_bytes: Vec<u8>,
     last_rx_at: SimInstant,
@@ -112,6 +114,7 @@ impl ServoChain {
             rx: Vec::with_capacity(2 * MAX_PACKET),
             scratch: vec![0; MAX_PACKET],
             answers: Vec::with_capacity(n),
+            fast_offsets: Vec::with_capacity(256),
             scheduled: VecDeque::with_capacity(n + 4),
             reply_bytes: Vec::with_capacity(n * 512),
             last_rx_at: SimInstant::ZERO,
@@ -162,7 +165,7 @@ impl ServoChain {
                     let junk = used - packet_len_hint(&self.rx[..used]);
                     self.stats.junk_bytes += junk as u64;
                     let packet = packet::Packet { ..p };
-                    let fast = fast_read_layout(&packet);
+                    let fast = fast_read_layout(&packet, &mut self.fast_offsets);
                     let (servos, answers) = (&mut self.servos, &mut self.answers);
                     answers.clear();
                     for (index, servo) in servos.iter_mut().enumerate() {
@@ -179,7 +182,7 @@ impl ServoChain {
                         }
                     }
                     match fast {
-                        Some(layout) => self.schedule_fast_answers(now, &layout),
+                        Some(len_field) => self.schedule_fast_answers(now, len_field),
                         None => self.schedule_answers(now),
                     }
                     used
@@ -247,7 +250,7 @@ impl ServoChain {
     /// segment — error, ID, data, and the CRC of all bytes on the wire so far — in the time slot
     /// the list gives it, whether or not the servos before it answered (a silent one leaves a
     /// gap and a short packet). Not byte-stuffed: no servo knows the whole packet.
-    fn schedule_fast_answers(&mut self, now: SimInstant, layout: &FastLayout) {
+    fn schedule_fast_answers(&mut self, now: SimInstant, len_field: usize) {
         self.answers.sort_unstable_by_key(|&(order, _, _)| order);
         if self.scheduled.is_empty() {
             self.reply_bytes.clear();
@@ -263,7 +266,7 @@ impl ServoChain {
             let servo = &self.servos[index];
             let from = self.reply_bytes.len();
             if k == 0 {
-                let len = u16::try_from(layout.len_field).unwrap_or(u16::MAX);
+                let len = u16::try_from(len_field).unwrap_or(u16::MAX);
                 self.reply_bytes.extend_from_slice(&packet::HEADER);
                 self.reply_bytes.push(packet::BROADCAST_ID);
                 self.reply_bytes.extend_from_slice(&len.to_le_bytes());
@@ -280,10 +283,8 @@ impl ServoChain {
             self.reply_bytes.extend_from_slice(&sent.to_le_bytes());
             crc = packet::crc16(crc, &sent.to_le_bytes());
             let n = self.reply_bytes.len() - from;
-            let slot = t0
-                + self
-                    .timing
-                    .bytes_time(layout.offsets[k.min(layout.offsets.len() - 1)]);
+            let offsets = &self.fast_offsets;
+            let slot = t0 + self.timing.bytes_time(offsets[k.min(offsets.len() - 1)]);
             let start = line_free.max(slot) + reply.extra_delay;
             line_free = start + self.timing.bytes_time(n);
             self.scheduled.push_back(Scheduled {
@@ -312,40 +313,30 @@ impl ServoChain {
     }
 }
 
-/// Where each listed servo's segment of a fast read's status packet starts (bytes from the
-/// packet's start: the first after the 8-byte prefix), and the LEN field the packet carries.
-#[derive(Debug, Clone, PartialEq)]
-struct FastLayout {
-    offsets: Vec<usize>,
-    len_field: usize,
-}
-
-/// The layout of the answer to a fast sync or bulk read, `None` for any other packet.
-fn fast_read_layout(p: &packet::Packet<'_>) -> Option<FastLayout> {
-    let lengths: Vec<usize> = match p.instruction {
-        inst::FAST_SYNC_READ if p.params.len() >= 4 => {
-            let len = usize::from(u16::from_le_bytes([p.params[2], p.params[3]]));
-            vec![len; p.params.len() - 4]
-        }
-        inst::FAST_BULK_READ if p.params.len().is_multiple_of(5) => p
-            .params
-            .chunks_exact(5)
-            .map(|c| usize::from(u16::from_le_bytes([c[3], c[4]])))
-            .collect(),
-        _ => return None,
-    };
-    if lengths.is_empty() {
-        return None;
-    }
-    let mut offsets = Vec::with_capacity(lengths.len());
+/// The layout of the answer to a fast sync or bulk read: where each listed servo's segment
+/// starts (bytes from the packet's start; the first after the 8-byte prefix) into `offsets`, and
+/// the LEN field the packet carries; `None` for any other packet.
+fn fast_read_layout(p: &packet::Packet<'_>, offsets: &mut Vec<usize>) -> Option<usize> {
+    offsets.clear();
     let mut at = packet::FAST_STATUS_PREFIX;
-    for l in &lengths {
+    let mut add = |len: usize| {
         offsets.push(at);
-        at += l + packet::FAST_SEGMENT_OVERHEAD;
+        at += len + packet::FAST_SEGMENT_OVERHEAD;
+    };
+    match p.instruction {
+        inst::FAST_SYNC_READ if p.params.len() > 4 => {
+            let len = usize::from(u16::from_le_bytes([p.params[2], p.params[3]]));
+            p.params[4..].iter().for_each(|_| add(len));
+        }
+        inst::FAST_BULK_READ if !p.params.is_empty() && p.params.len().is_multiple_of(5) => {
+            for c in p.params.chunks_exact(5) {
+                add(usize::from(u16::from_le_bytes([c[3], c[4]])));
+            }
+        }
+        _ => return None,
     }
     // INST + every segment but the last CRC + the packet's CRC.
-    let len_field = at - packet::FAST_STATUS_PREFIX + 1;
-    Some(FastLayout { offsets, len_field })
+    Some(at - packet::FAST_STATUS_PREFIX + 1)
 }
 
 /// Length of the packet at the end of `used` (for junk accounting): `used` minus leading junk.

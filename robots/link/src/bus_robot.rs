@@ -488,6 +488,7 @@ impl<S: ByteStream> BusRobot<S> {
             let options = DxlDriverOptions {
                 max_reply_wait: Some(Cycler::reply_window(&timing)),
                 watchdog: Some(timing.command_timeout),
+                fast_reads: robot.bus(&name).is_some_and(|b| b.fast_reads),
                 ..dxl
             };
             let bus = DxlBus::new(DxlBusDriver::new(port, cfg, options)?, idx.clone(), robot)?;
