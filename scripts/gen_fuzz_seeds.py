@@ -4,6 +4,7 @@
 Every seed is made here, small and valid, so the fuzzer starts from inputs the parser accepts and
 mutates them into the ones it must refuse. None is third-party material:
 
+  rvc_stream/      BNO08x UART-RVC frames: the datasheet's example frame, and three frames in a row.
   udp_command/     operator command datagrams (`play --command-udp`): a valid version-1 message,
                    and one with a value out of range.
   osc_vmc/         VMC tracker datagrams as a VR bridge sends them (a bundle of headset and
@@ -60,6 +61,16 @@ left = osc_message("/VMC/Ext/Con/Pos", ["LeftHand", -0.3, 1.0, 0.2, 0.0, 0.0, 0.
 right = osc_message("/VMC/Ext/Con/Pos", ["RightHand", 0.3, 1.0, 0.2, 0.0, 0.0, 0.0, 1.0])
 write("osc_vmc", "bundle", osc_bundle([hmd, left, right]))
 write("osc_vmc", "message", hmd)
+DATASHEET_RVC = bytes([0xAA, 0xAA, 0xDE, 0x01, 0x00, 0x92, 0xFF, 0x25, 0x08, 0x8D, 0xFE, 0xEC, 0xFF, 0xD1, 0x03, 0x00, 0x00, 0x00, 0xE7])
+write("rvc_stream", "datasheet", DATASHEET_RVC)
+
+
+def rvc(index, yaw):
+    body = bytes([index]) + struct.pack("<6h", yaw, 0, 0, 0, 0, 1000) + bytes(3)
+    return b"\xaa\xaa" + body + bytes([sum(body) & 0xFF])
+
+
+write("rvc_stream", "turning", rvc(7, 100) + rvc(8, 110) + rvc(9, 120))
 write("udp_command", "walk", b'{"version": 1, "seq": 17, "command": [0.3, 0.0, -0.5]}')
 write("udp_command", "too_fast", b'{"version": 1, "seq": 18, "command": [3.0, 0.0, 0.0]}')
 

@@ -165,6 +165,10 @@ pub struct JointConfig {
 pub struct ImuConfig {
     /// Bus name (an `imu_serial` bus).
     pub bus: String,
+    /// What it streams: `wit` (WIT Motion AHRS, default) or `bno08x_rvc` (a BNO08x in UART-RVC
+    /// mode: 100 Hz, 115200 baud).
+    #[serde(default, skip_serializing_if = "is_wit")]
+    pub protocol: firmware_bridge::imu::ImuProtocol,
     /// Site in the MJCF where the IMU sits.
     pub site: String,
     /// Output rate, Hz.
@@ -188,6 +192,10 @@ pub struct ImuConfig {
     /// mirror adds).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub orientation: Option<String>,
+}
+
+fn is_wit(p: &firmware_bridge::imu::ImuProtocol) -> bool {
+    *p == firmware_bridge::imu::ImuProtocol::Wit
 }
 
 /// The three sensors of the IMU in the model, by the kind MJCF gives them.
@@ -1155,6 +1163,9 @@ impl Robot {
             }
             let rates: &[u32] = match b.kind {
                 BusKind::MitCan => &CAN_BITRATES,
+                BusKind::ImuSerial if c.imu.protocol == firmware_bridge::imu::ImuProtocol::Bno08xRvc => {
+                    &[firmware_bridge::imu::rvc::BAUD]
+                }
                 BusKind::ImuSerial => &WIT_BAUDS,
                 BusKind::Dynamixel => &[],
             };
@@ -1199,6 +1210,18 @@ impl Robot {
             ));
         }
         self.resolve_imu_sensors()?;
+        if c.imu.protocol == firmware_bridge::imu::ImuProtocol::Bno08xRvc
+            && c.imu.rate_hz != firmware_bridge::imu::rvc::RATE_HZ
+        {
+            return Err((
+                "imu.rate_hz".into(),
+                format!(
+                    "{} Hz: a BNO08x in UART-RVC mode streams at {} Hz",
+                    crate::num(c.imu.rate_hz),
+                    firmware_bridge::imu::rvc::RATE_HZ
+                ),
+            ));
+        }
         if !(c.imu.rate_hz > 0.0 && c.imu.rate_hz <= 1000.0) {
             return Err((
                 "imu.rate_hz".into(),

@@ -380,7 +380,8 @@ impl Mirror {
         let imu_bus = robot.bus(&imu_cfg.bus).expect("checked at load");
         let n = rnd.imu_noise_scale;
         let d = ImuEmulatorConfig::default();
-        let emulator = WitImuEmulator::new(
+        let emulator = WitImuEmulator::speaking(
+            imu_cfg.protocol,
             ImuEmulatorConfig {
                 rate_hz: imu_cfg.rate_hz,
                 gyro_noise: d.gyro_noise * n,
@@ -862,8 +863,9 @@ impl Mirror {
             accel: quat_rotate(i.mount, site_accel),
             quat: quat_mul(site_quat, quat_conj(i.mount)),
         };
-        let mut bytes = [0u8; 44];
-        self.imu.emulator.output(t, &truth, &mut bytes);
+        let mut cycle = [0u8; firmware_bridge::imu::emulator::MAX_CYCLE_BYTES];
+        let n = self.imu.emulator.output(t, &truth, &mut cycle);
+        let bytes = &mut cycle[..n];
         // The part keeps its schedule (and its noise draws) whatever is lost on the way.
         match self.imu_fault {
             ImuFault::None => {}
@@ -871,8 +873,12 @@ impl Mirror {
             ImuFault::Lost(n) | ImuFault::Corrupt(n) => {
                 let corrupt = matches!(self.imu_fault, ImuFault::Corrupt(_));
                 if corrupt {
-                    // Every packet of the cycle fails its checksum.
-                    for sum in bytes.iter_mut().skip(10).step_by(11) {
+                    // Every packet of the cycle fails its checksum (the last byte of each).
+                    let packet = match self.imu.emulator.protocol() {
+                        firmware_bridge::imu::ImuProtocol::Wit => firmware_bridge::imu::wit::PACKET_LEN,
+                        firmware_bridge::imu::ImuProtocol::Bno08xRvc => firmware_bridge::imu::rvc::FRAME_LEN,
+                    };
+                    for sum in bytes.iter_mut().skip(packet - 1).step_by(packet) {
                         *sum = sum.wrapping_add(1);
                     }
                 }

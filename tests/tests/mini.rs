@@ -785,3 +785,41 @@ fn per_value_scales_and_offsets_shape_a_term_and_wrong_lengths_are_named() {
         "{e}"
     );
 }
+
+#[test]
+fn its_bno08x_streams_at_the_chips_own_rate_and_the_file_must_say_so() {
+    // On the mirror: the RVC frames read back as upright, gravity up, the turn rate near zero.
+    let robot = Robot::load(&mini("robot.toml")).unwrap();
+    assert_eq!(
+        robot.config.imu.protocol,
+        firmware_bridge::imu::ImuProtocol::Bno08xRvc
+    );
+    let ((mut player, mut clock, _world), _) = command_driven_player(controller::player::PlayOptions {
+        end: controller::player::EndMode::Stand,
+        ..Default::default()
+    });
+    player.identify().unwrap();
+    let period = Duration::from_millis(20);
+    for _ in 0..100 {
+        player.step(&clock).unwrap();
+        player.wait_until(&mut clock, period * player.ticks() as u32);
+    }
+    let s = player.state();
+    assert!((s.accel[2] - 9.81).abs() < 0.3, "{:?}", s.accel);
+    assert!(s.gyro.iter().all(|g| g.abs() < 0.1), "{:?}", s.gyro);
+    assert!(s.quat[0] > 0.99, "{:?}", s.quat);
+    // The chip's rate and baud are fixed: a file that says otherwise is refused by name.
+    let text = std::fs::read_to_string(mini("robot.toml")).unwrap();
+    for (bad, needle) in [
+        (
+            text.replacen("rate_hz = 100.0\nmounting", "rate_hz = 200.0\nmounting", 1),
+            "imu.rate_hz",
+        ),
+        (text.replacen("rate = 115200", "rate = 921600", 1), "(imu0).rate"),
+    ] {
+        let e = Robot::from_str(&mini("robot.toml"), &bad)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(needle), "{e}");
+    }
+}

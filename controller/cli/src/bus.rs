@@ -83,7 +83,7 @@ fn scan(args: &ScanArgs) -> Result<()> {
                 let path = endpoint.map_or(bus.device.clone(), |e| e.imu.clone());
                 let stream = DeviceStream::open(&path, bus.rate)
                     .with_context(|| format!("bus {}: cannot open {path}", bus.name))?;
-                problems += scan_imu(&bus.name, stream, robot.config.imu.rate_hz)?;
+                problems += scan_imu(&bus.name, stream, &robot.config.imu)?;
             }
         }
     }
@@ -219,8 +219,9 @@ fn scan_dxl<T: DxlTransport>(robot: &Robot, bus: &str, port: &mut T, timeout: Du
     Ok(problems)
 }
 
-fn scan_imu<S: ByteStream>(bus: &str, stream: S, rate_hz: f64) -> Result<usize> {
-    let mut reader = ImuReader::new(stream);
+fn scan_imu<S: ByteStream>(bus: &str, stream: S, imu: &robots::ImuConfig) -> Result<usize> {
+    let rate_hz = imu.rate_hz;
+    let mut reader = ImuReader::speaking(imu.protocol, stream);
     let start = Instant::now();
     let mut last = None;
     let mut samples = 0u32;

@@ -3,6 +3,7 @@
 
 use std::time::Duration;
 
+use super::ImuProtocol;
 use super::wit::{self, ImuSample, PACKET_LEN};
 use crate::time::{SimInstant, SimRng};
 
@@ -56,10 +57,16 @@ pub struct ImuTruth {
     pub quat: [f64; 4],
 }
 
-/// One emulated IMU.
+/// Bytes the longest output cycle of any protocol takes.
+pub const MAX_CYCLE_BYTES: usize = 4 * PACKET_LEN;
+
+/// One emulated IMU, speaking `protocol`.
 #[derive(Debug, Clone)]
 pub struct WitImuEmulator {
     config: ImuEmulatorConfig,
+    protocol: ImuProtocol,
+    /// The RVC frame index.
+    index: u8,
     rng: SimRng,
     gyro_bias: [f64; 3],
     accel_bias: [f64; 3],
@@ -70,14 +77,31 @@ pub struct WitImuEmulator {
 }
 
 impl WitImuEmulator {
-    /// A unit whose biases are drawn from `seed`.
+    /// A unit whose biases are drawn from `seed`, speaking WIT.
     pub fn new(config: ImuEmulatorConfig, seed: u64) -> Self {
+        Self::speaking(ImuProtocol::Wit, config, seed)
+    }
+
+    /// A unit speaking `protocol` (a BNO08x in RVC mode streams at its fixed 100 Hz).
+    pub fn speaking(protocol: ImuProtocol, config: ImuEmulatorConfig, seed: u64) -> Self {
+        let config = match protocol {
+            ImuProtocol::Wit => config,
+            // The fused rotation vector moves smoothly sample to sample (its error is a slow
+            // drift, not white noise): a hundredth of a degree, its output step.
+            ImuProtocol::Bno08xRvc => ImuEmulatorConfig {
+                rate_hz: super::rvc::RATE_HZ,
+                attitude_noise: config.attitude_noise.min(0.01_f64.to_radians()),
+                ..config
+            },
+        };
         let mut rng = SimRng::new(seed);
         let mut draw = |bound: f64| [0; 3].map(|_| (2.0 * rng.next_f64() - 1.0) * bound);
         let gyro_bias = draw(config.gyro_bias);
         let accel_bias = draw(config.accel_bias);
         Self {
             config,
+            protocol,
+            index: 0,
             rng,
             gyro_bias,
             accel_bias,
@@ -97,8 +121,14 @@ impl WitImuEmulator {
         self.next_output
     }
 
-    /// Produces the output cycle due at `now` from `truth` into `out` (44 bytes).
-    pub fn output(&mut self, now: SimInstant, truth: &ImuTruth, out: &mut [u8; 4 * PACKET_LEN]) {
+    /// The protocol it speaks.
+    pub fn protocol(&self) -> ImuProtocol {
+        self.protocol
+    }
+
+    /// Produces the output cycle due at `now` from `truth` into `out`; returns its length (44
+    /// bytes of WIT packets, or one 19-byte RVC frame).
+    pub fn output(&mut self, now: SimInstant, truth: &ImuTruth, out: &mut [u8; MAX_CYCLE_BYTES]) -> usize {
         self.next_output = self.next_output.max(now) + self.period();
         let c = self.config;
         let dt = self.period().as_secs_f64();
@@ -122,14 +152,25 @@ impl WitImuEmulator {
             half_c * truth.quat[3] + half_s * truth.quat[0],
         ];
         let (quat, rpy) = reported_attitude(drifted, tilt);
-        let sample = ImuSample {
-            accel,
-            gyro,
-            quat,
-            rpy,
-            temperature: 35.0,
-        };
-        wit::encode_cycle(&sample, out);
+        match self.protocol {
+            ImuProtocol::Wit => {
+                let sample = ImuSample {
+                    accel,
+                    gyro,
+                    quat,
+                    rpy,
+                    temperature: 35.0,
+                };
+                wit::encode_cycle(&sample, out);
+                out.len()
+            }
+            ImuProtocol::Bno08xRvc => {
+                let frame = super::rvc::encode(self.index, [rpy[2], rpy[1], rpy[0]], accel);
+                self.index = self.index.wrapping_add(1);
+                out[..frame.len()].copy_from_slice(&frame);
+                frame.len()
+            }
+        }
     }
 }
 

@@ -1,5 +1,7 @@
 //! The host side of a streaming IMU: read what arrived, decode, keep the newest sample and its age.
 
+use super::ImuProtocol;
+use super::rvc::RvcDecoder;
 use super::wit::{DecoderStats, ImuSample, WitDecoder};
 use crate::serial::ByteStream;
 
@@ -12,21 +14,36 @@ pub struct ImuReading<I> {
     pub received_at: I,
 }
 
-/// Reads a WIT-protocol IMU on a byte stream.
+/// The decoder of a protocol.
+#[derive(Debug)]
+enum Decoder {
+    Wit(WitDecoder),
+    Rvc(RvcDecoder),
+}
+
+/// Reads an IMU on a byte stream.
 #[derive(Debug)]
 pub struct ImuReader<S: ByteStream> {
     stream: S,
-    decoder: WitDecoder,
+    decoder: Decoder,
     buf: Vec<u8>,
     latest: Option<ImuReading<S::Instant>>,
 }
 
 impl<S: ByteStream> ImuReader<S> {
-    /// A reader on `stream`.
+    /// A reader of a WIT-protocol IMU on `stream`.
     pub fn new(stream: S) -> Self {
+        Self::speaking(ImuProtocol::Wit, stream)
+    }
+
+    /// A reader of an IMU speaking `protocol` on `stream`.
+    pub fn speaking(protocol: ImuProtocol, stream: S) -> Self {
         Self {
             stream,
-            decoder: WitDecoder::new(),
+            decoder: match protocol {
+                ImuProtocol::Wit => Decoder::Wit(WitDecoder::new()),
+                ImuProtocol::Bno08xRvc => Decoder::Rvc(RvcDecoder::new()),
+            },
             buf: vec![0; 4096],
             latest: None,
         }
@@ -41,7 +58,10 @@ impl<S: ByteStream> ImuReader<S> {
                 break;
             }
             let mut newest = None;
-            self.decoder.feed(&self.buf[..n], |s| newest = Some(*s));
+            match &mut self.decoder {
+                Decoder::Wit(d) => d.feed(&self.buf[..n], |s| newest = Some(*s)),
+                Decoder::Rvc(d) => d.feed(&self.buf[..n], |s| newest = Some(*s)),
+            }
             if let Some(sample) = newest {
                 self.latest = Some(ImuReading {
                     sample,
@@ -54,6 +74,9 @@ impl<S: ByteStream> ImuReader<S> {
 
     /// Decoder counters (checksum errors, junk).
     pub fn stats(&self) -> DecoderStats {
-        self.decoder.stats()
+        match &self.decoder {
+            Decoder::Wit(d) => d.stats(),
+            Decoder::Rvc(d) => d.stats(),
+        }
     }
 }

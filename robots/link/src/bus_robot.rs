@@ -522,6 +522,7 @@ impl<S: ByteStream> BusRobot<S> {
             error: None,
             imu: Some(ImuCycle::new(
                 ports.imu,
+                robot.config.imu.protocol,
                 robot.config.imu.mounting_rpy_deg,
                 robot.config.imu.gyro_bias,
                 robot.config.imu.accel_bias,

@@ -71,6 +71,7 @@ pub(crate) struct ImuCycle<S: ByteStream> {
 impl<S: ByteStream> ImuCycle<S> {
     pub(crate) fn new(
         stream: S,
+        protocol: firmware_bridge::imu::ImuProtocol,
         mounting_rpy_deg: [f64; 3],
         gyro_bias: [f64; 3],
         accel_bias: [f64; 3],
@@ -78,7 +79,7 @@ impl<S: ByteStream> ImuCycle<S> {
     ) -> Self {
         let [r, p, y] = mounting_rpy_deg.map(f64::to_radians);
         Self {
-            reader: ImuReader::new(stream),
+            reader: ImuReader::speaking(protocol, stream),
             last: None,
             mount: spatial::quat_of_rpy(r, p, y),
             gyro_bias,
