@@ -893,7 +893,7 @@ impl Mirror {
                 }
             }
         }
-        self.imu.line.device_transmit(t, &bytes);
+        self.imu.line.device_transmit(t, bytes);
         self.stats.imu_outputs += 1;
     }
 
