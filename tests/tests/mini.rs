@@ -13,6 +13,8 @@ use robots::Robot;
 use test_support::bin::{Running, run_within};
 use test_support::fixtures::{venv_python, workspace_root};
 
+mod common;
+
 #[global_allocator]
 static ALLOC: test_support::alloc::CountingAllocator = test_support::alloc::CountingAllocator;
 
@@ -713,26 +715,7 @@ fn a_steady_command_driven_tick_with_live_commands_and_recording_allocates_nothi
 
 #[test]
 fn per_value_scales_and_offsets_shape_a_term_and_wrong_lengths_are_named() {
-    use controller::policy::{ObsInputs, ObservationBuilder, PolicyLayout, ReferenceView};
-    #[derive(Debug)]
-    struct NoReference(Vec<f64>);
-    impl ReferenceView for NoReference {
-        fn joint_pos(&self, _: usize) -> &[f64] {
-            &self.0
-        }
-        fn joint_vel(&self, _: usize) -> &[f64] {
-            &self.0
-        }
-        fn root_pose(&self, _: usize) -> [f64; 7] {
-            [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]
-        }
-        fn body_pos(&self, _: usize) -> &[f64] {
-            &[]
-        }
-        fn anchor_pose(&self) -> [f64; 7] {
-            [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]
-        }
-    }
+    use controller::policy::{ObsInputs, ObservationBuilder, PolicyLayout};
     let robot = Robot::load(&mini("robot.toml")).unwrap();
     let path = mini("policies/stand_walk.toml");
     let text = std::fs::read_to_string(&path).unwrap();
@@ -752,26 +735,14 @@ fn per_value_scales_and_offsets_shape_a_term_and_wrong_lengths_are_named() {
     let zeros = vec![0.0; 16];
     let past = vec![0.0f32; 16];
     let mut obs = vec![0.0f32; layout.obs_len];
+    let still = common::Still {
+        q: zeros.clone(),
+        height: 0.25,
+    };
     ObservationBuilder::new(&layout).build(
         &ObsInputs {
-            gyro: [0.0; 3],
-            accel: [0.0; 3],
-            quat: [1.0, 0.0, 0.0, 0.0],
-            q: &zeros,
-            qd: &zeros,
-            default_q: &zeros,
-            past_actions: &past,
-            last_targets: &zeros,
-            step: 0,
-            dt: 0.02,
-            command: None,
-            ramp: 1.0,
-            reference: &NoReference(zeros.clone()),
-            truth: None,
-            trackers: None,
             base_ang_vel: [1.0, 2.0, 3.0],
-            robot_anchor: [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
-            time_step: 0.0,
+            ..common::at_rest(&zeros, &past, &still)
         },
         &mut obs,
     );

@@ -16,6 +16,8 @@ use sim2real::config::MirrorConfig;
 use sim2real::link::LockstepClock;
 use sim2real::mirror::Mirror;
 
+mod common;
+
 #[global_allocator]
 static ALLOC: test_support::alloc::CountingAllocator = test_support::alloc::CountingAllocator;
 
@@ -674,26 +676,7 @@ fn reference_body_positions_come_from_forward_kinematics_on_the_robot_model() {
 
 #[test]
 fn command_values_from_the_command_line_reach_the_observation() {
-    use controller::policy::{ObsInputs, ObservationBuilder, ReferenceView};
-    #[derive(Debug)]
-    struct Still(Vec<f64>);
-    impl ReferenceView for Still {
-        fn joint_pos(&self, _: usize) -> &[f64] {
-            &self.0
-        }
-        fn joint_vel(&self, _: usize) -> &[f64] {
-            &self.0
-        }
-        fn root_pose(&self, _: usize) -> [f64; 7] {
-            [0.0, 0.0, 0.45, 1.0, 0.0, 0.0, 0.0]
-        }
-        fn body_pos(&self, _: usize) -> &[f64] {
-            &[]
-        }
-        fn anchor_pose(&self) -> [f64; 7] {
-            [0.0, 0.0, 0.45, 1.0, 0.0, 0.0, 0.0]
-        }
-    }
+    use controller::policy::ObservationBuilder;
     let robot = Robot::load(&reference_robot_path()).unwrap();
     let dir = std::env::temp_dir().join(format!("play-cmd-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
@@ -719,33 +702,14 @@ fn command_values_from_the_command_line_reach_the_observation() {
         .range
         .clone();
     let zeros = vec![0.0; 20];
-    let still = Still(zeros.clone());
+    let still = common::Still {
+        q: zeros.clone(),
+        height: 0.45,
+    };
     let mut b = ObservationBuilder::new(&layout);
     let mut obs = vec![0.0f32; layout.obs_len];
     let past = vec![0.0f32; 40];
-    b.build(
-        &ObsInputs {
-            gyro: [0.0; 3],
-            accel: [0.0; 3],
-            quat: [1.0, 0.0, 0.0, 0.0],
-            q: &zeros,
-            qd: &zeros,
-            default_q: &zeros,
-            past_actions: &past,
-            last_targets: &zeros,
-            step: 0,
-            dt: 0.02,
-            command: None,
-            ramp: 1.0,
-            reference: &still,
-            truth: None,
-            trackers: None,
-            base_ang_vel: [0.0; 3],
-            robot_anchor: [0.0, 0.0, 0.45, 1.0, 0.0, 0.0, 0.0],
-            time_step: 0.0,
-        },
-        &mut obs,
-    );
+    b.build(&common::at_rest(&zeros, &past, &still), &mut obs);
     assert_eq!(&obs[slot], &[0.6f32, -0.2]);
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -3,6 +3,8 @@
 //! garbage on the same port changes nothing; losing the stream blends back to standby; an
 //! independent sender (python-osc) drives it too.
 
+mod common;
+
 use std::net::{SocketAddr, UdpSocket};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
@@ -493,49 +495,17 @@ fn a_sparse_input_policy_sees_the_trackers_at_t_and_t_minus_one() {
     let mut builder = controller::policy::ObservationBuilder::new(&layout);
     let zeros = vec![0.0; 20];
     let past = vec![0.0f32; 20];
-    #[derive(Debug)]
-    struct Still(Vec<f64>);
-    impl controller::policy::ReferenceView for Still {
-        fn joint_pos(&self, _: usize) -> &[f64] {
-            &self.0
-        }
-        fn joint_vel(&self, _: usize) -> &[f64] {
-            &self.0
-        }
-        fn root_pose(&self, _: usize) -> [f64; 7] {
-            [0.0, 0.0, 0.5, 1.0, 0.0, 0.0, 0.0]
-        }
-        fn body_pos(&self, _: usize) -> &[f64] {
-            &[]
-        }
-        fn anchor_pose(&self) -> [f64; 7] {
-            [0.0, 0.0, 0.5, 1.0, 0.0, 0.0, 0.0]
-        }
-    }
-    let still = Still(zeros.clone());
+    let still = common::Still {
+        q: zeros.clone(),
+        height: 0.5,
+    };
     let mut obs = vec![0.0f32; 114];
     for k in 0..2 {
         let trackers: [f64; 27] = std::array::from_fn(|i| (10 * k + i) as f64 * 0.01);
         builder.build(
             &controller::policy::ObsInputs {
-                gyro: [0.0; 3],
-                accel: [0.0; 3],
-                quat: [1.0, 0.0, 0.0, 0.0],
-                q: &zeros,
-                qd: &zeros,
-                default_q: &zeros,
-                past_actions: &past,
-                last_targets: &zeros,
-                step: 0,
-                dt: 0.02,
-                command: None,
-                ramp: 1.0,
-                reference: &still,
-                truth: None,
                 trackers: Some(&trackers),
-                base_ang_vel: [0.0; 3],
-                robot_anchor: [0.0, 0.0, 0.5, 1.0, 0.0, 0.0, 0.0],
-                time_step: 0.0,
+                ..common::at_rest(&zeros, &past, &still)
             },
             &mut obs,
         );
