@@ -376,6 +376,17 @@ fn a_recording_cut_by_sigkill_is_read_up_to_the_cut() {
     let run = dir.join("run.mcap");
     let mut play = test_support::bin::Running::start(&args(&[&"play", &"--end", &"loop", &"--record", &run]));
     play.wait_for("soft start done", Duration::from_secs(120));
+    // The logger writes behind the loop (it may lag a loaded machine by hundreds of ticks): kill
+    // once the file holds some ticks, read as any reader would — not at a fixed moment.
+    let give_up = std::time::Instant::now() + Duration::from_secs(120);
+    while analysis::replay::read_recording(&run).map_or(0, |r| r.ticks.len()) < 30 {
+        assert!(
+            std::time::Instant::now() < give_up,
+            "the recording never held 30 ticks"
+        );
+        // Polled, not waited on: a few milliseconds between reads leave the cores to the run.
+        std::thread::sleep(Duration::from_millis(5));
+    }
     let killed = std::process::Command::new("kill")
         .args(["-KILL", &play.id().to_string()])
         .status()
