@@ -5,6 +5,8 @@ Every seed is made here, small and valid, so the fuzzer starts from inputs the p
 mutates them into the ones it must refuse. None is third-party material:
 
   rvc_stream/      BNO08x UART-RVC frames: the datasheet's example frame, and three frames in a row.
+  bno055_uart/     BNO055 UART traffic: the mode write and its acknowledgement, a data-block read
+                   request and its answer.
   udp_command/     operator command datagrams (`play --command-udp`): a valid version-1 message,
                    and one with a value out of range.
   osc_vmc/         VMC tracker datagrams as a VR bridge sends them (a bundle of headset and
@@ -71,6 +73,12 @@ def rvc(index, yaw):
 
 
 write("rvc_stream", "turning", rvc(7, 100) + rvc(8, 110) + rvc(9, 120))
+# BNO055: `AA 00 3D 01 08` (IMU mode) answered `EE 01`; `AA 01 08 20` answered `BB 20` + 32 bytes
+# (gravity on z, unit quaternion w = 2^14).
+block = bytearray(32)
+block[4:6] = struct.pack("<h", 981)
+block[24:26] = struct.pack("<h", 16384)
+write("bno055_uart", "mode_and_read", bytes([0xAA, 0x00, 0x3D, 0x01, 0x08, 0xEE, 0x01, 0xAA, 0x01, 0x08, 0x20, 0xBB, 0x20]) + bytes(block))
 write("udp_command", "walk", b'{"version": 1, "seq": 17, "command": [0.3, 0.0, -0.5]}')
 write("udp_command", "too_fast", b'{"version": 1, "seq": 18, "command": [3.0, 0.0, 0.0]}')
 

@@ -39,11 +39,16 @@ impl StreamLine {
         }
     }
 
+    /// How long `bytes` bytes take on this line.
+    pub fn wire_time(&self, bytes: usize) -> Duration {
+        let bits = bytes as u64 * 10;
+        Duration::from_nanos((bits * 1_000_000_000).div_ceil(u64::from(self.baud.max(1))))
+    }
+
     /// The device starts sending `bytes` at `now` (after what it is still sending).
     pub fn device_transmit(&mut self, now: SimInstant, bytes: &[u8]) {
         let start = self.line_free_at.max(now);
-        let bits = bytes.len() as u64 * 10;
-        let end = start + Duration::from_nanos((bits * 1_000_000_000).div_ceil(u64::from(self.baud.max(1))));
+        let end = start + self.wire_time(bytes.len());
         self.line_free_at = end;
         self.pending.push_back((end, bytes.len()));
         self.bytes.extend(bytes);
@@ -74,6 +79,10 @@ pub trait ByteStream {
     fn now(&self) -> Self::Instant;
     /// Reads what has arrived into `buf`, waiting until `deadline` at most for the first byte.
     fn read_until(&mut self, buf: &mut [u8], deadline: Self::Instant) -> std::io::Result<usize>;
+    /// Sends `bytes` to the device (a sensor the host asks, such as a BNO055).
+    fn write_all(&mut self, bytes: &[u8]) -> std::io::Result<()>;
+    /// Seconds of this stream's clock since some fixed origin (for request pacing).
+    fn seconds(&self) -> f64;
 }
 
 /// A serial device (USB adapter or pseudo-terminal) as a byte stream.
@@ -98,6 +107,18 @@ impl ByteStream for DeviceStream {
 
     fn now(&self) -> std::time::Instant {
         std::time::Instant::now()
+    }
+
+    fn write_all(&mut self, bytes: &[u8]) -> std::io::Result<()> {
+        Write::write_all(&mut self.port, bytes)
+    }
+
+    fn seconds(&self) -> f64 {
+        static ORIGIN: std::sync::OnceLock<std::time::Instant> = std::sync::OnceLock::new();
+        ORIGIN
+            .get_or_init(std::time::Instant::now)
+            .elapsed()
+            .as_secs_f64()
     }
 
     fn read_until(&mut self, buf: &mut [u8], deadline: std::time::Instant) -> std::io::Result<usize> {
@@ -143,6 +164,16 @@ impl<W: SerialSimWorld> ByteStream for LockstepStream<W> {
 
     fn now(&self) -> SimInstant {
         self.world.lock().unwrap_or_else(PoisonError::into_inner).now()
+    }
+
+    fn write_all(&mut self, bytes: &[u8]) -> std::io::Result<()> {
+        let mut world = self.world.lock().unwrap_or_else(PoisonError::into_inner);
+        world.host_transmit(self.line, bytes);
+        Ok(())
+    }
+
+    fn seconds(&self) -> f64 {
+        self.now().as_nanos() as f64 * 1e-9
     }
 
     fn read_until(&mut self, buf: &mut [u8], deadline: SimInstant) -> std::io::Result<usize> {

@@ -165,8 +165,9 @@ pub struct JointConfig {
 pub struct ImuConfig {
     /// Bus name (an `imu_serial` bus).
     pub bus: String,
-    /// What it streams: `wit` (WIT Motion AHRS, default) or `bno08x_rvc` (a BNO08x in UART-RVC
-    /// mode: 100 Hz, 115200 baud).
+    /// What it speaks: `wit` (WIT Motion AHRS streaming, default), `bno08x_rvc` (a BNO08x
+    /// streaming in UART-RVC mode: 100 Hz, 115200 baud) or `bno055` (a BNO055 on its UART, set
+    /// to IMU fusion mode and read at `rate_hz` ≤ 100 Hz, 115200 baud).
     #[serde(default, skip_serializing_if = "is_wit")]
     pub protocol: firmware_bridge::imu::ImuProtocol,
     /// Site in the MJCF where the IMU sits.
@@ -1151,6 +1152,8 @@ impl Robot {
         }
         let mut bus_names = BTreeSet::new();
         let mut devices = BTreeSet::new();
+        // A part with one line speed (BNO0xx) or the WIT AHRS's list.
+        let imu_baud = c.imu.protocol.fixed_baud().map(|b| [b]);
         for (i, b) in c.buses.iter().enumerate() {
             if !bus_names.insert(&b.name) {
                 return Err((format!("buses[{i}].name"), format!("{:?} is used twice", b.name)));
@@ -1163,10 +1166,7 @@ impl Robot {
             }
             let rates: &[u32] = match b.kind {
                 BusKind::MitCan => &CAN_BITRATES,
-                BusKind::ImuSerial if c.imu.protocol == firmware_bridge::imu::ImuProtocol::Bno08xRvc => {
-                    &[firmware_bridge::imu::rvc::BAUD]
-                }
-                BusKind::ImuSerial => &WIT_BAUDS,
+                BusKind::ImuSerial => imu_baud.as_ref().map_or(&WIT_BAUDS[..], |b| &b[..]),
                 BusKind::Dynamixel => &[],
             };
             if !rates.is_empty() && !rates.contains(&b.rate) {
@@ -1210,6 +1210,18 @@ impl Robot {
             ));
         }
         self.resolve_imu_sensors()?;
+        if c.imu.protocol == firmware_bridge::imu::ImuProtocol::Bno055
+            && !(c.imu.rate_hz > 0.0 && c.imu.rate_hz <= firmware_bridge::imu::bno055::RATE_HZ)
+        {
+            return Err((
+                "imu.rate_hz".into(),
+                format!(
+                    "{} Hz: a BNO055 fuses at {} Hz; read it at that rate or slower",
+                    crate::num(c.imu.rate_hz),
+                    firmware_bridge::imu::bno055::RATE_HZ
+                ),
+            ));
+        }
         if c.imu.protocol == firmware_bridge::imu::ImuProtocol::Bno08xRvc
             && c.imu.rate_hz != firmware_bridge::imu::rvc::RATE_HZ
         {

@@ -15,6 +15,7 @@ use firmware_bridge::dxl::servo::{ReplyFault, ServoConfig, XSeriesServo};
 use firmware_bridge::dxl::table::hw;
 use firmware_bridge::dxl::transport::LockstepDxlPort;
 use firmware_bridge::dxl::wire::{ServoChain, SimDxlWire, WireTiming};
+use firmware_bridge::imu::bno055::{self, Bno055};
 use firmware_bridge::imu::emulator::{ImuEmulatorConfig, ImuTruth, WitImuEmulator};
 use firmware_bridge::mit::codec::MotorFault;
 use firmware_bridge::mit::firmware::{InjectedFaults, MitFirmwareConfig, MitMotorFirmware};
@@ -104,11 +105,26 @@ struct DxlLine {
 struct Imu {
     emulator: WitImuEmulator,
     line: StreamLine,
+    /// A part the host asks (BNO055): its registers take the emulator's samples.
+    chip: Option<Bno055>,
+    /// What the line does to the chip's answers this output period (faults).
+    answers: ChipAnswers,
+    reply: Vec<u8>,
     gyro: usize,
     accel: usize,
     quat: usize,
     /// Rotation from the site's axes to the IMU's axes (inverse mounting).
     mount: [f64; 4],
+}
+
+/// What reaches the host of a register-read IMU's answers while a fault lasts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum ChipAnswers {
+    Given,
+    /// Nothing comes back (lost or gone).
+    Dropped,
+    /// Reads answer with the part's read-fail status (its report of a failed transfer).
+    ReadFail,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -401,6 +417,9 @@ impl Mirror {
             .map(f64::to_radians);
         let mounting = quat_of_rpy(r, p, y);
         let imu = Imu {
+            chip: (imu_cfg.protocol == firmware_bridge::imu::ImuProtocol::Bno055).then(Bno055::new),
+            answers: ChipAnswers::Given,
+            reply: Vec::with_capacity(2 * bno055::MAX_LEN),
             emulator,
             line: StreamLine::new(imu_bus.rate),
             gyro,
@@ -864,20 +883,39 @@ impl Mirror {
             quat: quat_mul(site_quat, quat_conj(i.mount)),
         };
         let mut cycle = [0u8; firmware_bridge::imu::emulator::MAX_CYCLE_BYTES];
-        let n = self.imu.emulator.output(t, &truth, &mut cycle);
+        let n = match &mut self.imu.chip {
+            Some(chip) => {
+                chip.update(t, &self.imu.emulator.sample(t, &truth));
+                0
+            }
+            None => self.imu.emulator.output(t, &truth, &mut cycle),
+        };
         let bytes = &mut cycle[..n];
         // The part keeps its schedule (and its noise draws) whatever is lost on the way.
+        self.imu.answers = ChipAnswers::Given;
         match self.imu_fault {
             ImuFault::None => {}
-            ImuFault::Gone => return,
+            ImuFault::Gone => {
+                self.imu.answers = ChipAnswers::Dropped;
+                return;
+            }
             ImuFault::Lost(n) | ImuFault::Corrupt(n) => {
                 let corrupt = matches!(self.imu_fault, ImuFault::Corrupt(_));
-                if corrupt {
-                    // Every packet of the cycle fails its checksum (the last byte of each).
-                    let packet = match self.imu.emulator.protocol() {
-                        firmware_bridge::imu::ImuProtocol::Wit => firmware_bridge::imu::wit::PACKET_LEN,
-                        firmware_bridge::imu::ImuProtocol::Bno08xRvc => firmware_bridge::imu::rvc::FRAME_LEN,
-                    };
+                self.imu.answers = if corrupt {
+                    ChipAnswers::ReadFail
+                } else {
+                    ChipAnswers::Dropped
+                };
+                // A streaming part's packets of the cycle each fail their checksum (the last
+                // byte of each); a register-read part has no output cycle to spoil.
+                let packet = match self.imu.emulator.protocol() {
+                    firmware_bridge::imu::ImuProtocol::Wit => Some(firmware_bridge::imu::wit::PACKET_LEN),
+                    firmware_bridge::imu::ImuProtocol::Bno08xRvc => {
+                        Some(firmware_bridge::imu::rvc::FRAME_LEN)
+                    }
+                    firmware_bridge::imu::ImuProtocol::Bno055 => None,
+                };
+                if let Some(packet) = packet.filter(|_| corrupt) {
                     for sum in bytes.iter_mut().skip(packet - 1).step_by(packet) {
                         *sum = sum.wrapping_add(1);
                     }
@@ -893,7 +931,9 @@ impl Mirror {
                 }
             }
         }
-        self.imu.line.device_transmit(t, bytes);
+        if !bytes.is_empty() {
+            self.imu.line.device_transmit(t, bytes);
+        }
         self.stats.imu_outputs += 1;
     }
 
@@ -1050,8 +1090,24 @@ impl SerialSimWorld for Mirror {
     fn host_transmit(&mut self, line: usize, bytes: &[u8]) {
         if let Some(d) = self.dxl.get_mut(line) {
             d.wire.host_transmit(self.now, bytes);
+            return;
         }
-        // The IMU line is output only: bytes towards it are dropped, as a sensor ignores them.
+        // A streaming IMU ignores what the host sends; a register-read one answers once the
+        // request has crossed the wire.
+        let imu = &mut self.imu;
+        let Some(chip) = &mut imu.chip else { return };
+        let arrived = self.now + imu.line.wire_time(bytes.len());
+        imu.reply.clear();
+        chip.receive(arrived, bytes, &mut imu.reply);
+        match imu.answers {
+            ChipAnswers::Given => imu.line.device_transmit(arrived, &imu.reply),
+            ChipAnswers::Dropped => {}
+            ChipAnswers::ReadFail if imu.reply.first() == Some(&bno055::READ_RESPONSE) => {
+                imu.line
+                    .device_transmit(arrived, &[bno055::STATUS_RESPONSE, bno055::status::READ_FAIL]);
+            }
+            ChipAnswers::ReadFail => imu.line.device_transmit(arrived, &imu.reply),
+        }
     }
 
     fn host_receive(&mut self, line: usize, out: &mut Vec<u8>) {

@@ -33,6 +33,16 @@ fn command_driven_player(
     options: controller::player::PlayOptions,
 ) -> (controller::sim::LockstepRun, human::commands::CommandSpec) {
     let robot = Robot::load(&mini("robot.toml")).unwrap();
+    command_driven_player_on(robot, sim2real::config::MirrorConfig::default(), options)
+}
+
+/// `robot` (rd-mini or a variant of its file) on the command-driven fixture, on a mirror set by
+/// `mirror`.
+fn command_driven_player_on(
+    robot: Robot,
+    mirror: sim2real::config::MirrorConfig,
+    options: controller::player::PlayOptions,
+) -> (controller::sim::LockstepRun, human::commands::CommandSpec) {
     let mut layout =
         controller::policy::PolicyLayout::load(&mini("policies/stand_walk.toml"), &robot).unwrap();
     let spec = layout.manifest.commands.clone().unwrap();
@@ -43,7 +53,7 @@ fn command_driven_player(
         layout,
         reference,
         options,
-        sim2real::config::MirrorConfig::default(),
+        mirror,
         Arc::new(AtomicBool::new(false)),
     )
     .unwrap();
@@ -793,4 +803,88 @@ fn its_bno08x_streams_at_the_chips_own_rate_and_the_file_must_say_so() {
             .to_string();
         assert!(e.contains(needle), "{e}");
     }
+}
+
+#[test]
+fn a_bno055_is_put_into_fusion_then_read_and_a_silent_one_stops_the_robot() {
+    // rd-mini's file with a BNO055 on the IMU line: the host sets IMU mode, then asks for the
+    // data registers at 100 Hz.
+    let text = std::fs::read_to_string(mini("robot.toml")).unwrap().replacen(
+        "protocol = \"bno08x_rvc\"",
+        "protocol = \"bno055\"",
+        1,
+    );
+    let robot = Robot::from_str(&mini("robot.toml"), &text).unwrap();
+    assert_eq!(
+        robot.config.imu.protocol,
+        firmware_bridge::imu::ImuProtocol::Bno055
+    );
+    let gone_at = 2.5;
+    let mirror = sim2real::config::MirrorConfig {
+        faults: vec![sim2real::config::ScheduledFault {
+            at_s: gone_at,
+            joint: "imu".into(),
+            fault: sim2real::config::FaultKind::Silent { count: None },
+        }],
+        ..Default::default()
+    };
+    let ((mut player, mut clock, _world), _) = command_driven_player_on(
+        robot,
+        mirror,
+        controller::player::PlayOptions {
+            end: controller::player::EndMode::Stand,
+            ..Default::default()
+        },
+    );
+    player.identify().unwrap();
+    let period = Duration::from_millis(20);
+    let tick = |player: &mut controller::player::Player<_>, clock: &mut _| {
+        player.step(clock).unwrap();
+        player.wait_until(clock, period * player.ticks() as u32);
+    };
+    for _ in 0..50 {
+        tick(&mut player, &mut clock);
+    }
+    // Asking and answering in steady state allocate nothing, on the host or in the chip.
+    let (_, stats) = test_support::alloc::count_allocations(|| {
+        for _ in 0..50 {
+            tick(&mut player, &mut clock);
+        }
+    });
+    assert!(stats.is_zero(), "{stats:?}");
+    let s = player.state();
+    assert!((s.accel[2] - 9.81).abs() < 0.3, "{:?}", s.accel);
+    assert!(s.gyro.iter().all(|g| g.abs() < 0.1), "{:?}", s.gyro);
+    assert!(s.quat[0] > 0.99, "{:?}", s.quat);
+    assert_eq!(s.imu_missed, 0);
+    assert!(
+        player
+            .transitions()
+            .iter()
+            .all(|t| t.to != controller::safety::Mode::Stopping)
+    );
+    // The chip stops answering: the loop stops on a stale IMU within its bound.
+    for _ in 0..50 {
+        tick(&mut player, &mut clock);
+    }
+    let stop = player
+        .transitions()
+        .iter()
+        .find(|t| t.to == controller::safety::Mode::Stopping)
+        .copied()
+        .expect("a stop");
+    assert!(
+        matches!(stop.cause, controller::safety::Cause::StaleImu { .. }),
+        "{stop:?}"
+    );
+    let gone_tick = (gone_at / 0.02) as u64;
+    assert!(stop.tick > gone_tick && stop.tick <= gone_tick + 10, "{stop:?}");
+    // The part reads at most at its 100 Hz fusion rate: a faster rate is refused by name.
+    let e = Robot::from_str(
+        &mini("robot.toml"),
+        &text.replacen("rate_hz = 100.0\nmounting", "rate_hz = 200.0\nmounting", 1),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("imu.rate_hz") && e.contains("BNO055"), "{e}");
 }

@@ -221,7 +221,7 @@ fn scan_dxl<T: DxlTransport>(robot: &Robot, bus: &str, port: &mut T, timeout: Du
 
 fn scan_imu<S: ByteStream>(bus: &str, stream: S, imu: &robots::ImuConfig) -> Result<usize> {
     let rate_hz = imu.rate_hz;
-    let mut reader = ImuReader::speaking(imu.protocol, stream);
+    let mut reader = ImuReader::speaking_at(imu.protocol, stream, rate_hz);
     let start = Instant::now();
     let mut last = None;
     let mut samples = 0u32;

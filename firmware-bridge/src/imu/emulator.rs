@@ -93,6 +93,12 @@ impl WitImuEmulator {
                 attitude_noise: config.attitude_noise.min(0.01_f64.to_radians()),
                 ..config
             },
+            // The BNO055's fusion output: 100 Hz, attitude smooth at its 1/16° step.
+            ImuProtocol::Bno055 => ImuEmulatorConfig {
+                rate_hz: super::bno055::RATE_HZ,
+                attitude_noise: config.attitude_noise.min(0.03_f64.to_radians()),
+                ..config
+            },
         };
         let mut rng = SimRng::new(seed);
         let mut draw = |bound: f64| [0; 3].map(|_| (2.0 * rng.next_f64() - 1.0) * bound);
@@ -127,8 +133,29 @@ impl WitImuEmulator {
     }
 
     /// Produces the output cycle due at `now` from `truth` into `out`; returns its length (44
-    /// bytes of WIT packets, or one 19-byte RVC frame).
+    /// bytes of WIT packets, one 19-byte RVC frame, or nothing for a part the host asks, whose
+    /// registers [`Self::sample`] fills).
     pub fn output(&mut self, now: SimInstant, truth: &ImuTruth, out: &mut [u8; MAX_CYCLE_BYTES]) -> usize {
+        let sample = self.sample(now, truth);
+        match self.protocol {
+            ImuProtocol::Wit => {
+                wit::encode_cycle(&sample, out);
+                out.len()
+            }
+            ImuProtocol::Bno08xRvc => {
+                let [roll, pitch, yaw] = sample.rpy;
+                let frame = super::rvc::encode(self.index, [yaw, pitch, roll], sample.accel);
+                self.index = self.index.wrapping_add(1);
+                out[..frame.len()].copy_from_slice(&frame);
+                frame.len()
+            }
+            ImuProtocol::Bno055 => 0,
+        }
+    }
+
+    /// The output cycle due at `now` from `truth`, as the part measures it (noise, biases,
+    /// drift), in SI units.
+    pub fn sample(&mut self, now: SimInstant, truth: &ImuTruth) -> ImuSample {
         self.next_output = self.next_output.max(now) + self.period();
         let c = self.config;
         let dt = self.period().as_secs_f64();
@@ -152,24 +179,12 @@ impl WitImuEmulator {
             half_c * truth.quat[3] + half_s * truth.quat[0],
         ];
         let (quat, rpy) = reported_attitude(drifted, tilt);
-        match self.protocol {
-            ImuProtocol::Wit => {
-                let sample = ImuSample {
-                    accel,
-                    gyro,
-                    quat,
-                    rpy,
-                    temperature: 35.0,
-                };
-                wit::encode_cycle(&sample, out);
-                out.len()
-            }
-            ImuProtocol::Bno08xRvc => {
-                let frame = super::rvc::encode(self.index, [rpy[2], rpy[1], rpy[0]], accel);
-                self.index = self.index.wrapping_add(1);
-                out[..frame.len()].copy_from_slice(&frame);
-                frame.len()
-            }
+        ImuSample {
+            accel,
+            gyro,
+            quat,
+            rpy,
+            temperature: 35.0,
         }
     }
 }

@@ -2,6 +2,7 @@
 //! decoders and encoders), an emulated AHRS with the noise, bias and rate of the real part, and
 //! the host reader the controller uses.
 
+pub mod bno055;
 pub mod emulator;
 pub mod reader;
 pub mod rvc;
@@ -17,4 +18,18 @@ pub enum ImuProtocol {
     /// A BNO08x in UART-RVC mode: 19-byte frames of attitude and acceleration at 100 Hz,
     /// 115200 baud (the angular velocity derived from consecutive attitudes).
     Bno08xRvc,
+    /// A BNO055 on its UART: the host sets IMU fusion mode, then reads the data registers (at
+    /// most 100 Hz, 115200 baud).
+    Bno055,
+}
+
+impl ImuProtocol {
+    /// The line speed the part runs at, when fixed.
+    pub fn fixed_baud(self) -> Option<u32> {
+        match self {
+            Self::Wit => None,
+            Self::Bno08xRvc => Some(rvc::BAUD),
+            Self::Bno055 => Some(bno055::BAUD),
+        }
+    }
 }

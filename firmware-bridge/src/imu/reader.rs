@@ -19,6 +19,7 @@ pub struct ImuReading<I> {
 enum Decoder {
     Wit(WitDecoder),
     Rvc(RvcDecoder),
+    Bno055(super::bno055::Bno055Host),
 }
 
 /// Reads an IMU on a byte stream.
@@ -36,6 +37,16 @@ impl<S: ByteStream> ImuReader<S> {
         Self::speaking(ImuProtocol::Wit, stream)
     }
 
+    /// A reader of an IMU speaking `protocol` on `stream`, sampled at `rate_hz` where the host
+    /// asks (BNO055).
+    pub fn speaking_at(protocol: ImuProtocol, stream: S, rate_hz: f64) -> Self {
+        let mut r = Self::speaking(protocol, stream);
+        if protocol == ImuProtocol::Bno055 {
+            r.decoder = Decoder::Bno055(super::bno055::Bno055Host::new(rate_hz));
+        }
+        r
+    }
+
     /// A reader of an IMU speaking `protocol` on `stream`.
     pub fn speaking(protocol: ImuProtocol, stream: S) -> Self {
         Self {
@@ -43,6 +54,9 @@ impl<S: ByteStream> ImuReader<S> {
             decoder: match protocol {
                 ImuProtocol::Wit => Decoder::Wit(WitDecoder::new()),
                 ImuProtocol::Bno08xRvc => Decoder::Rvc(RvcDecoder::new()),
+                ImuProtocol::Bno055 => {
+                    Decoder::Bno055(super::bno055::Bno055Host::new(super::bno055::RATE_HZ))
+                }
             },
             buf: vec![0; 4096],
             latest: None,
@@ -52,6 +66,12 @@ impl<S: ByteStream> ImuReader<S> {
     /// Decodes everything that has arrived (not waiting) and returns the newest sample so far.
     pub fn poll(&mut self) -> std::io::Result<Option<ImuReading<S::Instant>>> {
         let now = self.stream.now();
+        // A sensor the host asks: the next request, when one is due.
+        if let Decoder::Bno055(host) = &mut self.decoder
+            && let Some(request) = host.request(self.stream.seconds())
+        {
+            self.stream.write_all(request)?;
+        }
         loop {
             let n = self.stream.read_until(&mut self.buf, now)?;
             if n == 0 {
@@ -61,6 +81,7 @@ impl<S: ByteStream> ImuReader<S> {
             match &mut self.decoder {
                 Decoder::Wit(d) => d.feed(&self.buf[..n], |s| newest = Some(*s)),
                 Decoder::Rvc(d) => d.feed(&self.buf[..n], |s| newest = Some(*s)),
+                Decoder::Bno055(h) => h.feed(&self.buf[..n], |s| newest = Some(*s)),
             }
             if let Some(sample) = newest {
                 self.latest = Some(ImuReading {
@@ -77,6 +98,7 @@ impl<S: ByteStream> ImuReader<S> {
         match &self.decoder {
             Decoder::Wit(d) => d.stats(),
             Decoder::Rvc(d) => d.stats(),
+            Decoder::Bno055(h) => h.stats(),
         }
     }
 }

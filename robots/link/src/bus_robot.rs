@@ -523,6 +523,7 @@ impl<S: ByteStream> BusRobot<S> {
             imu: Some(ImuCycle::new(
                 ports.imu,
                 robot.config.imu.protocol,
+                robot.config.imu.rate_hz,
                 robot.config.imu.mounting_rpy_deg,
                 robot.config.imu.gyro_bias,
                 robot.config.imu.accel_bias,

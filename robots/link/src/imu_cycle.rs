@@ -72,6 +72,7 @@ impl<S: ByteStream> ImuCycle<S> {
     pub(crate) fn new(
         stream: S,
         protocol: firmware_bridge::imu::ImuProtocol,
+        rate_hz: f64,
         mounting_rpy_deg: [f64; 3],
         gyro_bias: [f64; 3],
         accel_bias: [f64; 3],
@@ -79,7 +80,7 @@ impl<S: ByteStream> ImuCycle<S> {
     ) -> Self {
         let [r, p, y] = mounting_rpy_deg.map(f64::to_radians);
         Self {
-            reader: ImuReader::speaking(protocol, stream),
+            reader: ImuReader::speaking_at(protocol, stream, rate_hz),
             last: None,
             mount: spatial::quat_of_rpy(r, p, y),
             gyro_bias,
