@@ -839,7 +839,16 @@ impl Robot {
     pub fn bus_wire_time(&self, b: &BusConfig) -> std::time::Duration {
         let devices = self.joints_on(&b.name).count();
         match b.kind {
-            BusKind::MitCan => mit::driver::cycle_wire_time(devices, b.rate),
+            BusKind::MitCan => {
+                let robstride = self
+                    .joints_on(&b.name)
+                    .filter(|(_, j)| {
+                        self.mit_model(&j.model)
+                            .is_some_and(|m| m.family == mit::models::MotorFamily::Robstride)
+                    })
+                    .count();
+                mit::driver::cycle_wire_time(devices - robstride, robstride, b.rate)
+            }
             // The driver programs a Return Delay Time of 0.
             BusKind::Dynamixel if b.fast_reads => {
                 dxl::driver::fast_cycle_wire_time(devices, b.rate, std::time::Duration::ZERO)

@@ -3,8 +3,14 @@
 //! Command (8 bytes, CAN ID = motor ID), big-endian bit fields:
 //! `p[15:8] p[7:0] v[11:4] v[3:0]|kp[11:8] kp[7:0] kd[11:4] kd[3:0]|t[11:8] t[7:0]`.
 //! Each field maps linearly: `u = trunc((clamp(x) − lo)·(2^bits − 1)/(hi − lo))`.
+//!
+//! The same impedance command travels in Robstride's factory protocol too (29-bit IDs, 16-bit
+//! fields: [`super::robstride`]); the frame-level functions at the end of this file
+//! ([`command_frame`], [`special_frame`], [`reply_frame`], [`decode_reply_frame`]) pick the
+//! layout by the model's family, so the driver and the firmware are one for every family.
 
 use super::models::{MotorFamily, MotorModel};
+use crate::can::{CanFrame, CanId};
 
 /// A command in the motor's own units (output shaft): position, velocity, gains, feed-forward torque.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -79,6 +85,8 @@ pub enum MotorFault {
     CommunicationLost,
     /// Overload.
     Overload,
+    /// The encoder was never calibrated (Robstride reports it).
+    Uncalibrated,
     /// A code this driver does not know.
     Unknown(u8),
 }
@@ -107,7 +115,7 @@ impl MotorFault {
             Self::OverCurrent | Self::Overload => 2,
             Self::OverVoltage => 3,
             Self::UnderVoltage => 4,
-            Self::Encoder => 5,
+            Self::Encoder | Self::Uncalibrated => 5,
             Self::MosOverTemperature => 6,
             Self::Stall => 7,
             Self::Unknown(c) => c,
@@ -138,7 +146,7 @@ impl MotorFault {
             Self::UnderVoltage => 9,
             Self::OverCurrent | Self::Stall => 0xA,
             Self::MosOverTemperature => 0xB,
-            Self::OverTemperature | Self::Encoder => 0xC,
+            Self::OverTemperature | Self::Encoder | Self::Uncalibrated => 0xC,
             Self::CommunicationLost => 0xD,
             Self::Overload => 0xE,
             Self::Unknown(c) => c & 0x0F,
@@ -264,7 +272,7 @@ pub fn unpack_command(model: &MotorModel, data: &[u8]) -> Result<MitCommand, Cod
 pub const fn reply_len(family: MotorFamily) -> usize {
     match family {
         MotorFamily::MiniCheetah => 6,
-        MotorFamily::Cubemars | MotorFamily::Damiao => 8,
+        MotorFamily::Cubemars | MotorFamily::Damiao | MotorFamily::Robstride => 8,
     }
 }
 
@@ -272,7 +280,7 @@ fn temperature_byte(celsius: Option<f64>) -> u8 {
     celsius.map_or(0, |c| c.round().clamp(0.0, 255.0) as u8)
 }
 
-/// Packs a reply (the firmware's side). Returns the buffer and its length.
+/// Packs an MIT-mode reply payload (the firmware's side). Returns the buffer and its length.
 pub fn pack_reply(model: &MotorModel, r: &MitReply) -> ([u8; 8], usize) {
     let p = float_to_uint(r.p, -model.p_max, model.p_max, 16);
     let v = float_to_uint(r.v, -model.v_max, model.v_max, 12);
@@ -288,7 +296,8 @@ pub fn pack_reply(model: &MotorModel, r: &MitReply) -> ([u8; 8], usize) {
         0,
     ];
     match model.family {
-        MotorFamily::MiniCheetah => {}
+        // Robstride's state frame is another layout: see `reply_frame`.
+        MotorFamily::MiniCheetah | MotorFamily::Robstride => {}
         MotorFamily::Cubemars => {
             out[6] = temperature_byte(r.temperature);
             out[7] = r.fault.to_cubemars();
@@ -302,7 +311,7 @@ pub fn pack_reply(model: &MotorModel, r: &MitReply) -> ([u8; 8], usize) {
     (out, reply_len(model.family))
 }
 
-/// Decodes a reply (the host's side).
+/// Decodes an MIT-mode reply payload (the host's side).
 pub fn unpack_reply(model: &MotorModel, data: &[u8]) -> Result<MitReply, CodecError> {
     let expected = reply_len(model.family);
     if data.len() != expected {
@@ -322,7 +331,7 @@ pub fn unpack_reply(model: &MotorModel, data: &[u8]) -> Result<MitReply, CodecEr
         ..MitReply::default()
     };
     match model.family {
-        MotorFamily::MiniCheetah => {}
+        MotorFamily::MiniCheetah | MotorFamily::Robstride => {}
         MotorFamily::Cubemars => {
             r.temperature = Some(f64::from(data[6]));
             r.fault = MotorFault::from_cubemars(data[7]);
@@ -335,6 +344,121 @@ pub fn unpack_reply(model: &MotorModel, data: &[u8]) -> Result<MitReply, CodecEr
         }
     }
     Ok(r)
+}
+
+/// The command frame for motor `motor_id` of `model`, every field clamped to its range.
+pub fn command_frame(model: &MotorModel, motor_id: u8, cmd: &MitCommand) -> Result<CanFrame, CodecError> {
+    match model.family {
+        MotorFamily::Robstride => super::robstride::pack_control(model, motor_id, cmd),
+        _ => Ok(CanFrame::new8(
+            CanId::Standard(u16::from(motor_id)),
+            pack_command(model, cmd)?,
+        )),
+    }
+}
+
+/// The frame that enables, disables or zeroes motor `motor_id`; `reply_id` is the host's ID
+/// where the protocol names it (Robstride).
+pub fn special_frame(model: &MotorModel, motor_id: u8, reply_id: u16, which: SpecialFrame) -> CanFrame {
+    match model.family {
+        MotorFamily::Robstride => super::robstride::special(which, motor_id, reply_id as u8),
+        _ => CanFrame::new8(CanId::Standard(u16::from(motor_id)), which.bytes()),
+    }
+}
+
+/// What a frame to a motor asks of it (the firmware's side).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum MotorRequest {
+    /// An impedance command.
+    Command(MitCommand),
+    /// Enable, disable or set zero; `clear_faults` for Robstride's stop with data[0] = 1.
+    Special {
+        /// Which.
+        which: SpecialFrame,
+        /// The request also clears latched faults.
+        clear_faults: bool,
+    },
+    /// A Robstride request beyond the impedance loop: its type, `data2` and data.
+    Other {
+        /// Communication type.
+        comm: u8,
+        /// The identifier's `data2`.
+        data2: u16,
+    },
+}
+
+/// The request in `frame` when it is addressed to motor `motor_id` of `model`; `None` for frames
+/// to others and frames the firmware ignores (a wrong length).
+pub fn decode_request(model: &MotorModel, motor_id: u8, frame: &CanFrame) -> Option<MotorRequest> {
+    match model.family {
+        MotorFamily::Robstride => {
+            use super::robstride::comm;
+            let (kind, data2, target) = super::robstride::split_id(frame.id())?;
+            if target != motor_id {
+                return None;
+            }
+            let first = frame.data().first().copied().unwrap_or(0);
+            let special = |which, clear_faults| Some(MotorRequest::Special { which, clear_faults });
+            match kind {
+                comm::CONTROL => super::robstride::unpack_control(model, data2, frame.data())
+                    .ok()
+                    .map(MotorRequest::Command),
+                comm::ENABLE => special(SpecialFrame::Enable, false),
+                comm::STOP => special(SpecialFrame::Disable, first == 1),
+                comm::SET_ZERO if first == 1 => special(SpecialFrame::SetZero, false),
+                _ => Some(MotorRequest::Other { comm: kind, data2 }),
+            }
+        }
+        _ => {
+            if frame.id() != CanId::Standard(u16::from(motor_id)) {
+                return None;
+            }
+            match SpecialFrame::parse(frame.data()) {
+                Some(which) => Some(MotorRequest::Special {
+                    which,
+                    clear_faults: false,
+                }),
+                None => unpack_command(model, frame.data())
+                    .ok()
+                    .map(MotorRequest::Command),
+            }
+        }
+    }
+}
+
+/// The state frame a motor of `model` answers with, on `reply_id` (the host's ID for Robstride).
+pub fn reply_frame(model: &MotorModel, reply_id: u16, r: &MitReply) -> CanFrame {
+    match model.family {
+        MotorFamily::Robstride => super::robstride::pack_feedback(model, reply_id as u8, r),
+        _ => {
+            let (bytes, len) = pack_reply(model, r);
+            let id = CanId::standard(reply_id & 0x7FF).unwrap_or(CanId::Standard(0));
+            CanFrame::new(id, &bytes[..len]).unwrap_or_else(|| CanFrame::new8(id, bytes))
+        }
+    }
+}
+
+/// A state frame decoded (the host's side) as a motor of `model` sends it: the ID it names the
+/// host by (the reply ID; for Robstride the target byte) and the reply. `None` when it is not
+/// one (another layout, a wrong length).
+pub fn decode_reply_frame(model: &MotorModel, frame: &CanFrame) -> Option<(u16, MitReply)> {
+    match (model.family, frame.id()) {
+        (MotorFamily::Robstride, id) => {
+            let (_, _, host) = super::robstride::split_id(id)?;
+            Some((u16::from(host), super::robstride::unpack_feedback(model, frame)?))
+        }
+        (_, CanId::Standard(raw)) => Some((raw, unpack_reply(model, frame.data()).ok()?)),
+        (_, CanId::Extended(_)) => None,
+    }
+}
+
+/// Whether reply `r` (decoded as `model`) names motor `motor_id`: DaMiao has room for the ID's
+/// low nibble only.
+pub fn reply_names(model: &MotorModel, r: &MitReply, motor_id: u8) -> bool {
+    match model.family {
+        MotorFamily::Damiao => r.motor_id == motor_id & 0x0F,
+        _ => r.motor_id == motor_id,
+    }
 }
 
 #[cfg(test)]
@@ -434,15 +558,17 @@ mod tests {
                 fault: MotorFault::OverTemperature,
                 enabled: Some(true),
             };
-            let (bytes, len) = pack_reply(m, &r);
-            let back = unpack_reply(m, &bytes[..len]).unwrap();
-            assert_eq!(back.motor_id, 5);
+            let reply_id = m.family.default_reply_id(5);
+            let frame = reply_frame(m, reply_id, &r);
+            let (on, back) = decode_reply_frame(m, &frame).unwrap();
+            assert_eq!((on, back.motor_id), (reply_id, 5));
             assert!((back.p - 1.25).abs() < 2.0 * m.p_max / 65535.0);
             assert!((back.v + 3.0).abs() < 2.0 * m.v_max / 4095.0);
             assert!((back.t - 2.5).abs() < 2.0 * m.t_max / 4095.0);
             assert_eq!(back.fault, MotorFault::OverTemperature, "{}", m.name);
             assert_eq!(back.temperature, Some(41.0));
-            assert!(unpack_reply(m, &bytes[..len - 1]).is_err());
+            let short = CanFrame::new(frame.id(), &frame.data()[..frame.data().len() - 1]).unwrap();
+            assert!(decode_reply_frame(m, &short).is_none());
         }
     }
 

@@ -8,15 +8,20 @@
 
 use std::time::Duration;
 
-use super::codec::{CodecError, MitCommand, MotorFault, SpecialFrame, pack_command, unpack_reply};
+use super::codec::{
+    CodecError, MitCommand, MotorFault, SpecialFrame, command_frame, decode_reply_frame, reply_names,
+    special_frame,
+};
 use super::models::MotorModel;
 use crate::can::{CanBus, CanError, CanFrame, CanId};
 use crate::time::BusInstant;
 
-/// Wire time of one cycle of `motors` motors at `bitrate`: a command and a reply each, every
-/// frame at its worst-case length (8 data bytes, every stuff bit).
-pub fn cycle_wire_time(motors: usize, bitrate: u32) -> Duration {
-    let bits = motors as u64 * 2 * u64::from(crate::can::wire_time::worst_case_bits(8, false));
+/// Wire time of one cycle at `bitrate` of `mit` MIT-mode motors (11-bit IDs) and `robstride`
+/// Robstride motors (29-bit IDs): a command and a reply each, every frame at its worst-case length
+/// (8 data bytes, every stuff bit).
+pub fn cycle_wire_time(mit: usize, robstride: usize, bitrate: u32) -> Duration {
+    let frame = |extended| u64::from(crate::can::wire_time::worst_case_bits(8, extended));
+    let bits = 2 * (mit as u64 * frame(false) + robstride as u64 * frame(true));
     Duration::from_nanos((bits * 1_000_000_000).div_ceil(u64::from(bitrate.max(1))))
 }
 
@@ -329,11 +334,10 @@ impl<B: CanBus> MitBusDriver<B> {
             if super::codec::needs_clamp(&j.model, &cmd) {
                 report.clamped += 1;
             }
-            let bytes = pack_command(&j.model, &cmd).map_err(|source| MitError::Command {
+            frames[i] = command_frame(&j.model, j.motor_id, &cmd).map_err(|source| MitError::Command {
                 joint: j.name.clone(),
                 source,
             })?;
-            frames[i] = CanFrame::new8(CanId::Standard(u16::from(j.motor_id)), bytes);
         }
         // Replies that came after their cycle's deadline would pass for this cycle's (MIT replies
         // carry no sequence number): drop what has arrived before the commands go out.
@@ -390,36 +394,43 @@ impl<B: CanBus> MitBusDriver<B> {
 
     /// Decodes one received frame into its joint's feedback, or counts why it was rejected.
     fn accept(&mut self, frame: &CanFrame) -> Result<(), ()> {
-        let CanId::Standard(raw) = frame.id() else {
-            self.stats.rejects.unknown_id += 1;
-            return Err(());
-        };
-        let Some(first) = frame.data().first().copied() else {
-            self.stats.rejects.wrong_length += 1;
-            return Err(());
-        };
         // CubeMars replies share one ID: the payload's first byte names the motor. DaMiao puts its
         // state in that byte's high nibble; its low nibble and the reply ID name the motor.
-        let index = self.joints.iter().position(|j| {
-            j.reply_id == raw
-                && match j.model.family {
-                    super::models::MotorFamily::Damiao => first & 0x0F == j.motor_id & 0x0F,
-                    _ => first == j.motor_id,
-                }
-        });
-        let Some(i) = index else {
-            if self.joints.iter().any(|j| j.reply_id == raw) {
+        // Robstride names motor and host in the 29-bit ID.
+        let mut known_id = false;
+        let mut decoded = None;
+        let mut short = false;
+        for (i, j) in self.joints.iter().enumerate() {
+            let addressed = match j.model.family {
+                super::models::MotorFamily::Robstride => super::robstride::split_id(frame.id())
+                    .is_some_and(|(_, _, host)| u16::from(host) == j.reply_id),
+                _ => frame.id() == CanId::Standard(j.reply_id),
+            };
+            if !addressed {
+                continue;
+            }
+            let Some((_, r)) = decode_reply_frame(&j.model, frame) else {
+                // On a reply ID, only the length fails to decode (or, for Robstride, another type).
+                short |= frame.data().len() != super::codec::reply_len(j.model.family);
+                continue;
+            };
+            known_id = true;
+            if reply_names(&j.model, &r, j.motor_id) {
+                decoded = Some((i, r));
+                break;
+            }
+        }
+        let Some((i, r)) = decoded else {
+            if known_id {
                 self.stats.rejects.unknown_motor += 1;
+            } else if short {
+                self.stats.rejects.wrong_length += 1;
             } else {
                 self.stats.rejects.unknown_id += 1;
             }
             return Err(());
         };
         let j = &self.joints[i];
-        let Ok(r) = unpack_reply(&j.model, frame.data()) else {
-            self.stats.rejects.wrong_length += 1;
-            return Err(());
-        };
         if self.answered[i] {
             self.stats.rejects.duplicate += 1;
             return Err(());
@@ -444,10 +455,8 @@ impl<B: CanBus> MitBusDriver<B> {
     fn special_all(&mut self, which: SpecialFrame) -> Result<(), MitError> {
         for _ in 0..SPECIAL_TRIES {
             for j in &self.joints {
-                self.bus.send(&CanFrame::new8(
-                    CanId::Standard(u16::from(j.motor_id)),
-                    which.bytes(),
-                ))?;
+                self.bus
+                    .send(&special_frame(&j.model, j.motor_id, j.reply_id, which))?;
             }
             self.reply_deadline = None;
             let mut report = CycleReport::default();
@@ -500,23 +509,14 @@ fn ask_once<B: CanBus>(
     id: u8,
     timeout: Duration,
 ) -> Result<Option<ScanHit>, CanError> {
-    bus.send(&CanFrame::new8(
-        CanId::Standard(u16::from(id)),
-        SpecialFrame::Disable.bytes(),
-    ))?;
+    let host = model.family.default_reply_id(id);
+    bus.send(&special_frame(model, id, host, SpecialFrame::Disable))?;
     let deadline = bus.now() + timeout;
     while let Some(frame) = bus.recv_until(deadline)? {
-        let CanId::Standard(reply_id) = frame.id() else {
+        let Some((reply_id, reply)) = decode_reply_frame(model, &frame) else {
             continue;
         };
-        let Ok(reply) = unpack_reply(model, frame.data()) else {
-            continue;
-        };
-        let named = match model.family {
-            super::models::MotorFamily::Damiao => reply.motor_id == id & 0x0F,
-            _ => reply.motor_id == id,
-        };
-        if named {
+        if reply_names(model, &reply, id) {
             return Ok(Some(ScanHit {
                 motor_id: id,
                 reply_id,

@@ -8,12 +8,19 @@
 //! - A command timeout drops torque (DaMiao reports "communication lost").
 //! - A first-order thermal model heats with τ² and faults above the limit; faults latch until a
 //!   disable → enable cycle after cooling, as the motors do.
+//! - Robstride's factory protocol: the same loop behind its frames, plus get-ID, a parameter
+//!   table (run mode, torque limit, position, velocity, current, bus voltage), stop-with-clear,
+//!   and the impedance law only in run mode 0 (operation control); the run mode changes only
+//!   while stopped, as on the motor.
 
 use std::time::Duration;
 
-use super::codec::{MitCommand, MitReply, MotorFault, SpecialFrame, pack_reply, unpack_command};
+use super::codec::{
+    MitCommand, MitReply, MotorFault, MotorRequest, SpecialFrame, decode_request, reply_frame,
+};
 use super::models::{MotorFamily, MotorModel};
-use crate::can::{CanFrame, CanId};
+use super::robstride::{self, comm, param};
+use crate::can::CanFrame;
 use crate::plant::MotorPlant;
 use crate::time::SimInstant;
 
@@ -79,6 +86,10 @@ pub struct MitMotorFirmware {
     torque: f64,
     injected: InjectedFaults,
     frames_answered: u64,
+    /// Robstride's run mode (0: operation control, the impedance law).
+    run_mode: u8,
+    /// The torque clamp in force, N·m (Robstride's limit_torque; the model's range elsewhere).
+    torque_limit: f64,
 }
 
 impl MitMotorFirmware {
@@ -86,7 +97,6 @@ impl MitMotorFirmware {
     pub fn new(cfg: MitFirmwareConfig) -> Self {
         Self {
             temperature: cfg.ambient_c,
-            cfg,
             enabled: false,
             zero: 0.0,
             command: MitCommand::default(),
@@ -95,18 +105,22 @@ impl MitMotorFirmware {
             torque: 0.0,
             injected: InjectedFaults::default(),
             frames_answered: 0,
+            run_mode: 0,
+            torque_limit: cfg.model.t_max,
+            cfg,
         }
     }
 
     /// The shaft angle the motor is holding towards (rad, plant frame), while enabled with
     /// stiffness: what a simulator's position actuator should track instead of the PD torque.
     pub fn position_goal(&self) -> Option<f64> {
-        (self.enabled && self.command.kp > 0.0).then_some(self.command.p + self.zero)
+        (self.enabled && self.run_mode == 0 && self.command.kp > 0.0).then_some(self.command.p + self.zero)
     }
 
-    /// The most torque the motor gives, N·m: its model's clamp.
+    /// The most torque the motor gives, N·m: its model's clamp, or a lower limit set in its
+    /// parameters.
     pub fn torque_cap(&self) -> f64 {
-        self.cfg.model.t_max
+        self.torque_limit
     }
 
     /// The command being executed (motor units), as last received.
@@ -164,11 +178,36 @@ impl MitMotorFirmware {
         frame: &CanFrame,
         plant: &dyn MotorPlant,
     ) -> Option<CanFrame> {
-        if self.injected.silent || frame.id() != CanId::Standard(u16::from(self.cfg.motor_id)) {
+        if self.injected.silent {
             return None;
         }
-        match SpecialFrame::parse(frame.data()) {
-            Some(SpecialFrame::Enable) => {
+        // A frame of the wrong length, or for another motor, is ignored: no reply.
+        let request = decode_request(&self.cfg.model, self.cfg.motor_id, frame)?;
+        let reply = match request {
+            MotorRequest::Special { which, clear_faults } => {
+                self.special(now, which, clear_faults, plant);
+                self.reply(plant)
+            }
+            MotorRequest::Command(cmd) => {
+                if self.enabled && self.run_mode == 0 {
+                    self.command = cmd;
+                }
+                self.last_command = Some(now);
+                self.reply(plant)
+            }
+            MotorRequest::Other { comm, data2: _ } => self.robstride_request(comm, frame, plant)?,
+        };
+        if self.injected.lost_replies > 0 {
+            self.injected.lost_replies -= 1;
+            return None;
+        }
+        self.frames_answered += 1;
+        Some(reply)
+    }
+
+    fn special(&mut self, now: SimInstant, which: SpecialFrame, clear_faults: bool, plant: &dyn MotorPlant) {
+        match which {
+            SpecialFrame::Enable => {
                 let cooled = self.temperature < self.cfg.temperature_limit_c - 10.0;
                 if self.injected.fault.is_none() && (self.fault == MotorFault::None || cooled) {
                     self.fault = MotorFault::None;
@@ -178,31 +217,76 @@ impl MitMotorFirmware {
                     self.last_command = Some(now);
                 }
             }
-            Some(SpecialFrame::Disable) => {
+            SpecialFrame::Disable => {
                 self.enabled = false;
                 self.torque = 0.0;
+                let cooled = self.temperature < self.cfg.temperature_limit_c - 10.0;
+                if clear_faults && self.injected.fault.is_none() && cooled {
+                    self.fault = MotorFault::None;
+                }
             }
-            Some(SpecialFrame::SetZero) => {
+            SpecialFrame::SetZero => {
                 // Real firmware only rebases while disabled; enabled, it is refused silently.
                 if !self.enabled {
                     self.zero = plant.position();
                 }
             }
-            None => {
-                // A frame of the wrong length is ignored by the firmware: no reply.
-                let cmd = unpack_command(&self.cfg.model, frame.data()).ok()?;
-                if self.enabled {
-                    self.command = cmd;
-                }
-                self.last_command = Some(now);
+        }
+    }
+
+    /// Robstride's requests beyond the loop: get ID, parameters. `None`: not answered.
+    fn robstride_request(&mut self, kind: u8, frame: &CanFrame, plant: &dyn MotorPlant) -> Option<CanFrame> {
+        let motor = self.cfg.motor_id;
+        let host = self.cfg.reply_id as u8;
+        match kind {
+            comm::GET_ID => {
+                // The MCU's unique ID: fixed per motor here.
+                let uid = 0x5253_0000_0000_0000u64 | u64::from(motor);
+                Some(CanFrame::new8(
+                    robstride::frame_id(comm::GET_ID, u16::from(motor), 0xFE),
+                    uid.to_le_bytes(),
+                ))
             }
+            comm::READ_PARAM => {
+                let (index, _) = robstride::param_of(frame.data())?;
+                let f = |v: f64| (v as f32).to_le_bytes();
+                let value = match index {
+                    param::RUN_MODE => Some([self.run_mode, 0, 0, 0]),
+                    param::LIMIT_TORQUE => Some(f(self.torque_limit)),
+                    param::MECH_POS => Some(f(plant.position() - self.zero)),
+                    param::MECH_VEL => Some(f(plant.velocity())),
+                    // The q-axis current behind the torque (a torque constant of 1 N·m/A here).
+                    param::IQF => Some(f(self.torque)),
+                    param::VBUS => Some(f(48.0)),
+                    _ => None,
+                };
+                let i = index.to_le_bytes();
+                let v = value.unwrap_or([0; 4]);
+                // Bit 16 of the answer marks an index the motor does not have.
+                let data2 = u16::from(motor) | u16::from(value.is_none()) << 8;
+                Some(CanFrame::new8(
+                    robstride::frame_id(comm::READ_PARAM, data2, host),
+                    [i[0], i[1], 0, 0, v[0], v[1], v[2], v[3]],
+                ))
+            }
+            comm::WRITE_PARAM => {
+                let (index, v) = robstride::param_of(frame.data())?;
+                match index {
+                    // The mode changes only while stopped, and to a mode the motor has.
+                    param::RUN_MODE if !self.enabled && v[0] <= 3 => self.run_mode = v[0],
+                    param::LIMIT_TORQUE => {
+                        let limit = f64::from(f32::from_le_bytes(v));
+                        if limit.is_finite() && limit >= 0.0 {
+                            self.torque_limit = limit.min(self.cfg.model.t_max);
+                        }
+                    }
+                    _ => {}
+                }
+                Some(self.reply(plant))
+            }
+            // Set CAN ID, fault report and the rest: not emulated, not answered.
+            _ => None,
         }
-        if self.injected.lost_replies > 0 {
-            self.injected.lost_replies -= 1;
-            return None;
-        }
-        self.frames_answered += 1;
-        Some(self.reply(plant))
     }
 
     fn reply(&self, plant: &dyn MotorPlant) -> CanFrame {
@@ -216,9 +300,7 @@ impl MitMotorFirmware {
             fault: self.fault,
             enabled: Some(self.enabled),
         };
-        let (bytes, len) = pack_reply(&self.cfg.model, &r);
-        let id = CanId::standard(self.cfg.reply_id & 0x7FF).unwrap_or(CanId::Standard(0));
-        CanFrame::new(id, &bytes[..len]).unwrap_or_else(|| CanFrame::new8(id, bytes))
+        reply_frame(&self.cfg.model, self.cfg.reply_id, &r)
     }
 
     /// One firmware period of `dt`: timeout and thermal checks, then the PD law onto the plant.
@@ -242,11 +324,11 @@ impl MitMotorFirmware {
         if faulted {
             self.enabled = false;
         }
-        self.torque = if self.enabled {
+        self.torque = if self.enabled && self.run_mode == 0 {
             let c = &self.command;
             let p = plant.position() - self.zero;
             let v = plant.velocity();
-            (c.kp * (c.p - p) + c.kd * (c.v - v) + c.t).clamp(-self.cfg.model.t_max, self.cfg.model.t_max)
+            (c.kp * (c.p - p) + c.kd * (c.v - v) + c.t).clamp(-self.torque_limit, self.torque_limit)
         } else {
             0.0
         };
@@ -257,6 +339,7 @@ impl MitMotorFirmware {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::can::CanId;
     use crate::mit::codec::{pack_command, unpack_reply};
     use crate::mit::models::find;
     use crate::plant::InertiaPlant;
@@ -470,5 +553,111 @@ mod tests {
             unpack_reply(model, r.data()).unwrap().fault,
             MotorFault::OverCurrent
         );
+    }
+    #[test]
+    fn a_robstride_motor_runs_the_loop_behind_its_factory_frames() {
+        let model = find("RS03").unwrap();
+        let mut fw = MitMotorFirmware::new(MitFirmwareConfig::new(4, model));
+        let mut plant = InertiaPlant::new(0.02, 0.1, 0.0, 0.0);
+        let mut t = SimInstant::ZERO;
+        let host = robstride::DEFAULT_HOST_ID;
+        let feedback = |f: &CanFrame| robstride::unpack_feedback(model, f).unwrap();
+        // Frames for another motor, or in MIT layout, go unanswered.
+        assert!(
+            fw.on_frame(t, &robstride::special(SpecialFrame::Enable, 5, host), &plant)
+                .is_none()
+        );
+        assert!(
+            fw.on_frame(t, &special(4, SpecialFrame::Enable), &plant)
+                .is_none()
+        );
+        let r = fw
+            .on_frame(t, &robstride::special(SpecialFrame::Enable, 4, host), &plant)
+            .unwrap();
+        assert_eq!(
+            robstride::split_id(r.id()).map(|(c, _, h)| (c, h)),
+            Some((comm::FEEDBACK, host))
+        );
+        assert_eq!(feedback(&r).enabled, Some(true));
+        // The run mode changes only while stopped.
+        let run_mode = |m: u8| robstride::write_param(4, host, param::RUN_MODE, [m, 0, 0, 0]);
+        fw.on_frame(t, &run_mode(2), &plant).unwrap();
+        let read = fw
+            .on_frame(t, &robstride::read_param(4, host, param::RUN_MODE), &plant)
+            .unwrap();
+        assert_eq!(
+            robstride::param_of(read.data()),
+            Some((param::RUN_MODE, [0, 0, 0, 0]))
+        );
+        // A torque limit below the model's clamps the law.
+        let limit = robstride::write_param(4, host, param::LIMIT_TORQUE, 5.0f32.to_le_bytes());
+        fw.on_frame(t, &limit, &plant).unwrap();
+        let step = MitCommand {
+            p: 1.0,
+            kp: 500.0,
+            kd: 5.0,
+            ..MitCommand::default()
+        };
+        fw.on_frame(t, &robstride::pack_control(model, 4, &step).unwrap(), &plant)
+            .unwrap();
+        fw.tick(t, DT, &mut plant);
+        assert!((fw.torque() - 5.0).abs() < 1e-9, "{}", fw.torque());
+        for _ in 0..2000 {
+            let f = robstride::pack_control(model, 4, &MitCommand { kp: 50.0, ..step }).unwrap();
+            fw.on_frame(t, &f, &plant);
+            fw.tick(t, DT, &mut plant);
+            plant.integrate(DT.as_secs_f64());
+            t = t + DT;
+        }
+        let hold = robstride::pack_control(model, 4, &MitCommand { kp: 50.0, ..step }).unwrap();
+        let r = feedback(&fw.on_frame(t, &hold, &plant).unwrap());
+        assert!((r.p - 1.0).abs() < 0.01, "{r:?}");
+        let vbus = fw
+            .on_frame(t, &robstride::read_param(4, host, param::VBUS), &plant)
+            .unwrap();
+        assert_eq!(
+            robstride::param_of(vbus.data()),
+            Some((param::VBUS, 48.0f32.to_le_bytes()))
+        );
+        let pos = fw
+            .on_frame(t, &robstride::read_param(4, host, param::MECH_POS), &plant)
+            .unwrap();
+        let pos = f32::from_le_bytes(robstride::param_of(pos.data()).unwrap().1);
+        assert!((f64::from(pos) - r.p).abs() < 1e-3, "{pos}");
+        // An unknown index is answered with bit 16 set.
+        let unknown = fw
+            .on_frame(t, &robstride::read_param(4, host, 0x7FFF), &plant)
+            .unwrap();
+        assert_eq!(
+            robstride::split_id(unknown.id()).map(|(_, d2, _)| d2 >> 8),
+            Some(1)
+        );
+        // Get ID: type 0 to 0xFE, the motor ID in data2.
+        let id = fw
+            .on_frame(
+                t,
+                &CanFrame::new8(robstride::frame_id(comm::GET_ID, u16::from(host), 4), [0; 8]),
+                &plant,
+            )
+            .unwrap();
+        assert_eq!(robstride::split_id(id.id()), Some((comm::GET_ID, 4, 0xFE)));
+        // An overheated motor reports it in the ID; stop with data[0] = 1 clears it once cool.
+        fw.inject(InjectedFaults {
+            fault: Some(MotorFault::OverTemperature),
+            ..InjectedFaults::default()
+        });
+        fw.tick(t, DT, &mut plant);
+        let r = feedback(
+            &fw.on_frame(t, &robstride::special(SpecialFrame::Enable, 4, host), &plant)
+                .unwrap(),
+        );
+        assert_eq!((r.fault, r.enabled), (MotorFault::OverTemperature, Some(false)));
+        fw.inject(InjectedFaults::default());
+        let stop = CanFrame::new8(
+            robstride::frame_id(comm::STOP, u16::from(host), 4),
+            [1, 0, 0, 0, 0, 0, 0, 0],
+        );
+        let r = feedback(&fw.on_frame(t, &stop, &plant).unwrap());
+        assert_eq!(r.fault, MotorFault::None);
     }
 }

@@ -14,15 +14,20 @@ pub enum MotorFamily {
     Damiao,
     /// Original Mini Cheetah firmware: 6 bytes `[id, p16, v12|i12]`.
     MiniCheetah,
+    /// Robstride RS0x in the factory protocol: 29-bit IDs carrying the frame type, 16-bit fields
+    /// (see [`super::robstride`]); state frames go to the host's ID.
+    Robstride,
 }
 
 impl MotorFamily {
     /// The CAN ID a motor of this family replies on by default: CubeMars and Mini Cheetah answer
-    /// the host on ID 0; DaMiao answers on its master ID, commonly set to motor ID + 0x10.
+    /// the host on ID 0; DaMiao answers on its master ID, commonly set to motor ID + 0x10;
+    /// Robstride addresses its state frames to the host ID the factory tools use, 0xFD.
     pub const fn default_reply_id(self, motor_id: u8) -> u16 {
         match self {
             Self::Damiao => motor_id as u16 + 0x10,
             Self::Cubemars | Self::MiniCheetah => 0,
+            Self::Robstride => super::robstride::DEFAULT_HOST_ID as u16,
         }
     }
 }
