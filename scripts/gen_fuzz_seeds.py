@@ -7,6 +7,9 @@ mutates them into the ones it must refuse. None is third-party material:
   rvc_stream/      BNO08x UART-RVC frames: the datasheet's example frame, and three frames in a row.
   bno055_uart/     BNO055 UART traffic: the mode write and its acknowledgement, a data-block read
                    request and its answer.
+  mit_frames/      CAN motor frames (4-byte little-endian identifier, top bit = 29-bit, then the
+                   data): an MIT-mode enable and command to motor 1, Robstride enable, control
+                   and feedback frames for motor 2 and host 0xFD.
   udp_command/     operator command datagrams (`play --command-udp`): a valid version-1 message,
                    and one with a value out of range.
   osc_vmc/         VMC tracker datagrams as a VR bridge sends them (a bundle of headset and
@@ -79,6 +82,15 @@ block = bytearray(32)
 block[4:6] = struct.pack("<h", 981)
 block[24:26] = struct.pack("<h", 16384)
 write("bno055_uart", "mode_and_read", bytes([0xAA, 0x00, 0x3D, 0x01, 0x08, 0xEE, 0x01, 0xAA, 0x01, 0x08, 0x20, 0xBB, 0x20]) + bytes(block))
+def can_frame(ident, data, extended=False):
+    return struct.pack("<I", ident | (0x8000_0000 if extended else 0)) + bytes(data)
+
+
+write("mit_frames", "mit_enable", can_frame(1, [0xFF] * 7 + [0xFC]))
+write("mit_frames", "mit_command", can_frame(1, [0x7F, 0xFF, 0x7F, 0xF0, 0x33, 0x33, 0x37, 0xFF]))
+write("mit_frames", "robstride_enable", can_frame(0x03 << 24 | 0xFD << 8 | 2, [0] * 8, True))
+write("mit_frames", "robstride_control", can_frame(0x01 << 24 | 0x7FFF << 8 | 2, struct.pack(">4H", 0x7FFF, 0x7FFF, 0x0800, 0x0400), True))
+write("mit_frames", "robstride_feedback", can_frame(0x02 << 24 | 2 << 22 | 2 << 8 | 0xFD, struct.pack(">4H", 0x8000, 0x7FFF, 0x7FFF, 250), True))
 write("udp_command", "walk", b'{"version": 1, "seq": 17, "command": [0.3, 0.0, -0.5]}')
 write("udp_command", "too_fast", b'{"version": 1, "seq": 18, "command": [3.0, 0.0, 0.0]}')
 

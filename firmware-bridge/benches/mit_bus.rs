@@ -5,14 +5,16 @@
 //!    running the real driver against emulated motors; shown at 50 Hz and 500 Hz.
 //! 2. Host CPU per cycle: encode every command and decode every reply for one bus (driver
 //!    bookkeeping included, transport excluded), p50/p99 over many cycles.
+//! 3. Robstride's factory protocol beside MIT mode on one bus, N = 4, 8, 20: wire time per cycle
+//!    (29-bit identifiers cost 20 bits more per frame, before stuffing) and host CPU per cycle.
 //!
 //! Run: `cargo bench -p firmware-bridge --bench mit_bus`
 
 use std::time::{Duration, Instant};
 
 use firmware_bridge::can::virtual_bus::VirtualCanBus;
-use firmware_bridge::can::{CanBus, CanError, CanFrame, CanId};
-use firmware_bridge::mit::codec::{MitReply, pack_reply};
+use firmware_bridge::can::{CanBus, CanError, CanFrame};
+use firmware_bridge::mit::codec::{MitReply, reply_frame};
 use firmware_bridge::mit::driver::{JointCommand, MitBusDriver, MitJointConfig};
 use firmware_bridge::mit::firmware::MitFirmwareConfig;
 use firmware_bridge::mit::models::{MotorModel, find};
@@ -40,8 +42,8 @@ fn commands(n: usize, k: usize) -> Vec<JointCommand> {
 }
 
 /// Bits per cycle on the busiest bus, from the wire model's counters over real driver cycles.
-fn busiest_bus_bits(motors: usize, buses: usize) -> u64 {
-    let model = find("AK80-9").unwrap();
+fn busiest_bus_bits(model: &str, motors: usize, buses: usize) -> u64 {
+    let model = find(model).unwrap();
     let wires: Vec<VirtualCanBus> = (0..buses)
         .map(|b| VirtualCanBus::new(&format!("can{b}"), BITRATE))
         .collect();
@@ -77,6 +79,7 @@ fn busiest_bus_bits(motors: usize, buses: usize) -> u64 {
 struct ReplayBus {
     replies: Vec<CanFrame>,
     next: usize,
+    sent: usize,
 }
 
 impl CanBus for ReplayBus {
@@ -85,9 +88,11 @@ impl CanBus for ReplayBus {
         Instant::now()
     }
     fn send(&mut self, frame: &CanFrame) -> Result<(), CanError> {
-        if frame.id() == CanId::Standard(1) {
+        // A cycle's first command: its replies are handed back from the start.
+        if self.sent.is_multiple_of(self.replies.len()) {
             self.next = 0;
         }
+        self.sent += 1;
         std::hint::black_box(frame);
         Ok(())
     }
@@ -98,14 +103,15 @@ impl CanBus for ReplayBus {
     }
 }
 
-fn host_cpu(motors: usize, quick: bool) -> Summary {
-    let model = find("AK80-9").unwrap();
+fn host_cpu(model: &str, motors: usize, quick: bool) -> Summary {
+    let model = find(model).unwrap();
     let joints: Vec<_> = (0..motors).map(|i| joint(i, model)).collect();
     let replies = joints
         .iter()
         .map(|j| {
-            let (b, n) = pack_reply(
+            reply_frame(
                 model,
+                j.reply_id,
                 &MitReply {
                     motor_id: j.motor_id,
                     p: 0.1,
@@ -113,12 +119,15 @@ fn host_cpu(motors: usize, quick: bool) -> Summary {
                     t: 0.3,
                     ..MitReply::default()
                 },
-            );
-            CanFrame::new(CanId::Standard(j.reply_id), &b[..n]).unwrap()
+            )
         })
         .collect();
-    let mut driver =
-        MitBusDriver::new(ReplayBus { replies, next: 0 }, joints, Duration::from_millis(1)).unwrap();
+    let bus = ReplayBus {
+        replies,
+        next: 0,
+        sent: 0,
+    };
+    let mut driver = MitBusDriver::new(bus, joints, Duration::from_millis(1)).unwrap();
     let cmds = commands(motors, 0);
     let n = if quick { 200 } else { 50_000 };
     let mut samples = Vec::with_capacity(n);
@@ -143,7 +152,7 @@ fn main() {
     );
     for motors in [6, 12, 20] {
         for buses in [1, 2, 4] {
-            let bits = busiest_bus_bits(motors, buses);
+            let bits = busiest_bus_bits("AK80-9", motors, buses);
             let wire_us = bits as f64 * 1e6 / f64::from(BITRATE);
             let load = |hz: f64| 100.0 * bits as f64 * hz / f64::from(BITRATE);
             let over = if load(500.0) > 100.0 {
@@ -161,7 +170,18 @@ fn main() {
     println!();
     println!("host CPU per cycle (encode all commands + decode all replies, one bus):");
     for motors in [6, 12, 20] {
-        let s = host_cpu(motors, quick);
+        let s = host_cpu("AK80-9", motors, quick);
         println!("  {motors:>2} motors: {s}");
+    }
+    println!();
+    println!("Robstride (factory protocol, 29-bit IDs) vs MIT mode, one bus at 1 Mbit/s:");
+    println!(
+        "{:>7} {:>22} {:>22}   host CPU per cycle (Robstride)",
+        "motors", "wire µs/cycle MIT", "wire µs/cycle RS"
+    );
+    for motors in [4, 8, 20] {
+        let us = |model| busiest_bus_bits(model, motors, 1) as f64 * 1e6 / f64::from(BITRATE);
+        let s = host_cpu("RS03", motors, quick);
+        println!("{motors:>7} {:>22.1} {:>22.1}   {s}", us("AK80-9"), us("RS03"));
     }
 }

@@ -33,7 +33,23 @@ fn player(
     mirror: MirrorConfig,
     options: PlayOptions,
 ) -> (MirrorPlayer, LockstepClock, Arc<Mutex<Mirror>>) {
-    let robot = Robot::load(&reference_robot_path()).unwrap();
+    player_on(
+        Robot::load(&reference_robot_path()).unwrap(),
+        policy,
+        clip,
+        mirror,
+        options,
+    )
+}
+
+/// [`player`] on `robot` (rd-biped or a variant of its file).
+fn player_on(
+    robot: Robot,
+    policy: PathBuf,
+    clip: PathBuf,
+    mirror: MirrorConfig,
+    options: PlayOptions,
+) -> (MirrorPlayer, LockstepClock, Arc<Mutex<Mirror>>) {
     let layout = PolicyLayout::load(&policy, &robot).unwrap();
     let reference =
         Reference::from_clip(&Clip::load(&clip).unwrap(), &robot, layout.manifest.rate_hz).unwrap();
@@ -91,6 +107,78 @@ fn the_biped_squats_with_the_reference_follower_and_the_log_shows_the_state_mach
         "{s}"
     );
     assert_eq!(s.transitions[3].cause, Cause::ClipFinished);
+}
+
+#[test]
+fn the_biped_with_its_left_leg_on_robstride_motors_squats_as_well() {
+    // The left leg's six motors swapped for Robstrides of the same class, sharing can0 in the
+    // factory protocol; the right leg stays on MIT mode.
+    let text = std::fs::read_to_string(reference_robot_path()).unwrap();
+    let swapped: String = text
+        .split("[[joints]]")
+        .map(|block| {
+            if block.contains("bus = \"can0\"") {
+                block
+                    .replace("model = \"AK80-9\"", "model = \"RS02\"")
+                    .replace("model = \"AK10-9\"", "model = \"RS03\"")
+                    .replace("model = \"DM-J4340\"", "model = \"RS03\"")
+                    .replace("model = \"DM-J4310\"", "model = \"RS00\"")
+            } else {
+                block.to_owned()
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("[[joints]]");
+    let robot = Robot::from_str(&reference_robot_path(), &swapped).unwrap();
+    let family = |name: &str| {
+        let j = robot.config.joints.iter().find(|j| j.name == name).unwrap();
+        robot.mit_model(&j.model).unwrap().family
+    };
+    use firmware_bridge::mit::models::MotorFamily;
+    assert_eq!(family("left_knee"), MotorFamily::Robstride);
+    assert_eq!(family("right_knee"), MotorFamily::Cubemars);
+    // `calibrate identify`'s question: the Robstrides give their unique ID and torque limit.
+    {
+        let world = Arc::new(Mutex::new(
+            Mirror::new(robot.clone(), MirrorConfig::default()).unwrap(),
+        ));
+        let mut link = sim2real::link::lockstep_robot(&robot, &world).unwrap();
+        link.identify().unwrap();
+        let ids = link.identities().unwrap();
+        let knee = ids.iter().find(|d| d.joint == "left_knee").unwrap();
+        assert!(knee.answer.starts_with("RS03 uid 52530000"), "{knee:?}");
+        assert_eq!(knee.torque_limit_nm, 60.0);
+        let right = ids.iter().find(|d| d.joint == "right_knee").unwrap();
+        assert!(right.answer.starts_with("AK10-9 reply from"), "{right:?}");
+    }
+    let (mut p, mut clock, world) = player_on(
+        robot,
+        follower(),
+        biped("clips/squat.csv"),
+        MirrorConfig::default(),
+        PlayOptions::default(),
+    );
+    let s = p.run(&mut clock).unwrap();
+    assert!(!s.fell, "{s}");
+    assert!(s.joint_rmse.to_degrees() < 3.0, "{s}");
+    assert_eq!(s.transitions[3].cause, Cause::ClipFinished, "{s}");
+    // The left leg's motors ran the factory protocol and answered every tick's frame.
+    let mut w = world.lock().unwrap();
+    let knee = w
+        .robot()
+        .config
+        .joints
+        .iter()
+        .position(|j| j.name == "left_knee")
+        .unwrap();
+    let ticks = s.ticks;
+    let motor = w.motor_mut(knee).unwrap();
+    assert_eq!(motor.config().model.family, MotorFamily::Robstride);
+    assert!(
+        motor.frames_answered() >= ticks,
+        "{} frames for {ticks} ticks",
+        motor.frames_answered()
+    );
 }
 
 fn transition(s: &PlaySummary, to: Mode) -> Option<&controller::safety::Transition> {

@@ -140,9 +140,6 @@ fn print_timing(robot: &Robot, bus: &str) {
 
 fn scan_mit<B: CanBus>(robot: &Robot, bus: &str, port: &mut B, timeout: Duration) -> Result<usize> {
     let joints: Vec<_> = robot.joints_on(bus).map(|(_, j)| j).collect();
-    let model = robot
-        .mit_model(&joints[0].model)
-        .context("model checked at load")?;
     let last = joints
         .iter()
         .map(|j| j.id)
@@ -150,7 +147,26 @@ fn scan_mit<B: CanBus>(robot: &Robot, bus: &str, port: &mut B, timeout: Duration
         .unwrap_or(0)
         .saturating_add(2)
         .min(127);
-    let hits = mit::driver::scan(port, model, 1..=last, timeout)?;
+    // Each protocol on the bus (MIT mode, Robstride's factory protocol) is asked in its own
+    // frames, once, with the first model of that family.
+    let mut hits = Vec::new();
+    let mut asked = Vec::new();
+    for j in &joints {
+        let model = robot.mit_model(&j.model).context("model checked at load")?;
+        if asked.contains(&model.family) {
+            continue;
+        }
+        asked.push(model.family);
+        for hit in mit::driver::scan(port, model, 1..=last, timeout)? {
+            if !hits
+                .iter()
+                .any(|h: &mit::driver::ScanHit| h.motor_id == hit.motor_id)
+            {
+                hits.push(hit);
+            }
+        }
+    }
+    hits.sort_by_key(|h| h.motor_id);
     println!("can  {bus}: {} motor(s) answered among IDs 1-{last}", hits.len());
     print_timing(robot, bus);
     let mut problems = 0;

@@ -489,6 +489,71 @@ impl<B: CanBus> MitBusDriver<B> {
     }
 }
 
+/// Who a Robstride motor says it is.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RobstrideIdentity {
+    /// The MCU's 64-bit unique ID (get-ID answer).
+    pub uid: u64,
+    /// The torque limit in its parameter table (`limit_torque`), N·m.
+    pub torque_limit: f64,
+}
+
+impl<B: CanBus> MitBusDriver<B> {
+    /// Asks joint `joint`'s Robstride motor its unique ID and torque limit (each asked up to
+    /// [`SPECIAL_TRIES`] times); `None` for a joint on another protocol or a motor that does not
+    /// answer. Not for use inside a cycle: it reads the bus until its answers come.
+    pub fn robstride_identity(&mut self, joint: usize) -> Result<Option<RobstrideIdentity>, MitError> {
+        use super::robstride::{self, comm, param};
+        let Some(j) = self.joints.get(joint) else {
+            return Ok(None);
+        };
+        if j.model.family != super::models::MotorFamily::Robstride {
+            return Ok(None);
+        }
+        let (motor, host) = (j.motor_id, j.reply_id as u8);
+        let get_id = CanFrame::new8(robstride::frame_id(comm::GET_ID, u16::from(host), motor), [0; 8]);
+        let Some(id) = self.ask(&get_id, |kind, data2| {
+            kind == comm::GET_ID && data2 as u8 == motor
+        })?
+        else {
+            return Ok(None);
+        };
+        let read = robstride::read_param(motor, host, param::LIMIT_TORQUE);
+        let answer = self.ask(&read, |kind, data2| {
+            kind == comm::READ_PARAM && data2 == u16::from(motor)
+        })?;
+        let Some((param::LIMIT_TORQUE, value)) = answer.and_then(|f| robstride::param_of(f.data())) else {
+            return Ok(None);
+        };
+        let mut uid = [0u8; 8];
+        uid[..id.data().len()].copy_from_slice(id.data());
+        Ok(Some(RobstrideIdentity {
+            uid: u64::from_le_bytes(uid),
+            torque_limit: f64::from(f32::from_le_bytes(value)),
+        }))
+    }
+
+    /// Sends `request` and returns the first extended frame whose type and `data2` `wanted`
+    /// accepts, within the reply timeout, asking up to [`SPECIAL_TRIES`] times.
+    fn ask(
+        &mut self,
+        request: &CanFrame,
+        wanted: impl Fn(u8, u16) -> bool,
+    ) -> Result<Option<CanFrame>, MitError> {
+        for _ in 0..SPECIAL_TRIES {
+            self.bus.send(request)?;
+            let deadline = self.bus.now() + self.reply_timeout;
+            while let Some(frame) = self.bus.recv_until(deadline)? {
+                if super::robstride::split_id(frame.id()).is_some_and(|(kind, data2, _)| wanted(kind, data2))
+                {
+                    return Ok(Some(frame));
+                }
+            }
+        }
+        Ok(None)
+    }
+}
+
 /// What one ID answered during a [`scan`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ScanHit {

@@ -142,21 +142,28 @@ where
 
     fn identities(&mut self, bus: &str, out: &mut Vec<DeviceIdentity>) -> Result<(), IoError> {
         // The MIT protocol has no identity query: a reply in the model's format from the right
-        // reply ID is the identity; version and limits come from the model table.
-        for (j, f) in self.driver.joints().iter().zip(self.driver.feedback()) {
+        // reply ID is the identity (Robstride's feedback names the host ID it answers); version
+        // and limits come from the model table.
+        for i in 0..self.driver.joints().len() {
+            let identity = self.driver.robstride_identity(i)?;
+            let (j, f) = (&self.driver.joints()[i], &self.driver.feedback()[i]);
+            let answer = match (identity, j.model.family) {
+                _ if f.is_stale() => "no reply".into(),
+                (Some(who), _) => format!("{} uid {:016X}", j.model.name, who.uid),
+                (None, firmware_bridge::mit::models::MotorFamily::Robstride) => {
+                    format!("{} feedback, no get-ID answer", j.model.name)
+                }
+                (None, _) => format!("{} reply from 0x{:03X}", j.model.name, j.reply_id),
+            };
             out.push(DeviceIdentity {
                 joint: j.name.clone(),
                 bus: bus.to_owned(),
                 id: j.motor_id,
                 model: j.model.name.clone(),
-                answer: if f.is_stale() {
-                    "no reply".into()
-                } else {
-                    format!("{} reply from 0x{:03X}", j.model.name, j.reply_id)
-                },
+                answer,
                 firmware: None,
                 current_limit_a: None,
-                torque_limit_nm: j.model.t_max,
+                torque_limit_nm: identity.map_or(j.model.t_max, |who| who.torque_limit),
             });
         }
         Ok(())
