@@ -109,6 +109,26 @@ fn robstride_and_mit_motors_share_a_bus_under_one_driver() {
 }
 
 #[test]
+fn a_motor_left_in_another_run_mode_is_put_back_in_operation_control_on_enable() {
+    let (rig, mut d) = setup();
+    // Another tool left the RS03 in velocity mode (2): commands would do nothing.
+    let mode = robstride::write_param(
+        2,
+        robstride::DEFAULT_HOST_ID,
+        robstride::param::RUN_MODE,
+        [2, 0, 0, 0],
+    );
+    d.bus_mut().send(&mode).unwrap();
+    tick(&mut d, &hold([0.0; 3]));
+    d.enable_all().unwrap();
+    for _ in 0..100 {
+        tick(&mut d, &hold([0.0, 0.5, 0.0]));
+    }
+    assert!((d.feedback()[1].q - 0.5).abs() < 0.01, "{}", d.feedback()[1].q);
+    let _ = rig;
+}
+
+#[test]
 fn a_silent_or_faulted_robstride_marks_only_its_joint_and_foreign_frames_are_counted() {
     let (rig, mut d) = setup();
     d.enable_all().unwrap();

@@ -474,7 +474,31 @@ impl<B: CanBus> MitBusDriver<B> {
     }
 
     /// Turns every motor's torque on; fails naming the first motor that did not answer.
+    /// Robstride motors are first put in run mode 0 (operation control: the impedance law the
+    /// commands drive), which they take only while stopped; a motor left in position or velocity
+    /// mode by another tool would otherwise ignore every command.
     pub fn enable_all(&mut self) -> Result<(), MitError> {
+        use super::robstride::{self, comm, param};
+        for i in 0..self.joints.len() {
+            let j = &self.joints[i];
+            if j.model.family != super::models::MotorFamily::Robstride {
+                continue;
+            }
+            let (motor, host) = (j.motor_id, j.reply_id as u8);
+            let frame = robstride::write_param(motor, host, param::RUN_MODE, [0; 4]);
+            if self
+                .ask(&frame, |kind, data2| {
+                    kind == comm::FEEDBACK && data2 as u8 == motor
+                })?
+                .is_none()
+            {
+                return Err(MitError::NoReply {
+                    joint: self.joints[i].name.clone(),
+                    motor_id: motor,
+                    timeout: self.reply_timeout,
+                });
+            }
+        }
         self.special_all(SpecialFrame::Enable)
     }
 
