@@ -20,8 +20,9 @@ use firmware_bridge::dxl::driver::{DxlBusDriver, DxlCommand, DxlDriverOptions, D
 use firmware_bridge::dxl::models::find;
 use firmware_bridge::dxl::packet::{self, Decoded};
 use firmware_bridge::dxl::servo::{ServoConfig, XSeriesServo};
-use firmware_bridge::dxl::transport::{DxlTransport, LinkError, LockstepDxlPort, StatusPacket};
+use firmware_bridge::dxl::transport::{Dynamixel2, LinkError, LockstepDxlPort, StatusPacket};
 use firmware_bridge::dxl::wire::{DxlRig, WireTiming};
+use firmware_bridge::half_duplex::ServoTransport;
 use firmware_bridge::plant::InertiaPlant;
 use firmware_bridge::time::SimWorld;
 use test_support::stats::Summary;
@@ -93,7 +94,8 @@ struct Recorder {
     recording: bool,
 }
 
-impl DxlTransport for Recorder {
+impl ServoTransport for Recorder {
+    type Codec = Dynamixel2;
     type Instant = firmware_bridge::time::SimInstant;
     fn now(&self) -> Self::Instant {
         self.inner.now()
@@ -114,8 +116,8 @@ impl DxlTransport for Recorder {
         }
         Ok(s)
     }
-    fn recv_fast(&mut self, total: usize, deadline: Self::Instant) -> Result<&[u8], LinkError> {
-        let bytes = self.inner.recv_fast(total, deadline)?;
+    fn recv_raw(&mut self, total: usize, deadline: Self::Instant) -> Result<&[u8], LinkError> {
+        let bytes = self.inner.recv_raw(total, deadline)?;
         if self.recording {
             self.recorded.push(bytes.to_vec());
         }
@@ -131,7 +133,8 @@ struct Replay {
     scratch: Vec<u8>,
 }
 
-impl DxlTransport for Replay {
+impl ServoTransport for Replay {
+    type Codec = Dynamixel2;
     type Instant = Instant;
     fn now(&self) -> Instant {
         Instant::now()
@@ -148,7 +151,7 @@ impl DxlTransport for Replay {
         }
         Ok(())
     }
-    fn recv_fast(&mut self, _total: usize, _deadline: Instant) -> Result<&[u8], LinkError> {
+    fn recv_raw(&mut self, _total: usize, _deadline: Instant) -> Result<&[u8], LinkError> {
         self.packets.first().map(Vec::as_slice).ok_or(LinkError::Timeout)
     }
     fn recv_status(&mut self, _deadline: Instant) -> Result<StatusPacket<'_>, LinkError> {

@@ -5,9 +5,10 @@
 //! in-process loopback or a wire to another process without `#[cfg]` inside a driver.
 //!
 //! - [`can`]: CAN frames, the [`can::CanBus`] transport trait, SocketCAN, socketcand, virtual buses.
-//! - [`dxl`]: Dynamixel Protocol 2.0: codec, host driver, emulated X-series servos, pty wire.
-//! - [`imu`]: WIT-protocol serial AHRS: decoder, emulated part, host reader.
-//! - [`mit`]: MIT-mode motors: codec, host driver, emulated firmware.
+//! - [`dxl`]: Dynamixel Protocol 2.0: codec, host driver, emulated X-series servos.
+//! - [`half_duplex`]: serial servo lines whatever the protocol: host ports, the simulated wire.
+//! - [`imu`]: serial IMUs (WIT AHRS, BNO08x RVC, BNO055): decoders, emulated parts, host reader.
+//! - [`mit`]: MIT-mode and Robstride CAN motors: codecs, host driver, emulated firmware.
 //! - [`plant`]: what emulated firmware drives.
 //! - [`ratelimit`]: warnings about floods of bad input, one line per interval with a count.
 //! - [`serial`]: serial lines to simulated worlds, byte streams, the pseudo-terminal server.
@@ -15,6 +16,7 @@
 
 pub mod can;
 pub mod dxl;
+pub mod half_duplex;
 pub mod imu;
 pub mod mit;
 pub mod plant;

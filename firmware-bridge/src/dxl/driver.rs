@@ -971,7 +971,7 @@ impl<T: DxlTransport> DxlBusDriver<T> {
         self.stats.fast_reads += 1;
         // Parse into buffers made once (the packet is borrowed from the transport meanwhile).
         let (joints, data, outcomes) = (&self.joints, &mut self.fast_data, &mut self.fast_outcomes);
-        let bytes = match self.transport.recv_fast(fast_status_len(n), deadline) {
+        let bytes = match self.transport.recv_raw(fast_status_len(n), deadline) {
             Ok(b) => b,
             Err(LinkError::Io(e)) => return Err(DxlError::Link(LinkError::Io(e))),
             Err(_) => &[][..],

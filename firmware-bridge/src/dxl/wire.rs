@@ -13,6 +13,7 @@ use std::time::Duration;
 use super::models::DxlModel;
 use super::packet::{self, Decoded, PacketError, inst};
 use super::servo::{Reply, ReplySlot, ServoConfig, XSeriesServo};
+use crate::half_duplex::{HalfDuplexWire, LineDevices};
 use crate::plant::InertiaPlant;
 use crate::serial::SerialSimWorld;
 use crate::time::SimInstant;
@@ -38,30 +39,7 @@ pub fn code_of_baud(baud: u32) -> Option<u8> {
     (0..=7).find(|&c| baud_of_code(c) == Some(baud))
 }
 
-/// How long bytes take on a line.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct WireTiming {
-    /// Bits per second.
-    pub baud: u32,
-    /// Added to every transfer towards the host (USB adapters buffer: FTDI latency timer).
-    pub usb_latency: Duration,
-}
-
-impl WireTiming {
-    /// A line at `baud` with a 1 ms-latency adapter setting turned down to zero.
-    pub const fn new(baud: u32) -> Self {
-        Self {
-            baud,
-            usb_latency: Duration::ZERO,
-        }
-    }
-
-    /// Wire time of `bytes` bytes (start bit, 8 data bits, stop bit each).
-    pub fn bytes_time(&self, bytes: usize) -> Duration {
-        let bits = bytes as u64 * 10;
-        Duration::from_nanos((bits * 1_000_000_000).div_ceil(u64::from(self.baud.max(1))))
-    }
-}
+pub use crate::half_duplex::{ADAPTER_BUFFER_BYTES, WireTiming};
 
 /// Counters of the servo side of a line.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -346,114 +324,24 @@ fn packet_len_hint(used: &[u8]) -> usize {
         .map_or(used.len(), |start| used.len() - start)
 }
 
-/// Transmit buffer of the emulated USB serial adapter, bytes (an FTDI FT232's is 256 B–4 KB).
-pub const ADAPTER_BUFFER_BYTES: usize = 4096;
+/// A Dynamixel line in simulated time between a host's USB adapter and its servos.
+pub type SimDxlWire = HalfDuplexWire<ServoChain>;
 
-/// A line in simulated time between a host (through its USB serial adapter) and a [`ServoChain`].
-#[derive(Debug)]
-pub struct SimDxlWire {
-    chain: ServoChain,
-    /// Bytes the host adapter dropped because its transmit buffer was full.
-    overflowed: u64,
-    line_free_at: SimInstant,
-    to_servos: VecDeque<(SimInstant, usize)>,
-    to_servos_bytes: VecDeque<u8>,
-    to_host: VecDeque<(SimInstant, usize)>,
-    to_host_bytes: VecDeque<u8>,
-    chunk: Vec<u8>,
-}
-
-impl SimDxlWire {
-    /// A wire to `chain`.
-    pub fn new(chain: ServoChain) -> Self {
-        Self {
-            chain,
-            overflowed: 0,
-            line_free_at: SimInstant::ZERO,
-            to_servos: VecDeque::with_capacity(16),
-            to_servos_bytes: VecDeque::with_capacity(2 * MAX_PACKET),
-            to_host: VecDeque::with_capacity(64),
-            to_host_bytes: VecDeque::with_capacity(2 * MAX_PACKET),
-            chunk: Vec::with_capacity(2 * MAX_PACKET),
-        }
+impl LineDevices for ServoChain {
+    fn timing(&self) -> WireTiming {
+        self.timing
     }
 
-    /// The servos' side.
-    pub fn chain(&self) -> &ServoChain {
-        &self.chain
+    fn receive(&mut self, bytes: &[u8], now: SimInstant) {
+        ServoChain::receive(self, bytes, now);
     }
 
-    /// The servos' side, to inject faults.
-    pub fn chain_mut(&mut self) -> &mut ServoChain {
-        &mut self.chain
+    fn next_reply_at(&self) -> Option<SimInstant> {
+        ServoChain::next_reply_at(self)
     }
 
-    /// The host starts sending `bytes` at `now` (after anything it is still sending).
-    pub fn host_transmit(&mut self, now: SimInstant, bytes: &[u8]) {
-        // A USB serial adapter buffers a few kilobytes on its way to the line; what a host sends
-        // beyond that is lost (counted), as on the real adapter — a flood neither grows memory nor
-        // keeps the line busy for seconds.
-        let room = ADAPTER_BUFFER_BYTES.saturating_sub(self.to_servos_bytes.len());
-        let taken = bytes.len().min(room);
-        self.overflowed += (bytes.len() - taken) as u64;
-        if taken == 0 {
-            return;
-        }
-        let bytes = &bytes[..taken];
-        let start = self.line_free_at.max(now);
-        let arrival = start + self.chain.timing.bytes_time(bytes.len());
-        self.line_free_at = arrival;
-        self.to_servos.push_back((arrival, bytes.len()));
-        self.to_servos_bytes.extend(bytes);
-    }
-
-    /// Bytes dropped because the adapter's transmit buffer was full.
-    pub fn overflowed(&self) -> u64 {
-        self.overflowed
-    }
-
-    /// The next time after `now` something happens on the wire (bytes already delivered to the
-    /// host wait for [`Self::host_receive`] and are no event).
-    pub fn next_event(&self, now: SimInstant) -> Option<SimInstant> {
-        [
-            self.to_servos.front().map(|e| e.0),
-            self.chain.next_reply_at(),
-            self.to_host.iter().map(|e| e.0).find(|&t| t > now),
-        ]
-        .into_iter()
-        .flatten()
-        .min()
-    }
-
-    /// Runs everything due by `now`.
-    pub fn advance(&mut self, now: SimInstant) {
-        while let Some(&(arrival, n)) = self.to_servos.front() {
-            if arrival > now {
-                break;
-            }
-            self.to_servos.pop_front();
-            self.chunk.clear();
-            self.chunk.extend(self.to_servos_bytes.drain(..n));
-            self.chain.receive(&self.chunk, arrival);
-        }
-        let timing = self.chain.timing;
-        let (to_host, to_host_bytes) = (&mut self.to_host, &mut self.to_host_bytes);
-        self.chain.take_replies_due(now, |start, bytes| {
-            let delivered = start + timing.bytes_time(bytes.len()) + timing.usb_latency;
-            to_host.push_back((delivered, bytes.len()));
-            to_host_bytes.extend(bytes);
-        });
-    }
-
-    /// Moves the bytes that reached the host by `now` into `out`.
-    pub fn host_receive(&mut self, now: SimInstant, out: &mut Vec<u8>) {
-        while let Some(&(at, n)) = self.to_host.front() {
-            if at > now {
-                break;
-            }
-            self.to_host.pop_front();
-            out.extend(self.to_host_bytes.drain(..n));
-        }
+    fn take_replies_due(&mut self, now: SimInstant, sink: &mut dyn FnMut(SimInstant, &[u8])) {
+        ServoChain::take_replies_due(self, now, sink);
     }
 }
 
@@ -514,12 +402,12 @@ impl DxlRig {
 
     /// The servo at `index`, to inject faults.
     pub fn servo_mut(&mut self, index: usize) -> &mut XSeriesServo {
-        &mut self.wire.chain.servos[index]
+        &mut self.wire.chain_mut().servos[index]
     }
 
     /// The servo at `index`.
     pub fn servo(&self, index: usize) -> &XSeriesServo {
-        &self.wire.chain.servos[index]
+        &self.wire.chain().servos[index]
     }
 
     /// The plants.
@@ -555,7 +443,7 @@ impl SimWorld for DxlRig {
         self.wire.advance(self.now);
         if self.now >= self.next_tick {
             let dt = self.period.as_secs_f64();
-            for (servo, plant) in self.wire.chain.servos.iter_mut().zip(&mut self.plants) {
+            for (servo, plant) in self.wire.chain_mut().servos.iter_mut().zip(&mut self.plants) {
                 servo.tick(self.now, plant);
                 plant.integrate(dt);
             }
