@@ -151,6 +151,9 @@ pub trait ServoTransport {
     fn recv_raw(&mut self, total: usize, deadline: Self::Instant) -> Result<&[u8], LinkError>;
 }
 
+/// A status taken from the reader: sender, error byte, where its parameters are in the scratch.
+type Taken = (u8, u8, (usize, usize));
+
 /// Status packets out of the bytes a host has read, through a codec; buffers made once.
 #[derive(Debug)]
 struct StatusReader<C> {
@@ -185,7 +188,7 @@ impl<C: ServoCodec> StatusReader<C> {
 
     /// The next status in what has been read — `(id, error, parameter range)` — an error for a
     /// broken packet (dropped), or `None`: more bytes needed.
-    fn take(&mut self) -> Option<Result<(u8, u8, (usize, usize)), LinkError>> {
+    fn take(&mut self) -> Option<Result<Taken, LinkError>> {
         match C::decode_status(&self.rx, &mut self.scratch) {
             StatusDecode::Status {
                 id,
