@@ -443,6 +443,19 @@ impl<W: SerialSimWorld, C: ServoCodec> ServoTransport for LockstepServoPort<W, C
     }
 }
 
+/// What an injected reply fault does to a servo's status packets.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ReplyFault {
+    /// The servo executes the instruction but does not answer.
+    Silent,
+    /// The status packet goes out with a corrupted CRC or checksum.
+    CorruptCrc,
+    /// The status packet carries this ID instead of the servo's.
+    WrongId(u8),
+    /// The status packet starts this much later than the Return Delay Time says.
+    Delay(Duration),
+}
+
 /// The servos of one line as they hear and answer it, whatever their protocol.
 pub trait LineDevices {
     /// The line's timing.

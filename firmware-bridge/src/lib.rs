@@ -6,6 +6,7 @@
 //!
 //! - [`can`]: CAN frames, the [`can::CanBus`] transport trait, SocketCAN, socketcand, virtual buses.
 //! - [`dxl`]: Dynamixel Protocol 2.0: codec, host driver, emulated X-series servos.
+//! - [`feetech`]: Feetech STS servos: codec, control table, host driver, emulated servos.
 //! - [`half_duplex`]: serial servo lines whatever the protocol: host ports, the simulated wire.
 //! - [`imu`]: serial IMUs (WIT AHRS, BNO08x RVC, BNO055): decoders, emulated parts, host reader.
 //! - [`mit`]: MIT-mode and Robstride CAN motors: codecs, host driver, emulated firmware.
@@ -16,6 +17,7 @@
 
 pub mod can;
 pub mod dxl;
+pub mod feetech;
 pub mod half_duplex;
 pub mod imu;
 pub mod mit;

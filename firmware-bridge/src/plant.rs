@@ -13,6 +13,43 @@ pub trait MotorPlant {
     fn apply_torque(&mut self, torque: f64);
 }
 
+/// A brushed DC motor with its gearbox, from the figures servo data sheets give: the constants
+/// every emulated serial servo turns its duty cycle into current and torque with.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DcMotor {
+    /// Supply voltage the figures refer to, V.
+    pub nominal_voltage: f64,
+    /// Output torque at stall, N·m.
+    pub stall_torque: f64,
+    /// Current at stall, A.
+    pub stall_current: f64,
+    /// Output speed without load, rad/s.
+    pub no_load_speed: f64,
+}
+
+impl DcMotor {
+    /// Torque constant at the output, N·m/A.
+    pub fn torque_constant(&self) -> f64 {
+        self.stall_torque / self.stall_current
+    }
+
+    /// Winding resistance, Ω.
+    pub fn resistance(&self) -> f64 {
+        self.nominal_voltage / self.stall_current
+    }
+
+    /// Back-EMF constant at the output, V·s/rad.
+    pub fn back_emf(&self) -> f64 {
+        self.nominal_voltage / self.no_load_speed
+    }
+
+    /// The winding current when the bridge applies `duty` (−1…1) of `supply` volts while the
+    /// output turns at `omega` rad/s (quasi-static winding).
+    pub fn current(&self, duty: f64, supply: f64, omega: f64) -> f64 {
+        (duty * supply - self.back_emf() * omega) / self.resistance()
+    }
+}
+
 /// A rigid load on a shaft: inertia, viscous and Coulomb friction, integrated semi-implicitly.
 #[derive(Debug, Clone, PartialEq)]
 pub struct InertiaPlant {

@@ -60,19 +60,29 @@ pub struct DxlModel {
 }
 
 impl DxlModel {
+    /// The servo's motor as the data sheet describes it.
+    pub fn motor(&self) -> crate::plant::DcMotor {
+        crate::plant::DcMotor {
+            nominal_voltage: self.nominal_voltage,
+            stall_torque: self.stall_torque,
+            stall_current: self.stall_current,
+            no_load_speed: self.no_load_speed * TAU / 60.0,
+        }
+    }
+
     /// Torque constant, N·m/A.
     pub fn torque_constant(&self) -> f64 {
-        self.stall_torque / self.stall_current
+        self.motor().torque_constant()
     }
 
     /// Winding resistance, Ω.
     pub fn resistance(&self) -> f64 {
-        self.nominal_voltage / self.stall_current
+        self.motor().resistance()
     }
 
     /// Back-EMF constant at the output, V·s/rad.
     pub fn back_emf(&self) -> f64 {
-        self.nominal_voltage / (self.no_load_speed * TAU / 60.0)
+        self.motor().back_emf()
     }
 }
 

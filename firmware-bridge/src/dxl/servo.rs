@@ -70,18 +70,7 @@ impl ServoConfig {
     }
 }
 
-/// What an injected reply fault does to a servo's status packets.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum ReplyFault {
-    /// The servo executes the instruction but does not answer.
-    Silent,
-    /// The status packet goes out with a corrupted CRC.
-    CorruptCrc,
-    /// The status packet carries this ID instead of the servo's.
-    WrongId(u8),
-    /// The status packet starts this much later than the Return Delay Time says.
-    Delay(Duration),
-}
+pub use crate::half_duplex::ReplyFault;
 
 /// A reply fault and how many more status packets it affects (`None`: until cleared).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
