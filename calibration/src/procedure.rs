@@ -539,8 +539,14 @@ impl<'a, R: Rig + ?Sized, O: Operator + ?Sized> Session<'a, R, O> {
         };
         let range = self.robot.mjcf_range(j).unwrap_or(joint.position_limits);
         let calibration = match self.robot.bus(&joint.bus).map(|b| b.kind) {
-            Some(BusKind::Dynamixel) => {
+            // Serial servos: a reading shift keeps the range clear of the encoder's wrap.
+            Some(kind @ (BusKind::Dynamixel | BusKind::Feetech)) => {
                 let (homing, zero) = solve::dynamixel_homing(mapping, range).map_err(fail)?;
+                if kind == BusKind::Feetech && homing.abs() > robots::config::FEETECH_HOMING_OFFSET_MAX {
+                    return Err(fail(solve::SolveError(format!(
+                        "the homing offset it needs, {homing} ticks, is beyond the servo's ±2047"
+                    ))));
+                }
                 JointCalibration {
                     zero_offset: zero,
                     direction: mapping.direction,

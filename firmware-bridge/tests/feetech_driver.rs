@@ -4,8 +4,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use firmware_bridge::feetech::driver::{
-    FeetechBusDriver, FeetechDriverOptions, FeetechError, FeetechJointConfig, LockstepFeetechPort,
-    gains_for,
+    FeetechBusDriver, FeetechDriverOptions, FeetechError, FeetechJointConfig, LockstepFeetechPort, gains_for,
 };
 use firmware_bridge::feetech::models::find;
 use firmware_bridge::feetech::packet::error;
@@ -89,18 +88,27 @@ fn silent_corrupt_and_faulted_servos_mark_only_their_joint() {
     d.configure().unwrap();
     d.enable().unwrap();
     tick(&mut d, &[0.0; 3]);
-    rig.lock().unwrap().servo_mut(1).inject(ReplyFault::Silent, Some(2));
+    rig.lock()
+        .unwrap()
+        .servo_mut(1)
+        .inject(ReplyFault::Silent, Some(2));
     assert_eq!(tick(&mut d, &[0.0; 3]), 1);
     assert!(d.feedback()[1].is_stale() && !d.feedback()[0].is_stale() && !d.feedback()[2].is_stale());
     assert_eq!(tick(&mut d, &[0.0; 3]), 1);
     assert_eq!(d.feedback()[1].missed_cycles, 2);
     assert_eq!(tick(&mut d, &[0.0; 3]), 0, "back after its count");
     // A bad checksum: dropped, counted, the joint stale for that cycle.
-    rig.lock().unwrap().servo_mut(2).inject(ReplyFault::CorruptCrc, Some(1));
+    rig.lock()
+        .unwrap()
+        .servo_mut(2)
+        .inject(ReplyFault::CorruptCrc, Some(1));
     let r = d.cycle(&[0.0; 3]).unwrap();
     assert_eq!((r.stale, r.rejected), (1, 1));
     // Another ID in a servo's place.
-    rig.lock().unwrap().servo_mut(0).inject(ReplyFault::WrongId(9), Some(1));
+    rig.lock()
+        .unwrap()
+        .servo_mut(0)
+        .inject(ReplyFault::WrongId(9), Some(1));
     let r = d.cycle(&[0.0; 3]).unwrap();
     assert_eq!((r.stale, r.rejected), (1, 1));
     // Overheat: the state stays fresh, the fault comes in the status byte.
@@ -116,7 +124,10 @@ fn silent_corrupt_and_faulted_servos_mark_only_their_joint() {
     assert!(d.feedback()[2].missed_cycles >= 3);
     // NaN goals send nothing and say which joint.
     let e = d.write_goals(&[0.0, f64::NAN, 0.0]).unwrap_err();
-    assert!(matches!(e, FeetechError::NotFinite { ref joint, .. } if joint == "j2"), "{e}");
+    assert!(
+        matches!(e, FeetechError::NotFinite { ref joint, .. } if joint == "j2"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -137,16 +148,22 @@ fn set_up_checks_every_servos_identity_before_writing() {
     other.model_number = 1234;
     other.name = "STS9999".into();
     let port = LockstepFeetechPort::new(Arc::clone(&rig), 0, BAUD);
-    let mut d =
-        FeetechBusDriver::new(port, vec![FeetechJointConfig::new("a", 1, &other)], FeetechDriverOptions::default())
-            .unwrap();
+    let mut d = FeetechBusDriver::new(
+        port,
+        vec![FeetechJointConfig::new("a", 1, &other)],
+        FeetechDriverOptions::default(),
+    )
+    .unwrap();
     let e = d.configure().unwrap_err().to_string();
     assert!(e.contains("servo 1 is model 777") && e.contains("STS9999"), "{e}");
     // Duplicate IDs never reach the line.
     let port = LockstepFeetechPort::new(rig, 0, BAUD);
     let e = FeetechBusDriver::new(
         port,
-        vec![FeetechJointConfig::new("a", 1, m), FeetechJointConfig::new("b", 1, m)],
+        vec![
+            FeetechJointConfig::new("a", 1, m),
+            FeetechJointConfig::new("b", 1, m),
+        ],
         FeetechDriverOptions::default(),
     )
     .unwrap_err();

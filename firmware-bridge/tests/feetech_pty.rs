@@ -38,8 +38,14 @@ fn feetechs_sdk_pings_reads_writes_and_syncs_the_emulated_servos() {
     assert_eq!(v["sync_write"], true, "{v}");
     assert_eq!(v["sync_read_ok"], true, "{v}");
     for id in ["1", "2", "3"] {
-        let (present, goal) = (v["present"][id].as_i64().unwrap(), v["goals"][id].as_i64().unwrap());
-        assert!((present - goal).abs() <= 15, "servo {id}: present {present}, goal {goal}: {v}");
+        let (present, goal) = (
+            v["present"][id].as_i64().unwrap(),
+            v["goals"][id].as_i64().unwrap(),
+        );
+        assert!(
+            (present - goal).abs() <= 15,
+            "servo {id}: present {present}, goal {goal}: {v}"
+        );
     }
     assert_eq!(v["status"], 0, "{v}");
     let w = world.lock().unwrap();

@@ -4,7 +4,7 @@
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
-use firmware_bridge::{dxl, mit};
+use firmware_bridge::{dxl, feetech, mit};
 
 use crate::mjcf::{self, MjcfSummary};
 
@@ -117,6 +117,9 @@ pub enum BusKind {
     MitCan,
     /// Dynamixel Protocol 2.0 servos on a half-duplex serial line.
     Dynamixel,
+    /// Feetech STS servos on a half-duplex serial line. They have no command watchdog: a servo
+    /// holds its last goal when the host goes quiet.
+    Feetech,
     /// An IMU streaming on a serial line.
     ImuSerial,
 }
@@ -770,6 +773,8 @@ impl Robot {
                 dxl::models::rad_per_tick(),
                 dxl::models::rad_s_per_velocity_unit(),
             ),
+            // Position in ticks, speed in ticks per second.
+            BusKind::Feetech => (feetech::table::rad_per_tick(), feetech::table::rad_per_tick()),
             BusKind::ImuSerial => return None,
         };
         Some([position / joint.gear, velocity / joint.gear])
@@ -790,6 +795,11 @@ impl Robot {
             .iter()
             .find(|(m, _)| m.name == name)
             .map_or(name, |(_, base)| base.as_str())
+    }
+
+    /// The Feetech servo model called `name` (the shipped table's).
+    pub fn feetech_model(&self, name: &str) -> Option<&'static feetech::models::FeetechModel> {
+        feetech::models::find(name)
     }
 
     /// The MIT-mode motor model called `name`: the robot's own, else the shipped table's.
@@ -854,6 +864,7 @@ impl Robot {
                 dxl::driver::fast_cycle_wire_time(devices, b.rate, std::time::Duration::ZERO)
             }
             BusKind::Dynamixel => dxl::driver::cycle_wire_time(devices, b.rate, std::time::Duration::ZERO),
+            BusKind::Feetech => feetech::driver::cycle_wire_time(devices, b.rate),
             BusKind::ImuSerial => std::time::Duration::ZERO,
         }
     }
@@ -869,7 +880,7 @@ impl Robot {
     fn resolve_timing(&self, b: &BusConfig) -> Result<BusTiming, (&'static str, String)> {
         let wire = self.bus_wire_time(b);
         let adapter_latency = match b.kind {
-            BusKind::Dynamixel => SERIAL_ADAPTER_LATENCY,
+            BusKind::Dynamixel | BusKind::Feetech => SERIAL_ADAPTER_LATENCY,
             BusKind::MitCan | BusKind::ImuSerial => std::time::Duration::ZERO,
         };
         let cycle = (wire + adapter_latency).as_secs_f64();
@@ -927,6 +938,12 @@ impl Robot {
                 })?,
         };
         let period = std::time::Duration::from_nanos((1e9 / rate_hz).round() as u64);
+        if b.kind == BusKind::Feetech && b.command_timeout_ms.is_some() {
+            return Err((
+                "command_timeout_ms",
+                "Feetech STS servos have no command watchdog to set: leave it out".into(),
+            ));
+        }
         let command_timeout = match b.command_timeout_ms {
             None => default_command_timeout(b.kind, period),
             Some(ms) => {
@@ -1177,6 +1194,7 @@ impl Robot {
                 BusKind::MitCan => &CAN_BITRATES,
                 BusKind::ImuSerial => imu_baud.as_ref().map_or(&WIT_BAUDS[..], |b| &b[..]),
                 BusKind::Dynamixel => &[],
+                BusKind::Feetech => &feetech::table::BAUDS,
             };
             if !rates.is_empty() && !rates.contains(&b.rate) {
                 return Err((
@@ -1292,6 +1310,8 @@ impl Robot {
                 BusKind::MitCan => 1..=127,
                 // 253 is reserved and 254 is broadcast in Dynamixel Protocol 2.0.
                 BusKind::Dynamixel => 0..=252,
+                // 254 is broadcast in Feetech's protocol.
+                BusKind::Feetech => 0..=253,
                 BusKind::ImuSerial => 0..=255,
             };
             if !ids.contains(&j.id) {
@@ -1306,11 +1326,16 @@ impl Robot {
                     ),
                 ));
             }
-            if !(-HOMING_OFFSET_MAX..=HOMING_OFFSET_MAX).contains(&j.homing_offset_ticks) {
+            let offset_max = if bus.kind == BusKind::Feetech {
+                FEETECH_HOMING_OFFSET_MAX
+            } else {
+                HOMING_OFFSET_MAX
+            };
+            if !(-offset_max..=offset_max).contains(&j.homing_offset_ticks) {
                 return Err((
                     at("homing_offset_ticks"),
                     format!(
-                        "{} is outside the servo's [-{HOMING_OFFSET_MAX}, {HOMING_OFFSET_MAX}]",
+                        "{} is outside the servo's [-{offset_max}, {offset_max}]",
                         j.homing_offset_ticks
                     ),
                 ));
@@ -1369,6 +1394,9 @@ pub const WIT_BAUDS: [u32; 9] = [
 
 /// Largest Homing Offset of an X-series servo, ticks (the control table's range).
 pub const HOMING_OFFSET_MAX: i32 = 1_044_479;
+
+/// Largest homing offset of a Feetech STS servo, ticks (11 bits and a sign).
+pub const FEETECH_HOMING_OFFSET_MAX: i32 = 2047;
 
 /// Joint limits must fit what the actuator can do (through the gear); `own` are the robot's own
 /// MIT-mode models.
@@ -1473,6 +1501,40 @@ fn check_actuator(
                     format!(
                         "{} rad/s is beyond the {}'s no-load speed {no_load:.2} rad/s",
                         j.velocity_limit, servo.name
+                    ),
+                ));
+            }
+            if j.torque_limit / j.gear > servo.stall_torque {
+                return Err((
+                    "torque_limit",
+                    format!(
+                        "{} N·m is beyond the {}'s stall torque {} N·m",
+                        j.torque_limit, servo.name, servo.stall_torque
+                    ),
+                ));
+            }
+        }
+        BusKind::Feetech => {
+            let Some(servo) = feetech::models::find(&j.model) else {
+                let known: Vec<_> = feetech::models::builtin()
+                    .iter()
+                    .map(|m| m.name.as_str())
+                    .collect();
+                return Err((
+                    "model",
+                    format!(
+                        "{:?} is not a Feetech servo (known: {})",
+                        j.model,
+                        known.join(", ")
+                    ),
+                ));
+            };
+            if j.velocity_limit * j.gear > servo.no_load_speed {
+                return Err((
+                    "velocity_limit",
+                    format!(
+                        "{} rad/s is beyond the {}'s no-load speed {:.2} rad/s",
+                        j.velocity_limit, servo.name, servo.no_load_speed
                     ),
                 ));
             }

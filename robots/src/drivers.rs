@@ -2,6 +2,7 @@
 
 use firmware_bridge::dxl::driver::{DxlJointConfig, DxlMode};
 use firmware_bridge::dxl::models as dxl_models;
+use firmware_bridge::feetech::{self, driver::FeetechJointConfig};
 use firmware_bridge::mit::driver::MitJointConfig;
 
 use crate::config::JointConfig;
@@ -19,6 +20,26 @@ pub fn mit_joint(robot: &crate::Robot, j: &JointConfig) -> MitJointConfig {
     c.offset = j.zero_offset;
     c.gear_ratio = j.gear;
     c
+}
+
+/// The Feetech driver's view of a joint of `robot` on a `feetech` bus: zero at the middle of the
+/// range shifted by the joint's zero offset, the policy's stiffness and damping as the servo's P
+/// and D, its torque limit as the servo's Torque Limit. Direct drive only, as with Dynamixel.
+///
+/// # Panics
+/// When the joint's model is not a Feetech servo (loading a [`crate::Robot`] checks this).
+pub fn feetech_joint(robot: &crate::Robot, j: &JointConfig) -> FeetechJointConfig {
+    let model = robot
+        .feetech_model(&j.model)
+        .expect("a Feetech servo (checked at load)");
+    FeetechJointConfig {
+        direction: j.direction,
+        zero_ticks: 2048.0 + j.zero_offset / feetech::table::rad_per_tick(),
+        homing_offset: j.homing_offset_ticks,
+        gains: Some(feetech::driver::gains_for(j.kp, j.kd, model)),
+        torque_limit: Some(feetech::driver::torque_limit_for(j.torque_limit, model)),
+        ..FeetechJointConfig::new(&j.name, j.id, model)
+    }
 }
 
 /// The Dynamixel driver's view of a joint of `robot` on a `dynamixel` bus. Direct drive only: the servo's

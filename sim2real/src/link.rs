@@ -9,6 +9,7 @@ use std::time::Duration;
 use firmware_bridge::can::socketcand::SocketcandClient;
 use firmware_bridge::dxl::driver::DxlDriverOptions;
 use firmware_bridge::dxl::transport::SerialDxlPort;
+use firmware_bridge::feetech::driver::SerialFeetechPort;
 use firmware_bridge::serial::{DeviceStream, LockstepStream};
 use firmware_bridge::time::SimInstant;
 use firmware_bridge::time::SimWorld;
@@ -39,6 +40,7 @@ pub fn lockstep_robot(robot: &Robot, world: &Arc<Mutex<Mirror>>) -> Result<Locks
         BusPorts {
             can: ports.can,
             dxl: ports.dxl,
+            feetech: ports.feetech,
             imu: ports.imu,
         },
         LOCKSTEP_REPLY,
@@ -135,6 +137,14 @@ pub fn wired_robot_with(robot: &Robot, served: &ServedMirror, on_start: fn()) ->
             SerialDxlPort::open(path, rate).map_err(|e| IoError::Setup(format!("{path}: {e}")))?,
         ));
     }
+    let mut feetech = Vec::new();
+    for (name, path) in &ep.feetech {
+        let rate = robot.bus(name).map_or(1_000_000, |b| b.rate);
+        feetech.push((
+            name.clone(),
+            SerialFeetechPort::open(path, rate).map_err(|e| IoError::Setup(format!("{path}: {e}")))?,
+        ));
+    }
     let imu_rate = robot.bus(&robot.config.imu.bus).map_or(921_600, |b| b.rate);
     let imu =
         DeviceStream::open(&ep.imu, imu_rate).map_err(|e| IoError::Setup(format!("{}: {e}", ep.imu)))?;
@@ -146,7 +156,12 @@ pub fn wired_robot_with(robot: &Robot, served: &ServedMirror, on_start: fn()) ->
     // Buses on their own threads: the tick's I/O costs the slowest bus.
     BusRobot::new(
         robot,
-        BusPorts { can, dxl, imu },
+        BusPorts {
+            can,
+            dxl,
+            feetech,
+            imu,
+        },
         Duration::from_millis(20),
         options,
     )?

@@ -15,6 +15,10 @@ use firmware_bridge::dxl::servo::{ReplyFault, ServoConfig, XSeriesServo};
 use firmware_bridge::dxl::table::hw;
 use firmware_bridge::dxl::transport::LockstepDxlPort;
 use firmware_bridge::dxl::wire::{ServoChain, SimDxlWire, WireTiming};
+use firmware_bridge::feetech::driver::LockstepFeetechPort;
+use firmware_bridge::feetech::servo::{StsConfig, StsServo};
+use firmware_bridge::feetech::wire::{FeetechChain, SimFeetechWire};
+use firmware_bridge::half_duplex::LineDevices;
 use firmware_bridge::imu::bno055::{self, Bno055};
 use firmware_bridge::imu::emulator::{ImuEmulatorConfig, ImuTruth, WitImuEmulator};
 use firmware_bridge::mit::codec::MotorFault;
@@ -102,6 +106,13 @@ struct DxlLine {
 }
 
 #[derive(Debug)]
+struct FeetechLine {
+    name: String,
+    wire: SimFeetechWire,
+    joints: Vec<usize>,
+}
+
+#[derive(Debug)]
 struct Imu {
     emulator: WitImuEmulator,
     line: StreamLine,
@@ -183,6 +194,8 @@ pub struct Mirror {
     plants: Vec<ActuatorPlant>,
     can: Vec<CanLine>,
     dxl: Vec<DxlLine>,
+    /// Feetech lines: serial lines after the Dynamixel ones.
+    feetech: Vec<FeetechLine>,
     imu: Imu,
     gantry: Option<Gantry>,
     /// Joint angles a jig holds the joints at (policy order), if any.
@@ -341,6 +354,7 @@ impl Mirror {
         // Devices on every bus.
         let mut can = Vec::new();
         let mut dxl_lines = Vec::new();
+        let mut feetech_lines = Vec::new();
         let latency = Duration::from_micros(draw(rnd.usb_latency_us).max(0.0) as u64);
         for bus in &robot.config.buses {
             match bus.kind {
@@ -386,6 +400,33 @@ impl Mirror {
                     dxl_lines.push(DxlLine {
                         name: bus.name.clone(),
                         wire: SimDxlWire::new(ServoChain::new(servos, timing)),
+                        joints: idx,
+                    });
+                }
+                BusKind::Feetech => {
+                    let baud_index =
+                        firmware_bridge::feetech::table::index_of_baud(bus.rate).expect("checked at load");
+                    let mut servos = Vec::new();
+                    let mut idx = Vec::new();
+                    for (i, j) in robot.joints_on(&bus.name) {
+                        let m = robot.feetech_model(&j.model).expect("checked at load");
+                        servos.push(StsServo::new(
+                            m,
+                            StsConfig {
+                                baud_index,
+                                control_period: firmware_period,
+                                ..StsConfig::new(j.id, m)
+                            },
+                        ));
+                        idx.push(i);
+                    }
+                    let timing = WireTiming {
+                        baud: bus.rate,
+                        usb_latency: latency,
+                    };
+                    feetech_lines.push(FeetechLine {
+                        name: bus.name.clone(),
+                        wire: SimFeetechWire::new(FeetechChain::new(servos, timing)),
                         joints: idx,
                     });
                 }
@@ -481,6 +522,7 @@ impl Mirror {
             plants: vec![ActuatorPlant::default(); n_joints],
             can,
             dxl: dxl_lines,
+            feetech: feetech_lines,
             imu,
             gantry: None,
             jig: None,
@@ -665,9 +707,27 @@ impl Mirror {
         self.dxl.iter().position(|d| d.name == name)
     }
 
+    /// The serial line number of Feetech bus `name` (after the Dynamixel lines).
+    pub fn feetech_line(&self, name: &str) -> Option<usize> {
+        self.feetech
+            .iter()
+            .position(|d| d.name == name)
+            .map(|k| self.dxl.len() + k)
+    }
+
     /// The serial line number of the IMU.
     pub fn imu_line(&self) -> usize {
-        self.dxl.len()
+        self.dxl.len() + self.feetech.len()
+    }
+
+    /// The Feetech servo driving policy joint `joint`, to inspect or inject faults.
+    pub fn sts_servo_mut(&mut self, joint: usize) -> Option<&mut StsServo> {
+        let (line, k) = self
+            .feetech
+            .iter()
+            .enumerate()
+            .find_map(|(l, d)| d.joints.iter().position(|&j| j == joint).map(|k| (l, k)))?;
+        Some(&mut self.feetech[line].wire.chain_mut().servos_mut()[k])
     }
 
     /// The Dynamixel servo driving policy joint `joint`, to inspect or inject faults.
@@ -708,6 +768,13 @@ impl Mirror {
             }
         }
         for line in &mut self.dxl {
+            for (servo, &j) in line.wire.chain_mut().servos_mut().iter_mut().zip(&line.joints) {
+                servo.tick(t, &mut self.plants[j]);
+                self.plants[j].goal = servo.position_goal();
+                self.plants[j].torque_cap = servo.torque_cap();
+            }
+        }
+        for line in &mut self.feetech {
             for (servo, &j) in line.wire.chain_mut().servos_mut().iter_mut().zip(&line.joints) {
                 servo.tick(t, &mut self.plants[j]);
                 self.plants[j].goal = servo.position_goal();
@@ -938,7 +1005,14 @@ impl Mirror {
     }
 
     fn apply_fault(&mut self, joint: usize, fault: FaultKind) {
-        if let Some(servo) = self.servo_mut(joint) {
+        if let Some(servo) = self.sts_servo_mut(joint) {
+            match fault {
+                FaultKind::Silent { count } => servo.inject(ReplyFault::Silent, count),
+                FaultKind::CorruptCrc { count } => servo.inject(ReplyFault::CorruptCrc, Some(count)),
+                FaultKind::Overheat => servo.raise_error(firmware_bridge::feetech::packet::error::OVERHEAT),
+                FaultKind::Vanish => servo.vanish(),
+            }
+        } else if let Some(servo) = self.servo_mut(joint) {
             match fault {
                 FaultKind::Silent { count } => servo.inject(ReplyFault::Silent, count),
                 FaultKind::CorruptCrc { count } => servo.inject(ReplyFault::CorruptCrc, Some(count)),
@@ -996,8 +1070,25 @@ impl Mirror {
                 (d.name.clone(), LockstepDxlPort::new(Arc::clone(world), i, baud))
             })
             .collect();
+        let feetech = w
+            .feetech
+            .iter()
+            .enumerate()
+            .map(|(i, d)| {
+                let baud = d.wire.chain().timing().baud;
+                (
+                    d.name.clone(),
+                    LockstepFeetechPort::new(Arc::clone(world), w.dxl.len() + i, baud),
+                )
+            })
+            .collect();
         let imu = LockstepStream::new(Arc::clone(world), w.imu_line());
-        HostPorts { can, dxl, imu }
+        HostPorts {
+            can,
+            dxl,
+            feetech,
+            imu,
+        }
     }
 }
 
@@ -1008,6 +1099,8 @@ pub struct HostPorts {
     pub can: Vec<(String, LockstepCanPort<Mirror>)>,
     /// Dynamixel lines by name.
     pub dxl: Vec<(String, LockstepDxlPort<Mirror>)>,
+    /// Feetech lines by name.
+    pub feetech: Vec<(String, LockstepFeetechPort<Mirror>)>,
     /// The IMU's byte stream.
     pub imu: LockstepStream<Mirror>,
 }
@@ -1042,6 +1135,11 @@ impl Mirror {
                 t = t.min(e);
             }
         }
+        for line in &self.feetech {
+            if let Some(e) = line.wire.next_event(now) {
+                t = t.min(e);
+            }
+        }
         if let Some(e) = self.imu.line.next_event(now) {
             t = t.min(e);
         }
@@ -1062,6 +1160,9 @@ impl Mirror {
             }
         }
         for line in &mut self.dxl {
+            line.wire.advance(t);
+        }
+        for line in &mut self.feetech {
             line.wire.advance(t);
         }
         while let Some(&(at, joint, fault)) = self.faults.get(self.next_fault) {
@@ -1092,6 +1193,13 @@ impl SerialSimWorld for Mirror {
             d.wire.host_transmit(self.now, bytes);
             return;
         }
+        if let Some(f) = line
+            .checked_sub(self.dxl.len())
+            .and_then(|k| self.feetech.get_mut(k))
+        {
+            f.wire.host_transmit(self.now, bytes);
+            return;
+        }
         // A streaming IMU ignores what the host sends; a register-read one answers once the
         // request has crossed the wire.
         let imu = &mut self.imu;
@@ -1111,9 +1219,13 @@ impl SerialSimWorld for Mirror {
     }
 
     fn host_receive(&mut self, line: usize, out: &mut Vec<u8>) {
-        match self.dxl.get_mut(line) {
-            Some(d) => d.wire.host_receive(self.now, out),
-            None => self.imu.line.host_receive(self.now, out),
+        let dxl = self.dxl.len();
+        if let Some(d) = self.dxl.get_mut(line) {
+            d.wire.host_receive(self.now, out);
+        } else if let Some(f) = line.checked_sub(dxl).and_then(|k| self.feetech.get_mut(k)) {
+            f.wire.host_receive(self.now, out);
+        } else {
+            self.imu.line.host_receive(self.now, out);
         }
     }
 }

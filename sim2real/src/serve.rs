@@ -19,6 +19,8 @@ pub struct Endpoints {
     pub can: Vec<(String, SocketAddr)>,
     /// Dynamixel buses: name and device path.
     pub dxl: Vec<(String, String)>,
+    /// Feetech buses: name and device path.
+    pub feetech: Vec<(String, String)>,
     /// The IMU's device path.
     pub imu: String,
 }
@@ -54,6 +56,10 @@ impl ServedMirror {
             .iter()
             .filter_map(|n| mirror.dxl_line(n).map(|l| (n.clone(), l)))
             .collect();
+        let feetech_lines: Vec<_> = names
+            .iter()
+            .filter_map(|n| mirror.feetech_line(n).map(|l| (n.clone(), l)))
+            .collect();
         let imu_line = mirror.imu_line();
         let world = Arc::new(Mutex::new(mirror));
         let runner = WallClockRunner::spawn(Arc::clone(&world), Duration::from_micros(200))?;
@@ -84,6 +90,12 @@ impl ServedMirror {
             dxl.push((name, pty.path().to_owned()));
             ptys.push(pty);
         }
+        let mut feetech = Vec::new();
+        for (name, line) in feetech_lines {
+            let pty = PtyServer::spawn(Arc::clone(&world), line, Duration::from_micros(200))?;
+            feetech.push((name, pty.path().to_owned()));
+            ptys.push(pty);
+        }
         let imu_pty = PtyServer::spawn(Arc::clone(&world), imu_line, Duration::from_micros(500))?;
         let imu = imu_pty.path().to_owned();
         ptys.push(imu_pty);
@@ -92,6 +104,7 @@ impl ServedMirror {
             endpoints: Endpoints {
                 can: can_endpoints,
                 dxl,
+                feetech,
                 imu,
             },
             _runner: runner,

@@ -853,7 +853,13 @@ fn a_bno055_is_put_into_fusion_then_read_and_a_silent_one_stops_the_robot() {
     });
     assert!(stats.is_zero(), "{stats:?}");
     let s = player.state();
-    assert!((s.accel[2] - 9.81).abs() < 0.3, "{:?}", s.accel);
+    assert!(
+        (s.accel[2] - 9.81).abs() < 0.3,
+        "{:?} {:?} {:?}",
+        s.accel,
+        s.quat,
+        player.transitions()
+    );
     assert!(s.gyro.iter().all(|g| g.abs() < 0.1), "{:?}", s.gyro);
     assert!(s.quat[0] > 0.99, "{:?}", s.quat);
     assert_eq!(s.imu_missed, 0);
@@ -887,4 +893,116 @@ fn a_bno055_is_put_into_fusion_then_read_and_a_silent_one_stops_the_robot() {
     .unwrap_err()
     .to_string();
     assert!(e.contains("imu.rate_hz") && e.contains("BNO055"), "{e}");
+}
+
+/// rd-mini's file with every servo swapped for a Feetech STS3215 (12 V) on a 1 Mbit/s line, its
+/// speed and torque limits brought within the servo's.
+fn on_feetech(text: &str) -> String {
+    let mut s = text
+        .replace("kind = \"dynamixel\"", "kind = \"feetech\"")
+        .replace("rate = 4000000", "rate = 1000000")
+        .replace("fast_reads = true\n", "")
+        .replace("velocity_limit = 6.0", "velocity_limit = 4.5")
+        .replace("torque_limit = 3.5", "torque_limit = 2.9");
+    for m in ["XL430-W250", "XM430-W350"] {
+        s = s.replace(&format!("model = \"{m}\""), "model = \"STS3215-12V\"");
+    }
+    s
+}
+
+#[test]
+fn on_feetech_servos_it_stands_its_servos_identify_and_a_vanished_one_stops_it() {
+    use firmware_bridge::feetech::table::addr;
+    let text = std::fs::read_to_string(mini("robot.toml")).unwrap();
+    let robot = Robot::from_str(&mini("robot.toml"), &on_feetech(&text)).unwrap();
+    assert_eq!(robot.bus("dxl0").unwrap().kind, robots::BusKind::Feetech);
+    // `calibrate identify`'s question, answered by the emulated servos.
+    {
+        let world = Arc::new(std::sync::Mutex::new(
+            sim2real::mirror::Mirror::new(robot.clone(), sim2real::config::MirrorConfig::default()).unwrap(),
+        ));
+        let mut link = sim2real::link::lockstep_robot(&robot, &world).unwrap();
+        link.identify().unwrap();
+        let ids = link.identities().unwrap();
+        let knee = ids.iter().find(|d| d.joint == "l_knee").unwrap();
+        assert_eq!(knee.answer, "model 777, firmware 3.10", "{knee:?}");
+        // The joint's torque limit became the servo's Torque Limit.
+        assert!((knee.torque_limit_nm - 2.9).abs() < 0.01, "{knee:?}");
+    }
+    let gone_at = 3.0;
+    let mirror = sim2real::config::MirrorConfig {
+        faults: vec![sim2real::config::ScheduledFault {
+            at_s: gone_at,
+            joint: "r_knee".into(),
+            fault: sim2real::config::FaultKind::Vanish,
+        }],
+        ..Default::default()
+    };
+    let ((mut player, mut clock, world), _) = command_driven_player_on(
+        robot.clone(),
+        mirror,
+        controller::player::PlayOptions {
+            end: controller::player::EndMode::Stand,
+            ..Default::default()
+        },
+    );
+    player.identify().unwrap();
+    let period = Duration::from_millis(20);
+    let tick = |player: &mut controller::player::Player<_>, clock: &mut _| {
+        player.step(clock).unwrap();
+        player.wait_until(clock, period * player.ticks() as u32);
+    };
+    for _ in 0..140 {
+        tick(&mut player, &mut clock);
+    }
+    assert_eq!(player.mode(), controller::safety::Mode::Running);
+    let s = player.state();
+    assert!(s.missed.iter().all(|&m| m == 0), "{:?}", s.missed);
+    let knee = robot
+        .config
+        .joints
+        .iter()
+        .position(|j| j.name == "l_knee")
+        .unwrap();
+    {
+        let mut w = world.lock().unwrap();
+        let servo = w.sts_servo_mut(knee).unwrap();
+        assert!(servo.torque_enabled());
+        // The policy's stiffness arrived as the servo's P coefficient.
+        assert!(servo.register(addr::P_GAIN) > 0);
+    }
+    // The right knee's servo loses power: stale within the bus's bound, the loop stops.
+    for _ in 0..20 {
+        tick(&mut player, &mut clock);
+    }
+    let stop = player
+        .transitions()
+        .iter()
+        .find(|t| t.to == controller::safety::Mode::Stopping || t.to == controller::safety::Mode::Damped)
+        .copied()
+        .expect("a stop");
+    assert!(
+        matches!(stop.cause, controller::safety::Cause::StaleFeedback { .. }),
+        "{stop:?}"
+    );
+    let gone_tick = (gone_at / 0.02) as u64;
+    assert!(stop.tick > gone_tick && stop.tick <= gone_tick + 5, "{stop:?}");
+    // What the servo cannot do is refused by field, before anything moves.
+    let e = Robot::from_str(
+        &mini("robot.toml"),
+        &on_feetech(&text).replace("velocity_limit = 4.5", "velocity_limit = 6.0"),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("velocity_limit") && e.contains("no-load speed"), "{e}");
+    let e = Robot::from_str(
+        &mini("robot.toml"),
+        &on_feetech(&text).replace("rate = 1000000", "rate = 1000000\ncommand_timeout_ms = 100.0"),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("command_timeout_ms") && e.contains("no command watchdog"),
+        "{e}"
+    );
 }

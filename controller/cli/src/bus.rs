@@ -8,9 +8,10 @@ use firmware_bridge::can::CanBus;
 use firmware_bridge::can::socketcan::SocketCanBus;
 use firmware_bridge::can::socketcand::SocketcandClient;
 use firmware_bridge::dxl::transport::{DxlTransport, SerialDxlPort};
+use firmware_bridge::feetech::driver::{FeetechBusDriver, FeetechDriverOptions, SerialFeetechPort};
 use firmware_bridge::imu::reader::ImuReader;
 use firmware_bridge::serial::{ByteStream, DeviceStream};
-use firmware_bridge::{dxl, mit};
+use firmware_bridge::{dxl, feetech, mit};
 use robots::{BusKind, Robot};
 
 /// Bus tools across a whole robot.
@@ -79,6 +80,14 @@ fn scan(args: &ScanArgs) -> Result<()> {
                     .with_context(|| format!("bus {}: cannot open {path}", bus.name))?;
                 problems += scan_dxl(&robot, &bus.name, &mut port, timeout)?;
             }
+            BusKind::Feetech => {
+                let path = endpoint
+                    .and_then(|e| e.feetech.iter().find(|d| d.0 == bus.name))
+                    .map_or(bus.device.clone(), |d| d.1.clone());
+                let port = SerialFeetechPort::open(&path, bus.rate)
+                    .with_context(|| format!("bus {}: cannot open {path}", bus.name))?;
+                problems += scan_feetech(&robot, &bus.name, port, timeout)?;
+            }
             BusKind::ImuSerial => {
                 let path = endpoint.map_or(bus.device.clone(), |e| e.imu.clone());
                 let stream = DeviceStream::open(&path, bus.rate)
@@ -120,13 +129,20 @@ pub(crate) fn schedule(robot: &Robot, bus: &str) -> Option<String> {
         },
     );
     if robot.joints_on(bus).next().is_some() {
+        let timeout = if robot.bus(bus)?.kind == BusKind::Feetech {
+            // STS servos have no watchdog: only the host's own stop (damping, torque off) and
+            // the loss of power end a goal.
+            "no device command timeout (Feetech servos hold their last goal if the host goes quiet)"
+                .to_owned()
+        } else {
+            format!("device command timeout {} ms", t.command_timeout.as_millis())
+        };
         line.push_str(&format!(
-            ", targets {} between policy ticks, device command timeout {} ms",
+            ", targets {} between policy ticks, {timeout}",
             match t.interpolation {
                 robots::Interpolation::Hold => "held",
                 robots::Interpolation::Linear => "ramped",
             },
-            t.command_timeout.as_millis()
         ));
     }
     Some(line)
@@ -231,6 +247,55 @@ fn scan_dxl<T: DxlTransport>(robot: &Robot, bus: &str, port: &mut T, timeout: Du
     for h in hits.iter().filter(|h| !joints.iter().any(|j| j.id == h.id)) {
         problems += 1;
         println!("  id {:>3}  not in robot.toml (model {})", h.id, h.model_number);
+    }
+    Ok(problems)
+}
+
+fn scan_feetech(robot: &Robot, bus: &str, port: SerialFeetechPort, timeout: Duration) -> Result<usize> {
+    let joints: Vec<_> = robot.joints_on(bus).map(|(_, j)| j).collect();
+    let last = joints
+        .iter()
+        .map(|j| j.id)
+        .max()
+        .unwrap_or(0)
+        .saturating_add(2)
+        .min(253);
+    let options = FeetechDriverOptions { reply_slack: timeout };
+    let mut driver = FeetechBusDriver::new(port, Vec::new(), options)?;
+    let mut hits = Vec::new();
+    for id in 1..=last {
+        if let Some((number, firmware)) = driver.ping(id)? {
+            let mut state = [0u8; 2];
+            driver.read(id, feetech::table::addr::PRESENT_POSITION, &mut state)?;
+            hits.push((id, number, firmware, u16::from_le_bytes(state)));
+        }
+    }
+    println!("sts  {bus}: {} servo(s) answered among IDs 1-{last}", hits.len());
+    print_timing(robot, bus);
+    let mut problems = 0;
+    for j in &joints {
+        let expected = robot.feetech_model(&j.model).map_or(0, |m| m.model_number);
+        match hits.iter().find(|h| h.0 == j.id) {
+            Some(&(_, number, [major, minor], position)) if number == expected => println!(
+                "  id {:>3}  {:<20} {:<11} pos {position:>5} ticks  firmware {major}.{minor}",
+                j.id, j.name, j.model
+            ),
+            Some(&(_, number, ..)) => {
+                problems += 1;
+                println!(
+                    "  id {:>3}  {:<20} WRONG MODEL: configured {}, answers model {number}",
+                    j.id, j.name, j.model
+                );
+            }
+            None => {
+                problems += 1;
+                println!("  id {:>3}  {:<20} MISSING", j.id, j.name);
+            }
+        }
+    }
+    for h in hits.iter().filter(|h| !joints.iter().any(|j| j.id == h.0)) {
+        problems += 1;
+        println!("  id {:>3}  not in robot.toml (model {})", h.0, h.1);
     }
     Ok(problems)
 }

@@ -232,7 +232,7 @@ fn print_against_truth(robot: &Robot, config: &MirrorConfig, outcome: &Outcome) 
         let c = r.calibration;
         flipped += usize::from(c.direction != dir);
         match robot.bus(&j.bus).map(|b| b.kind) {
-            Some(BusKind::Dynamixel) => {
+            Some(BusKind::Dynamixel | BusKind::Feetech) => {
                 let ticks = ((c.physical_zero() - zero) / per_tick).abs();
                 worst[0] = worst[0].max(ticks);
             }
@@ -240,7 +240,7 @@ fn print_against_truth(robot: &Robot, config: &MirrorConfig, outcome: &Outcome) 
         }
     }
     println!(
-        "  directions wrong: {flipped}; worst zero error: {:.2} ticks (Dynamixel), {:.5} rad (MIT)",
+        "  directions wrong: {flipped}; worst zero error: {:.2} ticks (serial servos), {:.5} rad (MIT)",
         worst[0], worst[1]
     );
     if let Some(imu) = &outcome.imu {

@@ -751,19 +751,19 @@ impl PolicyLayout {
                 ));
             }
         }
-        // What the buses can honour: Dynamixel servos run their own position loop (gains and a
-        // current cap), they take no torque commands.
+        // What the buses can honour: serial servos (Dynamixel, Feetech) run their own position
+        // loop (gains and a torque cap), they take no torque commands.
         if a.kind == ActionKind::Torque
             && let Some(j) = robot.config.joints.iter().find(|j| {
                 robot
                     .bus(&j.bus)
-                    .is_some_and(|b| b.kind == robots::BusKind::Dynamixel)
+                    .is_some_and(|b| matches!(b.kind, robots::BusKind::Dynamixel | robots::BusKind::Feetech))
             })
         {
             return Err(err(
                 "action.kind",
                 format!(
-                    "torque actions cannot drive joint {} ({} on Dynamixel bus {}): its servo \
+                    "torque actions cannot drive joint {} ({} on serial servo bus {}): its servo \
                      takes position goals with gains, not torque commands",
                     j.name, j.model, j.bus
                 ),

@@ -36,6 +36,15 @@ impl SerialServoPort<Feetech> {
     }
 }
 
+/// Wire time of one tick on a line of `servos` STS servos at `baud`: the goals' sync write, the
+/// state's sync read and every servo's status packet, back to back (return delay 0).
+pub fn cycle_wire_time(servos: usize, baud: u32) -> Duration {
+    let write = 8 + servos * 3;
+    let read = 8 + servos;
+    let answers = servos * (STATUS_OVERHEAD + usize::from(table::STATE_LEN));
+    crate::half_duplex::WireTiming::new(baud).bytes_time(write + read + answers)
+}
+
 /// One joint on an STS servo.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FeetechJointConfig {
@@ -49,8 +58,10 @@ pub struct FeetechJointConfig {
     pub direction: f64,
     /// Present Position (ticks) at joint angle zero, homing offset included.
     pub zero_ticks: f64,
-    /// Homing offset to program (EPROM, ticks, ±2047): keeps the joint's range clear of the
-    /// encoder's 0/4095 wrap.
+    /// How far the servo's reading is shifted, ticks (±2047): Present Position = encoder +
+    /// this, as a Dynamixel's Homing Offset shifts it, so calibration treats both alike. Keeps
+    /// the joint's range clear of the encoder's 0/4095 wrap. (The servo's own register subtracts:
+    /// it is programmed with the opposite sign.)
     pub homing_offset: i32,
     /// Position P and D coefficients (EPROM addresses 21, 22); the factory's 32, 32 when absent.
     pub gains: Option<[u8; 2]>,
@@ -97,7 +108,9 @@ pub fn gains_for(kp: f64, kd: f64, model: &FeetechModel) -> [u8; 2] {
 
 /// The Torque Limit (0.1 %) that caps the output at `torque` N·m (at least 1).
 pub fn torque_limit_for(torque: f64, model: &FeetechModel) -> u16 {
-    (torque.abs() / model.stall_torque * 1000.0).floor().clamp(1.0, 1000.0) as u16
+    (torque.abs() / model.stall_torque * 1000.0)
+        .floor()
+        .clamp(1.0, 1000.0) as u16
 }
 
 /// What a servo last reported.
@@ -385,7 +398,12 @@ impl<T: FeetechTransport> FeetechBusDriver<T> {
         for k in 0..self.joints.len() {
             let j = self.joints[k].clone();
             match self.ping(j.id)? {
-                None => return Err(FeetechError::NoReply { joint: j.name, id: j.id }),
+                None => {
+                    return Err(FeetechError::NoReply {
+                        joint: j.name,
+                        id: j.id,
+                    });
+                }
                 Some((number, _)) if number != j.model.model_number => {
                     return Err(FeetechError::WrongModel {
                         joint: j.name,
@@ -400,7 +418,11 @@ impl<T: FeetechTransport> FeetechBusDriver<T> {
             self.write(j.id, addr::TORQUE_ENABLE, &[0])?;
             self.write(j.id, addr::LOCK, &[0])?;
             self.write(j.id, addr::MODE, &[0])?;
-            self.write(j.id, addr::HOMING_OFFSET, &to_sign_magnitude(j.homing_offset, 11).to_le_bytes())?;
+            self.write(
+                j.id,
+                addr::HOMING_OFFSET,
+                &to_sign_magnitude(-j.homing_offset, 11).to_le_bytes(),
+            )?;
             self.write(j.id, addr::P_GAIN, &j.gains.unwrap_or([32, 32]))?;
             self.write(j.id, addr::LOCK, &[1])?;
             if let Some(limit) = j.torque_limit {
@@ -549,13 +571,20 @@ impl<T: FeetechTransport> FeetechBusDriver<T> {
 
 /// The state block (56…70) into a joint's feedback.
 fn decode_state<I>(j: &FeetechJointConfig, b: &[u8], status: u8, fb: &mut FeetechFeedback<I>) {
-    let word = |at: u8| u16::from_le_bytes([b[usize::from(at - table::STATE_START)], b[usize::from(at - table::STATE_START) + 1]]);
+    let word = |at: u8| {
+        u16::from_le_bytes([
+            b[usize::from(at - table::STATE_START)],
+            b[usize::from(at - table::STATE_START) + 1],
+        ])
+    };
     let byte = |at: u8| b[usize::from(at - table::STATE_START)];
     let ticks = i32::from(word(addr::PRESENT_POSITION));
     fb.q = j.rad_of(ticks);
-    fb.qd = j.direction * f64::from(from_sign_magnitude(word(addr::PRESENT_SPEED), 15)) * table::rad_per_tick();
+    fb.qd =
+        j.direction * f64::from(from_sign_magnitude(word(addr::PRESENT_SPEED), 15)) * table::rad_per_tick();
     // Load is the duty in 0.1 %: at stall, torque follows it.
-    fb.tau = j.direction * f64::from(from_sign_magnitude(word(addr::PRESENT_LOAD), 10)) / 1000.0 * j.model.stall_torque;
+    fb.tau = j.direction * f64::from(from_sign_magnitude(word(addr::PRESENT_LOAD), 10)) / 1000.0
+        * j.model.stall_torque;
     fb.voltage = f64::from(byte(addr::PRESENT_VOLTAGE)) / 10.0;
     fb.temperature = byte(addr::PRESENT_TEMPERATURE);
     fb.status = status | byte(addr::STATUS);

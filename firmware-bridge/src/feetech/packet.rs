@@ -1,9 +1,9 @@
 //! Feetech's serial protocol (SCS/STS): packets, checksum, sign-magnitude values.
 //!
-//! Instruction `FF FF ID LEN INSTR P… CHK`, status `FF FF ID LEN ERR P… CHK`; `LEN` = parameters
-//! + 2; `CHK = ~(ID + LEN + INSTR/ERR + ΣP) & 0xFF`. No byte stuffing: a packet's length is in its
-//! header. Signed values are sign-magnitude: bit 15 for position and speed, bit 10 for load,
-//! bit 11 for the homing offset.
+//! Instruction `FF FF ID LEN INSTR P… CHK`, status `FF FF ID LEN ERR P… CHK`; `LEN` is the
+//! number of parameters plus 2; `CHK = ~(ID + LEN + INSTR/ERR + ΣP) & 0xFF`. No byte stuffing: a
+//! packet's length is in its header. Signed values are sign-magnitude: bit 15 for position and
+//! speed, bit 10 for load, bit 11 for the homing offset.
 
 use crate::half_duplex::{LinkError, ServoCodec, StatusDecode};
 
@@ -157,7 +157,11 @@ pub fn to_sign_magnitude(v: i32, sign_bit: u32) -> u16 {
 /// A sign-magnitude value with its sign at bit `sign_bit`.
 pub fn from_sign_magnitude(raw: u16, sign_bit: u32) -> i32 {
     let magnitude = i32::from(raw) & ((1 << sign_bit) - 1);
-    if raw & (1 << sign_bit) != 0 { -magnitude } else { magnitude }
+    if raw & (1 << sign_bit) != 0 {
+        -magnitude
+    } else {
+        magnitude
+    }
 }
 
 /// Feetech framing for the host ports of [`crate::half_duplex`].
@@ -197,7 +201,11 @@ impl ServoCodec for Feetech {
             }
             Decoded::Incomplete { skip } => StatusDecode::Incomplete { skip },
             Decoded::Invalid { checksum, skip, .. } => StatusDecode::Invalid {
-                error: if checksum { LinkError::Crc } else { LinkError::Malformed },
+                error: if checksum {
+                    LinkError::Crc
+                } else {
+                    LinkError::Malformed
+                },
                 used: skip,
             },
         }
@@ -221,19 +229,41 @@ mod tests {
         let answer = [0xFF, 0xFF, 0x01, 0x04, 0x00, 0x00, 0x08, 0xF2];
         assert_eq!(checksum(&answer[2..7]), 0xF2);
         match decode(&answer) {
-            Decoded::Packet { id, first, params, used } => {
-                assert_eq!((id, first, &answer[params.0..params.1], used), (1, 0, &[0x00, 0x08][..], 8));
+            Decoded::Packet {
+                id,
+                first,
+                params,
+                used,
+            } => {
+                assert_eq!(
+                    (id, first, &answer[params.0..params.1], used),
+                    (1, 0, &[0x00, 0x08][..], 8)
+                );
             }
             other => panic!("{other:?}"),
         }
         // Junk before, a bad checksum, a split packet.
         let mut bad = answer;
         bad[7] ^= 1;
-        assert!(matches!(decode(&bad), Decoded::Invalid { checksum: true, id: Some(1), skip: 8 }));
+        assert!(matches!(
+            decode(&bad),
+            Decoded::Invalid {
+                checksum: true,
+                id: Some(1),
+                skip: 8
+            }
+        ));
         assert_eq!(decode(&answer[..5]), Decoded::Incomplete { skip: 0 });
         let mut junk = vec![0x12, 0xFF];
         junk.extend_from_slice(&answer);
-        assert!(matches!(decode(&junk), Decoded::Invalid { id: None, skip: 2, .. }));
+        assert!(matches!(
+            decode(&junk),
+            Decoded::Invalid {
+                id: None,
+                skip: 2,
+                ..
+            }
+        ));
         assert!(matches!(decode(&junk[2..]), Decoded::Packet { used: 8, .. }));
     }
 

@@ -410,7 +410,10 @@ impl StsServo {
     fn write(&mut self, a: u8, data: &[u8]) {
         let was_on = self.torque_enabled();
         for (k, &v) in data.iter().enumerate() {
-            let Some(at) = a.checked_add(k as u8).filter(|&at| usize::from(at) < table::TABLE_LEN) else {
+            let Some(at) = a
+                .checked_add(k as u8)
+                .filter(|&at| usize::from(at) < table::TABLE_LEN)
+            else {
                 break;
             };
             if !writable(at) {
@@ -421,7 +424,11 @@ impl StsServo {
                 let present = i32::from(word(&self.table, addr::PRESENT_POSITION));
                 let old = from_sign_magnitude(word(&self.table, addr::HOMING_OFFSET), 11);
                 let offset = (present + old - 2048).clamp(-2047, 2047);
-                set_word(&mut self.table, addr::HOMING_OFFSET, to_sign_magnitude(offset, 11));
+                set_word(
+                    &mut self.table,
+                    addr::HOMING_OFFSET,
+                    to_sign_magnitude(offset, 11),
+                );
                 continue;
             }
             self.table[usize::from(at)] = v;
@@ -473,7 +480,10 @@ impl StsServo {
 
         let mut duty = 0.0;
         if self.torque_enabled() && self.table[usize::from(addr::MODE)] == 0 {
-            let (lo, hi) = (word(&self.table, addr::MIN_ANGLE), word(&self.table, addr::MAX_ANGLE));
+            let (lo, hi) = (
+                word(&self.table, addr::MIN_ANGLE),
+                word(&self.table, addr::MAX_ANGLE),
+            );
             let mut goal = f64::from(from_sign_magnitude(word(&self.table, addr::GOAL_POSITION), 15));
             if lo != 0 || hi != 0 {
                 goal = goal.clamp(f64::from(lo), f64::from(hi.max(lo)));
@@ -495,7 +505,8 @@ impl StsServo {
             }
             let error = self.setpoint - f64::from(present);
             self.integral = (self.integral + error * dt).clamp(-1e4, 1e4);
-            let [p, d, i] = [addr::P_GAIN, addr::D_GAIN, addr::I_GAIN].map(|a| f64::from(self.table[usize::from(a)]));
+            let [p, d, i] =
+                [addr::P_GAIN, addr::D_GAIN, addr::I_GAIN].map(|a| f64::from(self.table[usize::from(a)]));
             let limit = f64::from(word(&self.table, addr::TORQUE_LIMIT).min(1000)) / 1000.0;
             let limit = if self.status() & error::OVERLOAD != 0 {
                 limit.min(f64::from(self.table[usize::from(addr::PROTECTIVE_TORQUE)]) / 100.0)
@@ -552,7 +563,10 @@ mod tests {
 
     fn servo() -> (StsServo, InertiaPlant) {
         let m = find("STS3215").unwrap();
-        (StsServo::new(m, StsConfig::new(3, m)), InertiaPlant::new(2e-3, 0.02, 0.01, 0.0))
+        (
+            StsServo::new(m, StsConfig::new(3, m)),
+            InertiaPlant::new(2e-3, 0.02, 0.01, 0.0),
+        )
     }
 
     fn run(s: &mut StsServo, p: &mut InertiaPlant, seconds: f64) {
@@ -572,16 +586,22 @@ mod tests {
         assert_eq!(word(&s.table, addr::PRESENT_POSITION), 2048);
         s.handle(3, inst::WRITE, &[addr::TORQUE_ENABLE, 1]).unwrap();
         // Goal 2048 + 512 ticks (45°).
-        s.handle(3, inst::WRITE, &[addr::GOAL_POSITION, 0x00, 0x0A]).unwrap();
+        s.handle(3, inst::WRITE, &[addr::GOAL_POSITION, 0x00, 0x0A])
+            .unwrap();
         run(&mut s, &mut p, 1.0);
         let present = i32::from(word(&s.table, addr::PRESENT_POSITION));
         assert!((present - 2560).abs() <= 12, "{present}");
         assert!((p.q - std::f64::consts::FRAC_PI_4).abs() < 0.02, "{}", p.q);
         // A Torque Limit of 10 % caps the output against a held shaft.
         s.handle(3, inst::WRITE, &[addr::TORQUE_LIMIT, 100, 0]).unwrap();
-        s.handle(3, inst::WRITE, &[addr::GOAL_POSITION, 0x00, 0x08]).unwrap();
+        s.handle(3, inst::WRITE, &[addr::GOAL_POSITION, 0x00, 0x08])
+            .unwrap();
         s.tick(SimInstant::ZERO, &mut InertiaPlant::new(1e3, 0.0, 0.0, p.q));
-        assert!(s.applied_torque().abs() <= 0.1 * 1.91 + 1e-9, "{}", s.applied_torque());
+        assert!(
+            s.applied_torque().abs() <= 0.1 * 1.91 + 1e-9,
+            "{}",
+            s.applied_torque()
+        );
         // Negative goals are sign-magnitude: bit 15.
         s.handle(3, inst::WRITE, &[addr::GOAL_SPEED, 0x64, 0x80]).unwrap();
         assert_eq!(from_sign_magnitude(word(&s.table, addr::GOAL_SPEED), 15), -100);
@@ -608,15 +628,31 @@ mod tests {
     fn sync_read_and_write_use_the_list_and_response_level_quiets_writes() {
         let (mut s, _) = servo();
         // `[addr, len, id…]`: servo 3 is second in the list.
-        let r = s.handle(packet::BROADCAST_ID, inst::SYNC_READ, &[addr::PRESENT_POSITION, 2, 1, 3, 5]).unwrap();
+        let r = s
+            .handle(
+                packet::BROADCAST_ID,
+                inst::SYNC_READ,
+                &[addr::PRESENT_POSITION, 2, 1, 3, 5],
+            )
+            .unwrap();
         assert_eq!(r.slot, ReplySlot::InList(1));
-        assert!(s.handle(packet::BROADCAST_ID, inst::SYNC_READ, &[56, 2, 1, 5]).is_none());
+        assert!(
+            s.handle(packet::BROADCAST_ID, inst::SYNC_READ, &[56, 2, 1, 5])
+                .is_none()
+        );
         // `[addr, len, (id, data)…]`, no answer.
-        let none = s.handle(packet::BROADCAST_ID, inst::SYNC_WRITE, &[addr::GOAL_POSITION, 2, 1, 0, 4, 3, 0x34, 0x12]);
+        let none = s.handle(
+            packet::BROADCAST_ID,
+            inst::SYNC_WRITE,
+            &[addr::GOAL_POSITION, 2, 1, 0, 4, 3, 0x34, 0x12],
+        );
         assert!(none.is_none());
         assert_eq!(word(&s.table, addr::GOAL_POSITION), 0x1234);
         // Response level 0: writes go unanswered, reads still answer.
-        assert!(s.handle(3, inst::WRITE, &[addr::RESPONSE_LEVEL, 0]).is_none(), "in force at once");
+        assert!(
+            s.handle(3, inst::WRITE, &[addr::RESPONSE_LEVEL, 0]).is_none(),
+            "in force at once"
+        );
         assert!(s.handle(3, inst::WRITE, &[addr::ACCELERATION, 5]).is_none());
         assert!(s.handle(3, inst::READ, &[addr::ACCELERATION, 1]).is_some());
         // REG_WRITE waits for ACTION.
@@ -631,7 +667,8 @@ mod tests {
         let (mut s, _) = servo();
         let mut wall = InertiaPlant::new(1e6, 0.0, 0.0, 0.0);
         s.handle(3, inst::WRITE, &[addr::TORQUE_ENABLE, 1]).unwrap();
-        s.handle(3, inst::WRITE, &[addr::GOAL_POSITION, 0x00, 0x0C]).unwrap();
+        s.handle(3, inst::WRITE, &[addr::GOAL_POSITION, 0x00, 0x0C])
+            .unwrap();
         for _ in 0..1000 {
             s.tick(SimInstant::ZERO, &mut wall);
         }

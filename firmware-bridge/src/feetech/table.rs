@@ -99,7 +99,9 @@ pub const STATE_START: u8 = addr::PRESENT_POSITION;
 pub const STATE_LEN: u8 = 15;
 
 /// The baud rate of each index of address 6.
-pub const BAUDS: [u32; 8] = [1_000_000, 500_000, 250_000, 128_000, 115_200, 76_800, 57_600, 38_400];
+pub const BAUDS: [u32; 8] = [
+    1_000_000, 500_000, 250_000, 128_000, 115_200, 76_800, 57_600, 38_400,
+];
 
 /// The baud rate of an index.
 pub fn baud_of_index(index: u8) -> Option<u32> {

@@ -93,8 +93,13 @@ impl FeetechChain {
             let servo = &self.servos[index];
             let from = self.reply_bytes.len();
             self.reply_bytes.resize(from + reply.len + 6, 0);
-            let n = packet::encode(reply.id, reply.error, servo.reply_params(&reply), &mut self.reply_bytes[from..])
-                .unwrap_or(0);
+            let n = packet::encode(
+                reply.id,
+                reply.error,
+                servo.reply_params(&reply),
+                &mut self.reply_bytes[from..],
+            )
+            .unwrap_or(0);
             self.reply_bytes.truncate(from + n);
             if reply.corrupt_checksum && n > 0 {
                 self.reply_bytes[from + n - 1] ^= 0x5A;
@@ -224,7 +229,10 @@ impl FeetechRig {
             .collect();
         Self {
             wire: SimFeetechWire::new(FeetechChain::new(emulated, WireTiming::new(baud))),
-            plants: servos.iter().map(|_| InertiaPlant::new(2e-3, 0.05, 0.02, 0.0)).collect(),
+            plants: servos
+                .iter()
+                .map(|_| InertiaPlant::new(2e-3, 0.05, 0.02, 0.0))
+                .collect(),
             now: SimInstant::ZERO,
             period: Duration::from_millis(1),
             next_tick: SimInstant::ZERO,

@@ -66,6 +66,25 @@ impl<S: ByteStream> ImuReader<S> {
     /// Decodes everything that has arrived (not waiting) and returns the newest sample so far.
     pub fn poll(&mut self) -> std::io::Result<Option<ImuReading<S::Instant>>> {
         let now = self.stream.now();
+        self.poll_by(now)
+    }
+
+    /// Polls until the part's first sample arrives or `within` passes on the stream's clock
+    /// (a part the host must first configure, as a BNO055, takes a few round trips); whether one
+    /// came.
+    pub fn wait_first(&mut self, within: std::time::Duration) -> std::io::Result<bool> {
+        let start = self.stream.seconds();
+        while self.latest.is_none() && self.stream.seconds() - start < within.as_secs_f64() {
+            let next = self.stream.now() + std::time::Duration::from_millis(1);
+            self.poll_by(next)?;
+        }
+        Ok(self.latest.is_some())
+    }
+
+    /// Sends a due request, then decodes what arrives, waiting until `deadline` at most for the
+    /// first bytes.
+    fn poll_by(&mut self, deadline: S::Instant) -> std::io::Result<Option<ImuReading<S::Instant>>> {
+        let mut wait_until = deadline;
         // A sensor the host asks: the next request, when one is due.
         if let Decoder::Bno055(host) = &mut self.decoder
             && let Some(request) = host.request(self.stream.seconds())
@@ -73,10 +92,11 @@ impl<S: ByteStream> ImuReader<S> {
             self.stream.write_all(request)?;
         }
         loop {
-            let n = self.stream.read_until(&mut self.buf, now)?;
+            let n = self.stream.read_until(&mut self.buf, wait_until)?;
             if n == 0 {
                 break;
             }
+            wait_until = self.stream.now();
             let mut newest = None;
             match &mut self.decoder {
                 Decoder::Wit(d) => d.feed(&self.buf[..n], |s| newest = Some(*s)),

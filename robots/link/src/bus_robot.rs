@@ -16,6 +16,7 @@ use firmware_bridge::dxl::driver::{DxlBusDriver, DxlCommand, DxlDriverOptions};
 use firmware_bridge::dxl::models as dxl_models;
 use firmware_bridge::dxl::table::addr;
 use firmware_bridge::dxl::transport::DxlTransport;
+use firmware_bridge::feetech::driver::{FeetechBusDriver, FeetechDriverOptions, FeetechTransport};
 use firmware_bridge::mit::codec::MotorFault;
 use firmware_bridge::mit::driver::{JointCommand, MitBusDriver};
 use firmware_bridge::serial::ByteStream;
@@ -28,16 +29,21 @@ use crate::link::{IoError, RobotLink};
 use crate::state::{DeviceIdentity, JointTarget, RobotState};
 use crate::workers::Worker;
 
+/// How long identification waits for the IMU's first sample.
+const IMU_FIRST_SAMPLE: Duration = Duration::from_millis(500);
+
 /// Buses one robot may have (more are refused at set-up).
 pub const MAX_BUSES: usize = 16;
 
 /// The ports of a robot's buses, in robot.toml order per kind.
 #[derive(Debug)]
-pub struct BusPorts<C, D, S> {
+pub struct BusPorts<C, D, F, S> {
     /// One port per `mit_can` bus, by name.
     pub can: Vec<(String, C)>,
     /// One port per `dynamixel` bus, by name.
     pub dxl: Vec<(String, D)>,
+    /// One port per `feetech` bus, by name.
+    pub feetech: Vec<(String, F)>,
     /// The IMU stream.
     pub imu: S,
 }
@@ -339,6 +345,149 @@ where
     }
 }
 
+/// A Feetech line: the servos run their own position loop, so the loop's stiffness and damping
+/// become their P/D coefficients (written when they change) and each joint's torque limit their
+/// Torque Limit (set once). Feed-forward torque cannot reach them, as with Dynamixel.
+#[derive(Debug)]
+struct FeetechBus<F: FeetechTransport> {
+    driver: FeetechBusDriver<F>,
+    joints: Vec<usize>,
+    goals: Vec<f64>,
+    /// Stiffness and damping the servos hold now (NaN: unknown, write before use).
+    gains_held: Vec<(f64, f64)>,
+    gains: Vec<[u8; 2]>,
+    enabled: bool,
+    pending: bool,
+}
+
+impl<F: FeetechTransport> FeetechBus<F> {
+    fn new(driver: FeetechBusDriver<F>, joints: Vec<usize>) -> Self {
+        let n = joints.len();
+        Self {
+            driver,
+            joints,
+            goals: vec![0.0; n],
+            gains_held: vec![(f64::NAN, f64::NAN); n],
+            gains: vec![[0; 2]; n],
+            enabled: false,
+            pending: false,
+        }
+    }
+
+    fn copy_feedback(&self, state: &mut RobotState) {
+        use firmware_bridge::feetech::packet::error;
+        let faults =
+            error::VOLTAGE | error::ANGLE_SENSOR | error::OVERHEAT | error::OVERCURRENT | error::OVERLOAD;
+        for (f, &i) in self.driver.feedback().iter().zip(&self.joints) {
+            state.q[i] = f.q;
+            state.qd[i] = f.qd;
+            state.tau[i] = f.tau;
+            state.missed[i] = f.missed_cycles;
+            state.faulted[i] = f.status & faults != 0;
+        }
+    }
+}
+
+impl<F: FeetechTransport + Send + std::fmt::Debug> JointBus for FeetechBus<F>
+where
+    F::Instant: Send,
+{
+    fn identify(&mut self) -> Result<(), IoError> {
+        self.driver.configure()?;
+        self.gains_held.fill((f64::NAN, f64::NAN));
+        self.enabled = false;
+        Ok(())
+    }
+
+    fn sample(&mut self, state: &mut RobotState) -> Result<(), IoError> {
+        self.driver.read_state()?;
+        self.copy_feedback(state);
+        Ok(())
+    }
+
+    fn send(&mut self, targets: &[JointTarget]) -> Result<(), IoError> {
+        let want = self.joints.iter().all(|&i| targets[i].enabled);
+        for (g, &i) in self.goals.iter_mut().zip(&self.joints) {
+            *g = targets[i].q;
+        }
+        if want {
+            let changed = self
+                .joints
+                .iter()
+                .zip(&self.gains_held)
+                .any(|(&i, &(kp, kd))| targets[i].kp != kp || targets[i].kd != kd);
+            if changed {
+                for (k, &i) in self.joints.iter().enumerate() {
+                    let model = &self.driver.joints()[k].model;
+                    self.gains[k] =
+                        firmware_bridge::feetech::driver::gains_for(targets[i].kp, targets[i].kd, model);
+                }
+                self.driver.write_gains(&self.gains)?;
+                for (held, &i) in self.gains_held.iter_mut().zip(&self.joints) {
+                    *held = (targets[i].kp, targets[i].kd);
+                }
+            }
+            self.driver.write_goals(&self.goals)?;
+        }
+        if want != self.enabled {
+            if want {
+                self.driver.enable()?;
+            } else {
+                self.driver.disable()?;
+            }
+            self.enabled = want;
+        }
+        self.driver.request_state()?;
+        self.pending = true;
+        Ok(())
+    }
+
+    fn receive(&mut self, state: &mut RobotState) -> Result<(), IoError> {
+        if std::mem::take(&mut self.pending) {
+            self.driver.collect_state()?;
+        }
+        self.copy_feedback(state);
+        Ok(())
+    }
+
+    fn torque_off(&mut self) -> Result<(), IoError> {
+        self.enabled = false;
+        self.pending = false;
+        self.driver.disable()?;
+        Ok(())
+    }
+
+    fn identities(&mut self, bus: &str, out: &mut Vec<DeviceIdentity>) -> Result<(), IoError> {
+        for k in 0..self.driver.joints().len() {
+            let j = self.driver.joints()[k].clone();
+            let found = self.driver.ping(j.id)?;
+            let mut limit = [0u8; 2];
+            if found.is_some() {
+                self.driver.read(
+                    j.id,
+                    firmware_bridge::feetech::table::addr::TORQUE_LIMIT,
+                    &mut limit,
+                )?;
+            }
+            let limit = f64::from(u16::from_le_bytes(limit).min(1000)) / 1000.0;
+            out.push(DeviceIdentity {
+                joint: j.name.clone(),
+                bus: bus.to_owned(),
+                id: j.id,
+                model: j.model.name.clone(),
+                answer: match found {
+                    Some((number, [major, minor])) => format!("model {number}, firmware {major}.{minor}"),
+                    None => "no reply".into(),
+                },
+                firmware: found.map(|(_, fw)| fw[0]),
+                current_limit_a: None,
+                torque_limit_nm: limit * j.model.stall_torque,
+            });
+        }
+        Ok(())
+    }
+}
+
 impl<S: ByteStream + std::fmt::Debug> RobotLink for BusRobot<S>
 where
     S::Instant: std::fmt::Debug,
@@ -425,9 +574,9 @@ impl<S: ByteStream> BusRobot<S> {
     /// Drivers for `robot` on `ports`, each bus at the rate robot.toml gives it; no reply is
     /// waited for longer than `reply_timeout` or [`crate::cycle::REPLY_SHARE`] of the bus's period. Nothing is
     /// sent yet.
-    pub fn new<C, D>(
+    pub fn new<C, D, F>(
         robot: &Robot,
-        ports: BusPorts<C, D, S>,
+        ports: BusPorts<C, D, F, S>,
         reply_timeout: Duration,
         dxl: DxlDriverOptions,
     ) -> Result<Self, IoError>
@@ -436,6 +585,8 @@ impl<S: ByteStream> BusRobot<S> {
         C::Instant: Send,
         D: DxlTransport + Send + std::fmt::Debug + 'static,
         D::Instant: Send,
+        F: FeetechTransport + Send + std::fmt::Debug + 'static,
+        F::Instant: Send,
     {
         let n = robot.config.joints.len();
         let policy_period =
@@ -499,6 +650,19 @@ impl<S: ByteStream> BusRobot<S> {
                 ..dxl
             };
             let bus = DxlBus::new(DxlBusDriver::new(port, cfg, options)?, idx.clone(), robot)?;
+            add(Box::new(bus), idx, timing, name, false);
+        }
+        for (name, port) in ports.feetech {
+            check_kind(robot, &name, BusKind::Feetech)?;
+            let timing = timing(&name)?;
+            let (idx, cfg): (Vec<_>, Vec<_>) = robot
+                .joints_on(&name)
+                .map(|(i, j)| (i, drivers::feetech_joint(robot, j)))
+                .unzip();
+            let options = FeetechDriverOptions {
+                reply_slack: dxl.reply_slack,
+            };
+            let bus = FeetechBus::new(FeetechBusDriver::new(port, cfg, options)?, idx.clone());
             add(Box::new(bus), idx, timing, name, false);
         }
         if cyclers.len() > MAX_BUSES {
@@ -616,7 +780,9 @@ impl<S: ByteStream> BusRobot<S> {
             c.sample(self.now)?;
         }
         if let Some(imu) = &mut self.imu {
-            imu.poll(self.now)?;
+            // A part the host configures first (BNO055) answers after a few round trips; a
+            // silent one is left to the safety layer, which stops on a stale IMU.
+            imu.wait_first(IMU_FIRST_SAMPLE, self.now)?;
         }
         self.identified = true;
         self.start_threads()

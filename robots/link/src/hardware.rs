@@ -6,6 +6,7 @@ use std::time::Duration;
 use firmware_bridge::can::socketcan::SocketCanBus;
 use firmware_bridge::dxl::driver::DxlDriverOptions;
 use firmware_bridge::dxl::transport::SerialDxlPort;
+use firmware_bridge::feetech::driver::SerialFeetechPort;
 use firmware_bridge::serial::DeviceStream;
 use robots::{BusKind, Robot};
 
@@ -32,6 +33,7 @@ pub fn open_with(robot: &Robot, on_start: fn()) -> Result<HardwareRobot, IoError
 pub fn open_sequential(robot: &Robot) -> Result<HardwareRobot, IoError> {
     let mut can = Vec::new();
     let mut dxl = Vec::new();
+    let mut feetech = Vec::new();
     let mut imu = None;
     for bus in &robot.config.buses {
         let fail = |e: &dyn std::fmt::Display| {
@@ -45,6 +47,10 @@ pub fn open_sequential(robot: &Robot) -> Result<HardwareRobot, IoError> {
             BusKind::Dynamixel => dxl.push((
                 bus.name.clone(),
                 SerialDxlPort::open(&bus.device, bus.rate).map_err(|e| fail(&e))?,
+            )),
+            BusKind::Feetech => feetech.push((
+                bus.name.clone(),
+                SerialFeetechPort::open(&bus.device, bus.rate).map_err(|e| fail(&e))?,
             )),
             BusKind::ImuSerial if bus.name == robot.config.imu.bus => {
                 imu = Some(DeviceStream::open(&bus.device, bus.rate).map_err(|e| fail(&e))?);
@@ -60,7 +66,12 @@ pub fn open_sequential(robot: &Robot) -> Result<HardwareRobot, IoError> {
     };
     let link = BusRobot::new(
         robot,
-        BusPorts { can, dxl, imu },
+        BusPorts {
+            can,
+            dxl,
+            feetech,
+            imu,
+        },
         Duration::from_millis(2),
         options,
     )?;

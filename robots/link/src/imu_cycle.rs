@@ -90,6 +90,13 @@ impl<S: ByteStream> ImuCycle<S> {
         }
     }
 
+    /// Waits (bounded by `within` of the stream's clock) for the part's first sample, then keeps
+    /// it, stamped `now`.
+    pub(crate) fn wait_first(&mut self, within: Duration, now: Duration) -> std::io::Result<()> {
+        self.reader.wait_first(within)?;
+        self.poll(now)
+    }
+
     /// Drains the line; a new sample is kept, stamped `now`.
     pub(crate) fn poll(&mut self, now: Duration) -> std::io::Result<()> {
         if let Some(r) = self.reader.poll()?

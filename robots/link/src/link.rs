@@ -18,6 +18,9 @@ pub enum IoError {
     /// A Dynamixel bus failed.
     #[error("Dynamixel")]
     Dxl(#[from] DxlError),
+    /// A Feetech bus failed.
+    #[error("Feetech")]
+    Feetech(#[from] firmware_bridge::feetech::driver::FeetechError),
     /// The IMU stream failed.
     #[error("IMU")]
     Imu(#[from] std::io::Error),
@@ -96,12 +99,18 @@ impl IoError {
     /// What kind of failure this is.
     pub fn kind(&self) -> ErrorKind {
         use firmware_bridge::dxl::driver::DxlError as D;
+        use firmware_bridge::feetech::driver::FeetechError as F;
         use firmware_bridge::mit::driver::MitError as M;
         match self {
-            Self::Mit(M::NoReply { .. }) | Self::Dxl(D::Fault(_) | D::Scan(_)) => ErrorKind::Device,
+            Self::Mit(M::NoReply { .. })
+            | Self::Dxl(D::Fault(_) | D::Scan(_))
+            | Self::Feetech(F::NoReply { .. } | F::WrongModel { .. }) => ErrorKind::Device,
             Self::Mit(M::Config { .. } | M::Command { .. } | M::CommandCount { .. })
-            | Self::Dxl(D::Config(_)) => ErrorKind::BadInput,
-            Self::Mit(_) | Self::Dxl(_) | Self::Imu(_) | Self::Open(_) => ErrorKind::Io,
+            | Self::Dxl(D::Config(_))
+            | Self::Feetech(F::Config { .. } | F::NotFinite { .. } | F::CommandCount { .. }) => {
+                ErrorKind::BadInput
+            }
+            Self::Mit(_) | Self::Dxl(_) | Self::Feetech(_) | Self::Imu(_) | Self::Open(_) => ErrorKind::Io,
             Self::Setup(_) => ErrorKind::BadInput,
         }
     }
