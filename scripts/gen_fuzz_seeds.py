@@ -10,6 +10,8 @@ mutates them into the ones it must refuse. None is third-party material:
   mit_frames/      CAN motor frames (4-byte little-endian identifier, top bit = 29-bit, then the
                    data): an MIT-mode enable and command to motor 1, Robstride enable, control
                    and feedback frames for motor 2 and host 0xFD.
+  feetech_packets/ Feetech STS traffic: a ping and a read of the present position with their
+                   answers, a sync read to three servos.
   udp_command/     operator command datagrams (`play --command-udp`): a valid version-1 message,
                    and one with a value out of range.
   osc_vmc/         VMC tracker datagrams as a VR bridge sends them (a bundle of headset and
@@ -91,6 +93,13 @@ write("mit_frames", "mit_command", can_frame(1, [0x7F, 0xFF, 0x7F, 0xF0, 0x33, 0
 write("mit_frames", "robstride_enable", can_frame(0x03 << 24 | 0xFD << 8 | 2, [0] * 8, True))
 write("mit_frames", "robstride_control", can_frame(0x01 << 24 | 0x7FFF << 8 | 2, struct.pack(">4H", 0x7FFF, 0x7FFF, 0x0800, 0x0400), True))
 write("mit_frames", "robstride_feedback", can_frame(0x02 << 24 | 2 << 22 | 2 << 8 | 0xFD, struct.pack(">4H", 0x8000, 0x7FFF, 0x7FFF, 250), True))
+def feetech(ident, first, params):
+    body = bytes([ident, len(params) + 2, first]) + bytes(params)
+    return b"\xff\xff" + body + bytes([~sum(body) & 0xFF])
+
+
+write("feetech_packets", "ping_and_read", feetech(1, 0x01, []) + feetech(1, 0, []) + feetech(1, 0x02, [56, 2]) + feetech(1, 0, [0x00, 0x08]))
+write("feetech_packets", "sync_read", feetech(0xFE, 0x82, [56, 15, 1, 2, 3]))
 write("udp_command", "walk", b'{"version": 1, "seq": 17, "command": [0.3, 0.0, -0.5]}')
 write("udp_command", "too_fast", b'{"version": 1, "seq": 18, "command": [3.0, 0.0, 0.0]}')
 
