@@ -152,6 +152,63 @@ fn dxl_scan_finds_the_servos_dxl_emulate_serves() {
 }
 
 #[test]
+fn feetech_scan_finds_the_servos_feetech_emulate_serves_and_bad_ones_are_refused() {
+    let mut emulate = Running::start(&[
+        "feetech",
+        "emulate",
+        "--servo",
+        "1:STS3215",
+        "--servo",
+        "4:STS3215",
+        "--baud",
+        "500000",
+        "--seconds",
+        "20",
+    ]);
+    let first = emulate.wait_for("/dev/pts/", Duration::from_secs(60));
+    let path = first
+        .split(" on ")
+        .nth(1)
+        .and_then(|s| s.split(' ').next())
+        .unwrap()
+        .to_owned();
+    let (ok, stdout, stderr) = run(&[
+        "feetech", "scan", "--port", &path, "--baud", "500000", "--ids", "1-5",
+    ]);
+    emulate.kill();
+    assert!(ok, "{stdout}{stderr}");
+    assert!(stdout.contains("2 servo(s) answered out of 5 asked"), "{stdout}");
+    assert!(stdout.contains("   1      STS3215   3.10      2048"), "{stdout}");
+    for (args, needle) in [
+        (
+            &["feetech", "emulate", "--servo", "1:STS9999"][..],
+            "unknown servo model 'STS9999'",
+        ),
+        (
+            &[
+                "feetech",
+                "emulate",
+                "--servo",
+                "1:STS3215",
+                "--baud",
+                "9600",
+                "--seconds",
+                "1",
+            ][..],
+            "--baud 9600",
+        ),
+        (&["feetech", "emulate", "--servo", "254:STS3215"][..], "254"),
+    ] {
+        let out = robodeploy().args(args).output().unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !out.status.success() && stderr.contains(needle),
+            "{args:?}: {stderr}"
+        );
+    }
+}
+
+#[test]
 fn dxl_emulate_rejects_bad_servos_and_rates_by_name() {
     let out = robodeploy()
         .args(["dxl", "emulate", "--servo", "1:XM999"])

@@ -8,7 +8,7 @@ use firmware_bridge::can::CanBus;
 use firmware_bridge::can::socketcan::SocketCanBus;
 use firmware_bridge::can::socketcand::SocketcandClient;
 use firmware_bridge::dxl::transport::{DxlTransport, SerialDxlPort};
-use firmware_bridge::feetech::driver::{FeetechBusDriver, FeetechDriverOptions, SerialFeetechPort};
+use firmware_bridge::feetech::driver::SerialFeetechPort;
 use firmware_bridge::imu::reader::ImuReader;
 use firmware_bridge::serial::{ByteStream, DeviceStream};
 use firmware_bridge::{dxl, feetech, mit};
@@ -260,31 +260,22 @@ fn scan_feetech(robot: &Robot, bus: &str, port: SerialFeetechPort, timeout: Dura
         .unwrap_or(0)
         .saturating_add(2)
         .min(253);
-    let options = FeetechDriverOptions { reply_slack: timeout };
-    let mut driver = FeetechBusDriver::new(port, Vec::new(), options)?;
-    let mut hits = Vec::new();
-    for id in 1..=last {
-        if let Some((number, firmware)) = driver.ping(id)? {
-            let mut state = [0u8; 2];
-            driver.read(id, feetech::table::addr::PRESENT_POSITION, &mut state)?;
-            hits.push((id, number, firmware, u16::from_le_bytes(state)));
-        }
-    }
+    let hits = feetech::driver::scan(port, 1..=last, timeout)?;
     println!("sts  {bus}: {} servo(s) answered among IDs 1-{last}", hits.len());
     print_timing(robot, bus);
     let mut problems = 0;
     for j in &joints {
         let expected = robot.feetech_model(&j.model).map_or(0, |m| m.model_number);
-        match hits.iter().find(|h| h.0 == j.id) {
-            Some(&(_, number, [major, minor], position)) if number == expected => println!(
-                "  id {:>3}  {:<20} {:<11} pos {position:>5} ticks  firmware {major}.{minor}",
-                j.id, j.name, j.model
+        match hits.iter().find(|h| h.id == j.id) {
+            Some(h) if h.model_number == expected => println!(
+                "  id {:>3}  {:<20} {:<11} pos {:>5} ticks  {} °C  firmware {}.{}  status {:#04x}",
+                j.id, j.name, j.model, h.position, h.temperature, h.firmware[0], h.firmware[1], h.status
             ),
-            Some(&(_, number, ..)) => {
+            Some(h) => {
                 problems += 1;
                 println!(
-                    "  id {:>3}  {:<20} WRONG MODEL: configured {}, answers model {number}",
-                    j.id, j.name, j.model
+                    "  id {:>3}  {:<20} WRONG MODEL: configured {}, answers model {}",
+                    j.id, j.name, j.model, h.model_number
                 );
             }
             None => {
@@ -293,9 +284,9 @@ fn scan_feetech(robot: &Robot, bus: &str, port: SerialFeetechPort, timeout: Dura
             }
         }
     }
-    for h in hits.iter().filter(|h| !joints.iter().any(|j| j.id == h.0)) {
+    for h in hits.iter().filter(|h| !joints.iter().any(|j| j.id == h.id)) {
         problems += 1;
-        println!("  id {:>3}  not in robot.toml (model {})", h.0, h.1);
+        println!("  id {:>3}  not in robot.toml (model {})", h.id, h.model_number);
     }
     Ok(problems)
 }

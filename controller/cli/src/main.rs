@@ -14,6 +14,7 @@ mod commands;
 mod console;
 mod dxl;
 mod exit;
+mod feetech;
 mod logging;
 mod play;
 mod retarget;
@@ -60,6 +61,9 @@ enum Command {
     /// Dynamixel serial bus tools: emulated X-series servos on a pseudo-terminal, and bus scans.
     #[command(subcommand)]
     Dxl(dxl::DxlCommand),
+    /// Feetech serial bus tools: emulated STS servos on a pseudo-terminal, and bus scans.
+    #[command(subcommand)]
+    Feetech(feetech::FeetechCommand),
     /// Play a clip through a policy: on the mirrored robot (default, lockstep), in real time over
     /// real wires (--wall), or on the hardware (--hardware).
     ///
@@ -182,6 +186,7 @@ fn dispatch(command: Command) -> Result<std::process::ExitCode> {
         Command::Doctor { mjcf, onnx } => done(doctor(&mjcf, &onnx)),
         Command::Can(cmd) => done(can::run(cmd)),
         Command::Dxl(cmd) => done(dxl::run(cmd)),
+        Command::Feetech(cmd) => done(feetech::run(cmd)),
         Command::Bus(cmd) => done(bus::run(cmd)),
         Command::Calibrate(cmd) => done(calibrate::run(cmd)),
         Command::Sim(cmd) => done(sim::run(cmd)),

@@ -569,6 +569,68 @@ impl<T: FeetechTransport> FeetechBusDriver<T> {
     }
 }
 
+/// What one ID answered during a [`scan`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ScanHit {
+    /// Servo ID.
+    pub id: u8,
+    /// Model number (address 3).
+    pub model_number: u16,
+    /// Firmware major and minor version.
+    pub firmware: [u8; 2],
+    /// Present position, ticks.
+    pub position: u16,
+    /// Present temperature, °C.
+    pub temperature: u8,
+    /// Error bits in force (Status, 65).
+    pub status: u8,
+}
+
+/// Pings each ID in `ids` (three tries each, `timeout` per answer) and reads what answered:
+/// identity, position, temperature, status. Only reads; nothing is written.
+pub fn scan<T: FeetechTransport>(
+    port: T,
+    ids: impl IntoIterator<Item = u8>,
+    timeout: Duration,
+) -> Result<Vec<ScanHit>, FeetechError> {
+    let options = FeetechDriverOptions { reply_slack: timeout };
+    let mut d = FeetechBusDriver::new(port, Vec::new(), options)?;
+    let mut hits = Vec::new();
+    for id in ids {
+        let Some((model_number, firmware)) = d.ping(id)? else {
+            continue;
+        };
+        let mut state = [0u8; 10];
+        d.read(id, addr::PRESENT_POSITION, &mut state)?;
+        hits.push(ScanHit {
+            id,
+            model_number,
+            firmware,
+            position: u16::from_le_bytes([state[0], state[1]]),
+            temperature: state[usize::from(addr::PRESENT_TEMPERATURE - addr::PRESENT_POSITION)],
+            status: state[usize::from(addr::STATUS - addr::PRESENT_POSITION)],
+        });
+    }
+    Ok(hits)
+}
+
+/// The names of error bits, for people.
+pub fn error_names(bits: u8) -> String {
+    use super::packet::error;
+    let names: Vec<&str> = [
+        (error::VOLTAGE, "voltage"),
+        (error::ANGLE_SENSOR, "angle sensor"),
+        (error::OVERHEAT, "overheat"),
+        (error::OVERCURRENT, "overcurrent"),
+        (error::OVERLOAD, "overload"),
+    ]
+    .into_iter()
+    .filter(|(b, _)| bits & b != 0)
+    .map(|(_, n)| n)
+    .collect();
+    names.join(", ")
+}
+
 /// The state block (56…70) into a joint's feedback.
 fn decode_state<I>(j: &FeetechJointConfig, b: &[u8], status: u8, fb: &mut FeetechFeedback<I>) {
     let word = |at: u8| {
