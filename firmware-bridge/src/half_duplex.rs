@@ -13,6 +13,7 @@ use std::marker::PhantomData;
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
 
+use crate::plant::InertiaPlant;
 use crate::serial::SerialSimWorld;
 use crate::time::{BusInstant, SimInstant};
 
@@ -466,6 +467,151 @@ pub trait LineDevices {
     fn next_reply_at(&self) -> Option<SimInstant>;
     /// Hands every status packet that starts by `now` to `sink(start, bytes)`, in start order.
     fn take_replies_due(&mut self, now: SimInstant, sink: &mut dyn FnMut(SimInstant, &[u8]));
+}
+
+/// Status packets servos have queued, each with the time its first byte goes on the wire: the
+/// bytes in one buffer made once, reused whenever nothing is pending.
+#[derive(Debug)]
+pub struct ReplySchedule {
+    scheduled: VecDeque<(SimInstant, usize, usize)>,
+    bytes: Vec<u8>,
+}
+
+impl ReplySchedule {
+    /// Room for `packets` packets of `bytes` bytes in all before anything grows.
+    pub fn with_capacity(packets: usize, bytes: usize) -> Self {
+        Self {
+            scheduled: VecDeque::with_capacity(packets),
+            bytes: Vec::with_capacity(bytes),
+        }
+    }
+
+    /// The buffer the next packet is written at the end of (emptied first when nothing is
+    /// pending).
+    pub fn bytes_mut(&mut self) -> &mut Vec<u8> {
+        if self.scheduled.is_empty() {
+            self.bytes.clear();
+        }
+        &mut self.bytes
+    }
+
+    /// The bytes from `from` to the buffer's end go on the wire at `start`.
+    pub fn push(&mut self, start: SimInstant, from: usize) {
+        self.scheduled.push_back((start, from, self.bytes.len()));
+    }
+
+    /// When the next packet starts, if one is pending.
+    pub fn next_at(&self) -> Option<SimInstant> {
+        self.scheduled.iter().map(|s| s.0).min()
+    }
+
+    /// Hands every packet that starts by `now` to `sink(start, bytes)`, in start order.
+    pub fn take_due(&mut self, now: SimInstant, sink: &mut dyn FnMut(SimInstant, &[u8])) {
+        while let Some(i) = (0..self.scheduled.len())
+            .filter(|&i| self.scheduled[i].0 <= now)
+            .min_by_key(|&i| self.scheduled[i].0)
+        {
+            if let Some((start, from, to)) = self.scheduled.remove(i) {
+                sink(start, &self.bytes[from..to]);
+            }
+        }
+    }
+}
+
+/// Servos on a line that run their firmware on plants.
+pub trait ServoLine: LineDevices {
+    /// One firmware period at `now`: each servo samples its plant and applies its torque.
+    fn tick_servos(&mut self, now: SimInstant, plants: &mut [InertiaPlant]);
+}
+
+/// Emulated servos on one line, each turning an [`InertiaPlant`]: the smallest world a driver
+/// can be tested against (the mirrored simulator does the same with MuJoCo joints).
+#[derive(Debug)]
+pub struct LineRig<D> {
+    wire: HalfDuplexWire<D>,
+    plants: Vec<InertiaPlant>,
+    now: SimInstant,
+    period: Duration,
+    next_tick: SimInstant,
+    busy: Duration,
+}
+
+impl<D: ServoLine> LineRig<D> {
+    /// `devices` on a wire, one plant each, their firmware run every `period`.
+    pub fn with_devices(devices: D, plants: Vec<InertiaPlant>, period: Duration) -> Self {
+        Self {
+            wire: HalfDuplexWire::new(devices),
+            plants,
+            now: SimInstant::ZERO,
+            period,
+            next_tick: SimInstant::ZERO,
+            busy: Duration::ZERO,
+        }
+    }
+
+    /// The wire and its servos.
+    pub fn wire(&self) -> &HalfDuplexWire<D> {
+        &self.wire
+    }
+
+    /// The wire, to reach the servos.
+    pub fn wire_mut(&mut self) -> &mut HalfDuplexWire<D> {
+        &mut self.wire
+    }
+
+    /// The plants.
+    pub fn plants(&self) -> &[InertiaPlant] {
+        &self.plants
+    }
+
+    /// The plant at `index`, to push it around.
+    pub fn plant_mut(&mut self, index: usize) -> &mut InertiaPlant {
+        &mut self.plants[index]
+    }
+
+    /// CPU time spent inside the world (firmware, plants, wire), for benches that separate the
+    /// host's share.
+    pub fn busy(&self) -> Duration {
+        self.busy
+    }
+}
+
+impl<D: ServoLine> crate::time::SimWorld for LineRig<D> {
+    fn now(&self) -> SimInstant {
+        self.now
+    }
+
+    fn step_until(&mut self, limit: SimInstant) -> SimInstant {
+        let started = std::time::Instant::now();
+        let next = self
+            .wire
+            .next_event(self.now)
+            .map_or(limit, |t| t.min(limit))
+            .min(self.next_tick);
+        self.now = self.now.max(next);
+        self.wire.advance(self.now);
+        if self.now >= self.next_tick {
+            self.wire.devices.tick_servos(self.now, &mut self.plants);
+            let dt = self.period.as_secs_f64();
+            for plant in &mut self.plants {
+                plant.integrate(dt);
+            }
+            self.next_tick = self.next_tick + self.period;
+        }
+        self.busy += started.elapsed();
+        self.now
+    }
+}
+
+impl<D: ServoLine> SerialSimWorld for LineRig<D> {
+    // A rig has one line: whatever line the host names, it is this one.
+    fn host_transmit(&mut self, _line: usize, bytes: &[u8]) {
+        self.wire.host_transmit(self.now, bytes);
+    }
+
+    fn host_receive(&mut self, _line: usize, out: &mut Vec<u8>) {
+        self.wire.host_receive(self.now, out);
+    }
 }
 
 /// Transmit buffer of the emulated USB serial adapter, bytes (an FTDI FT232's is 256 B–4 KB).

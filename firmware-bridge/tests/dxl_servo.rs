@@ -8,6 +8,7 @@ use firmware_bridge::dxl::packet::{self, BROADCAST_ID, Decoded, inst};
 use firmware_bridge::dxl::servo::{ServoConfig, XSeriesServo};
 use firmware_bridge::dxl::table::{addr, status};
 use firmware_bridge::dxl::wire::{ServoChain, WireTiming};
+use firmware_bridge::half_duplex::LineDevices;
 use firmware_bridge::time::{SimInstant, SimRng};
 
 const BAUD: u32 = 1_000_000;
@@ -30,7 +31,7 @@ fn chain(ids: &[u8]) -> ServoChain {
 fn exchange(c: &mut ServoChain, at: SimInstant, bytes: &[u8]) -> Vec<(u8, u8, Vec<u8>, SimInstant)> {
     c.receive(bytes, at);
     let mut wire = Vec::new();
-    c.take_replies_due(at + Duration::from_secs(1), |start, b| {
+    c.take_replies_due(at + Duration::from_secs(1), &mut |start, b| {
         wire.push((start, b.to_vec()));
     });
     let mut scratch = [0u8; 1024];
@@ -281,7 +282,7 @@ fn random_bytes_never_panic_and_the_servo_still_answers_afterwards() {
         }
         t = t + Duration::from_micros(200);
         c.receive(&bytes, t);
-        c.take_replies_due(t + Duration::from_secs(1), |_, _| {});
+        c.take_replies_due(t + Duration::from_secs(1), &mut |_, _| {});
     }
     // After an idle line (the firmware's packet timeout) the servo answers a good packet.
     let t = t + Duration::from_millis(500);

@@ -7,17 +7,14 @@
 //! servo starts after the previous servo's status packet has ended; the host sees a status packet
 //! when its last byte arrived plus the USB adapter's latency.
 
-use std::collections::VecDeque;
 use std::time::Duration;
 
 use super::models::DxlModel;
 use super::packet::{self, Decoded, PacketError, inst};
 use super::servo::{Reply, ReplySlot, ServoConfig, XSeriesServo};
-use crate::half_duplex::{HalfDuplexWire, LineDevices};
+use crate::half_duplex::{HalfDuplexWire, LineDevices, LineRig, ReplySchedule, ServoLine};
 use crate::plant::InertiaPlant;
-use crate::serial::SerialSimWorld;
 use crate::time::SimInstant;
-use crate::time::SimWorld;
 
 /// Baud rate of an X-series Baud Rate code (address 8).
 pub const fn baud_of_code(code: u8) -> Option<u32> {
@@ -56,13 +53,6 @@ pub struct ChainStats {
     pub replies: u64,
 }
 
-#[derive(Debug, Clone, Copy)]
-struct Scheduled {
-    start: SimInstant,
-    from: usize,
-    to: usize,
-}
-
 /// The servos on one line, as they hear and answer it.
 #[derive(Debug)]
 pub struct ServoChain {
@@ -73,8 +63,7 @@ pub struct ServoChain {
     answers: Vec<(usize, usize, Reply)>,
     /// Where each servo's segment of a fast read's packet starts (reused).
     fast_offsets: Vec<usize>,
-    scheduled: VecDeque<Scheduled>,
-    reply_bytes: Vec<u8>,
+    replies: ReplySchedule,
     last_rx_at: SimInstant,
     stats: ChainStats,
 }
@@ -93,8 +82,7 @@ impl ServoChain {
             scratch: vec![0; MAX_PACKET],
             answers: Vec::with_capacity(n),
             fast_offsets: Vec::with_capacity(256),
-            scheduled: VecDeque::with_capacity(n + 4),
-            reply_bytes: Vec::with_capacity(n * 512),
+            replies: ReplySchedule::with_capacity(n + 4, n * 512),
             last_rx_at: SimInstant::ZERO,
             stats: ChainStats::default(),
         }
@@ -193,32 +181,26 @@ impl ServoChain {
 
     fn schedule_answers(&mut self, now: SimInstant) {
         self.answers.sort_unstable_by_key(|&(order, _, _)| order);
-        if self.scheduled.is_empty() {
-            self.reply_bytes.clear();
-        }
         let mut line_free = now;
         for &(_, index, reply) in &self.answers {
             let servo = &self.servos[index];
-            let from = self.reply_bytes.len();
-            self.reply_bytes.resize(from + 16 + 2 * reply.len, 0);
+            let bytes = self.replies.bytes_mut();
+            let from = bytes.len();
+            bytes.resize(from + 16 + 2 * reply.len, 0);
             let n = packet::encode_status(
                 reply.id,
                 reply.error,
                 servo.reply_params(&reply),
-                &mut self.reply_bytes[from..],
+                &mut bytes[from..],
             )
             .expect("a status packet fits twice its parameters plus the header");
-            self.reply_bytes.truncate(from + n);
+            bytes.truncate(from + n);
             if reply.corrupt_crc {
-                self.reply_bytes[from + n - 1] ^= 0x5A;
+                bytes[from + n - 1] ^= 0x5A;
             }
             let start = line_free + servo.return_delay() + reply.extra_delay;
             line_free = start + self.timing.bytes_time(n);
-            self.scheduled.push_back(Scheduled {
-                start,
-                from,
-                to: from + n,
-            });
+            self.replies.push(start, from);
             self.stats.replies += 1;
         }
     }
@@ -230,9 +212,6 @@ impl ServoChain {
     /// gap and a short packet). Not byte-stuffed: no servo knows the whole packet.
     fn schedule_fast_answers(&mut self, now: SimInstant, len_field: usize) {
         self.answers.sort_unstable_by_key(|&(order, _, _)| order);
-        if self.scheduled.is_empty() {
-            self.reply_bytes.clear();
-        }
         let first_delay = self
             .answers
             .first()
@@ -242,51 +221,32 @@ impl ServoChain {
         let mut crc = 0u16;
         for &(k, index, reply) in &self.answers {
             let servo = &self.servos[index];
-            let from = self.reply_bytes.len();
+            let bytes = self.replies.bytes_mut();
+            let from = bytes.len();
             if k == 0 {
                 let len = u16::try_from(len_field).unwrap_or(u16::MAX);
-                self.reply_bytes.extend_from_slice(&packet::HEADER);
-                self.reply_bytes.push(packet::BROADCAST_ID);
-                self.reply_bytes.extend_from_slice(&len.to_le_bytes());
-                self.reply_bytes.push(packet::STATUS);
+                bytes.extend_from_slice(&packet::HEADER);
+                bytes.push(packet::BROADCAST_ID);
+                bytes.extend_from_slice(&len.to_le_bytes());
+                bytes.push(packet::STATUS);
             }
-            self.reply_bytes.push(reply.error);
-            self.reply_bytes.push(reply.id);
-            self.reply_bytes.extend_from_slice(servo.reply_params(&reply));
-            crc = packet::crc16(crc, &self.reply_bytes[from..]);
+            bytes.push(reply.error);
+            bytes.push(reply.id);
+            bytes.extend_from_slice(servo.reply_params(&reply));
+            crc = packet::crc16(crc, &bytes[from..]);
             let mut sent = crc;
             if reply.corrupt_crc {
                 sent ^= 0x5A5A;
             }
-            self.reply_bytes.extend_from_slice(&sent.to_le_bytes());
+            bytes.extend_from_slice(&sent.to_le_bytes());
             crc = packet::crc16(crc, &sent.to_le_bytes());
-            let n = self.reply_bytes.len() - from;
+            let n = bytes.len() - from;
             let offsets = &self.fast_offsets;
             let slot = t0 + self.timing.bytes_time(offsets[k.min(offsets.len() - 1)]);
             let start = line_free.max(slot) + reply.extra_delay;
             line_free = start + self.timing.bytes_time(n);
-            self.scheduled.push_back(Scheduled {
-                start,
-                from,
-                to: from + n,
-            });
+            self.replies.push(start, from);
             self.stats.replies += 1;
-        }
-    }
-
-    /// When the next status packet starts, if one is pending.
-    pub fn next_reply_at(&self) -> Option<SimInstant> {
-        self.scheduled.iter().map(|s| s.start).min()
-    }
-
-    /// Hands every status packet that starts by `now` to `sink(start, bytes)`, in start order.
-    pub fn take_replies_due(&mut self, now: SimInstant, mut sink: impl FnMut(SimInstant, &[u8])) {
-        while let Some(i) = (0..self.scheduled.len())
-            .filter(|&i| self.scheduled[i].start <= now)
-            .min_by_key(|&i| self.scheduled[i].start)
-        {
-            let s = self.scheduled.remove(i).expect("index in range");
-            sink(s.start, &self.reply_bytes[s.from..s.to]);
         }
     }
 }
@@ -337,27 +297,26 @@ impl LineDevices for ServoChain {
     }
 
     fn next_reply_at(&self) -> Option<SimInstant> {
-        ServoChain::next_reply_at(self)
+        self.replies.next_at()
     }
 
     fn take_replies_due(&mut self, now: SimInstant, sink: &mut dyn FnMut(SimInstant, &[u8])) {
-        ServoChain::take_replies_due(self, now, sink);
+        self.replies.take_due(now, sink);
     }
 }
 
-/// Emulated servos on one line, each turning an [`InertiaPlant`]: the smallest world a driver
-/// can be tested against. The mirrored simulator does the same with MuJoCo joints.
-#[derive(Debug)]
-pub struct DxlRig {
-    wire: SimDxlWire,
-    plants: Vec<InertiaPlant>,
-    now: SimInstant,
-    period: Duration,
-    next_tick: SimInstant,
-    busy: Duration,
+impl ServoLine for ServoChain {
+    fn tick_servos(&mut self, now: SimInstant, plants: &mut [InertiaPlant]) {
+        for (servo, plant) in self.servos.iter_mut().zip(plants) {
+            servo.tick(now, plant);
+        }
+    }
 }
 
-impl DxlRig {
+/// Emulated X-series servos on one line, each turning an [`InertiaPlant`].
+pub type DxlRig = LineRig<ServoChain>;
+
+impl LineRig<ServoChain> {
     /// Servos on a line with `timing`, one plant each, their firmware run every `period`.
     ///
     /// # Panics
@@ -369,14 +328,7 @@ impl DxlRig {
         period: Duration,
     ) -> Self {
         assert_eq!(servos.len(), plants.len(), "one plant per servo");
-        Self {
-            wire: SimDxlWire::new(ServoChain::new(servos, timing)),
-            plants,
-            now: SimInstant::ZERO,
-            period,
-            next_tick: SimInstant::ZERO,
-            busy: Duration::ZERO,
-        }
+        Self::with_devices(ServoChain::new(servos, timing), plants, period)
     }
 
     /// A bench rig: servos `(id, model)` on one line with `timing`, answering after
@@ -395,73 +347,13 @@ impl DxlRig {
         Self::new(emulated, plants, timing, Duration::from_micros(500))
     }
 
-    /// The wire and its servos.
-    pub fn wire(&self) -> &SimDxlWire {
-        &self.wire
-    }
-
     /// The servo at `index`, to inject faults.
     pub fn servo_mut(&mut self, index: usize) -> &mut XSeriesServo {
-        &mut self.wire.chain_mut().servos[index]
+        &mut self.wire_mut().chain_mut().servos[index]
     }
 
     /// The servo at `index`.
     pub fn servo(&self, index: usize) -> &XSeriesServo {
-        &self.wire.chain().servos[index]
-    }
-
-    /// The plants.
-    pub fn plants(&self) -> &[InertiaPlant] {
-        &self.plants
-    }
-
-    /// The plant at `index`, to push it around.
-    pub fn plant_mut(&mut self, index: usize) -> &mut InertiaPlant {
-        &mut self.plants[index]
-    }
-
-    /// CPU time spent inside the world (firmware, plants, wire), for benches that separate the
-    /// host's share.
-    pub fn busy(&self) -> Duration {
-        self.busy
-    }
-}
-
-impl SimWorld for DxlRig {
-    fn now(&self) -> SimInstant {
-        self.now
-    }
-
-    fn step_until(&mut self, limit: SimInstant) -> SimInstant {
-        let started = std::time::Instant::now();
-        let next = self
-            .wire
-            .next_event(self.now)
-            .map_or(limit, |t| t.min(limit))
-            .min(self.next_tick);
-        self.now = self.now.max(next);
-        self.wire.advance(self.now);
-        if self.now >= self.next_tick {
-            let dt = self.period.as_secs_f64();
-            for (servo, plant) in self.wire.chain_mut().servos.iter_mut().zip(&mut self.plants) {
-                servo.tick(self.now, plant);
-                plant.integrate(dt);
-            }
-            self.next_tick = self.next_tick + self.period;
-        }
-        self.busy += started.elapsed();
-        self.now
-    }
-}
-
-impl SerialSimWorld for DxlRig {
-    fn host_transmit(&mut self, line: usize, bytes: &[u8]) {
-        assert_eq!(line, 0, "a rig has one line");
-        self.wire.host_transmit(self.now, bytes);
-    }
-
-    fn host_receive(&mut self, line: usize, out: &mut Vec<u8>) {
-        assert_eq!(line, 0, "a rig has one line");
-        self.wire.host_receive(self.now, out);
+        &self.wire().chain().servos[index]
     }
 }

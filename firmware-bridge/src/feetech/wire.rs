@@ -1,20 +1,19 @@
 //! The servo side of a Feetech line: the servos hearing packets and answering in their turn, on
 //! the protocol-agnostic simulated wire ([`crate::half_duplex::HalfDuplexWire`]), and a small rig
-//! of servos turning inertias for tests, benches and `feetech emulate`.
+//! of servos turning inertias for tests, benches and `feetech emulate`
+//! ([`crate::half_duplex::LineRig`]).
 //!
 //! Timing: a servo starts its status packet Return Delay after the instruction ends; in a sync
 //! read each listed servo starts after the previous one's packet has ended.
 
-use std::collections::VecDeque;
 use std::time::Duration;
 
 use super::models::FeetechModel;
 use super::packet::{self, Decoded};
 use super::servo::{Reply, ReplySlot, StsConfig, StsServo};
-use crate::half_duplex::{HalfDuplexWire, LineDevices, WireTiming};
+use crate::half_duplex::{HalfDuplexWire, LineDevices, LineRig, ReplySchedule, ServoLine, WireTiming};
 use crate::plant::InertiaPlant;
-use crate::serial::SerialSimWorld;
-use crate::time::{SimInstant, SimWorld};
+use crate::time::SimInstant;
 
 /// Counters of the servo side of a line.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -29,13 +28,6 @@ pub struct ChainStats {
     pub replies: u64,
 }
 
-#[derive(Debug, Clone, Copy)]
-struct Scheduled {
-    start: SimInstant,
-    from: usize,
-    to: usize,
-}
-
 /// Largest instruction packet (LEN is one byte).
 const MAX_PACKET: usize = 260;
 
@@ -46,8 +38,7 @@ pub struct FeetechChain {
     timing: WireTiming,
     rx: Vec<u8>,
     answers: Vec<(usize, usize, Reply)>,
-    scheduled: VecDeque<Scheduled>,
-    reply_bytes: Vec<u8>,
+    replies: ReplySchedule,
     last_rx_at: SimInstant,
     stats: ChainStats,
 }
@@ -61,8 +52,7 @@ impl FeetechChain {
             timing,
             rx: Vec::with_capacity(4 * MAX_PACKET),
             answers: Vec::with_capacity(n),
-            scheduled: VecDeque::with_capacity(n + 4),
-            reply_bytes: Vec::with_capacity(n * 64 + 512),
+            replies: ReplySchedule::with_capacity(n + 4, n * 64 + 512),
             last_rx_at: SimInstant::ZERO,
             stats: ChainStats::default(),
         }
@@ -85,32 +75,26 @@ impl FeetechChain {
 
     fn schedule(&mut self, now: SimInstant) {
         self.answers.sort_unstable_by_key(|&(order, _, _)| order);
-        if self.scheduled.is_empty() {
-            self.reply_bytes.clear();
-        }
         let mut line_free = now;
         for &(_, index, reply) in &self.answers {
             let servo = &self.servos[index];
-            let from = self.reply_bytes.len();
-            self.reply_bytes.resize(from + reply.len + 6, 0);
+            let bytes = self.replies.bytes_mut();
+            let from = bytes.len();
+            bytes.resize(from + reply.len + 6, 0);
             let n = packet::encode(
                 reply.id,
                 reply.error,
                 servo.reply_params(&reply),
-                &mut self.reply_bytes[from..],
+                &mut bytes[from..],
             )
             .unwrap_or(0);
-            self.reply_bytes.truncate(from + n);
+            bytes.truncate(from + n);
             if reply.corrupt_checksum && n > 0 {
-                self.reply_bytes[from + n - 1] ^= 0x5A;
+                bytes[from + n - 1] ^= 0x5A;
             }
             let start = line_free + servo.return_delay() + reply.extra_delay;
             line_free = start + self.timing.bytes_time(n);
-            self.scheduled.push_back(Scheduled {
-                start,
-                from,
-                to: from + n,
-            });
+            self.replies.push(start, from);
             self.stats.replies += 1;
         }
     }
@@ -179,16 +163,18 @@ impl LineDevices for FeetechChain {
     }
 
     fn next_reply_at(&self) -> Option<SimInstant> {
-        self.scheduled.iter().map(|s| s.start).min()
+        self.replies.next_at()
     }
 
     fn take_replies_due(&mut self, now: SimInstant, sink: &mut dyn FnMut(SimInstant, &[u8])) {
-        while let Some(i) = (0..self.scheduled.len())
-            .filter(|&i| self.scheduled[i].start <= now)
-            .min_by_key(|&i| self.scheduled[i].start)
-        {
-            let s = self.scheduled.remove(i).expect("index in range");
-            sink(s.start, &self.reply_bytes[s.from..s.to]);
+        self.replies.take_due(now, sink);
+    }
+}
+
+impl ServoLine for FeetechChain {
+    fn tick_servos(&mut self, now: SimInstant, plants: &mut [InertiaPlant]) {
+        for (servo, plant) in self.servos.iter_mut().zip(plants) {
+            servo.tick(now, plant);
         }
     }
 }
@@ -196,18 +182,10 @@ impl LineDevices for FeetechChain {
 /// A Feetech line in simulated time between a host's USB adapter and its servos.
 pub type SimFeetechWire = HalfDuplexWire<FeetechChain>;
 
-/// Emulated servos on one line, each turning an [`InertiaPlant`].
-#[derive(Debug)]
-pub struct FeetechRig {
-    wire: SimFeetechWire,
-    plants: Vec<InertiaPlant>,
-    now: SimInstant,
-    period: Duration,
-    next_tick: SimInstant,
-    busy: Duration,
-}
+/// Emulated STS servos on one line, each turning an [`InertiaPlant`].
+pub type FeetechRig = LineRig<FeetechChain>;
 
-impl FeetechRig {
+impl LineRig<FeetechChain> {
     /// Servos `(id, model)` at `baud` with no return delay, each turning a small link (2 g·m²,
     /// light friction), firmware at 1 kHz.
     ///
@@ -227,78 +205,23 @@ impl FeetechRig {
                 )
             })
             .collect();
-        Self {
-            wire: SimFeetechWire::new(FeetechChain::new(emulated, WireTiming::new(baud))),
-            plants: servos
+        Self::with_devices(
+            FeetechChain::new(emulated, WireTiming::new(baud)),
+            servos
                 .iter()
                 .map(|_| InertiaPlant::new(2e-3, 0.05, 0.02, 0.0))
                 .collect(),
-            now: SimInstant::ZERO,
-            period: Duration::from_millis(1),
-            next_tick: SimInstant::ZERO,
-            busy: Duration::ZERO,
-        }
-    }
-
-    /// The wire and its servos.
-    pub fn wire(&self) -> &SimFeetechWire {
-        &self.wire
+            Duration::from_millis(1),
+        )
     }
 
     /// The servo at `index`, to inject faults.
     pub fn servo_mut(&mut self, index: usize) -> &mut StsServo {
-        &mut self.wire.chain_mut().servos[index]
+        &mut self.wire_mut().chain_mut().servos[index]
     }
 
     /// The servo at `index`.
     pub fn servo(&self, index: usize) -> &StsServo {
-        &self.wire.chain().servos[index]
-    }
-
-    /// The plants.
-    pub fn plants(&self) -> &[InertiaPlant] {
-        &self.plants
-    }
-
-    /// CPU time spent inside the world, for benches that separate the host's share.
-    pub fn busy(&self) -> Duration {
-        self.busy
-    }
-}
-
-impl SimWorld for FeetechRig {
-    fn now(&self) -> SimInstant {
-        self.now
-    }
-
-    fn step_until(&mut self, limit: SimInstant) -> SimInstant {
-        let started = std::time::Instant::now();
-        let next = self
-            .wire
-            .next_event(self.now)
-            .map_or(limit, |t| t.min(limit))
-            .min(self.next_tick);
-        self.now = self.now.max(next);
-        self.wire.advance(self.now);
-        if self.now >= self.next_tick {
-            let dt = self.period.as_secs_f64();
-            for (servo, plant) in self.wire.chain_mut().servos.iter_mut().zip(&mut self.plants) {
-                servo.tick(self.now, plant);
-                plant.integrate(dt);
-            }
-            self.next_tick = self.next_tick + self.period;
-        }
-        self.busy += started.elapsed();
-        self.now
-    }
-}
-
-impl SerialSimWorld for FeetechRig {
-    fn host_transmit(&mut self, _line: usize, bytes: &[u8]) {
-        self.wire.host_transmit(self.now, bytes);
-    }
-
-    fn host_receive(&mut self, _line: usize, out: &mut Vec<u8>) {
-        self.wire.host_receive(self.now, out);
+        &self.wire().chain().servos[index]
     }
 }

@@ -218,19 +218,24 @@ pub fn needs_clamp(model: &MotorModel, cmd: &MitCommand) -> bool {
         || cmd.t.abs() > model.t_max
 }
 
-/// Packs a command, clamping every field to the model's range. Refuses NaN and infinities.
-pub fn pack_command(model: &MotorModel, cmd: &MitCommand) -> Result<[u8; 8], CodecError> {
-    for (field, v) in [
+/// Refuses a command with a NaN or infinite field, naming it: such a command is never packed.
+pub fn check_finite(cmd: &MitCommand) -> Result<(), CodecError> {
+    let fields = [
         ("p", cmd.p),
         ("v", cmd.v),
         ("kp", cmd.kp),
         ("kd", cmd.kd),
         ("t", cmd.t),
-    ] {
-        if !v.is_finite() {
-            return Err(CodecError::NotFinite { field });
-        }
+    ];
+    match fields.into_iter().find(|(_, v)| !v.is_finite()) {
+        Some((field, _)) => Err(CodecError::NotFinite { field }),
+        None => Ok(()),
     }
+}
+
+/// Packs a command, clamping every field to the model's range. Refuses NaN and infinities.
+pub fn pack_command(model: &MotorModel, cmd: &MitCommand) -> Result<[u8; 8], CodecError> {
+    check_finite(cmd)?;
     let p = float_to_uint(cmd.p, -model.p_max, model.p_max, 16);
     let v = float_to_uint(cmd.v, -model.v_max, model.v_max, 12);
     let kp = float_to_uint(cmd.kp, 0.0, model.kp_max, 12);

@@ -114,17 +114,7 @@ fn be(d: &[u8], at: usize) -> u16 {
 
 /// A control frame to `motor_id`, every field clamped to `model`'s range. Refuses NaN.
 pub fn pack_control(model: &MotorModel, motor_id: u8, cmd: &MitCommand) -> Result<CanFrame, CodecError> {
-    for (field, v) in [
-        ("p", cmd.p),
-        ("v", cmd.v),
-        ("kp", cmd.kp),
-        ("kd", cmd.kd),
-        ("t", cmd.t),
-    ] {
-        if !v.is_finite() {
-            return Err(CodecError::NotFinite { field });
-        }
-    }
+    super::codec::check_finite(cmd)?;
     let t = float_to_uint(cmd.t, -model.t_max, model.t_max, 16);
     let mut data = [0u8; 8];
     for (k, u) in [
