@@ -221,21 +221,40 @@ fn scan_dxl<T: DxlTransport>(robot: &Robot, bus: &str, port: &mut T, timeout: Du
     let hits = dxl::driver::scan(port, 1..=last, timeout)?;
     println!("dxl  {bus}: {} servo(s) answered among IDs 1-{last}", hits.len());
     print_timing(robot, bus);
+    let answered: Vec<_> = hits
+        .iter()
+        .map(|h| {
+            let state = format!(
+                "pos {:>5} ticks  {} °C  hw error {:#04x}",
+                h.position, h.temperature, h.hardware_error
+            );
+            (h.id, h.model_number, state)
+        })
+        .collect();
+    Ok(compare_with_file(&joints, &answered, |j| {
+        robot.dxl_model(&j.model).map_or(0, |m| m.model_number)
+    }))
+}
+
+/// Serial servos that answered — `(id, model number, state)` — against robot.toml's joints on the
+/// bus: one line per joint (its state, a wrong model or missing) and per ID robot.toml lacks;
+/// the number of differences.
+fn compare_with_file(
+    joints: &[&robots::JointConfig],
+    answered: &[(u8, u16, String)],
+    model_number: impl Fn(&robots::JointConfig) -> u16,
+) -> usize {
     let mut problems = 0;
-    for j in &joints {
-        let expected = robot.dxl_model(&j.model).map_or(0, |m| m.model_number);
-        match hits.iter().find(|h| h.id == j.id) {
-            Some(h) if h.model_number == expected => {
-                println!(
-                    "  id {:>3}  {:<20} {:<11} pos {:>5} ticks  {} °C  hw error {:#04x}",
-                    j.id, j.name, j.model, h.position, h.temperature, h.hardware_error
-                );
+    for j in joints {
+        match answered.iter().find(|h| h.0 == j.id) {
+            Some((_, number, state)) if *number == model_number(j) => {
+                println!("  id {:>3}  {:<20} {:<11} {state}", j.id, j.name, j.model);
             }
-            Some(h) => {
+            Some((_, number, _)) => {
                 problems += 1;
                 println!(
-                    "  id {:>3}  {:<20} WRONG MODEL: configured {}, answers model {}",
-                    j.id, j.name, j.model, h.model_number
+                    "  id {:>3}  {:<20} WRONG MODEL: configured {}, answers model {number}",
+                    j.id, j.name, j.model
                 );
             }
             None => {
@@ -244,11 +263,11 @@ fn scan_dxl<T: DxlTransport>(robot: &Robot, bus: &str, port: &mut T, timeout: Du
             }
         }
     }
-    for h in hits.iter().filter(|h| !joints.iter().any(|j| j.id == h.id)) {
+    for (id, number, _) in answered.iter().filter(|h| !joints.iter().any(|j| j.id == h.0)) {
         problems += 1;
-        println!("  id {:>3}  not in robot.toml (model {})", h.id, h.model_number);
+        println!("  id {id:>3}  not in robot.toml (model {number})");
     }
-    Ok(problems)
+    problems
 }
 
 fn scan_feetech(robot: &Robot, bus: &str, port: SerialFeetechPort, timeout: Duration) -> Result<usize> {
@@ -263,32 +282,19 @@ fn scan_feetech(robot: &Robot, bus: &str, port: SerialFeetechPort, timeout: Dura
     let hits = feetech::driver::scan(port, 1..=last, timeout)?;
     println!("sts  {bus}: {} servo(s) answered among IDs 1-{last}", hits.len());
     print_timing(robot, bus);
-    let mut problems = 0;
-    for j in &joints {
-        let expected = robot.feetech_model(&j.model).map_or(0, |m| m.model_number);
-        match hits.iter().find(|h| h.id == j.id) {
-            Some(h) if h.model_number == expected => println!(
-                "  id {:>3}  {:<20} {:<11} pos {:>5} ticks  {} °C  firmware {}.{}  status {:#04x}",
-                j.id, j.name, j.model, h.position, h.temperature, h.firmware[0], h.firmware[1], h.status
-            ),
-            Some(h) => {
-                problems += 1;
-                println!(
-                    "  id {:>3}  {:<20} WRONG MODEL: configured {}, answers model {}",
-                    j.id, j.name, j.model, h.model_number
-                );
-            }
-            None => {
-                problems += 1;
-                println!("  id {:>3}  {:<20} MISSING", j.id, j.name);
-            }
-        }
-    }
-    for h in hits.iter().filter(|h| !joints.iter().any(|j| j.id == h.id)) {
-        problems += 1;
-        println!("  id {:>3}  not in robot.toml (model {})", h.id, h.model_number);
-    }
-    Ok(problems)
+    let answered: Vec<_> = hits
+        .iter()
+        .map(|h| {
+            let state = format!(
+                "pos {:>5} ticks  {} °C  firmware {}.{}  status {:#04x}",
+                h.position, h.temperature, h.firmware[0], h.firmware[1], h.status
+            );
+            (h.id, h.model_number, state)
+        })
+        .collect();
+    Ok(compare_with_file(&joints, &answered, |j| {
+        robot.feetech_model(&j.model).map_or(0, |m| m.model_number)
+    }))
 }
 
 fn scan_imu<S: ByteStream>(bus: &str, stream: S, imu: &robots::ImuConfig) -> Result<usize> {
