@@ -95,6 +95,15 @@ pub struct PlayArgs {
     /// After the run, write its report (plots, summary) into this folder.
     #[arg(long, conflicts_with = "no_record")]
     report: Option<PathBuf>,
+    /// Serve the run live to Foxglove (Open connection → Foxglove WebSocket → the printed
+    /// ws:// URL): every channel of the recording, as it is written. On 127.0.0.1:8765 unless
+    /// given another address (127.0.0.1:0: any free port); the recording's own layout works live.
+    #[arg(long = "live", value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8765", conflicts_with = "no_record")]
+    live_view: Option<std::net::SocketAddr>,
+    /// With --live: wait this long for a viewer to subscribe before the robot starts, s (0: do
+    /// not wait; Ctrl-C stops waiting).
+    #[arg(long, default_value_t = 60, requires = "live_view", value_parser = crate::args::whole_within(0, 3600))]
+    live_wait: u64,
 }
 
 /// Arguments of `check`.
@@ -448,15 +457,46 @@ fn with_recorder<L: RobotLink>(
         command_source: args.live.source(),
         options: *options,
     };
+    let live = match args.live_view {
+        Some(addr) => Some(Arc::new(controller::live::LiveView::serve(
+            addr,
+            &format!("robodeploy: {robot}"),
+        )?)),
+        None => None,
+    };
     let info = controller::telemetry::RecordingInfo {
         run: Some(run),
         bus_cycles,
+        live: live.clone(),
         ..player.recording_info()
     };
     let sink = match claimed {
         Some(file) => TelemetrySink::start_in(file, &path, 1024, backpressure, &info)?,
         None => TelemetrySink::start(&path, 1024, backpressure, &info)?,
     };
+    if let Some(live) = &live {
+        // The channels are up: a viewer can subscribe before the robot starts.
+        println!(
+            "live: {} (Foxglove: Open connection → Foxglove WebSocket)",
+            live.url()
+        );
+        if args.live_wait > 0 {
+            println!(
+                "live: waiting up to {} s for a viewer (Ctrl-C to stop)",
+                args.live_wait
+            );
+            let seen =
+                live.wait_for_viewer(std::time::Duration::from_secs(args.live_wait), player.stop_flag());
+            println!(
+                "live: {}",
+                if seen {
+                    "a viewer subscribed; starting"
+                } else {
+                    "no viewer; starting anyway"
+                }
+            );
+        }
+    }
     Ok(player.with_telemetry(sink))
 }
 

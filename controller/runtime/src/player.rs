@@ -491,6 +491,7 @@ impl<L: RobotLink> Player<L> {
             commands: self.commands.as_ref().map_or_else(Vec::new, |c| {
                 c.spec().names.iter().cloned().zip(c.spec().kinds()).collect()
             }),
+            live: None,
         }
     }
 
@@ -1037,6 +1038,12 @@ impl<L: RobotLink> Player<L> {
     }
 
     /// Asks for a soft stop (what SIGINT does).
+    /// Whether a stop has been asked for (signal, e-stop or [`Self::request_stop`]).
+    pub fn stop_flag(&self) -> &AtomicBool {
+        &self.stop
+    }
+
+    /// Asks the run to stop, as Ctrl-C does.
     pub fn request_stop(&self) {
         self.stop.store(true, Ordering::Relaxed);
     }

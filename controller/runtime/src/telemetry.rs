@@ -414,6 +414,8 @@ pub struct RecordingInfo {
     /// The live commands `/policy` carries (`commands`): each one's name and meaning
     /// (`lin_vel_x`, `lin_vel_y`, `ang_vel_z`, `other`).
     pub commands: Vec<(String, human::commands::CommandKind)>,
+    /// A live view that serves every channel as it is written.
+    pub live: Option<Arc<crate::live::LiveView>>,
 }
 
 /// What travels through the ring: a tick, or one bus cycle.
@@ -613,6 +615,7 @@ impl TelemetrySink {
             replay_meta.insert("reference_ticks".into(), n.to_string());
         }
         let mut channels = Vec::with_capacity(TOPICS.len());
+        let mut live = Vec::with_capacity(TOPICS.len());
         for (topic, schema) in TOPICS {
             let name = if topic == "/tf" {
                 "foxglove.FrameTransform"
@@ -633,6 +636,7 @@ impl TelemetrySink {
                     .add_channel(schema_id, topic, "json", m)
                     .map_err(|e| wrote(&e))?,
             );
+            live.push(info.live.as_ref().and_then(|l| l.channel(topic, name, schema, m)));
         }
         // One channel per bus for its cycles, when asked for: its joints' names in the metadata.
         let mut bus_channels = Vec::new();
@@ -651,11 +655,17 @@ impl TelemetrySink {
                 let id = writer
                     .add_channel(schema, &topic, "json", &m)
                     .map_err(|e| wrote(&e))?;
-                bus_channels.push((id, topic));
+                let on_air = info
+                    .live
+                    .as_ref()
+                    .and_then(|l| l.channel(&topic, "bus_cycle", BUS_CYCLE_SCHEMA, &m));
+                bus_channels.push((id, topic, on_air));
             }
         }
         let root = root_frame.to_owned();
         let kinematics = info.kinematics.clone();
+        // The live view lives as long as the logger that feeds it.
+        let on_air = info.live.clone();
         let file_path = path.to_path_buf();
         let failed = move |e: &dyn std::fmt::Display| TelemetryError::Write {
             path: file_path.clone(),
@@ -664,11 +674,13 @@ impl TelemetrySink {
         let logger = std::thread::Builder::new()
             .name("telemetry".into())
             .spawn(move || {
+                let _on_air = on_air;
                 let mut links = match &kinematics {
                     Some((mjcf, joints)) => Some(Links::new(mjcf, joints, &root)?),
                     None => None,
                 };
-                let tf = channels[TOPICS.iter().position(|t| t.0 == "/tf").expect("a /tf topic")];
+                let tf_index = TOPICS.iter().position(|t| t.0 == "/tf").expect("a /tf topic");
+                let (tf, live_tf) = (channels[tf_index], live[tf_index].clone());
                 let mut sent = Sent::default();
                 let mut written = 0u64;
                 let mut text = String::with_capacity(16 * 1024);
@@ -677,11 +689,14 @@ impl TelemetrySink {
                     let r = match record {
                         Record::Tick(r) => r,
                         Record::Cycle(c) => {
-                            if let Some((id, topic)) = bus_channels.get(usize::from(c.bus)) {
+                            if let Some((id, topic, on_air)) = bus_channels.get(usize::from(c.bus)) {
                                 text.clear();
                                 encode_cycle(&mut text, &c);
                                 sent.write(&mut writer, *id, topic, c.started_ns, &text)
                                     .map_err(|e| failed(&e))?;
+                                if let Some(channel) = on_air {
+                                    crate::live::publish(channel, &text, c.started_ns);
+                                }
                             }
                             written += 1;
                             continue;
@@ -695,6 +710,9 @@ impl TelemetrySink {
                         }
                         sent.write(&mut writer, channels[k], topic, r.time_ns, &text)
                             .map_err(|e| failed(&e))?;
+                        if let Some(channel) = &live[k] {
+                            crate::live::publish(channel, &text, r.time_ns);
+                        }
                     }
                     if let Some(links) = &mut links
                         && !r.base_pose[0].is_nan()
@@ -704,6 +722,9 @@ impl TelemetrySink {
                             links.encode(&mut text, i, r.time_ns);
                             sent.write(&mut writer, tf, "/tf", r.time_ns, &text)
                                 .map_err(|e| failed(&e))?;
+                            if let Some(channel) = &live_tf {
+                                crate::live::publish(channel, &text, r.time_ns);
+                            }
                         }
                     }
                     written += 1;

@@ -1,0 +1,135 @@
+//! The live view: a lockstep run served over Foxglove's WebSocket protocol (`foxglove.sdk.v1`)
+//! to a client in the test, which subscribes and receives joint states and transforms, and a
+//! viewer that never comes does not hold the robot forever.
+
+use std::collections::HashMap;
+use std::time::Duration;
+
+use test_support::bin::Running;
+use test_support::fixtures::workspace_root;
+use tungstenite::Message;
+use tungstenite::client::IntoClientRequest;
+
+fn scratch(name: &str) -> std::path::PathBuf {
+    let dir = std::env::temp_dir().join(format!("live-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+#[test]
+fn a_lockstep_run_streams_joint_states_and_transforms_to_a_subscribed_client() {
+    let dir = scratch("stream");
+    let record = dir.join("run.mcap");
+    let clip = workspace_root().join("robots/biped/clips/squat.csv");
+    let mut play = Running::start(&[
+        "play",
+        "--clip",
+        clip.to_str().unwrap(),
+        "--record",
+        record.to_str().unwrap(),
+        "--live",
+        "127.0.0.1:0",
+        "--live-wait",
+        "120",
+    ]);
+    let line = play.wait_for("live: ws://", Duration::from_secs(120));
+    let url = line.split_whitespace().nth(1).unwrap().to_owned();
+    assert!(url.starts_with("ws://127.0.0.1:"), "{line}");
+    let mut request = url.as_str().into_client_request().unwrap();
+    request
+        .headers_mut()
+        .insert("Sec-WebSocket-Protocol", "foxglove.sdk.v1".parse().unwrap());
+    let (mut ws, _) = tungstenite::connect(request).unwrap();
+    // serverInfo, then the channels advertised: the recording's topics.
+    let mut channels: HashMap<String, u64> = HashMap::new();
+    while !(channels.contains_key("/joint_state") && channels.contains_key("/tf")) {
+        let Message::Text(text) = ws.read().unwrap() else {
+            continue;
+        };
+        let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+        if v["op"] == "advertise" {
+            for c in v["channels"].as_array().unwrap() {
+                channels.insert(c["topic"].as_str().unwrap().to_owned(), c["id"].as_u64().unwrap());
+                assert_eq!(c["encoding"], "json", "{c}");
+            }
+        }
+    }
+    let subscribe = serde_json::json!({
+        "op": "subscribe",
+        "subscriptions": [
+            {"id": 1, "channelId": channels["/joint_state"]},
+            {"id": 2, "channelId": channels["/tf"]},
+        ],
+    });
+    ws.send(Message::Text(subscribe.to_string().into())).unwrap();
+    // Message data: opcode 1, subscription (u32), log time (u64, ns), the JSON message.
+    let (mut states, mut transforms) = (Vec::new(), Vec::new());
+    let mut last_time = 0u64;
+    while states.len() < 50 || transforms.len() < 50 {
+        let Message::Binary(b) = ws.read().unwrap() else {
+            continue;
+        };
+        assert_eq!(b[0], 1, "message data");
+        let sub = u32::from_le_bytes(b[1..5].try_into().unwrap());
+        let time = u64::from_le_bytes(b[5..13].try_into().unwrap());
+        let v: serde_json::Value = serde_json::from_slice(&b[13..]).unwrap();
+        match sub {
+            1 => {
+                assert!(time >= last_time, "in time order");
+                last_time = time;
+                states.push(v);
+            }
+            2 => transforms.push(v),
+            other => panic!("subscription {other}"),
+        }
+    }
+    drop(ws);
+    let q = states[40]["q"].as_array().unwrap();
+    assert_eq!(q.len(), 20, "every rd-biped joint: {}", states[40]);
+    assert!(q.iter().all(|x| x.as_f64().unwrap().is_finite()));
+    let frames: std::collections::BTreeSet<_> = transforms
+        .iter()
+        .map(|t| t["child_frame_id"].as_str().unwrap().to_owned())
+        .collect();
+    assert!(frames.len() > 5, "the links' frames: {frames:?}");
+    let done = play
+        .finish_within(Duration::from_secs(300))
+        .expect("the run ends");
+    assert!(done.status.success(), "{}{}", done.stdout, done.stderr);
+    assert!(
+        done.stdout.contains("live: a viewer subscribed; starting"),
+        "{}",
+        done.stdout
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_viewer_that_never_comes_holds_the_start_only_as_long_as_asked() {
+    let dir = scratch("nobody");
+    let record = dir.join("run.mcap");
+    let play = Running::start(&[
+        "play",
+        "--max-seconds",
+        "1",
+        "--record",
+        record.to_str().unwrap(),
+        "--live",
+        "127.0.0.1:0",
+        "--live-wait",
+        "1",
+    ]);
+    let done = play
+        .finish_within(Duration::from_secs(300))
+        .expect("the run ends");
+    assert!(done.status.success(), "{}{}", done.stdout, done.stderr);
+    assert!(
+        done.stdout.contains("live: no viewer; starting anyway"),
+        "{}",
+        done.stdout
+    );
+    // A non-loopback address is only used when given; a bad one is refused by name.
+    let (ok, _, stderr) = test_support::bin::run(&["play", "--live", "nowhere:1", "--max-seconds", "1"]);
+    assert!(!ok && stderr.contains("--live"), "{stderr}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
