@@ -256,3 +256,72 @@ fn ten_minutes_of_a_500_hz_bus_recorded_from_the_loop_lose_nothing_in_lockstep()
     assert_eq!(next, can0);
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn a_recording_carries_the_files_it_was_made_from_and_is_never_overwritten_silently() {
+    let dir = std::env::temp_dir().join(format!("telemetry-files-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let record = dir.join("run.mcap");
+    let play = |extra: &[&str]| {
+        let mut args = vec!["play", "--max-seconds", "1"];
+        args.extend_from_slice(extra);
+        test_support::bin::robodeploy()
+            .args(&args)
+            .current_dir(&dir)
+            .output()
+            .unwrap()
+    };
+    let out = play(&["--record", record.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    // robot.toml, the manifest and the clip ride along as attachments; a `run` record names them.
+    let bytes = std::fs::read(&record).unwrap();
+    let summary = mcap::Summary::read(&bytes).unwrap().expect("a summary");
+    let names: Vec<&str> = summary
+        .attachment_indexes
+        .iter()
+        .map(|a| a.name.as_str())
+        .collect();
+    assert_eq!(
+        names,
+        [
+            "robot/robot.toml",
+            "policy/reference_follower.toml",
+            "clip/squat.csv"
+        ],
+        "{names:?}"
+    );
+    let attached = mcap::read::attachment(&bytes, &summary.attachment_indexes[0]).unwrap();
+    assert_eq!(
+        attached.data.as_ref(),
+        std::fs::read(reference_robot_path()).unwrap().as_slice()
+    );
+    let run = summary
+        .metadata_indexes
+        .iter()
+        .find(|m| m.name == "run")
+        .expect("a run record");
+    let run = mcap::read::metadata(&bytes, run).unwrap();
+    assert_eq!(run.metadata["clip"], "squat.csv");
+    assert!(
+        run.metadata["options"].contains("\"estimator\""),
+        "{:?}",
+        run.metadata
+    );
+    // The same path again: refused by name, the first recording intact; --overwrite replaces it.
+    let out = play(&["--record", record.to_str().unwrap()]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && stderr.contains("--overwrite"),
+        "{stderr}"
+    );
+    assert_eq!(std::fs::read(&record).unwrap(), bytes);
+    let out = play(&["--record", record.to_str().unwrap(), "--overwrite"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    // Default paths: the second run takes the next name.
+    for _ in 0..2 {
+        assert!(play(&[]).status.success());
+    }
+    let runs = dir.join("out/runs");
+    assert!(runs.join("rd-biped-squat.mcap").exists() && runs.join("rd-biped-squat-2.mcap").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}

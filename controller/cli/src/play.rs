@@ -88,6 +88,9 @@ pub struct PlayArgs {
     /// Do not record the run.
     #[arg(long, conflicts_with = "record")]
     no_record: bool,
+    /// With --record: replace a recording already at that path (without it, the run refuses).
+    #[arg(long, requires = "record")]
+    overwrite: bool,
     /// Also record every bus cycle (what each bus read and commanded, its cycle time and misses)
     /// on a `/bus/<name>` channel per bus, at the bus's own rate.
     #[arg(long, conflicts_with = "no_record")]
@@ -429,6 +432,13 @@ fn with_recorder<L: RobotLink>(
             if let Some(dir) = p.parent().filter(|d| !d.as_os_str().is_empty()) {
                 std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
             }
+            // A file with something in it is a recording; devices and empty files are not.
+            let recorded = std::fs::metadata(p).is_ok_and(|m| m.is_file() && m.len() > 0);
+            anyhow::ensure!(
+                args.overwrite || !recorded,
+                "--record {}: a recording is there already; give another path, or --overwrite",
+                p.display()
+            );
             (p.clone(), None)
         }
         None => {
@@ -687,33 +697,32 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
 /// is writing it (each run holds an exclusive lock on its file until it ends), emptied for this run.
 fn claim(dir: &Path, stem: &str) -> Result<(PathBuf, std::fs::File)> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    for n in 1..1000u32 {
+    for n in 1..10_000u32 {
         let name = if n == 1 {
             format!("{stem}.mcap")
         } else {
             format!("{stem}-{n}.mcap")
         };
         let path = dir.join(name);
-        let file = std::fs::OpenOptions::new()
+        // A new file or the next name: an earlier run's recording is never overwritten, and two
+        // runs starting at once cannot both take a name (the create is atomic).
+        match std::fs::OpenOptions::new()
             .write(true)
-            .create(true)
-            .truncate(false)
+            .create_new(true)
             .open(&path)
-            .with_context(|| format!("cannot create {}", path.display()))?;
-        match file.try_lock() {
-            Ok(()) => {
-                file.set_len(0)
-                    .with_context(|| format!("cannot empty {}", path.display()))?;
+        {
+            Ok(file) => {
+                file.try_lock()
+                    .map_err(|e| anyhow::anyhow!("{e:?}"))
+                    .with_context(|| format!("cannot lock {}", path.display()))?;
                 return Ok((path, file));
             }
-            Err(std::fs::TryLockError::WouldBlock) => {}
-            Err(std::fs::TryLockError::Error(e)) => {
-                return Err(e).with_context(|| format!("cannot lock {}", path.display()));
-            }
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {}
+            Err(e) => return Err(e).with_context(|| format!("cannot create {}", path.display())),
         }
     }
     bail!(
-        "{}: a thousand runs are writing {stem}.mcap at once",
+        "{}: ten thousand recordings of {stem} already; move some away",
         dir.display()
     )
 }

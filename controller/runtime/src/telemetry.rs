@@ -539,6 +539,58 @@ impl Sent {
     }
 }
 
+/// The files a run was made from, inside its recording so it travels with them: robot.toml, the
+/// policy (manifest or export metadata file), the clip, as attachments under their file names;
+/// and a `run` metadata record naming them (file names only) with the run's options. A file
+/// that cannot be read is left out with a warning: the recording still starts.
+fn attach_run_files<W: std::io::Write + std::io::Seek>(
+    writer: &mut mcap::Writer<W>,
+    run: &crate::options::RunMetadata,
+) -> Result<(), mcap::McapError> {
+    let name = |p: &Path| {
+        p.file_name()
+            .map_or_else(String::new, |n| n.to_string_lossy().into_owned())
+    };
+    let mut record = BTreeMap::new();
+    let files = [
+        ("robot", Some(&run.robot)),
+        ("policy", Some(&run.policy)),
+        ("clip", run.clip.as_ref()),
+    ];
+    for (role, path) in files {
+        let Some(path) = path else { continue };
+        // A policy given as its ONNX export carries weights, not a description: named, not attached.
+        let is_model = path.extension().is_some_and(|e| e == "onnx");
+        record.insert(role.to_owned(), name(path));
+        if is_model {
+            continue;
+        }
+        match std::fs::read(path) {
+            Ok(data) => writer.attach(&mcap::Attachment {
+                log_time: 0,
+                create_time: 0,
+                name: format!("{role}/{}", name(path)),
+                media_type: match path.extension().and_then(|e| e.to_str()) {
+                    Some("toml") => "application/toml",
+                    Some("csv") => "text/csv",
+                    _ => "application/octet-stream",
+                }
+                .to_owned(),
+                data: data.into(),
+            })?,
+            Err(e) => tracing::warn!("recording: {} not attached: {e}", path.display()),
+        }
+    }
+    record.insert(
+        "options".to_owned(),
+        serde_json::to_string(&run.options).unwrap_or_default(),
+    );
+    writer.write_metadata(&mcap::records::Metadata {
+        name: "run".to_owned(),
+        metadata: record,
+    })
+}
+
 impl TelemetrySink {
     /// Creates `path` and starts the logger with a ring of `capacity` records. `joint_names`
     /// (robot order) go into the channels' metadata; `root_frame` names the base frame.
@@ -613,6 +665,9 @@ impl TelemetrySink {
         }
         if let Some(n) = info.reference_ticks {
             replay_meta.insert("reference_ticks".into(), n.to_string());
+        }
+        if let Some(run) = run {
+            attach_run_files(&mut writer, run).map_err(|e| wrote(&e))?;
         }
         let mut channels = Vec::with_capacity(TOPICS.len());
         let mut live = Vec::with_capacity(TOPICS.len());
