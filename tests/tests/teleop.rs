@@ -576,3 +576,61 @@ fn headset_only_turns_the_head_and_keeps_the_arms_at_standby() {
     // Controllers never sent: no hand in the observation either.
     assert!(run.trackers.iter().all(|t| t[9..].iter().all(|v| *v == 0.0)));
 }
+
+#[test]
+fn a_teleop_session_is_recorded_with_the_files_it_ran_on() {
+    let dir = std::env::temp_dir().join(format!("teleop-record-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let record = dir.join("session.mcap");
+    let mut teleop = test_support::bin::Running::start(&[
+        "teleop",
+        "--listen",
+        "127.0.0.1:0",
+        "--max-seconds",
+        "3",
+        "--record",
+        record.to_str().unwrap(),
+    ]);
+    let line = teleop.wait_for("listening for VMC on udp://", Duration::from_secs(120));
+    let addr = line
+        .split("udp://")
+        .nth(1)
+        .and_then(|s| s.split(';').next())
+        .unwrap()
+        .to_owned();
+    let bvh = test_support::fixtures::workspace_root().join("data/mocap/cmu_13_26_direct-traffic-wave.bvh");
+    let (ok, _, stderr) = test_support::bin::run(&[
+        "vr",
+        "send",
+        "--bvh",
+        bvh.to_str().unwrap(),
+        "--to",
+        &addr,
+        "--seconds",
+        "2",
+    ]);
+    assert!(ok, "{stderr}");
+    let done = teleop
+        .finish_within(Duration::from_secs(120))
+        .expect("the session ends");
+    assert!(done.status.success(), "{}{}", done.stdout, done.stderr);
+    let bytes = std::fs::read(&record).unwrap();
+    let summary = mcap::Summary::read(&bytes).unwrap().expect("a summary");
+    let stats = summary.stats.as_ref().unwrap();
+    // 3 s at the policy's 50 Hz, every channel.
+    assert!(stats.message_count > 150, "{stats:?}");
+    let names: Vec<&str> = summary
+        .attachment_indexes
+        .iter()
+        .map(|a| a.name.as_str())
+        .collect();
+    assert_eq!(
+        names,
+        ["robot/robot.toml", "policy/reference_follower.toml"],
+        "{names:?}"
+    );
+    let run = summary.metadata_indexes.iter().find(|m| m.name == "run").unwrap();
+    let run = mcap::read::metadata(&bytes, run).unwrap();
+    assert!(!run.metadata.contains_key("clip"), "{:?}", run.metadata);
+    std::fs::remove_dir_all(&dir).unwrap();
+}

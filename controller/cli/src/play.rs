@@ -82,7 +82,18 @@ pub struct PlayArgs {
     command: Option<Vec<f64>>,
     #[command(flatten)]
     live: crate::commands::CommandArgs,
-    /// Record the run as MCAP here (default: out/runs/ROBOT-CLIP.mcap; opens in Foxglove).
+    #[command(flatten)]
+    rec: RecordArgs,
+    /// After the run, write its report (plots, summary) into this folder.
+    #[arg(long, conflicts_with = "no_record")]
+    report: Option<PathBuf>,
+}
+
+/// How a run is recorded and watched (`play`, `teleop`).
+#[derive(Debug, Args)]
+pub struct RecordArgs {
+    /// Record the run as MCAP here (default: out/runs/ROBOT-CLIP.mcap, or the next free name;
+    /// opens in Foxglove).
     #[arg(long)]
     record: Option<PathBuf>,
     /// Do not record the run.
@@ -95,9 +106,6 @@ pub struct PlayArgs {
     /// on a `/bus/<name>` channel per bus, at the bus's own rate.
     #[arg(long, conflicts_with = "no_record")]
     record_bus_rate: bool,
-    /// After the run, write its report (plots, summary) into this folder.
-    #[arg(long, conflicts_with = "no_record")]
-    report: Option<PathBuf>,
     /// Serve the run live to Foxglove (Open connection → Foxglove WebSocket → the printed
     /// ws:// URL): every channel of the recording, as it is written. On 127.0.0.1:8765 unless
     /// given another address (127.0.0.1:0: any free port); the recording's own layout works live.
@@ -401,15 +409,43 @@ fn with_estop<L: RobotLink>(
 }
 
 fn with_recorder<L: RobotLink>(
-    mut player: Player<L>,
+    player: Player<L>,
     args: &PlayArgs,
     options: &PlayOptions,
     source: &ReferenceSource,
 ) -> Result<Player<L>> {
-    if args.no_record {
+    let stem = source
+        .path()
+        .unwrap_or(&args.files.policy)
+        .file_stem()
+        .map_or("run".into(), |s| s.to_string_lossy().into_owned());
+    let absolute = |p: &PathBuf| std::fs::canonicalize(p).unwrap_or_else(|_| p.clone());
+    let run = controller::options::RunMetadata {
+        robot: absolute(&args.files.robot),
+        policy: absolute(&args.files.policy),
+        // What the run played: the clip, the export's own motion, or nothing (commands).
+        clip: source.path().map(|p| absolute(&p.to_path_buf())),
+        command: args.command.clone(),
+        command_source: args.live.source(),
+        options: *options,
+    };
+    record(player, &args.rec, run, &stem, args.wall || args.hardware)
+}
+
+/// Adds a recorder (and a live view) as `rec` asks to `player`, whose run `run` describes; the
+/// default recording is `out/runs/ROBOT-STEM.mcap` or the next free name. Real-time runs drop
+/// records rather than wait for the disk.
+pub(crate) fn record<L: RobotLink>(
+    mut player: Player<L>,
+    rec: &RecordArgs,
+    run: controller::options::RunMetadata,
+    stem: &str,
+    real_time: bool,
+) -> Result<Player<L>> {
+    if rec.no_record {
         return Ok(player);
     }
-    let bus_cycles = if args.record_bus_rate {
+    let bus_cycles = if rec.record_bus_rate {
         anyhow::ensure!(
             player.record_bus_cycles(),
             "--record-bus-rate: this run has no bus cycles to record"
@@ -427,7 +463,7 @@ fn with_recorder<L: RobotLink>(
         None
     };
     let robot = player.robot_name().to_owned();
-    let (path, claimed) = match &args.record {
+    let (path, claimed) = match &rec.record {
         Some(p) => {
             if let Some(dir) = p.parent().filter(|d| !d.as_os_str().is_empty()) {
                 std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
@@ -435,39 +471,23 @@ fn with_recorder<L: RobotLink>(
             // A file with something in it is a recording; devices and empty files are not.
             let recorded = std::fs::metadata(p).is_ok_and(|m| m.is_file() && m.len() > 0);
             anyhow::ensure!(
-                args.overwrite || !recorded,
+                rec.overwrite || !recorded,
                 "--record {}: a recording is there already; give another path, or --overwrite",
                 p.display()
             );
             (p.clone(), None)
         }
         None => {
-            let clip = source
-                .path()
-                .unwrap_or(&args.files.policy)
-                .file_stem()
-                .map_or("run".into(), |s| s.to_string_lossy().into_owned());
-            let (path, file) = claim(Path::new("out/runs"), &format!("{robot}-{clip}"))?;
+            let (path, file) = claim(Path::new("out/runs"), &format!("{robot}-{stem}"))?;
             (path, Some(file))
         }
     };
-    // Lockstep runs can wait for the disk; real-time runs drop (and count) instead.
-    let backpressure = if args.wall || args.hardware {
+    let backpressure = if real_time {
         Backpressure::Drop
     } else {
         Backpressure::Block
     };
-    let absolute = |p: &PathBuf| std::fs::canonicalize(p).unwrap_or_else(|_| p.clone());
-    let run = controller::options::RunMetadata {
-        robot: absolute(&args.files.robot),
-        policy: absolute(&args.files.policy),
-        // What the run played: the clip, the export's own motion, or nothing (commands).
-        clip: source.path().map(|p| absolute(&p.to_path_buf())),
-        command: args.command.clone(),
-        command_source: args.live.source(),
-        options: *options,
-    };
-    let live = match args.live_view {
+    let live = match rec.live_view {
         Some(addr) => Some(Arc::new(controller::live::LiveView::serve(
             addr,
             &format!("robodeploy: {robot}"),
@@ -490,13 +510,13 @@ fn with_recorder<L: RobotLink>(
             "live: {} (Foxglove: Open connection → Foxglove WebSocket)",
             live.url()
         );
-        if args.live_wait > 0 {
+        if rec.live_wait > 0 {
             println!(
                 "live: waiting up to {} s for a viewer (Ctrl-C to stop)",
-                args.live_wait
+                rec.live_wait
             );
             let seen =
-                live.wait_for_viewer(std::time::Duration::from_secs(args.live_wait), player.stop_flag());
+                live.wait_for_viewer(std::time::Duration::from_secs(rec.live_wait), player.stop_flag());
             println!(
                 "live: {}",
                 if seen {

@@ -59,6 +59,8 @@ pub struct TeleopArgs {
     /// Mirror settings (TOML).
     #[arg(long, conflicts_with = "hardware")]
     mirror: Option<PathBuf>,
+    #[command(flatten)]
+    rec: crate::play::RecordArgs,
 }
 
 /// `vr` subcommands.
@@ -204,10 +206,22 @@ pub fn teleop(args: &TeleopArgs) -> Result<std::process::ExitCode> {
         if args.hardware { "hardware" } else { "mirror" },
         receiver.local_addr()
     );
+    let absolute = |p: &PathBuf| std::fs::canonicalize(p).unwrap_or_else(|_| p.clone());
+    let run = controller::options::RunMetadata {
+        robot: absolute(&args.robot),
+        policy: absolute(&args.policy),
+        clip: None,
+        command: None,
+        command_source: Some(format!("vmc udp://{}", receiver.local_addr())),
+        options: play,
+    };
+    // Teleoperation runs on the wall clock (paced on the mirror): records drop rather than wait.
+    let rec = &args.rec;
     let summary = if args.hardware {
         let io = robot_link::hardware::open(&robot)?;
         let mut clock = robot_link::WallClock::start();
-        let mut player = Player::new(robot, layout, reference, play, io, stop)?.with_live(live);
+        let player = Player::new(robot, layout, reference, play, io, stop)?.with_live(live);
+        let mut player = crate::play::record(player, rec, run, "teleop", true)?;
         player.run(&mut clock)?
     } else {
         let config = match &args.mirror {
@@ -219,7 +233,8 @@ pub fn teleop(args: &TeleopArgs) -> Result<std::process::ExitCode> {
         ));
         let io = sim2real::link::lockstep_robot(&robot, &world)?;
         let mut clock = sim2real::link::PacedLockstepClock::new(Arc::clone(&world));
-        let mut player = Player::new(robot, layout, reference, play, io, stop)?.with_live(live);
+        let player = Player::new(robot, layout, reference, play, io, stop)?.with_live(live);
+        let mut player = crate::play::record(player, rec, run, "teleop", true)?;
         player.run(&mut clock)?
     };
     print!("{summary}");
