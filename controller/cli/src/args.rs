@@ -207,6 +207,14 @@ impl From<NominalArg> for human::retarget::Nominal {
     }
 }
 
+/// The name a value goes by in the project's files (its serde name), for messages to people.
+pub fn file_name_of<T: serde::Serialize>(value: &T) -> String {
+    serde_json::to_string(value)
+        .unwrap_or_default()
+        .trim_matches('"')
+        .to_owned()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -159,7 +159,7 @@ fn scan_cmd(args: &ScanArgs) -> Result<()> {
         let r = &h.reply;
         let temp = r.temperature.map_or("-".into(), |t| format!("{t:.0}"));
         println!(
-            "{:>4} {:>#8x} {:>9.3} {:>9.3} {:>8.3} {:>7}  {:?}",
+            "{:>4} {:>#8x} {:>9.3} {:>9.3} {:>8.3} {:>7}  {}",
             h.motor_id, h.reply_id, r.p, r.v, r.t, temp, r.fault
         );
     }

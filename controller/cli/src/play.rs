@@ -213,8 +213,10 @@ pub fn check(args: &CheckArgs) -> Result<()> {
             .join(" ")
     );
     println!(
-        "       {} Hz, {:?} actions, observation of {} values:",
-        l.layout.manifest.rate_hz, l.layout.manifest.action.kind, l.layout.obs_len
+        "       {} Hz, {} actions, observation of {} values:",
+        l.layout.manifest.rate_hz,
+        crate::args::file_name_of(&l.layout.manifest.action.kind),
+        l.layout.obs_len
     );
     print!("{}", l.layout.describe());
     print!("{}", l.layout.describe_action());
@@ -237,7 +239,8 @@ pub fn check(args: &CheckArgs) -> Result<()> {
         for (k, ((name, [lo, hi]), kind)) in spec.names.iter().zip(&spec.ranges).zip(spec.kinds()).enumerate()
         {
             println!(
-                "         {name:<12} [{lo}, {hi}] ({kind:?}), starts at {}, key step {}, ramp {}",
+                "         {name:<12} [{lo}, {hi}] ({}), starts at {}, key step {}, ramp {}",
+                crate::args::file_name_of(&kind),
                 initial.get(k).copied().unwrap_or(0.0),
                 spec.steps()[k],
                 ramps.get(k).map_or("none".to_owned(), |r| format!("{r}/s"))
@@ -733,7 +736,7 @@ fn claim(dir: &Path, stem: &str) -> Result<(PathBuf, std::fs::File)> {
         {
             Ok(file) => {
                 file.try_lock()
-                    .map_err(|e| anyhow::anyhow!("{e:?}"))
+                    .map_err(|e| anyhow::anyhow!("{e}"))
                     .with_context(|| format!("cannot lock {}", path.display()))?;
                 return Ok((path, file));
             }

@@ -48,9 +48,12 @@ pub fn run(args: &RetargetArgs) -> Result<()> {
     let robot = Robot::load(&args.robot)?;
     let bvh = Bvh::load(&args.bvh)?;
     println!(
-        "{}: {:?} skeleton, {} joints, {} frames at {:.0} Hz ({:.1} s)",
+        "{}: {} skeleton, {} joints, {} frames at {:.0} Hz ({:.1} s)",
         args.bvh.display(),
-        bvh.dialect,
+        match bvh.dialect {
+            human::bvh::Dialect::Cmu => "CMU",
+            human::bvh::Dialect::Bandai => "Bandai-Namco",
+        },
         bvh.joints.len(),
         bvh.frames(),
         1.0 / bvh.frame_time,
@@ -87,8 +90,13 @@ pub fn run(args: &RetargetArgs) -> Result<()> {
                 .map_or_else(String::new, |f| f.to_string_lossy().into_owned())
         ),
         format!(
-            "nominal frame {} ↔ robot {:?} pose, scale {:.4}; root quaternion is w, x, y, z",
-            args.nominal_frame, args.nominal, motion.scale
+            "nominal frame {} ↔ robot {} pose, scale {:.4}; root quaternion is w, x, y, z",
+            args.nominal_frame,
+            match args.nominal {
+                crate::args::NominalArg::Tpose => "T-",
+                crate::args::NominalArg::Default => "default",
+            },
+            motion.scale
         ),
     ];
     if let Some(dir) = args.out.parent().filter(|d| !d.as_os_str().is_empty()) {

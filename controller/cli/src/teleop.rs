@@ -249,6 +249,6 @@ fn print_teleop(status: &TeleopStatus, receiver: &VmcReceiver) {
     );
     println!("teleoperation ({} updates):", status.updates);
     for c in &status.changes {
-        println!("  {:>7.2} s: {:?} ({})", c.at.as_secs_f64(), c.phase, c.why);
+        println!("  {:>7.2} s: {} ({})", c.at.as_secs_f64(), c.phase, c.why);
     }
 }

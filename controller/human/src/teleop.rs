@@ -69,6 +69,17 @@ pub enum Phase {
     Standby,
 }
 
+impl std::fmt::Display for Phase {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::WaitingForTpose => "waiting for the T-pose",
+            Self::Tracking => "tracking",
+            Self::Lost => "stream lost: blending to standby",
+            Self::Standby => "standby",
+        })
+    }
+}
+
 /// A change of phase, with its time since start and why.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PhaseChange {

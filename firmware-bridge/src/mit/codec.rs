@@ -91,6 +91,25 @@ pub enum MotorFault {
     Unknown(u8),
 }
 
+impl std::fmt::Display for MotorFault {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::None => f.write_str("none"),
+            Self::OverTemperature => f.write_str("winding over-temperature"),
+            Self::OverCurrent => f.write_str("over-current"),
+            Self::OverVoltage => f.write_str("supply over-voltage"),
+            Self::UnderVoltage => f.write_str("supply under-voltage"),
+            Self::Encoder => f.write_str("encoder fault"),
+            Self::MosOverTemperature => f.write_str("driver over-temperature"),
+            Self::Stall => f.write_str("stall"),
+            Self::CommunicationLost => f.write_str("command timeout (communication lost)"),
+            Self::Overload => f.write_str("overload"),
+            Self::Uncalibrated => f.write_str("encoder not calibrated"),
+            Self::Unknown(code) => write!(f, "fault code {code} (unknown to this driver)"),
+        }
+    }
+}
+
 impl MotorFault {
     /// CubeMars error byte (0 none … 7 stall).
     pub const fn from_cubemars(code: u8) -> Self {
