@@ -687,6 +687,9 @@ fn bus_scan_compares_every_bus_of_the_robot_with_its_file() {
             && stdout.contains("every device of rd-biped answered as configured"),
         "{stdout}"
     );
+    // Log lines into a pipe are plain text: no terminal colour codes.
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains(" INFO ") && !stderr.contains('\u{1b}'), "{stderr:?}");
 }
 
 #[test]

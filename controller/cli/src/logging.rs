@@ -23,7 +23,10 @@ pub fn init() -> Logging {
         .thread_name("log")
         .finish(std::io::stderr());
     let dropped = writer.error_counter();
+    // Colour only for a person at a terminal: a pipe or a file gets plain text (NO_COLOR too).
+    let colour = std::io::IsTerminal::is_terminal(&std::io::stderr()) && std::env::var_os("NO_COLOR").is_none();
     tracing_subscriber::fmt()
+        .with_ansi(colour)
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info,ort=warn".into()),
         )
