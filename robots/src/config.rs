@@ -530,6 +530,8 @@ pub struct Robot {
     /// The robot's own servo variants (robot.toml's `servo_models`), checked, with the shipped
     /// model each speaks as.
     pub servo_models: Vec<(dxl::models::DxlModel, String)>,
+    /// The calibration.toml merged over the description, when there was one.
+    pub calibration: Option<PathBuf>,
 }
 
 impl Robot {
@@ -560,9 +562,10 @@ impl Robot {
         })?;
         // What calibration measured overrides the description.
         let cal_path = crate::calibration::path_for(path);
-        if let Some(cal) =
-            crate::calibration::Calibration::read(&cal_path).map_err(|e| err("calibration", e.to_string()))?
-        {
+        let calibration = crate::calibration::Calibration::read(&cal_path)
+            .map_err(|e| err("calibration", e.to_string()))?;
+        let merged = calibration.is_some().then(|| cal_path.clone());
+        if let Some(cal) = calibration {
             for (name, c) in &cal.joints {
                 let j = config
                     .joints
@@ -615,6 +618,7 @@ impl Robot {
             mjcf,
             mit_models,
             servo_models,
+            calibration: merged,
         };
         robot.check().map_err(|(place, message)| err(&place, message))?;
         Ok(robot)

@@ -59,6 +59,23 @@ fn doctor_rejects_a_bad_model_with_its_path() {
 }
 
 #[test]
+fn doctor_alone_checks_the_reference_robot_and_policy() {
+    let out = robodeploy().arg("doctor").output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("biped.xml")
+            && stdout.contains("reference_follower.onnx")
+            && stdout.contains("all checks passed"),
+        "{stdout}"
+    );
+}
+
+#[test]
 fn help_teaches_the_commands() {
     let out = robodeploy().arg("--help").output().unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
@@ -689,7 +706,10 @@ fn bus_scan_compares_every_bus_of_the_robot_with_its_file() {
     );
     // Log lines into a pipe are plain text: no terminal colour codes.
     let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(stderr.contains(" INFO ") && !stderr.contains('\u{1b}'), "{stderr:?}");
+    assert!(
+        stderr.contains(" INFO ") && !stderr.contains('\u{1b}'),
+        "{stderr:?}"
+    );
 }
 
 #[test]

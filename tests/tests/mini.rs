@@ -467,6 +467,22 @@ fn check_bus_scan_and_calibration_work_on_it_unchanged() {
     assert_eq!(code, Some(0), "{out}{err}");
     assert!(out.contains("directions wrong: 0"), "{out}");
     assert!(dir.join("calibration.toml").exists());
+    // Later runs say they merged it.
+    let (code, out, err) = run_within(
+        &[
+            "check",
+            "--robot",
+            copy.to_str().unwrap(),
+            "--policy",
+            policy.to_str().unwrap(),
+        ],
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, Some(0), "{out}{err}");
+    assert!(
+        out.contains("calibration merged from") && out.contains("calibration.toml"),
+        "{out}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -24,7 +24,8 @@ pub fn init() -> Logging {
         .finish(std::io::stderr());
     let dropped = writer.error_counter();
     // Colour only for a person at a terminal: a pipe or a file gets plain text (NO_COLOR too).
-    let colour = std::io::IsTerminal::is_terminal(&std::io::stderr()) && std::env::var_os("NO_COLOR").is_none();
+    let colour =
+        std::io::IsTerminal::is_terminal(&std::io::stderr()) && std::env::var_os("NO_COLOR").is_none();
     tracing_subscriber::fmt()
         .with_ansi(colour)
         .with_env_filter(

@@ -147,11 +147,11 @@ enum Command {
     /// Prints the versions of MuJoCo and ONNX Runtime this build loads, the sizes of the MuJoCo
     /// model, and the input/output of the ONNX model with one timed inference on zeros.
     Doctor {
-        /// MJCF model to load.
-        #[arg(long)]
+        /// MJCF model to load (default: the reference robot's).
+        #[arg(long, default_value_os_t = robots::reference_robot_path().with_file_name("biped.xml"))]
         mjcf: PathBuf,
-        /// ONNX policy to load.
-        #[arg(long)]
+        /// ONNX policy to load (default: the reference policy).
+        #[arg(long, default_value_os_t = robots::reference_robot_path().with_file_name("policies/reference_follower.onnx"))]
         onnx: PathBuf,
     },
 }

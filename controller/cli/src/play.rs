@@ -196,6 +196,9 @@ pub fn check(args: &CheckArgs) -> Result<()> {
         l.robot.config.joints.len(),
         l.robot.path.display()
     );
+    if let Some(c) = &l.robot.calibration {
+        println!("       calibration merged from {}", c.display());
+    }
     print_model(&l.robot);
     for b in &l.robot.config.buses {
         if let Some(line) = crate::bus::schedule(&l.robot, &b.name) {
@@ -585,6 +588,9 @@ fn bus_threads(realtime: bool) -> fn() {
 /// Runs `play`.
 pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
     let mut l = load(&args.files)?;
+    if let Some(c) = &l.robot.calibration {
+        println!("{}: calibration merged from {}", l.robot.config.name, c.display());
+    }
     if let Some(values) = &args.command {
         l.layout.set_command(values).with_context(|| {
             let given: Vec<String> = values.iter().map(f64::to_string).collect();
