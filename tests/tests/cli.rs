@@ -1001,19 +1001,36 @@ fn batch_runs_clips_times_seeds_in_parallel_and_tabulates_them() {
     };
     assert!(row("squat.csv").contains("     3      100%"), "{stdout}");
     assert!(row("wave_and_look.csv").contains("     3      100%"), "{stdout}");
-    // With the elbow servo vanishing during start-up, no run succeeds.
+    // With the elbow servo vanishing during start-up, no run succeeds: the table says why (no
+    // NaN), the CSV has every run, and no log line cut through the progress bar.
+    let csv = std::env::temp_dir().join(format!("batch-{}.csv", std::process::id()));
     let out = robodeploy()
         .args(["batch", "--seeds", "0-1", "--mirror"])
         .arg(test_support::fixtures::workspace_root().join("sim2real/configs/randomized-with-faults.toml"))
         .arg("--clips")
         .arg(clips.join("squat.csv"))
+        .arg("--csv")
+        .arg(&csv)
         .output()
         .unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(
         stdout.contains("squat.csv                         2        0%"),
         "{stdout}"
     );
+    assert!(
+        stdout.contains("safety stop: joint 14: no feedback ×2"),
+        "{stdout}"
+    );
+    assert!(
+        !stdout.contains("NaN") && !stderr.contains(" INFO ") && !stderr.contains(" WARN "),
+        "{stdout}{stderr}"
+    );
+    let table = std::fs::read_to_string(&csv).unwrap();
+    assert_eq!(table.lines().count(), 3, "{table}");
+    assert!(table.starts_with("clip,seed,success,fell,outcome,"), "{table}");
+    std::fs::remove_file(&csv).unwrap();
 }
 
 #[test]

@@ -36,6 +36,9 @@ pub struct BatchArgs {
     /// machine. What `robodeploy-ray` gathers from its workers.
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
+    /// Also write every run as a row of a CSV table here (the same fields as --json).
+    #[arg(long, value_name = "FILE")]
+    csv: Option<PathBuf>,
 }
 
 fn parse_seeds(s: &str) -> Result<(u64, u64), String> {
@@ -64,6 +67,9 @@ pub fn run(args: &BatchArgs) -> Result<()> {
         .jobs
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, std::num::NonZero::get));
     let total = (args.clips.len() * seeds.len()) as u64;
+    // Every run's state changes and faults would cut through the bar: the table below says how
+    // each run ended (RUST_LOG brings the lines back).
+    crate::logging::errors_only();
     let bar = indicatif::ProgressBar::new(total).with_message("runs");
     bar.set_style(
         indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} {elapsed}")
@@ -89,21 +95,55 @@ pub fn run(args: &BatchArgs) -> Result<()> {
         }
         std::fs::write(path, text).with_context(|| format!("--json: cannot write {}", path.display()))?;
     }
+    let rows: Vec<_> = runs
+        .iter()
+        .map(|r| analysis::batch::RunRow::of(r, &args.clips[r.clip]))
+        .collect();
+    if let Some(path) = &args.csv {
+        write_csv(path, &rows).with_context(|| format!("--csv: cannot write {}", path.display()))?;
+    }
     println!(
-        "{:<28} {:>6} {:>9} {:>13} {:>12} {:>14}",
+        "{:<28} {:>6} {:>9} {:>13} {:>12} {:>14}  failures",
         "clip", "runs", "success", "joint RMSE °", "root RMSE cm", "limited ticks"
     );
-    for t in &totals {
+    let number = |v: f64, digits: usize| {
+        if v.is_finite() {
+            format!("{v:.digits$}")
+        } else {
+            "—".to_owned()
+        }
+    };
+    for (k, t) in totals.iter().enumerate() {
         let name = t.clip.file_name().map_or_else(
             || t.clip.display().to_string(),
             |n| n.to_string_lossy().into_owned(),
         );
+        // Why the runs that failed did: their outcomes, counted.
+        let mut why: std::collections::BTreeMap<String, usize> = std::collections::BTreeMap::new();
+        for (r, row) in runs.iter().zip(&rows) {
+            if r.clip == k && !row.success {
+                let reason = match (&row.error, row.fell) {
+                    (Some(_), _) => "could not run".to_owned(),
+                    (None, true) if row.outcome == "finished" => "fell".to_owned(),
+                    (None, _) => cause_of(&row.outcome),
+                };
+                *why.entry(reason).or_default() += 1;
+            }
+        }
+        let failures = if why.is_empty() {
+            "—".to_owned()
+        } else {
+            why.iter()
+                .map(|(w, n)| format!("{w} ×{n}"))
+                .collect::<Vec<_>>()
+                .join("; ")
+        };
         println!(
-            "{name:<28} {:>6} {:>8.0}% {:>13.2} {:>12.1} {:>14}",
+            "{name:<28} {:>6} {:>8.0}% {:>13} {:>12} {:>14}  {failures}",
             t.runs,
             100.0 * t.successes as f64 / t.runs.max(1) as f64,
-            t.joint_rmse_deg,
-            t.root_rmse_cm,
+            number(t.joint_rmse_deg, 2),
+            number(t.root_rmse_cm, 1),
             t.limited_ticks
         );
         for e in t.errors.iter().take(3) {
@@ -111,4 +151,45 @@ pub fn run(args: &BatchArgs) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// An outcome without its particulars, so runs that failed alike count together: `safety stop at
+/// tick 75: joint 14: no feedback for 2 bus cycles` → `safety stop: joint 14: no feedback`.
+fn cause_of(outcome: &str) -> String {
+    let mut parts = outcome.split(": ");
+    let head = parts.next().unwrap_or(outcome);
+    let head = head.split(" at tick ").next().unwrap_or(head);
+    let mut out = vec![head.to_owned()];
+    for p in parts {
+        out.push(p.split(" for ").next().unwrap_or(p).to_owned());
+    }
+    out.join(": ")
+}
+
+/// The runs as a CSV table, one row each, the fields of `--json`.
+fn write_csv(path: &std::path::Path, rows: &[analysis::batch::RunRow]) -> std::io::Result<()> {
+    use std::fmt::Write as _;
+    let opt = |v: Option<f64>| v.map_or_else(String::new, |v| v.to_string());
+    let quoted = |s: &str| format!("\"{}\"", s.replace('"', "\"\""));
+    let mut text = String::from(
+        "clip,seed,success,fell,outcome,ticks,played,joint_rmse_deg,root_rmse_cm,limited_ticks,error\n",
+    );
+    for r in rows {
+        let _ = writeln!(
+            text,
+            "{},{},{},{},{},{},{},{},{},{},{}",
+            quoted(&r.clip),
+            r.seed,
+            r.success,
+            r.fell,
+            quoted(&r.outcome),
+            r.ticks,
+            r.played,
+            opt(r.joint_rmse_deg),
+            opt(r.root_rmse_cm),
+            r.limited_ticks,
+            r.error.as_deref().map_or_else(String::new, quoted)
+        );
+    }
+    std::fs::write(path, text)
 }

@@ -8,6 +8,11 @@ use tracing_appender::non_blocking::{ErrorCounter, NonBlockingBuilder, WorkerGua
 /// Lines the queue holds before it drops.
 const QUEUED_LINES: usize = 16 * 1024;
 
+/// The filter in force, to quiet routine lines while a progress bar is drawn.
+static FILTER: std::sync::OnceLock<
+    tracing_subscriber::reload::Handle<tracing_subscriber::EnvFilter, tracing_subscriber::Registry>,
+> = std::sync::OnceLock::new();
+
 /// Keeps the writer alive; says at exit how many lines were dropped.
 #[derive(Debug)]
 pub struct Logging {
@@ -26,16 +31,33 @@ pub fn init() -> Logging {
     // Colour only for a person at a terminal: a pipe or a file gets plain text (NO_COLOR too).
     let colour =
         std::io::IsTerminal::is_terminal(&std::io::stderr()) && std::env::var_os("NO_COLOR").is_none();
-    tracing_subscriber::fmt()
-        .with_ansi(colour)
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info,ort=warn".into()),
+    use tracing_subscriber::layer::SubscriberExt as _;
+    use tracing_subscriber::util::SubscriberInitExt as _;
+    let filter =
+        tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info,ort=warn".into());
+    let (filter, handle) = tracing_subscriber::reload::Layer::new(filter);
+    let _ = FILTER.set(handle);
+    tracing_subscriber::registry()
+        .with(filter)
+        .with(
+            tracing_subscriber::fmt::layer()
+                .with_ansi(colour)
+                .with_writer(writer),
         )
-        .with_writer(writer)
         .init();
     Logging {
         dropped,
         _writer: guard,
+    }
+}
+
+/// Only errors from now on, unless `RUST_LOG` asked for more: for work that draws a progress bar
+/// and reports every item's outcome itself (a batch's runs and their faults would cut through it).
+pub fn errors_only() {
+    if std::env::var_os("RUST_LOG").is_none()
+        && let Some(handle) = FILTER.get()
+    {
+        let _ = handle.reload(tracing_subscriber::EnvFilter::new("error"));
     }
 }
 
