@@ -76,6 +76,78 @@ fn doctor_alone_checks_the_reference_robot_and_policy() {
 }
 
 #[test]
+fn a_bundle_runs_from_another_folder_on_its_own_libraries() {
+    let dir = std::env::temp_dir().join(format!("bundle-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let tarball = dir.join("b.tar.gz");
+    let clip = robots::reference_robot_path().with_file_name("clips/squat.csv");
+    let out = robodeploy()
+        .args(["bundle", "--clip"])
+        .arg(&clip)
+        .arg("--out")
+        .arg(&tarball)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let unpacked = dir.join("elsewhere");
+    tar::Archive::new(flate2::read::GzDecoder::new(
+        std::fs::File::open(&tarball).unwrap(),
+    ))
+    .unpack(&unpacked)
+    .unwrap();
+    let home = unpacked.join("robodeploy-rd-biped");
+    let bundled = |args: &[&str]| {
+        std::process::Command::new(home.join("bin/robodeploy"))
+            .args(args)
+            .current_dir(&home)
+            .env_remove("LD_LIBRARY_PATH")
+            .output()
+            .unwrap()
+    };
+    let doctor = bundled(&[
+        "doctor",
+        "--mjcf",
+        "robot/biped.xml",
+        "--onnx",
+        "policy/reference_follower.onnx",
+    ]);
+    let stdout = String::from_utf8_lossy(&doctor.stdout);
+    assert!(
+        doctor.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&doctor.stderr)
+    );
+    // Its own libraries, from beside the binary: not the checkout's.
+    let libs = home.join("lib");
+    assert!(
+        stdout.contains(&format!("loaded {}/libmujoco.so.3.17.0", libs.display()))
+            && stdout.contains(&format!("loaded {}/libonnxruntime.so.1.31.1", libs.display())),
+        "{stdout}"
+    );
+    let play = bundled(&[
+        "play",
+        "--robot",
+        "robot/robot.toml",
+        "--policy",
+        "policy/reference_follower.toml",
+        "--clip",
+        "clips/squat.csv",
+        "--no-record",
+    ]);
+    let stdout = String::from_utf8_lossy(&play.stdout);
+    assert!(
+        play.status.success() && stdout.contains("result: finished"),
+        "{stdout}"
+    );
+    let readme = std::fs::read_to_string(home.join("README.txt")).unwrap();
+    assert!(
+        readme.contains("./bin/robodeploy play --robot robot/robot.toml"),
+        "{readme}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
 fn help_teaches_the_commands() {
     let out = robodeploy().arg("--help").output().unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);

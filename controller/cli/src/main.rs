@@ -7,6 +7,7 @@ use clap::{Parser, Subcommand};
 
 mod args;
 mod batch;
+mod bundle;
 mod bus;
 mod calibrate;
 mod can;
@@ -61,6 +62,12 @@ enum Command {
     /// Dynamixel serial bus tools: emulated X-series servos on a pseudo-terminal, and bus scans.
     #[command(subcommand)]
     Dxl(dxl::DxlCommand),
+    /// Pack what a run needs into one tarball for another machine of the same architecture: the
+    /// binary, its two native libraries, the robot's folder, the policy's folder and clips.
+    ///
+    /// Unpacked anywhere, `bin/robodeploy` finds its libraries beside itself; the README.txt
+    /// inside says how to run it.
+    Bundle(bundle::BundleArgs),
     /// Feetech serial bus tools: emulated STS servos on a pseudo-terminal, and bus scans.
     #[command(subcommand)]
     Feetech(feetech::FeetechCommand),
@@ -187,6 +194,7 @@ fn dispatch(command: Command) -> Result<std::process::ExitCode> {
         Command::Can(cmd) => done(can::run(cmd)),
         Command::Dxl(cmd) => done(dxl::run(cmd)),
         Command::Feetech(cmd) => done(feetech::run(cmd)),
+        Command::Bundle(args) => done(bundle::run(&args)),
         Command::Bus(cmd) => done(bus::run(cmd)),
         Command::Calibrate(cmd) => done(calibrate::run(cmd)),
         Command::Sim(cmd) => done(sim::run(cmd)),
@@ -304,6 +312,20 @@ fn compare(
     Ok(())
 }
 
+/// The MuJoCo and ONNX Runtime library files this process has mapped.
+fn loaded_libraries() -> Vec<PathBuf> {
+    let maps = std::fs::read_to_string("/proc/self/maps").unwrap_or_default();
+    let mut found: Vec<PathBuf> = maps
+        .lines()
+        .filter_map(|l| l.split_whitespace().nth(5))
+        .filter(|p| p.contains("libmujoco") || p.contains("libonnxruntime"))
+        .map(PathBuf::from)
+        .collect();
+    found.sort();
+    found.dedup();
+    found
+}
+
 fn doctor(mjcf: &std::path::Path, onnx: &std::path::Path) -> Result<()> {
     sim2real::mujoco::check_version()?;
     println!(
@@ -313,6 +335,10 @@ fn doctor(mjcf: &std::path::Path, onnx: &std::path::Path) -> Result<()> {
     );
     let info = controller::onnx::runtime_info()?;
     println!("ONNX Runtime  {info}");
+    // Where the two libraries came from: beside the binary (a bundle, an install) or the checkout.
+    for lib in loaded_libraries() {
+        println!("              loaded {}", lib.display());
+    }
 
     let model = sim2real::mujoco::load_model(mjcf)?;
     let s = sim2real::mujoco::sizes(&model);

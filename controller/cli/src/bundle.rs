@@ -1,0 +1,200 @@
+//! `robodeploy bundle`: what a run needs, in one tarball for another machine of the same
+//! architecture.
+//!
+//! ```text
+//! robodeploy-ROBOT/
+//!   bin/robodeploy                 this binary (its run path looks in ../lib first)
+//!   lib/libmujoco.so.3.17.0        the native libraries it loads
+//!   lib/libonnxruntime.so.1.31.1
+//!   robot/                         the robot's folder: robot.toml, MJCF, meshes, calibration.toml
+//!   policy/                        the policy's folder: manifest(s) and ONNX files
+//!   clips/                         the clips asked for
+//!   README.txt                     how to run it
+//! ```
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+
+/// The libraries the binary loads, by the file names it asks for.
+const LIBRARIES: [&str; 2] = ["libmujoco.so.3.17.0", "libonnxruntime.so.1.31.1"];
+
+/// Largest folder packed whole, bytes: a robot or policy folder is descriptions and models.
+const MAX_FOLDER_BYTES: u64 = 512 * 1024 * 1024;
+
+/// Arguments of `bundle`.
+#[derive(Debug, Args)]
+pub struct BundleArgs {
+    /// The robot description; its whole folder is packed.
+    #[arg(long, default_value_os_t = robots::reference_robot_path())]
+    robot: PathBuf,
+    /// The policy (manifest or ONNX export); its whole folder is packed.
+    #[arg(long, default_value_os_t = robots::reference_robot_path().with_file_name("policies/reference_follower.toml"))]
+    policy: PathBuf,
+    /// Clips to pack (repeat or list).
+    #[arg(long, num_args = 0..)]
+    clip: Vec<PathBuf>,
+    /// The tarball to write (gzipped).
+    #[arg(long, default_value = "out/robodeploy-bundle.tar.gz")]
+    out: PathBuf,
+}
+
+/// Runs `bundle`.
+pub fn run(args: &BundleArgs) -> Result<()> {
+    // Load both as a run would: a bundle of files that do not load helps nobody.
+    let robot = robots::Robot::load(&args.robot)?;
+    let layout = controller::policy::PolicyLayout::load(&args.policy, &robot)?;
+    let robot_dir = folder_of(&args.robot)?;
+    let policy_dir = folder_of(&args.policy)?;
+    if !layout.onnx_path.starts_with(&policy_dir) {
+        bail!(
+            "--policy {}: its ONNX file {} lies outside the policy's folder, which is what is packed",
+            args.policy.display(),
+            layout.onnx_path.display()
+        );
+    }
+    let mjcf = std::fs::canonicalize(&robot.mjcf_path).unwrap_or_else(|_| robot.mjcf_path.clone());
+    if !mjcf.starts_with(&robot_dir) {
+        bail!(
+            "--robot {}: its MJCF {} lies outside the robot's folder, which is what is packed",
+            args.robot.display(),
+            mjcf.display()
+        );
+    }
+    for dir in [&robot_dir, &policy_dir] {
+        let size = folder_bytes(dir)?;
+        if size > MAX_FOLDER_BYTES {
+            bail!(
+                "{}: {} MB is more than a robot or policy folder should hold (at most {} MB)",
+                dir.display(),
+                size / 1_000_000,
+                MAX_FOLDER_BYTES / 1_000_000
+            );
+        }
+    }
+    let exe = std::env::current_exe().context("cannot find this binary")?;
+    let mut libs = Vec::new();
+    for name in LIBRARIES {
+        let found = controller::native::search_dirs()
+            .into_iter()
+            .map(|d| d.join(name))
+            .find(|p| p.is_file())
+            .with_context(|| {
+                format!("{name} is not beside the binary nor in .local/lib: run scripts/setup")
+            })?;
+        libs.push((name, found));
+    }
+    for c in &args.clip {
+        if !c.is_file() {
+            bail!("--clip {}: not a file", c.display());
+        }
+    }
+
+    let top = format!("robodeploy-{}", robot.config.name);
+    if let Some(dir) = args.out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    }
+    let file =
+        std::fs::File::create(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
+    let mut tar = tar::Builder::new(flate2::write::GzEncoder::new(
+        file,
+        flate2::Compression::default(),
+    ));
+    // Symbolic links inside the folders are packed as the files they point to.
+    tar.follow_symlinks(true);
+    let add = |tar: &mut tar::Builder<_>, from: &Path, to: String| -> Result<()> {
+        tar.append_path_with_name(from, &to)
+            .with_context(|| format!("cannot pack {}", from.display()))
+    };
+    add(&mut tar, &exe, format!("{top}/bin/robodeploy"))?;
+    for (name, path) in &libs {
+        add(&mut tar, path, format!("{top}/lib/{name}"))?;
+    }
+    tar.append_dir_all(format!("{top}/robot"), &robot_dir)
+        .with_context(|| format!("cannot pack {}", robot_dir.display()))?;
+    tar.append_dir_all(format!("{top}/policy"), &policy_dir)
+        .with_context(|| format!("cannot pack {}", policy_dir.display()))?;
+    let mut clip_names = Vec::new();
+    for c in &args.clip {
+        let name = c
+            .file_name()
+            .map_or_else(|| "clip".into(), |n| n.to_string_lossy().into_owned());
+        add(&mut tar, c, format!("{top}/clips/{name}"))?;
+        // A clip's motion sidecar travels with it.
+        let sidecar = c.with_file_name(format!("{name}.motion.toml"));
+        if sidecar.is_file() {
+            add(&mut tar, &sidecar, format!("{top}/clips/{name}.motion.toml"))?;
+        }
+        clip_names.push(name);
+    }
+    let robot_file = file_name(&args.robot);
+    let policy_file = file_name(&args.policy);
+    let clip_arg = clip_names
+        .first()
+        .map_or_else(String::new, |c| format!(" --clip clips/{c}"));
+    let readme = format!(
+        "robodeploy bundle: {robot_name}, policy {policy_file}\n\
+         Built for {arch} Linux. Unpack anywhere and run from this folder:\n\n  \
+         ./bin/robodeploy doctor --mjcf robot/{mjcf} --onnx policy/{onnx}\n  \
+         ./bin/robodeploy play --robot robot/{robot_file} --policy policy/{policy_file}{clip_arg}\n  \
+         ./bin/robodeploy play --hardware --robot robot/{robot_file} --policy policy/{policy_file}{clip_arg}\n\n\
+         bin/robodeploy loads lib/libmujoco.so.3.17.0 and lib/libonnxruntime.so.1.31.1 from beside it.\n",
+        robot_name = robot.config.name,
+        arch = std::env::consts::ARCH,
+        mjcf = mjcf.strip_prefix(&robot_dir).unwrap_or(&mjcf).display(),
+        onnx = layout
+            .onnx_path
+            .strip_prefix(&policy_dir)
+            .unwrap_or(&layout.onnx_path)
+            .display(),
+    );
+    let mut header = tar::Header::new_gnu();
+    header.set_size(readme.len() as u64);
+    header.set_mode(0o644);
+    header.set_cksum();
+    tar.append_data(&mut header, format!("{top}/README.txt"), readme.as_bytes())
+        .context("cannot pack README.txt")?;
+    let gz = tar.into_inner().context("cannot finish the tarball")?;
+    gz.finish().context("cannot finish the tarball")?;
+    let size = std::fs::metadata(&args.out).map_or(0, |m| m.len());
+    println!(
+        "bundle: {} ({:.1} MB): {top}/ with bin/, lib/, robot/, policy/{}",
+        args.out.display(),
+        size as f64 / 1e6,
+        if clip_names.is_empty() { "" } else { ", clips/" }
+    );
+    print!("{readme}");
+    Ok(())
+}
+
+/// The folder a file is in, resolved.
+fn folder_of(file: &Path) -> Result<PathBuf> {
+    let file = std::fs::canonicalize(file).with_context(|| format!("cannot find {}", file.display()))?;
+    Ok(file
+        .parent()
+        .map_or_else(|| PathBuf::from("/"), Path::to_path_buf))
+}
+
+fn file_name(p: &Path) -> String {
+    p.file_name()
+        .map_or_else(String::new, |n| n.to_string_lossy().into_owned())
+}
+
+/// Bytes of the regular files under `dir`.
+fn folder_bytes(dir: &Path) -> Result<u64> {
+    let mut total = 0;
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for entry in std::fs::read_dir(&d).with_context(|| format!("cannot read {}", d.display()))? {
+            let entry = entry?;
+            let meta = entry.metadata()?;
+            if meta.is_dir() {
+                stack.push(entry.path());
+            } else {
+                total += meta.len();
+            }
+        }
+    }
+    Ok(total)
+}
