@@ -97,7 +97,7 @@ fn a_bundle_runs_from_another_folder_on_its_own_libraries() {
     .unwrap();
     let home = unpacked.join("robodeploy-rd-biped");
     let bundled = |args: &[&str]| {
-        std::process::Command::new(home.join("bin/robodeploy"))
+        Command::new(home.join("bin/robodeploy"))
             .args(args)
             .current_dir(&home)
             .env_remove("LD_LIBRARY_PATH")
