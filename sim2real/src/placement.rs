@@ -30,8 +30,8 @@ pub fn lowest_point(data: &MjData<Box<MjModel>>, root_body: usize) -> Option<f64
     lowest.is_finite().then_some(lowest)
 }
 
-/// Whether `body` is `root` or one of its descendants.
-fn in_tree(model: &MjModel, mut body: usize, root: usize) -> bool {
+/// Whether `body` is `root` or one of its descendants (body 0 is the world).
+pub fn in_tree(model: &MjModel, mut body: usize, root: usize) -> bool {
     loop {
         if body == root {
             return true;

@@ -20,6 +20,7 @@ import sys
 import numpy as np
 import onnxruntime as ort
 from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory
 
 
 def rotation(q):
@@ -31,6 +32,12 @@ def rotation(q):
     ])
 
 
+def pose(p):
+    """x y z qw qx qy qz of a robodeploy.Pose."""
+    return np.array([p.position.x, p.position.y, p.position.z,
+                     p.orientation.w, p.orientation.x, p.orientation.y, p.orientation.z])
+
+
 def main():
     path, onnx_path = sys.argv[1], sys.argv[2]
     ori, pos, cmd, j, ramp = (int(a) for a in sys.argv[3:8])
@@ -38,12 +45,12 @@ def main():
     ticks = 0
     commands = []
     with open(path, "rb") as f:
-        for _, channel, message in make_reader(f).iter_messages(topics=["/policy"]):
-            m = json.loads(message.data)
-            if "robot_anchor" not in m or not m.get("running"):
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for _, _, _, m in reader.iter_decoded_messages(topics=["/policy"]):
+            if not m.HasField("robot_anchor") or not m.running:
                 continue
-            obs = np.array(m["obs"], dtype=np.float64)
-            robot, ref = np.array(m["robot_anchor"]), np.array(m["reference_anchor"])
+            obs = np.array(m.observation, dtype=np.float64)
+            robot, ref = pose(m.robot_anchor), pose(m.reference_anchor)
             rr, rm = rotation(robot[3:]), rotation(ref[3:])
             want = (rr.T @ rm)[:, :2].reshape(-1)
             ori_err = max(ori_err, float(np.max(np.abs(obs[ori:ori + 6] - want))))

@@ -1,5 +1,7 @@
-"""Reads a robodeploy MCAP with the `mcap` package (independent of the Rust writer) and prints
-per-topic message counts, schema names and a few decoded values as JSON.
+"""Reads a robodeploy MCAP with the `mcap` package (independent of the Rust writer), decodes every
+message — protobuf channels through `mcap-protobuf-support` from the schemas inside the file, JSON
+channels as JSON — and prints per-topic message counts, schema names and a few decoded values as
+JSON.
 
 Usage: read_mcap.py FILE.mcap [--cut]
 
@@ -9,6 +11,9 @@ whether the file ended early.
 """
 import json
 import sys
+
+from google.protobuf.json_format import MessageToDict
+from mcap_protobuf.decoder import DecoderFactory
 
 from mcap.exceptions import EndOfFile, RecordLengthLimitExceeded
 from mcap.reader import make_reader
@@ -40,24 +45,34 @@ def messages(f, cut_ok):
         cut = True
 
 
+def decode(schema, channel, message, protobuf=DecoderFactory()):
+    """The message as a dict: protobuf by its schema, JSON as JSON; anything else fails."""
+    if channel.message_encoding == "json":
+        return json.loads(message.data)
+    decoder = protobuf.decoder_for(channel.message_encoding, schema)
+    if decoder is None:
+        raise SystemExit(f"{channel.topic}: no decoder for {channel.message_encoding} / {schema and schema.encoding}")
+    return MessageToDict(decoder(message.data), preserving_proto_field_name=True)
+
+
 cut = False
 
-counts, schemas, metadata = {}, {}, {}
-first_joint_state, modes, first_tf, tf_children = None, [], None, set()
+counts, schemas, metadata, first = {}, {}, {}, {}
+modes, tf_children, scene_frames = [], set(), set()
 with open(sys.argv[1], "rb") as f:
     for schema, channel, message in messages(f, "--cut" in sys.argv[2:]):
-        counts[channel.topic] = counts.get(channel.topic, 0) + 1
-        schemas[channel.topic] = schema.name if schema else None
-        metadata[channel.topic] = dict(channel.metadata)
-        data = json.loads(message.data)
-        if channel.topic == "/joint_state" and first_joint_state is None:
-            first_joint_state = data
-        if channel.topic == "/safety":
+        topic = channel.topic
+        counts[topic] = counts.get(topic, 0) + 1
+        schemas[topic] = schema.name if schema else None
+        metadata[topic] = dict(channel.metadata)
+        data = decode(schema, channel, message)
+        first.setdefault(topic, data)
+        if topic == "/safety":
             modes.append(data["mode"])
-        if channel.topic == "/tf":
-            tf_children.add(data["child_frame_id"])
-            if first_tf is None:
-                first_tf = data
-print(json.dumps(dict(counts=counts, schemas=schemas, metadata=metadata,
-                      first_joint_state=first_joint_state, modes=modes, first_tf=first_tf,
-                      tf_children=sorted(tf_children), cut=cut)))
+        if topic == "/tf":
+            tf_children.update(t["child_frame_id"] for t in data["transforms"])
+        if topic == "/robot":
+            scene_frames.update(e["frame_id"] for e in data["entities"])
+first.pop("/replay", None)  # long, and the project's own
+print(json.dumps(dict(counts=counts, schemas=schemas, metadata=metadata, first=first, modes=modes,
+                      tf_children=sorted(tf_children), scene_frames=sorted(scene_frames), cut=cut)))

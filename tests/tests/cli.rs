@@ -932,9 +932,11 @@ fn compare_pinpoints_a_mis_scaled_observation_term() {
     // A training export: the run's observations written by NumPy, joint_vel doubled from step 100.
     let script = format!(
         r#"
-import json, numpy as np
+import numpy as np
 from mcap.reader import make_reader
-rows = [json.loads(m.data)["obs"] for s, c, m in make_reader(open({a:?}, "rb")).iter_messages(topics=["/policy"]) if json.loads(m.data)["running"]]
+from mcap_protobuf.decoder import DecoderFactory
+reader = make_reader(open({a:?}, "rb"), decoder_factories=[DecoderFactory()])
+rows = [list(p.observation) for s, c, m, p in reader.iter_decoded_messages(topics=["/policy"]) if p.running]
 obs = np.array(rows, dtype=np.float32)
 obs[100:, 26:46] *= 2.0
 np.savez({out:?}, obs=obs)

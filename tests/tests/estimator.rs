@@ -140,15 +140,12 @@ fn pushed_30_n_s_the_velocity_estimate_follows_within_0_1_m_s_after_50_ms() {
         if m.topic != "/estimator" || !(5.05..=5.3).contains(&t) {
             return Ok(());
         }
-        let v: serde_json::Value = serde_json::from_slice(m.data).unwrap();
-        let num = |k: &str| -> Vec<f64> {
-            v[k].as_array()
-                .unwrap()
-                .iter()
-                .map(|x| x.as_f64().unwrap())
-                .collect()
+        let v = <telemetry_schema::StateEstimate as prost::Message>::decode(m.data).unwrap();
+        let xyz = |v: Option<telemetry_schema::Vector3>| {
+            let v = v.unwrap();
+            [v.x, v.y, v.z]
         };
-        let (est, truth) = (num("velocity_base"), num("truth_velocity_base"));
+        let (est, truth) = (xyz(v.velocity_base), xyz(v.truth_velocity_base));
         let d = est
             .iter()
             .zip(&truth)

@@ -3,6 +3,8 @@
 //! viewer that never comes does not hold the robot forever.
 
 use std::collections::HashMap;
+
+use prost::Message as _;
 use std::time::Duration;
 
 use test_support::bin::Running;
@@ -15,6 +17,39 @@ fn scratch(name: &str) -> std::path::PathBuf {
     std::fs::create_dir_all(&dir).unwrap();
     dir
 }
+
+/// The fields of `foxglove.FrameTransforms` this test reads, by the schema's field numbers (the
+/// foxglove crate's types only encode).
+#[derive(Clone, PartialEq, prost::Message)]
+struct Transforms {
+    #[prost(message, repeated, tag = "1")]
+    transforms: Vec<Transform>,
+}
+
+#[derive(Clone, PartialEq, prost::Message)]
+struct Transform {
+    #[prost(string, tag = "3")]
+    child_frame_id: String,
+}
+
+/// The fields of `foxglove.SceneUpdate` this test reads.
+#[derive(Clone, PartialEq, prost::Message)]
+struct Scene {
+    #[prost(message, repeated, tag = "2")]
+    entities: Vec<Entity>,
+}
+
+#[derive(Clone, PartialEq, prost::Message)]
+struct Entity {
+    #[prost(string, tag = "2")]
+    frame_id: String,
+    #[prost(message, repeated, tag = "8")]
+    cubes: Vec<Primitive>,
+}
+
+/// Any primitive, its fields unread.
+#[derive(Clone, PartialEq, prost::Message)]
+struct Primitive {}
 
 #[test]
 fn a_lockstep_run_streams_joint_states_and_transforms_to_a_subscribed_client() {
@@ -42,15 +77,24 @@ fn a_lockstep_run_streams_joint_states_and_transforms_to_a_subscribed_client() {
     let (mut ws, _) = tungstenite::connect(request).unwrap();
     // serverInfo, then the channels advertised: the recording's topics.
     let mut channels: HashMap<String, u64> = HashMap::new();
-    while !(channels.contains_key("/joint_state") && channels.contains_key("/tf")) {
+    let mut schemas: HashMap<String, (String, String)> = HashMap::new();
+    while !(channels.contains_key("/joint_state")
+        && channels.contains_key("/tf")
+        && channels.contains_key("/robot"))
+    {
         let Message::Text(text) = ws.read().unwrap() else {
             continue;
         };
         let v: serde_json::Value = serde_json::from_str(&text).unwrap();
         if v["op"] == "advertise" {
             for c in v["channels"].as_array().unwrap() {
-                channels.insert(c["topic"].as_str().unwrap().to_owned(), c["id"].as_u64().unwrap());
-                assert_eq!(c["encoding"], "json", "{c}");
+                let topic = c["topic"].as_str().unwrap().to_owned();
+                channels.insert(topic.clone(), c["id"].as_u64().unwrap());
+                let schema = (
+                    c["schemaName"].as_str().unwrap().to_owned(),
+                    c["encoding"].as_str().unwrap().to_owned(),
+                );
+                schemas.insert(topic, schema);
             }
         }
     }
@@ -59,39 +103,68 @@ fn a_lockstep_run_streams_joint_states_and_transforms_to_a_subscribed_client() {
         "subscriptions": [
             {"id": 1, "channelId": channels["/joint_state"]},
             {"id": 2, "channelId": channels["/tf"]},
+            {"id": 3, "channelId": channels["/robot"]},
         ],
     });
     ws.send(Message::Text(subscribe.to_string().into())).unwrap();
-    // Message data: opcode 1, subscription (u32), log time (u64, ns), the JSON message.
-    let (mut states, mut transforms) = (Vec::new(), Vec::new());
+    // The recording's typed channels: the project's joint states, Foxglove's transforms and scene.
+    assert_eq!(
+        schemas["/joint_state"],
+        ("robodeploy.JointStates".into(), "protobuf".into())
+    );
+    assert_eq!(
+        schemas["/tf"],
+        ("foxglove.FrameTransforms".into(), "protobuf".into())
+    );
+    assert_eq!(
+        schemas["/robot"],
+        ("foxglove.SceneUpdate".into(), "protobuf".into())
+    );
+    // Message data: opcode 1, subscription (u32), log time (u64, ns), the protobuf message.
+    let (mut states, mut transforms, mut scenes) = (Vec::new(), Vec::new(), Vec::new());
     let mut last_time = 0u64;
-    while states.len() < 50 || transforms.len() < 50 {
+    while states.len() < 50 || transforms.len() < 50 || scenes.is_empty() {
         let Message::Binary(b) = ws.read().unwrap() else {
             continue;
         };
         assert_eq!(b[0], 1, "message data");
         let sub = u32::from_le_bytes(b[1..5].try_into().unwrap());
         let time = u64::from_le_bytes(b[5..13].try_into().unwrap());
-        let v: serde_json::Value = serde_json::from_slice(&b[13..]).unwrap();
+        let data = &b[13..];
         match sub {
             1 => {
                 assert!(time >= last_time, "in time order");
                 last_time = time;
-                states.push(v);
+                states.push(telemetry_schema::JointStates::decode(data).unwrap());
             }
-            2 => transforms.push(v),
+            2 => transforms.push(Transforms::decode(data).unwrap()),
+            3 => scenes.push(Scene::decode(data).unwrap()),
             other => panic!("subscription {other}"),
         }
     }
     drop(ws);
-    let q = states[40]["q"].as_array().unwrap();
-    assert_eq!(q.len(), 20, "every rd-biped joint: {}", states[40]);
-    assert!(q.iter().all(|x| x.as_f64().unwrap().is_finite()));
-    let frames: std::collections::BTreeSet<_> = transforms
+    let joints = &states[40].joints;
+    assert_eq!(joints.len(), 20, "every rd-biped joint: {:?}", states[40]);
+    assert!(
+        joints
+            .iter()
+            .all(|j| j.position.is_finite() && !j.name.is_empty())
+    );
+    let frames: std::collections::BTreeSet<_> = transforms[40]
+        .transforms
         .iter()
-        .map(|t| t["child_frame_id"].as_str().unwrap().to_owned())
+        .map(|t| t.child_frame_id.clone())
         .collect();
     assert!(frames.len() > 5, "the links' frames: {frames:?}");
+    // The robot's geometry reaches a viewer that joined after the run began.
+    assert!(
+        scenes[0]
+            .entities
+            .iter()
+            .any(|e| e.frame_id == "left_foot" && !e.cubes.is_empty()),
+        "{:?}",
+        scenes[0].entities.iter().map(|e| &e.frame_id).collect::<Vec<_>>()
+    );
     let done = play
         .finish_within(Duration::from_secs(300))
         .expect("the run ends");

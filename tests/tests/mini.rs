@@ -86,16 +86,11 @@ fn policy_ticks(path: &Path) -> Vec<(bool, Vec<f64>, Vec<f64>)> {
     let mut out = Vec::new();
     analysis::recording::for_each_message(&bytes, |m| {
         if m.topic == "/policy" {
-            let v: serde_json::Value = serde_json::from_slice(m.data).unwrap();
-            let numbers = |k: &str| -> Vec<f64> {
-                v[k].as_array()
-                    .map(|a| a.iter().map(|x| x.as_f64().unwrap()).collect())
-                    .unwrap_or_default()
-            };
+            let v = <telemetry_schema::PolicyStep as prost::Message>::decode(m.data).unwrap();
             out.push((
-                v["running"].as_bool().unwrap(),
-                numbers("obs"),
-                numbers("commands"),
+                v.running,
+                v.observation.iter().map(|&x| f64::from(x)).collect(),
+                v.commands.iter().map(|c| c.value).collect(),
             ));
         }
         Ok(())
@@ -519,9 +514,11 @@ fn compare_aligns_a_trainers_trace_and_judges_each_term_against_the_buses_resolu
     let train = dir.join("train.csv");
     let script = format!(
         r#"
-import json, numpy as np
+import numpy as np
 from mcap.reader import make_reader
-rows = [json.loads(m.data)["obs"] for s, c, m in make_reader(open({run:?}, "rb")).iter_messages(topics=["/policy"]) if json.loads(m.data)["running"]]
+from mcap_protobuf.decoder import DecoderFactory
+reader = make_reader(open({run:?}, "rb"), decoder_factories=[DecoderFactory()])
+rows = [list(p.observation) for s, c, m, p in reader.iter_decoded_messages(topics=["/policy"]) if p.running]
 obs = np.array(rows, dtype=np.float64)[7:]
 obs[::2, 9:25] += 2 * np.pi / 4096
 obs[150:, 3:6] += 0.01

@@ -64,11 +64,24 @@ fn a_recorded_run_reads_back_in_python_with_the_reported_counts() {
         assert_eq!(v["counts"][topic].as_u64(), Some(*n), "topic {topic}: {v}");
     }
     assert_eq!(v["counts"]["/joint_state"].as_u64(), Some(summary.ticks));
-    assert_eq!(v["schemas"]["/tf"], "foxglove.FrameTransform");
-    assert_eq!(v["first_tf"]["child_frame_id"], "pelvis");
+    // Viewers' schemas: Foxglove's well-known ones, and the project's own typed ones.
+    assert_eq!(v["schemas"]["/tf"], "foxglove.FrameTransforms");
+    assert_eq!(v["schemas"]["/robot"], "foxglove.SceneUpdate");
+    assert_eq!(v["schemas"]["/log"], "foxglove.Log");
+    assert_eq!(v["schemas"]["/joint_state"], "robodeploy.JointStates");
+    assert_eq!(v["schemas"]["/policy"], "robodeploy.PolicyStep");
     assert_eq!(v["metadata"]["/timing"]["bus_names"], "can0,can1,dxl0");
-    // Every link of the robot gets its transform each tick: root + 21 links.
-    assert_eq!(v["counts"]["/tf"].as_u64(), Some(22 * summary.ticks));
+    // One frame-transform message a tick: the world → root frame, then every link below it.
+    assert_eq!(v["counts"]["/tf"].as_u64(), Some(summary.ticks));
+    let first_tf = v["first"]["/tf"]["transforms"].as_array().unwrap();
+    assert_eq!(
+        (
+            first_tf[0]["parent_frame_id"].as_str(),
+            first_tf[0]["child_frame_id"].as_str()
+        ),
+        (Some("world"), Some("pelvis"))
+    );
+    assert_eq!(first_tf.len(), 22, "root + 21 links");
     let frames: Vec<&str> = v["tf_children"]
         .as_array()
         .unwrap()
@@ -79,13 +92,25 @@ fn a_recorded_run_reads_back_in_python_with_the_reported_counts() {
         frames.contains(&"left_foot") && frames.contains(&"head"),
         "{frames:?}"
     );
-    assert!(
-        v["metadata"]["/joint_state"]["joint_names"]
-            .as_str()
-            .unwrap()
-            .starts_with("left_hip_yaw,left_hip_roll")
-    );
-    assert_eq!(v["first_joint_state"]["q"].as_array().unwrap().len(), 20);
+    // The robot's geometry once, an entity locked to each link's frame: the 3D view shows the
+    // robot, not bare axes.
+    assert_eq!(v["counts"]["/robot"].as_u64(), Some(1));
+    let scene: Vec<&str> = v["scene_frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f.as_str().unwrap())
+        .collect();
+    for body in ["pelvis", "torso", "head", "left_foot", "right_shin"] {
+        assert!(scene.contains(&body), "{body} not in the scene: {scene:?}");
+    }
+    let pelvis = &v["first"]["/robot"]["entities"][0];
+    assert_eq!(pelvis["frame_locked"], true, "{pelvis}");
+    // Joints are named in every message.
+    let joints = v["first"]["/joint_state"]["joints"].as_array().unwrap();
+    assert_eq!(joints.len(), 20);
+    assert_eq!(joints[0]["name"], "left_hip_yaw");
+    assert_eq!(v["counts"]["/log"], v["counts"]["/safety"]);
     let modes: Vec<&str> = v["modes"]
         .as_array()
         .unwrap()
@@ -116,7 +141,7 @@ fn an_overflowing_ring_counts_every_dropped_record() {
         obs_len: 512,
         ..TickRecord::default()
     };
-    // Pushing far faster than JSON encoding of a 512-value observation can keep up with.
+    // Pushing far faster than encoding a 512-value observation can keep up with.
     for k in 0..5000 {
         r.tick = k;
         r.time_ns = k * 1000;
@@ -248,8 +273,9 @@ fn ten_minutes_of_a_500_hz_bus_recorded_from_the_loop_lose_nothing_in_lockstep()
     for m in mcap::MessageStream::new(&bytes).unwrap() {
         let m = m.unwrap();
         if m.channel.topic == "/bus/can0" {
-            let v: serde_json::Value = serde_json::from_slice(&m.data).unwrap();
-            assert_eq!(v["cycle"].as_u64(), Some(next));
+            let v = <telemetry_schema::BusCycle as prost::Message>::decode(&m.data[..]).unwrap();
+            assert_eq!(v.cycle, next);
+            assert_eq!(v.joints.len(), 6, "{v:?}");
             next += 1;
         }
     }

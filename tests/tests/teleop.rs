@@ -34,6 +34,21 @@ struct Recording {
     ticks: Vec<(Instant, Vec<f64>)>,
     status: Arc<Mutex<TeleopStatus>>,
     trackers: Vec<[f64; human::live::TRACKER_VALUES]>,
+    /// With `Length::AfterFeed`: when the feed ended, how long to go on, and the stop to raise.
+    after_feed: Option<(FeedEnd, Duration, Arc<AtomicBool>)>,
+}
+
+/// When the feed ended, once it has.
+type FeedEnd = Arc<Mutex<Option<Instant>>>;
+
+/// How long a teleoperated run lasts.
+#[derive(Clone, Copy)]
+enum Length {
+    /// Seconds of ticks.
+    Seconds(f64),
+    /// Until this long after the feed has ended (a loaded machine may send slower than real time;
+    /// what happens after the stream ends must still be seen), within a minute.
+    AfterFeed(f64),
 }
 
 impl TickClock for Recording {
@@ -55,6 +70,14 @@ impl TickClock for Recording {
                 .unwrap_or_else(PoisonError::into_inner)
                 .trackers,
         );
+        if let Some((ended, after, stop)) = &self.after_feed
+            && ended
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .is_some_and(|t| t.elapsed() > *after)
+        {
+            stop.store(true, Ordering::Relaxed);
+        }
         late
     }
     fn ground_truth(&self, truth: &mut GroundTruth) -> bool {
@@ -75,13 +98,13 @@ struct Run {
 /// receiver's address.
 fn teleoperate(seconds: f64, options: TeleopOptions, feed: impl FnOnce(SocketAddr) + Send + 'static) -> Run {
     let follower = robots::reference_robot_path().with_file_name("policies/reference_follower.toml");
-    teleoperate_with(&follower, seconds, options, feed)
+    teleoperate_with(&follower, Length::Seconds(seconds), options, feed)
 }
 
 /// The same with the policy at `policy`.
 fn teleoperate_with(
     policy: &std::path::Path,
-    seconds: f64,
+    length: Length,
     options: TeleopOptions,
     feed: impl FnOnce(SocketAddr) + Send + 'static,
 ) -> Run {
@@ -96,25 +119,35 @@ fn teleoperate_with(
         Mirror::new(robot.clone(), Default::default()).unwrap(),
     ));
     let io = sim2real::link::lockstep_robot(&robot, &world).unwrap();
+    let seconds = match length {
+        Length::Seconds(s) => s,
+        Length::AfterFeed(_) => 60.0,
+    };
     let play = PlayOptions {
         end: EndMode::Loop,
         max_ticks: Some((seconds * 50.0) as u64),
         ..PlayOptions::default()
     };
+    let stop = Arc::new(AtomicBool::new(false));
+    let ended: FeedEnd = Arc::default();
     let mut player = Player::new(
         robot.clone(),
         layout,
         Reference::hold(&q, root, 50.0),
         play,
         io,
-        Arc::new(AtomicBool::new(false)),
+        Arc::clone(&stop),
     )
     .unwrap()
     .with_live(teleop.live.take().unwrap());
     let addr = receiver.local_addr();
+    let fed = Arc::clone(&ended);
     let feeder = std::thread::Builder::new()
         .name("feed".into())
-        .spawn(move || feed(addr))
+        .spawn(move || {
+            feed(addr);
+            *fed.lock().unwrap_or_else(PoisonError::into_inner) = Some(Instant::now());
+        })
         .unwrap();
     let mut clock = Recording {
         inner: PacedLockstepClock::new(Arc::clone(&world)),
@@ -122,6 +155,10 @@ fn teleoperate_with(
         ticks: Vec::new(),
         status: Arc::clone(&teleop.status),
         trackers: Vec::new(),
+        after_feed: match length {
+            Length::Seconds(_) => None,
+            Length::AfterFeed(after) => Some((ended, Duration::from_millis((after * 1e3) as u64), stop)),
+        },
     };
     let summary = player.run(&mut clock).unwrap();
     feeder.join().unwrap();
@@ -215,20 +252,27 @@ fn a_recorded_vr_session_drives_the_robot_and_losing_it_blends_to_standby() {
     let (b, log, o) = (Arc::clone(&bvh), Arc::clone(&sends), options.clone());
     let garbage_sent = Arc::new(Mutex::new(0));
     let g = Arc::clone(&garbage_sent);
-    let run = teleoperate(10.5, TeleopOptions::default(), move |addr| {
-        let stop = Arc::new(AtomicBool::new(false));
-        let s2 = Arc::clone(&stop);
-        let noise = std::thread::Builder::new()
-            .name("garbage".into())
-            .spawn(move || garbage(addr, &s2))
+    let follower = robots::reference_robot_path().with_file_name("policies/reference_follower.toml");
+    // Lost 0.5 s and standby 1 s after the stream ends: watch 2.5 s past it.
+    let run = teleoperate_with(
+        &follower,
+        Length::AfterFeed(2.5),
+        TeleopOptions::default(),
+        move |addr| {
+            let stop = Arc::new(AtomicBool::new(false));
+            let s2 = Arc::clone(&stop);
+            let noise = std::thread::Builder::new()
+                .name("garbage".into())
+                .spawn(move || garbage(addr, &s2))
+                .unwrap();
+            send(&b, addr, &o, &AtomicBool::new(false), &mut |_, frame| {
+                log.lock().unwrap().push((Instant::now(), frame));
+            })
             .unwrap();
-        send(&b, addr, &o, &AtomicBool::new(false), &mut |_, frame| {
-            log.lock().unwrap().push((Instant::now(), frame));
-        })
-        .unwrap();
-        stop.store(true, Ordering::Relaxed);
-        *g.lock().unwrap() = noise.join().unwrap();
-    });
+            stop.store(true, Ordering::Relaxed);
+            *g.lock().unwrap() = noise.join().unwrap();
+        },
+    );
     let sends = sends.lock().unwrap().clone();
     let last_send = sends.last().unwrap().0;
     let first_tick = run.ticks[0].0;
@@ -519,7 +563,12 @@ fn a_sparse_input_policy_sees_the_trackers_at_t_and_t_minus_one() {
 
     // Live: python-osc's user drives teleop with this policy; the frame carries the devices in the
     // heading frame at the map's scale (identity rotations: columns x and y).
-    let run = teleoperate_with(&path, 4.0, TeleopOptions::default(), python_osc(None));
+    let run = teleoperate_with(
+        &path,
+        Length::Seconds(4.0),
+        TeleopOptions::default(),
+        python_osc(None),
+    );
     let scale = run.status.map.as_ref().unwrap().scale;
     // Two seconds into tracking the reach is done.
     let tracking = at(&run, Phase::Tracking).unwrap();

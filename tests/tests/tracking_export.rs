@@ -129,10 +129,12 @@ fn the_reference_is_put_under_a_robot_that_starts_1_m_away_and_turned_90_degrees
 /// The robot's and the reference's anchor of the first policy tick a recording holds.
 fn first_anchors(path: &Path) -> Vec<f64> {
     let script = "import json,sys\nfrom mcap.reader import make_reader\n\
-        for _,c,m in make_reader(open(sys.argv[1],'rb')).iter_messages(topics=['/policy']):\n\
-        \x20   d=json.loads(m.data)\n\
-        \x20   if 'robot_anchor' in d:\n\
-        \x20       print(json.dumps(d['robot_anchor']+d['reference_anchor'])); break\n";
+        from mcap_protobuf.decoder import DecoderFactory\n\
+        r=make_reader(open(sys.argv[1],'rb'),decoder_factories=[DecoderFactory()])\n\
+        pose=lambda p:[p.position.x,p.position.y,p.position.z,p.orientation.w,p.orientation.x,p.orientation.y,p.orientation.z]\n\
+        for _,c,m,d in r.iter_decoded_messages(topics=['/policy']):\n\
+        \x20   if d.HasField('robot_anchor'):\n\
+        \x20       print(json.dumps(pose(d.robot_anchor)+pose(d.reference_anchor))); break\n";
     let out = std::process::Command::new(test_support::fixtures::venv_python())
         .args(["-c", script])
         .arg(path)

@@ -38,18 +38,13 @@ fn run_trace(path: &Path) -> Result<(ObsTrace, RunMetadata), String> {
         if m.topic != "/policy" {
             return Ok(());
         }
-        let v: serde_json::Value = serde_json::from_slice(m.data).map_err(|e| format!("/policy: {e}"))?;
-        if v["running"].as_bool() != Some(true) {
+        let v = <telemetry_schema::PolicyStep as prost::Message>::decode(m.data)
+            .map_err(|e| format!("/policy: {e}"))?;
+        if !v.running {
             return Ok(());
         }
-        let obs = v["obs"]
-            .as_array()
-            .ok_or_else(|| "/policy without obs".to_owned())?
-            .iter()
-            .map(|x| x.as_f64().map_or(f32::NAN, |x| x as f32))
-            .collect();
-        trace.steps.push(obs);
-        trace.ticks.push(v["tick"].as_u64().unwrap_or(0));
+        trace.steps.push(v.observation);
+        trace.ticks.push(v.tick);
         Ok(())
     })?;
     if trace.steps.is_empty() {

@@ -185,7 +185,8 @@ fn recording(path: &Path) -> Result<Recording, String> {
             })
             .collect();
         ticks.push(RecordedTick {
-            time_ns: m.log_time,
+            // The run's own time (a wall-clock recording's log times are Unix times).
+            time_ns: v["time_ns"].as_u64().unwrap_or(m.log_time),
             state,
             truth: truth.transpose()?,
             stop: v["stop"].as_bool().unwrap_or(false),

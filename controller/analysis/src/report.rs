@@ -11,6 +11,7 @@ use std::path::Path;
 use controller::metrics::{root_error, tracking_success};
 
 use crate::AnalysisError;
+use telemetry_schema as pb;
 
 /// The headline numbers of a run.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
@@ -128,6 +129,24 @@ fn floats(v: &serde_json::Value) -> Vec<f64> {
     })
 }
 
+/// A typed message of `m`'s channel.
+fn decode<M: prost::Message + Default>(m: &crate::recording::Message<'_>) -> Result<M, String> {
+    M::decode(m.data).map_err(|e| format!("{}: {e}", m.topic))
+}
+
+/// `[x, y, z]` of a message vector (NaN when absent).
+fn xyz(v: Option<&pb::Vector3>) -> [f64; 3] {
+    v.map_or([f64::NAN; 3], |v| [v.x, v.y, v.z])
+}
+
+/// `[x, y, z, w, qx, qy, qz]` of a message pose (NaN when absent).
+fn pose7(p: Option<&pb::Pose>) -> [f64; 7] {
+    let Some(p) = p else { return [f64::NAN; 7] };
+    let [x, y, z] = xyz(p.position.as_ref());
+    let q = p.orientation.unwrap_or_default();
+    [x, y, z, q.w, q.x, q.y, q.z]
+}
+
 fn read(path: &Path) -> Result<Series, AnalysisError> {
     read_series(path).map_err(|m| AnalysisError::file(path, m))
 }
@@ -138,28 +157,30 @@ fn read_series(path: &Path) -> Result<Series, String> {
         tilt_limit: controller::safety::SafetyLimits::default().tilt,
         ..Series::default()
     };
+    // Times from the run's start: a wall-clock recording's are Unix times.
+    let mut t0: Option<u64> = None;
     crate::recording::for_each_message(&bytes, |m| {
-        let v: serde_json::Value = serde_json::from_slice(m.data).map_err(|e| format!("{}: {e}", m.topic))?;
+        let zero = *t0.get_or_insert(m.log_time);
+        let time = |log_time: u64| log_time.saturating_sub(zero) as f64 * 1e-9;
         match m.topic {
             "/joint_state" => {
+                let v: pb::JointStates = decode(&m)?;
                 if s.joints.is_empty() {
-                    s.joints = m
-                        .metadata
-                        .get("joint_names")
-                        .map_or_else(Vec::new, |n| n.split(',').map(str::to_owned).collect());
+                    s.joints = v.joints.iter().map(|j| j.name.clone()).collect();
                 }
-                s.time.push(m.log_time as f64 * 1e-9);
-                s.q.push(floats(&v["q"]));
-                s.missed.push(floats(&v["missed"]).iter().any(|&m| m > 0.0));
+                s.time.push(time(m.log_time));
+                s.q.push(v.joints.iter().map(|j| j.position).collect());
+                s.missed.push(v.joints.iter().any(|j| j.missed > 0));
             }
             "/command" => {
-                s.reference_q.push(floats(&v["reference_q"]));
-                let r = floats(&v["reference_root"]);
-                s.reference_root
-                    .push(std::array::from_fn(|i| r.get(i).copied().unwrap_or(f64::NAN)));
-                s.tracking.push(v["tracking"].as_bool().unwrap_or(false));
+                let v: pb::JointCommands = decode(&m)?;
+                s.reference_q.push(v.joints.iter().map(|j| j.reference).collect());
+                s.reference_root.push(pose7(v.reference_root.as_ref()));
+                s.tracking.push(v.tracking);
             }
             "/replay" => {
+                let v: serde_json::Value =
+                    serde_json::from_slice(m.data).map_err(|e| format!("{}: {e}", m.topic))?;
                 if s.base_pose.is_empty() {
                     let meta = &m.metadata;
                     s.reference_ticks = meta.get("reference_ticks").and_then(|n| n.parse().ok());
@@ -174,6 +195,7 @@ fn read_series(path: &Path) -> Result<Series, String> {
                     .push(std::array::from_fn(|i| p.get(i).copied().unwrap_or(f64::NAN)));
             }
             "/policy" => {
+                let v: pb::PolicyStep = decode(&m)?;
                 if s.motion_bodies.is_empty() {
                     s.motion_bodies = m
                         .metadata
@@ -189,41 +211,43 @@ fn read_series(path: &Path) -> Result<Series, String> {
                             .collect()
                     });
                 }
-                s.body_errors.push(floats(&v["body_errors_m"]));
-                s.running.push(v["running"].as_bool().unwrap_or(false));
-                s.commands.push(floats(&v["commands"]));
+                s.body_errors
+                    .push(v.body_errors.iter().map(|b| b.error_m).collect());
+                s.running.push(v.running);
+                s.commands.push(v.commands.iter().map(|c| c.value).collect());
             }
-            "/estimator" if v["valid"].as_bool() == Some(true) && v.get("truth_position").is_some() => {
-                let d = |a: &str, b: &str| {
-                    floats(&v[a])
-                        .iter()
-                        .zip(floats(&v[b]))
-                        .map(|(x, y)| (x - y).powi(2))
-                        .sum::<f64>()
-                        .sqrt()
+            "/estimator" => {
+                let v: pb::StateEstimate = decode(&m)?;
+                let Some(truth) = v.truth_position.as_ref().filter(|_| v.valid) else {
+                    return Ok(());
                 };
-                let (p, t) = (floats(&v["position"]), floats(&v["truth_position"]));
-                let (c, tc) = (floats(&v["contacts"]), floats(&v["truth_contacts"]));
+                let distance = |a: [f64; 3], b: [f64; 3]| {
+                    a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum::<f64>().sqrt()
+                };
+                let (p, t) = (xyz(v.position.as_ref()), xyz(Some(truth)));
+                let compared: Vec<(bool, bool)> = v
+                    .feet
+                    .iter()
+                    .filter_map(|f| f.truth_contact.map(|t| (f.contact, t)))
+                    .collect();
                 s.estimator.push(EstimateTick {
-                    time: m.log_time as f64 * 1e-9,
-                    velocity: d("velocity_base", "truth_velocity_base"),
-                    height: p.get(2).zip(t.get(2)).map_or(f64::NAN, |(a, b)| a - b),
-                    position: d("position", "truth_position"),
-                    agree: c.iter().zip(&tc).filter(|(a, b)| a == b).count(),
-                    compared: c.len().min(tc.len()),
+                    time: time(m.log_time),
+                    velocity: distance(xyz(v.velocity_base.as_ref()), xyz(v.truth_velocity_base.as_ref())),
+                    height: p[2] - t[2],
+                    position: distance(p, t),
+                    agree: compared.iter().filter(|(a, b)| a == b).count(),
+                    compared: compared.len(),
                 });
             }
             "/timing" => {
-                s.io.push(v["io_us"].as_f64().unwrap_or(0.0));
-                s.compute.push(v["compute_us"].as_f64().unwrap_or(0.0));
+                let v: pb::TickTiming = decode(&m)?;
+                s.io.push(f64::from(v.io_us));
+                s.compute.push(f64::from(v.compute_us));
             }
             "/safety" => {
-                s.faulted |= v["fault"].as_bool().unwrap_or(false);
-                s.safety.push((
-                    v["tick"].as_u64().unwrap_or(0),
-                    v["mode"].as_str().unwrap_or("?").to_owned(),
-                    v["cause"].as_str().unwrap_or("").to_owned(),
-                ));
+                let v: pb::SafetyTransition = decode(&m)?;
+                s.faulted |= v.fault;
+                s.safety.push((v.tick, v.mode, v.cause));
             }
             _ => {}
         }

@@ -504,6 +504,11 @@ pub(crate) fn record<L: RobotLink>(
         run: Some(run),
         bus_cycles,
         live: live.clone(),
+        clock: if real_time {
+            controller::telemetry::RecordingClock::WallClock
+        } else {
+            controller::telemetry::RecordingClock::Simulated
+        },
         ..player.recording_info()
     };
     let sink = match claimed {

@@ -1,6 +1,6 @@
 //! The run, live, in Foxglove: a WebSocket server (Foxglove's own SDK, its `foxglove.sdk.v1`
 //! protocol) that serves the recording's channels as the logger writes them — the same topics,
-//! JSON schemas and metadata as the MCAP file, so a layout made on a recording works live.
+//! schemas and metadata as the MCAP file, so a layout made on a recording works live.
 //!
 //! The loop never touches it: messages are encoded once on the telemetry thread and handed to
 //! both the file and the server. Loopback by default; another address only when given.
@@ -98,22 +98,18 @@ impl LiveView {
         self.subscriptions() > 0
     }
 
-    /// A channel as the recording has it: topic, JSON schema, metadata.
+    /// A channel as the recording has it: topic, schema, message encoding, metadata.
     pub(crate) fn channel(
         &self,
         topic: &str,
-        schema_name: &str,
-        schema: &'static str,
+        schema: &foxglove::Schema,
+        encoding: &str,
         metadata: &std::collections::BTreeMap<String, String>,
     ) -> Option<Arc<foxglove::RawChannel>> {
         self.context
             .channel_builder(topic)
-            .message_encoding("json")
-            .schema(foxglove::Schema::new(
-                schema_name,
-                "jsonschema",
-                schema.as_bytes(),
-            ))
+            .message_encoding(encoding)
+            .schema(schema.clone())
             .metadata(metadata.clone())
             .build_raw()
             .map_err(|e| tracing::warn!("live view: channel {topic}: {e}"))
@@ -131,7 +127,7 @@ impl Drop for LiveView {
     }
 }
 
-/// Hands a JSON message to a live channel, stamped with the run's time.
-pub(crate) fn publish(channel: &foxglove::RawChannel, json: &str, time_ns: u64) {
-    channel.log_with_meta(json.as_bytes(), foxglove::PartialMetadata::with_log_time(time_ns));
+/// Hands an encoded message to a live channel, stamped with the recording's time.
+pub(crate) fn publish(channel: &foxglove::RawChannel, data: &[u8], time_ns: u64) {
+    channel.log_with_meta(data, foxglove::PartialMetadata::with_log_time(time_ns));
 }

@@ -492,6 +492,8 @@ impl<L: RobotLink> Player<L> {
                 c.spec().names.iter().cloned().zip(c.spec().kinds()).collect()
             }),
             live: None,
+            foot_names: self.robot.config.feet.clone(),
+            clock: crate::telemetry::RecordingClock::Simulated,
         }
     }
 

@@ -1,0 +1,321 @@
+//! A tick record as the recording's typed messages (`telemetry-schema`, protobuf), built on the
+//! telemetry thread. One message per channel is kept and overwritten each tick: names are set
+//! once, only values change.
+
+use foxglove::schemas as fg;
+use telemetry_schema as pb;
+
+use super::{MODE_NAMES, RecordingInfo, TickRecord};
+use robot_link::CycleRecord;
+
+/// `[x, y, z]` as a message vector.
+pub(super) fn vec3(v: [f64; 3]) -> Option<pb::Vector3> {
+    Some(pb::Vector3 {
+        x: v[0],
+        y: v[1],
+        z: v[2],
+    })
+}
+
+/// A pose `[x, y, z, w, qx, qy, qz]` (the loop's order) as a message pose.
+pub(super) fn pose(p: [f64; 7]) -> Option<pb::Pose> {
+    Some(pb::Pose {
+        position: vec3([p[0], p[1], p[2]]),
+        orientation: Some(pb::Quaternion {
+            x: p[4],
+            y: p[5],
+            z: p[6],
+            w: p[3],
+        }),
+    })
+}
+
+/// The same pose as Foxglove's well-known `Pose`.
+pub(super) fn fg_pose(p: [f64; 7]) -> fg::Pose {
+    fg::Pose {
+        position: Some(fg::Vector3 {
+            x: p[0],
+            y: p[1],
+            z: p[2],
+        }),
+        orientation: Some(fg::Quaternion {
+            x: p[4],
+            y: p[5],
+            z: p[6],
+            w: p[3],
+        }),
+    }
+}
+
+/// Foxglove's timestamp of `ns` since the epoch (the latest it can hold past 2106).
+pub(super) fn fg_time(ns: u64) -> Option<fg::Timestamp> {
+    let sec = u32::try_from(ns / 1_000_000_000).unwrap_or(u32::MAX);
+    Some(fg::Timestamp::new(sec, (ns % 1_000_000_000) as u32))
+}
+
+/// The name of joint `i`, or a stand-in past the names given.
+fn name(names: &[String], i: usize, what: &str) -> String {
+    names.get(i).cloned().unwrap_or_else(|| format!("{what}{i}"))
+}
+
+/// The typed messages of the tick channels, reused tick after tick.
+pub(super) struct Messages {
+    joint_state: pb::JointStates,
+    command: pb::JointCommands,
+    policy: pb::PolicyStep,
+    imu: pb::ImuReading,
+    timing: pb::TickTiming,
+    estimate: pb::StateEstimate,
+    /// One per bus, its joints named.
+    buses: Vec<pb::BusCycle>,
+    joint_names: Vec<String>,
+    motion_bodies: Vec<String>,
+    anchor: Option<usize>,
+    command_names: Vec<String>,
+    foot_names: Vec<String>,
+    bus_names: Vec<String>,
+    last_mode: u8,
+}
+
+impl Messages {
+    pub(super) fn new(info: &RecordingInfo) -> Self {
+        let joint_names = info.joint_names.clone();
+        let buses = info
+            .bus_cycles
+            .iter()
+            .flatten()
+            .map(|joints| pb::BusCycle {
+                joints: joints
+                    .iter()
+                    .take(robot_link::MAX_RECORDED_JOINTS)
+                    .map(|&i| pb::BusJoint {
+                        name: name(&joint_names, i, "joint"),
+                        ..Default::default()
+                    })
+                    .collect(),
+                ..Default::default()
+            })
+            .collect();
+        Self {
+            joint_state: pb::JointStates::default(),
+            command: pb::JointCommands::default(),
+            policy: pb::PolicyStep::default(),
+            imu: pb::ImuReading::default(),
+            timing: pb::TickTiming::default(),
+            estimate: pb::StateEstimate::default(),
+            buses,
+            joint_names,
+            motion_bodies: info.motion_bodies.clone(),
+            anchor: info.anchor,
+            command_names: info.commands.iter().map(|(n, _)| n.clone()).collect(),
+            foot_names: info.foot_names.clone(),
+            bus_names: info.bus_names.clone(),
+            last_mode: u8::MAX,
+        }
+    }
+
+    /// `/joint_state`.
+    pub(super) fn joint_state(&mut self, r: &TickRecord, stamp: u64) -> &pb::JointStates {
+        let n = usize::from(r.joints);
+        let m = &mut self.joint_state;
+        m.timestamp = Some(pb::timestamp(stamp));
+        let names = &self.joint_names;
+        m.joints.resize_with(n, Default::default);
+        for (i, j) in m.joints.iter_mut().enumerate() {
+            if j.name.is_empty() {
+                j.name = name(names, i, "joint");
+            }
+            j.position = r.q[i];
+            j.velocity = r.qd[i];
+            j.effort = r.tau[i];
+            j.missed = r.missed[i];
+            j.stale = r.stale[i];
+            j.age_ms = r.age_ms[i];
+            j.faulted = r.faulted[i];
+        }
+        m
+    }
+
+    /// `/command`.
+    pub(super) fn command(&mut self, r: &TickRecord, stamp: u64) -> &pb::JointCommands {
+        let n = usize::from(r.joints);
+        let m = &mut self.command;
+        m.timestamp = Some(pb::timestamp(stamp));
+        let names = &self.joint_names;
+        m.joints.resize_with(n, Default::default);
+        for (i, j) in m.joints.iter_mut().enumerate() {
+            if j.name.is_empty() {
+                j.name = name(names, i, "joint");
+            }
+            let [q, qd, kp, kd, tau] = r.target[i];
+            (j.position, j.velocity, j.kp, j.kd, j.effort) = (q, qd, kp, kd, tau);
+            j.enabled = r.enabled[i];
+            j.reference = f64::from(r.reference_q[i]);
+        }
+        m.reference_root = pose(r.reference_root);
+        m.tracking = r.tracking;
+        m
+    }
+
+    /// `/policy`.
+    pub(super) fn policy(&mut self, r: &TickRecord, stamp: u64) -> &pb::PolicyStep {
+        let m = &mut self.policy;
+        m.timestamp = Some(pb::timestamp(stamp));
+        m.tick = r.tick;
+        m.running = usize::from(r.mode) == MODE_NAMES.iter().position(|&n| n == "Running").unwrap_or(3);
+        m.observation.clear();
+        m.observation.extend_from_slice(&r.obs[..usize::from(r.obs_len)]);
+        m.action.clear();
+        m.action.extend_from_slice(&r.action[..usize::from(r.joints)]);
+        let c = usize::from(r.command_count);
+        m.commands.resize_with(c, Default::default);
+        for (i, v) in m.commands.iter_mut().enumerate() {
+            if v.name.is_empty() {
+                v.name = name(&self.command_names, i, "command");
+            }
+            v.value = r.commands[i];
+        }
+        (m.robot_anchor, m.reference_anchor) = match r.anchors {
+            Some((robot, reference)) => (pose(robot), pose(reference)),
+            None => (None, None),
+        };
+        let b = usize::from(r.bodies);
+        m.body_errors.resize_with(b, Default::default);
+        for (i, e) in m.body_errors.iter_mut().enumerate() {
+            if e.name.is_empty() {
+                e.name = name(&self.motion_bodies, i, "body");
+                e.anchor = self.anchor == Some(i);
+            }
+            e.error_m = f64::from(r.body_errors[i]);
+        }
+        m
+    }
+
+    /// `/safety` and `/log`, when the mode changed this tick.
+    pub(super) fn safety(&mut self, r: &TickRecord, stamp: u64) -> Option<(pb::SafetyTransition, fg::Log)> {
+        if r.mode == self.last_mode {
+            return None;
+        }
+        self.last_mode = r.mode;
+        let mode = MODE_NAMES.get(usize::from(r.mode)).copied().unwrap_or("?");
+        let cause = std::str::from_utf8(&r.cause[..usize::from(r.cause_len)]).unwrap_or("?");
+        let log = fg::Log {
+            timestamp: fg_time(stamp),
+            level: if r.cause_fault {
+                fg::log::Level::Error
+            } else {
+                fg::log::Level::Info
+            } as i32,
+            message: if cause.is_empty() {
+                format!("tick {}: {mode}", r.tick)
+            } else {
+                format!("tick {}: {mode} ({cause})", r.tick)
+            },
+            name: "safety".into(),
+            ..Default::default()
+        };
+        let transition = pb::SafetyTransition {
+            timestamp: Some(pb::timestamp(stamp)),
+            tick: r.tick,
+            mode: mode.into(),
+            cause: cause.into(),
+            fault: r.cause_fault,
+        };
+        Some((transition, log))
+    }
+
+    /// `/imu`.
+    pub(super) fn imu(&mut self, r: &TickRecord, stamp: u64) -> &pb::ImuReading {
+        let m = &mut self.imu;
+        m.timestamp = Some(pb::timestamp(stamp));
+        m.angular_velocity = vec3([r.imu[0], r.imu[1], r.imu[2]]);
+        m.linear_acceleration = vec3([r.imu[3], r.imu[4], r.imu[5]]);
+        m.orientation = Some(pb::Quaternion {
+            w: r.imu[6],
+            x: r.imu[7],
+            y: r.imu[8],
+            z: r.imu[9],
+        });
+        m.age_ms = r.imu_age_ms;
+        m.missed = r.imu_missed;
+        m
+    }
+
+    /// `/timing`.
+    pub(super) fn timing(&mut self, r: &TickRecord, stamp: u64) -> &pb::TickTiming {
+        let m = &mut self.timing;
+        m.timestamp = Some(pb::timestamp(stamp));
+        m.io_us = r.io_us;
+        m.compute_us = r.compute_us;
+        let b = usize::from(r.buses);
+        m.buses.resize_with(b, Default::default);
+        for (i, t) in m.buses.iter_mut().enumerate() {
+            if t.bus.is_empty() {
+                t.bus = name(&self.bus_names, i, "bus");
+            }
+            t.us = r.bus_us[i];
+        }
+        m
+    }
+
+    /// `/estimator`, for a robot with an estimator.
+    pub(super) fn estimate(&mut self, r: &TickRecord, stamp: u64) -> Option<&pb::StateEstimate> {
+        let e = &r.estimate;
+        if !e.present {
+            return None;
+        }
+        let x = &e.estimate;
+        let m = &mut self.estimate;
+        m.timestamp = Some(pb::timestamp(stamp));
+        m.valid = x.valid;
+        m.position = vec3(x.position);
+        m.velocity = vec3(x.velocity);
+        m.velocity_base = vec3(x.velocity_base);
+        m.position_std = vec3(x.position_std);
+        m.velocity_std = vec3(x.velocity_std);
+        m.accel_bias = vec3(x.accel_bias);
+        m.feet.resize_with(x.feet, Default::default);
+        for (i, f) in m.feet.iter_mut().enumerate() {
+            if f.name.is_empty() {
+                f.name = name(&self.foot_names, i, "foot");
+            }
+            f.contact = x.contacts[i];
+            f.load = x.loads[i];
+            f.truth_contact = e
+                .truth
+                .and_then(|_| (i < usize::from(r.feet)).then(|| r.foot_contacts[i]));
+        }
+        (m.truth_position, m.truth_velocity_base) = match e.truth {
+            Some((pose, vel)) => (vec3([pose[0], pose[1], pose[2]]), vec3(vel)),
+            None => (None, None),
+        };
+        Some(m)
+    }
+
+    /// `/bus/<name>` for one cycle of bus `c.bus`.
+    pub(super) fn bus_cycle(&mut self, c: &CycleRecord, stamp: u64) -> Option<&pb::BusCycle> {
+        let m = self.buses.get_mut(usize::from(c.bus))?;
+        m.timestamp = Some(pb::timestamp(stamp));
+        m.cycle = c.cycle;
+        m.took_us = c.took_us;
+        m.overruns = c.overruns;
+        m.damped = c.damped;
+        let n = usize::from(c.joints).min(m.joints.len());
+        for (i, j) in m.joints[..n].iter_mut().enumerate() {
+            j.position = f64::from(c.q[i]);
+            j.velocity = f64::from(c.qd[i]);
+            j.effort = f64::from(c.tau[i]);
+            j.missed = c.missed[i];
+            let [q, qd, kp, kd, tau] = c.command[i].map(f64::from);
+            (
+                j.command_position,
+                j.command_velocity,
+                j.kp,
+                j.kd,
+                j.command_effort,
+            ) = (q, qd, kp, kd, tau);
+            j.enabled = c.enabled[i];
+        }
+        Some(m)
+    }
+}

@@ -1,0 +1,240 @@
+//! The robot in 3D for Foxglove and Rerun: every link's frame by forward kinematics of the
+//! recorded joints (`/tf`, `foxglove.FrameTransforms`), and the robot's geometry from its MJCF
+//! as scene entities locked to those frames (`/robot`, `foxglove.SceneUpdate`): boxes, spheres,
+//! ellipsoids, cylinders, capsules (a cylinder and two spheres) and meshes (triangle lists), in
+//! the MJCF's colours.
+//!
+//! A scene update rather than an exported URDF: the geometry comes from the model MuJoCo
+//! compiled (the same one the mirror and the kinematics use: meshes already centred, fromto
+//! capsules resolved, defaults applied), it travels inside the recording and the live stream,
+//! so any copy of the file shows the robot without the robot's folder beside it.
+
+use std::path::Path;
+
+use foxglove::schemas as fg;
+use mujoco_rs::mujoco_c::_mjtGeomBase as G;
+use mujoco_rs::prelude::{MjData, MjModel};
+use robots::spatial;
+
+use super::TelemetryError;
+use super::messages::{fg_pose, fg_time};
+
+/// Forward kinematics of the recorded joints: each link's pose in its parent's frame.
+pub(super) struct Links {
+    data: MjData<Box<MjModel>>,
+    root_qpos: usize,
+    joint_qpos: Vec<usize>,
+    /// The world→root transform and one per link below the root, parent → child; poses
+    /// overwritten each tick.
+    transforms: fg::FrameTransforms,
+    /// (parent body, child body) of `transforms[1..]`.
+    pairs: Vec<(usize, usize)>,
+}
+
+impl Links {
+    /// The links of `mjcf`, whose joints `joints` are in robot order; the root body is `root`.
+    pub(super) fn new(
+        mjcf: &Path,
+        joints: &[String],
+        root: &str,
+    ) -> Result<(Self, fg::SceneUpdate), TelemetryError> {
+        use mujoco_rs::wrappers::mj_model::MjtObjBase;
+        let model =
+            sim2real::mujoco::load_model(mjcf).map_err(|e| TelemetryError::Kinematics(e.to_string()))?;
+        let joints: Vec<&str> = joints.iter().map(String::as_str).collect();
+        let index = sim2real::model_index::ModelIndex::new(&model, root, &joints, &[])
+            .map_err(|e| TelemetryError::Kinematics(format!("{e} ({})", mjcf.display())))?;
+        let (root_body, root_qpos) = (index.root_body, index.root.qpos);
+        let name = |b: usize| {
+            model
+                .id_to_name(MjtObjBase::mjOBJ_BODY, b)
+                .unwrap_or("world")
+                .to_owned()
+        };
+        let frame = |parent: String, child: String| fg::FrameTransform {
+            parent_frame_id: parent,
+            child_frame_id: child,
+            ..Default::default()
+        };
+        let mut transforms = vec![frame("world".into(), name(root_body))];
+        let mut pairs = Vec::new();
+        for b in (1..model.ffi().nbody as usize).filter(|&b| b != root_body) {
+            let p = model.body_parentid()[b] as usize;
+            transforms.push(frame(name(p), name(b)));
+            pairs.push((p, b));
+        }
+        let scene = scene(&model, root_body, &name);
+        let links = Self {
+            data: MjData::new(Box::new(model)),
+            root_qpos,
+            joint_qpos: index.joints.iter().map(|j| j.qpos).collect(),
+            transforms: fg::FrameTransforms { transforms },
+            pairs,
+        };
+        Ok((links, scene))
+    }
+
+    /// Every link's frame for `q` (robot order) with the root at `root_pose` `[x, y, z, w, qx,
+    /// qy, qz]` in the world, stamped `stamp`.
+    pub(super) fn update(&mut self, root_pose: [f64; 7], q: &[f64], stamp: u64) -> &fg::FrameTransforms {
+        let qpos = self.data.qpos_mut();
+        qpos[self.root_qpos..self.root_qpos + 7].copy_from_slice(&root_pose);
+        for (&adr, &v) in self.joint_qpos.iter().zip(q) {
+            qpos[adr] = v;
+        }
+        self.data.kinematics();
+        let (xpos, xquat) = (self.data.xpos(), self.data.xquat());
+        let time = fg_time(stamp);
+        let [root, links @ ..] = self.transforms.transforms.as_mut_slice() else {
+            unreachable!("the world→root transform is always there")
+        };
+        set(root, root_pose, time);
+        for (t, &(p, b)) in links.iter_mut().zip(&self.pairs) {
+            // The child in its parent's frame.
+            let inv = spatial::quat_conj(xquat[p]);
+            let at = spatial::quat_rotate(inv, spatial::sub(xpos[b], xpos[p]));
+            let q = spatial::quat_mul(inv, xquat[b]);
+            set(t, [at[0], at[1], at[2], q[0], q[1], q[2], q[3]], time);
+        }
+        &self.transforms
+    }
+}
+
+fn set(t: &mut fg::FrameTransform, p: [f64; 7], time: Option<fg::Timestamp>) {
+    let pose = fg_pose(p);
+    t.timestamp = time;
+    t.translation = pose.position;
+    t.rotation = pose.orientation;
+}
+
+impl std::fmt::Debug for Links {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Links")
+            .field("frames", &self.transforms.transforms.len())
+            .finish_non_exhaustive()
+    }
+}
+
+/// The robot's visible geometry: one entity per body of the tree under `root_body`, locked to
+/// the body's frame. Geoms with zero alpha, planes and height fields are left out.
+fn scene(model: &MjModel, root_body: usize, name: &dyn Fn(usize) -> String) -> fg::SceneUpdate {
+    let ngeom = usize::try_from(model.ffi().ngeom).unwrap_or(0);
+    let mut entities: Vec<fg::SceneEntity> = Vec::new();
+    for g in 0..ngeom {
+        let body = usize::try_from(model.geom_bodyid()[g]).unwrap_or(0);
+        if body == 0 || !sim2real::placement::in_tree(model, body, root_body) {
+            continue;
+        }
+        let rgba = match usize::try_from(model.geom_matid()[g]) {
+            Ok(m) => model.mat_rgba()[m],
+            Err(_) => model.geom_rgba()[g],
+        };
+        if rgba[3] <= 0.0 {
+            continue;
+        }
+        let color = Some(fg::Color {
+            r: f64::from(rgba[0]),
+            g: f64::from(rgba[1]),
+            b: f64::from(rgba[2]),
+            a: f64::from(rgba[3]),
+        });
+        let frame = name(body);
+        let entity = match entities.iter().position(|e| e.frame_id == frame) {
+            Some(k) => &mut entities[k],
+            None => {
+                entities.push(fg::SceneEntity {
+                    frame_id: frame.clone(),
+                    id: frame,
+                    frame_locked: true,
+                    ..Default::default()
+                });
+                entities.last_mut().expect("just pushed")
+            }
+        };
+        let p = model.geom_pos()[g];
+        let q = model.geom_quat()[g];
+        let at = [p[0], p[1], p[2], q[0], q[1], q[2], q[3]];
+        let s = model.geom_size()[g];
+        let size = |x: f64, y: f64, z: f64| Some(fg::Vector3 { x, y, z });
+        match model.geom_type()[g] {
+            G::mjGEOM_BOX => entity.cubes.push(fg::CubePrimitive {
+                pose: Some(fg_pose(at)),
+                size: size(2.0 * s[0], 2.0 * s[1], 2.0 * s[2]),
+                color,
+            }),
+            G::mjGEOM_SPHERE => entity.spheres.push(fg::SpherePrimitive {
+                pose: Some(fg_pose(at)),
+                size: size(2.0 * s[0], 2.0 * s[0], 2.0 * s[0]),
+                color,
+            }),
+            G::mjGEOM_ELLIPSOID => entity.spheres.push(fg::SpherePrimitive {
+                pose: Some(fg_pose(at)),
+                size: size(2.0 * s[0], 2.0 * s[1], 2.0 * s[2]),
+                color,
+            }),
+            kind @ (G::mjGEOM_CYLINDER | G::mjGEOM_CAPSULE) => {
+                entity.cylinders.push(fg::CylinderPrimitive {
+                    pose: Some(fg_pose(at)),
+                    size: size(2.0 * s[0], 2.0 * s[0], 2.0 * s[1]),
+                    bottom_scale: 1.0,
+                    top_scale: 1.0,
+                    color,
+                });
+                if kind == G::mjGEOM_CAPSULE {
+                    // The caps: spheres at the ends of the axis (the geom's z).
+                    for end in [-s[1], s[1]] {
+                        let c = spatial::add([p[0], p[1], p[2]], spatial::quat_rotate(q, [0.0, 0.0, end]));
+                        entity.spheres.push(fg::SpherePrimitive {
+                            pose: Some(fg_pose([c[0], c[1], c[2], 1.0, 0.0, 0.0, 0.0])),
+                            size: size(2.0 * s[0], 2.0 * s[0], 2.0 * s[0]),
+                            color,
+                        });
+                    }
+                }
+            }
+            G::mjGEOM_MESH => {
+                if let Some(triangles) = mesh(model, g, at, color) {
+                    entity.triangles.push(triangles);
+                }
+            }
+            _ => {}
+        }
+    }
+    fg::SceneUpdate {
+        deletions: Vec::new(),
+        entities,
+    }
+}
+
+/// Mesh geom `g` as an indexed triangle list, its vertices in the geom's frame placed at `at`.
+fn mesh(
+    model: &MjModel,
+    g: usize,
+    at: [f64; 7],
+    color: Option<fg::Color>,
+) -> Option<fg::TriangleListPrimitive> {
+    let vertices = sim2real::placement::mesh_vertices(model, g)?;
+    let m = usize::try_from(model.geom_dataid()[g]).ok()?;
+    let start = usize::try_from(model.mesh_faceadr()[m]).ok()?;
+    let count = usize::try_from(model.mesh_facenum()[m]).ok()?;
+    let faces = model.mesh_face().get(start..start + count)?;
+    let indices = faces
+        .iter()
+        .flatten()
+        .map(|&i| u32::try_from(i).ok().filter(|&i| (i as usize) < vertices.len()))
+        .collect::<Option<Vec<u32>>>()?;
+    Some(fg::TriangleListPrimitive {
+        pose: Some(fg_pose(at)),
+        points: vertices
+            .iter()
+            .map(|v| fg::Point3 {
+                x: f64::from(v[0]),
+                y: f64::from(v[1]),
+                z: f64::from(v[2]),
+            })
+            .collect(),
+        color,
+        colors: Vec::new(),
+        indices,
+    })
+}
