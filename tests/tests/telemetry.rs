@@ -119,6 +119,49 @@ fn a_recorded_run_reads_back_in_python_with_the_reported_counts() {
         .collect();
     // Ready lasts no longer than tick 0, so the first recorded mode is SoftStart.
     assert_eq!(modes, ["SoftStart", "Running", "Stopping", "Damped", "Off"]);
+
+    // Rerun imports the same file with its own MCAP decoders: the links' transforms as
+    // Transform3D, the safety log as TextLog, the joint states as named, plottable scalars.
+    let script = test_support::fixtures::workspace_root().join("tests/python/rerun_import.py");
+    let out = std::process::Command::new(test_support::fixtures::venv_python())
+        .arg(script)
+        .arg(&path)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let rerun: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(
+        rerun["rows"]["/joint_state"].as_u64(),
+        Some(summary.ticks),
+        "{rerun}"
+    );
+    assert_eq!(rerun["rows"]["/tf"].as_u64(), Some(22 * summary.ticks), "{rerun}");
+    let has = |path: &str, component: &str| {
+        rerun["components"][path]
+            .as_array()
+            .is_some_and(|c| c.iter().any(|n| n == component))
+    };
+    assert!(
+        has("/tf", "Transform3D:translation") && has("/tf", "Transform3D:quaternion"),
+        "{rerun}"
+    );
+    assert!(has("/log", "TextLog:text"), "{rerun}");
+    let edges: Vec<(String, String)> = serde_json::from_value(rerun["frames"].clone()).unwrap();
+    for edge in [
+        ("world", "pelvis"),
+        ("left_ankle_link", "left_foot"),
+        ("head_yaw_link", "head"),
+    ] {
+        assert!(
+            edges.contains(&(edge.0.to_owned(), edge.1.to_owned())),
+            "{edge:?} not in {edges:?}"
+        );
+    }
+    let mut sorted = names.clone();
+    sorted.sort();
+    assert_eq!(rerun["joints"], serde_json::json!(sorted));
+    assert_eq!(rerun["samples"].as_u64(), Some(summary.ticks));
+    assert_eq!(rerun["finite"], true);
     std::fs::remove_file(&path).unwrap();
 }
 
@@ -349,5 +392,104 @@ fn a_recording_carries_the_files_it_was_made_from_and_is_never_overwritten_silen
     }
     let runs = dir.join("out/runs");
     assert!(runs.join("rd-biped-squat.mcap").exists() && runs.join("rd-biped-squat-2.mcap").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// The fields of `message` (a `robodeploy.*` or nested type) in the recordings' descriptor set.
+fn fields_of(message: &str) -> Vec<(String, String)> {
+    let fds =
+        <prost_types::FileDescriptorSet as prost::Message>::decode(telemetry_schema::DESCRIPTOR_SET).unwrap();
+    let ours = fds.file.iter().find(|f| f.package() == "robodeploy").unwrap();
+    let name = message
+        .trim_start_matches(".robodeploy.")
+        .trim_start_matches("robodeploy.");
+    let m = ours
+        .message_type
+        .iter()
+        .find(|m| m.name() == name)
+        .unwrap_or_else(|| panic!("no message {message}"));
+    m.field
+        .iter()
+        .map(|f| (f.name().to_owned(), f.type_name().to_owned()))
+        .collect()
+}
+
+#[test]
+fn the_shipped_foxglove_layouts_are_what_the_command_writes_and_every_plot_reads_a_recorded_field() {
+    let root = test_support::fixtures::workspace_root();
+    // The channels a recording of the reference robot has, and their schemas.
+    let dir = std::env::temp_dir().join(format!("layout-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let run = dir.join("run.mcap");
+    let out = test_support::bin::robodeploy()
+        .args(["play", "--max-seconds", "0.5", "--record"])
+        .arg(&run)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let bytes = std::fs::read(&run).unwrap();
+    let mut schemas = std::collections::BTreeMap::new();
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        let schema = m
+            .channel
+            .schema
+            .as_ref()
+            .map(|s| s.name.clone())
+            .unwrap_or_default();
+        schemas.insert(m.channel.topic.clone(), schema);
+    }
+    for (robot, shipped) in [
+        ("robots/biped/robot.toml", "docs/foxglove/rd-biped.layout.json"),
+        ("robots/mini/robot.toml", "docs/foxglove/rd-mini.layout.json"),
+    ] {
+        let out = test_support::bin::robodeploy()
+            .args(["layout", "--robot"])
+            .arg(root.join(robot))
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        let written = String::from_utf8(out.stdout).unwrap();
+        assert_eq!(
+            written,
+            std::fs::read_to_string(root.join(shipped)).unwrap(),
+            "{shipped} is stale: regenerate it with `robodeploy layout --robot {robot} -o {shipped}`"
+        );
+        let joints: Vec<String> = Robot::load(&root.join(robot))
+            .unwrap()
+            .config
+            .joints
+            .iter()
+            .map(|j| j.name.clone())
+            .collect();
+        let layout: serde_json::Value = serde_json::from_str(&written).unwrap();
+        let paths = controller::telemetry::layout::message_paths(&layout);
+        assert!(paths.len() >= 3 * joints.len(), "{} paths", paths.len());
+        for path in paths {
+            // `/topic.field[:]{name=="joint"}.field`: the topic is recorded, each field is in
+            // its message, the filter names one of the robot's joints.
+            let (topic, rest) = path.split_once('.').unwrap();
+            let schema = schemas
+                .get(topic)
+                .unwrap_or_else(|| panic!("{path}: {topic} is not recorded"));
+            let mut message = schema.clone();
+            for part in rest.split('.') {
+                let (field, filter) = match part.split_once("[:]") {
+                    Some((f, filter)) => (f, Some(filter)),
+                    None => (part, None),
+                };
+                let fields = fields_of(&message);
+                let (_, type_name) = fields
+                    .iter()
+                    .find(|(n, _)| n == field)
+                    .unwrap_or_else(|| panic!("{path}: {message} has no field {field}"));
+                if let Some(filter) = filter {
+                    let joint = filter.trim_start_matches("{name==\"").trim_end_matches("\"}");
+                    assert!(joints.iter().any(|j| j == joint), "{path}: no joint {joint}");
+                }
+                message = type_name.clone();
+            }
+        }
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -16,6 +16,7 @@ mod console;
 mod dxl;
 mod exit;
 mod feetech;
+mod layout;
 mod logging;
 mod play;
 mod retarget;
@@ -71,6 +72,10 @@ enum Command {
     /// Feetech serial bus tools: emulated STS servos on a pseudo-terminal, and bus scans.
     #[command(subcommand)]
     Feetech(feetech::FeetechCommand),
+    /// Write the Foxglove layout for a robot: the robot in 3D, a tracking plot per joint with its
+    /// limits (a tab per bus), the safety timeline and log, tick timing. Import it in Foxglove
+    /// (Layouts → Import from file), then open a recording or connect to `play --live`.
+    Layout(layout::LayoutArgs),
     /// Play a clip through a policy: on the mirrored robot (default, lockstep), in real time over
     /// real wires (--wall), or on the hardware (--hardware).
     ///
@@ -195,6 +200,7 @@ fn dispatch(command: Command) -> Result<std::process::ExitCode> {
         Command::Dxl(cmd) => done(dxl::run(cmd)),
         Command::Feetech(cmd) => done(feetech::run(cmd)),
         Command::Bundle(args) => done(bundle::run(&args)),
+        Command::Layout(args) => done(layout::run(&args)),
         Command::Bus(cmd) => done(bus::run(cmd)),
         Command::Calibrate(cmd) => done(calibrate::run(cmd)),
         Command::Sim(cmd) => done(sim::run(cmd)),

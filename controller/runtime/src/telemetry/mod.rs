@@ -10,6 +10,7 @@
 //! In wall-clock runs the loop never waits for the logger: a full ring drops the record and counts
 //! it. In lockstep runs simulated time can wait, so the loop blocks instead and nothing is dropped.
 
+pub mod layout;
 mod messages;
 mod robot3d;
 
