@@ -55,12 +55,21 @@ pub struct Image {
 impl Image {
     /// Writes the image as a PNG file.
     pub fn save_png(&self, path: &Path) -> std::io::Result<()> {
-        let file = std::io::BufWriter::new(std::fs::File::create(path)?);
-        let mut encoder = png::Encoder::new(file, self.width, self.height);
+        std::fs::write(path, self.to_png()?)
+    }
+
+    /// The image as PNG bytes.
+    pub fn to_png(&self) -> std::io::Result<Vec<u8>> {
+        let mut bytes = Vec::new();
+        let mut encoder = png::Encoder::new(&mut bytes, self.width, self.height);
         encoder.set_color(png::ColorType::Rgb);
         encoder.set_depth(png::BitDepth::Eight);
         let mut writer = encoder.write_header().map_err(std::io::Error::other)?;
-        writer.write_image_data(&self.rgb).map_err(std::io::Error::other)
+        writer
+            .write_image_data(&self.rgb)
+            .map_err(std::io::Error::other)?;
+        writer.finish().map_err(std::io::Error::other)?;
+        Ok(bytes)
     }
 
     /// Fraction of pixels that differ from the background colour of the sky.

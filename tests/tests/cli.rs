@@ -984,8 +984,45 @@ fn play_writes_a_report_with_plots_and_the_reactor_metrics() {
     assert_eq!(summary["safety_events"].as_array().unwrap().len(), 5);
     let html = std::fs::read_to_string(dir.join("report.html")).unwrap();
     assert!(
-        html.matches("<svg").count() >= 9 && html.contains("left_knee tracking"),
-        "plots missing"
+        html.contains("✔ Success · played 100 % of the reference"),
+        "no verdict"
+    );
+    // Every joint gets its tracking plot (small multiples), each with its position limits; the
+    // safety timeline, root, estimator and timing plots follow; the pictures are inline.
+    let robot = robots::Robot::load(&robots::reference_robot_path()).unwrap();
+    for j in &robot.config.joints {
+        let plot = std::fs::read_to_string(dir.join(format!("plots/joint-{}.svg", j.name)))
+            .unwrap_or_else(|e| panic!("{}: {e}", j.name));
+        assert!(html.contains(&plot), "{} plot not in the page", j.name);
+        assert!(
+            plot.contains("stroke-dasharray") || plot.matches("<line").count() > 2,
+            "{}: no limit lines",
+            j.name
+        );
+        assert!(
+            plot.contains(">\ntime (s)\n<") && plot.contains(">\nrad\n<"),
+            "{}: axes without units",
+            j.name
+        );
+    }
+    for name in [
+        "safety",
+        "root-position-error",
+        "root-orientation-error",
+        "estimator",
+        "timing-compute",
+        "timing-buses",
+    ] {
+        assert!(dir.join(format!("plots/{name}.svg")).exists(), "{name}");
+    }
+    assert_eq!(
+        html.matches("data:image/png;base64,").count(),
+        3,
+        "start, worst, end"
+    );
+    assert!(
+        html.contains("worst tracking, ") && html.contains("end, "),
+        "captions"
     );
     let md = std::fs::read_to_string(dir.join("summary.md")).unwrap();
     assert!(
@@ -995,6 +1032,42 @@ fn play_writes_a_report_with_plots_and_the_reactor_metrics() {
         "{md}"
     );
     assert_eq!(summary["played"], 1.0);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn the_report_of_a_run_that_fell_says_so_and_shows_the_fall() {
+    // Off the gantry, a 400 N shove for a quarter second in the middle of the squat.
+    let dir = std::env::temp_dir().join(format!("robodeploy-fell-report-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mirror = dir.join("shove.toml");
+    std::fs::write(
+        &mirror,
+        "[[pushes]]\nat_s = 3.0\nduration_s = 0.25\nforce_n = [400.0, 0.0, 0.0]\n",
+    )
+    .unwrap();
+    let out = robodeploy()
+        .args(["play", "--mirror"])
+        .arg(&mirror)
+        .arg("--record")
+        .arg(dir.join("run.mcap"))
+        .arg("--report")
+        .arg(&dir)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["fell"], true, "{stdout}\n{summary}");
+    assert_eq!(summary["success"], false);
+    let html = std::fs::read_to_string(dir.join("report.html")).unwrap();
+    let verdict = html
+        .lines()
+        .find(|l| l.contains("class=\"verdict"))
+        .unwrap_or_else(|| panic!("no verdict"));
+    assert!(verdict.contains("✘ Failed: fell at "), "{verdict}");
+    // The fall is one of the pictures.
+    assert!(html.contains("<figcaption>fell, "), "no picture of the fall");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

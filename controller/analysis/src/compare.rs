@@ -53,7 +53,8 @@ fn run_trace(path: &Path) -> Result<(ObsTrace, RunMetadata), String> {
     let run = run
         .get("run")
         .ok_or_else(|| "the recording does not say how it was run".to_owned())
-        .and_then(|json| RunMetadata::from_json(json).map_err(|e| format!("run metadata: {e}")))?;
+        .and_then(|json| RunMetadata::from_json(json).map_err(|e| format!("run metadata: {e}")))?
+        .resolved_from(path.parent().unwrap_or(Path::new(".")));
     Ok((trace, run))
 }
 

@@ -377,7 +377,8 @@ pub fn replay(path: &Path) -> Result<ReplayReport, AnalysisError> {
         .ok_or_else(|| AnalysisError::file(path, "the recording does not say how it was run"))
         .and_then(|json| {
             RunMetadata::from_json(json).map_err(|e| AnalysisError::file(path, format!("run metadata: {e}")))
-        })?;
+        })?
+        .resolved_from(path.parent().unwrap_or(Path::new(".")));
     let robot = Robot::load(&run.robot).map_err(|e| AnalysisError::file(&run.robot, e.to_string()))?;
     let mut layout = PolicyLayout::load(&run.policy, &robot)?;
     if let Some(values) = &run.command {

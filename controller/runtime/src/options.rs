@@ -141,11 +141,77 @@ impl RunMetadata {
     pub fn from_json(text: &str) -> Result<Self, serde_json::Error> {
         serde_json::from_str(text)
     }
+
+    /// The same run with its files named relative to `dir` (the recording's folder): a
+    /// recording names no absolute path, and still finds its files when the project it was made
+    /// in moves, or is replayed from another working directory.
+    pub fn relative_to(&self, dir: &std::path::Path) -> Self {
+        let absolute = |p: &std::path::Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+        let base = absolute(dir);
+        let relative = |p: &PathBuf| pathdiff::diff_paths(absolute(p), &base).unwrap_or_else(|| p.clone());
+        Self {
+            robot: relative(&self.robot),
+            policy: relative(&self.policy),
+            clip: self.clip.as_ref().map(relative),
+            ..self.clone()
+        }
+    }
+
+    /// The files of a run read from a recording in `dir`, as paths to open (undoes
+    /// [`Self::relative_to`]; absolute paths of older recordings stay as they are).
+    pub fn resolved_from(&self, dir: &std::path::Path) -> Self {
+        let resolve = |p: &PathBuf| if p.is_relative() { dir.join(p) } else { p.clone() };
+        Self {
+            robot: resolve(&self.robot),
+            policy: resolve(&self.policy),
+            clip: self.clip.as_ref().map(resolve),
+            ..self.clone()
+        }
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn run_files_are_named_from_the_recordings_folder_and_found_again_from_there() {
+        let here = std::env::current_dir().unwrap();
+        let m = RunMetadata {
+            robot: here.join("robots/biped/robot.toml"),
+            policy: "robots/biped/policies/p.toml".into(),
+            clip: Some("/elsewhere/clip.csv".into()),
+            command: None,
+            command_source: None,
+            options: PlayOptions::default(),
+        };
+        let dir = here.join("out/runs");
+        let stored = m.relative_to(&dir);
+        assert_eq!(stored.robot, PathBuf::from("../../robots/biped/robot.toml"));
+        assert_eq!(stored.policy, PathBuf::from("../../robots/biped/policies/p.toml"));
+        assert!(stored.clip.as_ref().unwrap().is_relative(), "{stored:?}");
+        let back = stored.resolved_from(&dir);
+        for (a, b) in [
+            (&back.robot, &m.robot),
+            (back.clip.as_ref().unwrap(), m.clip.as_ref().unwrap()),
+        ] {
+            assert_eq!(normalize(a), normalize(&std::path::absolute(b).unwrap()));
+        }
+    }
+
+    /// `a/b/../c` → `a/c`, lexically.
+    fn normalize(p: &std::path::Path) -> PathBuf {
+        let mut out = PathBuf::new();
+        for c in p.components() {
+            match c {
+                std::path::Component::ParentDir => {
+                    out.pop();
+                }
+                other => out.push(other),
+            }
+        }
+        out
+    }
 
     #[test]
     fn run_metadata_round_trips_through_json_exactly() {

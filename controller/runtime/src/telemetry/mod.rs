@@ -659,7 +659,8 @@ impl TelemetrySink {
         if let Some(run) = &info.run {
             attach_run_files(&mut out.mcap, run, info.clock).map_err(|e| wrote(&e))?;
         }
-        let channels = TickChannels::add(&mut out, info).map_err(|e| wrote(&e))?;
+        let dir = path.parent().unwrap_or(Path::new("."));
+        let channels = TickChannels::add(&mut out, info, dir).map_err(|e| wrote(&e))?;
         let mut messages = messages::Messages::new(info);
         // The robot in 3D: its links' frames and its geometry, when the model is known.
         let mut robot = match &info.kinematics {
@@ -801,6 +802,7 @@ impl TickChannels {
     fn add<W: std::io::Write + std::io::Seek>(
         out: &mut Out<W>,
         info: &RecordingInfo,
+        recording_dir: &Path,
     ) -> Result<Self, mcap::McapError> {
         use foxglove::schemas as fg;
         use telemetry_schema as pb;
@@ -834,7 +836,8 @@ impl TickChannels {
             [("bus_names".to_owned(), info.bus_names.join(","))].into();
         let mut replay_meta = names.clone();
         if let Some(run) = &info.run {
-            replay_meta.insert("run".into(), run.to_json());
+            // Its files named from the recording's folder: no absolute path in the file.
+            replay_meta.insert("run".into(), run.relative_to(recording_dir).to_json());
         }
         if let Some(n) = info.reference_ticks {
             replay_meta.insert("reference_ticks".into(), n.to_string());

@@ -1,14 +1,19 @@
 //! Run reports, made from a run's MCAP: tracking per joint over time, root position and orientation
 //! error, the ReActor success criterion (failure when the root is more than 1 m or 45° off), RMSE of
 //! root position (cm), root orientation (deg) and joints (deg), jitter (mean |d³q/dt³|), loop timing,
-//! bus misses and safety events. Written as `report.html` (inline SVG plots), `summary.md` and
-//! `summary.json`.
+//! bus misses and safety events. Written as `report.html` — one self-contained page: the verdict,
+//! the safety timeline, pictures of the moments that matter, every joint's tracking with its limits,
+//! root, bodies, estimator and timing plots (`plotters`, SVG), the safety phases shaded behind
+//! each — with its plots also as SVG files in `plots/`, `summary.md` and `summary.json`.
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::Path;
 
 use controller::metrics::{root_error, tracking_success};
+
+mod frames;
+mod plot;
 
 use crate::AnalysisError;
 use telemetry_schema as pb;
@@ -121,6 +126,13 @@ struct Series {
     command_kinds: Vec<controller::metrics::CommandKind>,
     running: Vec<bool>,
     commands: Vec<Vec<f64>>,
+    /// When each safety transition happened, s (beside `safety`).
+    safety_time: Vec<f64>,
+    /// The buses' names and each tick's time per bus, µs.
+    bus_names: Vec<String>,
+    bus_us: Vec<Vec<f64>>,
+    /// How the run was made, its files found from the recording's folder.
+    run: Option<controller::options::RunMetadata>,
 }
 
 fn floats(v: &serde_json::Value) -> Vec<f64> {
@@ -186,9 +198,11 @@ fn read_series(path: &Path) -> Result<Series, String> {
                     s.reference_ticks = meta.get("reference_ticks").and_then(|n| n.parse().ok());
                     let run = meta
                         .get("run")
-                        .and_then(|j| controller::options::RunMetadata::from_json(j).ok());
+                        .and_then(|j| controller::options::RunMetadata::from_json(j).ok())
+                        .map(|r| r.resolved_from(path.parent().unwrap_or(Path::new("."))));
                     s.tilt_limit = run.as_ref().map_or(s.tilt_limit, |r| r.options.limits.tilt);
-                    s.command_driven = run.is_some_and(|r| r.clip.is_none());
+                    s.command_driven = run.as_ref().is_some_and(|r| r.clip.is_none());
+                    s.run = run;
                 }
                 let p = floats(&v["base_pose"]);
                 s.base_pose
@@ -243,10 +257,15 @@ fn read_series(path: &Path) -> Result<Series, String> {
                 let v: pb::TickTiming = decode(&m)?;
                 s.io.push(f64::from(v.io_us));
                 s.compute.push(f64::from(v.compute_us));
+                if s.bus_names.is_empty() {
+                    s.bus_names = v.buses.iter().map(|b| b.bus.clone()).collect();
+                }
+                s.bus_us.push(v.buses.iter().map(|b| f64::from(b.us)).collect());
             }
             "/safety" => {
                 let v: pb::SafetyTransition = decode(&m)?;
                 s.faulted |= v.fault;
+                s.safety_time.push(time(m.log_time));
                 s.safety.push((v.tick, v.mode, v.cause));
             }
             _ => {}
@@ -465,69 +484,6 @@ fn summarize(s: &Series) -> RunSummary {
     }
 }
 
-/// One plotted line: label, colour, points.
-type Line<'a> = (&'a str, &'a str, Vec<(f64, f64)>);
-
-/// An SVG line plot of `series`.
-fn svg_plot(title: &str, unit: &str, series: &[Line<'_>]) -> String {
-    let (w, h, pad) = (560.0, 200.0, 40.0);
-    let pts = series.iter().flat_map(|s| s.2.iter()).filter(|p| p.1.is_finite());
-    let (mut x0, mut x1, mut y0, mut y1) =
-        (f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY);
-    for &(x, y) in pts {
-        x0 = x0.min(x);
-        x1 = x1.max(x);
-        y0 = y0.min(y);
-        y1 = y1.max(y);
-    }
-    if !x0.is_finite() {
-        return format!("<p>{title}: no data</p>");
-    }
-    if (y1 - y0).abs() < 1e-9 {
-        y0 -= 1.0;
-        y1 += 1.0;
-    }
-    let (sx, sy) = ((w - 2.0 * pad) / (x1 - x0).max(1e-9), (h - 2.0 * pad) / (y1 - y0));
-    let mut out = format!(
-        r#"<figure><svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" style="background:#fff;border:1px solid #ccc">"#
-    );
-    let _ = write!(
-        out,
-        r#"<text x="{pad}" y="16" font-size="13" font-family="sans-serif">{title}</text>"#
-    );
-    let _ = write!(
-        out,
-        r#"<text x="4" y="{}" font-size="10" font-family="sans-serif">{y1:.3} {unit}</text><text x="4" y="{}" font-size="10" font-family="sans-serif">{y0:.3}</text><text x="{}" y="{}" font-size="10" font-family="sans-serif">t = {x1:.1} s</text>"#,
-        pad - 4.0,
-        h - pad + 10.0,
-        w - pad - 40.0,
-        h - 8.0
-    );
-    for (i, (label, colour, points)) in series.iter().enumerate() {
-        let mut d = String::new();
-        for &(x, y) in points.iter().filter(|p| p.1.is_finite()) {
-            let _ = write!(
-                d,
-                "{}{:.1},{:.1}",
-                if d.is_empty() { "M" } else { " L" },
-                pad + (x - x0) * sx,
-                h - pad - (y - y0) * sy
-            );
-        }
-        let _ = write!(
-            out,
-            r#"<path d="{d}" fill="none" stroke="{colour}" stroke-width="1.3"/>"#
-        );
-        let _ = write!(
-            out,
-            r#"<text x="{}" y="16" font-size="11" fill="{colour}" font-family="sans-serif">{label}</text>"#,
-            w - 160.0 + 80.0 * i as f64
-        );
-    }
-    out.push_str("</svg></figure>\n");
-    out
-}
-
 /// Writes the report of the run `log` into `dir`; returns the summary.
 pub fn write_report(log: &Path, dir: &Path) -> Result<RunSummary, AnalysisError> {
     let s = read(log)?;
@@ -650,81 +606,426 @@ pub fn write_report(log: &Path, dir: &Path) -> Result<RunSummary, AnalysisError>
     }
     write(&dir.join("summary.md"), &md)?;
 
-    let mut html = String::from(
-        "<!doctype html><html><head><meta charset=\"utf-8\"><title>robodeploy run report</title></head><body style=\"font-family:sans-serif;max-width:1200px\">\n",
-    );
+    let (html, plots) = page(log, &s, &summary).map_err(|m| AnalysisError::file(log, m))?;
+    write(&dir.join("report.html"), &html)?;
+    // Each plot also as its own SVG file, for documents that embed pictures.
+    let plot_dir = dir.join("plots");
+    std::fs::create_dir_all(&plot_dir).map_err(|e| AnalysisError::write(&plot_dir, e))?;
+    for (name, svg) in &plots {
+        write(&plot_dir.join(format!("{name}.svg")), svg)?;
+    }
+    Ok(summary)
+}
+
+/// HTML-escaped text.
+fn escape(text: &str) -> String {
+    text.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+}
+
+/// The safety state machine's phases over the run.
+fn phases(s: &Series) -> Vec<plot::Phase> {
+    let end = s.time.last().copied().unwrap_or(0.0);
+    s.safety
+        .iter()
+        .zip(&s.safety_time)
+        .enumerate()
+        .map(|(i, ((_, mode, _), &from))| plot::Phase {
+            from,
+            to: s.safety_time.get(i + 1).copied().unwrap_or(end).max(from),
+            mode: mode.clone(),
+        })
+        .collect()
+}
+
+/// The first tick whose base tilted past the run's limit (simulation).
+fn fall_tick(s: &Series) -> Option<usize> {
+    s.base_pose
+        .iter()
+        .position(|p| !p[0].is_nan() && controller::safety::tilt_of([p[3], p[4], p[5], p[6]]) > s.tilt_limit)
+}
+
+/// The tracking tick with the largest mean joint error.
+fn worst_tick(s: &Series) -> Option<usize> {
+    let error = |k: usize| {
+        let (q, r) = (&s.q[k], s.reference_q.get(k)?);
+        let e: f64 = q.iter().zip(r).map(|(a, b)| (a - b).abs()).sum();
+        Some(e / q.len().max(1) as f64)
+    };
+    (0..s.q.len())
+        .filter(|&k| s.tracking.get(k).copied().unwrap_or(false))
+        .filter_map(|k| error(k).map(|e| (k, e)))
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|(k, _)| k)
+}
+
+/// Why a run failed, in words (empty when it succeeded).
+fn failures(s: &Series, summary: &RunSummary) -> Vec<String> {
+    let mut why = Vec::new();
+    if summary.fell == Some(true) {
+        let at = fall_tick(s)
+            .and_then(|k| s.time.get(k))
+            .map_or(String::new(), |t| format!(" at {t:.2} s"));
+        why.push(format!("fell{at}"));
+    }
+    if summary.safety_stop {
+        let cause = s
+            .safety
+            .iter()
+            .find(|(_, mode, _)| mode == "Damped")
+            .map_or("a fault", |(_, _, cause)| cause.as_str());
+        why.push(format!("safety stop ({cause})"));
+    }
+    if let Some(p) = summary.played.filter(|&p| p < 0.999) {
+        why.push(format!("played {:.0} % of the reference", 100.0 * p));
+    }
+    if why.is_empty() && !summary.success {
+        why.push("the root left the reference by more than 1 m or 45°".into());
+    }
+    why
+}
+
+/// The report page and its plots (name, SVG).
+fn page(log: &Path, s: &Series, summary: &RunSummary) -> Result<(String, Vec<(String, String)>), String> {
+    use plot::{BLUE, GREEN, Line, MEASURED, ORANGE, REFERENCE, TimePlot};
+    let phases = phases(s);
+    let mut plots: Vec<(String, String)> = Vec::new();
+    let mut add = |name: &str, svg: String| -> String {
+        plots.push((name.to_owned(), svg.clone()));
+        svg
+    };
+    let series = |values: &dyn Fn(usize) -> f64| -> Vec<(f64, f64)> {
+        s.time.iter().enumerate().map(|(k, &t)| (t, values(k))).collect()
+    };
+    let name = |p: &Option<std::path::PathBuf>| {
+        p.as_ref()
+            .and_then(|p| p.file_name())
+            .map_or("?".to_owned(), |n| n.to_string_lossy().into_owned())
+    };
+    let mut html = String::from(concat!(
+        "<!doctype html><html><head><meta charset=\"utf-8\"><title>robodeploy run report</title><style>",
+        "body{font-family:'DejaVu Sans',sans-serif;max-width:1280px;margin:1em auto;color:#222}",
+        ".verdict{padding:.8em 1.2em;border-radius:6px;font-size:1.4em;margin:.5em 0}",
+        ".ok{background:#dff3df;border:1px solid #6b6}.bad{background:#f8dcdc;border:1px solid #c66}",
+        ".grid{display:flex;flex-wrap:wrap;gap:4px}.grid svg{border:1px solid #ddd}",
+        "figure{display:inline-block;margin:4px}figcaption{font-size:.85em;color:#555}",
+        "table{border-collapse:collapse}td{padding:2px 10px;border-bottom:1px solid #eee}",
+        ".key span{display:inline-block;padding:0 .5em;margin-right:.4em;border-radius:3px}",
+        "</style></head><body>\n"
+    ));
+    let run = s.run.as_ref();
     let _ = writeln!(
         html,
-        "<h1>Run report</h1><p>{}</p><pre>{}</pre>",
-        log.display(),
-        md.replace('<', "&lt;")
+        "<h1>Run report</h1><p>{} — robot <b>{}</b>, policy <b>{}</b>, {}</p>",
+        escape(&log.display().to_string()),
+        escape(&name(&run.map(|r| r.robot.clone()))),
+        escape(&name(&run.map(|r| r.policy.clone()))),
+        if s.command_driven {
+            "driven by live commands".to_owned()
+        } else {
+            format!("clip <b>{}</b>", escape(&name(&run.and_then(|r| r.clip.clone()))))
+        }
     );
+    // The verdict: the reliability issue's success criterion, and why not.
+    let why = failures(s, summary);
+    let played = summary.played.map_or(String::new(), |p| {
+        format!(" · played {:.0} % of the reference", 100.0 * p)
+    });
+    if summary.success {
+        let _ = writeln!(html, "<div class=\"verdict ok\">✔ Success{played}</div>");
+    } else {
+        let _ = writeln!(
+            html,
+            "<div class=\"verdict bad\">✘ Failed: {}{played}</div>",
+            escape(&why.join("; "))
+        );
+    }
+    let _ = write!(html, "<table>");
+    let mut row = |k: &str, v: String| {
+        let _ = write!(html, "<tr><td>{k}</td><td>{}</td></tr>", escape(&v));
+    };
+    row(
+        "ticks (tracking)",
+        format!("{} ({})", summary.ticks, summary.tracking_ticks),
+    );
+    if !s.command_driven {
+        row("joint RMSE", format!("{:.2}°", summary.joints_rmse_deg));
+    }
+    if let (Some(p), Some(o)) = (summary.root_position_rmse_cm, summary.root_orientation_rmse_deg) {
+        row("root RMSE", format!("{p:.1} cm, {o:.1}°"));
+    }
+    if let Some(fell) = summary.fell {
+        row("fell", if fell { "YES".into() } else { "no".into() });
+    }
+    row(
+        "safety stop",
+        if summary.safety_stop {
+            "YES".into()
+        } else {
+            "no".into()
+        },
+    );
+    row("jitter (mean |d³q/dt³|)", format!("{:.2} rad/s³", summary.jitter));
+    row("ticks with bus misses", summary.bus_miss_ticks.to_string());
+    row(
+        "compute p50 / p99 / max",
+        format!(
+            "{:.0} / {:.0} / {:.0} µs",
+            summary.compute_us[0], summary.compute_us[1], summary.compute_us[2]
+        ),
+    );
+    row(
+        "bus I/O p50 / p99 / max",
+        format!(
+            "{:.0} / {:.0} / {:.0} µs",
+            summary.io_us[0], summary.io_us[1], summary.io_us[2]
+        ),
+    );
+    if let Some(e) = &summary.estimator {
+        row(
+            "state estimate vs truth",
+            format!(
+                "velocity {:.3} m/s, height {:.1} mm RMSE; {:.1} cm off at the end; contacts agree {:.1} %",
+                e.velocity_rmse, e.height_rmse_mm, e.final_position_error_cm, e.contact_agreement_pct
+            ),
+        );
+    }
+    html.push_str("</table>\n");
+
+    // The safety timeline, its key and events.
+    html.push_str("<h2>Safety</h2><p class=\"key\">");
+    for mode in ["Ready", "SoftStart", "Running", "Stopping", "Damped"] {
+        if let Some(c) = plot::mode_color(mode) {
+            let _ = write!(
+                html,
+                "<span style=\"background:rgb({},{},{})\">{mode}</span>",
+                c.0, c.1, c.2
+            );
+        }
+    }
+    html.push_str("— the same shading lies behind every time plot below.</p>\n");
+    html.push_str(&add("safety", plot::timeline(&phases, (1200, 90))?));
+    html.push_str("<ul>");
+    for ((tick, mode, cause), t) in s.safety.iter().zip(&s.safety_time) {
+        let _ = write!(
+            html,
+            "<li>{t:.2} s (tick {tick}): {mode} — {}</li>",
+            escape(cause)
+        );
+    }
+    html.push_str("</ul>\n");
+
+    // Pictures at the moments that matter (simulation runs: the base pose is known).
+    let mut moments = Vec::new();
+    let has_truth = s.base_pose.iter().any(|p| !p[0].is_nan());
+    if has_truth && !s.q.is_empty() {
+        // A recording cut short may hold fewer of one channel than another: every index is checked.
+        let at = |k: usize| s.time.get(k).copied().unwrap_or(f64::NAN);
+        let start = s.tracking.iter().position(|&t| t).unwrap_or(0);
+        let mut pick = vec![(format!("start of tracking, {:.2} s", at(start)), start)];
+        if let Some(k) = worst_tick(s) {
+            pick.push((format!("worst tracking, {:.2} s", at(k)), k));
+        }
+        match fall_tick(s) {
+            Some(k) => pick.push((format!("fell, {:.2} s", at(k)), k)),
+            None => {
+                let k = s.q.len().min(s.base_pose.len()).saturating_sub(1);
+                pick.push((format!("end, {:.2} s", at(k)), k));
+            }
+        }
+        moments = pick
+            .into_iter()
+            .filter_map(|(caption, k)| {
+                let (base, q) = (s.base_pose.get(k)?, s.q.get(k)?);
+                (!base[0].is_nan()).then(|| frames::Moment {
+                    caption,
+                    base: *base,
+                    q: q.clone(),
+                })
+            })
+            .collect();
+    }
+    html.push_str("<h2>Moments</h2>\n");
+    match (run, moments.is_empty()) {
+        (_, true) => {
+            html.push_str("<p>No pictures: the recording has no simulator pose (a hardware run).</p>\n");
+        }
+        (None, false) => html.push_str("<p>No pictures: the recording does not say which robot ran.</p>\n"),
+        (Some(run), false) => match frames::render_moments(&run.robot, &moments) {
+            Ok(pictures) => {
+                use base64::Engine as _;
+                for (caption, png) in pictures {
+                    let data = base64::engine::general_purpose::STANDARD.encode(png);
+                    let _ = writeln!(
+                        html,
+                        "<figure><img alt=\"{0}\" src=\"data:image/png;base64,{data}\"><figcaption>{0}</figcaption></figure>",
+                        escape(&caption)
+                    );
+                }
+            }
+            Err(e) => {
+                let _ = writeln!(html, "<p>No pictures: {}</p>", escape(&e));
+            }
+        },
+    }
+
+    // Every joint, small multiples: reference, measured, limits.
+    let limits: Vec<Option<[f64; 2]>> = match run.map(|r| robots::Robot::load(&r.robot)) {
+        Some(Ok(robot)) => s
+            .joints
+            .iter()
+            .map(|n| {
+                robot
+                    .config
+                    .joints
+                    .iter()
+                    .find(|j| &j.name == n)
+                    .map(|j| j.position_limits)
+            })
+            .collect(),
+        _ => vec![None; s.joints.len()],
+    };
+    let _ = writeln!(
+        html,
+        "<h2>Joint tracking</h2><p class=\"key\"><span style=\"color:#787878\">━ {}</span><span style=\"color:#cd2d2d\">━ measured</span><span style=\"color:#c81e1e\">╌ position limits</span></p><div class=\"grid\">",
+        if s.command_driven {
+            "default pose"
+        } else {
+            "reference"
+        }
+    );
+    for (j, joint) in s.joints.iter().enumerate() {
+        let svg = plot::time_plot(
+            &TimePlot {
+                title: joint,
+                y_desc: "rad",
+                lines: vec![
+                    Line {
+                        label: "reference",
+                        color: REFERENCE,
+                        points: series(&|k| {
+                            s.reference_q
+                                .get(k)
+                                .and_then(|r| r.get(j))
+                                .copied()
+                                .unwrap_or(f64::NAN)
+                        }),
+                    },
+                    Line {
+                        label: "measured",
+                        color: MEASURED,
+                        points: series(&|k| s.q[k].get(j).copied().unwrap_or(f64::NAN)),
+                    },
+                ],
+                limits: limits
+                    .get(j)
+                    .copied()
+                    .flatten()
+                    .map_or_else(Vec::new, |l| l.to_vec()),
+                size: (310, 190),
+                legend: false,
+            },
+            &phases,
+        )?;
+        html.push_str(&add(&format!("joint-{joint}"), svg));
+    }
+    html.push_str("</div>\n");
+
     if s.command_driven {
-        let (_, course) = locomotion_course(&s);
-        for (k, (title, unit)) in [("forward speed", "m/s"), ("turning rate", "rad/s")]
+        let (_, course) = locomotion_course(s);
+        html.push_str("<h2>Commanded against achieved</h2>\n");
+        for (k, (title, unit)) in [("forward speed", "speed (m/s)"), ("turning rate", "rate (rad/s)")]
             .iter()
             .enumerate()
         {
-            let commanded = course.iter().map(|(t, c, _)| (*t, c[k])).collect();
-            let achieved = course.iter().map(|(t, _, a)| (*t, a[k])).collect();
-            html.push_str(&svg_plot(
-                title,
-                unit,
-                &[("commanded", "#888", commanded), ("achieved", "#c33", achieved)],
-            ));
+            let svg = plot::time_plot(
+                &TimePlot {
+                    title,
+                    y_desc: unit,
+                    lines: vec![
+                        Line {
+                            label: "commanded",
+                            color: REFERENCE,
+                            points: course.iter().map(|(t, c, _)| (*t, c[k])).collect(),
+                        },
+                        Line {
+                            label: "achieved",
+                            color: MEASURED,
+                            points: course.iter().map(|(t, _, a)| (*t, a[k])).collect(),
+                        },
+                    ],
+                    limits: Vec::new(),
+                    size: (620, 260),
+                    legend: true,
+                },
+                &phases,
+            )?;
+            html.push_str(&add(&format!("command-{k}"), svg));
         }
     }
-    // The joints that moved most, measured against reference.
-    let mut order: Vec<usize> = (0..s.joints.len()).collect();
-    let span = |j: usize| {
-        let v: Vec<f64> = s.reference_q.iter().filter_map(|r| r.get(j).copied()).collect();
-        v.iter().copied().fold(f64::NEG_INFINITY, f64::max) - v.iter().copied().fold(f64::INFINITY, f64::min)
-    };
-    order.sort_by(|&a, &b| span(b).total_cmp(&span(a)));
-    for &j in order.iter().take(8) {
-        let measured: Vec<(f64, f64)> = s.time.iter().zip(&s.q).map(|(&t, q)| (t, q[j])).collect();
-        let reference: Vec<(f64, f64)> = s
-            .time
-            .iter()
-            .zip(&s.reference_q)
-            .map(|(&t, r)| (t, r.get(j).copied().unwrap_or(f64::NAN)))
-            .collect();
-        html.push_str(&svg_plot(
-            &format!("{} tracking", s.joints[j]),
-            "rad",
-            &[
-                (
-                    if s.command_driven {
-                        "default pose"
-                    } else {
-                        "reference"
-                    },
-                    "#888",
-                    reference,
-                ),
-                ("measured", "#c33", measured),
-            ],
-        ));
-    }
     if summary.root_position_rmse_cm.is_some() {
-        let err: Vec<(f64, f64)> = s
-            .time
-            .iter()
-            .enumerate()
-            .map(|(k, &t)| {
-                let (p, r) = (s.base_pose.get(k), s.reference_root.get(k));
-                (
-                    t,
-                    p.zip(r).map_or(f64::NAN, |(p, r)| {
-                        ((p[0] - r[0]).powi(2) + (p[1] - r[1]).powi(2) + (p[2] - r[2]).powi(2)).sqrt() * 100.0
-                    }),
-                )
-            })
-            .collect();
-        html.push_str(&svg_plot("root position error", "cm", &[("error", "#36c", err)]));
+        // Over the tracking window: before it the reference is the start-up ramp, not the clip.
+        let error = |k: usize| {
+            let tracking = s.tracking.get(k).copied().unwrap_or(false);
+            s.base_pose
+                .get(k)
+                .zip(s.reference_root.get(k))
+                .filter(|_| tracking)
+                .map_or((f64::NAN, f64::NAN), |(p, r)| root_error(*p, *r))
+        };
+        // The success bounds drawn when the error comes near them; they would flatten a small one.
+        let bound = |limit: f64, values: &[(f64, f64)]| {
+            let worst = values
+                .iter()
+                .map(|v| v.1)
+                .filter(|v| v.is_finite())
+                .fold(0.0, f64::max);
+            if worst > 0.2 * limit {
+                vec![limit]
+            } else {
+                Vec::new()
+            }
+        };
+        let position = series(&|k| 100.0 * error(k).0);
+        let orientation = series(&|k| error(k).1.to_degrees());
+        let (position_bound, orientation_bound) = (bound(100.0, &position), bound(45.0, &orientation));
+        html.push_str("<h2>Root against the reference</h2>\n");
+        let svg = plot::time_plot(
+            &TimePlot {
+                title: "root position error",
+                y_desc: "cm",
+                lines: vec![Line {
+                    label: "position",
+                    color: BLUE,
+                    points: position,
+                }],
+                limits: position_bound,
+                size: (620, 260),
+                legend: true,
+            },
+            &phases,
+        )?;
+        html.push_str(&add("root-position-error", svg));
+        let svg = plot::time_plot(
+            &TimePlot {
+                title: "root orientation error",
+                y_desc: "deg",
+                lines: vec![Line {
+                    label: "orientation",
+                    color: ORANGE,
+                    points: orientation,
+                }],
+                limits: orientation_bound,
+                size: (620, 260),
+                legend: true,
+            },
+            &phases,
+        )?;
+        html.push_str(&add("root-orientation-error", svg));
+        html.push_str("<p>Over the tracking window. The success criterion's bounds (1 m, 45°) are drawn dashed once the error comes within a fifth of them.</p>\n");
     }
     if !summary.body_rmse_cm.is_empty() {
-        // Mean and worst body at each tick, and the anchor.
         let anchor = s
             .anchor_body
             .as_ref()
@@ -737,58 +1038,116 @@ pub fn write_report(log: &Path, dir: &Path) -> Result<RunSummary, AnalysisError>
                 .collect()
         };
         let mut lines = vec![
-            (
-                "mean",
-                "#36c",
-                per_tick(&|e| e.iter().sum::<f64>() / e.len() as f64),
-            ),
-            (
-                "worst",
-                "#c33",
-                per_tick(&|e| e.iter().copied().fold(0.0, f64::max)),
-            ),
+            Line {
+                label: "mean",
+                color: BLUE,
+                points: per_tick(&|e| e.iter().sum::<f64>() / e.len() as f64),
+            },
+            Line {
+                label: "worst",
+                color: MEASURED,
+                points: per_tick(&|e| e.iter().copied().fold(0.0, f64::max)),
+            },
         ];
         if let Some(a) = anchor {
-            lines.push((
-                "anchor",
-                "#393",
-                per_tick(&|e| e.get(a).copied().unwrap_or(f64::NAN)),
-            ));
+            lines.push(Line {
+                label: "anchor",
+                color: GREEN,
+                points: per_tick(&|e| e.get(a).copied().unwrap_or(f64::NAN)),
+            });
         }
-        html.push_str(&svg_plot("tracked bodies: position error", "cm", &lines));
+        let svg = plot::time_plot(
+            &TimePlot {
+                title: "tracked bodies: position error",
+                y_desc: "cm",
+                lines,
+                limits: Vec::new(),
+                size: (620, 260),
+                legend: true,
+            },
+            &phases,
+        )?;
+        html.push_str(&add("bodies", svg));
     }
     if summary.estimator.is_some() {
-        let series = |k: usize, scale: f64| -> Vec<(f64, f64)> {
-            s.estimator
-                .iter()
-                .map(|e| (e.time, scale * [e.velocity, e.height.abs(), e.position][k]))
-                .collect()
-        };
-        html.push_str(&svg_plot(
-            "state estimate: error against the truth",
-            "m/s · cm",
-            &[
-                ("velocity m/s", "#c33", series(0, 1.0)),
-                ("height cm", "#36c", series(1, 100.0)),
-                ("position cm", "#393", series(2, 100.0)),
-            ],
-        ));
+        html.push_str("<h2>State estimate against the simulator's truth</h2>\n");
+        let points =
+            |f: &dyn Fn(&EstimateTick) -> f64| s.estimator.iter().map(|e| (e.time, f(e))).collect::<Vec<_>>();
+        let svg = plot::time_plot(
+            &TimePlot {
+                title: "estimate error",
+                y_desc: "m/s · cm",
+                lines: vec![
+                    Line {
+                        label: "velocity (m/s)",
+                        color: MEASURED,
+                        points: points(&|e| e.velocity),
+                    },
+                    Line {
+                        label: "height (cm)",
+                        color: BLUE,
+                        points: points(&|e| 100.0 * e.height.abs()),
+                    },
+                    Line {
+                        label: "position (cm)",
+                        color: GREEN,
+                        points: points(&|e| 100.0 * e.position),
+                    },
+                ],
+                limits: Vec::new(),
+                size: (620, 260),
+                legend: true,
+            },
+            &phases,
+        )?;
+        html.push_str(&add("estimator", svg));
     }
-    let io: Vec<(f64, f64)> = s.time.iter().zip(&s.io).map(|(&t, &v)| (t, v)).collect();
-    let compute: Vec<(f64, f64)> = s.time.iter().zip(&s.compute).map(|(&t, &v)| (t, v)).collect();
-    html.push_str(&svg_plot(
-        "loop timing per tick",
-        "µs",
-        &[("bus I/O", "#393", io), ("compute", "#c60", compute)],
-    ));
+    html.push_str("<h2>Timing</h2>\n");
+    let svg = plot::time_plot(
+        &TimePlot {
+            title: "compute per tick",
+            y_desc: "µs",
+            lines: vec![Line {
+                label: "compute",
+                color: ORANGE,
+                points: series(&|k| s.compute.get(k).copied().unwrap_or(f64::NAN)),
+            }],
+            limits: Vec::new(),
+            size: (620, 260),
+            legend: true,
+        },
+        &phases,
+    )?;
+    html.push_str(&add("timing-compute", svg));
+    let colors = [BLUE, GREEN, MEASURED, ORANGE, REFERENCE];
+    let bus_lines: Vec<Line<'_>> = s
+        .bus_names
+        .iter()
+        .enumerate()
+        .map(|(b, bus)| Line {
+            label: bus,
+            color: colors[b % colors.len()],
+            points: series(&|k| {
+                s.bus_us
+                    .get(k)
+                    .and_then(|v| v.get(b))
+                    .copied()
+                    .unwrap_or(f64::NAN)
+            }),
+        })
+        .collect();
+    let svg = plot::time_plot(
+        &TimePlot {
+            title: "bus I/O per tick, each bus",
+            y_desc: "µs",
+            lines: bus_lines,
+            limits: Vec::new(),
+            size: (620, 260),
+            legend: true,
+        },
+        &phases,
+    )?;
+    html.push_str(&add("timing-buses", svg));
     html.push_str("</body></html>\n");
-    write(&dir.join("report.html"), &html)?;
-    // Each plot also as its own SVG file, for documents that embed pictures.
-    let plots = dir.join("plots");
-    std::fs::create_dir_all(&plots).map_err(|e| AnalysisError::write(&plots, e))?;
-    for (i, svg) in html.split("<figure>").skip(1).enumerate() {
-        let svg = &svg[..svg.find("</figure>").unwrap_or(svg.len())];
-        write(&plots.join(format!("{i:02}.svg")), svg)?;
-    }
-    Ok(summary)
+    Ok((html, plots))
 }

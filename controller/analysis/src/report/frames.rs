@@ -1,0 +1,58 @@
+//! Pictures of a run at the moments that matter: the robot's own model posed as the recording
+//! says (the simulator's base pose, the measured joints), drawn by the mirror's ray caster.
+
+use std::path::Path;
+
+use mujoco_rs::prelude::MjData;
+use sim2real::render::{CameraSpec, render};
+
+/// One picture to draw: its caption, the base pose `[x, y, z, w, qx, qy, qz]`, the joints in
+/// robot order.
+pub(super) struct Moment {
+    pub caption: String,
+    pub base: [f64; 7],
+    pub q: Vec<f64>,
+}
+
+/// PNGs of `moments` of the robot at `robot_toml`, captioned.
+pub(super) fn render_moments(
+    robot_toml: &Path,
+    moments: &[Moment],
+) -> Result<Vec<(String, Vec<u8>)>, String> {
+    let robot = robots::Robot::load(robot_toml).map_err(|e| e.to_string())?;
+    let model = sim2real::mujoco::load_model(&robot.mjcf_path).map_err(|e| e.to_string())?;
+    let joints: Vec<&str> = robot
+        .config
+        .joints
+        .iter()
+        .map(|j| j.mjcf_joint.as_str())
+        .collect();
+    let index = sim2real::model_index::ModelIndex::new(&model, &robot.config.root_body, &joints, &[])
+        .map_err(|e| e.to_string())?;
+    let root = index.root.qpos;
+    let adr: Vec<usize> = index.joints.iter().map(|j| j.qpos).collect();
+    let mut data = MjData::new(Box::new(model));
+    let camera = CameraSpec {
+        width: 360,
+        height: 270,
+        distance: 1.8,
+        ..CameraSpec::default()
+    };
+    let mut out = Vec::with_capacity(moments.len());
+    for m in moments {
+        let qpos = data.qpos_mut();
+        qpos[root..root + 7].copy_from_slice(&m.base);
+        for (&a, &v) in adr.iter().zip(&m.q) {
+            if v.is_finite() {
+                qpos[a] = v;
+            }
+        }
+        data.kinematics();
+        let target = [m.base[0], m.base[1], m.base[2] - 0.1];
+        let png = render(&mut data, &camera, target)
+            .to_png()
+            .map_err(|e| e.to_string())?;
+        out.push((m.caption.clone(), png));
+    }
+    Ok(out)
+}
