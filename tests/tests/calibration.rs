@@ -455,7 +455,10 @@ fn the_cli_calibrates_verifies_and_refuses_what_it_must() {
     let truth = truth.to_str().unwrap();
 
     // Without --yes the person is asked; "q" at the first question aborts, nothing written.
-    let (ok, text) = run(&["calibrate", "run", "--mirror", truth, "--log", log], "q\n");
+    let (ok, text) = run(
+        &["calibrate", "run", "--mirror", truth, "--log", log, "--no-record"],
+        "q\n",
+    );
     assert!(!ok && text.contains("aborted"), "{text}");
     assert!(!robots::calibration::path_for(&path).exists());
 
@@ -467,13 +470,52 @@ fn the_cli_calibrates_verifies_and_refuses_what_it_must() {
         "{text}"
     );
 
+    // Recorded and served live like a run: the robot's joints, frames and geometry, and when
+    // its joints were commanded (Running) or limp (Off) — a jig calibration never commands one.
+    let recording = path.with_file_name("calibrate.mcap");
     let (ok, text) = run(
-        &["calibrate", "run", "--mirror", truth, "--yes", "--log", log],
+        &[
+            "calibrate",
+            "run",
+            "--mirror",
+            truth,
+            "--yes",
+            "--log",
+            log,
+            "--record",
+            recording.to_str().unwrap(),
+            "--live",
+            "127.0.0.1:0",
+            "--live-wait",
+            "0",
+        ],
         "",
     );
     assert!(ok, "{text}");
     assert!(text.contains("directions wrong: 0"), "{text}");
+    assert!(text.contains("live: ws://127.0.0.1:"), "{text}");
     assert!(robots::calibration::path_for(&path).exists());
+    let bytes = analysis::recording::read(&recording).unwrap();
+    let (mut states, mut frames, mut scene, mut modes) = (0, 0, 0, Vec::new());
+    analysis::recording::for_each_message(&bytes, |m| {
+        match m.topic {
+            "/joint_state" => states += 1,
+            "/tf" => frames += 1,
+            "/robot" => scene += 1,
+            "/safety" => {
+                let t = <telemetry_schema::SafetyTransition as prost::Message>::decode(m.data).unwrap();
+                modes.push(t.mode);
+            }
+            _ => {}
+        }
+        Ok(())
+    })
+    .unwrap();
+    assert!(
+        states > 100 && frames == states && scene == 1,
+        "{states} {frames} {scene}"
+    );
+    assert_eq!(modes, ["Off"]);
 
     // Calibrated, the same machine plays it as well as the nominal robot does.
     let (ok, text) = run(&play, "");
@@ -486,7 +528,16 @@ fn the_cli_calibrates_verifies_and_refuses_what_it_must() {
     assert!(rmse < 3.0, "joint RMSE {rmse}°\n{text}");
 
     let (ok, text) = run(
-        &["calibrate", "verify", "--mirror", truth, "--yes", "--log", log],
+        &[
+            "calibrate",
+            "verify",
+            "--mirror",
+            truth,
+            "--yes",
+            "--log",
+            log,
+            "--no-record",
+        ],
         "",
     );
     assert!(
@@ -497,7 +548,16 @@ fn the_cli_calibrates_verifies_and_refuses_what_it_must() {
     // Calibrating again keeps the first result as the previous file.
     let first = std::fs::read_to_string(robots::calibration::path_for(&path)).unwrap();
     let (ok, text) = run(
-        &["calibrate", "run", "--mirror", truth, "--yes", "--log", log],
+        &[
+            "calibrate",
+            "run",
+            "--mirror",
+            truth,
+            "--yes",
+            "--log",
+            log,
+            "--no-record",
+        ],
         "",
     );
     assert!(ok && text.contains("kept the previous calibration"), "{text}");

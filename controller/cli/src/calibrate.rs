@@ -68,6 +68,10 @@ pub struct Target {
     /// Confirm every step without asking (mirror only: on hardware a person confirms each step).
     #[arg(long)]
     yes: bool,
+    /// Recording and live view, as for `play` (default: out/runs/ROBOT-calibrate.mcap): each
+    /// tick's measured joints, IMU and targets, the robot in 3D.
+    #[command(flatten)]
+    record: crate::play::RecordArgs,
 }
 
 /// Arguments of `calibrate run`.
@@ -122,11 +126,17 @@ pub fn run(cmd: CalibrateCommand) -> Result<()> {
     match cmd {
         CalibrateCommand::Identify(t) => {
             let robot = load(&t)?;
-            with_rig(&t, &calibration::raw_robot(&robot), &robot, |rig, op, _| {
-                let mut session = Session::new(&robot, rig, op, &abort, Options::default());
-                session.identify()?;
-                Ok(())
-            })
+            with_rig(
+                &t,
+                &calibration::raw_robot(&robot),
+                &robot,
+                &abort,
+                |rig, op, _| {
+                    let mut session = Session::new(&robot, rig, op, &abort, Options::default());
+                    session.identify()?;
+                    Ok(())
+                },
+            )
         }
         CalibrateCommand::Run(args) => calibrate(&args, &abort),
         CalibrateCommand::Verify(args) => verify_pose(&args, &abort),
@@ -149,13 +159,14 @@ fn with_rig(
     t: &Target,
     rig_robot: &Robot,
     robot: &Robot,
+    abort: &AtomicBool,
     body: impl FnOnce(&mut dyn Rig, &mut dyn Operator, &MirrorWorld) -> Result<()>,
 ) -> Result<()> {
     if t.hardware {
         let io = robot_link::hardware::open_sequential(rig_robot)?;
         let mut rig = LinkRig::new(io, WallClock::start(), PERIOD, rig_robot);
         let mut op = ConsoleOperator::new(false);
-        return body(&mut rig, &mut op, &None);
+        return watched(t, rig_robot, abort, &mut rig, |rig| body(rig, &mut op, &None));
     }
     let mut config = match &t.mirror {
         Some(p) => load_mirror_config(p, robot)?,
@@ -169,7 +180,127 @@ fn with_rig(
     let io = lockstep_robot(rig_robot, &world)?;
     let mut rig = LinkRig::new(io, LockstepClock::new(Arc::clone(&world)), PERIOD, rig_robot);
     let mut op = MirrorHands::new(Arc::clone(&world), ConsoleOperator::new(t.yes));
-    body(&mut rig, &mut op, &Some((world, config)))
+    let mirror = Some((world, config));
+    watched(t, rig_robot, abort, &mut rig, |rig| body(rig, &mut op, &mirror))
+}
+
+/// Runs `body` on `rig`, recorded and served live as `t` asks.
+fn watched(
+    t: &Target,
+    robot: &Robot,
+    abort: &AtomicBool,
+    rig: &mut dyn Rig,
+    body: impl FnOnce(&mut dyn Rig) -> Result<()>,
+) -> Result<()> {
+    anyhow::ensure!(
+        !t.record.record_bus_rate,
+        "--record-bus-rate: a calibration has no bus cycles to record"
+    );
+    let info = controller::telemetry::RecordingInfo {
+        joint_names: robot.config.joints.iter().map(|j| j.name.clone()).collect(),
+        root_frame: robot.config.root_body.clone(),
+        kinematics: Some((
+            robot.mjcf_path.clone(),
+            robot.config.joints.iter().map(|j| j.mjcf_joint.clone()).collect(),
+        )),
+        ..Default::default()
+    };
+    let sink = crate::play::start_recording(
+        &t.record,
+        info,
+        &robot.config.name,
+        "calibrate",
+        t.hardware,
+        abort,
+    )?;
+    let Some(sink) = sink else {
+        return body(rig);
+    };
+    let n = robot.config.joints.len();
+    let mut recorded = RecordedRig {
+        rig,
+        sink,
+        record: Box::default(),
+        limp: vec![robot_link::JointTarget::default(); n],
+        reference: vec![0.0; n],
+        tick: 0,
+        truth: robot_link::GroundTruth::default(),
+    };
+    let result = body(&mut recorded);
+    let report = recorded.sink.finish()?;
+    println!("{report}");
+    result
+}
+
+/// A calibration rig recorded like a run: each tick's measured state and the targets sent, the
+/// mode `Running` while joints are commanded and `Off` while they are limp.
+struct RecordedRig<'a> {
+    rig: &'a mut dyn Rig,
+    sink: controller::telemetry::TelemetrySink,
+    record: Box<controller::telemetry::TickRecord>,
+    limp: Vec<robot_link::JointTarget>,
+    /// The targets' positions (the run's "reference"), reused.
+    reference: Vec<f64>,
+    tick: u64,
+    truth: robot_link::GroundTruth,
+}
+
+impl Rig for RecordedRig<'_> {
+    fn period(&self) -> Duration {
+        self.rig.period()
+    }
+
+    fn identify(&mut self) -> Result<Vec<robot_link::DeviceIdentity>, calibration::rig::RigError> {
+        self.rig.identify()
+    }
+
+    fn tick(
+        &mut self,
+        targets: Option<&[robot_link::JointTarget]>,
+        state: &mut robot_link::RobotState,
+    ) -> Result<Duration, calibration::rig::RigError> {
+        let now = self.rig.tick(targets, state)?;
+        let sent = targets.unwrap_or(&self.limp);
+        for (r, (t, q)) in self.reference.iter_mut().zip(sent.iter().zip(&state.q)) {
+            *r = if targets.is_some() { t.q } else { *q };
+        }
+        let view = controller::telemetry::TickView {
+            tick: self.tick,
+            now,
+            mode: if targets.is_some() {
+                controller::safety::Mode::Running
+            } else {
+                controller::safety::Mode::Off
+            },
+            state,
+            targets: sent,
+            reference_q: &self.reference,
+            reference_root: [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
+            tracking: false,
+            anchors: None,
+            body_errors: &[],
+            estimate: None,
+            truth_in_world: None,
+            actions: &[],
+            obs: &[],
+            commands: &[],
+            truth: &self.truth,
+            has_truth: false,
+            stop_requested: false,
+            bus_times: &[],
+            io: Duration::ZERO,
+            compute: Duration::ZERO,
+            cause: None,
+        };
+        self.record.fill(&view);
+        self.sink.push(&self.record);
+        self.tick += 1;
+        Ok(now)
+    }
+
+    fn damp(&mut self) -> Result<(), calibration::rig::RigError> {
+        self.rig.damp()
+    }
 }
 
 fn calibrate(args: &RunArgs, abort: &AtomicBool) -> Result<()> {
@@ -189,7 +320,7 @@ fn calibrate(args: &RunArgs, abort: &AtomicBool) -> Result<()> {
         robot.config.name,
         robot.path.display()
     );
-    with_rig(t, &raw, &robot, |rig, op, world| {
+    with_rig(t, &raw, &robot, abort, |rig, op, world| {
         let method = format!("{:?}", args.method).to_lowercase();
         let note = format!("robodeploy calibrate run on the {place}, {method} method");
         let result = run_calibration(
@@ -268,7 +399,7 @@ fn verify_pose(args: &VerifyArgs, abort: &AtomicBool) -> Result<()> {
     let options = VerifyOptions::default();
     let low = options.low_gain_robot(&robot);
     let mut result = None;
-    with_rig(t, &low, &robot, |rig, op, world| {
+    with_rig(t, &low, &robot, abort, |rig, op, world| {
         let period = rig.period().as_secs_f64();
         let mut session = Session::new(&low, rig, op, abort, Options::default());
         let mut truth = || {

@@ -95,26 +95,26 @@ pub struct RecordArgs {
     /// Record the run as MCAP here (default: out/runs/ROBOT-CLIP.mcap, or the next free name;
     /// opens in Foxglove).
     #[arg(long)]
-    record: Option<PathBuf>,
+    pub(crate) record: Option<PathBuf>,
     /// Do not record the run.
     #[arg(long, conflicts_with = "record")]
-    no_record: bool,
+    pub(crate) no_record: bool,
     /// With --record: replace a recording already at that path (without it, the run refuses).
     #[arg(long, requires = "record")]
-    overwrite: bool,
+    pub(crate) overwrite: bool,
     /// Also record every bus cycle (what each bus read and commanded, its cycle time and misses)
     /// on a `/bus/<name>` channel per bus, at the bus's own rate.
     #[arg(long, conflicts_with = "no_record")]
-    record_bus_rate: bool,
+    pub(crate) record_bus_rate: bool,
     /// Serve the run live to Foxglove (Open connection → Foxglove WebSocket → the printed
     /// ws:// URL): every channel of the recording, as it is written. On 127.0.0.1:8765 unless
     /// given another address (127.0.0.1:0: any free port); the recording's own layout works live.
     #[arg(long = "live", value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8765", conflicts_with = "no_record")]
-    live_view: Option<std::net::SocketAddr>,
+    pub(crate) live_view: Option<std::net::SocketAddr>,
     /// With --live: wait this long for a viewer to subscribe before the robot starts, s (0: do
     /// not wait; Ctrl-C stops waiting).
     #[arg(long, default_value_t = 60, requires = "live_view", value_parser = crate::args::whole_within(0, 3600))]
-    live_wait: u64,
+    pub(crate) live_wait: u64,
 }
 
 /// Arguments of `check`.
@@ -468,7 +468,34 @@ pub(crate) fn record<L: RobotLink>(
     } else {
         None
     };
+    let info = controller::telemetry::RecordingInfo {
+        run: Some(run),
+        bus_cycles,
+        ..player.recording_info()
+    };
     let robot = player.robot_name().to_owned();
+    let sink = start_recording(rec, info, &robot, stem, real_time, player.stop_flag())?;
+    Ok(match sink {
+        Some(sink) => player.with_telemetry(sink),
+        None => player,
+    })
+}
+
+/// The recording (and live view) `rec` asks for, of a run of `robot` that `info` describes (its
+/// clock is set here from `real_time`); none with `--no-record`. The default file is
+/// `out/runs/ROBOT-STEM.mcap` or the next free name. With `--live-wait`, waits for a viewer
+/// (or `stop`) before returning.
+pub(crate) fn start_recording(
+    rec: &RecordArgs,
+    info: controller::telemetry::RecordingInfo,
+    robot: &str,
+    stem: &str,
+    real_time: bool,
+    stop: &AtomicBool,
+) -> Result<Option<TelemetrySink>> {
+    if rec.no_record {
+        return Ok(None);
+    }
     let (path, claimed) = match &rec.record {
         Some(p) => {
             if let Some(dir) = p.parent().filter(|d| !d.as_os_str().is_empty()) {
@@ -501,15 +528,13 @@ pub(crate) fn record<L: RobotLink>(
         None => None,
     };
     let info = controller::telemetry::RecordingInfo {
-        run: Some(run),
-        bus_cycles,
         live: live.clone(),
         clock: if real_time {
             controller::telemetry::RecordingClock::WallClock
         } else {
             controller::telemetry::RecordingClock::Simulated
         },
-        ..player.recording_info()
+        ..info
     };
     let sink = match claimed {
         Some(file) => TelemetrySink::start_in(file, &path, 1024, backpressure, &info)?,
@@ -526,8 +551,7 @@ pub(crate) fn record<L: RobotLink>(
                 "live: waiting up to {} s for a viewer (Ctrl-C to stop)",
                 rec.live_wait
             );
-            let seen =
-                live.wait_for_viewer(std::time::Duration::from_secs(rec.live_wait), player.stop_flag());
+            let seen = live.wait_for_viewer(std::time::Duration::from_secs(rec.live_wait), stop);
             println!(
                 "live: {}",
                 if seen {
@@ -538,7 +562,7 @@ pub(crate) fn record<L: RobotLink>(
             );
         }
     }
-    Ok(player.with_telemetry(sink))
+    Ok(Some(sink))
 }
 
 /// Which terms of `layout` read the robot's place in the world, and where it comes from.
