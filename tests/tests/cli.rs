@@ -1035,17 +1035,16 @@ fn play_writes_a_report_with_plots_and_the_reactor_metrics() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-#[test]
-fn the_report_of_a_run_that_fell_says_so_and_shows_the_fall() {
-    // Off the gantry, a 400 N shove for a quarter second in the middle of the squat.
-    let dir = std::env::temp_dir().join(format!("robodeploy-fell-report-{}", std::process::id()));
+/// `play` on the mirror configured by `mirror_toml`, recorded and reported into a scratch folder
+/// named for `name`: the folder, the process's output, the report's summary.json.
+fn play_reported(
+    name: &str,
+    mirror_toml: &str,
+) -> (std::path::PathBuf, std::process::Output, serde_json::Value) {
+    let dir = std::env::temp_dir().join(format!("robodeploy-{name}-report-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let mirror = dir.join("shove.toml");
-    std::fs::write(
-        &mirror,
-        "[[pushes]]\nat_s = 3.0\nduration_s = 0.25\nforce_n = [400.0, 0.0, 0.0]\n",
-    )
-    .unwrap();
+    let mirror = dir.join("mirror.toml");
+    std::fs::write(&mirror, mirror_toml).unwrap();
     let out = robodeploy()
         .args(["play", "--mirror"])
         .arg(&mirror)
@@ -1055,9 +1054,19 @@ fn the_report_of_a_run_that_fell_says_so_and_shows_the_fall() {
         .arg(&dir)
         .output()
         .unwrap();
+    let summary = std::fs::read_to_string(dir.join("summary.json"))
+        .map_or(serde_json::Value::Null, |t| serde_json::from_str(&t).unwrap());
+    (dir, out, summary)
+}
+
+#[test]
+fn the_report_of_a_run_that_fell_says_so_and_shows_the_fall() {
+    // Off the gantry, a 400 N shove for a quarter second in the middle of the squat.
+    let (dir, out, summary) = play_reported(
+        "fell",
+        "[[pushes]]\nat_s = 3.0\nduration_s = 0.25\nforce_n = [400.0, 0.0, 0.0]\n",
+    );
     let stdout = String::from_utf8_lossy(&out.stdout);
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
     assert_eq!(summary["fell"], true, "{stdout}\n{summary}");
     assert_eq!(summary["success"], false);
     let html = std::fs::read_to_string(dir.join("report.html")).unwrap();
@@ -1074,31 +1083,17 @@ fn the_report_of_a_run_that_fell_says_so_and_shows_the_fall() {
 #[test]
 fn a_run_stopped_by_a_fault_is_no_success_in_the_report_or_the_batch() {
     // The right knee falls silent during the soft start: the run stops before the clip plays.
-    let dir = std::env::temp_dir().join(format!("robodeploy-fault-report-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let mirror = dir.join("fault.toml");
-    std::fs::write(
-        &mirror,
+    let (dir, out, summary) = play_reported(
+        "fault",
         "gantry = true\n[[faults]]\nat_s = 0.5\njoint = \"right_knee\"\nfault = { kind = \"vanish\" }\n",
-    )
-    .unwrap();
-    let out = robodeploy()
-        .args(["play", "--mirror"])
-        .arg(&mirror)
-        .arg("--record")
-        .arg(dir.join("run.mcap"))
-        .arg("--report")
-        .arg(&dir)
-        .output()
-        .unwrap();
+    );
+    let mirror = dir.join("mirror.toml");
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert_eq!(out.status.code(), Some(3), "{stdout}");
     assert!(
         stdout.contains("success (no fall") && stdout.contains("): NO"),
         "{stdout}"
     );
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
     assert_eq!(summary["success"], false, "{summary}");
     assert_eq!(summary["safety_stop"], true, "{summary}");
     assert_eq!(summary["played"], 0.0, "{summary}");

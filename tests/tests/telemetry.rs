@@ -13,6 +13,20 @@ use robot_link::RobotLink;
 use robots::{Robot, reference_robot_path};
 use sim2real::config::MirrorConfig;
 
+/// What `tests/python/SCRIPT FILE` prints, as JSON (the script must succeed).
+fn python_json(script: &str, file: &std::path::Path) -> serde_json::Value {
+    let script = test_support::fixtures::workspace_root()
+        .join("tests/python")
+        .join(script);
+    let out = std::process::Command::new(test_support::fixtures::venv_python())
+        .arg(script)
+        .arg(file)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
 #[test]
 fn a_recorded_run_reads_back_in_python_with_the_reported_counts() {
     let robot = Robot::load(&reference_robot_path()).unwrap();
@@ -52,14 +66,7 @@ fn a_recorded_run_reads_back_in_python_with_the_reported_counts() {
         (summary.ticks, summary.ticks, 0)
     );
 
-    let script = test_support::fixtures::workspace_root().join("tests/python/read_mcap.py");
-    let out = std::process::Command::new(test_support::fixtures::venv_python())
-        .arg(script)
-        .arg(&path)
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let v = python_json("read_mcap.py", &path);
     for (topic, n) in &t.messages {
         assert_eq!(v["counts"][topic].as_u64(), Some(*n), "topic {topic}: {v}");
     }
@@ -122,14 +129,7 @@ fn a_recorded_run_reads_back_in_python_with_the_reported_counts() {
 
     // Rerun imports the same file with its own MCAP decoders: the links' transforms as
     // Transform3D, the safety log as TextLog, the joint states as named, plottable scalars.
-    let script = test_support::fixtures::workspace_root().join("tests/python/rerun_import.py");
-    let out = std::process::Command::new(test_support::fixtures::venv_python())
-        .arg(script)
-        .arg(&path)
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let rerun: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let rerun = python_json("rerun_import.py", &path);
     assert_eq!(
         rerun["rows"]["/joint_state"].as_u64(),
         Some(summary.ticks),

@@ -53,9 +53,45 @@ pub(super) fn fg_time(ns: u64) -> Option<fg::Timestamp> {
     Some(fg::Timestamp::new(sec, (ns % 1_000_000_000) as u32))
 }
 
-/// The name of joint `i`, or a stand-in past the names given.
+/// The name of item `i`, or a stand-in past the names given.
 fn name(names: &[String], i: usize, what: &str) -> String {
     names.get(i).cloned().unwrap_or_else(|| format!("{what}{i}"))
+}
+
+/// A message element that carries its own name (a joint, a command, a body, a bus, a foot).
+trait Named: Default {
+    fn name_mut(&mut self) -> &mut String;
+}
+
+macro_rules! named {
+    ($($t:ty => $field:ident),* $(,)?) => {
+        $(impl Named for $t {
+            fn name_mut(&mut self) -> &mut String {
+                &mut self.$field
+            }
+        })*
+    };
+}
+
+named!(
+    pb::JointState => name,
+    pb::JointCommand => name,
+    pb::NamedValue => name,
+    pb::BodyError => name,
+    pb::BusTime => bus,
+    pb::Foot => name,
+);
+
+/// `items` at length `n`, each named from `names` once (a stand-in `{what}{i}` past them).
+fn named<'a, T: Named>(items: &'a mut Vec<T>, n: usize, names: &[String], what: &str) -> &'a mut [T] {
+    items.resize_with(n, T::default);
+    for (i, item) in items.iter_mut().enumerate() {
+        let slot = item.name_mut();
+        if slot.is_empty() {
+            *slot = name(names, i, what);
+        }
+    }
+    items
 }
 
 /// The typed messages of the tick channels, reused tick after tick.
@@ -119,12 +155,10 @@ impl Messages {
         let n = usize::from(r.joints);
         let m = &mut self.joint_state;
         m.timestamp = Some(pb::timestamp(stamp));
-        let names = &self.joint_names;
-        m.joints.resize_with(n, Default::default);
-        for (i, j) in m.joints.iter_mut().enumerate() {
-            if j.name.is_empty() {
-                j.name = name(names, i, "joint");
-            }
+        for (i, j) in named(&mut m.joints, n, &self.joint_names, "joint")
+            .iter_mut()
+            .enumerate()
+        {
             j.position = r.q[i];
             j.velocity = r.qd[i];
             j.effort = r.tau[i];
@@ -141,12 +175,10 @@ impl Messages {
         let n = usize::from(r.joints);
         let m = &mut self.command;
         m.timestamp = Some(pb::timestamp(stamp));
-        let names = &self.joint_names;
-        m.joints.resize_with(n, Default::default);
-        for (i, j) in m.joints.iter_mut().enumerate() {
-            if j.name.is_empty() {
-                j.name = name(names, i, "joint");
-            }
+        for (i, j) in named(&mut m.joints, n, &self.joint_names, "joint")
+            .iter_mut()
+            .enumerate()
+        {
             let [q, qd, kp, kd, tau] = r.target[i];
             (j.position, j.velocity, j.kp, j.kd, j.effort) = (q, qd, kp, kd, tau);
             j.enabled = r.enabled[i];
@@ -168,11 +200,10 @@ impl Messages {
         m.action.clear();
         m.action.extend_from_slice(&r.action[..usize::from(r.joints)]);
         let c = usize::from(r.command_count);
-        m.commands.resize_with(c, Default::default);
-        for (i, v) in m.commands.iter_mut().enumerate() {
-            if v.name.is_empty() {
-                v.name = name(&self.command_names, i, "command");
-            }
+        for (i, v) in named(&mut m.commands, c, &self.command_names, "command")
+            .iter_mut()
+            .enumerate()
+        {
             v.value = r.commands[i];
         }
         (m.robot_anchor, m.reference_anchor) = match r.anchors {
@@ -180,12 +211,11 @@ impl Messages {
             None => (None, None),
         };
         let b = usize::from(r.bodies);
-        m.body_errors.resize_with(b, Default::default);
-        for (i, e) in m.body_errors.iter_mut().enumerate() {
-            if e.name.is_empty() {
-                e.name = name(&self.motion_bodies, i, "body");
-                e.anchor = self.anchor == Some(i);
-            }
+        for (i, e) in named(&mut m.body_errors, b, &self.motion_bodies, "body")
+            .iter_mut()
+            .enumerate()
+        {
+            e.anchor = self.anchor == Some(i);
             e.error_m = f64::from(r.body_errors[i]);
         }
         m
@@ -248,11 +278,10 @@ impl Messages {
         m.io_us = r.io_us;
         m.compute_us = r.compute_us;
         let b = usize::from(r.buses);
-        m.buses.resize_with(b, Default::default);
-        for (i, t) in m.buses.iter_mut().enumerate() {
-            if t.bus.is_empty() {
-                t.bus = name(&self.bus_names, i, "bus");
-            }
+        for (i, t) in named(&mut m.buses, b, &self.bus_names, "bus")
+            .iter_mut()
+            .enumerate()
+        {
             t.us = r.bus_us[i];
         }
         m
@@ -274,11 +303,10 @@ impl Messages {
         m.position_std = vec3(x.position_std);
         m.velocity_std = vec3(x.velocity_std);
         m.accel_bias = vec3(x.accel_bias);
-        m.feet.resize_with(x.feet, Default::default);
-        for (i, f) in m.feet.iter_mut().enumerate() {
-            if f.name.is_empty() {
-                f.name = name(&self.foot_names, i, "foot");
-            }
+        for (i, f) in named(&mut m.feet, x.feet, &self.foot_names, "foot")
+            .iter_mut()
+            .enumerate()
+        {
             f.contact = x.contacts[i];
             f.load = x.loads[i];
             f.truth_contact = e
