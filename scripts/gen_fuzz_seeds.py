@@ -33,6 +33,7 @@ mutates them into the ones it must refuse. None is third-party material:
 Usage: .local/venv/bin/python scripts/gen_fuzz_seeds.py
 """
 import io
+import json
 import pathlib
 import struct
 
@@ -214,3 +215,17 @@ for name, compression in [("lz4", CompressionType.LZ4), ("zstd", CompressionType
     w.add_message(b, log_time=40_000_000, publish_time=40_000_000, data=b'{"mode":"Damped"}')
     w.finish()
     write("mcap_recording", f"tiny_{name}.mcap", buf.getvalue())
+
+# 2D keypoint inputs: the shipped camera file, a two-frame keypoint CSV over both shipped cameras,
+# and COCO results with two people (one frame without the robot).
+write("keypoint_inputs", "cameras.toml", (ROOT.parent.parent.parent / "robots" / "biped" / "cameras.toml").read_text())
+names = ["nose", "left_wrist"]
+header = ["time_s"] + [f"{v}/{n}/{f}" for v in ["front", "side"] for n in names for f in ["u", "v", "confidence"]]
+rows = [[0.0] + [640.0, 300.0, 1.0, 700.0, 420.0, 0.9] * 2, [1 / 30] + [641.0, 301.0, 1.0, 0.0, 0.0, 0.0] * 2]
+write("keypoint_inputs", "keypoints.csv", ",".join(header) + "\n" + "\n".join(",".join(str(x) for x in r) for r in rows) + "\n")
+person = [coord for i in range(17) for coord in (600.0 + i, 300.0 + 5 * i, 0.9)]
+decoy = [coord for i in range(17) for coord in (100.0 + i, 200.0, 0.5)]
+coco = [{"image_id": 0, "category_id": 1, "track_id": 7, "score": 0.9, "keypoints": person},
+        {"image_id": 0, "category_id": 1, "track_id": 3, "score": 0.6, "keypoints": decoy},
+        {"image_id": 1, "category_id": 1, "track_id": 3, "score": 0.6, "keypoints": decoy}]
+write("keypoint_inputs", "coco_results.json", json.dumps(coco))

@@ -241,6 +241,11 @@ pub struct RobotConfig {
     /// How human motion maps onto this robot (retargeting, teleoperation).
     #[serde(default)]
     pub retarget: Option<RetargetConfig>,
+    /// Which body or site of the model stands for each named 2D keypoint, for references seen by
+    /// cameras (`nose = "head"`, or `nose = { frame = "head", offset = [0.06, 0, 0] }`): the names
+    /// a pose estimator writes (COCO's 17, or any).
+    #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub keypoints: std::collections::BTreeMap<String, KeypointFrame>,
     /// The model's keyframe the mirror starts the robot in (joints, and the base's position
     /// across the floor and heading), placed on the floor by its geometry. Default: the default
     /// pose, upright.
@@ -442,6 +447,40 @@ pub enum HumanBody {
     LeftKnee,
     /// Right knee.
     RightKnee,
+}
+
+/// The point of the model a keypoint is: a body's or site's origin, or a point offset from it in
+/// its frame (m, each within ±0.5).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(untagged)]
+pub enum KeypointFrame {
+    /// The frame's origin.
+    Origin(String),
+    /// A point in the frame.
+    Offset {
+        /// Body or site.
+        frame: String,
+        /// Where in it, m.
+        #[serde(default)]
+        offset: [f64; 3],
+    },
+}
+
+impl KeypointFrame {
+    /// The body or site.
+    pub fn frame(&self) -> &str {
+        match self {
+            Self::Origin(f) | Self::Offset { frame: f, .. } => f,
+        }
+    }
+
+    /// The point in the frame, m.
+    pub fn offset(&self) -> [f64; 3] {
+        match self {
+            Self::Origin(_) => [0.0; 3],
+            Self::Offset { offset, .. } => *offset,
+        }
+    }
 }
 
 /// One body pair of the retargeting map.
@@ -845,7 +884,28 @@ impl Robot {
         self.check_body()?;
         self.check_keyframes()?;
         self.check_bus_timing()?;
-        self.check_retarget()
+        self.check_retarget()?;
+        self.check_keypoints()
+    }
+
+    fn check_keypoints(&self) -> Result<(), (String, String)> {
+        for (name, k) in &self.config.keypoints {
+            let at = format!("keypoints.{name}");
+            if name.is_empty() || name.contains(['/', ',']) {
+                return Err((at, "a keypoint name is not empty and has no '/' or ','".into()));
+            }
+            let frame = k.frame();
+            if !self.mjcf.bodies.iter().any(|b| b == frame) && !self.mjcf.sites.iter().any(|s| s == frame) {
+                return Err((at, format!("{frame:?} is neither a body nor a site of the model")));
+            }
+            if k.offset().iter().any(|v| !v.is_finite() || v.abs() > 0.5) {
+                return Err((
+                    format!("{at}.offset"),
+                    format!("{:?}: each within ±0.5 m", k.offset()),
+                ));
+            }
+        }
+        Ok(())
     }
 
     /// Worst-case wire time of one cycle of bus `b` with the joints robot.toml puts on it (zero for

@@ -12,8 +12,8 @@ pub mod spatial;
 
 pub use config::{
     BodyPair, BusConfig, BusKind, BusTiming, HumanBody, IMU_SENSOR_KINDS, ImuConfig, ImuSensorNames,
-    Interpolation, JointConfig, MitModelConfig, OrientationCompare, RetargetConfig, Robot, RobotConfig,
-    RobotError, default_command_timeout,
+    Interpolation, JointConfig, KeypointFrame, MitModelConfig, OrientationCompare, RetargetConfig, Robot,
+    RobotConfig, RobotError, default_command_timeout,
 };
 
 /// A file that could not be read, parsed or written, and what was wrong with it.

@@ -19,6 +19,7 @@ mod feetech;
 mod layout;
 mod logging;
 mod play;
+mod project;
 mod retarget;
 mod sim;
 mod soak;
@@ -76,6 +77,11 @@ enum Command {
     /// limits (a tab per bus), the safety timeline and log, tick timing. Import it in Foxglove
     /// (Layouts → Import from file), then open a recording or connect to `play --live`.
     Layout(layout::LayoutArgs),
+    /// See a 3D clip through cameras as 2D keypoints (robot.toml's [keypoints] map, cameras in a
+    /// TOML file), or measure it against 2D keypoint references — a pose estimator's COCO JSON or
+    /// keypoints written here: reprojection error per view (px), frames over 100 px, and with two
+    /// views or more the triangulated 3D error (mm).
+    Project(project::ProjectArgs),
     /// Play a clip through a policy: on the mirrored robot (default, lockstep), in real time over
     /// real wires (--wall), or on the hardware (--hardware).
     ///
@@ -201,6 +207,7 @@ fn dispatch(command: Command) -> Result<std::process::ExitCode> {
         Command::Feetech(cmd) => done(feetech::run(cmd)),
         Command::Bundle(args) => done(bundle::run(&args)),
         Command::Layout(args) => done(layout::run(&args)),
+        Command::Project(args) => done(project::run(&args)),
         Command::Bus(cmd) => done(bus::run(cmd)),
         Command::Calibrate(cmd) => done(calibrate::run(cmd)),
         Command::Sim(cmd) => done(sim::run(cmd)),

@@ -40,8 +40,8 @@ pub fn body_positions(
     Ok(out)
 }
 
-/// World poses `[x, y, z, w, qx, qy, qz]` of `bodies` at every tick of `reference` (the robot's
-/// model posed as the reference): `ticks × bodies` poses.
+/// World poses `[x, y, z, w, qx, qy, qz]` of `bodies` (bodies, or sites) at every tick of
+/// `reference` (the robot's model posed as the reference): `ticks × bodies` poses.
 pub fn body_poses(
     robot: &Robot,
     reference: &Reference,
@@ -49,9 +49,9 @@ pub fn body_poses(
 ) -> Result<Vec<[f64; 7]>, KinematicsError> {
     let model = sim2real::mujoco::load_model(&robot.mjcf_path)?;
     let index = ModelIndex::of_robot(&model, robot)?;
-    let body_ids = bodies
+    let frames = bodies
         .iter()
-        .map(|b| model_index::body(&model, b))
+        .map(|b| model_index::frame(&model, b))
         .collect::<Result<Vec<_>, _>>()?;
     let mut data = model.make_data();
     let mut out = Vec::with_capacity(reference.len() * bodies.len());
@@ -62,8 +62,15 @@ pub fn body_poses(
             data.qpos_mut()[j.qpos] = q;
         }
         data.kinematics();
-        for &b in &body_ids {
-            let (p, q) = (data.xpos()[b], data.xquat()[b]);
+        for &f in &frames {
+            let (p, q) = match f {
+                model_index::FrameId::Body(b) => (data.xpos()[b], data.xquat()[b]),
+                model_index::FrameId::Site { site, .. } => {
+                    let m = data.site_xmat()[site];
+                    let rows = [[m[0], m[1], m[2]], [m[3], m[4], m[5]], [m[6], m[7], m[8]]];
+                    (data.site_xpos()[site], spatial::quat_of_mat(&rows))
+                }
+            };
             out.push([p[0], p[1], p[2], q[0], q[1], q[2], q[3]]);
         }
     }
