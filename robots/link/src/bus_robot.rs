@@ -176,6 +176,78 @@ where
     }
 }
 
+/// What a serial-servo bus needs of its driver to switch torque and read in two halves.
+trait SerialServos {
+    fn enable(&mut self) -> Result<(), IoError>;
+    fn disable(&mut self) -> Result<(), IoError>;
+    fn request_state(&mut self) -> Result<(), IoError>;
+    fn collect_state(&mut self) -> Result<(), IoError>;
+}
+
+macro_rules! serial_servos {
+    ($driver:ident, $transport:ident) => {
+        impl<T: $transport> SerialServos for $driver<T> {
+            fn enable(&mut self) -> Result<(), IoError> {
+                Ok($driver::enable(self)?)
+            }
+            fn disable(&mut self) -> Result<(), IoError> {
+                Ok($driver::disable(self)?)
+            }
+            fn request_state(&mut self) -> Result<(), IoError> {
+                Ok($driver::request_state(self)?)
+            }
+            fn collect_state(&mut self) -> Result<(), IoError> {
+                $driver::collect_state(self)?;
+                Ok(())
+            }
+        }
+    };
+}
+
+serial_servos!(DxlBusDriver, DxlTransport);
+serial_servos!(FeetechBusDriver, FeetechTransport);
+
+/// Torque on a serial-servo bus (Dynamixel, Feetech): switched only when the wish changes, and
+/// the state asked for in `send` and collected in `receive`.
+#[derive(Debug, Default)]
+struct ServoTorque {
+    enabled: bool,
+    /// A state request went out and its answers are still to be taken.
+    pending: bool,
+}
+
+impl ServoTorque {
+    /// Torque to `want` (after the goals were written), then the state request.
+    fn switch_and_request(&mut self, driver: &mut impl SerialServos, want: bool) -> Result<(), IoError> {
+        if want != self.enabled {
+            if want {
+                driver.enable()?;
+            } else {
+                driver.disable()?;
+            }
+            self.enabled = want;
+        }
+        driver.request_state()?;
+        self.pending = true;
+        Ok(())
+    }
+
+    /// The answers to the last request, if one is out.
+    fn collect(&mut self, driver: &mut impl SerialServos) -> Result<(), IoError> {
+        if std::mem::take(&mut self.pending) {
+            driver.collect_state()?;
+        }
+        Ok(())
+    }
+
+    /// Torque off now, nothing pending.
+    fn off(&mut self, driver: &mut impl SerialServos) -> Result<(), IoError> {
+        self.enabled = false;
+        self.pending = false;
+        driver.disable()
+    }
+}
+
 /// A Dynamixel line: the servos run their own position loop, so the loop's stiffness and damping
 /// become the servos' Position P/D gains (written only when they change) and their torque limit
 /// the goal current of current-based position control.
@@ -191,9 +263,8 @@ struct DxlBus<D: DxlTransport> {
     /// Stiffness and damping the servos hold now (NaN: unknown, write before use).
     gains_held: Vec<(f64, f64)>,
     gains: Vec<[u16; 3]>,
-    enabled: bool,
-    /// A sync read went out and its statuses are still to be taken.
-    pending: bool,
+    /// Torque on or off, and a state request awaiting its answer.
+    torque: ServoTorque,
 }
 
 impl<D: DxlTransport> DxlBus<D> {
@@ -217,8 +288,7 @@ impl<D: DxlTransport> DxlBus<D> {
             current_caps,
             gains_held: vec![(f64::NAN, f64::NAN); n],
             gains: vec![[0; 3]; n],
-            enabled: false,
-            pending: false,
+            torque: ServoTorque::default(),
         })
     }
 
@@ -261,7 +331,7 @@ where
     fn identify(&mut self) -> Result<(), IoError> {
         self.driver.configure()?;
         self.gains_held.fill((f64::NAN, f64::NAN));
-        self.enabled = false;
+        self.torque.enabled = false;
         Ok(())
     }
 
@@ -287,32 +357,17 @@ where
             self.update_gains(targets)?;
             self.driver.write_goals(&self.commands)?;
         }
-        if want != self.enabled {
-            if want {
-                self.driver.enable()?;
-            } else {
-                self.driver.disable()?;
-            }
-            self.enabled = want;
-        }
-        self.driver.request_state()?;
-        self.pending = true;
-        Ok(())
+        self.torque.switch_and_request(&mut self.driver, want)
     }
 
     fn receive(&mut self, state: &mut RobotState) -> Result<(), IoError> {
-        if std::mem::take(&mut self.pending) {
-            self.driver.collect_state()?;
-        }
+        self.torque.collect(&mut self.driver)?;
         self.copy_feedback(state);
         Ok(())
     }
 
     fn torque_off(&mut self) -> Result<(), IoError> {
-        self.enabled = false;
-        self.pending = false;
-        self.driver.disable()?;
-        Ok(())
+        self.torque.off(&mut self.driver)
     }
 
     fn identities(&mut self, bus: &str, out: &mut Vec<DeviceIdentity>) -> Result<(), IoError> {
@@ -356,8 +411,8 @@ struct FeetechBus<F: FeetechTransport> {
     /// Stiffness and damping the servos hold now (NaN: unknown, write before use).
     gains_held: Vec<(f64, f64)>,
     gains: Vec<[u8; 2]>,
-    enabled: bool,
-    pending: bool,
+    /// Torque on or off, and a state request awaiting its answer.
+    torque: ServoTorque,
 }
 
 impl<F: FeetechTransport> FeetechBus<F> {
@@ -369,8 +424,7 @@ impl<F: FeetechTransport> FeetechBus<F> {
             goals: vec![0.0; n],
             gains_held: vec![(f64::NAN, f64::NAN); n],
             gains: vec![[0; 2]; n],
-            enabled: false,
-            pending: false,
+            torque: ServoTorque::default(),
         }
     }
 
@@ -395,7 +449,7 @@ where
     fn identify(&mut self) -> Result<(), IoError> {
         self.driver.configure()?;
         self.gains_held.fill((f64::NAN, f64::NAN));
-        self.enabled = false;
+        self.torque.enabled = false;
         Ok(())
     }
 
@@ -429,32 +483,17 @@ where
             }
             self.driver.write_goals(&self.goals)?;
         }
-        if want != self.enabled {
-            if want {
-                self.driver.enable()?;
-            } else {
-                self.driver.disable()?;
-            }
-            self.enabled = want;
-        }
-        self.driver.request_state()?;
-        self.pending = true;
-        Ok(())
+        self.torque.switch_and_request(&mut self.driver, want)
     }
 
     fn receive(&mut self, state: &mut RobotState) -> Result<(), IoError> {
-        if std::mem::take(&mut self.pending) {
-            self.driver.collect_state()?;
-        }
+        self.torque.collect(&mut self.driver)?;
         self.copy_feedback(state);
         Ok(())
     }
 
     fn torque_off(&mut self) -> Result<(), IoError> {
-        self.enabled = false;
-        self.pending = false;
-        self.driver.disable()?;
-        Ok(())
+        self.torque.off(&mut self.driver)
     }
 
     fn identities(&mut self, bus: &str, out: &mut Vec<DeviceIdentity>) -> Result<(), IoError> {
