@@ -13,6 +13,17 @@ pub trait MotorPlant {
     fn apply_torque(&mut self, torque: f64);
 }
 
+/// Checks the figures a model table gives a servo's motor (nominal voltage, stall torque and
+/// current, no-load speed): each a positive number; the message names the model and the field.
+pub fn check_motor_figures(model: &str, figures: [(&str, f64); 4]) -> Result<(), String> {
+    for (field, v) in figures {
+        if !(v.is_finite() && v > 0.0) {
+            return Err(format!("[{model}] {field} = {v}: must be a positive number"));
+        }
+    }
+    Ok(())
+}
+
 /// A brushed DC motor with its gearbox, from the figures servo data sheets give: the constants
 /// every emulated serial servo turns its duty cycle into current and torque with.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -105,16 +105,16 @@ pub fn parse_table(source_name: &str, text: &str) -> Result<Vec<DxlModel>, DxlMo
     let table: BTreeMap<String, DxlModel> = toml::from_str(text).map_err(|e| err(e.to_string()))?;
     let mut models = Vec::with_capacity(table.len());
     for (name, mut m) in table {
-        for (field, v) in [
-            ("nominal_voltage", m.nominal_voltage),
-            ("stall_torque", m.stall_torque),
-            ("stall_current", m.stall_current),
-            ("no_load_speed", m.no_load_speed),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(err(format!("[{name}] {field} = {v}: must be a positive number")));
-            }
-        }
+        crate::plant::check_motor_figures(
+            &name,
+            [
+                ("nominal_voltage", m.nominal_voltage),
+                ("stall_torque", m.stall_torque),
+                ("stall_current", m.stall_current),
+                ("no_load_speed", m.no_load_speed),
+            ],
+        )
+        .map_err(err)?;
         if f64::from(m.pwm_limit) > PWM_FULL_SCALE {
             return Err(err(format!(
                 "[{name}] pwm_limit = {}: at most {PWM_FULL_SCALE}",
