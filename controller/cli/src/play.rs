@@ -10,6 +10,7 @@ use robots::Robot;
 
 use crate::sim::load_mirror_config;
 use controller::clip::Reference;
+use controller::generator::{Generator, GeneratorOptions, GeneratorSummary, GeneratorWorker};
 use controller::motion::ReferenceSource;
 use controller::player::{PlayOptions, PlaySummary, Player};
 use controller::policy::PolicyLayout;
@@ -87,6 +88,104 @@ pub struct PlayArgs {
     /// After the run, write its report (plots, summary) into this folder.
     #[arg(long, conflicts_with = "no_record")]
     report: Option<PathBuf>,
+    #[command(flatten)]
+    generator: GeneratorArgs,
+}
+
+/// An online motion generator as the reference (`play --generator`).
+#[derive(Debug, Args)]
+struct GeneratorArgs {
+    /// Track what an online motion generator produces instead of a clip: its description (TOML
+    /// beside its ONNX file: input/output names, history N, horizon K, frame rate, joints, seed
+    /// clip). It runs on its own thread, K frames a step, resampled to the policy's rate; the run
+    /// goes on until Ctrl-C or --max-seconds. E.g. robots/biped/generators/squat_ar.toml.
+    #[arg(long, value_name = "TOML", conflicts_with = "clip")]
+    generator: Option<PathBuf>,
+    /// When the generator is late, carry the reference on by its recent velocity this long, s.
+    #[arg(long, default_value_t = 0.2, requires = "generator", value_parser = crate::args::within(0.0, 2.0))]
+    generator_forecast: f64,
+    /// Then blend to the standby pose over this long (and back when plans return), s.
+    #[arg(long, default_value_t = 1.0, requires = "generator", value_parser = crate::args::within(0.05, 10.0))]
+    generator_blend: f64,
+    /// Fault injection: the generator stalls once it has produced this many seconds of motion.
+    #[arg(long, value_name = "S", requires = "generator", value_parser = crate::args::within(0.0, 86_400.0))]
+    generator_stall_after: Option<f64>,
+}
+
+/// A run's generator, loaded; started once its player is built.
+struct PendingGenerator {
+    generator: Generator,
+    options: GeneratorOptions,
+}
+
+impl PendingGenerator {
+    /// Starts the worker and hands its plans to `player`.
+    fn attach<L: RobotLink>(self, player: Player<L>) -> Result<(Player<L>, GeneratorWorker, (f64, usize))> {
+        let standby = player.layout_default_q().to_vec();
+        let rate = (
+            self.generator.description.frame_hz,
+            self.generator.description.horizon,
+        );
+        let (worker, plans) = self
+            .generator
+            .start(&standby, self.options, player.lookahead_s())?;
+        Ok((player.with_generated(plans), worker, rate))
+    }
+}
+
+/// Loads `--generator` and puts its standby reference in place of the clip.
+fn load_generator(args: &GeneratorArgs, l: &mut Loaded) -> Result<Option<PendingGenerator>> {
+    let Some(path) = &args.generator else {
+        return Ok(None);
+    };
+    let generator = Generator::load(path, &l.robot)?;
+    controller::generator::check_policy(&l.layout).map_err(|m| anyhow::anyhow!("--generator: {m}"))?;
+    l.reference = Reference::hold(&l.layout.default_q, generator.root(), l.layout.manifest.rate_hz);
+    l.source = ReferenceSource::Generated(path.clone());
+    let d = &generator.description;
+    println!(
+        "generator {}: {} → {} frames at {} Hz ({} Hz steps), {} joints",
+        path.display(),
+        d.history,
+        d.horizon,
+        d.frame_hz,
+        d.frame_hz / d.horizon as f64,
+        d.joints.len()
+    );
+    Ok(Some(PendingGenerator {
+        generator,
+        options: GeneratorOptions {
+            forecast_s: args.generator_forecast,
+            blend_s: args.generator_blend,
+            stall_after_s: args.generator_stall_after,
+        },
+    }))
+}
+
+/// Runs `player` on `clock`, with `generator` feeding its reference when there is one.
+fn run_with<L: RobotLink>(
+    player: Player<L>,
+    clock: &mut dyn robot_link::TickClock,
+    generator: Option<PendingGenerator>,
+) -> Result<PlaySummary> {
+    let Some(g) = generator else {
+        let mut player = player;
+        return Ok(player.run(clock)?);
+    };
+    let (mut player, worker, (frame_hz, horizon)) = g.attach(player)?;
+    let mut summary = player.run(clock)?;
+    let plans = player
+        .generated()
+        .context("the generator's plans were not attached")?;
+    summary.generator = Some(GeneratorSummary {
+        counts: plans.counts(),
+        events: plans.events().to_vec(),
+        reached_standby: plans.reached_standby(),
+        worker: worker.finish(),
+        frame_hz,
+        horizon,
+    });
+    Ok(summary)
 }
 
 /// How a run is recorded and watched (`play`, `teleop`).
@@ -596,7 +695,9 @@ fn world_terms_note(
 /// What a run plays, for its first line.
 fn what_plays(l: &Loaded) -> String {
     match &l.source {
-        ReferenceSource::Commands => format!("{} until stopped (Ctrl-C)", l.source),
+        ReferenceSource::Commands | ReferenceSource::Generated(_) => {
+            format!("{} until stopped (Ctrl-C)", l.source)
+        }
         source => format!("{source} ({} ticks)", l.reference.len()),
     }
 }
@@ -620,6 +721,7 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
     if let Some(c) = &l.robot.calibration {
         println!("{}: calibration merged from {}", l.robot.config.name, c.display());
     }
+    let generator = load_generator(&args.generator, &mut l)?;
     if let Some(values) = &args.command {
         l.layout.set_command(values).with_context(|| {
             let given: Vec<String> = values.iter().map(f64::to_string).collect();
@@ -677,6 +779,10 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         // --max-seconds: the robot stands on its commands until then.
         options.end = controller::player::EndMode::Stand;
     }
+    if generator.is_some() {
+        // A generator's motion has no end: the run goes on until stopped.
+        options.end = controller::player::EndMode::Loop;
+    }
     let initial = l.layout.command_values().unwrap_or(&[]).to_vec();
     let commands = crate::commands::start(&args.live, l.layout.manifest.commands.as_ref(), &initial)?;
     let (reader, command_source) = commands.map_or((None, None), |(r, s)| (Some(r), Some(s)));
@@ -689,14 +795,14 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         println!("{}: {} on the hardware", l.robot.config.name, what_plays(&l));
         let io = robot_link::hardware::open_with(&l.robot, bus_threads(args.realtime))?;
         let mut clock = robot_link::WallClock::start();
-        let mut player = with_estop(
+        let player = with_estop(
             Player::new(l.robot, l.layout, l.reference, options, io, stop)?,
             args,
             &options,
             &l.source,
             reader,
         )?;
-        let mut summary = player.run(&mut clock)?;
+        let mut summary = run_with(player, &mut clock, generator)?;
         summary.command_sources = command_source.map(|s| s.stats.to_string());
         print!("{summary}");
         return Ok(finish(&summary));
@@ -729,13 +835,13 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
             stop,
             bus_threads(args.realtime),
         )?;
-        let mut player = with_estop(player, args, &options, &l.source, reader)?;
-        player.run(&mut clock)?
+        let player = with_estop(player, args, &options, &l.source, reader)?;
+        run_with(player, &mut clock, generator)?
     } else {
         let (player, mut clock, _world) =
             lockstep_player(l.robot, l.layout, l.reference, options, config, stop)?;
-        let mut player = with_estop(player, args, &options, &l.source, reader)?;
-        player.run(&mut clock)?
+        let player = with_estop(player, args, &options, &l.source, reader)?;
+        run_with(player, &mut clock, generator)?
     };
     let mut summary = summary;
     summary.command_sources = command_source.map(|s| s.stats.to_string());

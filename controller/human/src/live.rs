@@ -1,6 +1,7 @@
-//! Live references from another thread (teleoperation) into the control loop, lock-free.
+//! Live references from another thread (teleoperation, a motion generator) into the control
+//! loop, lock-free; and the forecast that carries a late stream forward.
 //!
-//! One writer (the teleop thread) and one reader (the control tick) share three preallocated
+//! One writer (the worker thread) and one reader (the control tick) share three preallocated
 //! frames that circulate through two bounded lock-free queues: the writer fills its own frame and
 //! swaps it in as the newest (taking back an unread one), the reader swaps the newest for the one it
 //! held. Neither side ever waits for the other, nothing is allocated after [`live_channel`], and
@@ -45,30 +46,31 @@ impl LiveFrame {
 }
 
 #[derive(Debug)]
-struct Shared {
+struct Shared<T> {
     /// The newest published frame, if the reader has not taken it yet.
-    newest: ArrayQueue<Box<LiveFrame>>,
+    newest: ArrayQueue<Box<T>>,
     /// Frames the reader gave back for the writer to fill again.
-    spare: ArrayQueue<Box<LiveFrame>>,
+    spare: ArrayQueue<Box<T>>,
 }
 
 /// The writing half: owned by the thread that computes the live reference.
 #[derive(Debug)]
-pub struct LiveWriter {
-    shared: Arc<Shared>,
-    draft: Option<Box<LiveFrame>>,
+pub struct LiveWriter<T = LiveFrame> {
+    shared: Arc<Shared<T>>,
+    draft: Option<Box<T>>,
     published: u64,
 }
 
 /// The reading half: owned by the control loop.
 #[derive(Debug)]
-pub struct LiveReader {
-    shared: Arc<Shared>,
-    current: Box<LiveFrame>,
+pub struct LiveReader<T = LiveFrame> {
+    shared: Arc<Shared<T>>,
+    current: Box<T>,
 }
 
-/// A writer and a reader sharing frames shaped like `initial`; the reader starts on `initial`.
-pub fn live_channel(initial: LiveFrame) -> (LiveWriter, LiveReader) {
+/// A writer and a reader sharing frames shaped like `initial` (a live frame, a generator's plan);
+/// the reader starts on `initial`.
+pub fn live_channel<T: Clone>(initial: T) -> (LiveWriter<T>, LiveReader<T>) {
     let shared = Arc::new(Shared {
         newest: ArrayQueue::new(1),
         spare: ArrayQueue::new(2),
@@ -86,10 +88,10 @@ pub fn live_channel(initial: LiveFrame) -> (LiveWriter, LiveReader) {
     (writer, reader)
 }
 
-impl LiveWriter {
+impl<T> LiveWriter<T> {
     /// Fills the next frame with `fill` (given the frame last written from this writer's buffers,
     /// possibly older) and makes it the newest. Never blocks the reader.
-    pub fn publish(&mut self, fill: impl FnOnce(&mut LiveFrame)) {
+    pub fn publish(&mut self, fill: impl FnOnce(&mut T)) {
         let mut draft = match self.draft.take() {
             Some(d) => d,
             // Three frames circulate: with none in hand, the reader is between taking the newest
@@ -113,15 +115,26 @@ impl LiveWriter {
     }
 }
 
-impl LiveReader {
+impl<T> LiveReader<T> {
     /// The newest whole frame (the one read before, if nothing new was published).
-    pub fn latest(&mut self) -> &LiveFrame {
+    pub fn latest(&mut self) -> &T {
         if let Some(newest) = self.shared.newest.pop() {
             let old = std::mem::replace(&mut self.current, newest);
             // Capacity 2 holds every frame the reader can give back; a full queue cannot happen.
             let _ = self.shared.spare.push(old);
         }
         &self.current
+    }
+}
+
+/// The forecast of a late stream (`o_t = o_{t−1} + δo`): `newest` carried on by the mean velocity
+/// between `older` and it (`span` s apart) for `age` s past it, capped at `max` s, into `out`.
+/// Teleoperation forecasts tracker positions with it, the motion generator's reference its joints.
+pub fn carry_forward(newest: &[f64], older: &[f64], span: f64, age: f64, max: f64, out: &mut [f64]) {
+    let ahead = age.clamp(0.0, max);
+    for ((o, &n), &b) in out.iter_mut().zip(newest).zip(older) {
+        let velocity = if span > 1e-4 { (n - b) / span } else { 0.0 };
+        *o = n + velocity * ahead;
     }
 }
 
@@ -164,5 +177,22 @@ mod tests {
         }
         writer.join().unwrap();
         assert_eq!(r.latest().q[0], 19_999.0);
+    }
+
+    #[test]
+    fn a_forecast_carries_on_at_the_recent_velocity_up_to_its_cap() {
+        let mut out = [0.0; 2];
+        // 1 rad/s and −2 rad/s over the last 0.1 s; 0.05 s late.
+        carry_forward(&[1.0, 0.0], &[0.9, 0.2], 0.1, 0.05, 0.2, &mut out);
+        assert!(
+            (out[0] - 1.05).abs() < 1e-12 && (out[1] + 0.1).abs() < 1e-12,
+            "{out:?}"
+        );
+        // Far too late: capped at 0.2 s of motion.
+        carry_forward(&[1.0, 0.0], &[0.9, 0.2], 0.1, 3.0, 0.2, &mut out);
+        assert!(
+            (out[0] - 1.2).abs() < 1e-12 && (out[1] + 0.4).abs() < 1e-12,
+            "{out:?}"
+        );
     }
 }

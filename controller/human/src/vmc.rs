@@ -358,20 +358,16 @@ impl Resampler {
         if age > self.lost_after {
             return Estimate::Missing;
         }
-        let mut velocity = [0.0; 3];
+        let (mut older, mut span) = (last.pos, 0.0);
         if track.len >= 2 {
             let first = track.len.saturating_sub(4);
-            if let (Some((ta, a)), Some((tb, b))) = (track.samples[first], track.samples[track.len - 1]) {
-                let span = tb.saturating_duration_since(ta).as_secs_f64();
-                if span > 1e-4 {
-                    velocity = spatial::scale(spatial::sub(b.pos, a.pos), 1.0 / span);
-                }
+            if let (Some((ta, a)), Some((tb, _))) = (track.samples[first], track.samples[track.len - 1]) {
+                (older, span) = (a.pos, tb.saturating_duration_since(ta).as_secs_f64());
             }
         }
-        let frame = Frame {
-            pos: spatial::add(last.pos, spatial::scale(velocity, age.min(self.forecast_max))),
-            rot: last.rot,
-        };
+        let mut pos = [0.0; 3];
+        crate::live::carry_forward(&last.pos, &older, span, age, self.forecast_max, &mut pos);
+        let frame = Frame { pos, rot: last.rot };
         if age > self.late_after {
             Estimate::Forecast(frame)
         } else {

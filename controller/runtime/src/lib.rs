@@ -11,6 +11,7 @@ pub mod clip;
 pub mod estimator;
 pub mod estop;
 pub mod fk;
+pub mod generator;
 pub mod keypoints;
 pub mod live;
 pub mod metrics;

@@ -124,6 +124,11 @@ pub struct PlaySummary {
     /// A command-driven run (no clip): where the robot went against its commands. Such a run
     /// reports no clip-tracking numbers.
     pub locomotion: Option<LocomotionSummary>,
+    /// The jitter (mean |d³q/dt³|, rad/s³) of the reference and of the robot's joints over the
+    /// tracked ticks.
+    pub jitter_rad_s3: Option<(f64, f64)>,
+    /// A generated reference: the generator's steps, latency and lateness.
+    pub generator: Option<crate::generator::GeneratorSummary>,
     /// The commands' sources: what they accepted and dropped (with live commands).
     pub command_sources: Option<String>,
     /// What the telemetry logger wrote, when recording.
@@ -195,7 +200,16 @@ impl std::fmt::Display for PlaySummary {
         writeln!(f, "compute per tick: {}", self.compute)?;
         writeln!(f, "bus I/O per tick: {}", self.io)?;
         writeln!(f, "tick start lateness: {}", self.jitter)?;
-        if let Some(l) = &self.live_latency {
+        if let Some((r, q)) = self.jitter_rad_s3 {
+            writeln!(
+                f,
+                "jitter (mean |d³q/dt³|): reference {r:.1} rad/s³, robot {q:.1} rad/s³"
+            )?;
+        }
+        if let Some(g) = &self.generator {
+            write!(f, "{g}")?;
+        }
+        if let Some(l) = self.live_latency.as_ref().filter(|l| l.count() > 0) {
             writeln!(f, "tracker input → bus command: {l}")?;
         }
         if let Some(t) = &self.telemetry {
@@ -502,6 +516,51 @@ impl std::fmt::Display for EstimatorAccuracy {
     }
 }
 
+/// The jitter of a motion (Mimic2DM's smoothness metric): the mean magnitude of the joints'
+/// third time derivative, |d³q/dt³| over joints and samples, rad/s³, from third differences of
+/// samples `dt` apart. Keeps the last three samples (sized at the first), allocating nothing after.
+#[derive(Debug, Clone, Default)]
+pub struct Jitter {
+    /// The last three samples, newest first, per joint.
+    past: Vec<[f64; 3]>,
+    seen: usize,
+    sum: f64,
+    count: u64,
+}
+
+impl Jitter {
+    /// For `n` joints.
+    pub fn new(n: usize) -> Self {
+        Self {
+            past: vec![[0.0; 3]; n],
+            ..Self::default()
+        }
+    }
+
+    /// Adds the next sample, `dt` s after the last.
+    pub fn push(&mut self, q: &[f64], dt: f64) {
+        for (p, &x) in self.past.iter_mut().zip(q) {
+            if self.seen >= 3 {
+                let d3 = x - 3.0 * p[0] + 3.0 * p[1] - p[2];
+                self.sum += d3.abs() / (dt * dt * dt);
+                self.count += 1;
+            }
+            *p = [x, p[0], p[1]];
+        }
+        self.seen += 1;
+    }
+
+    /// Starts over (a gap in the samples).
+    pub fn restart(&mut self) {
+        self.seen = 0;
+    }
+
+    /// The mean |d³q/dt³|, rad/s³, once four samples were seen.
+    pub fn mean(&self) -> Option<f64> {
+        (self.count > 0).then(|| self.sum / self.count as f64)
+    }
+}
+
 /// The running sums behind a [`PlaySummary`], updated in the tick without allocating.
 #[derive(Debug, Clone, Default)]
 pub struct RunMetrics {
@@ -535,9 +594,19 @@ pub struct RunMetrics {
     sq_body_error: Vec<f64>,
     body_samples: u64,
     anchor: Option<usize>,
+    /// The reference's and the robot's jitter over the tracked ticks.
+    pub reference_jitter: Jitter,
+    /// (See `reference_jitter`.)
+    pub robot_jitter: Jitter,
 }
 
 impl RunMetrics {
+    /// Sizes the jitter sums for `n` joints.
+    pub fn track_jitter(&mut self, n: usize) {
+        self.reference_jitter = Jitter::new(n);
+        self.robot_jitter = Jitter::new(n);
+    }
+
     /// Adds one tick's joint errors (measured − reference) and, in simulation, the root's
     /// (measured and reference root poses `[x, y, z, w, qx, qy, qz]`).
     pub fn add_tracking(&mut self, q: &[f64], reference: &[f64], root: Option<([f64; 7], [f64; 7])>) {
@@ -655,6 +724,8 @@ impl RunMetrics {
                 }
             }),
             locomotion: self.locomotion.as_ref().and_then(LocomotionMetrics::summary),
+            jitter_rad_s3: self.reference_jitter.mean().zip(self.robot_jitter.mean()),
+            generator: None,
             command_sources: None,
             telemetry: None,
             telemetry_error: None,
@@ -665,6 +736,20 @@ impl RunMetrics {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn jitter_is_the_mean_third_derivative() {
+        // q = t³ has d³q/dt³ = 6 everywhere; a line has none.
+        let dt = 0.02;
+        let mut j = Jitter::new(2);
+        for k in 0..50 {
+            let t = f64::from(k) * dt;
+            j.push(&[t * t * t, 3.0 * t], dt);
+        }
+        let mean = j.mean().unwrap();
+        assert!((mean - 3.0).abs() < 1e-6, "(6 + 0) / 2 = 3, got {mean}");
+        assert_eq!(Jitter::new(1).mean(), None);
+    }
 
     #[test]
     fn histogram_quantiles_bracket_the_samples() {

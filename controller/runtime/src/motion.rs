@@ -416,6 +416,8 @@ pub enum ReferenceSource {
         /// The frame the run starts from.
         start_step: usize,
     },
+    /// An online motion generator (its description file).
+    Generated(PathBuf),
 }
 
 impl ReferenceSource {
@@ -424,6 +426,7 @@ impl ReferenceSource {
         match self {
             Self::Clip(c) => Some(&c.path),
             Self::Embedded { onnx, .. } => Some(onnx),
+            Self::Generated(description) => Some(description),
             Self::Commands => None,
         }
     }
@@ -434,6 +437,7 @@ impl std::fmt::Display for ReferenceSource {
         match self {
             Self::Clip(c) => write!(f, "{}", c.path.display()),
             Self::Commands => write!(f, "no clip (a command-driven policy, on its commands)"),
+            Self::Generated(d) => write!(f, "the motion generator {} (online)", d.display()),
             Self::Embedded {
                 onnx,
                 frames,

@@ -143,6 +143,8 @@ pub struct OnnxModel {
     output_len: usize,
     /// The other outputs with their shapes (batch dimension included), in the model's order.
     extra_outputs: Vec<(String, Vec<i64>)>,
+    /// Every input's shape, then the output's (batch included).
+    shapes: Vec<(String, Vec<i64>)>,
     bound: bound::BoundTensors,
 }
 
@@ -195,6 +197,17 @@ impl OnnxModel {
     /// several of which the one named [`ACTION_OUTPUT`] holds the actions and the others are
     /// float tensors of fixed shape.
     pub fn load(path: &Path) -> Result<Self, OnnxError> {
+        Self::open(path, false)
+    }
+
+    /// Loads a model whose inputs and output are float tensors of any fixed shape with batch 1
+    /// (e.g. a motion generator's `[1, frames, joints]`), flattened row-major into
+    /// [`Self::run`]'s buffers; [`Self::shapes`] gives the shapes.
+    pub fn load_tensors(path: &Path) -> Result<Self, OnnxError> {
+        Self::open(path, true)
+    }
+
+    fn open(path: &Path, tensors: bool) -> Result<Self, OnnxError> {
         robots::check_regular_file(path).map_err(|reason| OnnxError::Load {
             path: path.to_path_buf(),
             reason,
@@ -230,27 +243,47 @@ impl OnnxModel {
         if session.inputs().is_empty() {
             return Err(signature("has no inputs".into()));
         }
-        let mut inputs = Vec::with_capacity(session.inputs().len());
+        let shape_of = |dtype: &ValueType| {
+            if tensors {
+                fixed_shape(dtype)
+            } else {
+                vector_len(dtype).map(|n| vec![1, n as i64])
+            }
+        };
+        let mut input_shapes = Vec::with_capacity(session.inputs().len());
         for input in session.inputs() {
-            let n =
-                vector_len(input.dtype()).map_err(|w| signature(format!("input '{}' {w}", input.name())))?;
-            inputs.push((input.name().to_owned(), n));
+            let shape =
+                shape_of(input.dtype()).map_err(|w| signature(format!("input '{}' {w}", input.name())))?;
+            input_shapes.push((input.name().to_owned(), shape));
         }
-        let output_len =
-            vector_len(output.dtype()).map_err(|w| signature(format!("output '{}' {w}", output.name())))?;
+        let inputs: Vec<(String, usize)> = input_shapes
+            .iter()
+            .map(|(name, shape)| (name.clone(), shape.iter().product::<i64>() as usize))
+            .collect();
+        let output_shape =
+            shape_of(output.dtype()).map_err(|w| signature(format!("output '{}' {w}", output.name())))?;
+        let output_len = output_shape.iter().product::<i64>() as usize;
         let mut extra_outputs = Vec::new();
         for o in session.outputs().iter().filter(|o| o.name() != output.name()) {
             let shape =
                 fixed_shape(o.dtype()).map_err(|w| signature(format!("output '{}' {w}", o.name())))?;
             extra_outputs.push((o.name().to_owned(), shape));
         }
-        let mut bound_outputs = vec![(output.name().to_owned(), vec![1, output_len as i64])];
+        let mut bound_outputs = vec![(output.name().to_owned(), output_shape)];
         bound_outputs.extend(extra_outputs.iter().cloned());
-        let bound = bound::BoundTensors::new(&inputs, &bound_outputs).map_err(|reason| OnnxError::Load {
-            path: path.to_path_buf(),
-            reason,
-        })?;
+        let bound =
+            bound::BoundTensors::new(&input_shapes, &bound_outputs).map_err(|reason| OnnxError::Load {
+                path: path.to_path_buf(),
+                reason,
+            })?;
         Ok(Self {
+            shapes: input_shapes
+                .into_iter()
+                .chain(std::iter::once((
+                    output.name().to_owned(),
+                    bound_outputs[0].1.clone(),
+                )))
+                .collect(),
             bound,
             extra_outputs,
             input_len: inputs.iter().map(|i| i.1).sum(),
@@ -276,6 +309,11 @@ impl OnnxModel {
     /// concatenation in this order.
     pub fn inputs(&self) -> &[(String, usize)] {
         &self.inputs
+    }
+
+    /// Every input's name and shape (batch included), in the model's order, then the output's.
+    pub fn shapes(&self) -> &[(String, Vec<i64>)] {
+        &self.shapes
     }
 
     /// Name and length of the output vector.

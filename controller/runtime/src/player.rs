@@ -260,6 +260,7 @@ impl<L: RobotLink> Player<L> {
         let default_q = layout.default_q.clone();
         let mut metrics = RunMetrics::default();
         metrics.track_bodies(&reference.motion_bodies, reference.anchor);
+        metrics.track_jitter(n);
         let command_driven = !layout.reads_reference();
         let stop_pose = match options.on_stop {
             crate::options::OnStop::Sit => {
@@ -405,6 +406,29 @@ impl<L: RobotLink> Player<L> {
     pub fn with_live(mut self, live: LiveReader) -> Self {
         self.cursor.set_live(live);
         self
+    }
+
+    /// Takes the reference from a motion generator's plans (see [`crate::generator`]): each tick
+    /// samples the newest plan at its time and at the times ahead it observes. Pair it with a
+    /// one-frame reference (the standby pose) and [`EndMode::Loop`].
+    pub fn with_generated(mut self, plans: crate::generator::PlanReader) -> Self {
+        self.cursor.set_generated(plans);
+        self
+    }
+
+    /// The policy's default pose, robot order (a generated reference's standby).
+    pub fn layout_default_q(&self) -> &[f64] {
+        &self.layout.default_q
+    }
+
+    /// How far ahead of its tick the policy reads the reference, s (what a generator must cover).
+    pub fn lookahead_s(&self) -> f64 {
+        self.cursor.lookahead_s()
+    }
+
+    /// The generated reference's plans (counts, changes, status), with a generator.
+    pub fn generated(&self) -> Option<&crate::generator::PlanReader> {
+        self.cursor.generated()
     }
 
     /// Records every tick as MCAP through `sink`.
@@ -1010,6 +1034,8 @@ impl<L: RobotLink> Player<L> {
             });
             self.metrics
                 .add_tracking(&self.state.q, &self.aligned_reference, root);
+            self.metrics.reference_jitter.push(current, self.dt);
+            self.metrics.robot_jitter.push(&self.state.q, self.dt);
             if self.has_body_errors {
                 self.metrics.add_bodies(self.body_errors.iter().copied());
             }

@@ -8,6 +8,7 @@ use std::time::Instant;
 use human::live::{LiveReader, TRACKER_VALUES};
 
 use crate::clip::Reference;
+use crate::generator::PlanReader;
 use crate::motion::{Alignment, MotionFrame};
 use crate::options::{EndMode, PlayOptions};
 use crate::policy::ReferenceView;
@@ -65,6 +66,10 @@ pub struct ReferenceCursor {
     end_ticks: usize,
     end: EndMode,
     live: Option<Live>,
+    /// A motion generator's plans, when it supplies the frames.
+    generated: Option<PlanReader>,
+    /// The policy's period, s.
+    dt: f64,
     /// Where the motion was put for this run (set when a run starts tracking an anchor).
     alignment: Option<Alignment>,
     /// The motion bodies' poses of this tick, aligned.
@@ -99,8 +104,26 @@ impl ReferenceCursor {
             end_ticks: (options.end_s / dt).round() as usize,
             end: options.end,
             live: None,
+            generated: None,
+            dt,
             reference,
         }
+    }
+
+    /// Takes the frames from a motion generator's plans: this tick's and those ahead at their
+    /// times (the generator's clock starts when the ramp ends).
+    pub fn set_generated(&mut self, plans: PlanReader) {
+        self.generated = Some(plans);
+    }
+
+    /// The generator's plans, when it supplies the frames.
+    pub fn generated(&self) -> Option<&PlanReader> {
+        self.generated.as_ref()
+    }
+
+    /// How far ahead of its tick the policy reads the reference, s.
+    pub fn lookahead_s(&self) -> f64 {
+        (self.frames.q.len() - 1) as f64 * self.dt
     }
 
     /// Takes each tick's frame from `reader` instead of the clip (the reference is one frame).
@@ -113,9 +136,9 @@ impl ReferenceCursor {
         });
     }
 
-    /// Whether frames come from a live source.
+    /// Whether frames come from a live source (a teleoperator or a generator).
     pub fn is_live(&self) -> bool {
-        self.live.is_some()
+        self.live.is_some() || self.generated.is_some()
     }
 
     /// The clip's frames.
@@ -182,12 +205,12 @@ impl ReferenceCursor {
 
     /// The clip proper is playing (not its ramp, not its end).
     pub fn in_clip(&self) -> bool {
-        self.tick >= self.ramp_ticks && self.tick < self.ramp_ticks + self.reference.len()
+        self.tick >= self.ramp_ticks && (self.is_live() || self.tick < self.ramp_ticks + self.reference.len())
     }
 
     /// Whether the tick just taken tracked the clip (what a recording marks as tracking).
     pub fn tracked(&self) -> bool {
-        self.tick > self.ramp_ticks && self.tick <= self.ramp_ticks + self.reference.len()
+        self.tick > self.ramp_ticks && (self.is_live() || self.tick <= self.ramp_ticks + self.reference.len())
     }
 
     /// The clip, ramp and end included, is over (never for a loop).
@@ -255,6 +278,22 @@ impl ReferenceCursor {
             (self.tick as f64 / ramp as f64).min(1.0)
         };
         let base = self.tick.saturating_sub(ramp);
+        if let Some(g) = &mut self.generated {
+            let t = base as f64 * self.dt;
+            g.begin_tick(t, self.dt);
+            for f in 0..self.frames.q.len() {
+                let (q, qd) = g.sample(t + f as f64 * self.dt);
+                for (p, &r) in robot_index.iter().enumerate() {
+                    self.frames.q[f][p] = q[r];
+                    self.frames.qd[f][p] = qd[r];
+                }
+                self.frames.root[f] = self.reference.root[0];
+            }
+            for (p, &r) in robot_index.iter().enumerate() {
+                self.current_q[r] = self.frames.q[0][p];
+            }
+            return psi;
+        }
         let base = if self.end == EndMode::Loop {
             base % len
         } else {

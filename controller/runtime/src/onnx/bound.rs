@@ -78,9 +78,9 @@ fn tensor(memory: *mut OrtMemoryInfo, name: &str, shape: &[i64]) -> Result<Bound
 }
 
 impl BoundTensors {
-    /// Tensors `[1, n]` for each input (in the session's order) and one of its shape for each
-    /// output (the action output first).
-    pub(super) fn new(inputs: &[(String, usize)], outputs: &[(String, Vec<i64>)]) -> Result<Self, String> {
+    /// A tensor of its shape for each input (in the session's order) and for each output (the
+    /// action output first).
+    pub(super) fn new(inputs: &[(String, Vec<i64>)], outputs: &[(String, Vec<i64>)]) -> Result<Self, String> {
         let mut memory = std::ptr::null_mut();
         // SAFETY: out-pointer to a local; released in Drop (or below on error).
         check(unsafe {
@@ -99,8 +99,8 @@ impl BoundTensors {
             output_names: Vec::with_capacity(outputs.len()),
             output_values: Vec::with_capacity(outputs.len()),
         };
-        for (name, n) in inputs {
-            let b = tensor(memory, name, &[1, *n as i64])?;
+        for (name, shape) in inputs {
+            let b = tensor(memory, name, shape)?;
             this.input_names.push(b._name.as_ptr());
             this.input_values.push(b.value.cast_const());
             this.inputs.push(b);

@@ -1,0 +1,753 @@
+//! References from an online motion generator: an autoregressive ONNX model on its own worker
+//! thread turns the last N frames into the next K (at its own frame rate, one step per K frames),
+//! and the control loop samples the newest plan at its own rate without locks or allocation.
+//!
+//! The worker keeps a window of the generated stream (the frames already played, the plan ahead)
+//! and publishes it whole through the lock-free exchange teleoperation uses
+//! ([`human::live::live_channel`]); it steps when the loop (whose time it reads from an atomic)
+//! has entered the newest step, so plans are ready one step ahead of need. When the loop's time
+//! runs past the plan — a late, failed or stalled step — the reference is carried on by the
+//! forecast teleoperation uses ([`human::live::carry_forward`]) for at most `forecast_s`, then
+//! blends to the standby pose over `blend_s`; a fresh plan blends back the same way. Every change
+//! is counted and kept with its time (in a list sized once), never logged from the loop.
+//!
+//! A generator is described by a TOML file beside its ONNX file ([`GeneratorDescription`]): the
+//! input and output names, N, K, the frame rate, the joints in the model's order, and the clip
+//! whose first N frames seed the history.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::{Duration, Instant};
+
+use human::live::{LiveReader, LiveWriter, carry_forward, live_channel};
+use robots::{FileError, Robot};
+
+use crate::clip::{Clip, Reference};
+use crate::metrics::Histogram;
+use crate::onnx::{OnnxError, OnnxModel};
+
+/// Most frames of history or horizon a description may ask for.
+pub const MAX_FRAMES: usize = 256;
+
+/// Changes of the generated reference kept per run (the first ones; later ones are counted).
+pub const MAX_EVENTS: usize = 64;
+
+/// Why a generator could not be loaded or started.
+#[derive(Debug, thiserror::Error)]
+pub enum GeneratorError {
+    /// The description file.
+    #[error(transparent)]
+    File(#[from] FileError),
+    /// The model.
+    #[error(transparent)]
+    Onnx(#[from] OnnxError),
+    /// The seed clip.
+    #[error(transparent)]
+    Clip(#[from] crate::clip::ClipError),
+    /// The model's shapes disagree with the description.
+    #[error("generator {}: {message}", .path.display())]
+    Shape {
+        /// The model file.
+        path: PathBuf,
+        /// What disagrees.
+        message: String,
+    },
+    /// The worker thread could not start.
+    #[error("cannot start the generator's worker: {0}")]
+    Thread(std::io::Error),
+}
+
+/// A generator's description: what its ONNX model takes and gives (`generator.toml`).
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct GeneratorDescription {
+    /// What the model is (and is not).
+    pub description: String,
+    /// The ONNX file, relative to this file.
+    pub onnx: PathBuf,
+    /// The input that takes the last `history` frames, `[1, history, joints]`.
+    #[serde(default = "history_input")]
+    pub input: String,
+    /// The output that gives the next `horizon` frames, `[1, horizon, joints]`.
+    #[serde(default = "frames_output")]
+    pub output: String,
+    /// N: frames the model looks back (1–256).
+    pub history: usize,
+    /// K: frames one step produces (1–256).
+    pub horizon: usize,
+    /// Frames per second of the model's frames (1–1000); it steps at `frame_hz / horizon`.
+    pub frame_hz: f64,
+    /// Joint names (the robot's) in the model's order: a frame's values, rad.
+    pub joints: Vec<String>,
+    /// The clip whose first `history` frames seed the model (relative to this file).
+    pub seed_clip: PathBuf,
+}
+
+fn history_input() -> String {
+    "history".into()
+}
+
+fn frames_output() -> String {
+    "frames".into()
+}
+
+/// How a generated reference copes with a late generator, and faults to inject.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct GeneratorOptions {
+    /// Carry the reference on by its recent velocity for at most this long past the plan, s.
+    pub forecast_s: f64,
+    /// Then blend to the standby pose over this long (and back to a fresh plan as long), s.
+    pub blend_s: f64,
+    /// Fault injection: the worker stops producing once it has generated this far, s.
+    pub stall_after_s: Option<f64>,
+}
+
+impl Default for GeneratorOptions {
+    fn default() -> Self {
+        Self {
+            forecast_s: 0.2,
+            blend_s: 1.0,
+            stall_after_s: None,
+        }
+    }
+}
+
+impl GeneratorOptions {
+    /// Checks the ranges: forecast 0–2 s, blend 0.05–10 s, stall ≥ 0 s.
+    pub fn check(&self) -> Result<(), String> {
+        if !(self.forecast_s.is_finite() && (0.0..=2.0).contains(&self.forecast_s)) {
+            return Err(format!("forecast {} s: 0–2 s", self.forecast_s));
+        }
+        if !(self.blend_s.is_finite() && (0.05..=10.0).contains(&self.blend_s)) {
+            return Err(format!("blend {} s: 0.05–10 s", self.blend_s));
+        }
+        if let Some(s) = self.stall_after_s
+            && !(s.is_finite() && s >= 0.0)
+        {
+            return Err(format!("stall after {s} s: a time ≥ 0"));
+        }
+        Ok(())
+    }
+}
+
+/// Whether `layout` can track a generated reference: joint angles and velocities only (no
+/// reference bodies, anchor or embedded motion, which a generator does not produce).
+pub fn check_policy(layout: &crate::policy::PolicyLayout) -> Result<(), String> {
+    use crate::policy::Term;
+    let unsupported: Vec<&str> = layout
+        .slots
+        .iter()
+        .filter(|s| s.term.needs_anchor() || matches!(s.term, Term::RefBodyPos { .. } | Term::TimeStep(_)))
+        .map(|s| s.term.name())
+        .collect();
+    if unsupported.is_empty() && layout.manifest.motion_bodies.is_empty() {
+        Ok(())
+    } else {
+        Err(format!(
+            "{} observes {}: a motion generator gives joint angles only",
+            layout.path.display(),
+            if unsupported.is_empty() {
+                "motion bodies".to_owned()
+            } else {
+                unsupported.join(", ")
+            }
+        ))
+    }
+}
+
+/// A loaded, checked generator: its model, description and seed.
+#[derive(Debug)]
+pub struct Generator {
+    /// The description file.
+    pub path: PathBuf,
+    /// What it says.
+    pub description: GeneratorDescription,
+    model: OnnxModel,
+    /// Robot joint of each model joint.
+    robot_index: Vec<usize>,
+    /// The first `history` frames of the seed clip, model order, `history × joints`.
+    seed: Vec<f64>,
+    /// The seed clip's first root pose (the generated reference's root).
+    root: [f64; 7],
+}
+
+impl Generator {
+    /// Loads `path` (the description) for `robot`: every field in range, the joints the robot's,
+    /// the model's input and output shaped as described, the seed clip long enough.
+    pub fn load(path: &Path, robot: &Robot) -> Result<Self, GeneratorError> {
+        let text = robots::read_text(path).map_err(|m| FileError::new(path, m))?;
+        let d: GeneratorDescription =
+            toml::from_str(&text).map_err(|e| FileError::new(path, e.to_string()))?;
+        let bad = |field: &str, m: String| FileError::new(path, format!("{field}: {m}"));
+        for (field, v) in [("history", d.history), ("horizon", d.horizon)] {
+            if !(1..=MAX_FRAMES).contains(&v) {
+                return Err(bad(field, format!("{v} frames: 1–{MAX_FRAMES}")).into());
+            }
+        }
+        if !(d.frame_hz.is_finite() && (1.0..=1000.0).contains(&d.frame_hz)) {
+            return Err(bad("frame_hz", format!("{}: 1–1000 Hz", d.frame_hz)).into());
+        }
+        if d.joints.is_empty() {
+            return Err(bad("joints", "empty: name the model's joints in its order".into()).into());
+        }
+        let mut robot_index = Vec::with_capacity(d.joints.len());
+        for name in &d.joints {
+            let Some(r) = robot.config.joints.iter().position(|j| &j.name == name) else {
+                return Err(bad(
+                    "joints",
+                    format!("{name:?} is not a joint of {}", robot.config.name),
+                )
+                .into());
+            };
+            if robot_index.contains(&r) {
+                return Err(bad("joints", format!("{name:?} twice")).into());
+            }
+            robot_index.push(r);
+        }
+        let dir = path.parent().unwrap_or(Path::new("."));
+        let onnx = dir.join(&d.onnx);
+        let model = OnnxModel::load_tensors(&onnx)?;
+        let j = d.joints.len() as i64;
+        let want = [
+            (d.input.as_str(), "input", [1, d.history as i64, j], "history"),
+            (d.output.as_str(), "output", [1, d.horizon as i64, j], "horizon"),
+        ];
+        let shapes = model.shapes();
+        let (inputs, output) = shapes.split_at(shapes.len() - 1);
+        let shape_err = |message: String| GeneratorError::Shape {
+            path: onnx.clone(),
+            message,
+        };
+        for (name, kind, dims, field) in want {
+            let found = if kind == "input" { inputs } else { output };
+            let Some((_, shape)) = found.iter().find(|(n, _)| n == name) else {
+                return Err(shape_err(format!(
+                    "has no {kind} named {name:?} ({kind}s: {}); {} names it",
+                    found
+                        .iter()
+                        .map(|(n, _)| n.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", "),
+                    path.display()
+                )));
+            };
+            if shape.as_slice() != dims {
+                return Err(shape_err(format!(
+                    "{kind} {name:?} has shape {shape:?}, but {} says {field} = {} frames of {} joints: {dims:?}",
+                    path.display(),
+                    dims[1],
+                    dims[2]
+                )));
+            }
+        }
+        if inputs.len() != 1 {
+            return Err(shape_err(format!(
+                "has {} inputs; a generator takes one, its history",
+                inputs.len()
+            )));
+        }
+        let clip = Clip::load(&dir.join(&d.seed_clip))?;
+        let seed_reference = Reference::from_clip(&clip, robot, d.frame_hz)?;
+        if seed_reference.len() < d.history {
+            return Err(bad(
+                "seed_clip",
+                format!(
+                    "{} has {} frames at {} Hz; the history needs {}",
+                    clip.path.display(),
+                    seed_reference.len(),
+                    d.frame_hz,
+                    d.history
+                ),
+            )
+            .into());
+        }
+        let seed = (0..d.history)
+            .flat_map(|k| robot_index.iter().map(move |&r| (k, r)))
+            .map(|(k, r)| seed_reference.q_at(k)[r])
+            .collect();
+        Ok(Self {
+            path: path.to_path_buf(),
+            root: seed_reference.root[0],
+            description: d,
+            model,
+            robot_index,
+            seed,
+        })
+    }
+
+    /// The root pose the generated reference holds (the seed clip's first).
+    pub fn root(&self) -> [f64; 7] {
+        self.root
+    }
+
+    /// Starts the worker. `standby` (robot order) is where the reference blends to when the
+    /// generator is late; `lookahead_s` how far ahead of its time the loop reads the plan.
+    pub fn start(
+        self,
+        standby: &[f64],
+        options: GeneratorOptions,
+        lookahead_s: f64,
+    ) -> Result<(GeneratorWorker, PlanReader), GeneratorError> {
+        let d = &self.description;
+        let (j, n, k) = (d.joints.len(), d.history, d.horizon);
+        // What the loop may need: frames it played for the forecast's velocity, up to three steps
+        // ahead of it (the worker runs at most two steps ahead of the loop's look-ahead).
+        let width = n.max(4) + 3 * k + (lookahead_s * d.frame_hz).ceil() as usize;
+        let mut frames = vec![0.0; width * j];
+        frames[..n * j].copy_from_slice(&self.seed);
+        let initial = Plan {
+            first: -(n as i64),
+            count: n,
+            frames,
+            joints: j,
+        };
+        let (writer, reader) = live_channel(initial.clone());
+        let shared = Arc::new(Shared {
+            loop_time: AtomicU64::new(0f64.to_bits()),
+            stop: AtomicBool::new(false),
+            stats: Mutex::new(WorkerStats::default()),
+        });
+        let plan_reader = PlanReader {
+            reader,
+            shared: Arc::clone(&shared),
+            robot_index: self.robot_index.clone(),
+            frame_hz: d.frame_hz,
+            options,
+            standby: standby.to_vec(),
+            q: standby.to_vec(),
+            qd: vec![0.0; standby.len()],
+            forecast: vec![0.0; j],
+            status: PlanStatus::Fresh,
+            weight: 0.0,
+            counts: PlanCounts::default(),
+            events: Vec::with_capacity(MAX_EVENTS),
+            past: 0.0,
+            reached_standby: None,
+        };
+        let worker = Worker {
+            model: self.model,
+            writer,
+            shared: Arc::clone(&shared),
+            plan: initial,
+            history: vec![0.0; n * j],
+            next: vec![0.0; k * j],
+            horizon: k,
+            frame_hz: d.frame_hz,
+            lookahead_s,
+            stall_after: options.stall_after_s,
+        };
+        let thread = std::thread::Builder::new()
+            .name("motion-generator".into())
+            .spawn(move || worker.run())
+            .map_err(GeneratorError::Thread)?;
+        Ok((
+            GeneratorWorker {
+                shared,
+                thread: Some(thread),
+            },
+            plan_reader,
+        ))
+    }
+}
+
+/// A window of the generated stream: frames `first .. first + count` (frame `i` is at `i /
+/// frame_hz` s of generator time; the seed is at negative indices), `joints` values each.
+#[derive(Debug, Clone)]
+pub struct Plan {
+    first: i64,
+    count: usize,
+    frames: Vec<f64>,
+    joints: usize,
+}
+
+impl Plan {
+    fn frame(&self, k: usize) -> &[f64] {
+        &self.frames[k * self.joints..(k + 1) * self.joints]
+    }
+}
+
+#[derive(Debug)]
+struct Shared {
+    /// The generator time the loop has reached, s (f64 bits).
+    loop_time: AtomicU64,
+    stop: AtomicBool,
+    /// The worker's own counts (only the worker and the end of the run touch them).
+    stats: Mutex<WorkerStats>,
+}
+
+/// What the worker did.
+#[derive(Debug, Clone, Default)]
+pub struct WorkerStats {
+    /// Steps published.
+    pub steps: u64,
+    /// Steps whose inference failed or gave non-finite frames (not published).
+    pub failed: u64,
+    /// The injected stall began (generator time, s).
+    pub stalled_at: Option<f64>,
+    /// Each step's inference time.
+    pub latency: Histogram,
+}
+
+struct Worker {
+    model: OnnxModel,
+    writer: LiveWriter<Plan>,
+    shared: Arc<Shared>,
+    /// The worker's copy of the window it publishes.
+    plan: Plan,
+    /// The model's input and output, `f32` as the model wants them (as f64 for the copy).
+    history: Vec<f32>,
+    next: Vec<f32>,
+    horizon: usize,
+    frame_hz: f64,
+    lookahead_s: f64,
+    stall_after: Option<f64>,
+}
+
+impl Worker {
+    fn run(mut self) {
+        let (j, k) = (self.plan.joints, self.horizon);
+        let n = self.history.len() / j;
+        while !self.shared.stop.load(Ordering::Relaxed) {
+            let loop_t = f64::from_bits(self.shared.loop_time.load(Ordering::Relaxed));
+            let end = self.plan.first + self.plan.count as i64;
+            let needed = (loop_t + self.lookahead_s) * self.frame_hz;
+            // Two steps ahead of what the loop reads: a step late by a whole period still lands
+            // before it is needed.
+            if end as f64 - needed >= (2 * k) as f64 {
+                std::thread::park_timeout(Duration::from_micros(500));
+                continue;
+            }
+            let generated_s = end as f64 / self.frame_hz;
+            if let Some(at) = self.stall_after.filter(|&at| generated_s >= at) {
+                let mut stats = self.shared.stats.lock().unwrap_or_else(PoisonError::into_inner);
+                stats.stalled_at.get_or_insert(at);
+                drop(stats);
+                std::thread::park_timeout(Duration::from_millis(5));
+                continue;
+            }
+            // The model's history: the newest `n` frames of the stream.
+            let from = self.plan.count - n;
+            for (h, v) in self
+                .history
+                .iter_mut()
+                .zip(&self.plan.frames[from * j..self.plan.count * j])
+            {
+                *h = *v as f32;
+            }
+            let t0 = Instant::now();
+            let ran = self.model.run(&self.history, &mut self.next);
+            let took = t0.elapsed();
+            let mut stats = self.shared.stats.lock().unwrap_or_else(PoisonError::into_inner);
+            stats.latency.record(took);
+            if let Err(e) = ran.map_err(|e| e.to_string()).and_then(|()| {
+                self.next
+                    .iter()
+                    .all(|x| x.is_finite())
+                    .then_some(())
+                    .ok_or_else(|| "non-finite frames".to_owned())
+            }) {
+                stats.failed += 1;
+                drop(stats);
+                tracing::warn!("motion generator step at {generated_s:.2} s failed: {e}");
+                std::thread::park_timeout(Duration::from_millis(5));
+                continue;
+            }
+            stats.steps += 1;
+            drop(stats);
+            self.append();
+            let plan = &self.plan;
+            self.writer.publish(|p| {
+                p.first = plan.first;
+                p.count = plan.count;
+                p.frames.copy_from_slice(&plan.frames);
+            });
+        }
+    }
+
+    /// Appends the step's frames to the window, dropping the oldest ones that no longer fit.
+    fn append(&mut self) {
+        let (j, k) = (self.plan.joints, self.horizon);
+        let width = self.plan.frames.len() / j;
+        let drop = (self.plan.count + k).saturating_sub(width);
+        if drop > 0 {
+            self.plan.frames.copy_within(drop * j..self.plan.count * j, 0);
+            self.plan.first += drop as i64;
+            self.plan.count -= drop;
+        }
+        let at = self.plan.count * j;
+        for (f, v) in self.plan.frames[at..at + k * j].iter_mut().zip(&self.next) {
+            *f = f64::from(*v);
+        }
+        self.plan.count += k;
+    }
+}
+
+/// The running worker; stops it when dropped.
+#[derive(Debug)]
+pub struct GeneratorWorker {
+    shared: Arc<Shared>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl GeneratorWorker {
+    /// Stops the worker and returns what it did.
+    pub fn finish(mut self) -> WorkerStats {
+        self.stop();
+        self.shared
+            .stats
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .clone()
+    }
+
+    fn stop(&mut self) {
+        self.shared.stop.store(true, Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            t.thread().unpark();
+            let _ = t.join();
+        }
+    }
+}
+
+impl Drop for GeneratorWorker {
+    fn drop(&mut self) {
+        self.stop();
+    }
+}
+
+/// Where the generated reference stands at a tick.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PlanStatus {
+    /// Inside the newest plan.
+    Fresh,
+    /// Past the plan, carried on by its recent velocity.
+    Forecast,
+    /// Past the forecast's bound: blending to (or holding) the standby pose.
+    Standby,
+}
+
+impl PlanStatus {
+    /// Its name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Fresh => "fresh",
+            Self::Forecast => "forecast",
+            Self::Standby => "standby",
+        }
+    }
+}
+
+/// How often the generated reference was late, in ticks and events.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+pub struct PlanCounts {
+    /// Ticks inside a plan.
+    pub fresh_ticks: u64,
+    /// Ticks on the forecast.
+    pub forecast_ticks: u64,
+    /// Ticks past the forecast's bound.
+    pub standby_ticks: u64,
+    /// Times the plan ran out (fresh → forecast).
+    pub late: u64,
+    /// Times the forecast's bound passed (forecast → standby).
+    pub to_standby: u64,
+    /// Times a fresh plan came back after running out.
+    pub recovered: u64,
+    /// Changes not kept in the event list (it was full).
+    pub events_dropped: u64,
+}
+
+/// The loop's end: samples the newest plan at the loop's time into robot-order joint values.
+#[derive(Debug)]
+pub struct PlanReader {
+    reader: LiveReader<Plan>,
+    shared: Arc<Shared>,
+    robot_index: Vec<usize>,
+    frame_hz: f64,
+    options: GeneratorOptions,
+    standby: Vec<f64>,
+    /// The last sample, robot order.
+    q: Vec<f64>,
+    qd: Vec<f64>,
+    /// The forecast's scratch, model order.
+    forecast: Vec<f64>,
+    status: PlanStatus,
+    /// How far the reference has blended to standby, 0–1.
+    weight: f64,
+    counts: PlanCounts,
+    events: Vec<(f64, PlanStatus)>,
+    /// Past the plan's end at the last tick, s.
+    past: f64,
+    reached_standby: Option<f64>,
+}
+
+impl PlanReader {
+    /// Takes the newest plan for the tick at generator time `t` (s; the loop's `dt` apart) and
+    /// judges it: fresh, forecast or standby. Allocates nothing.
+    pub fn begin_tick(&mut self, t: f64, dt: f64) {
+        self.shared.loop_time.store(t.to_bits(), Ordering::Relaxed);
+        let plan = self.reader.latest();
+        let last = plan.first as f64 + plan.count as f64 - 1.0;
+        let past = (t * self.frame_hz - last) / self.frame_hz;
+        self.past = past;
+        let status = if past <= 0.0 {
+            PlanStatus::Fresh
+        } else if past <= self.options.forecast_s {
+            PlanStatus::Forecast
+        } else {
+            PlanStatus::Standby
+        };
+        let step = dt / self.options.blend_s;
+        self.weight = if status == PlanStatus::Standby {
+            (self.weight + step).min(1.0)
+        } else {
+            (self.weight - step).max(0.0)
+        };
+        if self.weight >= 1.0 && self.reached_standby.is_none() {
+            self.reached_standby = Some(t);
+        }
+        let c = &mut self.counts;
+        match status {
+            PlanStatus::Fresh => c.fresh_ticks += 1,
+            PlanStatus::Forecast => c.forecast_ticks += 1,
+            PlanStatus::Standby => c.standby_ticks += 1,
+        }
+        if status != self.status {
+            match (self.status, status) {
+                (PlanStatus::Fresh, _) => c.late += 1,
+                (_, PlanStatus::Fresh) => c.recovered += 1,
+                _ => {}
+            }
+            if status == PlanStatus::Standby {
+                c.to_standby += 1;
+            }
+            if self.events.len() < MAX_EVENTS {
+                self.events.push((t, status));
+            } else {
+                c.events_dropped += 1;
+            }
+            self.status = status;
+        }
+    }
+
+    /// The reference at generator time `t` (this tick's, or ahead of it), robot order: the plan
+    /// interpolated, or its forecast, blended to standby by this tick's weight. Joints the model
+    /// does not drive stay at standby.
+    pub fn sample(&mut self, t: f64) -> (&[f64], &[f64]) {
+        let plan = self.reader.latest();
+        let x = t * self.frame_hz - plan.first as f64;
+        let last = plan.count - 1;
+        let a = (self.weight * self.weight * (3.0 - 2.0 * self.weight)).clamp(0.0, 1.0);
+        let (q, qd) = (&mut self.q, &mut self.qd);
+        if x <= last as f64 {
+            let x = x.max(0.0);
+            let i = (x.floor() as usize).min(last.saturating_sub(1));
+            let (f0, f1) = (plan.frame(i), plan.frame((i + 1).min(last)));
+            let s = x - i as f64;
+            for (m, &r) in self.robot_index.iter().enumerate() {
+                let g = f0[m] + (f1[m] - f0[m]) * s;
+                q[r] = g + (self.standby[r] - g) * a;
+                qd[r] = (f1[m] - f0[m]) * self.frame_hz * (1.0 - a);
+            }
+        } else {
+            let back = last.min(3);
+            let span = back as f64 / self.frame_hz;
+            let age = (x - last as f64) / self.frame_hz;
+            carry_forward(
+                plan.frame(last),
+                plan.frame(last - back),
+                span,
+                age,
+                self.options.forecast_s,
+                &mut self.forecast,
+            );
+            let moving = age < self.options.forecast_s;
+            for (m, &r) in self.robot_index.iter().enumerate() {
+                let g = self.forecast[m];
+                q[r] = g + (self.standby[r] - g) * a;
+                let velocity = if moving && span > 0.0 {
+                    (plan.frame(last)[m] - plan.frame(last - back)[m]) / span
+                } else {
+                    0.0
+                };
+                qd[r] = velocity * (1.0 - a);
+            }
+        }
+        (&self.q, &self.qd)
+    }
+
+    /// Where the reference stood at the last tick: its status, how far it had blended to
+    /// standby (0–1), and how far past the newest plan's last frame it was, s (negative: time
+    /// left in the plan).
+    pub fn status(&self) -> (PlanStatus, f64, f64) {
+        (self.status, self.weight, self.past)
+    }
+
+    /// When the reference first stood fully at standby (generator time, s).
+    pub fn reached_standby(&self) -> Option<f64> {
+        self.reached_standby
+    }
+
+    /// Counts so far.
+    pub fn counts(&self) -> PlanCounts {
+        self.counts
+    }
+
+    /// The changes so far: generator time (s) and the new status.
+    pub fn events(&self) -> &[(f64, PlanStatus)] {
+        &self.events
+    }
+}
+
+/// What a generated reference did over a run.
+#[derive(Debug, Clone)]
+pub struct GeneratorSummary {
+    /// The worker's steps, failures and latency.
+    pub worker: WorkerStats,
+    /// The loop's view: ticks fresh, forecast and standby, and the changes.
+    pub counts: PlanCounts,
+    /// The changes kept: generator time (s) and the new status.
+    pub events: Vec<(f64, PlanStatus)>,
+    /// When the reference first stood fully at standby (generator time, s).
+    pub reached_standby: Option<f64>,
+    /// The generator's frame rate.
+    pub frame_hz: f64,
+    /// Frames per step.
+    pub horizon: usize,
+}
+
+impl std::fmt::Display for GeneratorSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let (w, c) = (&self.worker, &self.counts);
+        let us = |p: f64| w.latency.quantile(p).as_secs_f64() * 1e6;
+        writeln!(
+            f,
+            "generator: {} steps of {} frames at {} Hz ({} failed), step latency p50 {:.0} µs, p99 {:.0} µs",
+            w.steps,
+            self.horizon,
+            self.frame_hz,
+            w.failed,
+            us(0.5),
+            us(0.99)
+        )?;
+        writeln!(
+            f,
+            "  reference ticks: {} fresh, {} forecast, {} standby; plan ran out {} times, reached the standby bound {} times, recovered {} times",
+            c.fresh_ticks, c.forecast_ticks, c.standby_ticks, c.late, c.to_standby, c.recovered
+        )?;
+        if let Some(at) = w.stalled_at {
+            writeln!(f, "  fault injected: the generator stalled at {at:.2} s")?;
+        }
+        if let Some(at) = self.reached_standby {
+            writeln!(f, "  standby pose reached at {at:.2} s")?;
+        }
+        for (t, s) in self.events.iter().take(8) {
+            writeln!(f, "  {t:>8.2} s  {}", s.name())?;
+        }
+        if self.events.len() > 8 {
+            writeln!(f, "  … {} more changes", self.events.len() - 8)?;
+        }
+        Ok(())
+    }
+}
