@@ -90,6 +90,65 @@ pub struct PlayArgs {
     report: Option<PathBuf>,
     #[command(flatten)]
     generator: GeneratorArgs,
+    #[command(flatten)]
+    keypoints: KeypointArgs,
+}
+
+/// 2D keypoint references beside the clip (`play --keypoints`).
+#[derive(Debug, Args)]
+struct KeypointArgs {
+    /// 2D keypoint references of the clip (Mimic2DM): the project's CSV (what `robodeploy
+    /// project` writes: time_s, then VIEW/KEYPOINT/u,v,confidence) or a pose estimator's COCO
+    /// JSON (one view: --view, --person, --fps). Resampled to the policy's ticks; the policy's
+    /// ref_keypoints/keypoints terms see them, and every tracked tick measures the robot's
+    /// keypoints (robot.toml [keypoints], projected) against them: reprojection error per view,
+    /// ticks over 100 px, the triangulated error with two views. Needs --cameras.
+    #[arg(long, value_name = "FILE", requires = "cameras", conflicts_with = "generator")]
+    keypoints: Option<PathBuf>,
+    /// The cameras of the keypoint references (TOML [[camera]]: intrinsics, distortion, pose in
+    /// the clip's world), e.g. robots/biped/cameras.toml.
+    #[arg(long, value_name = "FILE", requires = "keypoints")]
+    cameras: Option<PathBuf>,
+    /// With COCO references: the camera that filmed them (default: the only camera).
+    #[arg(long, requires = "keypoints")]
+    view: Option<String>,
+    /// With COCO references: the person to follow, by track_id.
+    #[arg(long, requires = "keypoints")]
+    person: Option<u64>,
+    /// With COCO references: the video's frames per second.
+    #[arg(long, default_value_t = 30.0, value_parser = crate::args::within(1.0, 1000.0))]
+    fps: f64,
+}
+
+/// Adds `--keypoints` to the run's reference.
+fn load_keypoint_references(args: &KeypointArgs, l: &mut Loaded) -> Result<()> {
+    let (Some(path), Some(camera_file)) = (&args.keypoints, &args.cameras) else {
+        return Ok(());
+    };
+    let cameras = controller::keypoints::camera::load_cameras(camera_file)?;
+    let coco = crate::project::CocoArgs {
+        view: args.view.clone(),
+        person: args.person,
+        fps: args.fps,
+    };
+    let clip = crate::project::load_keypoints(path, &cameras, camera_file, &coco, "--keypoints")?;
+    let reference = controller::keypoints::track::KeypointReference::new(
+        &clip,
+        &cameras,
+        l.layout.manifest.rate_hz,
+        l.reference.len(),
+    )
+    .with_context(|| format!("--keypoints {}", path.display()))?;
+    println!(
+        "keypoints {}: {} frames, {} keypoints in {} views ({})",
+        path.display(),
+        clip.len(),
+        clip.names.len(),
+        clip.views.len(),
+        clip.views.join(", ")
+    );
+    l.reference.keypoints = Some(reference);
+    Ok(())
 }
 
 /// An online motion generator as the reference (`play --generator`).
@@ -722,6 +781,7 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         println!("{}: calibration merged from {}", l.robot.config.name, c.display());
     }
     let generator = load_generator(&args.generator, &mut l)?;
+    load_keypoint_references(&args.keypoints, &mut l)?;
     if let Some(values) = &args.command {
         l.layout.set_command(values).with_context(|| {
             let given: Vec<String> = values.iter().map(f64::to_string).collect();

@@ -596,6 +596,8 @@ pub struct Reference {
     pub motion_poses: Vec<[f64; 7]>,
     /// Which motion body is the anchor.
     pub anchor: Option<usize>,
+    /// 2D keypoint references beside the joints (Mimic2DM), at the same ticks.
+    pub keypoints: Option<crate::keypoints::track::KeypointReference>,
 }
 
 impl Reference {
@@ -650,6 +652,7 @@ impl Reference {
             motion_bodies: Vec::new(),
             motion_poses: Vec::new(),
             anchor: None,
+            keypoints: None,
         }
     }
 
@@ -752,6 +755,7 @@ impl Reference {
             motion_bodies: Vec::new(),
             motion_poses: Vec::new(),
             anchor: None,
+            keypoints: None,
         };
         // Can the robot follow it? Positions first (the clearer message), then speeds; each
         // names the first offending frame.

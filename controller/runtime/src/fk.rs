@@ -17,6 +17,9 @@ pub enum KinematicsError {
     /// The model lacks a body or joint the robot names.
     #[error(transparent)]
     Names(#[from] model_index::ModelIndexError),
+    /// A keypoint the robot does not map.
+    #[error("{0}")]
+    Frame(String),
 }
 
 /// Positions of `bodies` at every tick of `reference`, relative to the reference root in its
@@ -106,6 +109,8 @@ pub struct RobotKinematics {
     root_position: [f64; 3],
     /// The IMU frame's orientation in the root's frame, this tick.
     imu_in_root: [f64; 4],
+    /// Keypoints on the robot (robot.toml `[keypoints]`): frame and offset in it.
+    keypoints: Vec<(model_index::FrameId, [f64; 3])>,
 }
 
 impl std::fmt::Debug for RobotKinematics {
@@ -164,7 +169,42 @@ impl RobotKinematics {
             root_rotation: [1.0, 0.0, 0.0, 0.0],
             root_position: [0.0; 3],
             imu_in_root: [1.0, 0.0, 0.0, 0.0],
+            keypoints: Vec::new(),
         })
+    }
+
+    /// Tracks these keypoints of `robot`'s `[keypoints]` map (by name), in this order.
+    pub fn track_keypoints(&mut self, robot: &Robot, names: &[String]) -> Result<(), KinematicsError> {
+        let model = self.data.model();
+        let mut keypoints = Vec::with_capacity(names.len());
+        for name in names {
+            let k = robot.config.keypoints.get(name).ok_or_else(|| {
+                KinematicsError::Frame(format!("keypoint {name:?} is not in robot.toml's [keypoints]"))
+            })?;
+            keypoints.push((model_index::frame(model, k.frame())?, k.offset()));
+        }
+        self.keypoints = keypoints;
+        Ok(())
+    }
+
+    /// World position of tracked keypoint `k` with the root at `root_position` (this tick's
+    /// orientation and joints).
+    pub fn keypoint_position_from(&self, k: usize, root_position: [f64; 3]) -> [f64; 3] {
+        let (frame, offset) = self.keypoints[k];
+        let (p, m) = match frame {
+            model_index::FrameId::Body(b) => (self.data.xpos()[b], self.data.xmat()[b]),
+            model_index::FrameId::Site { site, .. } => {
+                (self.data.site_xpos()[site], self.data.site_xmat()[site])
+            }
+        };
+        let rows = [[m[0], m[1], m[2]], [m[3], m[4], m[5]], [m[6], m[7], m[8]]];
+        let p = spatial::add(p, spatial::mat_apply(&rows, offset));
+        spatial::add(spatial::quat_rotate(self.root_rotation, p), root_position)
+    }
+
+    /// Where the root is placed this tick (the origin when unknown).
+    pub fn root_position(&self) -> [f64; 3] {
+        self.root_position
     }
 
     /// Poses the model: `imu_quat` the IMU frame's measured orientation, `q` and `qd` the joints

@@ -519,6 +519,7 @@ impl Drop for GeneratorWorker {
 /// Where the generated reference stands at a tick.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
+#[repr(u8)]
 pub enum PlanStatus {
     /// Inside the newest plan.
     Fresh,
@@ -529,6 +530,13 @@ pub enum PlanStatus {
 }
 
 impl PlanStatus {
+    /// The status of a tick record's code (`as u8`).
+    pub fn from_code(code: u8) -> Option<Self> {
+        [Self::Fresh, Self::Forecast, Self::Standby]
+            .get(usize::from(code))
+            .copied()
+    }
+
     /// Its name.
     pub fn name(self) -> &'static str {
         match self {

@@ -129,6 +129,8 @@ pub struct PlaySummary {
     pub jitter_rad_s3: Option<(f64, f64)>,
     /// A generated reference: the generator's steps, latency and lateness.
     pub generator: Option<crate::generator::GeneratorSummary>,
+    /// 2D keypoint references: the robot's keypoints against them.
+    pub keypoints: Option<crate::keypoints::track::KeypointSummary>,
     /// The commands' sources: what they accepted and dropped (with live commands).
     pub command_sources: Option<String>,
     /// What the telemetry logger wrote, when recording.
@@ -208,6 +210,9 @@ impl std::fmt::Display for PlaySummary {
         }
         if let Some(g) = &self.generator {
             write!(f, "{g}")?;
+        }
+        if let Some(k) = &self.keypoints {
+            write!(f, "{k}")?;
         }
         if let Some(l) = self.live_latency.as_ref().filter(|l| l.count() > 0) {
             writeln!(f, "tracker input → bus command: {l}")?;
@@ -726,6 +731,7 @@ impl RunMetrics {
             locomotion: self.locomotion.as_ref().and_then(LocomotionMetrics::summary),
             jitter_rad_s3: self.reference_jitter.mean().zip(self.robot_jitter.mean()),
             generator: None,
+            keypoints: None,
             command_sources: None,
             telemetry: None,
             telemetry_error: None,

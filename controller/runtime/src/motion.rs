@@ -82,6 +82,15 @@ impl Alignment {
         spatial::heading_of_quat(self.turn)
     }
 
+    /// A point of the robot's world back in the reference's own frame (the inverse of
+    /// [`Self::apply`] for positions).
+    pub fn undo_point(&self, p: [f64; 3]) -> [f64; 3] {
+        spatial::add(
+            spatial::quat_rotate(spatial::quat_conj(self.turn), spatial::sub(p, self.to)),
+            self.from,
+        )
+    }
+
     /// `pose` moved with the reference.
     pub fn apply(&self, pose: [f64; 7]) -> [f64; 7] {
         let p = spatial::add(
@@ -321,6 +330,7 @@ impl EmbeddedMotion {
                 .anchor_body
                 .as_ref()
                 .and_then(|a| bodies.iter().position(|b| b == a)),
+            keypoints: None,
         };
         let mut q = vec![0.0; n];
         let mut qd = vec![0.0; n];

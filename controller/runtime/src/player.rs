@@ -19,6 +19,7 @@ use crate::action::ActionMapper;
 use crate::clip::Reference;
 use crate::estimator::{Estimate, Estimator, EstimatorConfig, LegKinematics, MAX_FEET};
 use crate::fk::RobotKinematics;
+use crate::keypoints::track::KeypointTrack;
 use crate::metrics::RunMetrics;
 pub use crate::metrics::{Histogram, PlaySummary};
 use crate::motion::{Alignment, EmbeddedMotion};
@@ -111,6 +112,9 @@ pub struct Player<L: RobotLink> {
     kinematics: Option<RobotKinematics>,
     /// The state estimator, for a robot with feet.
     estimator: Option<Estimator>,
+    /// 2D keypoint references, when the run has them; and whether this tick measured them.
+    keypoints: Option<KeypointTrack>,
+    keypoints_measured: bool,
     /// Its estimate this tick.
     estimate: Estimate,
     /// The robot's place in the world as the observation reads it: the estimate, or the
@@ -210,7 +214,8 @@ impl<L: RobotLink> Player<L> {
                 reference.len()
             )));
         }
-        let kinematics = motion_setup(&robot, &layout, &mut reference, embedded.is_some())?;
+        let mut kinematics = motion_setup(&robot, &layout, &mut reference, embedded.is_some())?;
+        let keypoints = keypoint_setup(&robot, &layout, &mut reference, &mut kinematics)?;
         let estimator = match &kinematics {
             Some(k) if k.feet() > 0 => Some(Estimator::new(
                 EstimatorConfig::default(),
@@ -299,9 +304,15 @@ impl<L: RobotLink> Player<L> {
             // The first tick observes the first frame: one call before anything moves.
             e.seek(&mut model, e.start_step).map_err(PlayError::Setup)?;
         }
+        let mut cursor = ReferenceCursor::new(reference, frames, body_width, &default_q, &options, dt);
+        if let Some(k) = &keypoints {
+            cursor.set_keypoints(k.reference_obs_all().to_vec(), k.obs_width());
+        }
         Ok(Self {
             embedded,
             kinematics,
+            keypoints,
+            keypoints_measured: false,
             estimator,
             estimate: Estimate::default(),
             world: GroundTruth {
@@ -313,7 +324,7 @@ impl<L: RobotLink> Player<L> {
             truth_to_world: Alignment::default(),
             truth_mapped: false,
             dt,
-            cursor: ReferenceCursor::new(reference, frames, body_width, &default_q, &options, dt),
+            cursor,
             mapper: ActionMapper::new(n, k_actions, &default_q),
             monitor: SafetyMonitor::new(options.limits, n, dt, robot.config.imu.rate_hz),
             metrics,
@@ -512,6 +523,10 @@ impl<L: RobotLink> Player<L> {
             bus_cycles: None,
             motion_bodies: bodies.to_vec(),
             anchor,
+            keypoint_views: self
+                .keypoints
+                .as_ref()
+                .map_or_else(Vec::new, KeypointTrack::views),
             commands: self.commands.as_ref().map_or_else(Vec::new, |c| {
                 c.spec().names.iter().cloned().zip(c.spec().kinds()).collect()
             }),
@@ -673,6 +688,16 @@ impl<L: RobotLink> Player<L> {
                     &[]
                 },
                 estimate: self.estimator.as_ref().map(|_| &self.estimate),
+                generated: self.cursor.generated().map(crate::generator::PlanReader::status),
+                keypoint_errors: match &self.keypoints {
+                    Some(k) if self.keypoints_measured => k.errors(),
+                    _ => &[],
+                },
+                triangulated_mm: self
+                    .keypoints
+                    .as_ref()
+                    .filter(|_| self.keypoints_measured)
+                    .and_then(KeypointTrack::triangulated_mm),
                 truth_in_world: has_truth.then(|| {
                     let t = self.truth_to_world.apply(self.truth.root_pose);
                     (t, self.truth.base_lin_vel)
@@ -917,6 +942,7 @@ impl<L: RobotLink> Player<L> {
     }
 
     fn policy_tick(&mut self, has_truth: bool) {
+        self.keypoints_measured = false;
         let frame = self.embedded.as_ref().map(|e| e.frame(&self.model));
         let (mut robot_anchor, mut base_ang_vel) = ([0.0; 7], self.state.gyro);
         robot_anchor[3..].copy_from_slice(&self.state.quat);
@@ -943,6 +969,23 @@ impl<L: RobotLink> Player<L> {
         let psi = self
             .cursor
             .update(&self.layout.default_q, &self.layout.robot_index, frame.as_ref());
+        if let (Some(track), Some(k)) = (&mut self.keypoints, &self.kinematics) {
+            // The robot's keypoints in the reference's frame (where its cameras are): placed by
+            // the estimate for the observation, by the simulation's truth for the errors.
+            let alignment = self.cursor.alignment();
+            let undo = |p: [f64; 3]| alignment.map_or(p, |a| a.undo_point(p));
+            let observed = k.root_position();
+            let measured = if has_truth {
+                let t = self.truth_to_world.apply(self.truth.root_pose);
+                [t[0], t[1], t[2]]
+            } else {
+                observed
+            };
+            track.set_positions(
+                |i| undo(k.keypoint_position_from(i, observed)),
+                |i| undo(k.keypoint_position_from(i, measured)),
+            );
+        }
         let next = self.cursor.next_frame();
         let time_step = self.embedded.as_ref().map_or(next as f64, |e| e.time_step(next));
         for (p, &r) in self.layout.robot_index.iter().enumerate() {
@@ -969,6 +1012,7 @@ impl<L: RobotLink> Player<L> {
             base_ang_vel,
             robot_anchor,
             time_step,
+            robot_keypoints: self.keypoints.as_ref().map_or(&[][..], KeypointTrack::robot_obs),
         };
         self.obs_builder.build(&inputs, &mut self.obs);
         if self.cursor.reference().anchor.is_some() {
@@ -1039,6 +1083,10 @@ impl<L: RobotLink> Player<L> {
             if self.has_body_errors {
                 self.metrics.add_bodies(self.body_errors.iter().copied());
             }
+            if let Some(track) = &mut self.keypoints {
+                track.measure(self.cursor.frame_at(self.cursor.tick()));
+                self.keypoints_measured = true;
+            }
         }
         self.previous_reference.copy_from_slice(current);
         self.cursor.step();
@@ -1056,13 +1104,15 @@ impl<L: RobotLink> Player<L> {
     }
 
     fn summary(&self, took: Duration) -> PlaySummary {
-        self.metrics.summary(
+        let mut summary = self.metrics.summary(
             self.tick,
             took,
             &self.machine.transitions,
             self.cursor.is_live(),
             self.cursor.reference().len(),
-        )
+        );
+        summary.keypoints = self.keypoints.as_ref().map(KeypointTrack::summary);
+        summary
     }
 
     /// Asks for a soft stop (what SIGINT does).
@@ -1075,6 +1125,65 @@ impl<L: RobotLink> Player<L> {
     pub fn request_stop(&self) {
         self.stop.store(true, Ordering::Relaxed);
     }
+}
+
+/// The run's 2D keypoint references: checked against the policy's keypoint terms (which must
+/// all name the same views and keypoints) and the robot's map, their keypoints added to the
+/// robot's kinematics (made for them when the run had none).
+fn keypoint_setup(
+    robot: &Robot,
+    layout: &PolicyLayout,
+    reference: &mut Reference,
+    kinematics: &mut Option<RobotKinematics>,
+) -> Result<Option<KeypointTrack>, PlayError> {
+    let terms: Vec<(&[String], &[String])> = layout
+        .slots
+        .iter()
+        .filter_map(|s| match &s.term {
+            Term::RefKeypoints { views, keypoints, .. } | Term::Keypoints { views, keypoints, .. } => {
+                Some((views.as_slice(), keypoints.as_slice()))
+            }
+            _ => None,
+        })
+        .collect();
+    if terms.windows(2).any(|w| w[0] != w[1]) {
+        return Err(PlayError::Setup(format!(
+            "{}: the ref_keypoints and keypoints terms must name the same views and keypoints",
+            layout.path.display()
+        )));
+    }
+    let Some(keypoints) = reference.keypoints.take() else {
+        return if terms.is_empty() {
+            Ok(None)
+        } else {
+            Err(PlayError::Setup(format!(
+                "{} observes 2D keypoints: give the run keypoint references and their cameras (play --keypoints FILE --cameras FILE)",
+                layout.path.display()
+            )))
+        };
+    };
+    if keypoints.ticks != reference.len() {
+        return Err(PlayError::Setup(format!(
+            "keypoint references of {} ticks beside a reference of {}",
+            keypoints.ticks,
+            reference.len()
+        )));
+    }
+    let (views, names) = terms.first().copied().unwrap_or_default();
+    let mapped: Vec<String> = robot.config.keypoints.keys().cloned().collect();
+    if mapped.is_empty() {
+        return Err(PlayError::Setup(
+            crate::keypoints::KeypointError::NoMap(robot.path.clone()).to_string(),
+        ));
+    }
+    let track = KeypointTrack::new(keypoints, &mapped, views, names)
+        .map_err(|e| PlayError::Setup(format!("keypoint references: {e}")))?;
+    let k = match kinematics {
+        Some(k) => k,
+        None => kinematics.insert(RobotKinematics::new(robot, None, &[])?),
+    };
+    k.track_keypoints(robot, track.names())?;
+    Ok(Some(track))
 }
 
 /// What a policy tracking a motion needs beyond the clip: the motion bodies' world poses on the

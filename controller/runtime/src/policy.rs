@@ -144,6 +144,34 @@ pub enum Term {
     /// The frame of the motion a tracking export carries that the next call should return
     /// (goes to the model's `time_step` input).
     TimeStep(#[serde(default)] Shaping),
+    /// 2D keypoint references (Mimic2DM) at the current and future frames: per frame, per view
+    /// (camera) and per keypoint `(u, v, confidence)`, the pixel mapped to [−1, 1] across the
+    /// image (`2u/width − 1`, `2v/height − 1`); an unseen keypoint is `(0, 0, 0)`. Needs a run
+    /// with keypoint references (`play --keypoints`).
+    RefKeypoints {
+        /// The views, by camera name.
+        views: Vec<String>,
+        /// The keypoints, by name (the robot's `[keypoints]` map says where each is on it).
+        keypoints: Vec<String>,
+        /// Frame offsets, in control ticks.
+        #[serde(default = "current_frame")]
+        frames: Vec<usize>,
+        /// Scaling.
+        #[serde(flatten)]
+        shaping: Shaping,
+    },
+    /// The robot's own keypoints seen through the same cameras: forward kinematics of the
+    /// measured joints placed by the base estimate, projected; per view and keypoint `(u, v,
+    /// visible)` in the same [−1, 1] image coordinates, `(0, 0, 0)` when off the image.
+    Keypoints {
+        /// The views, by camera name.
+        views: Vec<String>,
+        /// The keypoints, by name.
+        keypoints: Vec<String>,
+        /// Scaling.
+        #[serde(flatten)]
+        shaping: Shaping,
+    },
     /// Positions of the reference's bodies (forward kinematics of the robot model at the
     /// reference pose) relative to the reference root, in the reference's heading frame: 3 per
     /// body per frame.
@@ -255,6 +283,8 @@ impl Term {
             | Self::RefJointVel { shaping, .. }
             | Self::RefRootPose { shaping, .. }
             | Self::RefBodyPos { shaping, .. }
+            | Self::RefKeypoints { shaping, .. }
+            | Self::Keypoints { shaping, .. }
             | Self::TrackerPoses { shaping, .. } => shaping,
         }
     }
@@ -280,6 +310,8 @@ impl Term {
             Self::RefJointVel { .. } => "ref_joint_vel",
             Self::RefRootPose { .. } => "ref_root_pose",
             Self::RefBodyPos { .. } => "ref_body_pos",
+            Self::RefKeypoints { .. } => "ref_keypoints",
+            Self::Keypoints { .. } => "keypoints",
             Self::TrackerPoses { .. } => "tracker_poses",
             Self::MotionCommand(_) => "motion_command",
             Self::MotionAnchorPosB(_) => "motion_anchor_pos_b",
@@ -310,6 +342,13 @@ impl Term {
             Self::RefJointPos { frames, .. } | Self::RefJointVel { frames, .. } => joints * frames.len(),
             Self::RefRootPose { frames, .. } => 9 * frames.len(),
             Self::RefBodyPos { bodies, frames, .. } => 3 * bodies.len() * frames.len(),
+            Self::RefKeypoints {
+                views,
+                keypoints,
+                frames,
+                ..
+            } => 3 * views.len() * keypoints.len() * frames.len(),
+            Self::Keypoints { views, keypoints, .. } => 3 * views.len() * keypoints.len(),
             Self::TrackerPoses { headset_only, .. } => {
                 if *headset_only {
                     9
@@ -366,6 +405,7 @@ fn check_term(term: &Term) -> Result<(), String> {
         | Term::RefJointVel { frames, .. }
         | Term::RefRootPose { frames, .. }
         | Term::RefBodyPos { frames, .. }
+        | Term::RefKeypoints { frames, .. }
             if frames.is_empty() || frames.iter().any(|&f| f > MAX_FRAMES_AHEAD - 1) =>
         {
             Err(format!(
@@ -978,6 +1018,7 @@ impl PolicyLayout {
                     | Term::RefJointVel { .. }
                     | Term::RefRootPose { .. }
                     | Term::RefBodyPos { .. }
+                    | Term::RefKeypoints { .. }
                     | Term::MotionCommand(_)
                     | Term::MotionAnchorPosB(_)
                     | Term::MotionAnchorOriB(_)
@@ -1238,6 +1279,8 @@ pub struct ObsInputs<'a> {
     pub robot_anchor: [f64; 7],
     /// The motion frame the next call should return (`time_step`).
     pub time_step: f64,
+    /// The robot's keypoints through the cameras, as the `keypoints` term lays them out.
+    pub robot_keypoints: &'a [f64],
 }
 
 /// Reference frames the observation can look at.
@@ -1253,6 +1296,9 @@ pub trait ReferenceView: std::fmt::Debug {
     fn body_pos(&self, offset: usize) -> &[f64];
     /// The reference's anchor body in the world, aligned to the robot: `[x, y, z, w, qx, qy, qz]`.
     fn anchor_pose(&self) -> [f64; 7];
+    /// The 2D keypoint references `offset` ticks ahead, as the `ref_keypoints` term lays them
+    /// out (views × keypoints × `(u, v, confidence)`, image coordinates in [−1, 1]).
+    fn keypoints(&self, offset: usize) -> &[f64];
 }
 
 /// Fills observations for one layout; histories live in buffers made once.
@@ -1412,6 +1458,13 @@ fn fill_term(term: &Term, x: &ObsInputs<'_>, v: &mut [f64]) {
                 v[f * w..(f + 1) * w].copy_from_slice(&x.reference.body_pos(offset)[..w]);
             }
         }
+        Term::RefKeypoints { frames, .. } => {
+            let w = v.len() / frames.len();
+            for (f, &offset) in frames.iter().enumerate() {
+                v[f * w..(f + 1) * w].copy_from_slice(&x.reference.keypoints(offset)[..w]);
+            }
+        }
+        Term::Keypoints { .. } => v.copy_from_slice(&x.robot_keypoints[..v.len()]),
     }
 }
 

@@ -22,6 +22,8 @@ struct Frames {
     body: Vec<Vec<f64>>,
     /// The anchor of this tick, aligned.
     anchor: [f64; 7],
+    /// The `ref_keypoints` values per frame.
+    keypoints: Vec<Vec<f64>>,
 }
 
 impl ReferenceView for Frames {
@@ -39,6 +41,9 @@ impl ReferenceView for Frames {
     }
     fn anchor_pose(&self) -> [f64; 7] {
         self.anchor
+    }
+    fn keypoints(&self, offset: usize) -> &[f64] {
+        &self.keypoints[offset.min(self.keypoints.len() - 1)]
     }
 }
 
@@ -74,6 +79,8 @@ pub struct ReferenceCursor {
     alignment: Option<Alignment>,
     /// The motion bodies' poses of this tick, aligned.
     motion_now: Vec<[f64; 7]>,
+    /// The `ref_keypoints` values of every tick of the reference, `width` each.
+    keypoint_obs: Vec<f64>,
 }
 
 impl ReferenceCursor {
@@ -95,7 +102,9 @@ impl ReferenceCursor {
                 root: vec![[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]; frames],
                 body: vec![vec![0.0; body_width]; frames],
                 anchor: [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
+                keypoints: vec![Vec::new(); frames],
             },
+            keypoint_obs: Vec::new(),
             alignment: None,
             motion_now: vec![[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]; reference.motion_bodies.len()],
             current_q: default_q.to_vec(),
@@ -108,6 +117,14 @@ impl ReferenceCursor {
             dt,
             reference,
         }
+    }
+
+    /// Gives the `ref_keypoints` term its values: `width` per tick of the reference.
+    pub fn set_keypoints(&mut self, values: Vec<f64>, width: usize) {
+        for f in &mut self.frames.keypoints {
+            *f = vec![0.0; width];
+        }
+        self.keypoint_obs = values;
     }
 
     /// Takes the frames from a motion generator's plans: this tick's and those ahead at their
@@ -321,6 +338,11 @@ impl ReferenceCursor {
             self.frames.root[f] = self.alignment.map_or(root, |a| a.apply(root));
             if !self.reference.bodies.is_empty() {
                 self.frames.body[f].copy_from_slice(self.reference.body_pos_at(k));
+            }
+            let w = self.frames.keypoints[f].len();
+            if w > 0 {
+                let at = k.min(len - 1) * w;
+                self.frames.keypoints[f].copy_from_slice(&self.keypoint_obs[at..at + w]);
             }
         }
         for (p, &r) in robot_index.iter().enumerate() {

@@ -25,6 +25,9 @@ impl ReferenceView for Still {
     fn anchor_pose(&self) -> [f64; 7] {
         [0.0, 0.0, self.height, 1.0, 0.0, 0.0, 0.0]
     }
+    fn keypoints(&self, _: usize) -> &[f64] {
+        &[]
+    }
 }
 
 /// The inputs of a robot at rest and upright at `still`'s pose (all joints at `zeros`, past
@@ -49,5 +52,6 @@ pub fn at_rest<'a>(zeros: &'a [f64], past: &'a [f32], still: &'a Still) -> ObsIn
         base_ang_vel: [0.0; 3],
         robot_anchor: still.anchor_pose(),
         time_step: 0.0,
+        robot_keypoints: &[],
     }
 }

@@ -8,6 +8,7 @@
 
 pub mod camera;
 pub mod clip;
+pub mod track;
 
 use robots::{Robot, spatial};
 
@@ -30,6 +31,12 @@ pub enum KeypointError {
     /// The reference names no keypoint the robot maps.
     #[error("the reference's keypoints ({0}) are none of the robot's [keypoints]")]
     NoCommonKeypoint(String),
+    /// More views than a run records.
+    #[error("{0} views: a run takes at most {max}", max = track::MAX_VIEWS)]
+    TooManyViews(usize),
+    /// An observation term names a keypoint the reference or the robot lacks.
+    #[error("keypoint {0:?}: not among the reference's keypoints that the robot's [keypoints] maps")]
+    Unmapped(String),
     /// A view of the reference has no camera.
     #[error("view {view:?} has no camera (cameras: {known})")]
     NoCamera {

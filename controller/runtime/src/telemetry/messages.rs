@@ -6,6 +6,7 @@ use foxglove::schemas as fg;
 use telemetry_schema as pb;
 
 use super::{MODE_NAMES, RecordingInfo, TickRecord};
+use crate::generator::PlanStatus;
 use robot_link::CycleRecord;
 
 /// `[x, y, z]` as a message vector.
@@ -80,6 +81,7 @@ named!(
     pb::BodyError => name,
     pb::BusTime => bus,
     pb::Foot => name,
+    pb::KeypointError => view,
 );
 
 /// `items` at length `n`, each named from `names` once (a stand-in `{what}{i}` past them).
@@ -110,7 +112,9 @@ pub(super) struct Messages {
     command_names: Vec<String>,
     foot_names: Vec<String>,
     bus_names: Vec<String>,
+    keypoint_views: Vec<String>,
     last_mode: u8,
+    last_generated: Option<u8>,
 }
 
 impl Messages {
@@ -146,7 +150,9 @@ impl Messages {
             command_names: info.commands.iter().map(|(n, _)| n.clone()).collect(),
             foot_names: info.foot_names.clone(),
             bus_names: info.bus_names.clone(),
+            keypoint_views: info.keypoint_views.clone(),
             last_mode: u8::MAX,
+            last_generated: None,
         }
     }
 
@@ -218,7 +224,57 @@ impl Messages {
             e.anchor = self.anchor == Some(i);
             e.error_m = f64::from(r.body_errors[i]);
         }
+        m.generated = r.generated.map(|(status, weight, past)| pb::GeneratedReference {
+            status: PlanStatus::from_code(status).map_or("?", PlanStatus::name).into(),
+            standby_weight: f64::from(weight),
+            past_plan_s: f64::from(past),
+        });
+        let views = usize::from(r.keypoint_views);
+        for (i, e) in named(&mut m.keypoint_errors, views, &self.keypoint_views, "view")
+            .iter_mut()
+            .enumerate()
+        {
+            let [mean, max, du, dv, compared] = r.keypoint_errors[i];
+            (e.mean_px, e.max_px, e.mean_du_px, e.mean_dv_px) =
+                (f64::from(mean), f64::from(max), f64::from(du), f64::from(dv));
+            e.compared = compared as u32;
+            e.failed = f64::from(max) > crate::keypoints::FAILURE_PX;
+        }
+        m.triangulated_mm = (!r.triangulated_mm.is_nan()).then_some(f64::from(r.triangulated_mm));
         m
+    }
+
+    /// `/log`, when a generated reference changed status this tick.
+    pub(super) fn generated_log(&mut self, r: &TickRecord, stamp: u64) -> Option<fg::Log> {
+        let (status, _, past) = r.generated?;
+        if self.last_generated.replace(status) == Some(status) {
+            return None;
+        }
+        let name = PlanStatus::from_code(status).map_or("?", PlanStatus::name);
+        let (level, message) = match PlanStatus::from_code(status) {
+            Some(PlanStatus::Fresh) => (
+                fg::log::Level::Info,
+                format!("tick {}: generated reference {name}", r.tick),
+            ),
+            Some(PlanStatus::Forecast) => (
+                fg::log::Level::Warning,
+                format!(
+                    "tick {}: generator late ({past:.3} s past its plan): forecasting",
+                    r.tick
+                ),
+            ),
+            _ => (
+                fg::log::Level::Warning,
+                format!("tick {}: generator {past:.3} s late: blending to standby", r.tick),
+            ),
+        };
+        Some(fg::Log {
+            timestamp: fg_time(stamp),
+            level: level as i32,
+            message,
+            name: "generator".into(),
+            ..Default::default()
+        })
     }
 
     /// `/safety` and `/log`, when the mode changed this tick.

@@ -115,6 +115,16 @@ pub struct TickRecord {
     pub body_errors: [f32; MAX_BODIES],
     /// Tracked bodies with an error this tick.
     pub bodies: u8,
+    /// A generated reference: status (0 fresh, 1 forecast, 2 standby), standby weight (0–1),
+    /// s past the newest plan.
+    pub generated: Option<(u8, f32, f32)>,
+    /// 2D keypoint errors per view (mean, max, mean du, mean dv px; keypoints compared),
+    /// `keypoint_views` in use (0: not measured this tick).
+    pub keypoint_errors: [[f32; 5]; crate::keypoints::track::MAX_VIEWS],
+    /// Views in use.
+    pub keypoint_views: u8,
+    /// The triangulated keypoint error, mm (NaN without).
+    pub triangulated_mm: f32,
     /// Raw policy actions (policy order).
     pub action: [f32; MAX_JOINTS],
     /// The observation the policy saw.
@@ -174,6 +184,10 @@ impl Default for TickRecord {
             imu_sample_count: 0,
             body_errors: [0.0; MAX_BODIES],
             bodies: 0,
+            generated: None,
+            keypoint_errors: [[0.0; 5]; crate::keypoints::track::MAX_VIEWS],
+            keypoint_views: 0,
+            triangulated_mm: f32::NAN,
             action: [0.0; MAX_JOINTS],
             obs: [0.0; MAX_OBS],
             commands: [0.0; human::commands::MAX_COMMANDS],
@@ -215,6 +229,12 @@ pub struct TickView<'a> {
     pub anchors: Option<([f64; 7], [f64; 7])>,
     /// Position errors of the tracked motion bodies, m (empty when unknown).
     pub body_errors: &'a [f64],
+    /// A generated reference: its status, standby weight and time past its plan.
+    pub generated: Option<(crate::generator::PlanStatus, f64, f64)>,
+    /// The 2D keypoint errors of this tick per view (empty when not measured).
+    pub keypoint_errors: &'a [crate::keypoints::track::ViewTick],
+    /// This tick's triangulated keypoint error, mm.
+    pub triangulated_mm: Option<f64>,
     /// The state estimate, for a robot with an estimator.
     pub estimate: Option<&'a crate::estimator::Estimate>,
     /// Ground truth in the estimate's frame: root pose and base-frame velocity (simulation).
@@ -282,6 +302,19 @@ impl TickRecord {
             slot[4..7].copy_from_slice(&s.accel);
             slot[7..].copy_from_slice(&s.quat);
         }
+        r.generated = v.generated.map(|(s, w, p)| (s as u8, w as f32, p as f32));
+        let views = v.keypoint_errors.len().min(r.keypoint_errors.len());
+        r.keypoint_views = views as u8;
+        for (slot, e) in r.keypoint_errors.iter_mut().zip(&v.keypoint_errors[..views]) {
+            *slot = [
+                e.mean_px as f32,
+                e.max_px as f32,
+                e.mean_du_px as f32,
+                e.mean_dv_px as f32,
+                e.compared as f32,
+            ];
+        }
+        r.triangulated_mm = v.triangulated_mm.map_or(f32::NAN, |m| m as f32);
         let b = v.body_errors.len().min(MAX_BODIES);
         r.bodies = b as u8;
         for (slot, e) in r.body_errors.iter_mut().zip(&v.body_errors[..b]) {
@@ -420,6 +453,8 @@ pub struct RecordingInfo {
     pub motion_bodies: Vec<String>,
     /// The anchor's index in `motion_bodies`.
     pub anchor: Option<usize>,
+    /// The views of the 2D keypoint references whose errors `/policy` carries.
+    pub keypoint_views: Vec<String>,
     /// The live commands `/policy` carries (`commands`): each one's name and meaning
     /// (`lin_vel_x`, `lin_vel_y`, `ang_vel_z`, `other`).
     pub commands: Vec<(String, human::commands::CommandKind)>,
@@ -881,6 +916,9 @@ impl TickChannels {
         out.message(&self.policy, t, m.policy(r, t))?;
         if let Some((transition, log)) = m.safety(r, t) {
             out.message(&self.safety, t, &transition)?;
+            out.message(&self.log, t, &log)?;
+        }
+        if let Some(log) = m.generated_log(r, t) {
             out.message(&self.log, t, &log)?;
         }
         out.message(&self.imu, t, m.imu(r, t))?;
