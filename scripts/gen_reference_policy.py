@@ -42,6 +42,10 @@ def width(term: dict, joints: int) -> int:
         return 3 * len(term["bodies"]) * len(term.get("frames", [0]))
     if kind == "command":
         return len(term["values"])
+    if kind == "ref_keypoints":
+        return 3 * len(term["views"]) * len(term["keypoints"]) * len(term.get("frames", [0]))
+    if kind == "keypoints":
+        return 3 * len(term["views"]) * len(term["keypoints"])
     raise SystemExit(f"unsupported term {kind!r}")
 
 

@@ -244,3 +244,193 @@ fn bad_cameras_and_keypoint_maps_are_refused_by_name() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A lockstep run of the squat on the mirror, with `keypoints` (2D references made through
+/// `project_through`) measured through `cameras`, under `policy`.
+struct KeypointRun {
+    player: controller::player::Player<sim2real::link::LockstepRobot>,
+    clock: sim2real::link::LockstepClock,
+    _world: std::sync::Arc<std::sync::Mutex<sim2real::mirror::Mirror>>,
+}
+
+fn keypoint_run(policy: &Path, project_through: &[Camera], cameras: &[Camera]) -> KeypointRun {
+    use controller::clip::{Clip, Reference};
+    use controller::keypoints::track::KeypointReference;
+    let robot = robots::Robot::load(&robots::reference_robot_path()).unwrap();
+    let layout = controller::policy::PolicyLayout::load(policy, &robot).unwrap();
+    let clip = Clip::load(&biped("clips/squat.csv")).unwrap();
+    let mut reference = Reference::from_clip(&clip, &robot, layout.manifest.rate_hz).unwrap();
+    // The 2D references as `robodeploy project` makes them: the clip at 30 Hz, projected.
+    let at_30 = Reference::from_clip(&clip, &robot, 30.0).unwrap();
+    let (names, positions) = controller::keypoints::keypoint_positions(&robot, &at_30).unwrap();
+    let times: Vec<f64> = (0..at_30.len()).map(|k| k as f64 / 30.0).collect();
+    let keypoints = controller::keypoints::project(project_through, &names, &times, &positions);
+    reference.keypoints =
+        Some(KeypointReference::new(&keypoints, cameras, layout.manifest.rate_hz, reference.len()).unwrap());
+    let (player, clock, world) = controller::sim::lockstep_player(
+        robot,
+        layout,
+        reference,
+        controller::player::PlayOptions::default(),
+        sim2real::config::MirrorConfig::default(),
+        std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false)),
+    )
+    .unwrap();
+    KeypointRun {
+        player,
+        clock,
+        _world: world,
+    }
+}
+
+impl KeypointRun {
+    fn tick(&mut self, k: u32) {
+        self.player.step(&self.clock).unwrap();
+        self.player
+            .wait_until(&mut self.clock, std::time::Duration::from_millis(20) * k);
+    }
+}
+
+use controller::keypoints::camera::Camera;
+
+fn cameras(path: &Path) -> Vec<Camera> {
+    controller::keypoints::camera::load_cameras(path).unwrap()
+}
+
+#[test]
+fn played_as_2d_references_the_robots_keypoints_are_measured_per_view_and_tick() {
+    let cams = cameras(&biped("cameras.toml"));
+    let policy =
+        test_support::fixtures::workspace_root().join("tests/fixtures/policies/keypoint_follower.toml");
+    let mut run = keypoint_run(&policy, &cams, &cams);
+    run.player.identify().unwrap();
+    let (mut measured, mut worst) = (0, [0.0f64; 2]);
+    let layout = controller::policy::PolicyLayout::load(
+        &policy,
+        &robots::Robot::load(&robots::reference_robot_path()).unwrap(),
+    )
+    .unwrap();
+    let slot = |name: &str| {
+        layout
+            .slots
+            .iter()
+            .find(|s| s.term.name() == name)
+            .unwrap()
+            .range
+            .clone()
+    };
+    let (reference_slot, robot_slot) = (slot("ref_keypoints"), slot("keypoints"));
+    for k in 1..=480u32 {
+        run.tick(k);
+        let errors = run.player.keypoint_errors();
+        if errors.is_empty() {
+            continue;
+        }
+        measured += 1;
+        assert_eq!(errors.len(), 2, "both views, every tracked tick");
+        for (v, e) in errors.iter().enumerate() {
+            assert_eq!(e.compared, 17, "tick {k} view {v}: every keypoint seen");
+            worst[v] = worst[v].max(e.max_px);
+        }
+        // The observation: the references now (2 views × 5 keypoints × (u, v, c)) in [−1, 1]
+        // image coordinates, all seen; the robot's own keypoints within a few pixels of them.
+        let obs = run.player.observation();
+        let now = &obs[reference_slot.start..reference_slot.start + 30];
+        let robot = &obs[robot_slot.clone()];
+        for (r, m) in now.chunks(3).zip(robot.chunks(3)) {
+            assert_eq!((r[2], m[2]), (1.0, 1.0), "seen, on the image");
+            assert!(r[0].abs() < 1.0 && r[1].abs() < 1.0, "{r:?}");
+            // 0.03 of the half-width: 19 px on the 1280 px image.
+            assert!(
+                (r[0] - m[0]).abs() < 0.03 && (r[1] - m[1]).abs() < 0.05,
+                "tick {k}: {r:?} vs {m:?}"
+            );
+        }
+    }
+    assert!(measured >= 340, "{measured} ticks measured (the clip is 351)");
+    let summary = run.player.run(&mut run.clock).unwrap();
+    let kp = summary.keypoints.expect("the summary has the keypoints");
+    assert_eq!(kp.views.len(), 2);
+    for v in &kp.views {
+        assert!(v.mean_px < 6.0 && v.failed_ticks == 0, "{v:?}");
+        assert_eq!(v.ticks, 351, "{v:?}");
+    }
+    assert!(worst.iter().all(|&w| w < 30.0), "{worst:?}");
+    let (mm, _) = kp.triangulated_mm.expect("two views triangulate");
+    assert!(mm < 25.0, "{mm} mm");
+}
+
+#[test]
+fn a_2_px_camera_bias_in_the_references_reads_as_2_px_in_every_tick() {
+    // The same run twice on the deterministic mirror: references made through the true
+    // cameras, and through a front camera whose principal point is 2 px to the right.
+    let cams = cameras(&biped("cameras.toml"));
+    let mut biased = cams.clone();
+    biased[0].cx += 2.0;
+    let policy = biped("policies/reference_follower.toml");
+    let (mut a, mut b) = (
+        keypoint_run(&policy, &cams, &cams),
+        keypoint_run(&policy, &biased, &cams),
+    );
+    a.player.identify().unwrap();
+    b.player.identify().unwrap();
+    let mut compared = 0;
+    for k in 1..=490u32 {
+        a.tick(k);
+        b.tick(k);
+        assert_eq!(
+            a.player.state().q,
+            b.player.state().q,
+            "tick {k}: the same motion"
+        );
+        let (ea, eb) = (a.player.keypoint_errors(), b.player.keypoint_errors());
+        assert_eq!(ea.len(), eb.len());
+        if ea.is_empty() {
+            continue;
+        }
+        compared += 1;
+        // Robot − reference: the reference moved 2 px right, so the offset is 2 px less.
+        let du = ea[0].mean_du_px - eb[0].mean_du_px;
+        assert!(
+            (du - 2.0).abs() < 1e-6,
+            "tick {k}: front offset changed by {du} px"
+        );
+        assert!((ea[0].mean_dv_px - eb[0].mean_dv_px).abs() < 1e-9);
+        assert!((eb[0].mean_px - ea[0].mean_px).abs() <= 2.0 + 1e-9);
+        assert_eq!(ea[1], eb[1], "tick {k}: the side view is untouched");
+    }
+    assert!(compared >= 340, "{compared}");
+}
+
+#[test]
+fn a_policy_observing_keypoints_without_references_is_refused() {
+    use controller::clip::{Clip, Reference};
+    let robot = robots::Robot::load(&robots::reference_robot_path()).unwrap();
+    let policy =
+        test_support::fixtures::workspace_root().join("tests/fixtures/policies/keypoint_follower.toml");
+    let layout = controller::policy::PolicyLayout::load(&policy, &robot).unwrap();
+    let reference =
+        Reference::from_clip(&Clip::load(&biped("clips/squat.csv")).unwrap(), &robot, 50.0).unwrap();
+    let err = controller::sim::lockstep_player(
+        robot,
+        layout,
+        reference,
+        controller::player::PlayOptions::default(),
+        sim2real::config::MirrorConfig::default(),
+        std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false)),
+    )
+    .map(|_| ())
+    .unwrap_err()
+    .to_string();
+    assert!(
+        err.contains("keypoint_follower.toml observes 2D keypoints") && err.contains("--keypoints"),
+        "{err}"
+    );
+    // From the command line: a keypoint file without its cameras, and one naming no camera.
+    let out = robodeploy()
+        .args(["play", "--no-record", "--keypoints", "k.csv"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && text.contains("--cameras"), "{text}");
+}

@@ -427,6 +427,24 @@ impl<L: RobotLink> Player<L> {
         self
     }
 
+    /// The observation the policy saw at the last policy tick.
+    pub fn observation(&self) -> &[f32] {
+        &self.obs
+    }
+
+    /// The reference of the last tick, robot order.
+    pub fn reference_q(&self) -> &[f64] {
+        self.cursor.current_q()
+    }
+
+    /// The 2D keypoint errors per view of the last tick (empty when it measured none).
+    pub fn keypoint_errors(&self) -> &[crate::keypoints::track::ViewTick] {
+        match &self.keypoints {
+            Some(k) if self.keypoints_measured => k.errors(),
+            _ => &[],
+        }
+    }
+
     /// The policy's default pose, robot order (a generated reference's standby).
     pub fn layout_default_q(&self) -> &[f64] {
         &self.layout.default_q
