@@ -8,6 +8,8 @@
 //!    the anchor terms through the robot's kinematics, 9 tracked bodies): same target. And
 //!    rd-mini (16 Dynamixel servos on one line, touch-sensor foot switches) on its
 //!    command-driven fixture with no clip: live commands, gait phase, locomotion metrics.
+//!    With 2D keypoint references (two views, the fixture policy observing them), and on a
+//!    motion generator's plans; and the generator's own step (its worker's latency).
 //! 2. Period jitter in wall-clock mode: the mirror served in real time over socketcand and
 //!    pseudo-terminals, the loop on absolute deadlines; how late each tick starts, p50/p99/max
 //!    (60 s with `--bench`, 3 s in the smoke run).
@@ -54,14 +56,84 @@ fn command_driven() -> (Robot, PolicyLayout, Reference) {
     (robot, layout, reference)
 }
 
-fn lockstep_compute((robot, layout, reference): (Robot, PolicyLayout, Reference)) -> Summary {
+/// The squat with its 2D keypoint references through rd-biped's two cameras, on the fixture
+/// policy that observes them (20 references now and ahead, 10 of the robot's own keypoints).
+fn keypoint_references() -> (Robot, PolicyLayout, Reference) {
+    let (robot, _, mut reference) = files();
+    let root = test_support::fixtures::workspace_root();
+    let layout = PolicyLayout::load(
+        &root.join("tests/fixtures/policies/keypoint_follower.toml"),
+        &robot,
+    )
+    .unwrap();
+    let cameras =
+        controller::keypoints::camera::load_cameras(&reference_robot_path().with_file_name("cameras.toml"))
+            .unwrap();
+    let (names, positions) = controller::keypoints::keypoint_positions(&robot, &reference).unwrap();
+    let times: Vec<f64> = (0..reference.len()).map(|k| k as f64 / 50.0).collect();
+    let clip = controller::keypoints::project(&cameras, &names, &times, &positions);
+    reference.keypoints = Some(
+        controller::keypoints::track::KeypointReference::new(&clip, &cameras, 50.0, reference.len()).unwrap(),
+    );
+    (robot, layout, reference)
+}
+
+/// The squat generator's model alone: one step (8 frames in, 3 out, 18 joints), p50/p99.
+fn generator_step() -> Summary {
+    let model = reference_robot_path().with_file_name("generators/squat_ar.onnx");
+    let mut m = controller::onnx::OnnxModel::load_tensors(&model).unwrap();
+    let (history, mut next) = (vec![0.1f32; 8 * 18], vec![0.0f32; 3 * 18]);
+    let mut samples = Vec::with_capacity(20_000);
+    for _ in 0..20_000 {
+        let t0 = Instant::now();
+        m.run(&history, &mut next).unwrap();
+        samples.push(t0.elapsed());
+    }
+    Summary::of(&mut samples).unwrap()
+}
+
+/// The reference follower tracking what the squat generator produces on its worker thread.
+fn generated_reference() -> Summary {
+    let (robot, layout, _) = files();
+    let generator = controller::generator::Generator::load(
+        &reference_robot_path().with_file_name("generators/squat_ar.toml"),
+        &robot,
+    )
+    .unwrap();
+    let reference = Reference::hold(&layout.default_q, generator.root(), layout.manifest.rate_hz);
+    let default_q = layout.default_q.clone();
+    // The follower looks 5 ticks (0.1 s) ahead.
+    let (worker, plans) = generator
+        .start(
+            &default_q,
+            controller::generator::GeneratorOptions::default(),
+            0.1,
+        )
+        .unwrap();
+    let summary = lockstep_compute_with((robot, layout, reference), |p| p.with_generated(plans));
+    let stats = worker.finish();
+    assert_eq!(stats.failed, 0);
+    summary
+}
+
+fn lockstep_compute(files: (Robot, PolicyLayout, Reference)) -> Summary {
+    lockstep_compute_with(files, |p| p)
+}
+
+type MirrorPlayer = controller::player::Player<sim2real::link::LockstepRobot>;
+
+fn lockstep_compute_with(
+    (robot, layout, reference): (Robot, PolicyLayout, Reference),
+    attach: impl FnOnce(MirrorPlayer) -> MirrorPlayer,
+) -> Summary {
     let options = PlayOptions {
         end: EndMode::Loop,
         ..PlayOptions::default()
     };
     let stop = Arc::new(AtomicBool::new(false));
-    let (mut p, mut clock, world) =
+    let (p, mut clock, world) =
         lockstep_player(robot, layout, reference, options, MirrorConfig::default(), stop).unwrap();
+    let mut p = attach(p);
     p.identify().unwrap();
     let period = Duration::from_millis(20);
     let mut samples = Vec::with_capacity(1000);
@@ -117,6 +189,20 @@ fn main() {
         "rd-mini on a command-driven policy, no clip (16 servos on one line, 59-value observation, \
          live commands, phase, locomotion metrics): {}",
         lockstep_compute(command_driven())
+    );
+    println!(
+        "the squat with 2D keypoint references in two views (ref_keypoints + keypoints terms, the \
+         robot's 17 keypoints projected and measured every tick): {}",
+        lockstep_compute(keypoint_references())
+    );
+    println!(
+        "the reference follower on the squat generator's plans (lock-free read, resampled 30 → 50 Hz, \
+         6 frames a tick): {}",
+        generated_reference()
+    );
+    println!(
+        "squat generator step on its own (ONNX, 8 × 18 in, 3 × 18 out): {}",
+        generator_step()
     );
     let seconds = if quick { 3.0 } else { 60.0 };
     println!(

@@ -301,10 +301,13 @@ impl Generator {
             count: n,
             frames,
             joints: j,
+            step: 0,
+            latency_s: 0.0,
         };
         let (writer, reader) = live_channel(initial.clone());
         let shared = Arc::new(Shared {
             loop_time: AtomicU64::new(0f64.to_bits()),
+            generated_until: AtomicU64::new((-1.0 / d.frame_hz).to_bits()),
             stop: AtomicBool::new(false),
             stats: Mutex::new(WorkerStats::default()),
         });
@@ -323,6 +326,8 @@ impl Generator {
             counts: PlanCounts::default(),
             events: Vec::with_capacity(MAX_EVENTS),
             past: 0.0,
+            step: 0,
+            step_latency_s: 0.0,
             reached_standby: None,
         };
         let worker = Worker {
@@ -359,6 +364,9 @@ pub struct Plan {
     count: usize,
     frames: Vec<f64>,
     joints: usize,
+    /// The step that made it (0: the seed), and its inference time, s.
+    step: u64,
+    latency_s: f64,
 }
 
 impl Plan {
@@ -371,6 +379,8 @@ impl Plan {
 struct Shared {
     /// The generator time the loop has reached, s (f64 bits).
     loop_time: AtomicU64,
+    /// How far the worker has generated: the time of its newest frame, s (f64 bits).
+    generated_until: AtomicU64,
     stop: AtomicBool,
     /// The worker's own counts (only the worker and the end of the run touch them).
     stats: Mutex<WorkerStats>,
@@ -454,6 +464,8 @@ impl Worker {
                 continue;
             }
             stats.steps += 1;
+            self.plan.step = stats.steps;
+            self.plan.latency_s = took.as_secs_f64();
             drop(stats);
             self.append();
             let plan = &self.plan;
@@ -461,7 +473,13 @@ impl Worker {
                 p.first = plan.first;
                 p.count = plan.count;
                 p.frames.copy_from_slice(&plan.frames);
+                p.step = plan.step;
+                p.latency_s = plan.latency_s;
             });
+            let newest = (plan.first + plan.count as i64 - 1) as f64 / self.frame_hz;
+            self.shared
+                .generated_until
+                .store(newest.to_bits(), Ordering::Relaxed);
         }
     }
 
@@ -491,6 +509,11 @@ pub struct GeneratorWorker {
 }
 
 impl GeneratorWorker {
+    /// How far the worker has generated: the generator time of its newest published frame, s.
+    pub fn generated_until_s(&self) -> f64 {
+        f64::from_bits(self.shared.generated_until.load(Ordering::Relaxed))
+    }
+
     /// Stops the worker and returns what it did.
     pub fn finish(mut self) -> WorkerStats {
         self.stop();
@@ -519,7 +542,6 @@ impl Drop for GeneratorWorker {
 /// Where the generated reference stands at a tick.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
-#[repr(u8)]
 pub enum PlanStatus {
     /// Inside the newest plan.
     Fresh,
@@ -545,6 +567,21 @@ impl PlanStatus {
             Self::Standby => "standby",
         }
     }
+}
+
+/// Where a generated reference stood in a tick (what a recording keeps).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GeneratedTick {
+    /// Fresh, forecast or standby.
+    pub status: PlanStatus,
+    /// How far it had blended to standby, 0–1.
+    pub standby_weight: f64,
+    /// Generator time past the newest plan's last frame, s (negative: time left in it).
+    pub past_plan_s: f64,
+    /// The step that made the newest plan (0: the seed), and its inference time, s.
+    pub step: u64,
+    /// (See `step`.)
+    pub step_latency_s: f64,
 }
 
 /// How often the generated reference was late, in ticks and events.
@@ -585,8 +622,10 @@ pub struct PlanReader {
     weight: f64,
     counts: PlanCounts,
     events: Vec<(f64, PlanStatus)>,
-    /// Past the plan's end at the last tick, s.
+    /// Past the plan's end at the last tick, s; the newest plan's step and its latency, s.
     past: f64,
+    step: u64,
+    step_latency_s: f64,
     reached_standby: Option<f64>,
 }
 
@@ -598,7 +637,7 @@ impl PlanReader {
         let plan = self.reader.latest();
         let last = plan.first as f64 + plan.count as f64 - 1.0;
         let past = (t * self.frame_hz - last) / self.frame_hz;
-        self.past = past;
+        (self.past, self.step, self.step_latency_s) = (past, plan.step, plan.latency_s);
         let status = if past <= 0.0 {
             PlanStatus::Fresh
         } else if past <= self.options.forecast_s {
@@ -685,11 +724,15 @@ impl PlanReader {
         (&self.q, &self.qd)
     }
 
-    /// Where the reference stood at the last tick: its status, how far it had blended to
-    /// standby (0–1), and how far past the newest plan's last frame it was, s (negative: time
-    /// left in the plan).
-    pub fn status(&self) -> (PlanStatus, f64, f64) {
-        (self.status, self.weight, self.past)
+    /// Where the reference stood at the last tick.
+    pub fn tick(&self) -> GeneratedTick {
+        GeneratedTick {
+            status: self.status,
+            standby_weight: self.weight,
+            past_plan_s: self.past,
+            step: self.step,
+            step_latency_s: self.step_latency_s,
+        }
     }
 
     /// When the reference first stood fully at standby (generator time, s).

@@ -706,7 +706,7 @@ impl<L: RobotLink> Player<L> {
                     &[]
                 },
                 estimate: self.estimator.as_ref().map(|_| &self.estimate),
-                generated: self.cursor.generated().map(crate::generator::PlanReader::status),
+                generated: self.cursor.generated().map(crate::generator::PlanReader::tick),
                 keypoint_errors: match &self.keypoints {
                     Some(k) if self.keypoints_measured => k.errors(),
                     _ => &[],

@@ -114,7 +114,7 @@ pub(super) struct Messages {
     bus_names: Vec<String>,
     keypoint_views: Vec<String>,
     last_mode: u8,
-    last_generated: Option<u8>,
+    last_generated: Option<PlanStatus>,
 }
 
 impl Messages {
@@ -224,10 +224,12 @@ impl Messages {
             e.anchor = self.anchor == Some(i);
             e.error_m = f64::from(r.body_errors[i]);
         }
-        m.generated = r.generated.map(|(status, weight, past)| pb::GeneratedReference {
-            status: PlanStatus::from_code(status).map_or("?", PlanStatus::name).into(),
-            standby_weight: f64::from(weight),
-            past_plan_s: f64::from(past),
+        m.generated = r.generated.map(|g| pb::GeneratedReference {
+            status: g.status.name().into(),
+            standby_weight: g.standby_weight,
+            past_plan_s: g.past_plan_s,
+            step: g.step,
+            step_latency_s: g.step_latency_s,
         });
         let views = usize::from(r.keypoint_views);
         for (i, e) in named(&mut m.keypoint_errors, views, &self.keypoint_views, "view")
@@ -246,24 +248,25 @@ impl Messages {
 
     /// `/log`, when a generated reference changed status this tick.
     pub(super) fn generated_log(&mut self, r: &TickRecord, stamp: u64) -> Option<fg::Log> {
-        let (status, _, past) = r.generated?;
-        if self.last_generated.replace(status) == Some(status) {
+        let g = r.generated?;
+        let (status, past) = (g.status, g.past_plan_s);
+        let before = self.last_generated.replace(status);
+        if before == Some(status) || (before.is_none() && status == PlanStatus::Fresh) {
             return None;
         }
-        let name = PlanStatus::from_code(status).map_or("?", PlanStatus::name);
-        let (level, message) = match PlanStatus::from_code(status) {
-            Some(PlanStatus::Fresh) => (
+        let (level, message) = match status {
+            PlanStatus::Fresh => (
                 fg::log::Level::Info,
-                format!("tick {}: generated reference {name}", r.tick),
+                format!("tick {}: generated reference fresh again", r.tick),
             ),
-            Some(PlanStatus::Forecast) => (
+            PlanStatus::Forecast => (
                 fg::log::Level::Warning,
                 format!(
                     "tick {}: generator late ({past:.3} s past its plan): forecasting",
                     r.tick
                 ),
             ),
-            _ => (
+            PlanStatus::Standby => (
                 fg::log::Level::Warning,
                 format!("tick {}: generator {past:.3} s late: blending to standby", r.tick),
             ),

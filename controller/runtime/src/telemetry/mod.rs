@@ -115,9 +115,8 @@ pub struct TickRecord {
     pub body_errors: [f32; MAX_BODIES],
     /// Tracked bodies with an error this tick.
     pub bodies: u8,
-    /// A generated reference: status (0 fresh, 1 forecast, 2 standby), standby weight (0–1),
-    /// s past the newest plan.
-    pub generated: Option<(u8, f32, f32)>,
+    /// A generated reference: where it stood.
+    pub generated: Option<crate::generator::GeneratedTick>,
     /// 2D keypoint errors per view (mean, max, mean du, mean dv px; keypoints compared),
     /// `keypoint_views` in use (0: not measured this tick).
     pub keypoint_errors: [[f32; 5]; crate::keypoints::track::MAX_VIEWS],
@@ -229,8 +228,8 @@ pub struct TickView<'a> {
     pub anchors: Option<([f64; 7], [f64; 7])>,
     /// Position errors of the tracked motion bodies, m (empty when unknown).
     pub body_errors: &'a [f64],
-    /// A generated reference: its status, standby weight and time past its plan.
-    pub generated: Option<(crate::generator::PlanStatus, f64, f64)>,
+    /// A generated reference: where it stood.
+    pub generated: Option<crate::generator::GeneratedTick>,
     /// The 2D keypoint errors of this tick per view (empty when not measured).
     pub keypoint_errors: &'a [crate::keypoints::track::ViewTick],
     /// This tick's triangulated keypoint error, mm.
@@ -302,7 +301,7 @@ impl TickRecord {
             slot[4..7].copy_from_slice(&s.accel);
             slot[7..].copy_from_slice(&s.quat);
         }
-        r.generated = v.generated.map(|(s, w, p)| (s as u8, w as f32, p as f32));
+        r.generated = v.generated;
         let views = v.keypoint_errors.len().min(r.keypoint_errors.len());
         r.keypoint_views = views as u8;
         for (slot, e) in r.keypoint_errors.iter_mut().zip(&v.keypoint_errors[..views]) {
