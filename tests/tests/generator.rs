@@ -295,12 +295,24 @@ fn descriptions_that_disagree_with_their_model_are_refused_by_name() {
 }
 
 #[test]
-fn play_runs_the_generator_and_says_how_it_kept_up() {
-    let (ok, text) = play_generator(
-        &biped("generators/squat_ar.toml"),
-        &["--max-seconds", "8", "--generator-stall-after", "3"],
+fn play_runs_the_generator_and_its_report_says_how_it_kept_up() {
+    let dir = std::env::temp_dir().join(format!("generator-report-{}", std::process::id()));
+    let (record, report) = (dir.join("run.mcap"), dir.join("report"));
+    let out = robodeploy()
+        .args(["play", "--generator"])
+        .arg(biped("generators/squat_ar.toml"))
+        .args(["--max-seconds", "8", "--generator-stall-after", "3", "--record"])
+        .arg(&record)
+        .arg("--report")
+        .arg(&report)
+        .output()
+        .unwrap();
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
     );
-    assert!(ok, "{text}");
+    assert!(out.status.success(), "{text}");
     for line in [
         "generators/squat_ar.toml: 8 → 3 frames at 30 Hz (10 Hz steps), 18 joints",
         "step latency p50",
@@ -311,4 +323,28 @@ fn play_runs_the_generator_and_says_how_it_kept_up() {
     ] {
         assert!(text.contains(line), "{line:?} missing:\n{text}");
     }
+    // The report reads it all back from the recording: the steps (3 s at 10 a second) with
+    // their latency, the ticks fresh, forecast (0.2 s) and at standby, both jitters.
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(report.join("summary.json")).unwrap()).unwrap();
+    let g = &summary["generator"];
+    let steps = g["steps"].as_u64().unwrap();
+    // (The loop reads the newest plan: at the start, when the worker runs ahead, a step or two
+    // go unseen.)
+    assert!((26..=31).contains(&steps), "{g}");
+    let latency = g["latency_us"].as_array().unwrap();
+    assert!(
+        latency[0].as_f64().unwrap() > 0.0 && latency[1].as_f64() >= latency[0].as_f64(),
+        "{g}"
+    );
+    assert_eq!(g["forecast_ticks"], 10, "{g}");
+    assert!(
+        g["fresh_ticks"].as_u64().unwrap() > 140 && g["standby_ticks"].as_u64().unwrap() > 50,
+        "{g}"
+    );
+    assert!(summary["reference_jitter"].as_f64().unwrap() > 0.0);
+    assert!(summary["jitter"].as_f64().unwrap() > summary["reference_jitter"].as_f64().unwrap());
+    let md = std::fs::read_to_string(report.join("summary.md")).unwrap();
+    assert!(md.contains("| generator: steps, latency p50 / p99 |"), "{md}");
+    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -434,3 +434,67 @@ fn a_policy_observing_keypoints_without_references_is_refused() {
     let text = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && text.contains("--cameras"), "{text}");
 }
+
+#[test]
+fn play_with_keypoint_references_reports_each_view() {
+    let dir = scratch("play");
+    let keypoints = dir.join("squat.csv");
+    squat_keypoints(&biped("cameras.toml"), &keypoints);
+    let (record, report) = (dir.join("run.mcap"), dir.join("report"));
+    let cameras = biped("cameras.toml");
+    let out = robodeploy()
+        .arg("play")
+        .arg("--keypoints")
+        .arg(&keypoints)
+        .arg("--cameras")
+        .arg(&cameras)
+        .arg("--record")
+        .arg(&record)
+        .arg("--report")
+        .arg(&report)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        text.contains("keypoints ") && text.contains("17 keypoints in 2 views (front, side)"),
+        "{text}"
+    );
+    assert!(
+        text.contains("2D keypoints (the robot's, projected, against the references):"),
+        "{text}"
+    );
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(report.join("summary.json")).unwrap()).unwrap();
+    let views = summary["keypoints"].as_array().unwrap();
+    assert_eq!(views.len(), 2, "{summary}");
+    for v in views {
+        assert_eq!(v["ticks"], 351, "{v}");
+        assert_eq!(v["failed_ticks"], 0, "{v}");
+        assert!(v["mean_px"].as_f64().unwrap() < 6.0, "{v}");
+    }
+    assert!(summary["triangulated_mm"].as_f64().unwrap() < 25.0, "{summary}");
+    let html = std::fs::read_to_string(report.join("report.html")).unwrap();
+    assert!(
+        html.contains("<h2>2D keypoints</h2>") && html.contains("reprojection error"),
+        "the plot"
+    );
+    // A keypoint file whose view has no camera.
+    let one = dir.join("one.toml");
+    let text = std::fs::read_to_string(&cameras).unwrap();
+    std::fs::write(&one, &text[..text.rfind("[[camera]]").unwrap()]).unwrap();
+    let out = robodeploy()
+        .args(["play", "--no-record", "--keypoints"])
+        .arg(&keypoints)
+        .arg("--cameras")
+        .arg(&one)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("side"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

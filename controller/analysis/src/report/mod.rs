@@ -10,7 +10,7 @@ use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::Path;
 
-use controller::metrics::{root_error, tracking_success};
+use controller::metrics::{Jitter, root_error, tracking_success};
 
 mod frames;
 mod plot;
@@ -42,8 +42,17 @@ pub struct RunSummary {
     /// Success: no fall, no safety stop, the reference played to its end, and (simulation) the
     /// root never more than 1 m or 45° from the reference's — [`tracking_success`].
     pub success: bool,
-    /// Mean magnitude of the third time derivative of joint positions, rad/s³.
+    /// Mean magnitude of the third time derivative of joint positions, rad/s³ (the robot's, over
+    /// the tracking window).
     pub jitter: f64,
+    /// The same of the reference (e.g. what a motion generator produced), rad/s³.
+    pub reference_jitter: f64,
+    /// A generated reference (`play --generator`): the generator's steps and how it kept up.
+    pub generator: Option<GeneratorFigures>,
+    /// 2D keypoint references (`play --keypoints`): the robot's keypoints against them, per view.
+    pub keypoints: Vec<KeypointFigures>,
+    /// With two views or more: the triangulated error, mean over the measured ticks, mm.
+    pub triangulated_mm: Option<f64>,
     /// Ticks where some joint's feedback was missing.
     pub bus_miss_ticks: usize,
     /// Safety transitions: tick, mode, cause.
@@ -63,6 +72,36 @@ pub struct RunSummary {
     /// A command-driven run (no clip): where the robot went against its commands, while the
     /// policy was in control (simulation runs). Such a run has no clip-tracking numbers.
     pub locomotion: Option<controller::metrics::LocomotionSummary>,
+}
+
+/// What a motion generator did over a run, from `/policy`'s `generated`.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct GeneratorFigures {
+    /// Steps seen (distinct plans the loop read).
+    pub steps: u64,
+    /// Their inference time: p50, p99, max, µs.
+    pub latency_us: [f64; 3],
+    /// Ticks inside a plan, on the forecast, past the forecast's bound.
+    pub fresh_ticks: usize,
+    /// (See `fresh_ticks`.)
+    pub forecast_ticks: usize,
+    /// (See `fresh_ticks`.)
+    pub standby_ticks: usize,
+}
+
+/// One view's reprojection error over a run, from `/policy`'s `keypoint_errors`.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct KeypointFigures {
+    /// The camera.
+    pub view: String,
+    /// Mean of the ticks' mean errors, and the largest error, px.
+    pub mean_px: f64,
+    /// (See `mean_px`.)
+    pub max_px: f64,
+    /// Ticks measured, and those over 100 px.
+    pub ticks: usize,
+    /// (See `ticks`.)
+    pub failed_ticks: usize,
 }
 
 /// How well the state estimate followed the simulation's truth, from a recording's `/estimator`.
@@ -133,6 +172,12 @@ struct Series {
     bus_us: Vec<Vec<f64>>,
     /// How the run was made, its files found from the recording's folder.
     run: Option<controller::options::RunMetadata>,
+    /// Per `/policy` message: a generated reference's status, step and step latency (s).
+    generated: Vec<Option<(String, u64, f64)>>,
+    /// Per `/policy` message: the keypoint errors per view (view, mean, max px) and the
+    /// triangulated error (mm).
+    keypoint_errors: Vec<Vec<(String, f64, f64)>>,
+    triangulated_mm: Vec<Option<f64>>,
 }
 
 fn floats(v: &serde_json::Value) -> Vec<f64> {
@@ -229,6 +274,18 @@ fn read_series(path: &Path) -> Result<Series, String> {
                     .push(v.body_errors.iter().map(|b| b.error_m).collect());
                 s.running.push(v.running);
                 s.commands.push(v.commands.iter().map(|c| c.value).collect());
+                s.generated.push(
+                    v.generated
+                        .as_ref()
+                        .map(|g| (g.status.clone(), g.step, g.step_latency_s)),
+                );
+                s.keypoint_errors.push(
+                    v.keypoint_errors
+                        .iter()
+                        .map(|e| (e.view.clone(), e.mean_px, e.max_px))
+                        .collect(),
+                );
+                s.triangulated_mm.push(v.triangulated_mm);
             }
             "/estimator" => {
                 let v: pb::StateEstimate = decode(&m)?;
@@ -317,6 +374,59 @@ fn locomotion_course(
     (l.summary(), course)
 }
 
+/// A generated reference's figures: steps by their number, latency over the distinct steps.
+fn generator_figures(s: &Series) -> Option<GeneratorFigures> {
+    let ticks: Vec<&(String, u64, f64)> = s.generated.iter().flatten().collect();
+    if ticks.is_empty() {
+        return None;
+    }
+    let mut steps: BTreeMap<u64, f64> = BTreeMap::new();
+    for (_, step, latency) in &ticks {
+        if *step > 0 {
+            steps.insert(*step, latency * 1e6);
+        }
+    }
+    let latencies: Vec<f64> = steps.values().copied().collect();
+    let count = |status: &str| ticks.iter().filter(|(s, _, _)| s == status).count();
+    Some(GeneratorFigures {
+        steps: steps.len() as u64,
+        latency_us: quantiles(&latencies),
+        fresh_ticks: count("fresh"),
+        forecast_ticks: count("forecast"),
+        standby_ticks: count("standby"),
+    })
+}
+
+/// Each view's reprojection error over the ticks that measured it.
+fn keypoint_figures(s: &Series) -> Vec<KeypointFigures> {
+    let mut views: Vec<KeypointFigures> = Vec::new();
+    for tick in &s.keypoint_errors {
+        for (view, mean, max) in tick {
+            let f = match views.iter_mut().find(|f| &f.view == view) {
+                Some(f) => f,
+                None => {
+                    views.push(KeypointFigures {
+                        view: view.clone(),
+                        mean_px: 0.0,
+                        max_px: 0.0,
+                        ticks: 0,
+                        failed_ticks: 0,
+                    });
+                    views.last_mut().expect("just pushed")
+                }
+            };
+            f.mean_px += mean;
+            f.max_px = f.max_px.max(*max);
+            f.ticks += 1;
+            f.failed_ticks += usize::from(*max > controller::keypoints::FAILURE_PX);
+        }
+    }
+    for f in &mut views {
+        f.mean_px /= f.ticks.max(1) as f64;
+    }
+    views
+}
+
 fn summarize(s: &Series) -> RunSummary {
     let n = s.joints.len().max(s.q.first().map_or(0, Vec::len));
     // The metrics' window: the ticks tracking the clip; for a command-driven run (no clip) the
@@ -385,20 +495,19 @@ fn summarize(s: &Series) -> RunSummary {
             has_truth.then_some(root_max),
         )
     };
-    // Jitter: third derivative by finite differences over the tracking window.
-    let mut jitter = (0.0, 0usize);
-    for w in window.windows(4) {
-        if w[3] - w[0] != 3 {
-            continue;
+    // Jitter (the loop's own measure): third differences over runs of consecutive ticks.
+    let (mut robot_jitter, mut reference_jitter) = (Jitter::new(n), Jitter::new(n));
+    let mut previous: Option<usize> = None;
+    for &k in &window {
+        if previous.is_none_or(|p| p + 1 != k) {
+            robot_jitter.restart();
+            reference_jitter.restart();
         }
-        let dt = (s.time[w[3]] - s.time[w[0]]) / 3.0;
-        if dt <= 0.0 {
-            continue;
-        }
-        for j in 0..n {
-            let d3 = (s.q[w[3]][j] - 3.0 * s.q[w[2]][j] + 3.0 * s.q[w[1]][j] - s.q[w[0]][j]) / dt.powi(3);
-            jitter.0 += d3.abs();
-            jitter.1 += 1;
+        let dt = previous.map_or(0.0, |p| s.time[k] - s.time[p]);
+        previous = Some(k);
+        robot_jitter.push(&s.q[k], dt);
+        if let Some(r) = s.reference_q.get(k) {
+            reference_jitter.push(r, dt);
         }
     }
     // Tracked bodies: their position errors over the window.
@@ -472,10 +581,13 @@ fn summarize(s: &Series) -> RunSummary {
         safety_stop: s.faulted,
         played,
         success,
-        jitter: if jitter.1 > 0 {
-            jitter.0 / jitter.1 as f64
-        } else {
-            0.0
+        jitter: robot_jitter.mean().unwrap_or(0.0),
+        reference_jitter: reference_jitter.mean().unwrap_or(0.0),
+        generator: generator_figures(s),
+        keypoints: keypoint_figures(s),
+        triangulated_mm: {
+            let mm: Vec<f64> = s.triangulated_mm.iter().flatten().copied().collect();
+            (!mm.is_empty()).then(|| mm.iter().sum::<f64>() / mm.len() as f64)
         },
         bus_miss_ticks: s.missed.iter().filter(|&&m| m).count(),
         safety_events: s.safety.clone(),
@@ -560,9 +672,31 @@ pub fn write_report(log: &Path, dir: &Path) -> Result<RunSummary, AnalysisError>
     }
     let _ = writeln!(
         md,
-        "| jitter (mean \\|d³q/dt³\\|) | {:.2} rad/s³ |",
-        summary.jitter
+        "| jitter (mean \\|d³q/dt³\\|): robot / reference | {:.2} / {:.2} rad/s³ |",
+        summary.jitter, summary.reference_jitter
     );
+    if let Some(g) = &summary.generator {
+        let _ = writeln!(
+            md,
+            "| generator: steps, latency p50 / p99 | {}, {:.0} / {:.0} µs |",
+            g.steps, g.latency_us[0], g.latency_us[1]
+        );
+        let _ = writeln!(
+            md,
+            "| generated reference: fresh / forecast / standby ticks | {} / {} / {} |",
+            g.fresh_ticks, g.forecast_ticks, g.standby_ticks
+        );
+    }
+    for k in &summary.keypoints {
+        let _ = writeln!(
+            md,
+            "| keypoints {}: reprojection mean / max, ticks over 100 px | {:.1} / {:.1} px, {} of {} |",
+            k.view, k.mean_px, k.max_px, k.failed_ticks, k.ticks
+        );
+    }
+    if let Some(mm) = summary.triangulated_mm {
+        let _ = writeln!(md, "| keypoints triangulated from the views | {mm:.1} mm |");
+    }
     let _ = writeln!(md, "| ticks with bus misses | {} |", summary.bus_miss_ticks);
     let _ = writeln!(
         md,
@@ -766,7 +900,35 @@ fn page(log: &Path, s: &Series, summary: &RunSummary) -> Result<(String, Vec<(St
             "no".into()
         },
     );
-    row("jitter (mean |d³q/dt³|)", format!("{:.2} rad/s³", summary.jitter));
+    row(
+        "jitter (mean |d³q/dt³|): robot / reference",
+        format!("{:.2} / {:.2} rad/s³", summary.jitter, summary.reference_jitter),
+    );
+    if let Some(g) = &summary.generator {
+        row(
+            "generator: steps, step latency p50 / p99 / max",
+            format!(
+                "{}, {:.0} / {:.0} / {:.0} µs",
+                g.steps, g.latency_us[0], g.latency_us[1], g.latency_us[2]
+            ),
+        );
+        row(
+            "generated reference: fresh / forecast / standby ticks",
+            format!("{} / {} / {}", g.fresh_ticks, g.forecast_ticks, g.standby_ticks),
+        );
+    }
+    for k in &summary.keypoints {
+        row(
+            &format!("keypoints {}: reprojection mean / max", k.view),
+            format!(
+                "{:.1} / {:.1} px; {} of {} ticks over 100 px",
+                k.mean_px, k.max_px, k.failed_ticks, k.ticks
+            ),
+        );
+    }
+    if let Some(mm) = summary.triangulated_mm {
+        row("keypoints triangulated from the views", format!("{mm:.1} mm"));
+    }
     row("ticks with bus misses", summary.bus_miss_ticks.to_string());
     row(
         "compute p50 / p99 / max",
@@ -1068,6 +1230,55 @@ fn page(log: &Path, s: &Series, summary: &RunSummary) -> Result<(String, Vec<(St
             &phases,
         )?;
         html.push_str(&add("bodies", svg));
+    }
+    if !summary.keypoints.is_empty() {
+        html.push_str("<h2>2D keypoints</h2>\n");
+        let labels: Vec<(String, String)> = summary
+            .keypoints
+            .iter()
+            .map(|k| (format!("{} mean", k.view), format!("{} max", k.view)))
+            .collect();
+        let colours = [(BLUE, MEASURED), (GREEN, ORANGE)];
+        let mut lines = Vec::new();
+        for (v, (k, (mean_label, max_label))) in summary.keypoints.iter().zip(&labels).enumerate() {
+            let per_tick = |pick: &dyn Fn(&(String, f64, f64)) -> f64| -> Vec<(f64, f64)> {
+                s.time
+                    .iter()
+                    .zip(&s.keypoint_errors)
+                    .map(|(&t, e)| (t, e.iter().find(|e| e.0 == k.view).map_or(f64::NAN, pick)))
+                    .collect()
+            };
+            let (mean_colour, max_colour) = colours[v % colours.len()];
+            lines.push(Line {
+                label: mean_label,
+                color: mean_colour,
+                points: per_tick(&|e| e.1),
+            });
+            lines.push(Line {
+                label: max_label,
+                color: max_colour,
+                points: per_tick(&|e| e.2),
+            });
+        }
+        let worst = summary.keypoints.iter().map(|k| k.max_px).fold(0.0, f64::max);
+        let svg = plot::time_plot(
+            &TimePlot {
+                title: "the robot's keypoints against the 2D references: reprojection error",
+                y_desc: "px",
+                lines,
+                // The paper's failure criterion, once the error comes near it.
+                limits: if worst > 0.2 * controller::keypoints::FAILURE_PX {
+                    vec![controller::keypoints::FAILURE_PX]
+                } else {
+                    Vec::new()
+                },
+                size: (620, 260),
+                legend: true,
+            },
+            &phases,
+        )?;
+        html.push_str(&add("keypoints", svg));
+        html.push_str("<p>Each tick tracking the reference: the robot's keypoints (robot.toml [keypoints], forward kinematics of the measured joints placed by the simulator's truth) projected through each camera, against that view's references. A tick fails at 100 px (dashed once the error comes within a fifth of it).</p>\n");
     }
     if summary.estimator.is_some() {
         html.push_str("<h2>State estimate against the simulator's truth</h2>\n");
