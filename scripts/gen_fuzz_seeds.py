@@ -22,7 +22,9 @@ mutates them into the ones it must refuse. None is third-party material:
                    w x y z quaternion orders, two joints).
   npy_array/       NumPy .npy arrays (format 1.0), float64 and float32, as np.save writes them.
   policy_toml/     the project's reference-follower manifest with its default pose, stiffness and
-                   damping written out (so the target never needs the ONNX file's metadata).
+                   damping written out (so the target never needs the ONNX file's metadata); the
+                   squat generator's description (the target reads the text as both); the keypoint
+                   fixture policy's manifest (its ref_keypoints and keypoints terms).
   mirror_toml/     the project's own randomized-with-faults mirror settings (sim2real/configs/).
   onnx_metadata/   the metadata of rd-biped tracking exports as scripts/gen_tracking_export.py
                    writes them (a byte for the time_step input, then key TAB value lines): the
@@ -169,6 +171,11 @@ joints = head.count('",') + head.count('"\n]')
 explicit = "default_pose = [%s]\nstiffness = [%s]\ndamping = [%s]\n" % (
     ", ".join(["0.0"] * joints), ", ".join(["20.0"] * joints), ", ".join(["1.0"] * joints))
 write("policy_toml", "reference_follower.toml", head + "\n" + explicit + "\n[" + tables)
+GENERATOR = POLICY.parent.parent / "generators" / "squat_ar.toml"
+write("policy_toml", "squat_ar.toml", GENERATOR.read_text())
+KEYPOINT_POLICY = POLICY.parent.parent.parent.parent / "tests" / "fixtures" / "policies" / "keypoint_follower.toml"
+kp_head, kp_tables = KEYPOINT_POLICY.read_text().split("\n[", 1)
+write("policy_toml", "keypoint_follower.toml", kp_head + "\n" + explicit + "\n[" + kp_tables)
 
 import tomllib  # noqa: E402
 

@@ -348,3 +348,32 @@ fn play_runs_the_generator_and_its_report_says_how_it_kept_up() {
     assert!(md.contains("| generator: steps, latency p50 / p99 |"), "{md}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn the_shipped_generator_is_what_its_script_fits() {
+    // scripts/gen_generator.py refits the model from the squat clip: the same description, and
+    // a model that predicts the same frames (to float32 rounding; the fit is a linear solve).
+    let dir = std::env::temp_dir().join(format!("generator-fit-{}", std::process::id()));
+    let root = test_support::fixtures::workspace_root();
+    let out = std::process::Command::new(test_support::fixtures::venv_python())
+        .arg(root.join("scripts/gen_generator.py"))
+        .arg("--out")
+        .arg(&dir)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(
+        std::fs::read_to_string(dir.join("squat_ar.toml")).unwrap(),
+        std::fs::read_to_string(biped("generators/squat_ar.toml")).unwrap()
+    );
+    let mut fitted = controller::onnx::OnnxModel::load_tensors(&dir.join("squat_ar.onnx")).unwrap();
+    let mut shipped = controller::onnx::OnnxModel::load_tensors(&biped("generators/squat_ar.onnx")).unwrap();
+    let history: Vec<f32> = (0..8 * 18).map(|i| ((i as f32) * 0.37).sin() * 0.3).collect();
+    let (mut a, mut b) = (vec![0.0f32; 3 * 18], vec![0.0f32; 3 * 18]);
+    fitted.run(&history, &mut a).unwrap();
+    shipped.run(&history, &mut b).unwrap();
+    for (x, y) in a.iter().zip(&b) {
+        assert!((x - y).abs() < 1e-4, "{x} vs {y}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}

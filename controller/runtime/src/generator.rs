@@ -84,6 +84,38 @@ pub struct GeneratorDescription {
     pub seed_clip: PathBuf,
 }
 
+impl GeneratorDescription {
+    /// Parses `text` (the file `path`) and checks what needs no robot or model: N and K within
+    /// 1–256, the frame rate within 1–1000 Hz, joints named once each. Errors name the field.
+    pub fn from_str(path: &Path, text: &str) -> Result<Self, FileError> {
+        let d: Self = toml::from_str(text).map_err(|e| FileError::new(path, e.to_string()))?;
+        let bad = |field: &str, m: String| FileError::new(path, format!("{field}: {m}"));
+        for (field, v) in [("history", d.history), ("horizon", d.horizon)] {
+            if !(1..=MAX_FRAMES).contains(&v) {
+                return Err(bad(field, format!("{v} frames: 1–{MAX_FRAMES}")));
+            }
+        }
+        if !(d.frame_hz.is_finite() && (1.0..=1000.0).contains(&d.frame_hz)) {
+            return Err(bad("frame_hz", format!("{}: 1–1000 Hz", d.frame_hz)));
+        }
+        if d.joints.is_empty() {
+            return Err(bad(
+                "joints",
+                "empty: name the model's joints in its order".into(),
+            ));
+        }
+        if let Some((i, name)) = d
+            .joints
+            .iter()
+            .enumerate()
+            .find(|(i, n)| d.joints[..*i].contains(n))
+        {
+            return Err(bad("joints", format!("{name:?} twice (entry {i})")));
+        }
+        Ok(d)
+    }
+}
+
 fn history_input() -> String {
     "history".into()
 }
@@ -177,20 +209,8 @@ impl Generator {
     /// the model's input and output shaped as described, the seed clip long enough.
     pub fn load(path: &Path, robot: &Robot) -> Result<Self, GeneratorError> {
         let text = robots::read_text(path).map_err(|m| FileError::new(path, m))?;
-        let d: GeneratorDescription =
-            toml::from_str(&text).map_err(|e| FileError::new(path, e.to_string()))?;
+        let d = GeneratorDescription::from_str(path, &text)?;
         let bad = |field: &str, m: String| FileError::new(path, format!("{field}: {m}"));
-        for (field, v) in [("history", d.history), ("horizon", d.horizon)] {
-            if !(1..=MAX_FRAMES).contains(&v) {
-                return Err(bad(field, format!("{v} frames: 1–{MAX_FRAMES}")).into());
-            }
-        }
-        if !(d.frame_hz.is_finite() && (1.0..=1000.0).contains(&d.frame_hz)) {
-            return Err(bad("frame_hz", format!("{}: 1–1000 Hz", d.frame_hz)).into());
-        }
-        if d.joints.is_empty() {
-            return Err(bad("joints", "empty: name the model's joints in its order".into()).into());
-        }
         let mut robot_index = Vec::with_capacity(d.joints.len());
         for name in &d.joints {
             let Some(r) = robot.config.joints.iter().position(|j| &j.name == name) else {
@@ -200,9 +220,6 @@ impl Generator {
                 )
                 .into());
             };
-            if robot_index.contains(&r) {
-                return Err(bad("joints", format!("{name:?} twice")).into());
-            }
             robot_index.push(r);
         }
         let dir = path.parent().unwrap_or(Path::new("."));

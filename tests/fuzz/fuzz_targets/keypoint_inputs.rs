@@ -1,5 +1,6 @@
 //! 2D keypoint inputs: any text as a camera file, as the project's keypoint CSV (checked against
-//! the shipped cameras) and as a pose estimator's COCO JSON (by person and without). Whatever is
+//! the shipped cameras, then resampled to a run's ticks) and as a pose estimator's COCO JSON (by
+//! person and without). Whatever is
 //! accepted is whole: every frame has every view's keypoints, confidences within [0, 1], and every
 //! keypoint seen lies on its camera's image.
 #![no_main]
@@ -58,6 +59,26 @@ fuzz_target!(|data: &[u8]| {
             })
             .collect();
         whole(&clip, &by_view);
+        // Resampled to a run's ticks: every tick whole, nothing off the images.
+        let Ok(reference) = controller::keypoints::track::KeypointReference::new(&clip, cameras, 50.0, 64)
+        else {
+            assert!(
+                clip.is_empty(),
+                "a clip with frames whose views have cameras resamples"
+            );
+            return;
+        };
+        assert_eq!(reference.points.len(), 64 * clip.views.len() * clip.names.len());
+        for t in 0..64 {
+            for (v, camera) in by_view.iter().enumerate() {
+                for p in reference.at(t, v) {
+                    assert!((0.0..=1.0).contains(&p[2]), "{p:?}");
+                    if p[2] > 0.0 {
+                        assert!(camera.sees([p[0], p[1]]), "{p:?} off {}", camera.name);
+                    }
+                }
+            }
+        }
     }
     for person in [None, Some(7)] {
         let options = CocoOptions {

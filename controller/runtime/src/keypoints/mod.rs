@@ -31,6 +31,9 @@ pub enum KeypointError {
     /// The reference names no keypoint the robot maps.
     #[error("the reference's keypoints ({0}) are none of the robot's [keypoints]")]
     NoCommonKeypoint(String),
+    /// A keypoint clip without frames.
+    #[error("the keypoint references have no frames")]
+    NoFrames,
     /// More views than a run records.
     #[error("{0} views: a run takes at most {max}", max = track::MAX_VIEWS)]
     TooManyViews(usize),

@@ -41,6 +41,9 @@ impl KeypointReference {
         if clip.views.len() > MAX_VIEWS {
             return Err(KeypointError::TooManyViews(clip.views.len()));
         }
+        if clip.is_empty() {
+            return Err(KeypointError::NoFrames);
+        }
         let view_cameras = clip
             .views
             .iter()
