@@ -90,7 +90,7 @@ enum Command {
     /// (position limits with margin, speed limits, torque bounds) and writes them. The state machine
     /// goes Off → Ready → SoftStart → Running → Stopping → Damped → Off; faults (stale feedback,
     /// device faults, NaN, tilt, overruns) and SIGINT/SIGTERM take the short way to Damped.
-    Play(play::PlayArgs),
+    Play(Box<play::PlayArgs>),
     /// Retarget a human BVH recording onto the robot: the retargeting map of robot.toml (scale
     /// and nominal offsets from a T-pose or the first frame), inverse kinematics on the robot's
     /// MuJoCo model within the joints' limits, soles kept out of the floor; writes a clip (CSV)
