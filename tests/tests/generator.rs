@@ -346,6 +346,13 @@ fn play_runs_the_generator_and_its_report_says_how_it_kept_up() {
     assert!(summary["jitter"].as_f64().unwrap() > summary["reference_jitter"].as_f64().unwrap());
     let md = std::fs::read_to_string(report.join("summary.md")).unwrap();
     assert!(md.contains("| generator: steps, latency p50 / p99 |"), "{md}");
+    // A replay cannot rebuild plans that came as the worker made them: it says so.
+    let out = robodeploy().arg("replay").arg(&record).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("the run tracked the motion generator"),
+        "{err}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -442,8 +442,12 @@ fn play_with_keypoint_references_reports_each_view() {
     squat_keypoints(&biped("cameras.toml"), &keypoints);
     let (record, report) = (dir.join("run.mcap"), dir.join("report"));
     let cameras = biped("cameras.toml");
+    let policy =
+        test_support::fixtures::workspace_root().join("tests/fixtures/policies/keypoint_follower.toml");
     let out = robodeploy()
         .arg("play")
+        .arg("--policy")
+        .arg(&policy)
         .arg("--keypoints")
         .arg(&keypoints)
         .arg("--cameras")
@@ -482,6 +486,15 @@ fn play_with_keypoint_references_reports_each_view() {
     assert!(
         html.contains("<h2>2D keypoints</h2>") && html.contains("reprojection error"),
         "the plot"
+    );
+    // The recording names the references and cameras: a replay feeds the policy the same
+    // keypoint observations and gets the same commands.
+    let out = robodeploy().arg("replay").arg(&record).output().unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success() && text.contains("every command matches the recording bit for bit"),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
     );
     // A keypoint file whose view has no camera.
     let one = dir.join("one.toml");

@@ -386,13 +386,35 @@ pub fn replay(path: &Path) -> Result<ReplayReport, AnalysisError> {
     }
     // The clip the run played, the motion its export carries (the recording names the export),
     // or none for a command-driven policy.
-    let (reference, _) = controller::motion::load_reference(
+    if let Some(g) = &run.generator {
+        return Err(AnalysisError::file(
+            path,
+            format!(
+                "the run tracked the motion generator {}: its reference came from the worker's plans as they arrived, which the recorded inputs do not determine; a replay cannot reproduce it",
+                g.display()
+            ),
+        ));
+    }
+    let (mut reference, _) = controller::motion::load_reference(
         run.clip.as_deref(),
         run.clip.as_deref().unwrap_or(&run.policy),
         &mut layout,
         &robot,
         run.options.start_step,
     )?;
+    // The 2D keypoint references the run had beside its clip.
+    if let Some(k) = &run.keypoints {
+        let (cameras, clip) = k.load().map_err(|e| AnalysisError::file(&e.path, e.message))?;
+        reference.keypoints = Some(
+            controller::keypoints::track::KeypointReference::new(
+                &clip,
+                &cameras,
+                layout.manifest.rate_hz,
+                reference.len(),
+            )
+            .map_err(|e| AnalysisError::file(&k.keypoints, e.to_string()))?,
+        );
+    }
     let options = run.options;
     let joints = robot.config.joints.iter().map(|j| j.name.clone()).collect();
     let ticks = Arc::new(rec.ticks);

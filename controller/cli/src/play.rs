@@ -120,34 +120,42 @@ struct KeypointArgs {
     fps: f64,
 }
 
+impl KeypointArgs {
+    /// What `--keypoints` names, when given.
+    fn source(&self) -> Option<controller::keypoints::clip::KeypointSource> {
+        Some(controller::keypoints::clip::KeypointSource {
+            keypoints: self.keypoints.clone()?,
+            cameras: self.cameras.clone()?,
+            view: self.view.clone(),
+            person: self.person,
+            fps: self.fps,
+        })
+    }
+}
+
 /// Adds `--keypoints` to the run's reference.
 fn load_keypoint_references(args: &KeypointArgs, l: &mut Loaded) -> Result<()> {
-    let (Some(path), Some(camera_file)) = (&args.keypoints, &args.cameras) else {
+    let Some(source) = args.source() else {
         return Ok(());
     };
-    let cameras = controller::keypoints::camera::load_cameras(camera_file)?;
-    let coco = crate::project::CocoArgs {
-        view: args.view.clone(),
-        person: args.person,
-        fps: args.fps,
-    };
-    let clip = crate::project::load_keypoints(path, &cameras, camera_file, &coco, "--keypoints")?;
-    let reference = controller::keypoints::track::KeypointReference::new(
-        &clip,
-        &cameras,
-        l.layout.manifest.rate_hz,
-        l.reference.len(),
-    )
-    .with_context(|| format!("--keypoints {}", path.display()))?;
+    let (cameras, clip) = source.load()?;
+    l.reference.keypoints = Some(
+        controller::keypoints::track::KeypointReference::new(
+            &clip,
+            &cameras,
+            l.layout.manifest.rate_hz,
+            l.reference.len(),
+        )
+        .with_context(|| format!("--keypoints {}", source.keypoints.display()))?,
+    );
     println!(
         "keypoints {}: {} frames, {} keypoints in {} views ({})",
-        path.display(),
+        source.keypoints.display(),
         clip.len(),
         clip.names.len(),
         clip.views.len(),
         clip.views.join(", ")
     );
-    l.reference.keypoints = Some(reference);
     Ok(())
 }
 
@@ -587,10 +595,23 @@ fn with_recorder<L: RobotLink>(
     let run = controller::options::RunMetadata {
         robot: absolute(&args.files.robot),
         policy: absolute(&args.files.policy),
-        // What the run played: the clip, the export's own motion, or nothing (commands).
-        clip: source.path().map(|p| absolute(&p.to_path_buf())),
+        // What the run played: the clip, the export's own motion, a generator, or nothing
+        // (commands).
+        clip: match source {
+            ReferenceSource::Generated(_) => None,
+            s => s.path().map(|p| absolute(&p.to_path_buf())),
+        },
         command: args.command.clone(),
         command_source: args.live.source(),
+        generator: args.generator.generator.as_ref().map(absolute),
+        keypoints: args
+            .keypoints
+            .source()
+            .map(|k| controller::keypoints::clip::KeypointSource {
+                keypoints: absolute(&k.keypoints),
+                cameras: absolute(&k.cameras),
+                ..k
+            }),
         options: *options,
     };
     record(player, &args.rec, run, &stem, args.wall || args.hardware)

@@ -3,11 +3,11 @@
 
 use std::path::PathBuf;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use clap::Args;
 use controller::clip::{Clip, Reference};
 use controller::keypoints::camera::load_cameras;
-use controller::keypoints::clip::{CocoOptions, KeypointClip, load_coco};
+use controller::keypoints::clip::KeypointSource;
 use controller::keypoints::{FAILURE_PX, compare, keypoint_positions, project};
 
 /// Arguments of `project`.
@@ -53,23 +53,24 @@ pub fn run(args: &ProjectArgs) -> Result<()> {
     let robot = robots::Robot::load(&args.robot)?;
     let cameras = load_cameras(&args.camera)?;
     let clip = Clip::load(&args.clip)?;
-    let reference = args
-        .against
-        .as_ref()
-        .map(|path| {
-            load_keypoints(
-                path,
-                &cameras,
-                &args.camera,
-                &CocoArgs {
-                    view: args.view.clone(),
-                    person: args.person,
-                    fps: args.fps,
-                },
-                "--against",
+    let reference = match &args.against {
+        Some(path) => {
+            let source = KeypointSource {
+                keypoints: path.clone(),
+                cameras: args.camera.clone(),
+                view: args.view.clone(),
+                person: args.person,
+                fps: args.fps,
+            };
+            Some(
+                source
+                    .load()
+                    .with_context(|| format!("--against {}", path.display()))?
+                    .1,
             )
-        })
-        .transpose()?;
+        }
+        None => None,
+    };
     // The 3D clip sampled at the references' frames (or at --rate).
     let rate = match &reference {
         Some(r) if r.len() > 1 => 1.0 / (r.times[1] - r.times[0]),
@@ -140,47 +141,4 @@ pub fn run(args: &ProjectArgs) -> Result<()> {
         }
     }
     Ok(())
-}
-
-/// How a COCO keypoint file is read: which camera filmed it, whom to follow, at what rate.
-#[derive(Debug, Clone)]
-pub(crate) struct CocoArgs {
-    /// The camera (default: the only one).
-    pub view: Option<String>,
-    /// The person's track_id.
-    pub person: Option<u64>,
-    /// The video's frames per second.
-    pub fps: f64,
-}
-
-/// 2D keypoint references from `path` (given as `flag`): a pose estimator's COCO JSON (one view,
-/// see [`CocoArgs`]) or the project's CSV, checked against `cameras` (from `camera_file`).
-pub(crate) fn load_keypoints(
-    path: &std::path::Path,
-    cameras: &[controller::keypoints::camera::Camera],
-    camera_file: &std::path::Path,
-    coco: &CocoArgs,
-    flag: &str,
-) -> Result<KeypointClip> {
-    if !path.extension().is_some_and(|e| e.eq_ignore_ascii_case("json")) {
-        return Ok(KeypointClip::load_csv(path, cameras)?);
-    }
-    let view = match (&coco.view, cameras) {
-        (Some(v), _) => v.clone(),
-        (None, [only]) => only.name.clone(),
-        (None, _) => bail!(
-            "{flag} {}: a COCO file is one view: name its camera with --view",
-            path.display()
-        ),
-    };
-    let camera = cameras
-        .iter()
-        .find(|c| c.name == view)
-        .with_context(|| format!("--view {view}: not a camera of {}", camera_file.display()))?;
-    let options = CocoOptions {
-        view,
-        person: coco.person,
-        fps: coco.fps,
-    };
-    Ok(load_coco(path, &options, Some(camera))?)
 }

@@ -213,6 +213,8 @@ pub fn teleop(args: &TeleopArgs) -> Result<std::process::ExitCode> {
         clip: None,
         command: None,
         command_source: Some(format!("vmc udp://{}", receiver.local_addr())),
+        generator: None,
+        keypoints: None,
         options: play,
     };
     // Teleoperation runs on the wall clock (paced on the mirror): records drop rather than wait.

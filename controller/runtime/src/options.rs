@@ -127,6 +127,12 @@ pub struct RunMetadata {
     /// commands themselves are recorded tick by tick on `/policy`.
     #[serde(default)]
     pub command_source: Option<String>,
+    /// The motion generator the run tracked instead of a clip (its description).
+    #[serde(default)]
+    pub generator: Option<PathBuf>,
+    /// The 2D keypoint references played beside the clip, and their cameras.
+    #[serde(default)]
+    pub keypoints: Option<crate::keypoints::clip::KeypointSource>,
     /// The options.
     pub options: PlayOptions,
 }
@@ -153,6 +159,15 @@ impl RunMetadata {
             robot: relative(&self.robot),
             policy: relative(&self.policy),
             clip: self.clip.as_ref().map(relative),
+            generator: self.generator.as_ref().map(relative),
+            keypoints: self
+                .keypoints
+                .as_ref()
+                .map(|k| crate::keypoints::clip::KeypointSource {
+                    keypoints: relative(&k.keypoints),
+                    cameras: relative(&k.cameras),
+                    ..k.clone()
+                }),
             ..self.clone()
         }
     }
@@ -165,6 +180,15 @@ impl RunMetadata {
             robot: resolve(&self.robot),
             policy: resolve(&self.policy),
             clip: self.clip.as_ref().map(resolve),
+            generator: self.generator.as_ref().map(resolve),
+            keypoints: self
+                .keypoints
+                .as_ref()
+                .map(|k| crate::keypoints::clip::KeypointSource {
+                    keypoints: resolve(&k.keypoints),
+                    cameras: resolve(&k.cameras),
+                    ..k.clone()
+                }),
             ..self.clone()
         }
     }
@@ -183,6 +207,8 @@ mod tests {
             clip: Some("/elsewhere/clip.csv".into()),
             command: None,
             command_source: None,
+            generator: None,
+            keypoints: None,
             options: PlayOptions::default(),
         };
         let dir = here.join("out/runs");
@@ -221,6 +247,14 @@ mod tests {
             clip: Some("c.csv".into()),
             command_source: None,
             command: Some(vec![0.1, -2.5e-7]),
+            generator: None,
+            keypoints: Some(crate::keypoints::clip::KeypointSource {
+                keypoints: "k.json".into(),
+                cameras: "cams.toml".into(),
+                view: Some("front".into()),
+                person: Some(7),
+                fps: 29.97,
+            }),
             options: PlayOptions {
                 soft_start_s: 0.1 + 0.2,
                 end: EndMode::Blend,

@@ -246,7 +246,9 @@ fn read_series(path: &Path) -> Result<Series, String> {
                         .and_then(|j| controller::options::RunMetadata::from_json(j).ok())
                         .map(|r| r.resolved_from(path.parent().unwrap_or(Path::new("."))));
                     s.tilt_limit = run.as_ref().map_or(s.tilt_limit, |r| r.options.limits.tilt);
-                    s.command_driven = run.as_ref().is_some_and(|r| r.clip.is_none());
+                    s.command_driven = run
+                        .as_ref()
+                        .is_some_and(|r| r.clip.is_none() && r.generator.is_none());
                     s.run = run;
                 }
                 let p = floats(&v["base_pose"]);
@@ -857,6 +859,8 @@ fn page(log: &Path, s: &Series, summary: &RunSummary) -> Result<(String, Vec<(St
         escape(&name(&run.map(|r| r.policy.clone()))),
         if s.command_driven {
             "driven by live commands".to_owned()
+        } else if let Some(g) = run.and_then(|r| r.generator.clone()) {
+            format!("motion generator <b>{}</b>", escape(&name(&Some(g))))
         } else {
             format!("clip <b>{}</b>", escape(&name(&run.and_then(|r| r.clip.clone()))))
         }

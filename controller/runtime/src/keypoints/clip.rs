@@ -254,6 +254,59 @@ fn checked(p: [f64; 3], camera: Option<&Camera>, place: impl Fn() -> String) -> 
     Ok([p[0], p[1], confidence])
 }
 
+/// Where a run's 2D keypoint references come from (what `play --keypoints` was given, and what
+/// its recording keeps for a replay).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct KeypointSource {
+    /// The references: the project's CSV, or a pose estimator's COCO JSON (`.json`).
+    pub keypoints: std::path::PathBuf,
+    /// Their cameras.
+    pub cameras: std::path::PathBuf,
+    /// COCO: the camera that filmed them (default: the only camera).
+    #[serde(default)]
+    pub view: Option<String>,
+    /// COCO: the person to follow, by track_id.
+    #[serde(default)]
+    pub person: Option<u64>,
+    /// COCO: the video's frames per second.
+    pub fps: f64,
+}
+
+impl KeypointSource {
+    /// Reads the cameras and the references (checked against them).
+    pub fn load(&self) -> Result<(Vec<Camera>, KeypointClip), FileError> {
+        let cameras = super::camera::load_cameras(&self.cameras)?;
+        let path = &self.keypoints;
+        if !path.extension().is_some_and(|e| e.eq_ignore_ascii_case("json")) {
+            let clip = KeypointClip::load_csv(path, &cameras)?;
+            return Ok((cameras, clip));
+        }
+        let view = match (&self.view, cameras.as_slice()) {
+            (Some(v), _) => v.clone(),
+            (None, [only]) => only.name.clone(),
+            (None, _) => {
+                return Err(FileError::new(
+                    path,
+                    "a COCO file is one view: name its camera (--view)",
+                ));
+            }
+        };
+        let camera = cameras.iter().find(|c| c.name == view).ok_or_else(|| {
+            FileError::new(
+                &self.cameras,
+                format!("view {view:?} (--view) is not one of its cameras"),
+            )
+        })?;
+        let options = CocoOptions {
+            view,
+            person: self.person,
+            fps: self.fps,
+        };
+        let clip = load_coco(path, &options, Some(camera))?;
+        Ok((cameras, clip))
+    }
+}
+
 /// How to read a COCO keypoint file as one view of a keypoint clip.
 #[derive(Debug, Clone)]
 pub struct CocoOptions {
