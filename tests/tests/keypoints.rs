@@ -267,15 +267,7 @@ fn keypoint_run(policy: &Path, project_through: &[Camera], cameras: &[Camera]) -
     let keypoints = controller::keypoints::project(project_through, &names, &times, &positions);
     reference.keypoints =
         Some(KeypointReference::new(&keypoints, cameras, layout.manifest.rate_hz, reference.len()).unwrap());
-    let (player, clock, world) = controller::sim::lockstep_player(
-        robot,
-        layout,
-        reference,
-        controller::player::PlayOptions::default(),
-        sim2real::config::MirrorConfig::default(),
-        std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false)),
-    )
-    .unwrap();
+    let (player, clock, world) = on_the_mirror(robot, layout, reference).unwrap();
     KeypointRun {
         player,
         clock,
@@ -292,6 +284,22 @@ impl KeypointRun {
 }
 
 use controller::keypoints::camera::Camera;
+
+/// A lockstep run of `reference` under `layout` on the default mirror, default options.
+fn on_the_mirror(
+    robot: robots::Robot,
+    layout: controller::policy::PolicyLayout,
+    reference: controller::clip::Reference,
+) -> Result<controller::sim::LockstepRun, controller::player::PlayError> {
+    controller::sim::lockstep_player(
+        robot,
+        layout,
+        reference,
+        controller::player::PlayOptions::default(),
+        sim2real::config::MirrorConfig::default(),
+        std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false)),
+    )
+}
 
 fn cameras(path: &Path) -> Vec<Camera> {
     controller::keypoints::camera::load_cameras(path).unwrap()
@@ -411,17 +419,10 @@ fn a_policy_observing_keypoints_without_references_is_refused() {
     let layout = controller::policy::PolicyLayout::load(&policy, &robot).unwrap();
     let reference =
         Reference::from_clip(&Clip::load(&biped("clips/squat.csv")).unwrap(), &robot, 50.0).unwrap();
-    let err = controller::sim::lockstep_player(
-        robot,
-        layout,
-        reference,
-        controller::player::PlayOptions::default(),
-        sim2real::config::MirrorConfig::default(),
-        std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false)),
-    )
-    .map(|_| ())
-    .unwrap_err()
-    .to_string();
+    let err = on_the_mirror(robot, layout, reference)
+        .map(|_| ())
+        .unwrap_err()
+        .to_string();
     assert!(
         err.contains("keypoint_follower.toml observes 2D keypoints") && err.contains("--keypoints"),
         "{err}"

@@ -48,16 +48,7 @@ fuzz_target!(|data: &[u8]| {
     }
     let cameras = shipped_cameras();
     if let Ok(clip) = KeypointClip::from_csv_str(path, text, cameras) {
-        let by_view: Vec<&Camera> = clip
-            .views
-            .iter()
-            .map(|v| {
-                cameras
-                    .iter()
-                    .find(|c| &c.name == v)
-                    .expect("a view has its camera")
-            })
-            .collect();
+        let by_view = controller::keypoints::cameras_of(&clip.views, cameras).expect("a view has its camera");
         whole(&clip, &by_view);
         // Resampled to a run's ticks: every tick whole, nothing off the images.
         let Ok(reference) = controller::keypoints::track::KeypointReference::new(&clip, cameras, 50.0, 64)

@@ -50,6 +50,26 @@ pub enum KeypointError {
     },
 }
 
+/// The camera of each view, by name; a view without one is refused, naming the cameras there are.
+pub fn cameras_of<'a>(views: &[String], cameras: &'a [Camera]) -> Result<Vec<&'a Camera>, KeypointError> {
+    views
+        .iter()
+        .map(|v| {
+            cameras
+                .iter()
+                .find(|c| &c.name == v)
+                .ok_or_else(|| KeypointError::NoCamera {
+                    view: v.clone(),
+                    known: cameras
+                        .iter()
+                        .map(|c| c.name.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", "),
+                })
+        })
+        .collect()
+}
+
 /// The robot's keypoints (robot.toml's `[keypoints]`, name order) in the world at every frame of
 /// `reference`: names, and `frames × names` positions.
 pub fn keypoint_positions(
@@ -133,23 +153,7 @@ pub fn compare(
     names: &[String],
     positions: &[[f64; 3]],
 ) -> Result<Comparison, KeypointError> {
-    let view_cameras = reference
-        .views
-        .iter()
-        .map(|v| {
-            cameras
-                .iter()
-                .find(|c| &c.name == v)
-                .ok_or_else(|| KeypointError::NoCamera {
-                    view: v.clone(),
-                    known: cameras
-                        .iter()
-                        .map(|c| c.name.as_str())
-                        .collect::<Vec<_>>()
-                        .join(", "),
-                })
-        })
-        .collect::<Result<Vec<_>, _>>()?;
+    let view_cameras = cameras_of(&reference.views, cameras)?;
     // Reference keypoint → the robot's.
     let pairs: Vec<(usize, usize)> = reference
         .names

@@ -44,24 +44,10 @@ impl KeypointReference {
         if clip.is_empty() {
             return Err(KeypointError::NoFrames);
         }
-        let view_cameras = clip
-            .views
-            .iter()
-            .map(|v| {
-                cameras
-                    .iter()
-                    .find(|c| &c.name == v)
-                    .cloned()
-                    .ok_or_else(|| KeypointError::NoCamera {
-                        view: v.clone(),
-                        known: cameras
-                            .iter()
-                            .map(|c| c.name.as_str())
-                            .collect::<Vec<_>>()
-                            .join(", "),
-                    })
-            })
-            .collect::<Result<Vec<_>, _>>()?;
+        let view_cameras: Vec<Camera> = super::cameras_of(&clip.views, cameras)?
+            .into_iter()
+            .cloned()
+            .collect();
         let (views, n) = (clip.views.len(), clip.names.len());
         let t0 = clip.times.first().copied().unwrap_or(0.0);
         let mut points = Vec::with_capacity(ticks * views * n);
@@ -237,18 +223,10 @@ impl KeypointTrack {
         if names.is_empty() {
             return Err(KeypointError::NoCommonKeypoint(reference.names.join(", ")));
         }
-        let view_of = |v: &String| {
-            reference.view(v).ok_or_else(|| KeypointError::NoCamera {
-                view: v.clone(),
-                known: reference
-                    .cameras
-                    .iter()
-                    .map(|c| c.name.as_str())
-                    .collect::<Vec<_>>()
-                    .join(", "),
-            })
-        };
-        let obs_views = obs_views.iter().map(view_of).collect::<Result<Vec<_>, _>>()?;
+        let obs_views = super::cameras_of(obs_views, &reference.cameras)?
+            .into_iter()
+            .map(|c| reference.view(&c.name).expect("found by name"))
+            .collect::<Vec<_>>();
         let obs_keypoints = obs_keypoints
             .iter()
             .map(|k| {
