@@ -604,14 +604,7 @@ fn with_recorder<L: RobotLink>(
         command: args.command.clone(),
         command_source: args.live.source(),
         generator: args.generator.generator.as_ref().map(absolute),
-        keypoints: args
-            .keypoints
-            .source()
-            .map(|k| controller::keypoints::clip::KeypointSource {
-                keypoints: absolute(&k.keypoints),
-                cameras: absolute(&k.cameras),
-                ..k
-            }),
+        keypoints: args.keypoints.source().map(|k| k.map_paths(absolute)),
         options: *options,
     };
     record(player, &args.rec, run, &stem, args.wall || args.hardware)

@@ -160,14 +160,7 @@ impl RunMetadata {
             policy: relative(&self.policy),
             clip: self.clip.as_ref().map(relative),
             generator: self.generator.as_ref().map(relative),
-            keypoints: self
-                .keypoints
-                .as_ref()
-                .map(|k| crate::keypoints::clip::KeypointSource {
-                    keypoints: relative(&k.keypoints),
-                    cameras: relative(&k.cameras),
-                    ..k.clone()
-                }),
+            keypoints: self.keypoints.as_ref().map(|k| k.map_paths(relative)),
             ..self.clone()
         }
     }
@@ -181,14 +174,7 @@ impl RunMetadata {
             policy: resolve(&self.policy),
             clip: self.clip.as_ref().map(resolve),
             generator: self.generator.as_ref().map(resolve),
-            keypoints: self
-                .keypoints
-                .as_ref()
-                .map(|k| crate::keypoints::clip::KeypointSource {
-                    keypoints: resolve(&k.keypoints),
-                    cameras: resolve(&k.cameras),
-                    ..k.clone()
-                }),
+            keypoints: self.keypoints.as_ref().map(|k| k.map_paths(resolve)),
             ..self.clone()
         }
     }

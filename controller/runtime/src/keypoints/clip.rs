@@ -273,6 +273,15 @@ pub struct KeypointSource {
 }
 
 impl KeypointSource {
+    /// The same with both files' paths passed through `f` (made absolute, relative, resolved).
+    pub fn map_paths(&self, f: impl Fn(&std::path::PathBuf) -> std::path::PathBuf) -> Self {
+        Self {
+            keypoints: f(&self.keypoints),
+            cameras: f(&self.cameras),
+            ..self.clone()
+        }
+    }
+
     /// Reads the cameras and the references (checked against them).
     pub fn load(&self) -> Result<(Vec<Camera>, KeypointClip), FileError> {
         let cameras = super::camera::load_cameras(&self.cameras)?;
