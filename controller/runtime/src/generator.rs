@@ -53,6 +53,9 @@ pub enum GeneratorError {
         /// What disagrees.
         message: String,
     },
+    /// Options out of their ranges.
+    #[error("generator options: {0}")]
+    Options(String),
     /// The worker thread could not start.
     #[error("cannot start the generator's worker: {0}")]
     Thread(std::io::Error),
@@ -306,6 +309,7 @@ impl Generator {
         options: GeneratorOptions,
         lookahead_s: f64,
     ) -> Result<(GeneratorWorker, PlanReader), GeneratorError> {
+        options.check().map_err(GeneratorError::Options)?;
         let d = &self.description;
         let (j, n, k) = (d.joints.len(), d.history, d.horizon);
         // What the loop may need: frames it played for the forecast's velocity, up to three steps
@@ -817,5 +821,124 @@ impl std::fmt::Display for GeneratorSummary {
             writeln!(f, "  … {} more changes", self.events.len() - 8)?;
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A loop's reader over a plan of one joint (robot joint 1 of 2), 10 frames a second.
+    fn reader(values: &[f64], options: GeneratorOptions) -> (LiveWriter<Plan>, PlanReader) {
+        let plan = Plan {
+            first: 0,
+            count: values.len(),
+            frames: values.to_vec(),
+            joints: 1,
+            step: 1,
+            latency_s: 0.0,
+        };
+        let (writer, reader) = live_channel(plan);
+        let shared = Arc::new(Shared {
+            loop_time: AtomicU64::new(0),
+            generated_until: AtomicU64::new(0),
+            stop: AtomicBool::new(false),
+            stats: Mutex::new(WorkerStats::default()),
+        });
+        let plans = PlanReader {
+            reader,
+            shared,
+            robot_index: vec![1],
+            frame_hz: 10.0,
+            options,
+            standby: vec![5.0, -1.0],
+            q: vec![5.0, -1.0],
+            qd: vec![0.0; 2],
+            forecast: vec![0.0],
+            status: PlanStatus::Fresh,
+            weight: 0.0,
+            counts: PlanCounts::default(),
+            events: Vec::with_capacity(MAX_EVENTS),
+            past: 0.0,
+            step: 0,
+            step_latency_s: 0.0,
+            reached_standby: None,
+        };
+        (writer, plans)
+    }
+
+    #[test]
+    fn a_plan_is_interpolated_then_forecast_then_blended_to_standby_and_back() {
+        let options = GeneratorOptions {
+            forecast_s: 0.2,
+            blend_s: 0.5,
+            stall_after_s: None,
+        };
+        // Frames at 0, 0.1, 0.2, 0.3 s: a joint moving at 10 rad/s.
+        let (mut writer, mut r) = reader(&[0.0, 1.0, 2.0, 3.0], options);
+        r.begin_tick(0.15, 0.05);
+        let (q, qd) = r.sample(0.15);
+        assert!(
+            (q[1] - 1.5).abs() < 1e-12 && (qd[1] - 10.0).abs() < 1e-12,
+            "{q:?} {qd:?}"
+        );
+        assert_eq!(q[0], 5.0, "a joint the model does not drive stays at standby");
+        assert_eq!(r.tick().status, PlanStatus::Fresh);
+        // 0.1 s past the last frame: carried on at 10 rad/s.
+        r.begin_tick(0.4, 0.05);
+        let (q, qd) = r.sample(0.4);
+        assert!(
+            (q[1] - 4.0).abs() < 1e-12 && (qd[1] - 10.0).abs() < 1e-12,
+            "{q:?}"
+        );
+        assert_eq!(r.tick().status, PlanStatus::Forecast);
+        // Past the bound: the forecast stops at 0.2 s (5.0) and blends to standby (−1) over
+        // 0.5 s, 0.1 a tick, smoothly.
+        r.begin_tick(0.55, 0.05);
+        let (q, qd) = r.sample(0.55);
+        let w: f64 = 0.1 * 0.1 * (3.0 - 0.2);
+        assert!(
+            (q[1] - (5.0 - 6.0 * w)).abs() < 1e-12 && qd[1] == 0.0,
+            "{q:?} {qd:?}"
+        );
+        for k in 1..=9 {
+            r.begin_tick(0.55 + f64::from(k) * 0.05, 0.05);
+            assert_eq!(r.reached_standby(), None, "tick {k}");
+        }
+        r.begin_tick(1.05, 0.05);
+        assert_eq!(r.sample(1.05).0[1], -1.0);
+        assert!((r.reached_standby().unwrap() - 1.05).abs() < 1e-9);
+        // Plans again: fresh at once, blended back from standby as it left.
+        writer.publish(|p| {
+            p.first = 10;
+            p.count = 4;
+            p.frames.copy_from_slice(&[2.0, 2.0, 2.0, 2.0]);
+        });
+        r.begin_tick(1.1, 0.05);
+        let (q, _) = r.sample(1.1);
+        let w: f64 = 0.9 * 0.9 * (3.0 - 1.8);
+        assert!((q[1] - (2.0 - 3.0 * w)).abs() < 1e-12, "{q:?}");
+        let c = r.counts();
+        assert_eq!((c.late, c.to_standby, c.recovered), (1, 1, 1), "{c:?}");
+        assert_eq!(
+            r.events().iter().map(|e| e.1).collect::<Vec<_>>(),
+            [PlanStatus::Forecast, PlanStatus::Standby, PlanStatus::Fresh]
+        );
+    }
+
+    #[test]
+    fn options_out_of_range_are_refused() {
+        let bad = |o: GeneratorOptions| o.check().unwrap_err();
+        let d = GeneratorOptions::default();
+        assert!(d.check().is_ok());
+        assert!(bad(GeneratorOptions { forecast_s: 3.0, ..d }).contains("forecast 3 s"));
+        assert!(bad(GeneratorOptions { blend_s: 0.0, ..d }).contains("blend 0 s"));
+        assert!(
+            bad(GeneratorOptions {
+                stall_after_s: Some(f64::NAN),
+                ..d
+            })
+            .contains("stall")
+        );
     }
 }
