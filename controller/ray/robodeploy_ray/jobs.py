@@ -75,7 +75,10 @@ def _seed_range(seeds: tuple[int, ...]) -> list[str]:
     return out
 
 
-@ray.remote(num_cpus=1, max_retries=3)
+# A worker that finds no bundle in its working directory (a worker started while the runtime
+# environment is set up again after another was killed) tries again on a fresh one; a bundle
+# really without its binary still fails after the retries.
+@ray.remote(num_cpus=1, max_retries=3, retry_exceptions=[FileNotFoundError])
 def run_batch_task(bundle: dict, task: Task) -> list[dict]:
     """Runs `robodeploy batch` for one task inside the bundle (the task's working directory);
     returns its rows, with the clip named as the user gave it."""
@@ -105,7 +108,10 @@ def run_batch_task(bundle: dict, task: Task) -> list[dict]:
     return rows
 
 
-@ray.remote(num_cpus=1, max_retries=3)
+# A worker that finds no bundle in its working directory (a worker started while the runtime
+# environment is set up again after another was killed) tries again on a fresh one; a bundle
+# really without its binary still fails after the retries.
+@ray.remote(num_cpus=1, max_retries=3, retry_exceptions=[FileNotFoundError])
 def run_check_task(bundle: dict, task: Task) -> list[dict]:
     """Runs `robodeploy check` on one clip inside the bundle; returns its quality row (a clip
     the checker refuses is a result, not a failure)."""
