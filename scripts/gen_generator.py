@@ -4,9 +4,11 @@
 WHAT IT IS: a LINEAR autoregressive model (ridge regression, NumPy), not a learned motion prior.
 From the last N frames of joint angles it predicts the next K frames directly (one matrix):
 
-    frames[1, K, J] = reshape( (history[1, N·J] − μ) · W + b ) + μ
+    squat = (history[1, N·J] − μ) · W + b + μ
+    stand = history · S                       (each frame 15 % closer to the standing pose)
+    frames[1, K, J] = reshape( c · squat + (1 − c) · stand ),   c = command[1, 1], "intensity"
 
-fitted on rd-biped's own squat clip (robots/biped/clips/squat.csv, 30 Hz; its two 3 s squats
+with W fitted on rd-biped's own squat clip (robots/biped/clips/squat.csv, 30 Hz; its two 3 s squats
 looped, so the model learns one squat cycle as a stable oscillation). Rolled out on its own
 output it keeps squatting; it has no notion of balance, commands or style. It exists to run the
 stack's generator path (worker thread, plans, resampling, deadlines) with a real model whose
@@ -15,8 +17,9 @@ frames a reference follower can track on the mirror.
 The fit is checked before anything is written: the K-step prediction error on the training data,
 and a 120 s rollout from the seed that must stay finite and within the training range.
 
-Writes OUT/squat_ar.onnx (input "history" [1, N, J], output "frames" [1, K, J]) and
-OUT/squat_ar.toml (the description the runtime reads: names, N, K, frame rate, joints, seed clip).
+Writes OUT/squat_ar.onnx (inputs "history" [1, N, J] and "command" [1, 1], output "frames"
+[1, K, J]) and OUT/squat_ar.toml (the description the runtime reads: names, N, K, frame rate,
+joints, seed clip, the command).
 
 Usage: gen_generator.py [--out robots/biped/generators] [--history 8] [--horizon 3]
 """
@@ -35,6 +38,8 @@ FRAME_HZ = 30.0
 CYCLE_FRAMES = 180
 LOOPS = 6
 RIDGE = 1e-4
+# With intensity 0, each frame closes this share of the gap to the standing pose.
+SETTLE = 0.15
 
 
 def load_clip(path: pathlib.Path) -> tuple[list[str], np.ndarray, np.ndarray]:
@@ -66,26 +71,53 @@ def rollout(seed: np.ndarray, mu, W, b, k: int, frames: int) -> np.ndarray:
     return np.array(stream[n:n + frames]) + mu
 
 
-def export(mu, W, b, n: int, k: int, j: int) -> onnx.ModelProto:
+def settle(stand: np.ndarray, n: int, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The linear map (S, s) from the history to k frames that each close SETTLE of the gap from
+    the newest frame to `stand`: frame i = stand + (1 − SETTLE)^(i+1) · (last − stand)."""
+    j = len(stand)
+    S = np.zeros((n * j, k * j))
+    s = np.zeros(k * j)
+    for i in range(k):
+        keep = (1.0 - SETTLE) ** (i + 1)
+        S[(n - 1) * j:n * j, i * j:(i + 1) * j] = keep * np.eye(j)
+        s[i * j:(i + 1) * j] = (1.0 - keep) * stand
+    return S, s
+
+
+def export(mu, W, b, stand, n: int, k: int, j: int) -> onnx.ModelProto:
     f32 = np.float32
+    S, s = settle(stand, n, k)
     inits = [
         numpy_helper.from_array(np.array([1, n * j], dtype=np.int64), "flat"),
         numpy_helper.from_array(np.array([1, k, j], dtype=np.int64), "shaped"),
         numpy_helper.from_array(np.tile(mu, n).astype(f32), "mu_in"),
         numpy_helper.from_array(W.astype(f32), "W"),
         numpy_helper.from_array((b + np.tile(mu, k)).astype(f32), "b_out"),
+        numpy_helper.from_array(S.astype(f32), "S"),
+        numpy_helper.from_array(s.astype(f32), "s_out"),
+        numpy_helper.from_array(np.array([1.0], dtype=f32), "one"),
     ]
     nodes = [
         helper.make_node("Reshape", ["history", "flat"], ["h"]),
         helper.make_node("Sub", ["h", "mu_in"], ["x"]),
         helper.make_node("MatMul", ["x", "W"], ["y"]),
-        helper.make_node("Add", ["y", "b_out"], ["z"]),
+        helper.make_node("Add", ["y", "b_out"], ["squat"]),
+        helper.make_node("MatMul", ["h", "S"], ["held"]),
+        helper.make_node("Add", ["held", "s_out"], ["stand"]),
+        # c · squat + (1 − c) · stand, c broadcast from [1, 1].
+        helper.make_node("Mul", ["command", "squat"], ["a"]),
+        helper.make_node("Sub", ["one", "command"], ["rest"]),
+        helper.make_node("Mul", ["rest", "stand"], ["b"]),
+        helper.make_node("Add", ["a", "b"], ["z"]),
         helper.make_node("Reshape", ["z", "shaped"], ["frames"]),
     ]
     graph = helper.make_graph(
         nodes,
         "squat_ar",
-        [helper.make_tensor_value_info("history", TensorProto.FLOAT, [1, n, j])],
+        [
+            helper.make_tensor_value_info("history", TensorProto.FLOAT, [1, n, j]),
+            helper.make_tensor_value_info("command", TensorProto.FLOAT, [1, 1]),
+        ],
         [helper.make_tensor_value_info("frames", TensorProto.FLOAT, [1, k, j])],
         inits,
     )
@@ -123,12 +155,12 @@ def main() -> None:
         raise SystemExit(f"a {seconds} s rollout leaves the training range: the model is unstable")
     amplitude = np.abs(out[-int(3 * FRAME_HZ):] - out[-int(3 * FRAME_HZ):].mean(axis=0)).max()
     args.out.mkdir(parents=True, exist_ok=True)
-    onnx.save(export(mu, W, b, n, k, len(joints)), args.out / "squat_ar.onnx")
+    onnx.save(export(mu, W, b, q[0], n, k, len(joints)), args.out / "squat_ar.onnx")
     seed = pathlib.Path("../clips/squat.csv")
     listed = ",\n".join(f'    "{j}"' for j in joints)
     (args.out / "squat_ar.toml").write_text(f'''# Motion generator description: what the ONNX file beside it takes and gives (robodeploy play --generator).
 # Generated by scripts/gen_generator.py.
-description = """Linear autoregressive squat generator for rd-biped. NOT a learned motion prior: a ridge regression (NumPy) of the next {k} frames on the last {n}, fitted on the project's own squat clip (its two squats looped), so that rolled out on its own output it keeps squatting (training-fit RMSE {rmse:.1e} rad; a {seconds} s rollout stays within the clip's range, last-cycle amplitude {amplitude:.2f} rad). It has no balance, commands or style."""
+description = """Linear autoregressive squat generator for rd-biped. NOT a learned motion prior: a ridge regression (NumPy) of the next {k} frames on the last {n}, fitted on the project's own squat clip (its two squats looped), so that rolled out on its own output it keeps squatting (training-fit RMSE {rmse:.1e} rad; a {seconds} s rollout stays within the clip's range, last-cycle amplitude {amplitude:.2f} rad). Its command, the intensity, mixes that squat (1) with settling into the standing pose (0). It has no balance or style."""
 onnx = "squat_ar.onnx"
 input = "history"      # [1, history, joints]
 output = "frames"      # [1, horizon, joints]
@@ -139,6 +171,11 @@ seed_clip = "{seed.as_posix()}"   # its first {n} frames start the history
 joints = [
 {listed},
 ]
+
+[command]              # the model's second input, [1, 1]
+input = "command"
+names = ["intensity"]  # 1: squat; 0: settle into the standing pose
+values = [1.0]         # unless the run says otherwise (play --generator-command)
 ''')
     print(f"{args.out}/squat_ar.onnx: N={n}, K={k}, {len(joints)} joints, fit RMSE {rmse:.1e} rad, "
           f"{seconds} s rollout amplitude {amplitude:.2f} rad")

@@ -36,9 +36,17 @@ struct Run {
 
 /// The reference follower on the squat generator, on the mirror in lockstep.
 fn generated_run(options: GeneratorOptions) -> Run {
+    generated_run_with(options, None)
+}
+
+/// [`generated_run`] with the generator's command (its intensity) set.
+fn generated_run_with(options: GeneratorOptions, command: Option<&[f64]>) -> Run {
     let robot = Robot::load(&reference_robot_path()).unwrap();
     let layout = PolicyLayout::load(&biped("policies/reference_follower.toml"), &robot).unwrap();
-    let generator = Generator::load(&biped("generators/squat_ar.toml"), &robot).unwrap();
+    let mut generator = Generator::load(&biped("generators/squat_ar.toml"), &robot).unwrap();
+    if let Some(values) = command {
+        generator.set_command(values).unwrap();
+    }
     let reference = Reference::hold(&layout.default_q, generator.root(), layout.manifest.rate_hz);
     let default_q = layout.default_q.clone();
     let play = PlayOptions {
@@ -132,6 +140,29 @@ fn the_generator_feeds_the_follower_for_a_minute_without_allocating_in_the_tick(
         stats.failed
     );
     assert!(stats.latency.count() == stats.steps);
+}
+
+#[test]
+fn the_generators_command_takes_it_from_squatting_to_standing() {
+    // Intensity 0: from the seed (the squat's start) the model settles into the standing pose.
+    let mut run = generated_run_with(GeneratorOptions::default(), Some(&[0.0]));
+    let knee = 3; // left_knee, robot order
+    let mut last_second = (f64::INFINITY, f64::NEG_INFINITY);
+    for k in 1..=RUNNING_AT + 200 {
+        run.tick(k, f64::INFINITY);
+        if k > RUNNING_AT + 150 {
+            let q = run.player.reference_q()[knee];
+            last_second = (last_second.0.min(q), last_second.1.max(q));
+        }
+    }
+    assert!(
+        last_second.1 - last_second.0 < 1e-3,
+        "still moving: {last_second:?}"
+    );
+    // The squat clip starts standing with the knee at 0.5 rad.
+    assert!((last_second.0 - 0.5).abs() < 0.01, "{last_second:?}");
+    assert_eq!(run.player.mode(), Mode::Running);
+    assert_eq!(run.worker.finish().failed, 0);
 }
 
 #[test]
@@ -270,6 +301,17 @@ fn descriptions_that_disagree_with_their_model_are_refused_by_name() {
             "frame_hz = 30\nstyle = 2",
             "unknown field `style`",
         ),
+        (
+            "input = \"command\"",
+            "input = \"cmd\"",
+            "has no input named \"cmd\", the command",
+        ),
+        (
+            "values = [1.0] ",
+            "values = [1.0, 2.0] ",
+            "command.values: 2 values for 1 (intensity)",
+        ),
+        ("[command]", "[unused]", "unknown field `unused`"),
     ] {
         assert!(good.contains(from), "{from}");
         let path = dir.join("gen.toml");
@@ -291,6 +333,15 @@ fn descriptions_that_disagree_with_their_model_are_refused_by_name() {
         .unwrap();
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--generator"));
+    // A command of the wrong length.
+    let (ok, text) = play_generator(
+        &biped("generators/squat_ar.toml"),
+        &["--generator-command", "1,0"],
+    );
+    assert!(
+        !ok && text.contains("--generator-command") && text.contains("2 values for 1 (intensity)"),
+        "{text}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -375,7 +426,9 @@ fn the_shipped_generator_is_what_its_script_fits() {
     );
     let mut fitted = controller::onnx::OnnxModel::load_tensors(&dir.join("squat_ar.onnx")).unwrap();
     let mut shipped = controller::onnx::OnnxModel::load_tensors(&biped("generators/squat_ar.onnx")).unwrap();
-    let history: Vec<f32> = (0..8 * 18).map(|i| ((i as f32) * 0.37).sin() * 0.3).collect();
+    // The history, then the command (intensity 0.7: both parts of the model count).
+    let mut history: Vec<f32> = (0..8 * 18).map(|i| ((i as f32) * 0.37).sin() * 0.3).collect();
+    history.push(0.7);
     let (mut a, mut b) = (vec![0.0f32; 3 * 18], vec![0.0f32; 3 * 18]);
     fitted.run(&history, &mut a).unwrap();
     shipped.run(&history, &mut b).unwrap();

@@ -174,6 +174,17 @@ struct GeneratorArgs {
     /// Then blend to the standby pose over this long (and back when plans return), s.
     #[arg(long, default_value_t = 1.0, requires = "generator", value_parser = crate::args::within(0.05, 10.0))]
     generator_blend: f64,
+    /// The generator's command (its description's [command]: e.g. a target velocity or a style
+    /// index), one value per name, replacing the description's values. The squat generator
+    /// takes its intensity: 1 squats, 0 settles into the standing pose.
+    #[arg(
+        long,
+        value_name = "V,…",
+        requires = "generator",
+        value_delimiter = ',',
+        allow_hyphen_values = true
+    )]
+    generator_command: Option<Vec<f64>>,
     /// Fault injection: the generator stalls once it has produced this many seconds of motion.
     #[arg(long, value_name = "S", requires = "generator", value_parser = crate::args::within(0.0, 86_400.0))]
     generator_stall_after: Option<f64>,
@@ -205,7 +216,10 @@ fn load_generator(args: &GeneratorArgs, l: &mut Loaded) -> Result<Option<Pending
     let Some(path) = &args.generator else {
         return Ok(None);
     };
-    let generator = Generator::load(path, &l.robot)?;
+    let mut generator = Generator::load(path, &l.robot)?;
+    if let Some(values) = &args.generator_command {
+        generator.set_command(values).context("--generator-command")?;
+    }
     controller::generator::check_policy(&l.layout).map_err(|m| anyhow::anyhow!("--generator: {m}"))?;
     l.reference = Reference::hold(&l.layout.default_q, generator.root(), l.layout.manifest.rate_hz);
     l.source = ReferenceSource::Generated(path.clone());
@@ -219,6 +233,15 @@ fn load_generator(args: &GeneratorArgs, l: &mut Loaded) -> Result<Option<Pending
         d.frame_hz / d.horizon as f64,
         d.joints.len()
     );
+    let (names, values) = generator.command();
+    if !names.is_empty() {
+        let pairs: Vec<String> = names
+            .iter()
+            .zip(&values)
+            .map(|(n, v)| format!("{n} = {v}"))
+            .collect();
+        println!("          command: {}", pairs.join(", "));
+    }
     Ok(Some(PendingGenerator {
         generator,
         options: GeneratorOptions {

@@ -82,7 +82,8 @@ fn keypoint_references() -> (Robot, PolicyLayout, Reference) {
 fn generator_step() -> Summary {
     let model = reference_robot_path().with_file_name("generators/squat_ar.onnx");
     let mut m = controller::onnx::OnnxModel::load_tensors(&model).unwrap();
-    let (history, mut next) = (vec![0.1f32; 8 * 18], vec![0.0f32; 3 * 18]);
+    // The history, then the command (the intensity).
+    let (history, mut next) = (vec![0.1f32; 8 * 18 + 1], vec![0.0f32; 3 * 18]);
     let mut samples = Vec::with_capacity(20_000);
     for _ in 0..20_000 {
         let t0 = Instant::now();

@@ -85,6 +85,45 @@ pub struct GeneratorDescription {
     pub joints: Vec<String>,
     /// The clip whose first `history` frames seed the model (relative to this file).
     pub seed_clip: PathBuf,
+    /// A second input the model takes beside its history: a command such as a target velocity
+    /// or a style index, `[1, values]`.
+    #[serde(default)]
+    pub command: Option<GeneratorCommand>,
+}
+
+/// A generator's command input (`[command]` of its description).
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct GeneratorCommand {
+    /// The input's name.
+    pub input: String,
+    /// What each value means (1–16 of them).
+    pub names: Vec<String>,
+    /// The values unless the run says otherwise (finite, within ±1000).
+    pub values: Vec<f64>,
+}
+
+impl GeneratorCommand {
+    /// Checks `values` against the command: one per name, finite, within ±1000.
+    pub fn check(&self, values: &[f64]) -> Result<(), String> {
+        if values.len() != self.names.len() {
+            return Err(format!(
+                "{} values for {} ({})",
+                values.len(),
+                self.names.len(),
+                self.names.join(", ")
+            ));
+        }
+        if let Some((name, v)) = self
+            .names
+            .iter()
+            .zip(values)
+            .find(|(_, v)| !(v.is_finite() && v.abs() <= 1000.0))
+        {
+            return Err(format!("{name} = {v}: a finite value within ±1000"));
+        }
+        Ok(())
+    }
 }
 
 impl GeneratorDescription {
@@ -114,6 +153,18 @@ impl GeneratorDescription {
             .find(|(i, n)| d.joints[..*i].contains(n))
         {
             return Err(bad("joints", format!("{name:?} twice (entry {i})")));
+        }
+        if let Some(c) = &d.command {
+            if !(1..=16).contains(&c.names.len()) {
+                return Err(bad("command.names", format!("{} names: 1–16", c.names.len())));
+            }
+            c.check(&c.values).map_err(|m| bad("command.values", m))?;
+            if c.input == d.input {
+                return Err(bad(
+                    "command.input",
+                    format!("{:?} is the history's input", c.input),
+                ));
+            }
         }
         Ok(d)
     }
@@ -205,6 +256,8 @@ pub struct Generator {
     seed: Vec<f64>,
     /// The seed clip's first root pose (the generated reference's root).
     root: [f64; 7],
+    /// The command values the model gets (the description's unless set).
+    command: Vec<f64>,
 }
 
 impl Generator {
@@ -261,10 +314,43 @@ impl Generator {
                 )));
             }
         }
-        if inputs.len() != 1 {
+        if let Some(c) = &d.command {
+            let width = [1, c.names.len() as i64];
+            match inputs.iter().find(|(n, _)| n == &c.input) {
+                Some((_, shape)) if shape.as_slice() == width => {}
+                Some((_, shape)) => {
+                    return Err(shape_err(format!(
+                        "input {:?} has shape {shape:?}, but {} says the command has {} values: {width:?}",
+                        c.input,
+                        path.display(),
+                        c.names.len()
+                    )));
+                }
+                None => {
+                    return Err(shape_err(format!(
+                        "has no input named {:?}, the command {} names",
+                        c.input,
+                        path.display()
+                    )));
+                }
+            }
+        }
+        let wanted = 1 + usize::from(d.command.is_some());
+        if inputs.len() != wanted {
             return Err(shape_err(format!(
-                "has {} inputs; a generator takes one, its history",
-                inputs.len()
+                "has {} inputs ({}); {} describes {wanted}: its history{}",
+                inputs.len(),
+                inputs
+                    .iter()
+                    .map(|(n, _)| n.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                path.display(),
+                if wanted == 2 {
+                    " and its command"
+                } else {
+                    " (a [command] section names a second)"
+                }
             )));
         }
         let clip = Clip::load(&dir.join(&d.seed_clip))?;
@@ -289,11 +375,35 @@ impl Generator {
         Ok(Self {
             path: path.to_path_buf(),
             root: seed_reference.root[0],
+            command: d.command.as_ref().map_or_else(Vec::new, |c| c.values.clone()),
             description: d,
             model,
             robot_index,
             seed,
         })
+    }
+
+    /// Sets the command the model gets (one value per the description's `command.names`).
+    pub fn set_command(&mut self, values: &[f64]) -> Result<(), GeneratorError> {
+        let c =
+            self.description.command.as_ref().ok_or_else(|| {
+                GeneratorError::Options(format!("{} takes no command", self.path.display()))
+            })?;
+        c.check(values)
+            .map_err(|m| GeneratorError::Options(format!("command: {m}")))?;
+        self.command = values.to_vec();
+        Ok(())
+    }
+
+    /// The command the model gets: names and values (empty without one).
+    pub fn command(&self) -> (Vec<String>, Vec<f64>) {
+        (
+            self.description
+                .command
+                .as_ref()
+                .map_or_else(Vec::new, |c| c.names.clone()),
+            self.command.clone(),
+        )
     }
 
     /// The root pose the generated reference holds (the seed clip's first).
@@ -351,12 +461,25 @@ impl Generator {
             step_latency_s: 0.0,
             reached_standby: None,
         };
+        // The model's inputs in its order, concatenated: the history's place, the command's values.
+        let mut input = Vec::with_capacity(n * j + self.command.len());
+        let mut history_at = 0;
+        for (name, _) in &self.model.shapes()[..self.model.inputs().len()] {
+            if *name == d.input {
+                history_at = input.len();
+                input.resize(input.len() + n * j, 0.0);
+            } else {
+                input.extend(self.command.iter().map(|&v| v as f32));
+            }
+        }
         let worker = Worker {
             model: self.model,
             writer,
             shared: Arc::clone(&shared),
             plan: initial,
-            history: vec![0.0; n * j],
+            input,
+            history_at,
+            history_len: n,
             next: vec![0.0; k * j],
             horizon: k,
             frame_hz: d.frame_hz,
@@ -426,8 +549,12 @@ struct Worker {
     shared: Arc<Shared>,
     /// The worker's copy of the window it publishes.
     plan: Plan,
-    /// The model's input and output, `f32` as the model wants them (as f64 for the copy).
-    history: Vec<f32>,
+    /// The model's inputs (history, and the command's values, in the model's order) and output,
+    /// `f32` as the model wants them.
+    input: Vec<f32>,
+    /// Where the history starts in `input`, and its frames.
+    history_at: usize,
+    history_len: usize,
     next: Vec<f32>,
     horizon: usize,
     frame_hz: f64,
@@ -438,7 +565,7 @@ struct Worker {
 impl Worker {
     fn run(mut self) {
         let (j, k) = (self.plan.joints, self.horizon);
-        let n = self.history.len() / j;
+        let n = self.history_len;
         while !self.shared.stop.load(Ordering::Relaxed) {
             let loop_t = f64::from_bits(self.shared.loop_time.load(Ordering::Relaxed));
             let end = self.plan.first + self.plan.count as i64;
@@ -459,15 +586,15 @@ impl Worker {
             }
             // The model's history: the newest `n` frames of the stream.
             let from = self.plan.count - n;
-            for (h, v) in self
-                .history
+            let history = &mut self.input[self.history_at..self.history_at + n * j];
+            for (h, v) in history
                 .iter_mut()
                 .zip(&self.plan.frames[from * j..self.plan.count * j])
             {
                 *h = *v as f32;
             }
             let t0 = Instant::now();
-            let ran = self.model.run(&self.history, &mut self.next);
+            let ran = self.model.run(&self.input, &mut self.next);
             let took = t0.elapsed();
             let mut stats = self.shared.stats.lock().unwrap_or_else(PoisonError::into_inner);
             stats.latency.record(took);

@@ -24,5 +24,8 @@ fuzz_target!(|data: &[u8]| {
     if let Ok(d) = controller::generator::GeneratorDescription::from_str(generator, text) {
         assert!((1..=256).contains(&d.history) && (1..=256).contains(&d.horizon));
         assert!((1.0..=1000.0).contains(&d.frame_hz) && !d.joints.is_empty());
+        if let Some(c) = &d.command {
+            assert!((1..=16).contains(&c.names.len()) && c.check(&c.values).is_ok());
+        }
     }
 });
