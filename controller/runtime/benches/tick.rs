@@ -202,7 +202,7 @@ fn main() {
         generated_reference()
     );
     println!(
-        "squat generator step on its own (ONNX, 8 × 18 in, 3 × 18 out): {}",
+        "squat generator step on its own (ONNX, 8 × 18 + a command in, 3 × 18 out): {}",
         generator_step()
     );
     let seconds = if quick { 3.0 } else { 60.0 };
