@@ -439,10 +439,12 @@ impl Generator {
         let shared = Arc::new(Shared {
             loop_time: AtomicU64::new(0f64.to_bits()),
             generated_until: AtomicU64::new((-1.0 / d.frame_hz).to_bits()),
+            wake_at: AtomicU64::new(f64::INFINITY.to_bits()),
             stop: AtomicBool::new(false),
             stats: Mutex::new(WorkerStats::default()),
         });
-        let plan_reader = PlanReader {
+        let mut plan_reader = PlanReader {
+            worker: None,
             reader,
             shared: Arc::clone(&shared),
             robot_index: self.robot_index.clone(),
@@ -490,6 +492,7 @@ impl Generator {
             .name("motion-generator".into())
             .spawn(move || worker.run())
             .map_err(GeneratorError::Thread)?;
+        plan_reader.worker = Some(thread.thread().clone());
         Ok((
             GeneratorWorker {
                 shared,
@@ -525,6 +528,9 @@ struct Shared {
     loop_time: AtomicU64,
     /// How far the worker has generated: the time of its newest frame, s (f64 bits).
     generated_until: AtomicU64,
+    /// The loop time from which the worker wants to step again, s (f64 bits; infinite while it
+    /// works): the loop wakes it then, so it sleeps between steps instead of polling.
+    wake_at: AtomicU64,
     stop: AtomicBool,
     /// The worker's own counts (only the worker and the end of the run touch them).
     stats: Mutex<WorkerStats>,
@@ -572,8 +578,15 @@ impl Worker {
             let needed = (loop_t + self.lookahead_s) * self.frame_hz;
             // Two steps ahead of what the loop reads: a step late by a whole period still lands
             // before it is needed.
-            if end as f64 - needed >= (2 * k) as f64 {
-                std::thread::park_timeout(Duration::from_micros(500));
+            if end as f64 - needed > (2 * k) as f64 {
+                // Asleep until the loop reaches the time this test turns, woken by it (or a
+                // stop); the timeout is only a backstop.
+                let wake = (end - (2 * k) as i64) as f64 / self.frame_hz - self.lookahead_s;
+                self.shared.wake_at.store(wake.to_bits(), Ordering::Relaxed);
+                std::thread::park_timeout(Duration::from_millis(50));
+                self.shared
+                    .wake_at
+                    .store(f64::INFINITY.to_bits(), Ordering::Relaxed);
                 continue;
             }
             let generated_s = end as f64 / self.frame_hz;
@@ -754,6 +767,8 @@ pub struct PlanCounts {
 /// The loop's end: samples the newest plan at the loop's time into robot-order joint values.
 #[derive(Debug)]
 pub struct PlanReader {
+    /// The worker's thread, woken when the loop reaches the time it asked for.
+    worker: Option<std::thread::Thread>,
     reader: LiveReader<Plan>,
     shared: Arc<Shared>,
     robot_index: Vec<usize>,
@@ -782,6 +797,12 @@ impl PlanReader {
     /// judges it: fresh, forecast or standby. Allocates nothing.
     pub fn begin_tick(&mut self, t: f64, dt: f64) {
         self.shared.loop_time.store(t.to_bits(), Ordering::Relaxed);
+        if t >= f64::from_bits(self.shared.wake_at.load(Ordering::Relaxed))
+            && let Some(worker) = &self.worker
+        {
+            // A futex wake: no lock, no allocation, never waits.
+            worker.unpark();
+        }
         let plan = self.reader.latest();
         let last = plan.first as f64 + plan.count as f64 - 1.0;
         let past = (t * self.frame_hz - last) / self.frame_hz;
@@ -969,10 +990,12 @@ mod tests {
         let shared = Arc::new(Shared {
             loop_time: AtomicU64::new(0),
             generated_until: AtomicU64::new(0),
+            wake_at: AtomicU64::new(f64::INFINITY.to_bits()),
             stop: AtomicBool::new(false),
             stats: Mutex::new(WorkerStats::default()),
         });
         let plans = PlanReader {
+            worker: None,
             reader,
             shared,
             robot_index: vec![1],
