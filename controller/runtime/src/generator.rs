@@ -436,33 +436,15 @@ impl Generator {
             latency_s: 0.0,
         };
         let (writer, reader) = live_channel(initial.clone());
-        let shared = Arc::new(Shared {
-            loop_time: AtomicU64::new(0f64.to_bits()),
-            generated_until: AtomicU64::new((-1.0 / d.frame_hz).to_bits()),
-            wake_at: AtomicU64::new(f64::INFINITY.to_bits()),
-            stop: AtomicBool::new(false),
-            stats: Mutex::new(WorkerStats::default()),
-        });
-        let mut plan_reader = PlanReader {
-            worker: None,
+        let shared = Arc::new(Shared::new(d.frame_hz));
+        let mut plan_reader = PlanReader::new(
             reader,
-            shared: Arc::clone(&shared),
-            robot_index: self.robot_index.clone(),
-            frame_hz: d.frame_hz,
+            Arc::clone(&shared),
+            self.robot_index.clone(),
+            d.frame_hz,
             options,
-            standby: standby.to_vec(),
-            q: standby.to_vec(),
-            qd: vec![0.0; standby.len()],
-            forecast: vec![0.0; j],
-            status: PlanStatus::Fresh,
-            weight: 0.0,
-            counts: PlanCounts::default(),
-            events: Vec::with_capacity(MAX_EVENTS),
-            past: 0.0,
-            step: 0,
-            step_latency_s: 0.0,
-            reached_standby: None,
-        };
+            standby,
+        );
         // The model's inputs in its order, concatenated: the history's place, the command's values.
         let mut input = Vec::with_capacity(n * j + self.command.len());
         let mut history_at = 0;
@@ -519,6 +501,19 @@ pub struct Plan {
 impl Plan {
     fn frame(&self, k: usize) -> &[f64] {
         &self.frames[k * self.joints..(k + 1) * self.joints]
+    }
+}
+
+impl Shared {
+    fn new(frame_hz: f64) -> Self {
+        Self {
+            loop_time: AtomicU64::new(0f64.to_bits()),
+            // Nothing generated yet: the seed's last frame is at −1 frame.
+            generated_until: AtomicU64::new((-1.0 / frame_hz).to_bits()),
+            wake_at: AtomicU64::new(f64::INFINITY.to_bits()),
+            stop: AtomicBool::new(false),
+            stats: Mutex::new(WorkerStats::default()),
+        }
     }
 }
 
@@ -793,6 +788,38 @@ pub struct PlanReader {
 }
 
 impl PlanReader {
+    /// A reader of `reader`'s plans for the model joints at `robot_index`, blending to
+    /// `standby` (robot order).
+    fn new(
+        reader: LiveReader<Plan>,
+        shared: Arc<Shared>,
+        robot_index: Vec<usize>,
+        frame_hz: f64,
+        options: GeneratorOptions,
+        standby: &[f64],
+    ) -> Self {
+        Self {
+            worker: None,
+            forecast: vec![0.0; robot_index.len()],
+            reader,
+            shared,
+            robot_index,
+            frame_hz,
+            options,
+            standby: standby.to_vec(),
+            q: standby.to_vec(),
+            qd: vec![0.0; standby.len()],
+            status: PlanStatus::Fresh,
+            weight: 0.0,
+            counts: PlanCounts::default(),
+            events: Vec::with_capacity(MAX_EVENTS),
+            past: 0.0,
+            step: 0,
+            step_latency_s: 0.0,
+            reached_standby: None,
+        }
+    }
+
     /// Takes the newest plan for the tick at generator time `t` (s; the loop's `dt` apart) and
     /// judges it: fresh, forecast or standby. Allocates nothing.
     pub fn begin_tick(&mut self, t: f64, dt: f64) {
@@ -987,33 +1014,14 @@ mod tests {
             latency_s: 0.0,
         };
         let (writer, reader) = live_channel(plan);
-        let shared = Arc::new(Shared {
-            loop_time: AtomicU64::new(0),
-            generated_until: AtomicU64::new(0),
-            wake_at: AtomicU64::new(f64::INFINITY.to_bits()),
-            stop: AtomicBool::new(false),
-            stats: Mutex::new(WorkerStats::default()),
-        });
-        let plans = PlanReader {
-            worker: None,
+        let plans = PlanReader::new(
             reader,
-            shared,
-            robot_index: vec![1],
-            frame_hz: 10.0,
+            Arc::new(Shared::new(10.0)),
+            vec![1],
+            10.0,
             options,
-            standby: vec![5.0, -1.0],
-            q: vec![5.0, -1.0],
-            qd: vec![0.0; 2],
-            forecast: vec![0.0],
-            status: PlanStatus::Fresh,
-            weight: 0.0,
-            counts: PlanCounts::default(),
-            events: Vec::with_capacity(MAX_EVENTS),
-            past: 0.0,
-            step: 0,
-            step_latency_s: 0.0,
-            reached_standby: None,
-        };
+            &[5.0, -1.0],
+        );
         (writer, plans)
     }
 
