@@ -476,7 +476,8 @@ fn the_shipped_foxglove_layouts_are_what_the_command_writes_and_every_plot_reads
             for part in rest.split('.') {
                 let (field, filter) = match part.split_once("[:]") {
                     Some((f, filter)) => (f, Some(filter)),
-                    None => (part, None),
+                    // An element by index: `keypoint_errors[0]`.
+                    None => (part.split_once('[').map_or(part, |(f, _)| f), None),
                 };
                 let fields = fields_of(&message);
                 let (_, type_name) = fields

@@ -1,7 +1,8 @@
 //! A Foxglove layout for a robot's recordings and live view (`robodeploy layout`): the robot in 3D
 //! following its root, a tab per bus with a tracking plot per joint (measured, commanded and
 //! reference position, and the joint's limits as reference lines), the safety state machine's
-//! timeline with the safety log, and where each tick's time went. Import it in Foxglove with
+//! timeline with the safety log, where each tick's time went, and a tab for a motion
+//! generator's status and the 2D keypoint errors (when a run has them). Import it in Foxglove with
 //! Layouts → Import from file.
 //!
 //! Message paths pick joints by name (`/joint_state.joints[:]{name=="left_knee"}.position`), so a
@@ -44,6 +45,47 @@ pub fn foxglove_layout(robot: &str, root: &str, joints: &[LayoutJoint]) -> Value
             json!({"title": bus, "layout": mosaic(&ids, "column")})
         })
         .collect();
+    // A last tab for runs on other references: a motion generator's plans, 2D keypoints.
+    let mut tabs = tabs;
+    panels.insert(
+        "StateTransitions!generator".into(),
+        json!({"paths": [{"value": "/policy.generated.status", "timestampMethod": "receiveTime",
+                          "label": "generated reference"}],
+               "isSynced": true}),
+    );
+    panels.insert(
+        "Plot!generator".into(),
+        json!({
+            "title": "generator: time past its plan (s), blend to standby (0–1), step latency (s)",
+            "paths": [
+                series("/policy.generated.past_plan_s", "past the plan", "#f5774d"),
+                series("/policy.generated.standby_weight", "standby", "#e05d5d"),
+                series("/policy.generated.step_latency_s", "step latency", "#4e98e2"),
+            ],
+            "showLegend": true, "legendDisplay": "floating", "isSynced": true,
+            "xAxisVal": "timestamp", "showXAxisLabels": true, "showYAxisLabels": true,
+        }),
+    );
+    panels.insert(
+        "Plot!keypoints".into(),
+        json!({
+            "title": "2D keypoints: reprojection error (px) of the first two views",
+            "paths": [
+                series("/policy.keypoint_errors[0].mean_px", "view 1 mean", "#4e98e2"),
+                series("/policy.keypoint_errors[0].max_px", "view 1 max", "#e05d5d"),
+                series("/policy.keypoint_errors[1].mean_px", "view 2 mean", "#9ad86e"),
+                series("/policy.keypoint_errors[1].max_px", "view 2 max", "#f5a623"),
+            ],
+            "referenceLines": [{"value": crate::keypoints::FAILURE_PX, "color": "#e05d5d"}],
+            "showLegend": true, "legendDisplay": "floating", "isSynced": true,
+            "xAxisVal": "timestamp", "showXAxisLabels": true, "showYAxisLabels": true,
+        }),
+    );
+    tabs.push(json!({"title": "generator & keypoints", "layout": {
+        "direction": "column", "first": "StateTransitions!generator",
+        "second": {"direction": "column", "first": "Plot!generator", "second": "Plot!keypoints",
+                   "splitPercentage": 50},
+        "splitPercentage": 20}}));
     panels.insert("Tab!joints".into(), json!({"activeTabIdx": 0, "tabs": tabs}));
     panels.insert(
         "3D!robot".into(),
