@@ -21,14 +21,7 @@ pub(super) fn render_moments(
 ) -> Result<Vec<(String, Vec<u8>)>, String> {
     let robot = robots::Robot::load(robot_toml).map_err(|e| e.to_string())?;
     let model = sim2real::mujoco::load_model(&robot.mjcf_path).map_err(|e| e.to_string())?;
-    let joints: Vec<&str> = robot
-        .config
-        .joints
-        .iter()
-        .map(|j| j.mjcf_joint.as_str())
-        .collect();
-    let index = sim2real::model_index::ModelIndex::new(&model, &robot.config.root_body, &joints, &[])
-        .map_err(|e| e.to_string())?;
+    let index = sim2real::model_index::ModelIndex::of_robot(&model, &robot).map_err(|e| e.to_string())?;
     let root = index.root.qpos;
     let adr: Vec<usize> = index.joints.iter().map(|j| j.qpos).collect();
     let mut data = MjData::new(Box::new(model));
