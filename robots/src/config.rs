@@ -267,6 +267,278 @@ pub struct RobotConfig {
     /// estimated from the legs' kinematics).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub contacts: Vec<ContactSwitch>,
+    /// How a run hands the robot to the policy: on the joints' PD first, the policy from its
+    /// first tick on the floor, or the policy from its first tick in a harness that lowers the
+    /// robot onto its feet.
+    #[serde(default, skip_serializing_if = "StartConfig::is_default")]
+    pub start: StartConfig,
+    /// Safety thresholds of this robot (the run's defaults where it gives none).
+    #[serde(default, skip_serializing_if = "SafetyConfig::is_default")]
+    pub safety: SafetyConfig,
+}
+
+/// A robot's own safety thresholds (robot.toml `[safety]`).
+#[derive(Debug, Clone, Default, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SafetyConfig {
+    /// Largest base tilt from upright before the robot is stopped, rad (0.1–1.5; default 0.8).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tilt: Option<f64>,
+    /// How far a joint may stay from its position target, rad (0.05–3.14), before the
+    /// tracking-error stop fires (default 0.5) …
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tracking_error: Option<f64>,
+    /// … for longer than this, s (0.02–10; default 0.5). Counted only while the policy is in
+    /// control.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tracking_s: Option<f64>,
+    /// Per joint or joint group: `joints` names or patterns (`*` matches any run of characters:
+    /// `"*ankle*"`), with their own `error` and `seconds`. A later rule wins over an earlier one
+    /// for the joints both match.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub tracking: Vec<TrackingRule>,
+    /// Where a policy's position targets may lie.
+    #[serde(skip_serializing_if = "PositionTargets::is_inside")]
+    pub position_targets: PositionTargets,
+}
+
+/// Where the governor lets a policy's position targets lie.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PositionTargets {
+    /// Inside each joint's position limits, less the margin.
+    #[default]
+    InsideLimits,
+    /// Beyond a limit by at most what the joint's torque limit reaches at its stiffness
+    /// (τ_max / kp): the joint's PD then pushes towards that limit with at most its torque limit,
+    /// as the trainer's simulation let the policy do (policies trained with targets unclipped
+    /// press ankles and waist against their limits on purpose).
+    TorqueReach,
+}
+
+impl PositionTargets {
+    fn is_inside(&self) -> bool {
+        *self == Self::InsideLimits
+    }
+}
+
+/// The tracking-error stop's threshold for some joints.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrackingRule {
+    /// Joint names or patterns (`*` matches any run of characters).
+    pub joints: Vec<String>,
+    /// Largest distance from the target, rad (0.05–3.14).
+    pub error: f64,
+    /// For longer than this, s (0.02–10).
+    pub seconds: f64,
+}
+
+/// Whether `name` matches `pattern`, where `*` stands for any run of characters.
+pub fn matches_pattern(pattern: &str, name: &str) -> bool {
+    let parts: Vec<&str> = pattern.split('*').collect();
+    if parts.len() == 1 {
+        return pattern == name;
+    }
+    let (first, last) = (parts[0], parts[parts.len() - 1]);
+    if !name.starts_with(first) || name.len() < first.len() + last.len() || !name.ends_with(last) {
+        return false;
+    }
+    let mut rest = &name[first.len()..name.len() - last.len()];
+    for part in &parts[1..parts.len() - 1] {
+        match rest.find(part) {
+            Some(i) => rest = &rest[i + part.len()..],
+            None => return false,
+        }
+    }
+    true
+}
+
+impl SafetyConfig {
+    fn is_default(&self) -> bool {
+        *self == Self::default()
+    }
+
+    /// Each joint's tracking-error threshold (rad) and time (s), robot.toml order, from the rules
+    /// over the given defaults.
+    pub fn tracking_limits(&self, joints: &[JointConfig], error: f64, seconds: f64) -> Vec<(f64, f64)> {
+        let base = (
+            self.tracking_error.unwrap_or(error),
+            self.tracking_s.unwrap_or(seconds),
+        );
+        joints
+            .iter()
+            .map(|j| {
+                self.tracking
+                    .iter()
+                    .rev()
+                    .find(|r| r.joints.iter().any(|p| matches_pattern(p, &j.name)))
+                    .map_or(base, |r| (r.error, r.seconds))
+            })
+            .collect()
+    }
+
+    /// Checks every field against its documented range and every pattern against `joints`.
+    pub fn check(&self, joints: &[JointConfig]) -> Result<(), (String, String)> {
+        let within = |field: String, v: f64, lo: f64, hi: f64, unit: &str| {
+            if v.is_finite() && (lo..=hi).contains(&v) {
+                Ok(())
+            } else {
+                Err((
+                    field,
+                    format!(
+                        "{} {unit} is outside [{}, {}]",
+                        crate::num(v),
+                        crate::num(lo),
+                        crate::num(hi)
+                    ),
+                ))
+            }
+        };
+        if let Some(t) = self.tilt {
+            within("safety.tilt".into(), t, 0.1, 1.5, "rad")?;
+        }
+        if let Some(e) = self.tracking_error {
+            within("safety.tracking_error".into(), e, 0.05, 3.14, "rad")?;
+        }
+        if let Some(s) = self.tracking_s {
+            within("safety.tracking_s".into(), s, 0.02, 10.0, "s")?;
+        }
+        for (i, r) in self.tracking.iter().enumerate() {
+            within(format!("safety.tracking[{i}].error"), r.error, 0.05, 3.14, "rad")?;
+            within(
+                format!("safety.tracking[{i}].seconds"),
+                r.seconds,
+                0.02,
+                10.0,
+                "s",
+            )?;
+            if r.joints.is_empty() {
+                return Err((format!("safety.tracking[{i}].joints"), "names no joint".into()));
+            }
+            for p in &r.joints {
+                if !joints.iter().any(|j| matches_pattern(p, &j.name)) {
+                    return Err((
+                        format!("safety.tracking[{i}].joints"),
+                        format!("{p:?} matches no joint of the robot"),
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// How a run hands the robot to the policy (robot.toml `[start]`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StartMode {
+    /// The policy is in control from its first tick while a harness (a gantry crane's rope)
+    /// holds the robot at standing height and lowers it onto its feet, then goes slack. On the
+    /// robot the operator lowers it and confirms.
+    Harness,
+    /// The policy is in control from its first tick, the robot on the floor.
+    Policy,
+    /// The joints' PD ramps the robot into the default pose at reduced gains first (a robot that
+    /// stands on its joints' stiffness alone), then the policy takes over.
+    #[default]
+    Pd,
+}
+
+impl StartMode {
+    /// The name robot.toml and `--start` use.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Harness => "harness",
+            Self::Policy => "policy",
+            Self::Pd => "pd",
+        }
+    }
+}
+
+/// The start (robot.toml `[start]`): the mode, the PD soft start's length and gains, the harness.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct StartConfig {
+    /// Which start a run takes unless `play --start` says otherwise.
+    pub mode: StartMode,
+    /// `pd`: time to reach the default pose, s (0.1–30).
+    pub pd_s: f64,
+    /// `pd`: the gains' share at the start of the ramp, rising to 1 (0–1).
+    pub pd_gain: f64,
+    /// `harness`: how the harness lowers the robot.
+    pub harness: HarnessConfig,
+}
+
+impl Default for StartConfig {
+    fn default() -> Self {
+        Self {
+            mode: StartMode::Pd,
+            pd_s: 1.0,
+            pd_gain: 0.3,
+            harness: HarnessConfig::default(),
+        }
+    }
+}
+
+impl StartConfig {
+    fn is_default(&self) -> bool {
+        *self == Self::default()
+    }
+}
+
+/// Highest a harness may hold the soles above the floor, m: a gantry crane's hook travel over a
+/// standing robot. Higher, a robot let down onto a policy that expects the floor drops.
+pub const MAX_HARNESS_LIFT_M: f64 = 0.3;
+
+/// The harness of a `harness` start.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct HarnessConfig {
+    /// The soles hang this far above the floor when the run begins, m (0–[`MAX_HARNESS_LIFT_M`]).
+    pub lift_m: f64,
+    /// Time the harness takes to lower the robot until the rope is slack, s (0.2–30).
+    pub lower_s: f64,
+    /// Time the policy stands on the reference's first frame once lowered, before the motion
+    /// plays, s (0–30).
+    pub settle_s: f64,
+}
+
+impl Default for HarnessConfig {
+    fn default() -> Self {
+        Self {
+            lift_m: 0.03,
+            lower_s: 2.0,
+            settle_s: 1.0,
+        }
+    }
+}
+
+impl StartConfig {
+    /// Checks every field against its documented range: `Err((field, message))`.
+    pub fn check(&self) -> Result<(), (String, String)> {
+        let within = |field: &str, v: f64, lo: f64, hi: f64, unit: &str| {
+            if v.is_finite() && (lo..=hi).contains(&v) {
+                Ok(())
+            } else {
+                Err((
+                    format!("start.{field}"),
+                    format!(
+                        "{} {unit} is outside [{}, {}]",
+                        crate::num(v),
+                        crate::num(lo),
+                        crate::num(hi)
+                    ),
+                ))
+            }
+        };
+        within("pd_s", self.pd_s, 0.1, 30.0, "s")?;
+        within("pd_gain", self.pd_gain, 0.0, 1.0, "")?;
+        let h = &self.harness;
+        within("harness.lift_m", h.lift_m, 0.0, MAX_HARNESS_LIFT_M, "m")?;
+        within("harness.lower_s", h.lower_s, 0.2, 30.0, "s")?;
+        within("harness.settle_s", h.settle_s, 0.0, 30.0, "s")
+    }
 }
 
 /// An MIT-mode motor model as a robot.toml defines it: the ranges its firmware maps the 16- and
@@ -1210,6 +1482,8 @@ impl Robot {
                 ));
             }
         }
+        c.start.check()?;
+        c.safety.check(&c.joints)?;
         if !(1.0..=1000.0).contains(&c.control_rate_hz) {
             return Err((
                 "control_rate_hz".into(),

@@ -11,9 +11,10 @@ pub mod mjcf;
 pub mod spatial;
 
 pub use config::{
-    BodyPair, BusConfig, BusKind, BusTiming, HumanBody, IMU_SENSOR_KINDS, ImuConfig, ImuSensorNames,
-    Interpolation, JointConfig, KeypointFrame, MitModelConfig, OrientationCompare, RetargetConfig, Robot,
-    RobotConfig, RobotError, default_command_timeout,
+    BodyPair, BusConfig, BusKind, BusTiming, HarnessConfig, HumanBody, IMU_SENSOR_KINDS, ImuConfig,
+    ImuSensorNames, Interpolation, JointConfig, KeypointFrame, MAX_HARNESS_LIFT_M, MitModelConfig,
+    OrientationCompare, PositionTargets, RetargetConfig, Robot, RobotConfig, RobotError, SafetyConfig,
+    StartConfig, StartMode, TrackingRule, default_command_timeout, matches_pattern,
 };
 
 /// A file that could not be read, parsed or written, and what was wrong with it.

@@ -124,6 +124,9 @@ pub struct MirrorConfig {
     pub seed: u64,
     /// Hold the root on a gantry (a stiff spring-damper) with the feet off the ground.
     pub gantry: bool,
+    /// Hang the robot in a harness that lowers it onto its feet and goes slack (a `harness`
+    /// start; robot.toml `[start.harness]`).
+    pub harness: Option<robots::HarnessConfig>,
     /// Period of the emulated firmware's control loops, µs (0: the physics step).
     pub firmware_period_us: u64,
     /// Return Delay Time the mirror's servos are set to, µs.

@@ -147,6 +147,38 @@ struct Gantry {
     gains: [f64; 4],
 }
 
+/// A harness: a rope from a crane's hook to the robot's root, taut while it carries weight and
+/// slack once the feet do. The hook lowers on a smooth schedule from where the robot hangs at the
+/// start to well below where the rope goes slack on a standing robot.
+#[derive(Debug, Clone, Copy)]
+struct Harness {
+    /// Where the root hangs at the start (the rope carrying the whole weight).
+    hang: [f64; 3],
+    upright: [f64; 4],
+    /// The hook's whole travel, m, and its time, s.
+    travel: f64,
+    lower_s: f64,
+    /// Simulated time the hook began to come down: the first step any joint was driven (the
+    /// controller took the robot), s.
+    lowering_since: Option<f64>,
+    /// Robot mass, kg, and the rope's spring, damper (N/m, N·s/m), the pendulum's horizontal
+    /// spring and damper, the straps' orientation spring and damper — all scaled by the share of
+    /// the weight the rope carries.
+    mass: f64,
+    gains: [f64; 6],
+}
+
+/// The rope's stretch under the robot's whole weight sets its stiffness: g / ω².
+const HARNESS_OMEGA: f64 = 20.0;
+const HARNESS_ZETA: f64 = 0.7;
+/// The rope's length from hook to root, m: the pendulum that centres a hanging robot.
+const HARNESS_ROPE_M: f64 = 1.5;
+/// How far below the taut point the hook ends, m: clearly slack on a standing robot.
+const HARNESS_SLACK_M: f64 = 0.15;
+/// Natural frequency of the straps that keep a hanging robot upright, rad/s.
+const HARNESS_STRAPS_OMEGA: f64 = 8.0;
+const GRAVITY: f64 = 9.81;
+
 /// How stiff the gantry is: the held robot's natural frequency on it, rad/s, and its damping
 /// ratio. Gains follow from the robot's mass and inertia, so a 2 kg robot and a 17 kg one sit
 /// alike on the stand, and the explicit damping stays far inside its stable step.
@@ -198,6 +230,7 @@ pub struct Mirror {
     feetech: Vec<FeetechLine>,
     imu: Imu,
     gantry: Option<Gantry>,
+    harness: Option<Harness>,
     /// Joint angles a jig holds the joints at (policy order), if any.
     jig: Option<Vec<f64>>,
     root_qpos: usize,
@@ -525,6 +558,7 @@ impl Mirror {
             feetech: feetech_lines,
             imu,
             gantry: None,
+            harness: None,
             jig: None,
             root_qpos,
             root_dof,
@@ -565,6 +599,8 @@ impl Mirror {
         self.data.forward();
         let lift = if self.config.gantry {
             0.05
+        } else if let Some(h) = self.config.harness {
+            h.lift_m
         } else {
             self.config.start.height_m
         };
@@ -598,7 +634,69 @@ impl Mirror {
                 ],
             });
         }
+        if let (Some(h), false) = (self.config.harness, self.config.gantry) {
+            let q = self.data.qpos();
+            let r = self.root_qpos;
+            let (mass, inertia) = self.held_mass_and_inertia();
+            let k = mass * HARNESS_OMEGA * HARNESS_OMEGA;
+            let k_pendulum = mass * GRAVITY / HARNESS_ROPE_M;
+            let k_straps = inertia * HARNESS_STRAPS_OMEGA * HARNESS_STRAPS_OMEGA;
+            self.harness = Some(Harness {
+                hang: [q[r], q[r + 1], q[r + 2]],
+                upright: [q[r + 3], q[r + 4], q[r + 5], q[r + 6]],
+                // From carrying the whole weight (stretched by g/ω²) to slack below a robot
+                // standing on the floor.
+                travel: h.lift_m + GRAVITY / (HARNESS_OMEGA * HARNESS_OMEGA) + HARNESS_SLACK_M,
+                lower_s: h.lower_s,
+                lowering_since: None,
+                mass,
+                gains: [
+                    k,
+                    2.0 * HARNESS_ZETA * (k * mass).sqrt(),
+                    k_pendulum,
+                    2.0 * HARNESS_ZETA * (k_pendulum * mass).sqrt(),
+                    k_straps,
+                    2.0 * HARNESS_ZETA * (k_straps * inertia).sqrt(),
+                ],
+            });
+        }
         self.sync_plants();
+    }
+
+    /// The share of the robot's weight the harness carries now (0 when slack or without one).
+    pub fn harness_load(&self) -> Option<f64> {
+        self.harness.map(|h| self.harness_wrench(h).2)
+    }
+
+    /// The harness's force and torque on the root (world frame) and the share of the weight it
+    /// carries: a rope pulls only, and the pendulum and straps act with the load it carries.
+    fn harness_wrench(&self, h: Harness) -> ([f64; 3], [f64; 3], f64) {
+        let r = self.root_qpos;
+        let (q, v) = (self.data.qpos(), self.data.qvel());
+        let t = h.lowering_since.map_or(0.0, |since| self.data.time() - since);
+        let s = (t / h.lower_s).clamp(0.0, 1.0);
+        let lowered = h.travel * s * s * (3.0 - 2.0 * s);
+        let [k, c, kh, ch, kr, cr] = h.gains;
+        // Height at which the rope just goes taut: the hanging height plus its stretch under the
+        // whole weight, minus how far the hook has come down.
+        let taut = h.hang[2] + GRAVITY / (HARNESS_OMEGA * HARNESS_OMEGA) - lowered;
+        let stretch = taut - q[r + 2];
+        let pull = if stretch > 0.0 {
+            (k * stretch - c * v[2]).max(0.0)
+        } else {
+            0.0
+        };
+        let load = (pull / (h.mass * GRAVITY)).min(1.5);
+        let mut force = [0.0, 0.0, pull];
+        for i in 0..2 {
+            force[i] = load * (kh * (h.hang[i] - q[r + i]) - ch * v[i]);
+        }
+        let cur = [q[r + 3], q[r + 4], q[r + 5], q[r + 6]];
+        let err = quat_mul(h.upright, quat_conj(cur));
+        let sign = if err[0] < 0.0 { -2.0 } else { 2.0 };
+        let w_world = quat_rotate(cur, [v[3], v[4], v[5]]);
+        let torque: [f64; 3] = std::array::from_fn(|i| load * (kr * sign * err[i + 1] - cr * w_world[i]));
+        (force, torque, load)
     }
 
     /// The robot it mirrors.
@@ -805,6 +903,15 @@ impl Mirror {
         }
         if let Some(g) = self.gantry {
             self.hold_on_gantry(g);
+        } else if let Some(h) = &mut self.harness {
+            if h.lowering_since.is_none() && self.plants.iter().any(|p| p.torque != 0.0 || p.goal.is_some()) {
+                h.lowering_since = Some(self.data.time());
+            }
+            let h = *h;
+            let (force, torque, _) = self.harness_wrench(h);
+            let x = &mut self.data.xfrc_applied_mut()[self.root_body];
+            x[..3].copy_from_slice(&force);
+            x[3..].copy_from_slice(&torque);
         } else if !self.pushes.is_empty() {
             self.data.xfrc_applied_mut()[self.root_body] = [0.0; 6];
         }

@@ -171,6 +171,29 @@ impl From<OnStopArg> for controller::options::OnStop {
     }
 }
 
+/// How the policy takes the robot (`--start`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum StartArg {
+    /// The policy in control from its first tick while a harness lowers the robot onto its feet
+    /// (the mirror hangs it from a crane's rope; on the robot, the operator lowers it).
+    Harness,
+    /// The policy in control from its first tick, the robot on the floor.
+    Policy,
+    /// The joints' PD brings the robot into the default pose first (robot.toml [start] pd_s,
+    /// pd_gain), then the policy takes over: for robots that stand on their joints alone.
+    Pd,
+}
+
+impl From<StartArg> for robots::StartMode {
+    fn from(a: StartArg) -> Self {
+        match a {
+            StartArg::Harness => Self::Harness,
+            StartArg::Policy => Self::Policy,
+            StartArg::Pd => Self::Pd,
+        }
+    }
+}
+
 /// Where the world terms of the observation come from (`--estimator`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum EstimatorArg {

@@ -36,6 +36,11 @@ pub struct PlayArgs {
     /// Hold the mirrored robot on a gantry.
     #[arg(long)]
     gantry: bool,
+    /// How the policy takes the robot (default: robot.toml's [start] mode, else pd): harness —
+    /// in control from the first tick while a harness lowers the robot onto its feet; policy —
+    /// from the first tick on the floor; pd — the joints' PD brings it to the default pose first.
+    #[arg(long, value_enum)]
+    start: Option<crate::args::StartArg>,
     /// What to do when the clip ends.
     #[arg(long, value_enum, default_value_t = crate::args::EndArg::Hold)]
     end: crate::args::EndArg,
@@ -394,6 +399,11 @@ pub fn check(args: &CheckArgs) -> Result<()> {
             println!("       {:<6} {line}", b.name);
         }
     }
+    let start = l.robot.config.start;
+    println!(
+        "       start: {}",
+        describe_start(&l.robot, start.mode, start.pd_s)
+    );
     println!("policy {}", l.layout.path.display());
     println!(
         "       {}",
@@ -837,7 +847,7 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
     if args.hardware && args.estimator == crate::args::EstimatorArg::GroundTruth {
         bail!("--estimator ground-truth: the hardware has no ground truth; it runs the estimator (kf)");
     }
-    let options = PlayOptions {
+    let mut options = PlayOptions {
         estimator: args.estimator.into(),
         start_step: args.files.start_step as usize,
         ramp_s: args.ramp,
@@ -858,7 +868,20 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
             ..Default::default()
         },
         ..PlayOptions::default()
-    };
+    }
+    .resolved_for(&l.robot);
+    if let Some(start) = args.start {
+        options.start = Some(start.into());
+    }
+    if options.start_mode(&l.robot) == robots::StartMode::Harness && args.gantry {
+        bail!(
+            "--start harness with --gantry: the robot hangs in the harness or sits on the gantry, not both"
+        );
+    }
+    println!(
+        "start: {}",
+        describe_start(&l.robot, options.start_mode(&l.robot), options.soft_start_s)
+    );
     if args.realtime {
         let cpus = std::thread::available_parallelism().map_or(1, std::num::NonZero::get);
         for step in controller::realtime::setup(80, Some(cpus - 1)).steps {
@@ -870,7 +893,6 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         signal_hook::flag::register(signal, Arc::clone(&stop))
             .context("cannot install the stop signal handlers")?;
     }
-    let mut options = options;
     if matches!(l.source, ReferenceSource::Commands) {
         // Nothing ends a command-driven run but the operator (Ctrl-C, the e-stop) or
         // --max-seconds: the robot stands on its commands until then.
@@ -952,6 +974,26 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         println!("report: {} ({headline})", dir.join("report.html").display());
     }
     Ok(finish(&summary))
+}
+
+/// How a run's start reads: the mode and what it does, in the robot's figures.
+fn describe_start(robot: &Robot, mode: robots::StartMode, pd_s: f64) -> String {
+    let h = robot.config.start.harness;
+    match mode {
+        robots::StartMode::Harness => format!(
+            "harness — the policy in control from the first tick; the robot hangs {:.0} cm above the \
+             floor, is lowered over {} s and stands {} s on the reference's first frame before it plays",
+            100.0 * h.lift_m,
+            h.lower_s,
+            h.settle_s
+        ),
+        robots::StartMode::Policy => "policy — in control from the first tick, on the floor".to_owned(),
+        robots::StartMode::Pd => format!(
+            "pd — the joints' PD brings the robot to the default pose over {pd_s} s (gains from {:.0} %), \
+             then the policy takes over",
+            100.0 * robot.config.start.pd_gain
+        ),
+    }
 }
 
 /// A recording file this run alone writes: `DIR/STEM.mcap`, or `STEM-2.mcap`, … when another run

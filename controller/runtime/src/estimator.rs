@@ -92,6 +92,32 @@ pub struct Estimate {
     pub feet: usize,
     /// The outputs can be used: initialised, fed finite, fresh data.
     pub valid: bool,
+    /// Why not, when they cannot.
+    pub problem: Option<EstimateProblem>,
+}
+
+/// Why the state estimate a policy reads is not usable.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EstimateProblem {
+    /// It never started: the IMU never held still long enough to take gravity's direction.
+    NotInitialised,
+    /// It was fed non-finite data, or diverged.
+    NonFinite,
+    /// The IMU's samples stopped coming.
+    StaleImu,
+    /// The run reads ground truth (or has no estimator: a robot without feet) and none came.
+    NoGroundTruth,
+}
+
+impl std::fmt::Display for EstimateProblem {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::NotInitialised => "it never started (the IMU never held still long enough to find gravity)",
+            Self::NonFinite => "it was fed non-finite values or diverged",
+            Self::StaleImu => "the IMU's samples stopped coming",
+            Self::NoGroundTruth => "the run reads the simulation's ground truth and there is none",
+        })
+    }
 }
 
 impl Default for Estimate {
@@ -107,6 +133,7 @@ impl Default for Estimate {
             loads: [f64::NAN; MAX_FEET],
             feet: 0,
             valid: false,
+            problem: Some(EstimateProblem::NotInitialised),
         }
     }
 }
@@ -423,10 +450,16 @@ impl Estimator {
             }
             self.symmetrise();
         }
-        let valid = self.initialised
-            && !self.input_fault
-            && imu_fresh
-            && self.x.iter().chain(&self.p).all(|v| v.is_finite());
+        let problem = if !self.initialised {
+            Some(EstimateProblem::NotInitialised)
+        } else if self.input_fault || !self.x.iter().chain(&self.p).all(|v| v.is_finite()) {
+            Some(EstimateProblem::NonFinite)
+        } else if !imu_fresh {
+            Some(EstimateProblem::StaleImu)
+        } else {
+            None
+        };
+        let valid = problem.is_none();
         self.input_fault = false;
         let std = |i: usize| self.p[i * self.n + i].max(0.0).sqrt();
         let velocity = [self.x[V], self.x[V + 1], self.x[V + 2]];
@@ -443,6 +476,7 @@ impl Estimator {
             loads: legs.load,
             feet: self.feet,
             valid,
+            problem,
         }
     }
 

@@ -80,6 +80,38 @@ pub fn body_poses(
     Ok(out)
 }
 
+/// The root's world pose at every tick of `reference` given the world poses of `body` (one per
+/// tick, `[x, y, z, w, qx, qy, qz]`): the model posed in each tick's joint angles says where `body`
+/// sits on the root, and the root is put where that places `body` on its given pose. For exports
+/// that give an anchor's pose and not the root's (holosoma's torso).
+pub fn root_poses_from_body(
+    robot: &Robot,
+    reference: &Reference,
+    body: &str,
+    poses: &[[f64; 7]],
+) -> Result<Vec<[f64; 7]>, KinematicsError> {
+    let model = sim2real::mujoco::load_model(&robot.mjcf_path)?;
+    let index = ModelIndex::of_robot(&model, robot)?;
+    let b = model_index::body(&model, body)?;
+    let mut data = model.make_data();
+    let r = index.root.qpos;
+    let mut out = Vec::with_capacity(poses.len());
+    for (k, pose) in poses.iter().enumerate() {
+        data.qpos_mut()[r..r + 7].copy_from_slice(&[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]);
+        for (j, &q) in index.joints.iter().zip(reference.q_at(k)) {
+            data.qpos_mut()[j.qpos] = q;
+        }
+        data.kinematics();
+        // The body in the root's frame, then root = body ∘ (body in root)⁻¹.
+        let (p_rb, q_rb) = (data.xpos()[b], data.xquat()[b]);
+        let q_wb = [pose[3], pose[4], pose[5], pose[6]];
+        let q_wr = spatial::quat_normalize(spatial::quat_mul(q_wb, spatial::quat_conj(q_rb)));
+        let p_wr = spatial::sub([pose[0], pose[1], pose[2]], spatial::quat_rotate(q_wr, p_rb));
+        out.push([p_wr[0], p_wr[1], p_wr[2], q_wr[0], q_wr[1], q_wr[2], q_wr[3]]);
+    }
+    Ok(out)
+}
+
 /// The robot as it measures itself, through its own model, once per tick: the joints as
 /// measured, the root turned so the IMU's frame has the IMU's orientation, and placed where the
 /// run knows the robot is (simulation ground truth; the model's origin otherwise). Gives the

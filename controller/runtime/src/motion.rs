@@ -7,7 +7,8 @@
 //!
 //! BeyondMimic and mjlab exports bake the motion into the ONNX graph: with input `time_step`, the
 //! outputs `joint_pos`, `joint_vel` [1, J], `body_pos_w` [1, B, 3], `body_quat_w` [1, B, 4]
-//! (w x y z) are the motion's frame `min(time_step, T − 1)`. [`EmbeddedMotion`] finds those
+//! (w x y z) are the motion's frame `min(time_step, T − 1)`. holosoma's whole-body-tracking
+//! exports return the anchor alone: `ref_pos_xyz` [1, 3], `ref_quat_xyzw` [1, 4] (x y z w). [`EmbeddedMotion`] finds those
 //! outputs, reads the whole motion out once before anything moves (for checks, the clip's length
 //! and the frames a policy looks ahead), and gives each tick the frame its call returned.
 
@@ -102,8 +103,46 @@ impl Alignment {
     }
 }
 
-/// The output names of a motion-tracking export.
-pub const OUTPUTS: [&str; 4] = ["joint_pos", "joint_vel", "body_pos_w", "body_quat_w"];
+/// How a tracking export carries its motion: its output names, quaternion order and which frame
+/// each call is given.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MotionConvention {
+    /// BeyondMimic and mjlab: every tracked body, w x y z; the call gets the frame the next tick
+    /// plays.
+    BeyondMimic,
+    /// holosoma: the anchor body only, x y z w; the call gets the frame this tick plays, so the
+    /// observation sees each frame one tick later (as holosoma's deployment code does).
+    Holosoma,
+}
+
+impl MotionConvention {
+    /// Output names: joint positions, joint velocities, body positions, body orientations.
+    pub fn outputs(self) -> [&'static str; 4] {
+        match self {
+            Self::BeyondMimic => ["joint_pos", "joint_vel", "body_pos_w", "body_quat_w"],
+            Self::Holosoma => ["joint_pos", "joint_vel", "ref_pos_xyz", "ref_quat_xyzw"],
+        }
+    }
+
+    /// The convention whose body outputs `names` has (BeyondMimic's when neither's are there).
+    fn of(names: &[&str]) -> Self {
+        let holosoma = Self::Holosoma.outputs();
+        if names.iter().any(|n| holosoma[2..].contains(n)) {
+            Self::Holosoma
+        } else {
+            Self::BeyondMimic
+        }
+    }
+
+    /// The model's output shapes for `j` joints and `b` bodies.
+    fn shapes(self, j: usize, b: usize) -> [Vec<i64>; 4] {
+        let (j, b) = (j as i64, b as i64);
+        match self {
+            Self::BeyondMimic => [vec![1, j], vec![1, j], vec![1, b, 3], vec![1, b, 4]],
+            Self::Holosoma => [vec![1, j], vec![1, j], vec![1, 3], vec![1, 4]],
+        }
+    }
+}
 
 /// How far from 1 the norm of a motion's quaternion may be (float32 tables).
 const UNIT_TOLERANCE: f64 = 1e-3;
@@ -120,8 +159,10 @@ pub struct MotionFrame<'a> {
     pub joint_vel: &'a [f32],
     /// Body positions, 3 per body.
     pub body_pos: &'a [f32],
-    /// Body orientations, 4 per body (w x y z).
+    /// Body orientations, 4 per body (w x y z, or x y z w when `xyzw`).
     pub body_quat: &'a [f32],
+    /// The quaternions are x y z w (holosoma).
+    pub xyzw: bool,
 }
 
 impl MotionFrame<'_> {
@@ -129,7 +170,12 @@ impl MotionFrame<'_> {
     pub fn body_pose(&self, b: usize) -> [f64; 7] {
         let p = &self.body_pos[3 * b..3 * b + 3];
         let q = &self.body_quat[4 * b..4 * b + 4];
-        let q = spatial::quat_normalize([q[0], q[1], q[2], q[3]].map(f64::from));
+        let wxyz = if self.xyzw {
+            [q[3], q[0], q[1], q[2]]
+        } else {
+            [q[0], q[1], q[2], q[3]]
+        };
+        let q = spatial::quat_normalize(wxyz.map(f64::from));
         [
             f64::from(p[0]),
             f64::from(p[1]),
@@ -145,7 +191,9 @@ impl MotionFrame<'_> {
 /// The motion an export carries, and where its frames come out of the model.
 #[derive(Debug, Clone)]
 pub struct EmbeddedMotion {
-    /// Extra-output indices of `joint_pos`, `joint_vel`, `body_pos_w`, `body_quat_w`.
+    /// Which export convention it follows.
+    pub convention: MotionConvention,
+    /// Extra-output indices of the joint positions, velocities, body positions, orientations.
     outputs: [usize; 4],
     /// Bodies per frame.
     pub bodies: usize,
@@ -168,10 +216,9 @@ impl EmbeddedMotion {
         start_step: usize,
     ) -> Result<Option<Self>, String> {
         let names: Vec<&str> = model.extra_outputs().iter().map(|o| o.0.as_str()).collect();
-        let present: Vec<Option<usize>> = OUTPUTS
-            .iter()
-            .map(|o| names.iter().position(|n| n == o))
-            .collect();
+        let convention = MotionConvention::of(&names);
+        let wanted = convention.outputs();
+        let present: Vec<Option<usize>> = wanted.iter().map(|o| names.iter().position(|n| n == o)).collect();
         if present.iter().all(Option::is_none) {
             if start_step != 0 {
                 return Err(format!(
@@ -187,27 +234,29 @@ impl EmbeddedMotion {
                 format!(
                     "{} has motion outputs but not {:?} (a tracking export has {})",
                     layout.onnx_path.display(),
-                    OUTPUTS[k],
-                    OUTPUTS.join(", ")
+                    wanted[k],
+                    wanted.join(", ")
                 )
             })?;
         }
         let shape = |k: usize| &model.extra_outputs()[outputs[k]].1;
         let j = layout.robot_index.len();
         let b = layout.manifest.motion_bodies.len();
-        let expect = [
-            vec![1, j as i64],
-            vec![1, j as i64],
-            vec![1, b as i64, 3],
-            vec![1, b as i64, 4],
-        ];
+        if convention == MotionConvention::Holosoma && b != 1 {
+            return Err(format!(
+                "{}: a holosoma export returns one body's pose (the anchor), but the policy names {b} motion \
+                 bodies",
+                layout.onnx_path.display()
+            ));
+        }
+        let expect = convention.shapes(j, b);
         for (k, want) in expect.iter().enumerate() {
             if shape(k) != want {
                 return Err(format!(
                     "{}: output {} has shape {:?}, but the policy has {j} joints and {b} motion bodies \
                      (body_names) so {want:?} is expected",
                     layout.onnx_path.display(),
-                    OUTPUTS[k],
+                    wanted[k],
                     shape(k)
                 ));
             }
@@ -224,6 +273,7 @@ impl EmbeddedMotion {
                 )
             })?;
         let mut motion = Self {
+            convention,
             outputs,
             bodies: b,
             frames: 0,
@@ -257,6 +307,7 @@ impl EmbeddedMotion {
             joint_vel: model.extra_output(self.outputs[1]),
             body_pos: model.extra_output(self.outputs[2]),
             body_quat: model.extra_output(self.outputs[3]),
+            xyzw: self.convention == MotionConvention::Holosoma,
         }
     }
 
@@ -351,8 +402,9 @@ impl EmbeddedMotion {
                 let norm = q.iter().map(|v| f64::from(*v).powi(2)).sum::<f64>().sqrt();
                 if !((1.0 - UNIT_TOLERANCE)..=(1.0 + UNIT_TOLERANCE)).contains(&norm) {
                     return Err(format!(
-                        "frame {step} of the embedded motion: body {name}'s body_quat_w {q:?} has norm \
-                         {norm:.4}, not a unit quaternion (w x y z expected)"
+                        "frame {step} of the embedded motion: body {name}'s {} {q:?} has norm {norm:.4}, \
+                         not a unit quaternion",
+                        self.convention.outputs()[3]
                     ));
                 }
                 let pose = f.body_pose(b);
@@ -367,6 +419,21 @@ impl EmbeddedMotion {
             reference.qd.extend_from_slice(&qd);
             reference.root.push(f.body_pose(root_body));
         }
+        if !bodies.contains(&robot.config.root_body)
+            && let Some(a) = reference.anchor
+        {
+            // The export does not say where the root is: it follows from the anchor's pose and
+            // the joints, through the robot's model.
+            let anchor: Vec<[f64; 7]> = reference
+                .motion_poses
+                .iter()
+                .skip(a)
+                .step_by(bodies.len())
+                .copied()
+                .collect();
+            reference.root = crate::fk::root_poses_from_body(robot, &reference, &bodies[a], &anchor)
+                .map_err(|e| e.to_string())?;
+        }
         if let Some(m) = reference.root.first().and_then(|r| crate::clip::upside_down(*r)) {
             return Err(format!("the motion {} carries: {m}", layout.onnx_path.display()));
         }
@@ -374,8 +441,13 @@ impl EmbeddedMotion {
         Ok(reference)
     }
 
-    /// The `time_step` value for frame `k` of the run (counted from the start step).
-    pub fn time_step(&self, k: usize) -> f64 {
+    /// The `time_step` value of a tick's call, given the frame this tick plays and the frame the
+    /// next one plays (counted from the start step): the convention says which it asks for.
+    pub fn time_step(&self, this: usize, next: usize) -> f64 {
+        let k = match self.convention {
+            MotionConvention::BeyondMimic => next,
+            MotionConvention::Holosoma => this,
+        };
         (self.start_step + k) as f64
     }
 }

@@ -39,7 +39,12 @@ pub enum OnStop {
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct PlayOptions {
-    /// Soft start: time to reach the default pose, s.
+    /// How the policy takes the robot: `pd` (the soft start below first), `policy` (from the first
+    /// tick), `harness` (from the first tick, lowered by a harness). None: robot.toml's `[start]`
+    /// (mode, PD ramp and harness all taken from there).
+    #[serde(default)]
+    pub start: Option<robots::StartMode>,
+    /// Soft start (`pd`): time to reach the default pose, s.
     pub soft_start_s: f64,
     /// Soft start gain factor.
     pub soft_start_gain: f64,
@@ -77,6 +82,25 @@ fn default_sit_s() -> f64 {
     3.0
 }
 
+impl PlayOptions {
+    /// The options with the start resolved against `robot`: a run that names no start takes
+    /// robot.toml's `[start]` whole (mode and PD ramp).
+    pub fn resolved_for(mut self, robot: &robots::Robot) -> Self {
+        if self.start.is_none() {
+            let s = robot.config.start;
+            self.start = Some(s.mode);
+            self.soft_start_s = s.pd_s;
+            self.soft_start_gain = s.pd_gain;
+        }
+        self
+    }
+
+    /// The start mode (robot.toml's when the run names none).
+    pub fn start_mode(&self, robot: &robots::Robot) -> robots::StartMode {
+        self.start.unwrap_or(robot.config.start.mode)
+    }
+}
+
 /// The source of the robot's place in the world.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -91,6 +115,7 @@ pub enum EstimatorKind {
 impl Default for PlayOptions {
     fn default() -> Self {
         Self {
+            start: None,
             soft_start_s: 1.0,
             soft_start_gain: 0.3,
             ramp_s: 1.5,

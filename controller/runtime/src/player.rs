@@ -28,7 +28,7 @@ use crate::options::EstimatorKind;
 pub use crate::options::{EndMode, PlayOptions};
 use crate::policy::{ObsInputs, ObservationBuilder, PolicyLayout, Term};
 use crate::reference::ReferenceCursor;
-use crate::safety::{Cause, Mode, SafetyMonitor, Transition, govern_position, tilt_of};
+use crate::safety::{Cause, Mode, SafetyMonitor, Transition, govern_position, target_range, tilt_of};
 use crate::telemetry::{TelemetrySink, TickRecord, TickView};
 
 /// Why a run could not start or continue.
@@ -173,10 +173,28 @@ impl<L: RobotLink> Player<L> {
         stop: Arc<AtomicBool>,
     ) -> Result<Self, PlayError> {
         let mut model = OnnxModel::load(&layout.onnx_path)?;
-        // The robot's own margin inside its joint limits, where robot.toml gives one.
-        let mut options = options;
+        // The robot's own margin inside its joint limits, where robot.toml gives one; its start
+        // when the run names none.
+        let mut options = options.resolved_for(&robot);
+        if !(options.soft_start_s.is_finite() && (0.1..=30.0).contains(&options.soft_start_s))
+            || !(0.0..=1.0).contains(&options.soft_start_gain)
+        {
+            return Err(PlayError::Setup(format!(
+                "soft start of {} s at gain {} (0.1–30 s, 0–1)",
+                options.soft_start_s, options.soft_start_gain
+            )));
+        }
+        if options.start_mode(&robot) == robots::StartMode::Harness {
+            // The motion waits on its first frame while the harness lowers the robot and it
+            // settles on its feet.
+            let h = robot.config.start.harness;
+            options.ramp_s = options.ramp_s.max(h.lower_s + h.settle_s);
+        }
         if let Some(m) = robot.config.position_margin {
             options.limits.position_margin = m;
+        }
+        if let Some(t) = robot.config.safety.tilt {
+            options.limits.tilt = t;
         }
         if options.limits.stale_cycles == 0 {
             return Err(PlayError::Setup(
@@ -326,7 +344,11 @@ impl<L: RobotLink> Player<L> {
             dt,
             cursor,
             mapper: ActionMapper::new(n, k_actions, &default_q),
-            monitor: SafetyMonitor::new(options.limits, n, dt, robot.config.imu.rate_hz),
+            monitor: {
+                let (limits, tracking) = options.limits.for_robot(&robot, dt);
+                let names: Vec<String> = robot.config.joints.iter().map(|j| j.name.clone()).collect();
+                SafetyMonitor::new(limits, tracking, &names, dt, robot.config.imu.rate_hz)
+            },
             metrics,
             obs_builder: ObservationBuilder::new(&layout),
             obs: vec![0.0; layout.obs_len],
@@ -769,17 +791,24 @@ impl<L: RobotLink> Player<L> {
         let elapsed = self.machine.ticks as f64 * self.dt;
         match self.machine.mode {
             Mode::Off => {}
+            Mode::Ready if self.options.start != Some(robots::StartMode::Pd) => {
+                // The policy takes the robot from its first tick (on the floor, or in the
+                // harness that lowers it).
+                self.start_pose.copy_from_slice(&self.state.q);
+                // Nothing was commanded yet: the governor's speed limit starts from where the
+                // joints are.
+                for (t, &q) in self.targets.iter_mut().zip(&self.state.q) {
+                    t.q = q;
+                }
+                self.take_control(Cause::Start, has_truth);
+            }
             Mode::Ready => {
                 self.start_pose.copy_from_slice(&self.state.q);
                 self.go(Mode::SoftStart, Cause::Start);
                 self.soft_start_targets();
             }
             Mode::SoftStart if elapsed >= self.options.soft_start_s => {
-                self.mapper.reset(&self.layout.default_q);
-                self.cursor.restart();
-                self.policy_steps = 0;
-                self.go(Mode::Running, Cause::SoftStartDone);
-                self.policy_tick(has_truth);
+                self.take_control(Cause::SoftStartDone, has_truth);
             }
             Mode::SoftStart => self.soft_start_targets(),
             Mode::Running if self.clip_done() => {
@@ -869,6 +898,16 @@ impl<L: RobotLink> Player<L> {
         k.set_root_position(self.world_valid.then_some([p[0], p[1], p[2]]));
     }
 
+    /// The policy takes control: from the default pose as its last action, the reference from
+    /// its start.
+    fn take_control(&mut self, cause: Cause, has_truth: bool) {
+        self.mapper.reset(&self.layout.default_q);
+        self.cursor.restart();
+        self.policy_steps = 0;
+        self.go(Mode::Running, cause);
+        self.policy_tick(has_truth);
+    }
+
     fn soft_start_targets(&mut self) {
         let s = ((self.machine.ticks + 1) as f64 * self.dt / self.options.soft_start_s).min(1.0);
         let g = self.options.soft_start_gain + (1.0 - self.options.soft_start_gain) * s;
@@ -927,7 +966,8 @@ impl<L: RobotLink> Player<L> {
                 // The blend is governed from the previous target like any command: far from the
                 // stop pose with few ticks left it would otherwise outrun the joint's speed.
                 let wanted = t.q + (d - t.q) * a;
-                t.q = govern_position(j, t.q, wanted, self.dt, margin, None);
+                let range = target_range(j, margin, robots::PositionTargets::InsideLimits, 0.0);
+                t.q = govern_position(j, t.q, wanted, self.dt, range, None);
             }
         } else {
             self.hold_targets();
@@ -969,7 +1009,14 @@ impl<L: RobotLink> Player<L> {
             base_ang_vel = k.imu_to_root(self.state.gyro);
         }
         if self.reads_world && !self.world_valid {
-            self.fail(Cause::EstimateInvalid);
+            let why = match &self.estimator {
+                Some(_) if self.options.estimator != EstimatorKind::GroundTruth => self
+                    .estimate
+                    .problem
+                    .unwrap_or(crate::estimator::EstimateProblem::NotInitialised),
+                _ => crate::estimator::EstimateProblem::NoGroundTruth,
+            };
+            self.fail(Cause::EstimateInvalid(why));
             self.hold_targets();
             return;
         }
@@ -1005,7 +1052,11 @@ impl<L: RobotLink> Player<L> {
             );
         }
         let next = self.cursor.next_frame();
-        let time_step = self.embedded.as_ref().map_or(next as f64, |e| e.time_step(next));
+        let this = self.cursor.frame_at(self.cursor.tick());
+        let time_step = self
+            .embedded
+            .as_ref()
+            .map_or(next as f64, |e| e.time_step(this, next));
         for (p, &r) in self.layout.robot_index.iter().enumerate() {
             self.policy_q[p] = self.state.q[r];
             self.policy_qd[p] = self.state.qd[r];
@@ -1055,6 +1106,7 @@ impl<L: RobotLink> Player<L> {
             &mut self.targets,
             self.dt,
             self.options.limits.position_margin,
+            self.robot.config.safety.position_targets,
         );
         if limited > 0 {
             self.metrics.limited_ticks += 1;

@@ -10,6 +10,7 @@ use human::commands::CommandSpec;
 use human::live::TRACKER_VALUES;
 
 pub mod export;
+pub mod holosoma;
 use robot_link::GroundTruth;
 use robots::{Robot, spatial};
 

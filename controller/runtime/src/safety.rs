@@ -38,6 +38,55 @@ impl Mode {
     }
 }
 
+/// A joint's name inside a [`Cause`]: held inline, so causes stay `Copy` and a check that trips
+/// allocates nothing. Names longer than its room are cut at a character boundary.
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub struct JointName {
+    bytes: [u8; JointName::ROOM],
+    len: u8,
+}
+
+impl JointName {
+    const ROOM: usize = 48;
+
+    /// `name`, cut to the room there is.
+    pub fn new(name: &str) -> Self {
+        let mut end = name.len().min(Self::ROOM);
+        while !name.is_char_boundary(end) {
+            end -= 1;
+        }
+        let mut bytes = [0; Self::ROOM];
+        bytes[..end].copy_from_slice(&name.as_bytes()[..end]);
+        Self {
+            bytes,
+            len: end as u8,
+        }
+    }
+
+    /// The name.
+    pub fn as_str(&self) -> &str {
+        std::str::from_utf8(&self.bytes[..usize::from(self.len)]).unwrap_or("?")
+    }
+}
+
+impl Default for JointName {
+    fn default() -> Self {
+        Self::new("")
+    }
+}
+
+impl std::fmt::Debug for JointName {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{:?}", self.as_str())
+    }
+}
+
+impl std::fmt::Display for JointName {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
 /// Why a transition happened.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Cause {
@@ -57,6 +106,8 @@ pub enum Cause {
     StaleFeedback {
         /// Robot joint index.
         joint: usize,
+        /// Its name.
+        name: JointName,
         /// Consecutive bus cycles without a reply when the tick read it.
         cycles: u32,
     },
@@ -69,6 +120,8 @@ pub enum Cause {
     DeviceFault {
         /// Robot joint index.
         joint: usize,
+        /// Its name.
+        name: JointName,
     },
     /// NaN or infinity in the state, observation or action.
     NonFinite {
@@ -89,14 +142,18 @@ pub enum Cause {
     TrackingError {
         /// Robot joint index.
         joint: usize,
+        /// Its name.
+        name: JointName,
         /// Target minus measured position, rad.
         error: f64,
+        /// The joint's threshold, rad, and how long it may be exceeded, s.
+        limit: f64,
+        limit_s: f64,
     },
     /// The mirrored simulation diverged (unstable or non-finite physics).
     SimulationFailed,
-    /// The state estimate a policy reads is not usable (uninitialised, fed non-finite or stale
-    /// data).
-    EstimateInvalid,
+    /// The state estimate a policy reads is not usable, and why.
+    EstimateInvalid(crate::estimator::EstimateProblem),
     /// An e-stop input fired.
     EStop,
     /// A bus failed as a whole.
@@ -116,21 +173,28 @@ impl std::fmt::Display for Cause {
             Self::ClipFinished => write!(f, "clip finished"),
             Self::TimeUp => write!(f, "run time up"),
             Self::StopRequested => write!(f, "stop requested"),
-            Self::StaleFeedback { joint, cycles } => {
-                write!(f, "joint {joint}: no feedback for {cycles} bus cycles")
+            Self::StaleFeedback { joint, name, cycles } => {
+                write!(f, "joint {name} ({joint}): no feedback for {cycles} bus cycles")
             }
             Self::StaleImu { ticks } => write!(f, "IMU: no sample for {ticks} ticks"),
-            Self::DeviceFault { joint } => write!(f, "joint {joint}: device fault"),
+            Self::DeviceFault { joint, name } => write!(f, "joint {name} ({joint}): device fault"),
             Self::NonFinite { what } => write!(f, "non-finite {what}"),
             Self::Tilt { angle } => write!(f, "base tilted {:.0}°", angle.to_degrees()),
             Self::Overruns { count } => write!(f, "{count} deadline overruns in a row"),
-            Self::TrackingError { joint, error } => write!(
+            Self::TrackingError {
+                joint,
+                name,
+                error,
+                limit,
+                limit_s,
+            } => write!(
                 f,
-                "joint {joint}: {:.0}° from its target for too long",
-                error.to_degrees()
+                "joint {name} ({joint}): {:.0}° from its target, beyond its {:.0}° for more than {limit_s} s",
+                error.to_degrees(),
+                limit.to_degrees()
             ),
             Self::SimulationFailed => write!(f, "the mirror's simulation diverged"),
-            Self::EstimateInvalid => write!(f, "the state estimate the policy reads is invalid"),
+            Self::EstimateInvalid(why) => write!(f, "the state estimate the policy reads is invalid: {why}"),
             Self::EStop => write!(f, "e-stop"),
             Self::BusFailure => write!(f, "bus failure"),
             Self::HoldDone => write!(f, "hold or blend done"),
@@ -192,8 +256,41 @@ pub struct SafetyLimits {
     pub position_margin: f64,
     /// Largest tolerated distance of a joint from its position target, rad …
     pub tracking_error: f64,
-    /// … for more than this many ticks in a row.
+    /// … for more than this many ticks in a row (robot.toml `[safety]` gives joints their own).
     pub tracking_ticks: u32,
+}
+
+/// One joint's tracking-error stop: its threshold, rad, and the ticks it may be exceeded.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TrackingLimit {
+    /// Largest distance from the target, rad.
+    pub error: f64,
+    /// Ticks in a row beyond it that stop the robot.
+    pub ticks: u32,
+}
+
+impl SafetyLimits {
+    /// The limits with robot.toml's `[safety]` taken in (its tilt), and each joint's
+    /// tracking-error stop for a loop ticking every `dt` s.
+    pub fn for_robot(mut self, robot: &robots::Robot, dt: f64) -> (Self, Vec<TrackingLimit>) {
+        let safety = &robot.config.safety;
+        if let Some(t) = safety.tilt {
+            self.tilt = t;
+        }
+        let per_joint = safety
+            .tracking_limits(
+                &robot.config.joints,
+                self.tracking_error,
+                f64::from(self.tracking_ticks) * dt,
+            )
+            .into_iter()
+            .map(|(error, s)| TrackingLimit {
+                error,
+                ticks: (s / dt).round().max(1.0) as u32,
+            })
+            .collect();
+        (self, per_joint)
+    }
 }
 
 impl Default for SafetyLimits {
@@ -220,6 +317,11 @@ pub fn tilt_of(q: [f64; 4]) -> f64 {
 #[derive(Debug)]
 pub struct SafetyMonitor {
     limits: SafetyLimits,
+    /// Each joint's tracking-error stop, and its name.
+    tracking: Vec<TrackingLimit>,
+    names: Vec<JointName>,
+    /// The loop's period, s.
+    dt: f64,
     /// IMU staleness limit in ticks: two of its periods, at least two ticks and the joints' limit.
     imu_limit: u32,
     /// Ticks in a row each joint has been beyond the tracking limit.
@@ -229,17 +331,32 @@ pub struct SafetyMonitor {
 }
 
 impl SafetyMonitor {
-    /// A monitor for `n` joints, a loop ticking every `dt` s and an IMU at `imu_rate_hz`.
-    pub fn new(limits: SafetyLimits, n: usize, dt: f64, imu_rate_hz: f64) -> Self {
+    /// A monitor for the joints `names` with their tracking-error stops, a loop ticking every
+    /// `dt` s and an IMU at `imu_rate_hz`.
+    pub fn new(
+        limits: SafetyLimits,
+        tracking: Vec<TrackingLimit>,
+        names: &[String],
+        dt: f64,
+        imu_rate_hz: f64,
+    ) -> Self {
         Self {
             imu_limit: limits
                 .stale_cycles
                 .max(2)
                 .max((2.0 / (dt * imu_rate_hz)).ceil() as u32),
             limits,
-            off_target: vec![0; n],
+            off_target: vec![0; tracking.len()],
+            tracking,
+            names: names.iter().map(|n| JointName::new(n)).collect(),
+            dt,
             overrun_run: 0,
         }
+    }
+
+    /// The joint's name (empty past the robot's joints).
+    fn name(&self, joint: usize) -> JointName {
+        self.names.get(joint).copied().unwrap_or_default()
     }
 
     /// Notes whether the last tick missed its deadline.
@@ -257,10 +374,17 @@ impl SafetyMonitor {
         stop_requested: bool,
     ) -> Option<Cause> {
         // Joints under stiffness that stay far from their targets (blocked, or zero/direction
-        // wrong), counted while the robot is being driven.
-        let tracking = matches!(mode, Mode::SoftStart | Mode::Running);
-        for ((count, t), &q) in self.off_target.iter_mut().zip(targets).zip(&state.q) {
-            let off = tracking && t.enabled && t.kp > 0.0 && (t.q - q).abs() > self.limits.tracking_error;
+        // wrong), counted while the policy is in control: a PD start on a robot that cannot stand
+        // on its joints alone sags far from its targets without anything being wrong.
+        let tracking = mode == Mode::Running;
+        for (((count, t), &q), limit) in self
+            .off_target
+            .iter_mut()
+            .zip(targets)
+            .zip(&state.q)
+            .zip(&self.tracking)
+        {
+            let off = tracking && t.enabled && t.kp > 0.0 && (t.q - q).abs() > limit.error;
             *count = if off { count.saturating_add(1) } else { 0 };
         }
         if !matches!(mode, Mode::SoftStart | Mode::Running | Mode::Stopping) {
@@ -273,11 +397,15 @@ impl SafetyMonitor {
         if let Some(joint) = (0..s.missed.len()).find(|&j| s.stale[j] || s.missed[j] >= lim.stale_cycles) {
             return Some(Cause::StaleFeedback {
                 joint,
+                name: self.name(joint),
                 cycles: s.missed[joint].max(lim.stale_cycles),
             });
         }
         if let Some(joint) = s.faulted.iter().position(|&f| f) {
-            return Some(Cause::DeviceFault { joint });
+            return Some(Cause::DeviceFault {
+                joint,
+                name: self.name(joint),
+            });
         }
         if s.imu_missed > self.imu_limit {
             return Some(Cause::StaleImu { ticks: s.imu_missed });
@@ -290,10 +418,19 @@ impl SafetyMonitor {
         if tilt > lim.tilt {
             return Some(Cause::Tilt { angle: tilt });
         }
-        if let Some(joint) = self.off_target.iter().position(|&t| t > lim.tracking_ticks) {
+        if let Some(joint) = self
+            .off_target
+            .iter()
+            .zip(&self.tracking)
+            .position(|(&t, limit)| t > limit.ticks)
+        {
+            let limit = self.tracking[joint];
             return Some(Cause::TrackingError {
                 joint,
+                name: self.name(joint),
                 error: targets[joint].q - s.q[joint],
+                limit: limit.error,
+                limit_s: f64::from(limit.ticks) * self.dt,
             });
         }
         if self.overrun_run >= lim.overruns {
@@ -308,20 +445,33 @@ impl SafetyMonitor {
     }
 }
 
-/// Clamps a position target into the joint's limits (with margin) and its speed limit from the
-/// previous target over `dt`; returns the target sent.
+/// Where a joint's position targets may lie: inside its limits less `margin`, or with
+/// [`robots::PositionTargets::TorqueReach`] beyond them by as far as its torque limit reaches at
+/// stiffness `kp` (no farther: past that the PD's torque saturates anyway).
+pub fn target_range(j: &JointConfig, margin: f64, targets: robots::PositionTargets, kp: f64) -> [f64; 2] {
+    let [lo, hi] = j.position_limits;
+    match targets {
+        robots::PositionTargets::TorqueReach if kp > 0.0 => {
+            let reach = j.torque_limit / kp;
+            [lo - reach, hi + reach]
+        }
+        _ => [lo + margin, hi - margin],
+    }
+}
+
+/// Clamps a position target into `range` (see [`target_range`]) and the joint's speed limit from
+/// the previous target over `dt`; returns the target sent.
 pub fn govern_position(
     j: &JointConfig,
     previous: f64,
     wanted: f64,
     dt: f64,
-    margin: f64,
+    range: [f64; 2],
     rate_limit: Option<f64>,
 ) -> f64 {
-    let [lo, hi] = j.position_limits;
     let max_step = rate_limit.unwrap_or(j.velocity_limit).min(j.velocity_limit) * dt;
     let stepped = wanted.clamp(previous - max_step, previous + max_step);
-    stepped.clamp(lo + margin, hi - margin)
+    stepped.clamp(range[0], range[1])
 }
 
 /// Clamps a feed-forward torque into the joint's torque limit.
@@ -356,12 +506,22 @@ mod tests {
     #[test]
     fn targets_stay_inside_limits_and_speed() {
         let j = joint();
+        let inside = target_range(&j, 0.02, robots::PositionTargets::InsideLimits, 100.0);
         // Beyond the upper limit: clamped to limit − margin.
-        assert_eq!(govern_position(&j, 1.97, 5.0, 0.02, 0.02, None), 1.98);
+        assert_eq!(govern_position(&j, 1.97, 5.0, 0.02, inside, None), 1.98);
         // A jump of 1 rad in one 20 ms tick at 10 rad/s: 0.2 rad.
-        assert!((govern_position(&j, 1.0, 0.0, 0.02, 0.02, None) - 0.8).abs() < 1e-12);
+        assert!((govern_position(&j, 1.0, 0.0, 0.02, inside, None) - 0.8).abs() < 1e-12);
         // A tighter policy rate limit wins.
-        assert!((govern_position(&j, 1.0, 0.0, 0.02, 0.02, Some(5.0)) - 0.9).abs() < 1e-12);
+        assert!((govern_position(&j, 1.0, 0.0, 0.02, inside, Some(5.0)) - 0.9).abs() < 1e-12);
+        // Torque reach: 30 N·m at 100 N·m/rad reaches 0.3 rad past either limit, and no farther.
+        let reach = target_range(&j, 0.02, robots::PositionTargets::TorqueReach, 100.0);
+        assert_eq!(reach, [-0.3, 2.3]);
+        assert!((govern_position(&j, 2.25, 5.0, 0.02, reach, None) - 2.3).abs() < 1e-12);
+        // Without stiffness (a torque-controlled joint) the target stays inside.
+        assert_eq!(
+            target_range(&j, 0.02, robots::PositionTargets::TorqueReach, 0.0),
+            inside
+        );
         assert_eq!(govern_torque(&j, -100.0), -30.0);
     }
 

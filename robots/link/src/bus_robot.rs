@@ -665,7 +665,11 @@ impl<S: ByteStream> BusRobot<S> {
                 .joints_on(&name)
                 .map(|(i, j)| (i, drivers::mit_joint(robot, j)))
                 .unzip();
-            let window = reply_timeout.min(Cycler::reply_window(&timing));
+            // A bus whose cycle takes longer on the wire than the reply timeout still gets its
+            // replies: the wait covers the round trip with a margin, within the cycle's share.
+            let window = reply_timeout
+                .max(timing.round_trip().mul_f64(1.5))
+                .min(Cycler::reply_window(&timing));
             let bus = Bus {
                 driver: MitBusDriver::new(port, cfg, window)?,
                 joints: idx.clone(),

@@ -9,7 +9,8 @@
 //! `joint_stiffness`, `joint_damping`, `default_joint_pos`, `action_scale`, `command_names`,
 //! `observation_names`, `observation_history_lengths` (BeyondMimic), `observation_terms_scale`,
 //! `observation_terms_clip`, `observation_terms_history_length` (newer mjlab; 0 means none),
-//! `anchor_body_name`, `body_names`, `run_path`.
+//! `anchor_body_name`, `body_names`, `run_path`. holosoma's exports have a convention of their own
+//! ([`super::holosoma`]).
 
 use std::collections::BTreeMap;
 
@@ -275,7 +276,8 @@ fn observation(meta: &Metadata<'_>, has_time_step: bool) -> Result<Vec<Term>, Pr
     Ok(terms)
 }
 
-fn term_shaping(term: &mut Term) -> &mut Shaping {
+/// The shaping of a term an export's metadata can name.
+pub(super) fn term_shaping(term: &mut Term) -> &mut Shaping {
     match term {
         Term::MotionCommand(s)
         | Term::MotionAnchorPosB(s)
@@ -302,6 +304,10 @@ pub struct ModelFacts {
 /// the manifest field or the metadata key.
 pub fn fill(m: &mut PolicyManifest, facts: &ModelFacts) -> Result<(), Problem> {
     let meta = Metadata(&facts.metadata);
+    let has_time_step = facts.inputs.iter().any(|i| i == TIME_STEP_INPUT);
+    if super::holosoma::is_holosoma(&meta) {
+        return super::holosoma::fill(m, &meta, has_time_step);
+    }
     let joints_from_metadata = m.joints.is_empty();
     if joints_from_metadata {
         m.joints = meta.names("joint_names").ok_or((
@@ -347,7 +353,6 @@ pub fn fill(m: &mut PolicyManifest, facts: &ModelFacts) -> Result<(), Problem> {
         };
     }
     if m.observation.is_empty() {
-        let has_time_step = facts.inputs.iter().any(|i| i == TIME_STEP_INPUT);
         m.observation = observation(&meta, has_time_step)?;
     }
     if m.anchor_body.is_none() {

@@ -1,0 +1,318 @@
+//! holosoma's exports (holosoma / holosoma-inference, Apache-2.0): facts of its convention, as its
+//! deployment code applies them.
+//!
+//! - Metadata values are JSON: `dof_names` (joint order), `kp`, `kd` (lists), `command_ranges`,
+//!   and for whole-body tracking `experiment_config`, the whole training configuration.
+//! - The observation is the `actor_obs` group's terms **sorted by name** and concatenated (not in
+//!   the order the configuration lists them), each stacked over the group's `history_length`,
+//!   oldest first, multiplied by its `scale`; nothing is clipped at deployment.
+//! - A position action is `default + scale ⊙ a` with `a` clipped to `action_clip_value`; the scale
+//!   is the metadata's `action_scale` when there is one, else — when the configuration says
+//!   `action_scales_by_effort_limit_over_p_gain` — per joint `action_scale × effort / kp`.
+//! - The whole-body-tracking export carries its motion: inputs `obs`, `time_step`; outputs
+//!   `actions`, `joint_pos`, `joint_vel`, `ref_pos_xyz` [1, 3] and `ref_quat_xyzw` [1, 4] — the
+//!   anchor body's (`body_name_ref`) pose, quaternion **x y z w** — for frame `time_step`. The call
+//!   gets the frame this tick plays; its outputs are what the next observation sees.
+//! - Terms (`holosoma.managers.observation.terms.wbt:NAME`): `motion_command` (the frame's joint
+//!   positions then velocities), `motion_ref_ori_b` (first two columns of R(q_robot⁻¹ ⊗ q_ref) of
+//!   the anchor, row by row; yaw offsets removed at start), `motion_ref_pos_b`, `base_ang_vel`,
+//!   `base_lin_vel`, `projected_gravity`, `dof_pos` (relative to the default pose), `dof_vel`,
+//!   `actions` (the last clipped raw action).
+
+use serde_json::Value;
+
+use super::export::{Metadata, Problem};
+use super::{ActionScale, HistoryOrder, PolicyManifest, Shaping, Term};
+
+/// The metadata key that marks a holosoma export.
+pub const JOINTS_KEY: &str = "dof_names";
+
+/// Whether `meta` is a holosoma export's.
+pub fn is_holosoma(meta: &Metadata<'_>) -> bool {
+    meta.text(JOINTS_KEY).is_some()
+}
+
+fn json(meta: &Metadata<'_>, key: &str) -> Result<Option<Value>, Problem> {
+    let Some(text) = meta.text(key) else {
+        return Ok(None);
+    };
+    serde_json::from_str(text)
+        .map(Some)
+        .map_err(|e| (format!("ONNX metadata {key}"), format!("is not JSON: {e}")))
+}
+
+/// `value` at the slash-separated `path` of the training configuration.
+fn at<'a>(config: &'a Value, path: &str) -> Result<&'a Value, Problem> {
+    path.split('/').try_fold(config, |v, k| v.get(k)).ok_or_else(|| {
+        (
+            "ONNX metadata experiment_config".to_owned(),
+            format!("has no {path}"),
+        )
+    })
+}
+
+fn numbers(v: &Value, place: &str, n: usize) -> Result<Vec<f64>, Problem> {
+    let list: Option<Vec<f64>> = v
+        .as_array()
+        .and_then(|a| a.iter().map(Value::as_f64).collect::<Option<Vec<_>>>());
+    match list {
+        Some(l) if l.len() == n && l.iter().all(|x| x.is_finite()) => Ok(l),
+        Some(l) if l.len() != n => Err((place.to_owned(), format!("{} values for {n} joints", l.len()))),
+        _ => Err((place.to_owned(), format!("{v} is not a list of finite numbers"))),
+    }
+}
+
+fn number(v: &Value, place: &str) -> Result<f64, Problem> {
+    v.as_f64()
+        .filter(|x| x.is_finite())
+        .ok_or_else(|| (place.to_owned(), format!("{v} is not a finite number")))
+}
+
+/// The term a holosoma observation function stands for.
+fn term_of(func: &str) -> Result<Term, String> {
+    let name = func.rsplit(':').next().unwrap_or(func);
+    let s = Shaping::default();
+    Ok(match name {
+        "motion_command" => Term::MotionCommand(s),
+        "motion_ref_ori_b" => Term::MotionAnchorOriB(s),
+        "motion_ref_pos_b" => Term::MotionAnchorPosB(s),
+        "base_ang_vel" => Term::BaseAngVel(s),
+        "base_lin_vel" => Term::BaseLinVel(s),
+        "projected_gravity" => Term::ProjectedGravity(s),
+        "dof_pos" => Term::JointPos {
+            relative: true,
+            shaping: s,
+        },
+        "dof_vel" => Term::JointVel(s),
+        "actions" => Term::LastActions { k: 1, shaping: s },
+        other => {
+            return Err(format!(
+                "holosoma observation function {func:?} ({other}) is not one robodeploy builds; write a \
+                 manifest with its terms"
+            ));
+        }
+    })
+}
+
+/// The `actor_obs` group as the deployment code concatenates it: terms sorted by name.
+fn observation(config: &Value) -> Result<Vec<Term>, Problem> {
+    let group = at(config, "observation/groups/actor_obs")?;
+    let terms = group.get("terms").and_then(Value::as_object).ok_or((
+        "ONNX metadata experiment_config".to_owned(),
+        "observation/groups/actor_obs has no terms".to_owned(),
+    ))?;
+    let history = match group.get("history_length") {
+        None => 1,
+        Some(h) => match h.as_u64() {
+            Some(h @ 0..=64) => (h as usize).max(1),
+            _ => {
+                return Err((
+                    "ONNX metadata experiment_config".into(),
+                    format!("observation/groups/actor_obs/history_length = {h} is not in [0, 64]"),
+                ));
+            }
+        },
+    };
+    let mut names: Vec<&String> = terms.keys().collect();
+    names.sort();
+    let mut out = Vec::with_capacity(names.len() + 1);
+    for name in names {
+        let place = format!("ONNX metadata experiment_config observation/groups/actor_obs/terms/{name}");
+        let spec = &terms[name];
+        let func = spec.get("func").and_then(Value::as_str).unwrap_or(name);
+        let mut term = term_of(func).map_err(|m| (place.clone(), m))?;
+        let scale = match spec.get("scale") {
+            None | Some(Value::Null) => 1.0,
+            Some(v) => number(v, &format!("{place}/scale"))?,
+        };
+        if spec.get("clip").is_some_and(|c| !c.is_null()) {
+            return Err((
+                format!("{place}/clip"),
+                "a clipped term: robodeploy does not know how holosoma applies it; write a manifest".into(),
+            ));
+        }
+        let sh = super::export::term_shaping(&mut term);
+        sh.scale = scale;
+        sh.history = history;
+        sh.history_order = HistoryOrder::OldestFirst;
+        out.push(term);
+    }
+    out.push(Term::TimeStep(Shaping {
+        input: Some(super::export::TIME_STEP_INPUT.to_owned()),
+        ..Shaping::default()
+    }));
+    Ok(out)
+}
+
+/// Fills what `m` leaves out from a holosoma export's metadata. A tracking export without its
+/// training configuration (holosoma's FastSAC dance export) is refused rather than guessed: the
+/// configuration is where its observation layout, standing pose and action scale are.
+pub fn fill(m: &mut PolicyManifest, meta: &Metadata<'_>, has_time_step: bool) -> Result<(), Problem> {
+    let names: Vec<String> = match json(meta, JOINTS_KEY)? {
+        Some(Value::Array(a)) => a
+            .iter()
+            .map(|v| v.as_str().map(str::to_owned))
+            .collect::<Option<_>>()
+            .ok_or((
+                "ONNX metadata dof_names".to_owned(),
+                "is not a list of names".to_owned(),
+            ))?,
+        _ => return Err(("ONNX metadata dof_names".into(), "is not a list of names".into())),
+    };
+    if m.joints.is_empty() {
+        m.joints = names.clone();
+    }
+    let n = m.joints.len();
+    if m.joints != names {
+        return Err((
+            "joints".into(),
+            "differ from the export's dof_names: a holosoma export's gains and scales follow dof_names, so \
+             leave joints out"
+                .into(),
+        ));
+    }
+    let kp = match json(meta, "kp")? {
+        Some(v) => Some(numbers(&v, "ONNX metadata kp", n)?),
+        None => None,
+    };
+    if m.stiffness.is_none() {
+        m.stiffness = kp.clone();
+    }
+    if m.damping.is_none() {
+        m.damping = match json(meta, "kd")? {
+            Some(v) => Some(numbers(&v, "ONNX metadata kd", n)?),
+            None => None,
+        };
+    }
+    let config = json(meta, "experiment_config")?;
+    let missing_config = |what: &str| {
+        (
+            what.to_owned(),
+            "missing, and this holosoma export carries no experiment_config metadata (its training \
+             configuration, where the observation layout, standing pose and action scale are): give them \
+             in a manifest"
+                .to_owned(),
+        )
+    };
+    if m.description.is_empty() {
+        m.description = match meta.text("wandb_run_path") {
+            Some(run) => format!("holosoma export (run {})", run.trim_matches('"')),
+            None => "holosoma export".to_owned(),
+        };
+    }
+    if m.action.scale.is_none() {
+        m.action.scale = Some(match meta.text("action_scale") {
+            Some(text) => match serde_json::from_str::<Value>(text) {
+                Ok(v @ Value::Array(_)) => {
+                    ActionScale::PerJoint(numbers(&v, "ONNX metadata action_scale", n)?)
+                }
+                Ok(v) => ActionScale::One(number(&v, "ONNX metadata action_scale")?),
+                Err(_) => {
+                    let v: Result<Vec<f64>, _> = text.split(',').map(|t| t.trim().parse::<f64>()).collect();
+                    match v {
+                        Ok(v) if v.len() == n => ActionScale::PerJoint(v),
+                        Ok(v) if v.len() == 1 => ActionScale::One(v[0]),
+                        _ => {
+                            return Err((
+                                "ONNX metadata action_scale".into(),
+                                format!("{text:?} is not 1 or {n} numbers"),
+                            ));
+                        }
+                    }
+                }
+            },
+            None => {
+                let config = config.as_ref().ok_or_else(|| missing_config("action.scale"))?;
+                let control = at(config, "robot/control")?;
+                let scale = number(
+                    at(control, "action_scale")?,
+                    "experiment_config robot/control/action_scale",
+                )?;
+                let by_effort = at(control, "action_scales_by_effort_limit_over_p_gain")?
+                    .as_bool()
+                    .unwrap_or(false);
+                if by_effort {
+                    let effort = numbers(
+                        at(config, "robot/dof_effort_limit_list")?,
+                        "ONNX metadata experiment_config robot/dof_effort_limit_list",
+                        n,
+                    )?;
+                    let kp = kp
+                        .as_ref()
+                        .ok_or(("ONNX metadata kp".to_owned(), "missing".to_owned()))?;
+                    if let Some(i) = kp.iter().position(|k| *k <= 0.0) {
+                        return Err((
+                            "ONNX metadata kp".into(),
+                            format!(
+                                "{} of {} is not positive: no action scale effort / kp",
+                                kp[i], m.joints[i]
+                            ),
+                        ));
+                    }
+                    ActionScale::PerJoint(effort.iter().zip(kp).map(|(e, k)| scale * e / k).collect())
+                } else {
+                    ActionScale::One(scale)
+                }
+            }
+        });
+    }
+    if m.action.clip.is_none()
+        && let Some(config) = &config
+        && let Ok(control) = at(config, "robot/control")
+        && control.get("clip_actions").and_then(Value::as_bool) == Some(true)
+    {
+        m.action.clip = Some(number(
+            at(control, "action_clip_value")?,
+            "experiment_config robot/control/action_clip_value",
+        )?);
+    }
+    if m.default_pose.is_none() {
+        let config = config.as_ref().ok_or_else(|| missing_config("default_pose"))?;
+        let angles = at(config, "robot/init_state/default_joint_angles")?;
+        let pose = m
+            .joints
+            .iter()
+            .map(|j| {
+                angles.get(j).and_then(Value::as_f64).ok_or_else(|| {
+                    (
+                        "ONNX metadata experiment_config".to_owned(),
+                        format!("robot/init_state/default_joint_angles has no {j}"),
+                    )
+                })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        m.default_pose = Some(pose);
+    }
+    if m.observation.is_empty() {
+        let config = config.as_ref().ok_or_else(|| missing_config("observation"))?;
+        if !has_time_step {
+            return Err((
+                "observation".into(),
+                "a holosoma export with a training configuration but no time_step input: robodeploy reads \
+                 holosoma's whole-body-tracking exports; write a manifest for this one"
+                    .into(),
+            ));
+        }
+        m.observation = observation(config)?;
+    }
+    if m.anchor_body.is_none()
+        && let Some(config) = &config
+    {
+        let refs = at(
+            config,
+            "command/setup_terms/motion_command/params/motion_config/body_name_ref",
+        )?;
+        m.anchor_body = refs
+            .as_array()
+            .and_then(|a| a.first())
+            .and_then(Value::as_str)
+            .map(str::to_owned);
+    }
+    if m.motion_bodies.is_empty()
+        && let Some(a) = &m.anchor_body
+    {
+        // The export returns the anchor's pose only.
+        m.motion_bodies = vec![a.clone()];
+    }
+    Ok(())
+}

@@ -1,0 +1,231 @@
+#!/usr/bin/env python3
+"""The project's own reference loop for holosoma's trained policies: plain MuJoCo, no robodeploy.
+
+Written here from holosoma's documented configuration (facts only; none of its code): the policy at
+50 Hz, four physics steps of 5 ms per policy step, PD torques every physics step with the export's kp
+and kd, clipped to the configuration's effort limits; the observation's terms sorted by name; the
+whole-body-tracking export called with the frame this tick plays, its motion outputs observed on the
+next tick. The tests compare robodeploy's runs on its mirror against what this loop measures.
+
+  python holosoma_reference.py dance --robot-dir .local/holosoma --policy-dir .local/holosoma-inference
+        [--frames N] [--hold S]
+
+prints one JSON object: frames played, joint RMSE (rad), anchor position RMSE (m), whether the robot
+fell (base tilted beyond 0.8 rad), its lowest base height, and the wall time of the loop.
+"""
+
+import argparse
+import json
+import math
+import pathlib
+import sys
+import time
+
+import mujoco
+import numpy as np
+import onnx
+import onnxruntime as ort
+
+POLICY_DT = 0.02
+PHYSICS_DT = 0.005
+TILT_LIMIT = 0.8
+
+
+def quat_mul(a, b):
+    w1, x1, y1, z1 = a
+    w2, x2, y2, z2 = b
+    return np.array([
+        w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+        w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+        w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+        w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+    ])
+
+
+def quat_conj(q):
+    return np.array([q[0], -q[1], -q[2], -q[3]])
+
+
+def quat_of_yaw(yaw):
+    return np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
+
+
+def yaw_of(q):
+    w, x, y, z = q
+    return math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+
+def rotate(q, v):
+    return quat_mul(quat_mul(q, np.array([0.0, *v])), quat_conj(q))[1:]
+
+
+def matrix(q):
+    m = np.zeros(9)
+    mujoco.mju_quat2Mat(m, np.asarray(q, dtype=float))
+    return m.reshape(3, 3)
+
+
+def tilt(q):
+    up = rotate(q, [0.0, 0.0, 1.0])
+    return math.acos(max(-1.0, min(1.0, up[2])))
+
+
+def metadata(path):
+    return {p.key: p.value for p in onnx.load(str(path), load_external_data=False).metadata_props}
+
+
+def place_on_floor(model, data, root_qpos):
+    """Moves the root so the lowest collision geometry touches the floor."""
+    mujoco.mj_forward(model, data)
+    lowest = math.inf
+    for g in range(model.ngeom):
+        if model.geom_bodyid[g] == 0 or model.geom_contype[g] == 0 and model.geom_conaffinity[g] == 0:
+            continue
+        c = data.geom_xpos[g]
+        r = model.geom_size[g]
+        axis = data.geom_xmat[g].reshape(3, 3)[:, 2]
+        t = model.geom_type[g]
+        if t == mujoco.mjtGeom.mjGEOM_CAPSULE:
+            z = c[2] - r[0] - r[1] * abs(axis[2])
+        elif t == mujoco.mjtGeom.mjGEOM_SPHERE:
+            z = c[2] - r[0]
+        else:
+            z = c[2] - float(np.linalg.norm(r))
+        lowest = min(lowest, z)
+    data.qpos[root_qpos + 2] -= lowest
+    mujoco.mj_forward(model, data)
+
+
+def dance(a):
+    export = a.policy_dir / "models/wbt/ppo_g1_29dof_dancing.onnx"
+    scene = a.robot_dir / "data/robots/g1/scenes/scene_g1_29dof_wbt_plane.xml"
+    meta = metadata(export)
+    names = json.loads(meta["dof_names"])
+    kp = np.array(json.loads(meta["kp"]))
+    kd = np.array(json.loads(meta["kd"]))
+    cfg = json.loads(meta["experiment_config"])
+    robot = cfg["robot"]
+    effort = np.array(robot["dof_effort_limit_list"])
+    default = np.array([robot["init_state"]["default_joint_angles"][n] for n in names])
+    control = robot["control"]
+    scale = control["action_scale"] * effort / kp
+    clip = control["action_clip_value"]
+    anchor = cfg["command"]["setup_terms"]["motion_command"]["params"]["motion_config"]["body_name_ref"][0]
+    terms = sorted(cfg["observation"]["groups"]["actor_obs"]["terms"])
+
+    model = mujoco.MjModel.from_xml_path(str(scene))
+    model.opt.timestep = PHYSICS_DT
+    data = mujoco.MjData(model)
+    qadr = np.array([model.jnt_qposadr[model.joint(n).id] for n in names])
+    vadr = np.array([model.jnt_dofadr[model.joint(n).id] for n in names])
+    act = np.array([model.actuator(n).id for n in names])
+    torso = model.body(anchor).id
+    gyro = model.sensor("base_gyro")
+    gyro_adr = model.sensor_adr[gyro.id]
+
+    session = ort.InferenceSession(str(export), providers=["CPUExecutionProvider"])
+    obs_len = session.get_inputs()[0].shape[1]
+
+    def call(obs, step):
+        out = session.run(
+            ["actions", "joint_pos", "joint_vel", "ref_pos_xyz", "ref_quat_xyzw"],
+            {"obs": obs.reshape(1, -1).astype(np.float32), "time_step": np.array([[step]], dtype=np.float32)},
+        )
+        x, y, z, w = out[4][0]
+        return out[0][0], out[1][0], out[2][0], out[3][0], np.array([w, x, y, z])
+
+    # The whole motion, read out first (its length: where the table stops changing).
+    frames = []
+    step = 0
+    while True:
+        _, jp, jv, pos, quat = call(np.zeros(obs_len), step)
+        if frames and np.array_equal(jp, frames[-1][0]) and np.array_equal(pos, frames[-1][2]):
+            break
+        frames.append((jp, jv, pos, quat))
+        step += 1
+        if a.frames and step >= a.frames:
+            break
+    total = len(frames)
+
+    data.qpos[qadr] = frames[0][0]
+    data.qpos[3:7] = [1.0, 0.0, 0.0, 0.0]
+    place_on_floor(model, data, 0)
+
+    hold_ticks = int(round(a.hold / POLICY_DT))
+    robot_yaw0 = yaw_of(data.xquat[torso])
+    motion_yaw0 = yaw_of(frames[0][3])
+    turn = quat_of_yaw(robot_yaw0 - motion_yaw0)
+    # Positions: the motion's first anchor put on the robot's, horizontally.
+    shift = data.xpos[torso][:2] - rotate(turn, frames[0][2])[:2]
+
+    last_action = np.zeros(len(names))
+    command = np.concatenate([frames[0][0], frames[0][1]])
+    ref_quat = frames[0][3]
+    joint_sq, anchor_sq, tracked = 0.0, 0.0, 0
+    fell, lowest = False, math.inf
+    t0 = time.perf_counter()
+    for tick in range(hold_ticks + total):
+        frame = max(0, tick - hold_ticks)
+        q = data.qpos[qadr].copy()
+        qd = data.qvel[vadr].copy()
+        robot_q = quat_mul(quat_of_yaw(-robot_yaw0), data.xquat[torso])
+        motion_q = quat_mul(quat_of_yaw(-motion_yaw0), ref_quat)
+        ori = matrix(quat_mul(quat_conj(robot_q), motion_q))[:, :2].reshape(-1)
+        parts = {
+            "actions": last_action,
+            "base_ang_vel": data.sensordata[gyro_adr : gyro_adr + 3],
+            "dof_pos": q - default,
+            "dof_vel": qd,
+            "motion_command": command,
+            "motion_ref_ori_b": ori,
+        }
+        obs = np.concatenate([parts[t] for t in terms])
+        if tick >= hold_ticks:
+            # The robot against the frame this tick plays, and its anchor against the motion's.
+            joint_sq += float(np.mean((q - frames[frame][0]) ** 2))
+            ref_anchor = rotate(turn, frames[frame][2])
+            ref_anchor[:2] += shift
+            anchor_sq += float(np.sum((data.xpos[torso] - ref_anchor) ** 2))
+            tracked += 1
+        action, jp, jv, _, ref_quat = call(obs, frame)
+        command = np.concatenate([jp, jv])
+        last_action = np.clip(action, -clip, clip)
+        target = default + scale * last_action
+        for _ in range(int(round(POLICY_DT / PHYSICS_DT))):
+            q = data.qpos[qadr]
+            qd = data.qvel[vadr]
+            data.ctrl[act] = np.clip(kp * (target - q) - kd * qd, -effort, effort)
+            mujoco.mj_step(model, data)
+        lowest = min(lowest, float(data.qpos[2]))
+        if tilt(data.qpos[3:7]) > TILT_LIMIT:
+            fell = True
+            break
+    wall = time.perf_counter() - t0
+    result = {
+        "frames": total,
+        "tracked_ticks": tracked,
+        "joint_rmse_rad": math.sqrt(joint_sq / max(tracked, 1)),
+        "anchor_rmse_m": math.sqrt(anchor_sq / max(tracked, 1)),
+        "fell": fell,
+        "lowest_base_m": lowest,
+        "wall_s": wall,
+        "simulated_s": (hold_ticks + total) * POLICY_DT,
+    }
+    print(json.dumps(result))
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("task", choices=["dance"])
+    p.add_argument("--robot-dir", type=pathlib.Path, required=True, help="the holosoma package (.local/holosoma)")
+    p.add_argument("--policy-dir", type=pathlib.Path, required=True, help="holosoma-inference (.local/holosoma-inference)")
+    p.add_argument("--frames", type=int, default=0, help="play only the first N frames of the motion (0: all)")
+    p.add_argument("--hold", type=float, default=1.0, help="seconds the policy stands on the first frame first")
+    a = p.parse_args()
+    if a.task == "dance":
+        dance(a)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
