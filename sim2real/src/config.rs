@@ -127,6 +127,10 @@ pub struct MirrorConfig {
     /// Hang the robot in a harness that lowers it onto its feet and goes slack (a `harness`
     /// start; robot.toml `[start.harness]`).
     pub harness: Option<robots::HarnessConfig>,
+    /// Hold the physics still (the robot as placed, time not moving for it) until the controller
+    /// first drives a joint: a robot is not left to fall while a controller connects, identifies
+    /// its devices or waits for a viewer. Runs and served mirrors set it.
+    pub hold_until_driven: bool,
     /// Period of the emulated firmware's control loops, µs (0: the physics step).
     pub firmware_period_us: u64,
     /// Return Delay Time the mirror's servos are set to, µs.
@@ -158,6 +162,17 @@ pub struct StartPose {
 }
 
 impl MirrorConfig {
+    /// The settings for a run (or a served mirror) that starts as `start` says: held still until
+    /// the controller drives a joint, and for a `harness` start hanging in the robot's harness
+    /// (unless on the gantry, or the settings give a harness of their own).
+    pub fn for_run(mut self, robot: &robots::Robot, start: robots::StartMode) -> Self {
+        self.hold_until_driven = true;
+        if start == robots::StartMode::Harness && !self.gantry && self.harness.is_none() {
+            self.harness = Some(robot.config.start.harness);
+        }
+        self
+    }
+
     /// Checks every field against its documented range (`robot` names the joints), as a file of
     /// mirror settings must pass: `Err((field, message))`. Configurations built in code are
     /// trusted as they are (tests use extreme ones on purpose).

@@ -231,6 +231,8 @@ pub struct Mirror {
     imu: Imu,
     gantry: Option<Gantry>,
     harness: Option<Harness>,
+    /// The physics waits for the controller's first drive ([`MirrorConfig::hold_until_driven`]).
+    held: bool,
     /// Joint angles a jig holds the joints at (policy order), if any.
     jig: Option<Vec<f64>>,
     root_qpos: usize,
@@ -559,6 +561,7 @@ impl Mirror {
             imu,
             gantry: None,
             harness: None,
+            held: false,
             jig: None,
             root_qpos,
             root_dof,
@@ -577,6 +580,7 @@ impl Mirror {
             peak_torque: 0.0,
             stats: MirrorStats::default(),
         };
+        mirror.held = mirror.config.hold_until_driven;
         mirror.place_in_default_pose();
         Ok(mirror)
     }
@@ -882,7 +886,20 @@ impl Mirror {
         self.stats.firmware_ticks += 1;
     }
 
+    /// Whether any joint is driven: a motor gives torque or a servo has a goal.
+    fn driven(&self) -> bool {
+        self.plants.iter().any(|p| p.torque != 0.0 || p.goal.is_some())
+    }
+
     fn step_physics(&mut self) {
+        if self.held {
+            if !self.driven() {
+                // Still waiting for the controller: the robot stays as placed.
+                self.stats.physics_steps += 1;
+                return;
+            }
+            self.held = false;
+        }
         // Torques (or position goals) from the firmware's last period.
         for (j, p) in self.joints.iter().zip(&self.plants) {
             match j.actuator {

@@ -1162,7 +1162,7 @@ fn batch_runs_clips_times_seeds_in_parallel_and_tabulates_them() {
         "{stdout}"
     );
     assert!(
-        stdout.contains("safety stop: joint 14: no feedback ×2"),
+        stdout.contains("safety stop: joint left_elbow (14): no feedback ×2"),
         "{stdout}"
     );
     assert!(

@@ -651,7 +651,7 @@ fn a_standing_robot_waits_for_a_second_stop_before_it_lets_go() {
     use controller::safety::Mode;
     let ((mut player, mut clock, _world), _) = command_driven_player(controller::player::PlayOptions {
         end: controller::player::EndMode::Stand,
-        on_stop: controller::options::OnStop::Stand,
+        on_stop: controller::options::OnStop::Stay,
         ..Default::default()
     });
     player.identify().unwrap();

@@ -153,20 +153,24 @@ impl From<EndArg> for controller::player::EndMode {
 /// What a soft stop ends in (`--on-stop`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum OnStopArg {
-    /// Blend to the default pose, then damp and let go.
+    /// Damp and let go (a humanoid folds up).
     Damp,
-    /// Blend to the default pose and stand until stopped again (or --stand-for).
-    Stand,
-    /// Sit down slowly into robot.toml's sit_keyframe, then let go.
+    /// Stay standing under the policy until stopped again (or --stand-for), then damp.
+    #[value(alias = "stand")]
+    Stay,
+    /// Sit down slowly on the joints' PD into robot.toml's sit_keyframe, then let go.
     Sit,
+    /// The harness the run started in takes the weight, then damp (--start harness).
+    Harness,
 }
 
 impl From<OnStopArg> for controller::options::OnStop {
     fn from(a: OnStopArg) -> Self {
         match a {
             OnStopArg::Damp => Self::Damp,
-            OnStopArg::Stand => Self::Stand,
+            OnStopArg::Stay => Self::Stay,
             OnStopArg::Sit => Self::Sit,
+            OnStopArg::Harness => Self::Harness,
         }
     }
 }

@@ -154,7 +154,8 @@ pub fn run(args: &BatchArgs) -> Result<()> {
 }
 
 /// An outcome without its particulars, so runs that failed alike count together: `safety stop at
-/// tick 75: joint 14: no feedback for 2 bus cycles` → `safety stop: joint 14: no feedback`.
+/// tick 75: joint left_elbow (14): no feedback for 2 bus cycles` → `safety stop: joint left_elbow (14): no
+/// feedback`.
 fn cause_of(outcome: &str) -> String {
     let mut parts = outcome.split(": ");
     let head = parts.next().unwrap_or(outcome);

@@ -44,13 +44,18 @@ pub struct PlayArgs {
     /// What to do when the clip ends.
     #[arg(long, value_enum, default_value_t = crate::args::EndArg::Hold)]
     end: crate::args::EndArg,
-    /// What a soft stop (Ctrl-C, --max-seconds, the clip's end) ends in: damp (blend to the
-    /// default pose, then let go), stand (blend there and stand on the joints' stiffness until a
-    /// second Ctrl-C or --stand-for), or sit (a slow sit-down into robot.toml's sit_keyframe, then
-    /// let go). Faults damp at once whatever this says.
+    /// What a soft stop (Ctrl-C, --max-seconds, the clip's end) ends in. First the policy settles
+    /// the robot for --settle seconds (the reference held where the stop came and blended to the
+    /// standing pose; commands ramped to rest); then: damp (let go), stay (standing under the
+    /// policy until a second Ctrl-C or --stand-for), sit (a slow sit-down on the joints' PD into
+    /// robot.toml's sit_keyframe, then let go) or harness (the harness the run started in takes
+    /// the weight, then let go). Faults damp at once whatever this says.
     #[arg(long, value_enum, default_value_t = crate::args::OnStopArg::Damp)]
     on_stop: crate::args::OnStopArg,
-    /// With --on-stop stand: stand at most this long, s (default: until stopped again).
+    /// How long a soft stop settles the robot under the policy before --on-stop, s (0.02–30).
+    #[arg(long, default_value_t = 1.0, value_parser = crate::args::within(0.02, 30.0))]
+    settle: f64,
+    /// With --on-stop stay: stand at most this long, s (default: until stopped again).
     #[arg(long, value_parser = crate::args::within(0.0, 86_400.0))]
     stand_for: Option<f64>,
     /// With --on-stop sit: how long the sit-down takes, s (0.1–60).
@@ -853,6 +858,7 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         ramp_s: args.ramp,
         end: args.end.into(),
         on_stop: args.on_stop.into(),
+        settle_s: args.settle,
         stand_s: args.stand_for,
         sit_s: args.sit_seconds,
         max_ticks,

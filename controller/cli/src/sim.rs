@@ -194,7 +194,9 @@ fn stand(args: &StandArgs) -> Result<()> {
 fn serve(args: &ServeArgs) -> Result<()> {
     let stop = crate::args::StopSignal::install()?;
     let robot = Robot::load(&args.robot)?;
-    let mut config = mirror_config(args.mirror.as_deref(), args.gantry, &robot)?;
+    let mut config = mirror_config(args.mirror.as_deref(), args.gantry, &robot)?
+        // Served like a run's: nothing falls before a controller drives it.
+        .for_run(&robot, robot.config.start.mode);
     if let Some(seed) = args.seed {
         config.seed = seed;
     }

@@ -429,6 +429,16 @@ impl LiveCommands {
         }
     }
 
+    /// Brings the commands to their defaults (at rest: zero velocity) over `ticks` updates, the
+    /// sources let go: a soft stop's way to a robot standing under its policy.
+    pub fn wind_down(&mut self, ticks: u32) {
+        self.reader = None;
+        self.target.copy_from_slice(&self.defaults);
+        for ((s, c), t) in self.step_per_tick.iter_mut().zip(&self.current).zip(&self.target) {
+            *s = ((t - c).abs() / f64::from(ticks.max(1))).max(f64::MIN_POSITIVE);
+        }
+    }
+
     /// The commands of the last update.
     pub fn current(&self) -> &[f64] {
         &self.current

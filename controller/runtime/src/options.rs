@@ -21,18 +21,25 @@ pub enum EndMode {
 }
 
 /// What the robot does once the run is asked to stop softly (Ctrl-C, `--max-seconds`, the
-/// clip's end): faults always damp at once.
+/// clip's end). A soft stop first settles the robot under the policy — a tracking policy's
+/// reference holds the frame the stop came at and blends to the standing pose, a command-driven
+/// policy's commands ramp to rest — over `settle_s`; then this. Faults always damp at once.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum OnStop {
-    /// Blend to the default pose, then damp and let go (a robot on a stand, an arm).
+    /// Damp and let go (a robot on a stand, an arm; a humanoid folds up).
     #[default]
     Damp,
-    /// Blend to the default pose and stand there on the joints' own stiffness until the operator
-    /// stops again (a second Ctrl-C) or `stand_s` has passed; then damp.
-    Stand,
-    /// Blend slowly into robot.toml's `sit_keyframe` (a controlled sit-down), then damp.
+    /// Stay standing under the policy until the operator stops again (a second Ctrl-C) or
+    /// `stand_s` has passed; then damp.
+    #[serde(alias = "stand")]
+    Stay,
+    /// Blend slowly into robot.toml's `sit_keyframe` on the joints' PD (a controlled sit-down),
+    /// then damp.
     Sit,
+    /// The harness the run started in takes the robot's weight, then damp (the mirror's rope
+    /// catches it; on the robot the operator has the crane take it).
+    Harness,
 }
 
 /// How a run goes. Recorded with every run (as part of [`RunMetadata`]) and read back by replays.
@@ -70,12 +77,20 @@ pub struct PlayOptions {
     /// What a soft stop ends in.
     #[serde(default)]
     pub on_stop: OnStop,
-    /// With [`OnStop::Stand`]: stand at most this long, s (none: until stopped again).
+    /// With [`OnStop::Stay`]: stand at most this long, s (none: until stopped again).
     #[serde(default)]
     pub stand_s: Option<f64>,
     /// With [`OnStop::Sit`]: the sit-down's length, s.
     #[serde(default = "default_sit_s")]
     pub sit_s: f64,
+    /// A soft stop's settling under the policy (reference to the standing pose, commands to
+    /// rest), s.
+    #[serde(default = "default_settle_s")]
+    pub settle_s: f64,
+}
+
+fn default_settle_s() -> f64 {
+    1.0
 }
 
 fn default_sit_s() -> f64 {
@@ -129,6 +144,7 @@ impl Default for PlayOptions {
             on_stop: OnStop::Damp,
             stand_s: None,
             sit_s: default_sit_s(),
+            settle_s: default_settle_s(),
         }
     }
 }

@@ -158,8 +158,10 @@ pub struct Player<L: RobotLink> {
     policy_steps: u64,
     /// Where a soft stop goes (robot order): the default pose, or the sit keyframe.
     stop_pose: Vec<f64>,
-    /// The tick the robot started standing after a soft stop (`OnStop::Stand`).
+    /// The tick the robot started standing after a soft stop (`OnStop::Stay`).
     standing_since: Option<u64>,
+    /// The soft stop under way began with the policy in control (it keeps it).
+    stop_under_policy: bool,
 }
 
 impl<L: RobotLink> Player<L> {
@@ -182,6 +184,21 @@ impl<L: RobotLink> Player<L> {
             return Err(PlayError::Setup(format!(
                 "soft start of {} s at gain {} (0.1–30 s, 0–1)",
                 options.soft_start_s, options.soft_start_gain
+            )));
+        }
+        if !(options.settle_s.is_finite() && (0.02..=30.0).contains(&options.settle_s)) {
+            return Err(PlayError::Setup(format!(
+                "settle_s = {} s is outside [0.02, 30]",
+                options.settle_s
+            )));
+        }
+        if options.on_stop == crate::options::OnStop::Harness
+            && options.start_mode(&robot) != robots::StartMode::Harness
+        {
+            return Err(PlayError::Setup(format!(
+                "on-stop harness: the run does not start in a harness ({} start); start it with --start \
+                 harness (or robot.toml [start] mode = \"harness\"), or stop another way",
+                options.start_mode(&robot).name()
             )));
         }
         if options.start_mode(&robot) == robots::StartMode::Harness {
@@ -388,6 +405,7 @@ impl<L: RobotLink> Player<L> {
             policy_steps: 0,
             stop_pose,
             standing_since: None,
+            stop_under_policy: false,
             robot,
             layout,
         })
@@ -776,6 +794,10 @@ impl<L: RobotLink> Player<L> {
             {
                 self.go(Mode::Damped, cause);
             }
+            Mode::Running if !cause.is_fault() => {
+                self.go(Mode::Stopping, cause);
+                self.begin_soft_stop();
+            }
             Mode::SoftStart | Mode::Running => self.go(Mode::Stopping, cause),
             Mode::Stopping if !self.machine.pending.is_some_and(|c| c.is_fault()) && cause.is_fault() => {
                 // A fault during a soft stop cuts it short.
@@ -819,10 +841,11 @@ impl<L: RobotLink> Player<L> {
                 };
                 self.go(Mode::Stopping, cause);
                 self.machine.pending = Some(cause);
-                self.hold_targets();
+                self.begin_soft_stop();
+                self.stopping_targets(has_truth);
             }
             Mode::Running => self.policy_tick(has_truth),
-            Mode::Stopping => self.stopping_targets(),
+            Mode::Stopping => self.stopping_targets(has_truth),
             Mode::Damped if elapsed >= self.options.damping_s => {
                 for t in &mut self.targets {
                     t.enabled = false;
@@ -925,52 +948,100 @@ impl<L: RobotLink> Player<L> {
         }
     }
 
-    /// After a fault: hold one tick. After a stop request or the clip's end: blend from where the
-    /// targets are towards the stop pose (the default pose, or the sit keyframe), then damp — or,
-    /// with [`OnStop::Stand`], stand there until the operator stops again.
+    /// A soft stop while the policy is in control: it stays in control, the reference held where
+    /// the stop came and blended to the standing pose, the commands ramped to rest.
+    fn begin_soft_stop(&mut self) {
+        self.stop_under_policy = true;
+        self.cursor.cut_here();
+        let settle = (self.options.settle_s / self.dt).round().max(1.0) as u32;
+        if let Some(c) = &mut self.commands {
+            c.wind_down(settle);
+        }
+    }
+
+    /// After a fault: hold one tick, then damp. After a stop request or the clip's end with the
+    /// policy in control: the policy settles the robot (reference to the standing pose, commands
+    /// to rest) for `settle_s`, then [`OnStop`] says what follows — damp, stay under the policy
+    /// until the operator stops again, sit down on the joints' PD, or let the harness take the
+    /// weight. A stop before the policy took control blends the PD targets to the default pose.
     ///
-    /// [`OnStop::Stand`]: crate::options::OnStop::Stand
-    fn stopping_targets(&mut self) {
+    /// [`OnStop`]: crate::options::OnStop
+    fn stopping_targets(&mut self, has_truth: bool) {
         use crate::options::OnStop;
         let soft = self.machine.pending.is_some_and(|c| !c.is_fault());
-        let blend_s = match self.options.on_stop {
-            OnStop::Sit => self.options.sit_s,
-            OnStop::Damp | OnStop::Stand => self.options.end_s,
-        };
-        let stop_ticks = if soft {
-            (blend_s / self.dt).round().max(1.0) as u64
-        } else {
-            1
-        };
-        if soft && self.options.on_stop == OnStop::Stand && self.machine.ticks >= stop_ticks {
-            let since = *self.standing_since.get_or_insert_with(|| {
-                // A fresh stop request ends the stand: the one that began it is spent.
-                self.stop.store(false, Ordering::Relaxed);
-                self.tick
-            });
-            let stood = (self.tick - since) as f64 * self.dt;
-            let again = self.stop_seen && self.tick > since;
-            if !again && self.options.stand_s.is_none_or(|s| stood < s) {
+        let ticks = |s: f64, dt: f64| (s / dt).round().max(1.0) as u64;
+        if !soft {
+            if self.machine.ticks >= 1 {
+                self.go(Mode::Damped, Cause::HoldDone);
+                self.damping_targets();
+            } else {
                 self.hold_targets();
-                return;
+            }
+            return;
+        }
+        if !self.stop_under_policy {
+            // The PD soft start was still on: blend its targets to the default pose, then damp.
+            let stop_ticks = ticks(self.options.end_s, self.dt);
+            if self.machine.ticks >= stop_ticks {
+                self.go(Mode::Damped, Cause::HoldDone);
+                self.damping_targets();
+            } else {
+                self.blend_targets(stop_ticks - self.machine.ticks);
+            }
+            return;
+        }
+        let settle = ticks(self.options.settle_s, self.dt);
+        if self.machine.ticks < settle {
+            self.policy_tick(has_truth);
+            return;
+        }
+        match self.options.on_stop {
+            OnStop::Stay => {
+                let since = *self.standing_since.get_or_insert_with(|| {
+                    // A fresh stop request ends the stay: the one that began it is spent.
+                    self.stop.store(false, Ordering::Relaxed);
+                    self.tick
+                });
+                let stood = (self.tick - since) as f64 * self.dt;
+                let again = self.stop_seen && self.tick > since;
+                if !again && self.options.stand_s.is_none_or(|s| stood < s) {
+                    self.policy_tick(has_truth);
+                } else {
+                    self.go(Mode::Damped, Cause::HoldDone);
+                    self.damping_targets();
+                }
+            }
+            OnStop::Sit => {
+                let sit = ticks(self.options.sit_s, self.dt);
+                let done = self.machine.ticks - settle;
+                if done >= sit {
+                    self.go(Mode::Damped, Cause::HoldDone);
+                    self.damping_targets();
+                } else {
+                    self.blend_targets(sit - done);
+                }
+            }
+            // The harness catches the robot as it folds (its rope is still hooked on).
+            OnStop::Damp | OnStop::Harness => {
+                self.go(Mode::Damped, Cause::HoldDone);
+                self.damping_targets();
             }
         }
-        if self.machine.ticks >= stop_ticks {
-            self.go(Mode::Damped, Cause::HoldDone);
-            self.damping_targets();
-        } else if soft {
-            let a = 1.0 / (stop_ticks - self.machine.ticks) as f64;
-            let margin = self.options.limits.position_margin;
-            let joints = &self.robot.config.joints;
-            for ((t, d), j) in self.targets.iter_mut().zip(&self.stop_pose).zip(joints) {
-                // The blend is governed from the previous target like any command: far from the
-                // stop pose with few ticks left it would otherwise outrun the joint's speed.
-                let wanted = t.q + (d - t.q) * a;
-                let range = target_range(j, margin, robots::PositionTargets::InsideLimits, 0.0);
-                t.q = govern_position(j, t.q, wanted, self.dt, range, None);
-            }
-        } else {
-            self.hold_targets();
+    }
+
+    /// One step of a PD blend from where the targets are to the stop pose (the default pose, or
+    /// the sit keyframe), `left` ticks before it ends.
+    fn blend_targets(&mut self, left: u64) {
+        self.hold_targets();
+        let a = 1.0 / left.max(1) as f64;
+        let margin = self.options.limits.position_margin;
+        let joints = &self.robot.config.joints;
+        for ((t, d), j) in self.targets.iter_mut().zip(&self.stop_pose).zip(joints) {
+            // The blend is governed from the previous target like any command: far from the
+            // stop pose with few ticks left it would otherwise outrun the joint's speed.
+            let wanted = t.q + (d - t.q) * a;
+            let range = target_range(j, margin, robots::PositionTargets::InsideLimits, 0.0);
+            t.q = govern_position(j, t.q, wanted, self.dt, range, None);
         }
     }
 

@@ -81,6 +81,12 @@ pub struct ReferenceCursor {
     motion_now: Vec<[f64; 7]>,
     /// The `ref_keypoints` values of every tick of the reference, `width` each.
     keypoint_obs: Vec<f64>,
+    /// A soft stop: the tick it came at and the frame it holds; the reference then blends from
+    /// that frame (`cut_q`, policy order) to the default pose.
+    cut: Option<(usize, usize)>,
+    cut_q: Vec<f64>,
+    /// Ticks the blend to the default pose takes after a cut.
+    settle_ticks: usize,
 }
 
 impl ReferenceCursor {
@@ -116,7 +122,42 @@ impl ReferenceCursor {
             generated: None,
             dt,
             reference,
+            cut: None,
+            cut_q: vec![0.0; n],
+            settle_ticks: (options.settle_s / dt).round().max(1.0) as usize,
         }
+    }
+
+    /// A soft stop: from this tick the reference holds the frame it is on (every frame ahead
+    /// too, still) and blends from there to the default pose; the clip is over.
+    pub fn cut_here(&mut self) {
+        if self.cut.is_some() {
+            return;
+        }
+        self.cut = Some((self.tick, self.frame_at(self.tick)));
+        self.cut_q.copy_from_slice(&self.frames.q[0]);
+        let (first, ahead) = self.frames.q.split_at_mut(1);
+        for q in ahead {
+            q.copy_from_slice(&first[0]);
+        }
+        for qd in &mut self.frames.qd {
+            qd.fill(0.0);
+        }
+        let (first, ahead) = self.frames.root.split_at_mut(1);
+        ahead.fill(first[0]);
+        let (first, ahead) = self.frames.body.split_at_mut(1);
+        for b in ahead {
+            b.copy_from_slice(&first[0]);
+        }
+        let (first, ahead) = self.frames.keypoints.split_at_mut(1);
+        for k in ahead {
+            k.copy_from_slice(&first[0]);
+        }
+    }
+
+    /// Whether a soft stop cut the reference.
+    pub fn is_cut(&self) -> bool {
+        self.cut.is_some()
     }
 
     /// Gives the `ref_keypoints` term its values: `width` per tick of the reference.
@@ -181,6 +222,9 @@ impl ReferenceCursor {
     /// The reference frame tick `tick` plays (held at the first during the ramp, at the last
     /// after the end, wrapped when looping).
     pub fn frame_at(&self, tick: usize) -> usize {
+        if let Some((_, frame)) = self.cut {
+            return frame;
+        }
         let base = tick.saturating_sub(self.ramp_ticks);
         let len = self.reference.len();
         if self.end == EndMode::Loop {
@@ -222,16 +266,23 @@ impl ReferenceCursor {
 
     /// The clip proper is playing (not its ramp, not its end).
     pub fn in_clip(&self) -> bool {
-        self.tick >= self.ramp_ticks && (self.is_live() || self.tick < self.ramp_ticks + self.reference.len())
+        self.cut.is_none()
+            && self.tick >= self.ramp_ticks
+            && (self.is_live() || self.tick < self.ramp_ticks + self.reference.len())
     }
 
     /// Whether the tick just taken tracked the clip (what a recording marks as tracking).
     pub fn tracked(&self) -> bool {
-        self.tick > self.ramp_ticks && (self.is_live() || self.tick <= self.ramp_ticks + self.reference.len())
+        self.cut.is_none()
+            && self.tick > self.ramp_ticks
+            && (self.is_live() || self.tick <= self.ramp_ticks + self.reference.len())
     }
 
     /// The clip, ramp and end included, is over (never for a loop).
     pub fn finished(&self) -> bool {
+        if self.cut.is_some() {
+            return false;
+        }
         match self.end {
             EndMode::Loop | EndMode::Stand => false,
             EndMode::Hold | EndMode::Blend => {
@@ -278,6 +329,20 @@ impl ReferenceCursor {
         robot_index: &[usize],
         embedded: Option<&MotionFrame<'_>>,
     ) -> f64 {
+        if let Some((at, _)) = self.cut {
+            // A soft stop: the held frame, blending to the default pose.
+            let settle = self.settle_ticks as f64;
+            for (f, q) in self.frames.q.iter_mut().enumerate() {
+                let blend = ((self.tick - at + f + 1) as f64 / settle).min(1.0);
+                for ((v, &held), &r) in q.iter_mut().zip(&self.cut_q).zip(robot_index) {
+                    *v = held + (default_q[r] - held) * blend;
+                }
+            }
+            for (p, &r) in robot_index.iter().enumerate() {
+                self.current_q[r] = self.frames.q[0][p];
+            }
+            return 1.0;
+        }
         if let Some(live) = &mut self.live {
             let frame = live.reader.latest();
             let n = self.reference.n;

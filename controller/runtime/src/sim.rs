@@ -26,26 +26,13 @@ pub fn lockstep_player(
     mirror: sim2real::config::MirrorConfig,
     stop: Arc<std::sync::atomic::AtomicBool>,
 ) -> Result<LockstepRun, crate::player::PlayError> {
-    let mirror = with_harness(&robot, &options, mirror);
+    let mirror = mirror.for_run(&robot, options.start_mode(&robot));
     let world =
         Mirror::new(robot.clone(), mirror).map_err(|e| crate::player::PlayError::Setup(e.to_string()))?;
     let world = Arc::new(Mutex::new(world));
     let io = lockstep_robot(&robot, &world)?;
     let player = crate::player::Player::new(robot, layout, reference, options, io, stop)?;
     Ok((player, LockstepClock::new(Arc::clone(&world)), world))
-}
-
-/// The mirror of a `harness` start hangs the robot in robot.toml's harness (unless it is on the
-/// gantry, or the settings give a harness of their own).
-fn with_harness(
-    robot: &Robot,
-    options: &crate::player::PlayOptions,
-    mut mirror: sim2real::config::MirrorConfig,
-) -> sim2real::config::MirrorConfig {
-    if options.start_mode(robot) == robots::StartMode::Harness && !mirror.gantry && mirror.harness.is_none() {
-        mirror.harness = Some(robot.config.start.harness);
-    }
-    mirror
 }
 
 /// A wired run: the player, the wall clock with the mirror's ground truth, and the served mirror
@@ -64,7 +51,7 @@ pub fn wired_player(
     stop: Arc<std::sync::atomic::AtomicBool>,
     on_start: fn(),
 ) -> Result<WiredRun, crate::player::PlayError> {
-    let mirror = with_harness(&robot, &options, mirror);
+    let mirror = mirror.for_run(&robot, options.start_mode(&robot));
     let world =
         Mirror::new(robot.clone(), mirror).map_err(|e| crate::player::PlayError::Setup(e.to_string()))?;
     let served = serve_locally(world)
