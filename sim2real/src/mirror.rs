@@ -7,6 +7,7 @@
 //! outputs and scheduled faults. In lockstep it advances only when a host port waits, so a run
 //! is a pure function of its seed; `sim serve` drives the same loop from the wall clock.
 
+use std::sync::atomic::AtomicBool;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -161,6 +162,9 @@ struct Harness {
     /// Simulated time the hook began to come down: the first step any joint was driven (the
     /// controller took the robot), s.
     lowering_since: Option<f64>,
+    /// When the crane began to hoist again (a stop that hands the robot to the harness), and the
+    /// height at which the rope then carries the whole weight where the robot stands.
+    hoisting: Option<(f64, f64)>,
     /// Robot mass, kg, and the rope's spring, damper (N/m, N·s/m), the pendulum's horizontal
     /// spring and damper, the straps' orientation spring and damper — all scaled by the share of
     /// the weight the rope carries.
@@ -173,8 +177,8 @@ const HARNESS_OMEGA: f64 = 20.0;
 const HARNESS_ZETA: f64 = 0.7;
 /// The rope's length from hook to root, m: the pendulum that centres a hanging robot.
 const HARNESS_ROPE_M: f64 = 1.5;
-/// How far below the taut point the hook ends, m: clearly slack on a standing robot.
-const HARNESS_SLACK_M: f64 = 0.15;
+/// How far below the taut point the hook ends, m: slack through a dance's deepest squat.
+const HARNESS_SLACK_M: f64 = 0.5;
 /// Natural frequency of the straps that keep a hanging robot upright, rad/s.
 const HARNESS_STRAPS_OMEGA: f64 = 8.0;
 const GRAVITY: f64 = 9.81;
@@ -233,6 +237,8 @@ pub struct Mirror {
     harness: Option<Harness>,
     /// The physics waits for the controller's first drive ([`MirrorConfig::hold_until_driven`]).
     held: bool,
+    /// Raised by the controller when a stop hands the robot to the harness: the crane hoists.
+    hoist: Arc<AtomicBool>,
     /// Joint angles a jig holds the joints at (policy order), if any.
     jig: Option<Vec<f64>>,
     root_qpos: usize,
@@ -562,6 +568,7 @@ impl Mirror {
             gantry: None,
             harness: None,
             held: false,
+            hoist: Arc::new(AtomicBool::new(false)),
             jig: None,
             root_qpos,
             root_dof,
@@ -653,6 +660,7 @@ impl Mirror {
                 travel: h.lift_m + GRAVITY / (HARNESS_OMEGA * HARNESS_OMEGA) + HARNESS_SLACK_M,
                 lower_s: h.lower_s,
                 lowering_since: None,
+                hoisting: None,
                 mass,
                 gains: [
                     k,
@@ -667,6 +675,12 @@ impl Mirror {
         self.sync_plants();
     }
 
+    /// The crane's hoist signal when the robot hangs in a harness: the controller raises it and
+    /// the crane takes the robot's weight where it stands, over the lowering time.
+    pub fn harness_hoist(&self) -> Option<Arc<AtomicBool>> {
+        self.harness.map(|_| Arc::clone(&self.hoist))
+    }
+
     /// The share of the robot's weight the harness carries now (0 when slack or without one).
     pub fn harness_load(&self) -> Option<f64> {
         self.harness.map(|h| self.harness_wrench(h).2)
@@ -677,13 +691,21 @@ impl Mirror {
     fn harness_wrench(&self, h: Harness) -> ([f64; 3], [f64; 3], f64) {
         let r = self.root_qpos;
         let (q, v) = (self.data.qpos(), self.data.qvel());
-        let t = h.lowering_since.map_or(0.0, |since| self.data.time() - since);
-        let s = (t / h.lower_s).clamp(0.0, 1.0);
-        let lowered = h.travel * s * s * (3.0 - 2.0 * s);
+        let now = self.data.time();
+        let smooth = |since: f64| {
+            let s = ((now - since) / h.lower_s).clamp(0.0, 1.0);
+            s * s * (3.0 - 2.0 * s)
+        };
         let [k, c, kh, ch, kr, cr] = h.gains;
         // Height at which the rope just goes taut: the hanging height plus its stretch under the
-        // whole weight, minus how far the hook has come down.
-        let taut = h.hang[2] + GRAVITY / (HARNESS_OMEGA * HARNESS_OMEGA) - lowered;
+        // whole weight, minus how far the hook has come down — and, hoisting, back up to where it
+        // carries the robot's weight.
+        let lowered = h.lowering_since.map_or(0.0, smooth) * h.travel;
+        let low = h.hang[2] + GRAVITY / (HARNESS_OMEGA * HARNESS_OMEGA) - lowered;
+        let taut = match h.hoisting {
+            Some((since, carry)) => low + (carry - low) * smooth(since),
+            None => low,
+        };
         let stretch = taut - q[r + 2];
         let pull = if stretch > 0.0 {
             (k * stretch - c * v[2]).max(0.0)
@@ -923,6 +945,17 @@ impl Mirror {
         } else if let Some(h) = &mut self.harness {
             if h.lowering_since.is_none() && self.plants.iter().any(|p| p.torque != 0.0 || p.goal.is_some()) {
                 h.lowering_since = Some(self.data.time());
+            }
+            if h.hoisting.is_none() && self.hoist.load(std::sync::atomic::Ordering::Relaxed) {
+                // The crane moves over the robot and takes its weight where it stands.
+                let q = self.data.qpos();
+                let r = self.root_qpos;
+                h.hang[0] = q[r];
+                h.hang[1] = q[r + 1];
+                h.hoisting = Some((
+                    self.data.time(),
+                    q[r + 2] + GRAVITY / (HARNESS_OMEGA * HARNESS_OMEGA),
+                ));
             }
             let h = *h;
             let (force, torque, _) = self.harness_wrench(h);

@@ -27,7 +27,7 @@ import onnx
 import onnxruntime as ort
 
 POLICY_DT = 0.02
-PHYSICS_DT = 0.005
+PHYSICS_DT = float(__import__("os").environ.get("PHYS_DT", "0.005"))
 TILT_LIMIT = 0.8
 
 
@@ -190,8 +190,12 @@ def dance(a):
         action, jp, jv, _, ref_quat = call(obs, frame)
         command = np.concatenate([jp, jv])
         last_action = np.clip(action, -clip, clip)
-        target = default + scale * last_action
-        for _ in range(int(round(POLICY_DT / PHYSICS_DT))):
+        new_target = default + scale * last_action
+        if tick == 0:
+            target = new_target
+        for step_i in range(int(round(POLICY_DT / PHYSICS_DT))):
+            if step_i == int(__import__("os").environ.get("DELAY_STEPS", "0")):
+                target = new_target
             q = data.qpos[qadr]
             qd = data.qvel[vadr]
             data.ctrl[act] = np.clip(kp * (target - q) - kd * qd, -effort, effort)

@@ -852,7 +852,7 @@ fn replay_reproduces_a_recorded_run_bit_for_bit_and_finds_where_a_changed_clip_d
         String::from_utf8_lossy(&out.stderr)
     );
     assert!(
-        stdout.contains("replayed 552 ticks")
+        stdout.contains("replayed 577 ticks")
             && stdout.contains("every command matches the recording bit for bit"),
         "{stdout}"
     );

@@ -332,8 +332,9 @@ fn a_stop_request_soft_stops_through_blend_and_damping() {
     let stop = t.iter().find(|t| t.to == Mode::Stopping).unwrap();
     assert_eq!((stop.cause, stop.tick), (Cause::StopRequested, 149));
     let damped = t.iter().find(|t| t.to == Mode::Damped).unwrap();
-    // Soft: the blend to the default pose takes its 0.5 s before damping.
-    assert_eq!(damped.tick - stop.tick, 25);
+    // Soft: the policy settles the robot for its 1 s (the reference blends to the standing pose)
+    // before damping.
+    assert_eq!(damped.tick - stop.tick, 50);
 }
 
 #[test]

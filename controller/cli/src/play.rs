@@ -880,9 +880,11 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         options.start = Some(start.into());
     }
     if options.start_mode(&l.robot) == robots::StartMode::Harness && args.gantry {
-        bail!(
+        return Err(controller::player::PlayError::Setup(
             "--start harness with --gantry: the robot hangs in the harness or sits on the gantry, not both"
-        );
+                .into(),
+        )
+        .into());
     }
     println!(
         "start: {}",

@@ -162,6 +162,8 @@ pub struct Player<L: RobotLink> {
     standing_since: Option<u64>,
     /// The soft stop under way began with the policy in control (it keeps it).
     stop_under_policy: bool,
+    /// The mirror's crane, when the robot hangs in its harness: raised, it takes the weight.
+    harness_hoist: Option<Arc<AtomicBool>>,
 }
 
 impl<L: RobotLink> Player<L> {
@@ -406,9 +408,18 @@ impl<L: RobotLink> Player<L> {
             stop_pose,
             standing_since: None,
             stop_under_policy: false,
+            harness_hoist: None,
             robot,
             layout,
         })
+    }
+
+    /// Hands a stop with [`OnStop::Harness`] the mirror's crane: raising the flag hoists it.
+    ///
+    /// [`OnStop::Harness`]: crate::options::OnStop::Harness
+    pub fn with_harness_hoist(mut self, hoist: Arc<AtomicBool>) -> Self {
+        self.harness_hoist = Some(hoist);
+        self
     }
 
     /// Takes the commands of a command-driven policy from a live source (keyboard, gamepad,
@@ -995,22 +1006,48 @@ impl<L: RobotLink> Player<L> {
             self.policy_tick(has_truth);
             return;
         }
-        match self.options.on_stop {
-            OnStop::Stay => {
-                let since = *self.standing_since.get_or_insert_with(|| {
-                    // A fresh stop request ends the stay: the one that began it is spent.
-                    self.stop.store(false, Ordering::Relaxed);
-                    self.tick
-                });
-                let stood = (self.tick - since) as f64 * self.dt;
-                let again = self.stop_seen && self.tick > since;
-                if !again && self.options.stand_s.is_none_or(|s| stood < s) {
-                    self.policy_tick(has_truth);
-                } else {
-                    self.go(Mode::Damped, Cause::HoldDone);
-                    self.damping_targets();
-                }
+        let stay = |p: &mut Self| {
+            let since = *p.standing_since.get_or_insert_with(|| {
+                // A fresh stop request ends the stay: the one that began it is spent.
+                p.stop.store(false, Ordering::Relaxed);
+                p.tick
+            });
+            let stood = (p.tick - since) as f64 * p.dt;
+            let again = p.stop_seen && p.tick > since;
+            if !again && p.options.stand_s.is_none_or(|s| stood < s) {
+                p.policy_tick(has_truth);
+            } else {
+                p.go(Mode::Damped, Cause::HoldDone);
+                p.damping_targets();
             }
+        };
+        match self.options.on_stop {
+            OnStop::Stay => stay(self),
+            OnStop::Harness => match &self.harness_hoist {
+                // The mirror's crane takes the weight while the policy keeps the robot standing.
+                Some(hoist) => {
+                    if !hoist.swap(true, Ordering::Relaxed) {
+                        tracing::info!(tick = self.tick, "harness: the crane takes the robot's weight");
+                    }
+                    let hoisting = ticks(self.robot.config.start.harness.lower_s, self.dt);
+                    if self.machine.ticks - settle < hoisting {
+                        self.policy_tick(has_truth);
+                    } else {
+                        self.go(Mode::Damped, Cause::HoldDone);
+                        self.damping_targets();
+                    }
+                }
+                // On the robot the operator has the crane take the weight, then stops again.
+                None => {
+                    if self.standing_since.is_none() {
+                        tracing::warn!(
+                            tick = self.tick,
+                            "harness: take the robot's weight with the crane, then stop again (Ctrl-C or the e-stop)"
+                        );
+                    }
+                    stay(self);
+                }
+            },
             OnStop::Sit => {
                 let sit = ticks(self.options.sit_s, self.dt);
                 let done = self.machine.ticks - settle;
@@ -1021,8 +1058,7 @@ impl<L: RobotLink> Player<L> {
                     self.blend_targets(sit - done);
                 }
             }
-            // The harness catches the robot as it folds (its rope is still hooked on).
-            OnStop::Damp | OnStop::Harness => {
+            OnStop::Damp => {
                 self.go(Mode::Damped, Cause::HoldDone);
                 self.damping_targets();
             }
@@ -1242,6 +1278,12 @@ impl<L: RobotLink> Player<L> {
             let commands = self.commands.as_ref().map_or(&[][..], LiveCommands::current);
             let _ = l.add(pose, commands, self.dt);
         }
+    }
+
+    /// The run's summary so far, for callers that drive [`Self::step`] themselves (no wall
+    /// time: they kept the clock).
+    pub fn summary_so_far(&self) -> PlaySummary {
+        self.summary(Duration::ZERO)
     }
 
     fn summary(&self, took: Duration) -> PlaySummary {

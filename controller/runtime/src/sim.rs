@@ -29,9 +29,13 @@ pub fn lockstep_player(
     let mirror = mirror.for_run(&robot, options.start_mode(&robot));
     let world =
         Mirror::new(robot.clone(), mirror).map_err(|e| crate::player::PlayError::Setup(e.to_string()))?;
+    let hoist = world.harness_hoist();
     let world = Arc::new(Mutex::new(world));
     let io = lockstep_robot(&robot, &world)?;
-    let player = crate::player::Player::new(robot, layout, reference, options, io, stop)?;
+    let mut player = crate::player::Player::new(robot, layout, reference, options, io, stop)?;
+    if let Some(h) = hoist {
+        player = player.with_harness_hoist(h);
+    }
     Ok((player, LockstepClock::new(Arc::clone(&world)), world))
 }
 
@@ -54,9 +58,13 @@ pub fn wired_player(
     let mirror = mirror.for_run(&robot, options.start_mode(&robot));
     let world =
         Mirror::new(robot.clone(), mirror).map_err(|e| crate::player::PlayError::Setup(e.to_string()))?;
+    let hoist = world.harness_hoist();
     let served = serve_locally(world)
         .map_err(|e| crate::player::PlayError::Setup(format!("cannot serve the mirror: {e}")))?;
     let io = wired_robot_with(&robot, &served, on_start)?;
-    let player = crate::player::Player::new(robot, layout, reference, options, io, stop)?;
+    let mut player = crate::player::Player::new(robot, layout, reference, options, io, stop)?;
+    if let Some(h) = hoist {
+        player = player.with_harness_hoist(h);
+    }
     Ok((player, ServedClock::new(Arc::clone(&served.world)), served))
 }

@@ -1,0 +1,421 @@
+//! Humanoids that cannot stand on their joints' PD alone, with the real trained policies and
+//! robot models holosoma ships (installed pinned by scripts/setup into .local/, not committed):
+//! the policy in control from a harness to the floor and back, holosoma's whole-body-tracking
+//! export with no manifest, the robot's own safety thresholds, and a mirror that lets nothing fall
+//! before the run starts.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use controller::clip::Reference;
+use controller::motion::ReferenceSource;
+use controller::options::OnStop;
+use controller::player::{PlayOptions, PlaySummary, Player};
+use controller::policy::PolicyLayout;
+use controller::safety::{Cause, Mode, tilt_of};
+use controller::sim::lockstep_player;
+use firmware_bridge::time::{SimInstant, SimWorld};
+use robots::Robot;
+use sim2real::config::MirrorConfig;
+use sim2real::mirror::Mirror;
+use test_support::bin::{robodeploy, run_within};
+use test_support::fixtures::{venv_python, workspace_root};
+
+fn g1() -> PathBuf {
+    workspace_root().join("robots/g1/robot.toml")
+}
+
+fn dance() -> PathBuf {
+    workspace_root().join(".local/holosoma-inference/models/wbt/ppo_g1_29dof_dancing.onnx")
+}
+
+/// The G1, the dance export's contract from its metadata, and the motion it carries.
+fn load_dance() -> (Robot, PolicyLayout, Reference) {
+    let robot = Robot::load(&g1()).unwrap();
+    let mut layout = PolicyLayout::load(&dance(), &robot).unwrap();
+    let (reference, source) =
+        controller::motion::load_reference(None, &dance(), &mut layout, &robot, 0).unwrap();
+    assert!(
+        matches!(source, ReferenceSource::Embedded { frames: 6574, .. }),
+        "{source}"
+    );
+    (robot, layout, reference)
+}
+
+type Run = (
+    Player<sim2real::link::LockstepRobot>,
+    sim2real::link::LockstepClock,
+    Arc<Mutex<Mirror>>,
+);
+
+fn dance_player(options: PlayOptions) -> Run {
+    let (robot, layout, reference) = load_dance();
+    lockstep_player(
+        robot,
+        layout,
+        reference,
+        options,
+        MirrorConfig::default(),
+        Arc::new(AtomicBool::new(false)),
+    )
+    .unwrap()
+}
+
+/// The root's height and tilt in the mirror.
+fn base(world: &Arc<Mutex<Mirror>>) -> (f64, f64) {
+    let p = world.lock().unwrap().root_pose();
+    (p[2], tilt_of([p[3], p[4], p[5], p[6]]))
+}
+
+/// Runs to the end, stepping as [`Player::run`] does, with the base's height and tilt after each
+/// tick.
+fn run_watching(
+    p: &mut Player<sim2real::link::LockstepRobot>,
+    clock: &mut sim2real::link::LockstepClock,
+    world: &Arc<Mutex<Mirror>>,
+) -> (PlaySummary, Vec<(f64, f64)>) {
+    p.identify().unwrap();
+    let period = Duration::from_millis(20);
+    let mut course = Vec::new();
+    while p.mode() != Mode::Off {
+        p.step(clock).unwrap();
+        p.wait_until(clock, period * p.ticks() as u32);
+        course.push(base(world));
+    }
+    (p.summary_so_far(), course)
+}
+
+/// What the project's own Python loop (plain MuJoCo, the trainer's PD) measures of the dance.
+fn python_reference() -> serde_json::Value {
+    let root = workspace_root();
+    let out = std::process::Command::new(venv_python())
+        .arg(root.join("tests/python/holosoma_reference.py"))
+        .arg("dance")
+        .arg("--robot-dir")
+        .arg(root.join(".local/holosoma"))
+        .arg("--policy-dir")
+        .arg(root.join(".local/holosoma-inference"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+#[test]
+fn the_g1_dances_holosomas_whole_motion_from_a_harness_and_ends_standing_under_the_policy() {
+    let reference = std::thread::spawn(python_reference);
+    let options = PlayOptions {
+        on_stop: OnStop::Stay,
+        stand_s: Some(3.0),
+        ..PlayOptions::default()
+    };
+    let (mut p, mut clock, world) = dance_player(options);
+    // The mirror hangs the robot in robot.toml's harness, its rope carrying the whole weight.
+    let standing_root = {
+        let w = world.lock().unwrap();
+        let load = w
+            .harness_load()
+            .expect("a harness start hangs the robot in a harness");
+        assert!(
+            (load - 1.0).abs() < 0.05,
+            "the rope carries {load:.2} of the weight"
+        );
+        w.root_pose()[2]
+    };
+    p.identify().unwrap();
+    let period = Duration::from_millis(20);
+    let mut lowest: f64 = f64::INFINITY;
+    let mut slack_at = None;
+    while p.mode() != Mode::Off {
+        p.step(&clock).unwrap();
+        p.wait_until(&mut clock, period * p.ticks() as u32);
+        let (height, _) = base(&world);
+        lowest = lowest.min(height);
+        if slack_at.is_none() && world.lock().unwrap().harness_load() == Some(0.0) && p.ticks() > 10 {
+            slack_at = Some(p.ticks());
+        }
+        if p.mode() == Mode::Stopping && p.transitions().last().is_some_and(|t| t.to == Mode::Stopping) {
+            // Standing under the policy, still upright, at its height.
+            let (h, tilt) = base(&world);
+            assert!(
+                tilt < 0.3 && h > 0.9 * (standing_root - 0.03),
+                "{h:.3} m, tilted {tilt:.2} rad"
+            );
+        }
+    }
+    let s: PlaySummary = p.summary_so_far();
+    let t = p.transitions();
+    // The policy took the robot at the first tick; the motion ran to its end, then the stop.
+    assert_eq!(
+        (t[1].from, t[1].to, t[1].tick),
+        (Mode::Ready, Mode::Running, 0),
+        "{s}"
+    );
+    assert_eq!(t[2].cause, Cause::ClipFinished, "{s}");
+    assert_eq!(t[2].to, Mode::Stopping, "{s}");
+    assert!(!s.fell && (s.played - 1.0).abs() < 1e-9, "{s}");
+    // The rope went slack within the lowering (2 s) and a little more.
+    let slack_at = slack_at.expect("the harness never went slack");
+    assert!(slack_at < 150, "slack at tick {slack_at}");
+    let py = reference.join().unwrap();
+    let py_rmse = py["joint_rmse_rad"].as_f64().unwrap();
+    assert!(!py["fell"].as_bool().unwrap(), "{py}");
+    assert!(
+        s.joint_rmse < 1.5 * py_rmse,
+        "joint RMSE {:.4} rad against the Python loop's {py_rmse:.4}\n{s}",
+        s.joint_rmse
+    );
+    // The dance's policy reads no world term: the estimator and the ground truth cannot differ.
+    let (robot, layout, _) = load_dance();
+    assert!(!layout.needs_ground_truth(), "{}", robot.config.name);
+}
+
+#[test]
+fn a_walking_or_dancing_robot_stopped_mid_run_stays_standing_or_is_let_go() {
+    // Stopped 4 s into the dance (1 s after the harness settled it): the policy keeps control,
+    // the reference blends to the standing pose; staying, it stands; damped, it folds up without
+    // that counting as a fall.
+    for (on_stop, stands) in [
+        (OnStop::Stay, true),
+        (OnStop::Damp, false),
+        (OnStop::Harness, true),
+    ] {
+        let options = PlayOptions {
+            on_stop,
+            stand_s: Some(4.0),
+            max_ticks: Some(250),
+            ..PlayOptions::default()
+        };
+        let (mut p, mut clock, world) = dance_player(options);
+        let (s, course) = run_watching(&mut p, &mut clock, &world);
+        let stop = s.transitions.iter().find(|t| t.to == Mode::Stopping).unwrap();
+        assert_eq!((stop.tick, stop.cause), (250, Cause::TimeUp), "{on_stop:?}\n{s}");
+        let damped = s.transitions.iter().find(|t| t.to == Mode::Damped).unwrap();
+        // 1 s settling under the policy; then 4 s standing, or the crane's 2 s hoist, or nothing.
+        let expected = match on_stop {
+            OnStop::Stay => 50 + 200,
+            OnStop::Harness => 50 + 100,
+            _ => 50,
+        };
+        assert_eq!(damped.tick - stop.tick, expected, "{on_stop:?}\n{s}");
+        assert!(!s.fell, "{on_stop:?}: a fall counted\n{s}");
+        // Where the base is as the robot is let go (the last tick before damping), and at the end.
+        let (height, tilt) = course[damped.tick as usize - 1];
+        if stands {
+            // Upright at the end: standing (stay) or hanging in the rope that took its weight.
+            assert!(tilt < 0.3, "{on_stop:?}: tilted {tilt:.2} rad");
+            assert!(height > 0.7, "{on_stop:?}: base at {height:.3} m");
+        } else {
+            let (end, _) = *course.last().unwrap();
+            assert!(
+                end < height - 0.03,
+                "{on_stop:?}: a damped humanoid folds up ({end:.3} m)"
+            );
+        }
+        if on_stop == OnStop::Harness {
+            let load = world.lock().unwrap().harness_load().unwrap();
+            assert!(load > 0.5, "the harness carries {load:.2} of the weight");
+        }
+    }
+}
+
+#[test]
+fn a_robot_waits_still_on_its_mirror_until_the_controller_drives_it() {
+    // Every shipped robot, as a run or a served mirror sets it up: nothing moves for 2 s of
+    // simulated time with no command, where an unheld mirror lets it sag or fall.
+    for path in [
+        "robots/biped/robot.toml",
+        "robots/mini/robot.toml",
+        "robots/g1/robot.toml",
+    ] {
+        let robot = Robot::load(&workspace_root().join(path)).unwrap();
+        let config = MirrorConfig::default().for_run(&robot, robot.config.start.mode);
+        let mut held = Mirror::new(robot.clone(), config).unwrap();
+        let mut free = Mirror::new(robot.clone(), MirrorConfig::default()).unwrap();
+        let before = held.root_pose();
+        let later = SimInstant::ZERO + Duration::from_secs(2);
+        held.step_until(later);
+        free.step_until(later);
+        let after = held.root_pose();
+        for (a, b) in before.iter().zip(&after) {
+            assert!(
+                (a - b).abs() < 1e-9,
+                "{path}: the held robot moved: {before:?} → {after:?}"
+            );
+        }
+        if robot.config.name == "g1" {
+            let p = free.root_pose();
+            assert!(
+                (p[2] - before[2]).abs() > 0.01 || tilt_of([p[3], p[4], p[5], p[6]]) > 0.05,
+                "an unheld G1 sags or falls: the test would not see a mirror that fails to hold it"
+            );
+        }
+    }
+}
+
+#[test]
+fn wall_runs_of_every_shipped_robot_begin_standing() {
+    // --wall over real wires: the robot stands at the first tick (no "base tilted" at tick 1),
+    // for rd-biped (PD start) and the G1 (harness start).
+    for (robot, extra) in [
+        ("robots/biped/robot.toml", vec![]),
+        (
+            "robots/g1/robot.toml",
+            vec!["--policy".to_owned(), dance().display().to_string()],
+        ),
+    ] {
+        let mut args = vec![
+            "play".to_owned(),
+            "--wall".to_owned(),
+            "--robot".to_owned(),
+            workspace_root().join(robot).display().to_string(),
+            "--max-seconds".to_owned(),
+            "1".to_owned(),
+            "--no-record".to_owned(),
+        ];
+        args.extend(extra);
+        let (code, out, err) = run_within(&args, Duration::from_secs(300));
+        assert_eq!(code, Some(0), "{robot}: {out}{err}");
+        assert!(
+            out.contains("fell: no") && out.contains("result: finished"),
+            "{robot}: {out}"
+        );
+    }
+}
+
+fn write_robot(dir: &Path, name: &str, edit: impl Fn(&str) -> String) -> PathBuf {
+    let original = workspace_root().join("robots/biped");
+    let text = std::fs::read_to_string(original.join("robot.toml")).unwrap();
+    let text = edit(&text).replace(
+        "mjcf = \"biped.xml\"",
+        &format!("mjcf = {:?}", original.join("biped.xml")),
+    );
+    let path = dir.join(name);
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+#[test]
+fn bad_starts_stops_and_thresholds_are_refused_by_name_and_nothing_moves() {
+    let dir = std::env::temp_dir().join(format!("robodeploy-humanoid-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let cases: Vec<(PathBuf, Vec<&str>, &str)> = vec![
+        (
+            write_robot(&dir, "high.toml", |t| {
+                format!("{t}\n[start]\nmode = \"harness\"\n\n[start.harness]\nlift_m = 0.5\n")
+            }),
+            vec![],
+            "start.harness.lift_m: 0.5 m is outside [0, 0.3]",
+        ),
+        (
+            write_robot(&dir, "tracking.toml", |t| {
+                format!("{t}\n[safety]\ntracking_error = 5.0\n")
+            }),
+            vec![],
+            "safety.tracking_error: 5 rad is outside [0.05, 3.14]",
+        ),
+        (
+            write_robot(&dir, "pattern.toml", |t| {
+                format!("{t}\n[[safety.tracking]]\njoints = [\"*wrist*\"]\nerror = 1.0\nseconds = 1.0\n")
+            }),
+            vec![],
+            "safety.tracking[0].joints: \"*wrist*\" matches no joint of the robot",
+        ),
+        (
+            write_robot(&dir, "plain.toml", |t| t.to_owned()),
+            vec!["--on-stop", "harness"],
+            "on-stop harness: the run does not start in a harness (pd start)",
+        ),
+        (
+            write_robot(&dir, "plain2.toml", |t| t.to_owned()),
+            vec!["--start", "harness", "--gantry"],
+            "--start harness with --gantry",
+        ),
+    ];
+    for (robot, extra, want) in cases {
+        let mut args = vec![
+            "play".to_owned(),
+            "--robot".to_owned(),
+            robot.display().to_string(),
+        ];
+        args.extend(extra.iter().map(|s| (*s).to_owned()));
+        args.extend([
+            "--no-record".to_owned(),
+            "--max-seconds".to_owned(),
+            "1".to_owned(),
+        ]);
+        let (code, out, err) = run_within(&args, Duration::from_secs(120));
+        assert_eq!(code, Some(2), "{want}: {out}{err}");
+        assert!(err.contains(want), "wanted {want:?} in: {err}");
+        assert!(!out.contains("Running"), "{want}: something moved: {out}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_holosoma_export_without_its_training_configuration_is_refused_not_guessed() {
+    let fastsac = workspace_root().join(".local/holosoma-inference/models/wbt/fastsac_g1_29dof_dancing.onnx");
+    let out = robodeploy()
+        .args(["check", "--robot"])
+        .arg(g1())
+        .arg("--policy")
+        .arg(&fastsac)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("action.scale: missing, and this holosoma export carries no experiment_config"),
+        "{err}"
+    );
+}
+
+#[test]
+fn the_tracking_stop_names_the_joint_and_its_threshold() {
+    // A G1 whose waist is held by its own threshold at 0.05 rad for 0.1 s: the dance's waist
+    // leaves that at once, and the stop says which joint and what limit.
+    let text = std::fs::read_to_string(g1()).unwrap().replace(
+        "mjcf = \"../../.local",
+        &format!("mjcf = \"{}/.local", workspace_root().display()),
+    );
+    let dir = std::env::temp_dir().join(format!("robodeploy-g1-tracking-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("robot.toml");
+    std::fs::write(
+        &path,
+        format!(
+            "{text}\n[[safety.tracking]]\njoints = [\"waist_pitch_joint\"]\nerror = 0.05\nseconds = 0.1\n"
+        ),
+    )
+    .unwrap();
+    let robot = Robot::load(&path).unwrap();
+    let mut layout = PolicyLayout::load(&dance(), &robot).unwrap();
+    let (reference, _) = controller::motion::load_reference(None, &dance(), &mut layout, &robot, 0).unwrap();
+    let (mut p, mut clock, _w) = lockstep_player(
+        robot,
+        layout,
+        reference,
+        PlayOptions {
+            max_ticks: Some(600),
+            ..PlayOptions::default()
+        },
+        MirrorConfig::default(),
+        Arc::new(AtomicBool::new(false)),
+    )
+    .unwrap();
+    let s = p.run(&mut clock).unwrap();
+    let stop = s
+        .transitions
+        .iter()
+        .find(|t| t.cause.is_fault())
+        .expect("the waist's limit trips");
+    let text = stop.cause.to_string();
+    assert!(
+        text.starts_with("joint waist_pitch_joint (14): ")
+            && text.ends_with("beyond its 3° for more than 0.1 s"),
+        "{text}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
