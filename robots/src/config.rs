@@ -1910,3 +1910,81 @@ fn line_of(text: &str, offset: usize) -> usize {
 fn is_zero(v: &i32) -> bool {
     *v == 0
 }
+
+#[cfg(test)]
+mod start_and_safety_tests {
+    use super::*;
+
+    fn joint(name: &str) -> JointConfig {
+        JointConfig {
+            name: name.into(),
+            mjcf_joint: name.into(),
+            bus: "can0".into(),
+            id: 1,
+            model: "AK80-9".into(),
+            direction: 1.0,
+            zero_offset: 0.0,
+            homing_offset_ticks: 0,
+            gear: 1.0,
+            position_limits: [-1.0, 1.0],
+            velocity_limit: 10.0,
+            torque_limit: 10.0,
+            default_position: 0.0,
+            kp: 10.0,
+            kd: 1.0,
+        }
+    }
+
+    #[test]
+    fn patterns_match_any_run_of_characters() {
+        assert!(matches_pattern("*ankle*", "left_ankle_pitch_joint"));
+        assert!(matches_pattern("waist_*", "waist_yaw_joint"));
+        assert!(matches_pattern("*_joint", "knee_joint"));
+        assert!(matches_pattern("knee", "knee"));
+        assert!(!matches_pattern("knee", "left_knee"));
+        assert!(!matches_pattern("*ankle*", "left_knee_joint"));
+        assert!(matches_pattern("left_*_pitch*", "left_ankle_pitch_joint"));
+        assert!(!matches_pattern("left_*_pitch*", "right_ankle_pitch_joint"));
+    }
+
+    #[test]
+    fn each_joint_takes_the_last_rule_that_names_it_over_the_robots_defaults() {
+        let joints = [joint("left_ankle_pitch"), joint("left_knee"), joint("waist_yaw")];
+        let safety: SafetyConfig = toml::from_str(
+            "tracking_s = 0.8\n\
+             [[tracking]]\njoints = [\"*ankle*\", \"waist_*\"]\nerror = 0.8\nseconds = 1.0\n\
+             [[tracking]]\njoints = [\"waist_yaw\"]\nerror = 1.2\nseconds = 2.0\n",
+        )
+        .unwrap();
+        safety.check(&joints).unwrap();
+        assert_eq!(
+            safety.tracking_limits(&joints, 0.5, 0.5),
+            [(0.8, 1.0), (0.5, 0.8), (1.2, 2.0)]
+        );
+    }
+
+    #[test]
+    fn out_of_range_starts_and_thresholds_are_named() {
+        let start: StartConfig = toml::from_str("mode = \"harness\"\n[harness]\nlift_m = 0.5\n").unwrap();
+        assert_eq!(start.check().unwrap_err().0, "start.harness.lift_m");
+        let start: StartConfig = toml::from_str("pd_gain = 1.5\n").unwrap();
+        assert_eq!(start.check().unwrap_err().0, "start.pd_gain");
+        assert!(toml::from_str::<StartConfig>("mode = \"crane\"\n").is_err());
+        let joints = [joint("knee")];
+        for (text, field) in [
+            ("tilt = 2.0", "safety.tilt"),
+            ("tracking_error = 0.0", "safety.tracking_error"),
+            (
+                "[[tracking]]\njoints = [\"hip*\"]\nerror = 1.0\nseconds = 1.0",
+                "safety.tracking[0].joints",
+            ),
+            (
+                "[[tracking]]\njoints = [\"knee\"]\nerror = 1.0\nseconds = 20.0",
+                "safety.tracking[0].seconds",
+            ),
+        ] {
+            let safety: SafetyConfig = toml::from_str(text).unwrap();
+            assert_eq!(safety.check(&joints).unwrap_err().0, field, "{text}");
+        }
+    }
+}

@@ -419,3 +419,43 @@ fn the_tracking_stop_names_the_joint_and_its_threshold() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn the_shipped_g1_file_is_what_its_script_writes_from_the_installed_packages() {
+    let out = std::env::temp_dir().join(format!("robodeploy-g1-{}.toml", std::process::id()));
+    let status = std::process::Command::new(venv_python())
+        .arg(workspace_root().join("scripts/gen_holosoma_robots.py"))
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(
+        status.status.success(),
+        "{}",
+        String::from_utf8_lossy(&status.stderr)
+    );
+    let written = std::fs::read_to_string(&out).unwrap();
+    assert_eq!(
+        written,
+        std::fs::read_to_string(g1()).unwrap(),
+        "re-run scripts/gen_holosoma_robots.py"
+    );
+    std::fs::remove_file(&out).unwrap();
+    // And it loads: 29 joints on five buses at 500 Hz, a harness start.
+    let robot = Robot::load(&g1()).unwrap();
+    assert_eq!(robot.config.joints.len(), 29);
+    assert_eq!(robot.config.start.mode, robots::StartMode::Harness);
+    for bus in robot
+        .config
+        .buses
+        .iter()
+        .filter(|b| b.kind == robots::BusKind::MitCan)
+    {
+        assert_eq!(
+            robot.bus_timing(&bus.name).unwrap().rate_hz,
+            500.0,
+            "{}",
+            bus.name
+        );
+    }
+}

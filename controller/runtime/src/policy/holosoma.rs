@@ -316,3 +316,124 @@ pub fn fill(m: &mut PolicyManifest, meta: &Metadata<'_>, has_time_step: bool) ->
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeMap;
+
+    use super::*;
+
+    fn meta(config: Option<&str>) -> BTreeMap<String, String> {
+        let mut m = BTreeMap::new();
+        m.insert("dof_names".into(), r#"["hip", "knee"]"#.into());
+        m.insert("kp".into(), "[40.0, 100.0]".into());
+        m.insert("kd".into(), "[2.0, 5.0]".into());
+        if let Some(c) = config {
+            m.insert("experiment_config".into(), c.into());
+        }
+        m
+    }
+
+    const CONFIG: &str = r#"{
+        "robot": {
+            "dof_effort_limit_list": [88.0, 139.0],
+            "init_state": {"default_joint_angles": {"knee": 0.6, "hip": -0.3}},
+            "control": {"action_scale": 0.25, "action_scales_by_effort_limit_over_p_gain": true,
+                        "clip_actions": true, "action_clip_value": 100.0}
+        },
+        "observation": {"groups": {"actor_obs": {
+            "history_length": 1,
+            "terms": {
+                "motion_command": {"func": "x.wbt:motion_command", "scale": 1.0, "clip": null},
+                "motion_ref_ori_b": {"func": "x.wbt:motion_ref_ori_b", "scale": 1.0, "clip": null},
+                "base_ang_vel": {"func": "x.wbt:base_ang_vel", "scale": 0.5, "clip": null},
+                "dof_pos": {"func": "x.wbt:dof_pos", "scale": 1.0, "clip": null},
+                "dof_vel": {"func": "x.wbt:dof_vel", "scale": 0.05, "clip": null},
+                "actions": {"func": "x.wbt:actions", "scale": 1.0, "clip": null}
+            }
+        }}},
+        "command": {"setup_terms": {"motion_command": {"params": {"motion_config": {"body_name_ref": ["torso_link"]}}}}}
+    }"#;
+
+    fn filled(config: Option<&str>) -> Result<PolicyManifest, Problem> {
+        let m = meta(config);
+        let mut manifest = PolicyManifest::for_onnx("p.onnx".into());
+        fill(&mut manifest, &Metadata(&m), true).map(|()| manifest)
+    }
+
+    #[test]
+    fn the_observation_is_the_actor_terms_sorted_by_name_with_their_scales() {
+        let m = filled(Some(CONFIG)).unwrap();
+        let names: Vec<_> = m.observation.iter().map(Term::name).collect();
+        assert_eq!(
+            names,
+            [
+                "last_actions",
+                "base_ang_vel",
+                "joint_pos",
+                "joint_vel",
+                "motion_command",
+                "motion_anchor_ori_b",
+                "time_step"
+            ]
+        );
+        assert_eq!(m.observation[1].shaping().scale, 0.5);
+        assert_eq!(m.observation[3].shaping().scale, 0.05);
+        assert_eq!(m.observation[6].shaping().input.as_deref(), Some("time_step"));
+    }
+
+    #[test]
+    fn the_action_scale_is_a_quarter_of_effort_over_stiffness_per_joint() {
+        let m = filled(Some(CONFIG)).unwrap();
+        let Some(ActionScale::PerJoint(s)) = &m.action.scale else {
+            panic!("{:?}", m.action.scale);
+        };
+        assert!((s[0] - 0.25 * 88.0 / 40.0).abs() < 1e-12 && (s[1] - 0.25 * 139.0 / 100.0).abs() < 1e-12);
+        assert_eq!(m.action.clip, Some(100.0));
+        // The standing pose by name, in the export's joint order.
+        assert_eq!(m.default_pose, Some(vec![-0.3, 0.6]));
+        assert_eq!(
+            (m.stiffness.clone(), m.damping.clone()),
+            (Some(vec![40.0, 100.0]), Some(vec![2.0, 5.0]))
+        );
+        assert_eq!(m.anchor_body.as_deref(), Some("torso_link"));
+        assert_eq!(m.motion_bodies, ["torso_link"]);
+    }
+
+    #[test]
+    fn an_export_without_its_configuration_is_refused_naming_what_is_missing() {
+        let (place, message) = filled(None).unwrap_err();
+        assert_eq!(place, "action.scale");
+        assert!(message.contains("no experiment_config"), "{message}");
+        // With its own action_scale it still lacks the standing pose.
+        let mut m = meta(None);
+        m.insert("action_scale".into(), "0.25".into());
+        let mut manifest = PolicyManifest::for_onnx("p.onnx".into());
+        let (place, _) = fill(&mut manifest, &Metadata(&m), true).unwrap_err();
+        assert_eq!(place, "default_pose");
+    }
+
+    #[test]
+    fn bad_metadata_is_named_by_key() {
+        let mut m = meta(Some(CONFIG));
+        m.insert("kp".into(), "[40.0]".into());
+        let mut manifest = PolicyManifest::for_onnx("p.onnx".into());
+        let (place, message) = fill(&mut manifest, &Metadata(&m), true).unwrap_err();
+        assert_eq!(
+            (place.as_str(), message.as_str()),
+            ("ONNX metadata kp", "1 values for 2 joints")
+        );
+        let config = CONFIG.replace(
+            "\"clip\": null},\n                \"dof_vel\"",
+            "\"clip\": 5.0},\n                \"dof_vel\"",
+        );
+        let (place, _) = filled(Some(&config)).unwrap_err();
+        assert!(place.ends_with("terms/dof_pos/clip"), "{place}");
+        let config = CONFIG.replace("x.wbt:dof_vel", "x.wbt:feet_air_time");
+        let (place, message) = filled(Some(&config)).unwrap_err();
+        assert!(
+            place.ends_with("terms/dof_vel") && message.contains("feet_air_time"),
+            "{place}: {message}"
+        );
+    }
+}
