@@ -9,9 +9,14 @@ next tick. The tests compare robodeploy's runs on its mirror against what this l
 
   python holosoma_reference.py dance --robot-dir .local/holosoma --policy-dir .local/holosoma-inference
         [--frames N] [--hold S]
+  python holosoma_reference.py walk --robot g1|t1 --robot-dir … --policy-dir … [--vx 0.5]
+        [--stand 1] [--walk 10] [--rest 6]
 
-prints one JSON object: frames played, joint RMSE (rad), anchor position RMSE (m), whether the robot
-fell (base tilted beyond 0.8 rad), its lowest base height, and the wall time of the loop.
+dance prints one JSON object: frames played, joint RMSE (rad), anchor position RMSE (m), whether the
+robot fell (base tilted beyond 0.8 rad), its lowest base height, and the wall time of the loop. walk
+runs the velocity-command policy (its commands ramped at 1 per second, the two-leg gait phase held
+at π while they rest) and prints the displacement, forward distance and heading change over the
+run, the standing and lowest base heights, and whether it fell.
 """
 
 import argparse
@@ -27,7 +32,7 @@ import onnx
 import onnxruntime as ort
 
 POLICY_DT = 0.02
-PHYSICS_DT = float(__import__("os").environ.get("PHYS_DT", "0.005"))
+PHYSICS_DT = 0.005
 TILT_LIMIT = 0.8
 
 
@@ -190,12 +195,8 @@ def dance(a):
         action, jp, jv, _, ref_quat = call(obs, frame)
         command = np.concatenate([jp, jv])
         last_action = np.clip(action, -clip, clip)
-        new_target = default + scale * last_action
-        if tick == 0:
-            target = new_target
-        for step_i in range(int(round(POLICY_DT / PHYSICS_DT))):
-            if step_i == int(__import__("os").environ.get("DELAY_STEPS", "0")):
-                target = new_target
+        target = default + scale * last_action
+        for _ in range(int(round(POLICY_DT / PHYSICS_DT))):
             q = data.qpos[qadr]
             qd = data.qvel[vadr]
             data.ctrl[act] = np.clip(kp * (target - q) - kd * qd, -effort, effort)
@@ -218,9 +219,134 @@ def dance(a):
     print(json.dumps(result))
 
 
+ROBOTS = {
+    # scene, export, the training and the deployment robot config, observation scales
+    # (base_ang_vel, dof_vel), the gyro sensor
+    "g1": ("data/robots/g1/scenes/scene_g1_29dof_wbt_plane.xml", "models/loco/g1_29dof/ppo_g1_29dof.onnx",
+           ("g1_29dof", "g1_29dof"), (0.25, 0.05), "base_gyro"),
+    "t1": ("data/robots/t1/t1_29dof.xml", "models/loco/t1_29dof/ppo_t1_29dof.onnx",
+           ("t1_29dof_waist_wrist", "t1_29dof"), (1.0, 0.1), "angular-velocity"),
+}
+
+
+def robot_config(path, variable, keys):
+    """Literal fields of the RobotConfig the Python file `path` assigns to `variable`, read as data
+    (the file is parsed, not run)."""
+    import ast
+    tree = ast.parse(path.read_text())
+    for node in tree.body:
+        if (
+            isinstance(node, ast.Assign)
+            and any(isinstance(t, ast.Name) and t.id == variable for t in node.targets)
+            and isinstance(node.value, ast.Call)
+        ):
+            found = {k.arg: k.value for k in node.value.keywords}
+            return {k: ast.literal_eval(found[k]) for k in keys}
+    raise SystemExit(f"no robot config {variable} in {path}")
+
+
+def walk(a):
+    scene, export, (training, deployment), (ang_scale, vel_scale), gyro_name = ROBOTS[a.robot]
+    export = a.policy_dir / export
+    meta = metadata(export)
+    names = json.loads(meta["dof_names"])
+    kp = np.array(json.loads(meta["kp"]))
+    kd = np.array(json.loads(meta["kd"]))
+    cfg = robot_config(a.robot_dir / "config_values/robot.py", training, ["dof_effort_limit_list"])
+    effort = np.array(cfg["dof_effort_limit_list"], dtype=float)
+    # The standing pose as holosoma-inference deploys it (its robot config's default_dof_angles).
+    inference = robot_config(
+        a.policy_dir / "config/config_values/robot.py", deployment, ["default_dof_angles", "dof_names"]
+    )
+    assert list(inference["dof_names"]) == names
+    default = np.array(inference["default_dof_angles"], dtype=float)
+
+    model = mujoco.MjModel.from_xml_path(str(a.robot_dir / scene))
+    model.opt.timestep = PHYSICS_DT
+    data = mujoco.MjData(model)
+    qadr = np.array([model.jnt_qposadr[model.joint(n).id] for n in names])
+    vadr = np.array([model.jnt_dofadr[model.joint(n).id] for n in names])
+    act = np.array([model.actuator(n).id for n in names])
+    gyro_adr = model.sensor_adr[model.sensor(gyro_name).id]
+    session = ort.InferenceSession(str(export), providers=["CPUExecutionProvider"])
+
+    data.qpos[qadr] = default
+    data.qpos[3:7] = [1.0, 0.0, 0.0, 1e-12]
+    if model.ngeom and not any(model.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE for g in range(model.ngeom)):
+        raise SystemExit(f"{scene} has no floor")
+    place_on_floor(model, data, 0)
+    standing = float(data.qpos[2])
+    start = data.qpos[:2].copy()
+    yaw0 = yaw_of(data.qpos[3:7])
+
+    phase = np.array([0.0, math.pi])
+    phase_dt = 2 * math.pi / (50 * 1.0)
+    standing_still = False
+    last_action = np.zeros(len(names))
+    command = np.zeros(3)  # ang_vel_z, lin_vel_x, lin_vel_y
+    ramp = 1.0 * POLICY_DT
+    ticks = int(round((a.stand + a.walk + a.rest) / POLICY_DT))
+    lowest, fell = math.inf, False
+    t0 = time.perf_counter()
+    for tick in range(ticks):
+        t = tick * POLICY_DT
+        want = np.array([0.0, a.vx, 0.0]) if a.stand <= t < a.stand + a.walk else np.zeros(3)
+        command += np.clip(want - command, -ramp, ramp)
+        phase = np.fmod(phase + phase_dt + math.pi, 2 * math.pi) - math.pi
+        if np.linalg.norm(command) < 0.01:
+            phase[:] = math.pi
+            standing_still = True
+        elif standing_still:
+            phase = np.array([0.0, math.pi])
+            standing_still = False
+        q, qd = data.qpos[qadr], data.qvel[vadr]
+        gravity = rotate(quat_conj(data.qpos[3:7]), [0.0, 0.0, -1.0])
+        parts = {
+            "actions": last_action,
+            "base_ang_vel": data.sensordata[gyro_adr : gyro_adr + 3] * ang_scale,
+            "command_ang_vel": command[:1],
+            "command_lin_vel": command[1:],
+            "cos_phase": np.cos(phase),
+            "dof_pos": q - default,
+            "dof_vel": qd * vel_scale,
+            "projected_gravity": gravity,
+            "sin_phase": np.sin(phase),
+        }
+        obs = np.concatenate([parts[k] for k in sorted(parts)]).astype(np.float32).reshape(1, -1)
+        action = session.run(None, {session.get_inputs()[0].name: obs})[0][0]
+        last_action = np.clip(action, -100, 100)
+        target = default + 0.25 * last_action
+        for _ in range(int(round(POLICY_DT / PHYSICS_DT))):
+            q, qd = data.qpos[qadr], data.qvel[vadr]
+            data.ctrl[act] = np.clip(kp * (target - q) - kd * qd, -effort, effort)
+            mujoco.mj_step(model, data)
+        lowest = min(lowest, float(data.qpos[2]))
+        if tilt(data.qpos[3:7]) > TILT_LIMIT:
+            fell = True
+            break
+    wall = time.perf_counter() - t0
+    moved = data.qpos[:2] - start
+    heading = (yaw_of(data.qpos[3:7]) - yaw0 + math.pi) % (2 * math.pi) - math.pi
+    forward = float(moved @ np.array([math.cos(yaw0), math.sin(yaw0)]))
+    print(json.dumps({
+        "displacement_m": float(np.linalg.norm(moved)),
+        "forward_m": forward,
+        "heading_change_deg": math.degrees(heading),
+        "standing_base_m": standing,
+        "lowest_base_m": lowest,
+        "fell": fell,
+        "wall_s": wall,
+    }))
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("task", choices=["dance"])
+    p.add_argument("task", choices=["dance", "walk"])
+    p.add_argument("--robot", choices=sorted(ROBOTS), default="g1", help="walk: the robot")
+    p.add_argument("--vx", type=float, default=0.5, help="walk: forward command, m/s")
+    p.add_argument("--stand", type=float, default=1.0, help="walk: seconds standing first")
+    p.add_argument("--walk", type=float, default=10.0, help="walk: seconds walking")
+    p.add_argument("--rest", type=float, default=6.0, help="walk: seconds of rest command after")
     p.add_argument("--robot-dir", type=pathlib.Path, required=True, help="the holosoma package (.local/holosoma)")
     p.add_argument("--policy-dir", type=pathlib.Path, required=True, help="holosoma-inference (.local/holosoma-inference)")
     p.add_argument("--frames", type=int, default=0, help="play only the first N frames of the motion (0: all)")
@@ -228,6 +354,8 @@ def main():
     a = p.parse_args()
     if a.task == "dance":
         dance(a)
+    else:
+        walk(a)
     return 0
 
 

@@ -429,6 +429,14 @@ impl LiveCommands {
         }
     }
 
+    /// Holds the commands at their defaults (at rest) this tick, the targets kept: once let go
+    /// they ramp to what the sources say. A harness start's way of standing the robot on its feet
+    /// before it walks.
+    pub fn rest(&mut self) -> &[f64] {
+        self.current.copy_from_slice(&self.defaults);
+        &self.current
+    }
+
     /// Brings the commands to their defaults (at rest: zero velocity) over `ticks` updates, the
     /// sources let go: a soft stop's way to a robot standing under its policy.
     pub fn wind_down(&mut self, ticks: u32) {

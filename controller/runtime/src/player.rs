@@ -164,6 +164,8 @@ pub struct Player<L: RobotLink> {
     stop_under_policy: bool,
     /// The mirror's crane, when the robot hangs in its harness: raised, it takes the weight.
     harness_hoist: Option<Arc<AtomicBool>>,
+    /// The gait phase of a policy that observes one.
+    gait: Option<crate::policy::GaitClock>,
 }
 
 impl<L: RobotLink> Player<L> {
@@ -409,6 +411,7 @@ impl<L: RobotLink> Player<L> {
             standing_since: None,
             stop_under_policy: false,
             harness_hoist: None,
+            gait: crate::policy::GaitClock::of(&layout),
             robot,
             layout,
         })
@@ -938,6 +941,7 @@ impl<L: RobotLink> Player<L> {
         self.mapper.reset(&self.layout.default_q);
         self.cursor.restart();
         self.policy_steps = 0;
+        self.gait = crate::policy::GaitClock::of(&self.layout);
         self.go(Mode::Running, cause);
         self.policy_tick(has_truth);
     }
@@ -1169,6 +1173,15 @@ impl<L: RobotLink> Player<L> {
             self.policy_qd[p] = self.state.qd[r];
             self.policy_last_targets[p] = self.targets[r].q;
         }
+        // After a harness start the commands rest while the robot is lowered and settles.
+        let rest = self.options.start == Some(robots::StartMode::Harness) && self.cursor.in_ramp();
+        let command = self
+            .commands
+            .as_mut()
+            .map(|c| if rest { c.rest() } else { c.update(Instant::now()) });
+        if let Some(g) = &mut self.gait {
+            g.advance(command.as_deref().unwrap_or(&[]));
+        }
         let inputs = ObsInputs {
             gyro: self.state.gyro,
             accel: self.state.accel,
@@ -1180,7 +1193,7 @@ impl<L: RobotLink> Player<L> {
             last_targets: &self.policy_last_targets,
             step: self.policy_steps,
             dt: self.dt,
-            command: self.commands.as_mut().map(|c| c.update(Instant::now())),
+            command,
             ramp: psi,
             reference: self.cursor.view(),
             truth: self.world_valid.then_some(&self.world),
@@ -1189,6 +1202,7 @@ impl<L: RobotLink> Player<L> {
             robot_anchor,
             time_step,
             robot_keypoints: self.keypoints.as_ref().map_or(&[][..], KeypointTrack::robot_obs),
+            gait: self.gait.map_or([0.0; 2], |g| g.phase),
         };
         self.obs_builder.build(&inputs, &mut self.obs);
         if self.cursor.reference().anchor.is_some() {

@@ -85,6 +85,22 @@ pub enum Term {
         #[serde(flatten)]
         shaping: Shaping,
     },
+    /// holosoma's two-leg gait phase: `sin` or `cos` of each leg's phase (left first). The
+    /// phases start at `[0, π]` and advance `2π dt / period_s` before each observation, wrapped
+    /// to [−π, π); while the velocity command is at rest (its norm below `standing_below`) both
+    /// hold at π, and the gait restarts at `[0, π]` when it moves again.
+    GaitPhase {
+        /// `sin` or `cos`.
+        part: Trig,
+        /// The gait's period, s.
+        period_s: f64,
+        /// The command norm under which the robot stands.
+        #[serde(default = "standing_below")]
+        standing_below: f64,
+        /// Scaling.
+        #[serde(flatten)]
+        shaping: Shaping,
+    },
     /// The start-up ramp ψ, 0 → 1.
     Ramp(#[serde(default)] Shaping),
     /// Reference joint positions at the current and future frames (offsets in ticks).
@@ -227,6 +243,66 @@ pub struct Shaping {
     pub history_order: HistoryOrder,
 }
 
+/// Which function of an angle a term observes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Trig {
+    /// The sine.
+    Sin,
+    /// The cosine.
+    Cos,
+}
+
+fn standing_below() -> f64 {
+    0.01
+}
+
+/// The state behind [`Term::GaitPhase`]: each leg's phase, advanced once per policy step before
+/// the observation is built.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GaitClock {
+    /// Each leg's phase, rad in [−π, π).
+    pub phase: [f64; 2],
+    step: f64,
+    standing_below: f64,
+    standing: bool,
+}
+
+impl GaitClock {
+    /// The clock of `layout`'s gait phase terms (all alike), if it has any.
+    pub fn of(layout: &PolicyLayout) -> Option<Self> {
+        layout.slots.iter().find_map(|s| match s.term {
+            Term::GaitPhase {
+                period_s,
+                standing_below,
+                ..
+            } => Some(Self {
+                phase: [0.0, std::f64::consts::PI],
+                step: std::f64::consts::TAU / (period_s * layout.manifest.rate_hz),
+                standing_below,
+                standing: false,
+            }),
+            _ => None,
+        })
+    }
+
+    /// One policy step: advance, then hold at π while `command` rests, restart when it moves.
+    pub fn advance(&mut self, command: &[f64]) {
+        use std::f64::consts::{PI, TAU};
+        for p in &mut self.phase {
+            *p = (*p + self.step + PI).rem_euclid(TAU) - PI;
+        }
+        let norm = command.iter().map(|c| c * c).sum::<f64>().sqrt();
+        if norm < self.standing_below {
+            self.phase = [PI, PI];
+            self.standing = true;
+        } else if self.standing {
+            self.phase = [0.0, PI];
+            self.standing = false;
+        }
+    }
+}
+
 /// How a term's history is stacked.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -280,6 +356,7 @@ impl Term {
             | Self::LastActions { shaping, .. }
             | Self::Command { shaping, .. }
             | Self::Phase { shaping, .. }
+            | Self::GaitPhase { shaping, .. }
             | Self::RefJointPos { shaping, .. }
             | Self::RefJointVel { shaping, .. }
             | Self::RefRootPose { shaping, .. }
@@ -306,6 +383,7 @@ impl Term {
             Self::FootContacts(_) => "foot_contacts",
             Self::Command { .. } => "command",
             Self::Phase { .. } => "phase",
+            Self::GaitPhase { .. } => "gait_phase",
             Self::Ramp(_) => "ramp",
             Self::RefJointPos { .. } => "ref_joint_pos",
             Self::RefJointVel { .. } => "ref_joint_vel",
@@ -339,7 +417,7 @@ impl Term {
             Self::LastActions { k, .. } => joints * k,
             Self::FootContacts(_) => feet,
             Self::Command { values, .. } => values.len(),
-            Self::Phase { .. } => 2,
+            Self::Phase { .. } | Self::GaitPhase { .. } => 2,
             Self::RefJointPos { frames, .. } | Self::RefJointVel { frames, .. } => joints * frames.len(),
             Self::RefRootPose { frames, .. } => 9 * frames.len(),
             Self::RefBodyPos { bodies, frames, .. } => 3 * bodies.len() * frames.len(),
@@ -416,6 +494,17 @@ fn check_term(term: &Term) -> Result<(), String> {
         }
         Term::Command { values, .. } if values.iter().any(|v| !v.is_finite()) || values.len() > 64 => {
             Err(format!("values {values:?}: at most 64 finite numbers"))
+        }
+        Term::GaitPhase {
+            period_s,
+            standing_below,
+            ..
+        } if !(period_s.is_finite() && (0.05..=60.0).contains(period_s))
+            || !(standing_below.is_finite() && (0.0..=1.0).contains(standing_below)) =>
+        {
+            Err(format!(
+                "period_s = {period_s} (0.05–60 s) or standing_below = {standing_below} (0–1) is out of range"
+            ))
         }
         Term::Phase {
             period_s,
@@ -851,6 +940,27 @@ impl PolicyLayout {
             let s = term.shaping();
             let place = format!("observation[{i}] ({})", term.name());
             check_term(term).map_err(|m| err(&place, m))?;
+            if let Term::GaitPhase {
+                period_s,
+                standing_below,
+                ..
+            } = term
+                && let Some(first) = manifest.observation.iter().find_map(|t| match t {
+                    Term::GaitPhase {
+                        period_s,
+                        standing_below,
+                        ..
+                    } => Some((*period_s, *standing_below)),
+                    _ => None,
+                })
+                && first != (*period_s, *standing_below)
+            {
+                return Err(err(
+                    &place,
+                    "every gait_phase term reads the same gait: give them one period_s and standing_below"
+                        .into(),
+                ));
+            }
             if s.history == 0 || s.history > 64 || !(s.scale.is_finite() && s.offset.is_finite()) {
                 return Err(err(
                     &place,
@@ -1131,6 +1241,21 @@ impl PolicyLayout {
                 extra.push_str(" oldest first");
             }
             match &s.term {
+                Term::GaitPhase {
+                    part,
+                    period_s,
+                    standing_below,
+                    ..
+                } => {
+                    extra.push_str(&format!(
+                        "  {} of each leg's phase (left, right), period {period_s} s, advanced before each \
+                         observation, held at π while the command's norm is below {standing_below}",
+                        match part {
+                            Trig::Sin => "sin",
+                            Trig::Cos => "cos",
+                        }
+                    ));
+                }
                 Term::Phase {
                     period_s,
                     period_ticks,
@@ -1282,6 +1407,8 @@ pub struct ObsInputs<'a> {
     pub time_step: f64,
     /// The robot's keypoints through the cameras, as the `keypoints` term lays them out.
     pub robot_keypoints: &'a [f64],
+    /// Each leg's gait phase, rad ([`GaitClock`]; zeros without one).
+    pub gait: [f64; 2],
 }
 
 /// Reference frames the observation can look at.
@@ -1410,6 +1537,14 @@ fn fill_term(term: &Term, x: &ObsInputs<'_>, v: &mut [f64]) {
             let a = std::f64::consts::TAU * ((k as f64 % period) / period);
             let (c, s) = (a.cos(), a.sin());
             (v[0], v[1]) = if *sin_first { (s, c) } else { (c, s) };
+        }
+        Term::GaitPhase { part, .. } => {
+            for (o, p) in v.iter_mut().zip(x.gait) {
+                *o = match part {
+                    Trig::Sin => p.sin(),
+                    Trig::Cos => p.cos(),
+                };
+            }
         }
         Term::Ramp(_) => v[0] = x.ramp,
         Term::RefJointPos { frames, relative, .. } => {

@@ -209,6 +209,11 @@ impl ReferenceCursor {
         self.tick = 0;
     }
 
+    /// The start-up ramp is on (the reference held at its first frame).
+    pub fn in_ramp(&self) -> bool {
+        self.tick < self.ramp_ticks
+    }
+
     /// Policy ticks since the clip started.
     pub fn tick(&self) -> usize {
         self.tick

@@ -53,5 +53,6 @@ pub fn at_rest<'a>(zeros: &'a [f64], past: &'a [f32], still: &'a Still) -> ObsIn
         robot_anchor: still.anchor_pose(),
         time_step: 0.0,
         robot_keypoints: &[],
+        gait: [0.0; 2],
     }
 }
