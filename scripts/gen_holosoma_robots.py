@@ -1,20 +1,24 @@
 #!/usr/bin/env python3
-"""Writes robots/g1/robot.toml for holosoma's Unitree G1 (29 DoF) from the pinned holosoma packages
-that scripts/setup installs (.local/holosoma, .local/holosoma-inference).
+"""Writes robots/g1/robot.toml and robots/t1/robot.toml for holosoma's Unitree G1 and Booster T1
+(29 DoF each) from the pinned holosoma packages that scripts/setup installs (.local/holosoma,
+.local/holosoma-inference).
 
-Every figure is read, not typed: joint order, stiffness and damping from the trained policy's ONNX
-metadata (`dof_names`, `kp`, `kd`); position, velocity and effort limits and the standing pose from the
-whole-body-tracking export's training configuration (`experiment_config`: robot.dof_*_limit_list,
-robot.init_state.default_joint_angles). The model file itself stays in the installed package; the
-robot.toml points at it through .local/holosoma.
+Every figure is read, not typed: joint order, stiffness and damping from the trained policies' ONNX
+metadata (`dof_names`, `kp`, `kd`); position, velocity and effort limits from the training
+configuration (the G1 dance export's `experiment_config`; holosoma's config_values/robot.py for the
+T1, parsed as data, not run), inside the model's joint ranges; the standing pose from the same
+configuration (the G1) or holosoma-inference's deployment config (the T1). The model files stay in
+the installed package; a robot.toml points at them through .local/holosoma (the T1 through the
+project's scene, robots/t1/scene.xml, which adds the floor holosoma's file lacks).
 
-The G1's motors are not on a bus the host drives (its own board runs them over DDS); until robodeploy
-has that link, the file puts them on five MIT-mode CAN buses with one motor model per G1 actuator
-class, whose ranges are the G1's effort and speed limits. Run: .local/venv/bin/python
+Neither robot's motors are on a bus the host drives (their own boards run them); until robodeploy
+has those links, each file puts them on five MIT-mode CAN buses with one motor model per actuator
+class, whose ranges are the robot's effort and speed limits. Run: .local/venv/bin/python
 scripts/gen_holosoma_robots.py (the output is committed; a test checks it matches).
 """
 
 import argparse
+import ast
 import json
 import pathlib
 
@@ -22,22 +26,8 @@ import mujoco
 import onnx
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
+HOLOSOMA = ROOT / ".local/holosoma"
 INFERENCE = ROOT / ".local/holosoma-inference"
-DANCE = INFERENCE / "models/wbt/ppo_g1_29dof_dancing.onnx"
-G1_SCENE = "data/robots/g1/scenes/scene_g1_29dof_wbt_plane.xml"
-
-# Buses: each leg, the waist, each arm at 1 Mbit/s, all cycling at 500 Hz (seven motors: 1.9 ms
-# of wire in a 2 ms period) rather than the default 250 Hz: a humanoid's balance feels every
-# millisecond between a measurement and the command that answers it. On the mirror holosoma's
-# dance fell in 1 of 7 seeded runs at 250 Hz, in 1 of 3 with only the arms at 250 Hz, and in none
-# of 10 at 500 Hz.
-BUSES = [
-    ("can0", "left leg", 500, lambda n: n.startswith("left_") and any(k in n for k in ("hip", "knee", "ankle"))),
-    ("can1", "right leg", 500, lambda n: n.startswith("right_") and any(k in n for k in ("hip", "knee", "ankle"))),
-    ("can2", "waist", 500, lambda n: n.startswith("waist")),
-    ("can3", "left arm", 500, lambda n: n.startswith("left_")),
-    ("can4", "right arm", 500, lambda n: n.startswith("right_")),
-]
 
 
 def metadata(path):
@@ -45,53 +35,140 @@ def metadata(path):
     return {p.key: p.value for p in m.metadata_props}
 
 
+def robot_config(path, variable, keys):
+    """Literal fields of the RobotConfig the Python file `path` assigns to `variable` (parsed, not
+    run: holosoma's code needs torch, its configuration is data)."""
+    tree = ast.parse(path.read_text())
+    for node in tree.body:
+        if (
+            isinstance(node, ast.Assign)
+            and any(isinstance(t, ast.Name) and t.id == variable for t in node.targets)
+            and isinstance(node.value, ast.Call)
+        ):
+            found = {k.arg: k.value for k in node.value.keywords}
+            return {k: ast.literal_eval(found[k]) for k in keys}
+    raise SystemExit(f"no robot config {variable} in {path}")
+
+
 def fmt(x):
     return repr(float(x))
 
 
-def motor_name(effort, velocity):
-    return f"G1-{effort:g}Nm-{velocity:g}rads"
-
-
-def g1(out):
-    meta = metadata(DANCE)
+def g1_facts():
+    meta = metadata(INFERENCE / "models/wbt/ppo_g1_29dof_dancing.onnx")
     names = json.loads(meta["dof_names"])
-    kp = json.loads(meta["kp"])
-    kd = json.loads(meta["kd"])
     robot = json.loads(meta["experiment_config"])["robot"]
     assert robot["dof_names"] == names, "the export's joint order differs from its configuration's"
-    lower, upper = robot["dof_pos_lower_limit_list"], robot["dof_pos_upper_limit_list"]
-    velocity, effort = robot["dof_vel_limit_list"], robot["dof_effort_limit_list"]
     default = robot["init_state"]["default_joint_angles"]
+    return {
+        "key": "g1",
+        "title": "Unitree G1, 29 DoF",
+        "source": ["joint order, kp and kd from the trained policies' ONNX metadata; limits and the",
+                   "standing pose from the dance export's training configuration."],
+        "mjcf": "../../.local/holosoma/data/robots/g1/scenes/scene_g1_29dof_wbt_plane.xml",
+        "root": "pelvis",
+        "feet": ["left_ankle_roll_link", "right_ankle_roll_link"],
+        "imu": ("imu_in_pelvis", "base_gyro", "base_accel", "base_quat"),
+        "names": names,
+        "kp": json.loads(meta["kp"]),
+        "kd": json.loads(meta["kd"]),
+        "lower": robot["dof_pos_lower_limit_list"],
+        "upper": robot["dof_pos_upper_limit_list"],
+        "velocity": robot["dof_vel_limit_list"],
+        "effort": robot["dof_effort_limit_list"],
+        "default": [default[n] for n in names],
+        "buses": [
+            ("can0", "left leg", lambda n: n.startswith("left_") and any(k in n for k in ("hip", "knee", "ankle"))),
+            ("can1", "right leg", lambda n: n.startswith("right_") and any(k in n for k in ("hip", "knee", "ankle"))),
+            ("can2", "waist", lambda n: n.startswith("waist")),
+            ("can3", "left arm", lambda n: n.startswith("left_")),
+            ("can4", "right arm", lambda n: n.startswith("right_")),
+        ],
+        "legs_and_waist": ["*hip*", "*knee*", "*ankle*", "waist_*"],
+    }
+
+
+def t1_facts():
+    meta = metadata(INFERENCE / "models/loco/t1_29dof/ppo_t1_29dof.onnx")
+    names = json.loads(meta["dof_names"])
+    limits = robot_config(
+        HOLOSOMA / "config_values/robot.py",
+        "t1_29dof_waist_wrist",
+        ["dof_names", "dof_pos_lower_limit_list", "dof_pos_upper_limit_list", "dof_vel_limit_list",
+         "dof_effort_limit_list"],
+    )
+    deployed = robot_config(
+        INFERENCE / "config/config_values/robot.py", "t1_29dof", ["dof_names", "default_dof_angles"]
+    )
+    assert list(limits["dof_names"]) == names and list(deployed["dof_names"]) == names
+    return {
+        "key": "t1",
+        "title": "Booster T1, 29 DoF",
+        "source": ["joint order, kp and kd from the trained locomotion policies' ONNX metadata; limits",
+                   "from holosoma's training configuration (config_values/robot.py, t1_29dof_waist_wrist); the",
+                   "standing pose from holosoma-inference's deployment configuration (t1_29dof)."],
+        "mjcf": "scene.xml",
+        "root": "Trunk",
+        "feet": ["left_foot_link", "right_foot_link"],
+        "imu": ("imu", "angular-velocity", "base_accel", "base_quat"),
+        "names": names,
+        "kp": json.loads(meta["kp"]),
+        "kd": json.loads(meta["kd"]),
+        "lower": list(limits["dof_pos_lower_limit_list"]),
+        "upper": list(limits["dof_pos_upper_limit_list"]),
+        "velocity": list(limits["dof_vel_limit_list"]),
+        "effort": list(limits["dof_effort_limit_list"]),
+        "default": list(deployed["default_dof_angles"]),
+        "buses": [
+            ("can0", "left leg", lambda n: n.startswith("Left_") and any(k in n for k in ("Hip", "Knee", "Ankle"))),
+            ("can1", "right leg", lambda n: n.startswith("Right_") and any(k in n for k in ("Hip", "Knee", "Ankle"))),
+            ("can2", "waist and head", lambda n: n == "Waist" or "Head" in n),
+            ("can3", "left arm", lambda n: n.startswith("Left_")),
+            ("can4", "right arm", lambda n: n.startswith("Right_")),
+        ],
+        "legs_and_waist": ["*Hip*", "*Knee*", "*Ankle*", "Waist"],
+    }
+
+
+def write(facts, out):
+    names, lower, upper = facts["names"], list(facts["lower"]), list(facts["upper"])
+    velocity, effort = facts["velocity"], facts["effort"]
     # The configuration's limits, inside the model's joint ranges (they differ in the last digits).
-    model = mujoco.MjModel.from_xml_path(str(ROOT / ".local/holosoma" / G1_SCENE))
+    model = mujoco.MjModel.from_xml_path(str(ROOT / "robots" / facts["key"] / facts["mjcf"]))
     for i, n in enumerate(names):
         lo, hi = model.jnt_range[model.joint(n).id]
         lower[i], upper[i] = max(lower[i], float(lo)), min(upper[i], float(hi))
+    prefix = facts["key"].upper()
 
-    motors = sorted({(e, v) for e, v in zip(effort, velocity)})
+    def motor(e, v):
+        return f"{prefix}-{e:g}Nm-{v:g}rads"
+
+    site, gyro, accel, orientation = facts["imu"]
     lines = [
-        "# Unitree G1, 29 DoF, as holosoma trained its policies on it (holosoma==0.0.3, Apache-2.0).",
-        "# WRITTEN BY scripts/gen_holosoma_robots.py from the installed packages: joint order, kp and kd",
-        "# from the trained policies' ONNX metadata; limits and the standing pose from the dance export's",
-        "# training configuration. The MJCF (scene with floor, 2 ms step, armature per joint) stays in",
-        "# the installed package: run scripts/setup first.",
+        f"# {facts['title']}, as holosoma trained its policies on it (holosoma==0.0.3, Apache-2.0).",
+        "# WRITTEN BY scripts/gen_holosoma_robots.py from the installed packages:",
+        *(f"# {line}" for line in facts["source"]),
+        "# The model files stay in the installed package: run scripts/setup first.",
         "#",
-        "# Buses: the real G1's motors are driven by its own board over DDS (Unitree's low-level link, not",
-        "# yet in robodeploy); here they sit on five MIT-mode CAN buses, one motor model per G1 actuator",
-        "# class with the G1's effort and speed limits as its ranges.",
-        'name = "g1"',
-        f'mjcf = "../../.local/holosoma/{G1_SCENE}"',
-        'root_body = "pelvis"',
-        'feet = ["left_ankle_roll_link", "right_ankle_roll_link"]',
+        "# Buses: the robot's own board drives its motors (the vendor's low-level link, not yet in",
+        "# robodeploy); here they sit on five MIT-mode CAN buses, one motor model per actuator class with",
+        "# the robot's effort and speed limits as its ranges, all cycling at 500 Hz (seven motors: 1.9 ms",
+        "# of wire in a 2 ms period) rather than the default 250 Hz: a humanoid's balance feels every",
+        "# millisecond between a measurement and the command that answers it. On the mirror holosoma's G1",
+        "# dance fell in 1 of 7 seeded runs at 250 Hz, in 1 of 3 with only the arms at 250 Hz, and in none",
+        "# of 10 at 500 Hz.",
+        f'name = "{facts["key"]}"',
+        f'mjcf = "{facts["mjcf"]}"',
+        f'root_body = "{facts["root"]}"',
+        f'feet = ["{facts["feet"][0]}", "{facts["feet"][1]}"]',
         "control_rate_hz = 50.0",
         "",
         "[imu]",
         'bus = "imu0"',
-        'site = "imu_in_pelvis"',
-        'gyro = "base_gyro"',
-        'accelerometer = "base_accel"',
-        'orientation = "base_quat"',
+        f'site = "{site}"',
+        f'gyro = "{gyro}"',
+        f'accelerometer = "{accel}"',
+        f'orientation = "{orientation}"',
         "rate_hz = 200.0",
         "mounting_rpy_deg = [0.0, 0.0, 0.0]",
         "",
@@ -106,7 +183,7 @@ def g1(out):
         "settle_s = 1.0",
         "",
         "# Trained with targets unclipped, the policies press ankles and waist against their limits on",
-        "# purpose. Tracking-error stop: three times the longest excursion of a good run of holosoma's",
+        "# purpose. Tracking-error stop: three times the longest excursion of a good run of holosoma's G1",
         "# dance (legs and waist 17 ticks beyond 0.8 rad, arms 13 ticks beyond 0.6 rad).",
         "[safety]",
         'position_targets = "torque_reach"',
@@ -114,38 +191,37 @@ def g1(out):
         "tracking_s = 0.8",
         "",
         "[[safety.tracking]]",
-        'joints = ["*hip*", "*knee*", "*ankle*", "waist_*"]',
+        "joints = [" + ", ".join(f'"{p}"' for p in facts["legs_and_waist"]) + "]",
         "error = 0.8",
         "seconds = 1.0",
         "",
     ]
-    for effort_nm, speed in motors:
+    for e, v in sorted({(e, v) for e, v in zip(effort, velocity)}):
         lines += [
             "[[mit_models]]",
-            f'name = "{motor_name(effort_nm, speed)}"',
+            f'name = "{motor(e, v)}"',
             'reply = "damiao"',
             "position = [-12.5, 12.5]",
-            f"velocity = [-{fmt(speed)}, {fmt(speed)}]",
-            f"torque = [-{fmt(effort_nm)}, {fmt(effort_nm)}]",
+            f"velocity = [-{fmt(v)}, {fmt(v)}]",
+            f"torque = [-{fmt(e)}, {fmt(e)}]",
             "kp = [0.0, 500.0]",
             "kd = [0.0, 10.0]",
-            f"rated_torque = {fmt(effort_nm / 2)}",
+            f"rated_torque = {fmt(e / 2)}",
             "",
         ]
-    for bus, what, rate_hz, _ in BUSES:
+    for bus, what, _ in facts["buses"]:
         lines += [
             "[[buses]]",
             f'name = "{bus}"          # {what}',
             'kind = "mit_can"',
             f'device = "{bus}"',
             "rate = 1000000",
+            "rate_hz = 500.0",
+            # Ten periods would be 20 ms: a host without a real-time kernel stalls that long now and
+            # then, and the motors would drop torque mid-stride.
+            "command_timeout_ms = 50.0",
+            "",
         ]
-        if rate_hz:
-            lines.append(f"rate_hz = {rate_hz:.1f}")
-            # Ten periods would be 20 ms: a host without a real-time kernel stalls that long now
-            # and then, and the motors would drop torque mid-stride.
-            lines.append("command_timeout_ms = 50.0")
-        lines.append("")
     lines += [
         "[[buses]]",
         'name = "imu0"',
@@ -154,9 +230,9 @@ def g1(out):
         "rate = 921600",
         "",
     ]
-    ids = {b: 0 for b, _, _, _ in BUSES}
+    ids = {b: 0 for b, _, _ in facts["buses"]}
     for i, n in enumerate(names):
-        bus = next(b for b, _, _, test in BUSES if test(n))
+        bus = next(b for b, _, test in facts["buses"] if test(n))
         ids[bus] += 1
         lines += [
             "[[joints]]",
@@ -164,16 +240,16 @@ def g1(out):
             f'mjcf_joint = "{n}"',
             f'bus = "{bus}"',
             f"id = {ids[bus]}",
-            f'model = "{motor_name(effort[i], velocity[i])}"',
+            f'model = "{motor(effort[i], velocity[i])}"',
             "direction = 1.0",
             "zero_offset = 0.0",
             "gear = 1.0",
             f"position_limits = [{fmt(lower[i])}, {fmt(upper[i])}]",
             f"velocity_limit = {fmt(velocity[i])}",
             f"torque_limit = {fmt(effort[i])}",
-            f"default_position = {fmt(default[n])}",
-            f"kp = {fmt(kp[i])}",
-            f"kd = {fmt(kd[i])}",
+            f"default_position = {fmt(facts['default'][i])}",
+            f"kp = {fmt(facts['kp'][i])}",
+            f"kd = {fmt(facts['kd'][i])}",
             "",
         ]
     out.write_text("\n".join(lines))
@@ -182,10 +258,13 @@ def g1(out):
 
 def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--out", type=pathlib.Path, default=ROOT / "robots/g1/robot.toml")
+    p.add_argument("--out", type=pathlib.Path, default=ROOT / "robots",
+                   help="folder holding g1/ and t1/ (default: the repository's robots/)")
     a = p.parse_args()
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    g1(a.out)
+    for facts in (g1_facts(), t1_facts()):
+        folder = a.out / facts["key"]
+        folder.mkdir(parents=True, exist_ok=True)
+        write(facts, folder / "robot.toml")
 
 
 if __name__ == "__main__":

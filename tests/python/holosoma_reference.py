@@ -224,7 +224,9 @@ ROBOTS = {
     # (base_ang_vel, dof_vel), the gyro sensor
     "g1": ("data/robots/g1/scenes/scene_g1_29dof_wbt_plane.xml", "models/loco/g1_29dof/ppo_g1_29dof.onnx",
            ("g1_29dof", "g1_29dof"), (0.25, 0.05), "base_gyro"),
-    "t1": ("data/robots/t1/t1_29dof.xml", "models/loco/t1_29dof/ppo_t1_29dof.onnx",
+    # holosoma's T1 file has no floor: the project's scene adds one
+    "t1": (str(pathlib.Path(__file__).resolve().parents[2] / "robots/t1/scene.xml"),
+           "models/loco/t1_29dof/ppo_t1_29dof.onnx",
            ("t1_29dof_waist_wrist", "t1_29dof"), (1.0, 0.1), "angular-velocity"),
 }
 

@@ -229,6 +229,7 @@ fn a_robot_waits_still_on_its_mirror_until_the_controller_drives_it() {
         "robots/biped/robot.toml",
         "robots/mini/robot.toml",
         "robots/g1/robot.toml",
+        "robots/t1/robot.toml",
     ] {
         let robot = Robot::load(&workspace_root().join(path)).unwrap();
         let config = MirrorConfig::default().for_run(&robot, robot.config.start.mode);
@@ -258,12 +259,22 @@ fn a_robot_waits_still_on_its_mirror_until_the_controller_drives_it() {
 #[test]
 fn wall_runs_of_every_shipped_robot_begin_standing() {
     // --wall over real wires: the robot stands at the first tick (no "base tilted" at tick 1),
-    // for rd-biped (PD start) and the G1 (harness start).
+    // for every shipped robot: rd-biped and rd-mini (PD start), the G1 and the T1 (harness start).
+    let t1_walk = workspace_root().join("robots/t1/policies/holosoma_loco_ppo.toml");
+    let mini = workspace_root().join("robots/mini/policies/stand_walk.toml");
     for (robot, extra) in [
         ("robots/biped/robot.toml", vec![]),
         (
+            "robots/mini/robot.toml",
+            vec!["--policy".to_owned(), mini.display().to_string()],
+        ),
+        (
             "robots/g1/robot.toml",
             vec!["--policy".to_owned(), dance().display().to_string()],
+        ),
+        (
+            "robots/t1/robot.toml",
+            vec!["--policy".to_owned(), t1_walk.display().to_string()],
         ),
     ] {
         let mut args = vec![
@@ -421,8 +432,8 @@ fn the_tracking_stop_names_the_joint_and_its_threshold() {
 }
 
 #[test]
-fn the_shipped_g1_file_is_what_its_script_writes_from_the_installed_packages() {
-    let out = std::env::temp_dir().join(format!("robodeploy-g1-{}.toml", std::process::id()));
+fn the_shipped_g1_and_t1_files_are_what_their_script_writes_from_the_installed_packages() {
+    let out = std::env::temp_dir().join(format!("robodeploy-holosoma-robots-{}", std::process::id()));
     let status = std::process::Command::new(venv_python())
         .arg(workspace_root().join("scripts/gen_holosoma_robots.py"))
         .arg("--out")
@@ -434,13 +445,16 @@ fn the_shipped_g1_file_is_what_its_script_writes_from_the_installed_packages() {
         "{}",
         String::from_utf8_lossy(&status.stderr)
     );
-    let written = std::fs::read_to_string(&out).unwrap();
-    assert_eq!(
-        written,
-        std::fs::read_to_string(g1()).unwrap(),
-        "re-run scripts/gen_holosoma_robots.py"
-    );
-    std::fs::remove_file(&out).unwrap();
+    for robot in ["g1", "t1"] {
+        let written = std::fs::read_to_string(out.join(robot).join("robot.toml")).unwrap();
+        let shipped = workspace_root().join("robots").join(robot).join("robot.toml");
+        assert_eq!(
+            written,
+            std::fs::read_to_string(shipped).unwrap(),
+            "{robot}: re-run scripts/gen_holosoma_robots.py"
+        );
+    }
+    std::fs::remove_dir_all(&out).unwrap();
     // And it loads: 29 joints on five buses at 500 Hz, a harness start.
     let robot = Robot::load(&g1()).unwrap();
     assert_eq!(robot.config.joints.len(), 29);
@@ -457,5 +471,87 @@ fn the_shipped_g1_file_is_what_its_script_writes_from_the_installed_packages() {
             "{}",
             bus.name
         );
+    }
+}
+
+/// What the project's Python loop measures of a walk: stand 3 s, walk 10 s at 0.5 m/s, rest 6 s.
+fn python_walk(robot: &str) -> serde_json::Value {
+    let root = workspace_root();
+    let out = std::process::Command::new(venv_python())
+        .arg(root.join("tests/python/holosoma_reference.py"))
+        .args([
+            "walk", "--robot", robot, "--stand", "3", "--walk", "10", "--rest", "6",
+        ])
+        .arg("--robot-dir")
+        .arg(root.join(".local/holosoma"))
+        .arg("--policy-dir")
+        .arg(root.join(".local/holosoma-inference"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+#[test]
+fn the_g1_and_the_t1_walk_from_the_harness_and_stand_under_their_policy_when_stopped() {
+    for robot in ["g1", "t1"] {
+        let reference = python_walk(robot);
+        let dir = workspace_root().join("robots").join(robot);
+        let loaded = Robot::load(&dir.join("robot.toml")).unwrap();
+        let mut layout = PolicyLayout::load(&dir.join("policies/holosoma_loco_ppo.toml"), &loaded).unwrap();
+        // Turning rate, forward, leftward: 0.5 m/s ahead once the harness has let go.
+        layout.set_command(&[0.0, 0.5, 0.0]).unwrap();
+        let (clip, source) =
+            controller::motion::load_reference(None, &dance(), &mut layout, &loaded, 0).unwrap();
+        assert!(matches!(source, ReferenceSource::Commands), "{source}");
+        let options = PlayOptions {
+            // 3 s in the harness, 10 s walking, then the stop: 1 s to rest, 5 s standing.
+            max_ticks: Some(150 + 500),
+            on_stop: OnStop::Stay,
+            stand_s: Some(5.0),
+            end: controller::player::EndMode::Stand,
+            ..PlayOptions::default()
+        };
+        let (mut p, mut clock, world) = lockstep_player(
+            loaded,
+            layout,
+            clip,
+            options,
+            MirrorConfig::default(),
+            Arc::new(AtomicBool::new(false)),
+        )
+        .unwrap();
+        let (s, course) = run_watching(&mut p, &mut clock, &world);
+        assert!(
+            !s.fell && s.transitions.iter().all(|t| !t.cause.is_fault()),
+            "{robot}\n{s}"
+        );
+        let damped = s.transitions.iter().find(|t| t.to == Mode::Damped).unwrap();
+        assert_eq!(damped.tick, 650 + 50 + 250, "{robot}: stood its 5 s\n{s}");
+        // Never lower than 90 % of its standing height while the policy had it.
+        let standing = course[149].0;
+        let lowest = course[150..damped.tick as usize]
+            .iter()
+            .map(|c| c.0)
+            .fold(f64::INFINITY, f64::min);
+        assert!(
+            lowest > 0.9 * standing,
+            "{robot}: down to {lowest:.3} m from {standing:.3} m"
+        );
+        let l = s.locomotion.as_ref().unwrap();
+        let py_distance = reference["displacement_m"].as_f64().unwrap();
+        let py_heading = reference["heading_change_deg"].as_f64().unwrap();
+        assert!(!reference["fell"].as_bool().unwrap(), "{robot}: {reference}");
+        assert!(
+            (l.displacement_m - py_distance).abs() < 0.15 * py_distance,
+            "{robot}: {:.2} m against the Python loop's {py_distance:.2} m\n{s}",
+            l.displacement_m
+        );
+        assert!(
+            (l.heading_change.to_degrees() - py_heading).abs() < 15.0,
+            "{robot}: heading {:.1}° against the Python loop's {py_heading:.1}°\n{s}",
+            l.heading_change.to_degrees()
+        );
+        let _ = world;
     }
 }
