@@ -284,7 +284,7 @@ pub struct SafetyConfig {
     /// Largest base tilt from upright before the robot is stopped, rad (0.1–1.5; default 0.8).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub tilt: Option<f64>,
-    /// How far a joint may stay from its position target, rad (0.05–3.14), before the
+    /// How far a joint may stay from its position target, rad (0.05–3), before the
     /// tracking-error stop fires (default 0.5) …
     #[serde(skip_serializing_if = "Option::is_none")]
     pub tracking_error: Option<f64>,
@@ -328,7 +328,7 @@ impl PositionTargets {
 pub struct TrackingRule {
     /// Joint names or patterns (`*` matches any run of characters).
     pub joints: Vec<String>,
-    /// Largest distance from the target, rad (0.05–3.14).
+    /// Largest distance from the target, rad (0.05–3).
     pub error: f64,
     /// For longer than this, s (0.02–10).
     pub seconds: f64,
@@ -399,13 +399,13 @@ impl SafetyConfig {
             within("safety.tilt".into(), t, 0.1, 1.5, "rad")?;
         }
         if let Some(e) = self.tracking_error {
-            within("safety.tracking_error".into(), e, 0.05, 3.14, "rad")?;
+            within("safety.tracking_error".into(), e, 0.05, 3.0, "rad")?;
         }
         if let Some(s) = self.tracking_s {
             within("safety.tracking_s".into(), s, 0.02, 10.0, "s")?;
         }
         for (i, r) in self.tracking.iter().enumerate() {
-            within(format!("safety.tracking[{i}].error"), r.error, 0.05, 3.14, "rad")?;
+            within(format!("safety.tracking[{i}].error"), r.error, 0.05, 3.0, "rad")?;
             within(
                 format!("safety.tracking[{i}].seconds"),
                 r.seconds,

@@ -105,7 +105,10 @@ fn python_reference() -> serde_json::Value {
 
 #[test]
 fn the_g1_dances_holosomas_whole_motion_from_a_harness_and_ends_standing_under_the_policy() {
-    let reference = std::thread::spawn(python_reference);
+    let reference = std::thread::Builder::new()
+        .name("python-reference".into())
+        .spawn(python_reference)
+        .unwrap();
     let options = PlayOptions {
         on_stop: OnStop::Stay,
         stand_s: Some(3.0),
@@ -335,7 +338,7 @@ fn bad_starts_stops_and_thresholds_are_refused_by_name_and_nothing_moves() {
                 format!("{t}\n[safety]\ntracking_error = 5.0\n")
             }),
             vec![],
-            "safety.tracking_error: 5 rad is outside [0.05, 3.14]",
+            "safety.tracking_error: 5 rad is outside [0.05, 3]",
         ),
         (
             write_robot(&dir, "pattern.toml", |t| {

@@ -6,7 +6,7 @@ use robot_link::JointTarget;
 use robots::JointConfig;
 
 use crate::policy::{ActionKind, PolicyLayout};
-use crate::safety::{govern_position, govern_torque, target_range};
+use crate::safety::{TargetRule, govern_position, govern_torque};
 
 /// Turns one tick's actions into targets; remembers past actions for the observation.
 #[derive(Debug)]
@@ -58,8 +58,7 @@ impl ActionMapper {
         q: &[f64],
         targets: &mut [JointTarget],
         dt: f64,
-        margin: f64,
-        targets_may: robots::PositionTargets,
+        rule: TargetRule,
     ) -> u64 {
         // Remember actions, newest first.
         let n = self.actions.len();
@@ -81,7 +80,7 @@ impl ActionMapper {
                     let wanted = layout.default_q[r] + layout.action_scale[r] * a;
                     self.filtered[r] += alpha * (wanted - self.filtered[r]);
                     let previous = targets[r].q;
-                    let range = target_range(j, margin, targets_may, layout.kp[r]);
+                    let range = rule.range(j, layout.kp[r]);
                     let governed = govern_position(j, previous, self.filtered[r], dt, range, spec.rate_limit);
                     if governed != self.filtered[r] {
                         limited += 1;

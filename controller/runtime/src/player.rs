@@ -182,8 +182,9 @@ impl<L: RobotLink> Player<L> {
         // The robot's own margin inside its joint limits, where robot.toml gives one; its start
         // when the run names none.
         let mut options = options.resolved_for(&robot);
-        if !(options.soft_start_s.is_finite() && (0.1..=30.0).contains(&options.soft_start_s))
-            || !(0.0..=1.0).contains(&options.soft_start_gain)
+        if !(options.soft_start_s.is_finite()
+            && (0.1..=30.0).contains(&options.soft_start_s)
+            && (0.0..=1.0).contains(&options.soft_start_gain))
         {
             return Err(PlayError::Setup(format!(
                 "soft start of {} s at gain {} (0.1–30 s, 0–1)",
@@ -1180,7 +1181,7 @@ impl<L: RobotLink> Player<L> {
             .as_mut()
             .map(|c| if rest { c.rest() } else { c.update(Instant::now()) });
         if let Some(g) = &mut self.gait {
-            g.advance(command.as_deref().unwrap_or(&[]));
+            g.advance(command.unwrap_or(&[]));
         }
         let inputs = ObsInputs {
             gyro: self.state.gyro,
@@ -1226,8 +1227,10 @@ impl<L: RobotLink> Player<L> {
             &self.state.q,
             &mut self.targets,
             self.dt,
-            self.options.limits.position_margin,
-            self.robot.config.safety.position_targets,
+            crate::safety::TargetRule {
+                margin: self.options.limits.position_margin,
+                targets: self.robot.config.safety.position_targets,
+            },
         );
         if limited > 0 {
             self.metrics.limited_ticks += 1;

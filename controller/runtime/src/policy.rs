@@ -499,8 +499,10 @@ fn check_term(term: &Term) -> Result<(), String> {
             period_s,
             standing_below,
             ..
-        } if !(period_s.is_finite() && (0.05..=60.0).contains(period_s))
-            || !(standing_below.is_finite() && (0.0..=1.0).contains(standing_below)) =>
+        } if !(period_s.is_finite()
+            && (0.05..=60.0).contains(period_s)
+            && standing_below.is_finite()
+            && (0.0..=1.0).contains(standing_below)) =>
         {
             Err(format!(
                 "period_s = {period_s} (0.05–60 s) or standing_below = {standing_below} (0–1) is out of range"

@@ -459,6 +459,23 @@ pub fn target_range(j: &JointConfig, margin: f64, targets: robots::PositionTarge
     }
 }
 
+/// How the governor bounds a policy's position targets: the margin inside the limits, or how far
+/// past them a target may lie ([`target_range`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TargetRule {
+    /// Margin inside the joint limits, rad.
+    pub margin: f64,
+    /// Where targets may lie.
+    pub targets: robots::PositionTargets,
+}
+
+impl TargetRule {
+    /// The range of joint `j`'s targets at stiffness `kp`.
+    pub fn range(&self, j: &JointConfig, kp: f64) -> [f64; 2] {
+        target_range(j, self.margin, self.targets, kp)
+    }
+}
+
 /// Clamps a position target into `range` (see [`target_range`]) and the joint's speed limit from
 /// the previous target over `dt`; returns the target sent.
 pub fn govern_position(
