@@ -87,12 +87,13 @@ fn run_watching(
     (p.summary_so_far(), course)
 }
 
-/// What the project's own Python loop (plain MuJoCo, the trainer's PD) measures of the dance.
-fn python_reference() -> serde_json::Value {
+/// What the project's own Python loop (plain MuJoCo, the trainer's PD) measures, for `task` and
+/// its arguments.
+fn python_reference(task: &[&str]) -> serde_json::Value {
     let root = workspace_root();
     let out = std::process::Command::new(venv_python())
         .arg(root.join("tests/python/holosoma_reference.py"))
-        .arg("dance")
+        .args(task)
         .arg("--robot-dir")
         .arg(root.join(".local/holosoma"))
         .arg("--policy-dir")
@@ -107,7 +108,7 @@ fn python_reference() -> serde_json::Value {
 fn the_g1_dances_holosomas_whole_motion_from_a_harness_and_ends_standing_under_the_policy() {
     let reference = std::thread::Builder::new()
         .name("python-reference".into())
-        .spawn(python_reference)
+        .spawn(|| python_reference(&["dance"]))
         .unwrap();
     let options = PlayOptions {
         on_stop: OnStop::Stay,
@@ -487,28 +488,13 @@ fn the_shipped_g1_and_t1_files_are_what_their_script_writes_from_the_installed_p
     }
 }
 
-/// What the project's Python loop measures of a walk: stand 3 s, walk 10 s at 0.5 m/s, rest 6 s.
-fn python_walk(robot: &str) -> serde_json::Value {
-    let root = workspace_root();
-    let out = std::process::Command::new(venv_python())
-        .arg(root.join("tests/python/holosoma_reference.py"))
-        .args([
-            "walk", "--robot", robot, "--stand", "3", "--walk", "10", "--rest", "6",
-        ])
-        .arg("--robot-dir")
-        .arg(root.join(".local/holosoma"))
-        .arg("--policy-dir")
-        .arg(root.join(".local/holosoma-inference"))
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    serde_json::from_slice(&out.stdout).unwrap()
-}
-
 #[test]
 fn the_g1_and_the_t1_walk_from_the_harness_and_stand_under_their_policy_when_stopped() {
     for robot in ["g1", "t1"] {
-        let reference = python_walk(robot);
+        // Stand 3 s, walk 10 s at 0.5 m/s, rest 6 s.
+        let reference = python_reference(&[
+            "walk", "--robot", robot, "--stand", "3", "--walk", "10", "--rest", "6",
+        ]);
         let dir = workspace_root().join("robots").join(robot);
         let loaded = Robot::load(&dir.join("robot.toml")).unwrap();
         let mut layout = PolicyLayout::load(&dir.join("policies/holosoma_loco_ppo.toml"), &loaded).unwrap();
