@@ -79,6 +79,17 @@ def metadata(path):
     return {p.key: p.value for p in onnx.load(str(path), load_external_data=False).metadata_props}
 
 
+def pd_steps(model, data, index, gains, target):
+    """One policy step of physics: the trainer's PD torques, clipped to the effort limits, recomputed
+    every physics step. `index` is (qpos, qvel, actuator) per joint, `gains` (kp, kd, effort)."""
+    qadr, vadr, act = index
+    kp, kd, effort = gains
+    for _ in range(int(round(POLICY_DT / PHYSICS_DT))):
+        q, qd = data.qpos[qadr], data.qvel[vadr]
+        data.ctrl[act] = np.clip(kp * (target - q) - kd * qd, -effort, effort)
+        mujoco.mj_step(model, data)
+
+
 def place_on_floor(model, data, root_qpos):
     """Moves the root so the lowest collision geometry touches the floor."""
     mujoco.mj_forward(model, data)
@@ -195,12 +206,7 @@ def dance(a):
         action, jp, jv, _, ref_quat = call(obs, frame)
         command = np.concatenate([jp, jv])
         last_action = np.clip(action, -clip, clip)
-        target = default + scale * last_action
-        for _ in range(int(round(POLICY_DT / PHYSICS_DT))):
-            q = data.qpos[qadr]
-            qd = data.qvel[vadr]
-            data.ctrl[act] = np.clip(kp * (target - q) - kd * qd, -effort, effort)
-            mujoco.mj_step(model, data)
+        pd_steps(model, data, (qadr, vadr, act), (kp, kd, effort), default + scale * last_action)
         lowest = min(lowest, float(data.qpos[2]))
         if tilt(data.qpos[3:7]) > TILT_LIMIT:
             fell = True
@@ -317,11 +323,7 @@ def walk(a):
         obs = np.concatenate([parts[k] for k in sorted(parts)]).astype(np.float32).reshape(1, -1)
         action = session.run(None, {session.get_inputs()[0].name: obs})[0][0]
         last_action = np.clip(action, -100, 100)
-        target = default + 0.25 * last_action
-        for _ in range(int(round(POLICY_DT / PHYSICS_DT))):
-            q, qd = data.qpos[qadr], data.qvel[vadr]
-            data.ctrl[act] = np.clip(kp * (target - q) - kd * qd, -effort, effort)
-            mujoco.mj_step(model, data)
+        pd_steps(model, data, (qadr, vadr, act), (kp, kd, effort), default + 0.25 * last_action)
         lowest = min(lowest, float(data.qpos[2]))
         if tilt(data.qpos[3:7]) > TILT_LIMIT:
             fell = True
