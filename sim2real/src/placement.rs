@@ -4,11 +4,12 @@
 
 use mujoco_rs::mujoco_c::_mjtGeomBase as G;
 use mujoco_rs::prelude::{MjData, MjModel};
+use mujoco_rs::wrappers::mj_model::traits::ModelType;
 
 /// The lowest world height (m) any collision geom of the tree rooted at `root_body` reaches in
 /// `data`'s current kinematics (call after `forward`), or `None` when the tree has no collision
 /// geometry.
-pub fn lowest_point(data: &MjData<Box<MjModel>>, root_body: usize) -> Option<f64> {
+pub fn lowest_point<M: ModelType>(data: &MjData<M>, root_body: usize) -> Option<f64> {
     let model = data.model();
     let ngeom = usize::try_from(model.ffi().ngeom).unwrap_or(0);
     let mut lowest = f64::INFINITY;
@@ -17,15 +18,10 @@ pub fn lowest_point(data: &MjData<Box<MjModel>>, root_body: usize) -> Option<f64
         if body == 0 || !collides(model, g) || !in_tree(model, body, root_body) {
             continue;
         }
-        let p = data.geom_xpos()[g];
-        // Row-major: R[row][col] at 3·row + col; the world's down in the geom's frame is minus
-        // the matrix's third row.
-        let r = data.geom_xmat()[g];
-        let Some(down) = reach(model, g, [-r[6], -r[7], -r[8]]) else {
+        let Some(low) = world_support_point(data, g, [0.0, 0.0, -1.0]) else {
             continue;
         };
-        let low = p[2] - down;
-        lowest = lowest.min(low);
+        lowest = lowest.min(low[2]);
     }
     lowest.is_finite().then_some(lowest)
 }
@@ -48,20 +44,53 @@ pub fn in_tree(model: &MjModel, mut body: usize, root: usize) -> bool {
 /// meshes (their vertices, stored in the geom's frame once compiled). `None` for shapes without
 /// an extent to stand on (planes, height fields).
 pub fn reach(model: &MjModel, g: usize, d: [f64; 3]) -> Option<f64> {
+    let p = support_point(model, g, d)?;
+    Some(p[0] * d[0] + p[1] * d[1] + p[2] * d[2])
+}
+
+/// The point of geom `g` furthest along the unit direction `d`, both in the geom's own frame
+/// (a tie, such as a box face square to `d`, gives the middle of the tied points). `None` for
+/// planes and height fields.
+pub fn support_point(model: &MjModel, g: usize, d: [f64; 3]) -> Option<[f64; 3]> {
     let s = model.geom_size()[g];
-    let across = (d[0] * d[0] + d[1] * d[1]).sqrt();
+    let sign = |x: f64| if x == 0.0 { 0.0 } else { x.signum() };
     Some(match model.geom_type()[g] {
-        G::mjGEOM_SPHERE => s[0],
-        G::mjGEOM_CAPSULE => s[0] + s[1] * d[2].abs(),
-        G::mjGEOM_CYLINDER => s[0] * across + s[1] * d[2].abs(),
-        G::mjGEOM_BOX => (0..3).map(|k| s[k] * d[k].abs()).sum(),
-        G::mjGEOM_ELLIPSOID => (0..3).map(|k| (s[k] * d[k]).powi(2)).sum::<f64>().sqrt(),
+        G::mjGEOM_SPHERE => d.map(|x| s[0] * x),
+        // Capsules and cylinders have their axis along z, half-length `s[1]`.
+        G::mjGEOM_CAPSULE => [s[0] * d[0], s[0] * d[1], s[0] * d[2] + s[1] * sign(d[2])],
+        G::mjGEOM_CYLINDER => {
+            let across = (d[0] * d[0] + d[1] * d[1]).sqrt();
+            let rim = if across > 0.0 { s[0] / across } else { 0.0 };
+            [rim * d[0], rim * d[1], s[1] * sign(d[2])]
+        }
+        G::mjGEOM_BOX => [s[0] * sign(d[0]), s[1] * sign(d[1]), s[2] * sign(d[2])],
+        G::mjGEOM_ELLIPSOID => {
+            let norm = (0..3).map(|k| (s[k] * d[k]).powi(2)).sum::<f64>().sqrt();
+            if norm == 0.0 {
+                return Some([0.0; 3]);
+            }
+            [0, 1, 2].map(|k| s[k] * s[k] * d[k] / norm)
+        }
         G::mjGEOM_MESH => mesh_vertices(model, g)?
             .iter()
-            .map(|v| f64::from(v[0]) * d[0] + f64::from(v[1]) * d[1] + f64::from(v[2]) * d[2])
-            .max_by(f64::total_cmp)?,
+            .map(|v| v.map(f64::from))
+            .max_by(|a, b| {
+                let along = |v: &[f64; 3]| v[0] * d[0] + v[1] * d[1] + v[2] * d[2];
+                along(a).total_cmp(&along(b))
+            })?,
         _ => return None,
     })
+}
+
+/// The point of geom `g` furthest along the unit world direction `d`, in world coordinates, in
+/// `data`'s current kinematics (call after `forward`).
+pub fn world_support_point<M: ModelType>(data: &MjData<M>, g: usize, d: [f64; 3]) -> Option<[f64; 3]> {
+    // Row-major rotation, geom to world: the direction in the geom's frame is Rᵀ·d.
+    let r = data.geom_xmat()[g];
+    let local = [0, 1, 2].map(|c| r[c] * d[0] + r[3 + c] * d[1] + r[6 + c] * d[2]);
+    let p = support_point(data.model(), g, local)?;
+    let x = data.geom_xpos()[g];
+    Some([0, 1, 2].map(|row| x[row] + r[3 * row] * p[0] + r[3 * row + 1] * p[1] + r[3 * row + 2] * p[2]))
 }
 
 /// The vertices of mesh geom `g`, in the geom's own frame.
