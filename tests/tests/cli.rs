@@ -820,9 +820,18 @@ fn check_flags_a_clip_that_pushes_a_foot_into_the_floor() {
     // the root falling faster than gravity in one frame, which no floor can do: an unsupported
     // tick, too brief (under 0.1 s) to be a reason of its own.
     let stdout = String::from_utf8_lossy(&run.stdout);
-    let support = stdout.lines().find(|l| l.contains("ground support")).unwrap_or("");
-    assert!(support.contains("in 351 of 351 ticks") && !support.ends_with(" in 0"), "{stdout}");
-    assert!(!stderr.contains("cannot carry") && !stderr.contains("would saturate"), "{stderr}");
+    let support = stdout
+        .lines()
+        .find(|l| l.contains("ground support"))
+        .unwrap_or("");
+    assert!(
+        support.contains("in 351 of 351 ticks") && !support.ends_with(" in 0"),
+        "{stdout}"
+    );
+    assert!(
+        !stderr.contains("cannot carry") && !stderr.contains("would saturate"),
+        "{stderr}"
+    );
     std::fs::remove_file(&path).unwrap();
 }
 

@@ -12,7 +12,7 @@ use std::time::Duration;
 use controller::clip::Reference;
 use controller::motion::ReferenceSource;
 use controller::options::OnStop;
-use controller::player::{PlayOptions, PlaySummary, Player};
+use controller::player::{HarnessPhase, PlayOptions, PlaySummary, Player};
 use controller::policy::PolicyLayout;
 use controller::safety::{Cause, Mode, tilt_of};
 use controller::sim::lockstep_player;
@@ -174,6 +174,50 @@ fn the_g1_dances_holosomas_whole_motion_from_a_harness_and_ends_standing_under_t
     // The dance's policy reads no world term: the estimator and the ground truth cannot differ.
     let (robot, layout, _) = load_dance();
     assert!(!layout.needs_ground_truth(), "{}", robot.config.name);
+}
+
+#[test]
+fn a_harness_start_waits_for_the_operators_word_that_the_robot_stands_then_plays() {
+    // As on the hardware: the crane lowers the robot (here the mirror's rope, 2 s), and the
+    // motion waits on its first frame, the policy holding the robot, until the operator says
+    // LOWERED; it settles 1 s from the word, then plays.
+    let lowered = Arc::new(AtomicBool::new(false));
+    let (p, mut clock, world) = dance_player(PlayOptions {
+        max_ticks: Some(600),
+        ..PlayOptions::default()
+    });
+    let mut p = p.with_lowered_signal(Arc::clone(&lowered));
+    p.identify().unwrap();
+    let period = Duration::from_millis(20);
+    let mut phases: Vec<(u64, HarnessPhase)> = Vec::new();
+    let word_at = 300;
+    let mut standing_while_waiting = f64::INFINITY;
+    while p.mode() != Mode::Off {
+        if p.ticks() == word_at {
+            lowered.store(true, std::sync::atomic::Ordering::Relaxed);
+        }
+        p.step(&clock).unwrap();
+        p.wait_until(&mut clock, period * p.ticks() as u32);
+        let phase = p.harness_phase();
+        if phases.last().is_none_or(|(_, last)| *last != phase) {
+            phases.push((p.ticks(), phase));
+        }
+        if phase == HarnessPhase::WaitingForOperator {
+            standing_while_waiting = standing_while_waiting.min(base(&world).0);
+        }
+    }
+    let s = p.summary_so_far();
+    let at = |phase| phases.iter().find(|(_, p)| *p == phase).map(|(t, _)| *t);
+    // Ticks count after each step: lowering from the first, the wait from the end of the 2 s
+    // lowering, settling from the word, the motion 1 s later.
+    assert_eq!(at(HarnessPhase::Lowering), Some(1), "{phases:?}");
+    assert_eq!(at(HarnessPhase::WaitingForOperator), Some(100), "{phases:?}");
+    assert_eq!(at(HarnessPhase::Settling), Some(word_at + 1), "{phases:?}");
+    assert_eq!(at(HarnessPhase::Free), Some(word_at + 50), "{phases:?}");
+    // Waiting, the robot stood on its feet under the policy; the motion then played to the
+    // run's end with no fall.
+    assert!(standing_while_waiting > 0.6, "{standing_while_waiting:.3} m");
+    assert!(!s.fell && s.played > 0.02, "{s}");
 }
 
 #[test]
@@ -357,6 +401,11 @@ fn bad_starts_stops_and_thresholds_are_refused_by_name_and_nothing_moves() {
             write_robot(&dir, "plain2.toml", |t| t.to_owned()),
             vec!["--start", "harness", "--gantry"],
             "--start harness with --gantry",
+        ),
+        (
+            write_robot(&dir, "plain3.toml", |t| t.to_owned()),
+            vec!["--lowered-udp", "127.0.0.1:0"],
+            "--lowered-udp: this run does not start in a harness",
         ),
     ];
     for (robot, extra, want) in cases {

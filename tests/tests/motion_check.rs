@@ -83,7 +83,13 @@ fn a_jump_s_torques_agree_with_a_simulated_rollout_of_it() {
     let stiff = |name: &str| ["hip", "knee", "ankle", "waist"].iter().any(|p| name.contains(p));
     let gains: Vec<(f64, f64)> = joints
         .iter()
-        .map(|j| if stiff(&j.name) { (300.0, 8.0) } else { (j.kp, j.kd) })
+        .map(|j| {
+            if stiff(&j.name) {
+                (300.0, 8.0)
+            } else {
+                (j.kp, j.kd)
+            }
+        })
         .collect();
     let target = |t: f64| -> Vec<f64> {
         let c = crouch(t);
@@ -117,7 +123,11 @@ fn a_jump_s_torques_agree_with_a_simulated_rollout_of_it() {
             .filter(|g| body(g[0]) == 0 || body(g[1]) == 0)
             .collect();
         let only_feet = floor.iter().all(|g| foot_geom(g[0]) || foot_geom(g[1]));
-        assert!(only_feet, "the rollout fell before it landed (t = {:.2} s)", data.time());
+        assert!(
+            only_feet,
+            "the rollout fell before it landed (t = {:.2} s)",
+            data.time()
+        );
         frames.push(frame(&data, &index));
         highest = highest.max(data.qpos()[index.root.qpos + 2]);
         if floor.is_empty() {
@@ -158,7 +168,9 @@ fn a_jump_s_torques_agree_with_a_simulated_rollout_of_it() {
     let n = joints.len();
     let mut report = String::new();
     for (i, j) in joints.iter().enumerate() {
-        let heavy = ["hip_pitch", "knee", "ankle_pitch"].iter().any(|p| j.name.contains(p));
+        let heavy = ["hip_pitch", "knee", "ankle_pitch"]
+            .iter()
+            .any(|p| j.name.contains(p));
         if !heavy {
             continue;
         }
@@ -190,9 +202,11 @@ fn biped_with_soles(dir: &Path, sole: &str, asset: &str) -> Robot {
     let box_sole = r#"type="box" size="0.09 0.04 0.012" pos="0.02 0 -0.028""#;
     let xml = std::fs::read_to_string(source.join("biped.xml")).unwrap();
     assert_eq!(xml.matches(box_sole).count(), 2, "rd-biped's soles changed");
-    let xml = xml
-        .replace(box_sole, sole)
-        .replacen("<worldbody>", &format!("<asset>{asset}</asset>\n  <worldbody>"), 1);
+    let xml = xml.replace(box_sole, sole).replacen(
+        "<worldbody>",
+        &format!("<asset>{asset}</asset>\n  <worldbody>"),
+        1,
+    );
     std::fs::write(dir.join("biped.xml"), xml).unwrap();
     std::fs::copy(source.join("robot.toml"), dir.join("robot.toml")).unwrap();
     Robot::load(&dir.join("robot.toml")).unwrap()
@@ -204,8 +218,16 @@ fn soles_on_the_floor_read_zero_for_box_capsule_sphere_and_mesh_feet() {
     // A mesh sole: a wedge, wider on top than at its flat bottom, 2.4 cm deep.
     let wedge = "<mesh name=\"wedge\" vertex=\"-0.07 -0.03 -0.04  0.11 -0.03 -0.04  0.11 0.03 -0.04  -0.07 0.03 -0.04  -0.07 -0.04 -0.016  0.11 -0.04 -0.016  0.11 0.04 -0.016  -0.07 0.04 -0.016\"/>";
     let shapes = [
-        ("box", r#"type="box" size="0.09 0.04 0.012" pos="0.02 0 -0.028""#, ""),
-        ("capsule", r#"type="capsule" size="0.015" fromto="-0.06 0 -0.03 0.1 0 -0.03""#, ""),
+        (
+            "box",
+            r#"type="box" size="0.09 0.04 0.012" pos="0.02 0 -0.028""#,
+            "",
+        ),
+        (
+            "capsule",
+            r#"type="capsule" size="0.015" fromto="-0.06 0 -0.03 0.1 0 -0.03""#,
+            "",
+        ),
         ("sphere", r#"type="sphere" size="0.03" pos="0.02 0 -0.02""#, ""),
         ("mesh", r#"type="mesh" mesh="wedge""#, wedge),
     ];
@@ -245,7 +267,10 @@ fn soles_on_the_floor_read_zero_for_box_capsule_sphere_and_mesh_feet() {
             100.0 * quality.foot_floating
         );
         assert_eq!(quality.penetration_ticks, 0, "{shape}\n{quality}");
-        assert_eq!(quality.support_ticks, 25, "{shape}: stands on its feet\n{quality}");
+        assert_eq!(
+            quality.support_ticks, 25,
+            "{shape}: stands on its feet\n{quality}"
+        );
         assert_eq!(quality.unsupported_ticks, 0, "{shape}\n{quality}");
         // Lifted 5 cm the same pose floats: nothing carries it, and the check says so.
         let mut floating = standing_frame;

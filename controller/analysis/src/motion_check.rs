@@ -11,8 +11,8 @@
 
 pub mod contact_forces;
 
-use mujoco_rs::wrappers::mj_model::MjtObjBase;
 use mujoco_rs::prelude::MjData;
+use mujoco_rs::wrappers::mj_model::MjtObjBase;
 use mujoco_rs::wrappers::mj_model::traits::ModelType;
 use robots::{Robot, spatial};
 use sim2real::model_index::ModelIndex;
@@ -157,7 +157,12 @@ impl MotionQuality {
 
     /// Whether `t` stays beyond its limit for [`SATURATION_S`] or longer at a time.
     pub fn sustained(&self, t: &TorqueUse) -> bool {
-        let longest = t.saturated_spans.iter().map(|(a, b)| b - a + 1).max().unwrap_or(0);
+        let longest = t
+            .saturated_spans
+            .iter()
+            .map(|(a, b)| b - a + 1)
+            .max()
+            .unwrap_or(0);
         longest as f64 / self.rate_hz >= SATURATION_S
     }
 }
@@ -239,7 +244,12 @@ impl std::fmt::Display for MotionQuality {
             let mut parts: Vec<String> = brief
                 .iter()
                 .take(SHOWN)
-                .map(|t| format!("{} {} ticks (peak {:.0} of {:.0} N·m)", t.joint, t.saturated_ticks, t.peak, t.limit))
+                .map(|t| {
+                    format!(
+                        "{} {} ticks (peak {:.0} of {:.0} N·m)",
+                        t.joint, t.saturated_ticks, t.peak, t.limit
+                    )
+                })
                 .collect();
             if brief.len() > SHOWN {
                 parts.push(format!("{} more joints", brief.len() - SHOWN));
@@ -283,13 +293,19 @@ pub fn analyze(
     let body_of = |g: usize| model.geom_bodyid()[g] as usize;
     let soles: Vec<Vec<usize>> = feet
         .iter()
-        .map(|&b| (0..ngeom).filter(|&g| body_of(g) == b && placement::collides(&model, g)).collect())
+        .map(|&b| {
+            (0..ngeom)
+                .filter(|&g| body_of(g) == b && placement::collides(&model, g))
+                .collect()
+        })
         .collect();
     let friction = soles
         .iter()
         .flatten()
         .map(|&g| model.geom_friction()[g][0])
-        .fold(None, |lowest: Option<f64>, mu| Some(lowest.map_or(mu, |l| l.min(mu))))
+        .fold(None, |lowest: Option<f64>, mu| {
+            Some(lowest.map_or(mu, |l| l.min(mu)))
+        })
         .filter(|mu| *mu > 0.0)
         .unwrap_or(DEFAULT_FRICTION);
     let weight = model.body_subtreemass()[index.root_body] * -model.opt().gravity[2];
@@ -519,7 +535,12 @@ pub fn analyze(
 /// central differences, accelerations by second differences over the neighbouring ticks (the
 /// root's linear part in the world frame, its angular part in the body frame, as MuJoCo's free
 /// joint has them).
-fn generalised_motion(reference: &Reference, adr: &[(usize, usize)], root_v: usize, nv: usize) -> (Vec<f64>, Vec<f64>) {
+fn generalised_motion(
+    reference: &Reference,
+    adr: &[(usize, usize)],
+    root_v: usize,
+    nv: usize,
+) -> (Vec<f64>, Vec<f64>) {
     let n = reference.len();
     let dt = 1.0 / reference.rate_hz;
     // Velocity over each step k → k + 1.
@@ -583,7 +604,11 @@ fn sole_footprint<M: ModelType>(data: &MjData<M>, body: usize, soles: &[usize]) 
     let heading = {
         let (x, y) = (r[0], r[3]);
         let len = (x * x + y * y).sqrt();
-        if len > 1e-9 { [x / len, y / len] } else { [1.0, 0.0] }
+        if len > 1e-9 {
+            [x / len, y / len]
+        } else {
+            [1.0, 0.0]
+        }
     };
     let side = [-heading[1], heading[0]];
     let mut lowest = f64::INFINITY;
@@ -592,7 +617,10 @@ fn sole_footprint<M: ModelType>(data: &MjData<M>, body: usize, soles: &[usize]) 
         if let Some(p) = placement::world_support_point(data, g, [0.0, 0.0, -1.0]) {
             lowest = lowest.min(p[2]);
         }
-        for (c, (front, left)) in [(1.0, 1.0), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0)].into_iter().enumerate() {
+        for (c, (front, left)) in [(1.0, 1.0), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0)]
+            .into_iter()
+            .enumerate()
+        {
             let out = [
                 front * heading[0] + left * side[0],
                 front * heading[1] + left * side[1],

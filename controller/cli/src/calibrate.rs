@@ -294,6 +294,7 @@ impl Rig for RecordedRig<'_> {
             io: Duration::ZERO,
             compute: Duration::ZERO,
             cause: None,
+            harness: controller::options::HarnessPhase::None,
         };
         self.record.fill(&view);
         self.sink.push(&self.record);

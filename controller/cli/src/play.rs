@@ -2,7 +2,7 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
@@ -86,6 +86,12 @@ pub struct PlayArgs {
     /// Listen for an e-stop on this UDP address (a datagram `ESTOP` damps the robot at once).
     #[arg(long)]
     estop_udp: Option<std::net::SocketAddr>,
+    /// With a harness start: the operator's word that the robot stands on its feet, a datagram
+    /// `LOWERED` on this UDP address. Until it comes the policy holds the robot on the motion's
+    /// first frame; then it settles and the motion plays. On the hardware, Enter on this
+    /// terminal says it too; on the mirror, this rehearses the start.
+    #[arg(long, value_name = "ADDR")]
+    lowered_udp: Option<std::net::SocketAddr>,
     /// Values of the policy's `command` term (e.g. a velocity command `0.3,0,0`), replacing the
     /// manifest's constants; with a `[commands]` section each must lie within its range, and a
     /// live source below starts from them.
@@ -606,9 +612,11 @@ fn with_estop<L: RobotLink>(
     commands: Option<human::commands::CommandReader>,
 ) -> Result<Player<L>> {
     let mut player = with_recorder(player, args, options, source)?;
+    let keyboard = commands.is_some() && args.live.keyboard;
     if let Some(reader) = commands {
         player = player.with_commands(reader)?;
     }
+    player = with_lowered_word(player, args, keyboard)?;
     let Some(addr) = args.estop_udp else {
         return Ok(player);
     };
@@ -616,6 +624,45 @@ fn with_estop<L: RobotLink>(
         controller::estop::listen(addr).with_context(|| format!("cannot listen for the e-stop on {addr}"))?;
     println!("e-stop: send ESTOP to udp://{local}");
     Ok(player.with_estop(flag))
+}
+
+/// A harness start on the hardware (or rehearsed with `--lowered-udp`) waits for the operator's
+/// word that the robot stands on its feet: `LOWERED` over UDP, or Enter on the console.
+fn with_lowered_word<L: RobotLink>(player: Player<L>, args: &PlayArgs, keyboard: bool) -> Result<Player<L>> {
+    use std::io::IsTerminal as _;
+    if player.harness_phase() == controller::player::HarnessPhase::None {
+        // `play` refused --lowered-udp for such a run already.
+        return Ok(player);
+    }
+    if let Some(addr) = args.lowered_udp {
+        let (flag, local) = controller::estop::listen_for(addr, "LOWERED", "lowered")
+            .with_context(|| format!("--lowered-udp: cannot listen on {addr}"))?;
+        println!("harness: when the robot stands on its feet, send LOWERED to udp://{local}");
+        return Ok(player.with_lowered_signal(flag));
+    }
+    if !args.hardware {
+        // The mirror's harness lowers the robot by itself.
+        return Ok(player);
+    }
+    if keyboard || !std::io::stdin().is_terminal() {
+        bail!(
+            "--start harness on the hardware waits for the operator's word that the robot stands on its feet: \
+             press Enter on a terminal (not while --keyboard reads it), or give --lowered-udp ADDR"
+        );
+    }
+    let flag = Arc::new(AtomicBool::new(false));
+    let set = Arc::clone(&flag);
+    std::thread::Builder::new()
+        .name("lowered-console".into())
+        .spawn(move || {
+            let mut line = String::new();
+            if std::io::stdin().read_line(&mut line).is_ok_and(|n| n > 0) {
+                set.store(true, Ordering::Relaxed);
+            }
+        })
+        .context("cannot start the console thread")?;
+    println!("harness: lower the robot onto its feet with the crane, then press Enter here");
+    Ok(player.with_lowered_signal(flag))
 }
 
 fn with_recorder<L: RobotLink>(
@@ -878,6 +925,13 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
     .resolved_for(&l.robot);
     if let Some(start) = args.start {
         options.start = Some(start.into());
+    }
+    if args.lowered_udp.is_some() && options.start_mode(&l.robot) != robots::StartMode::Harness {
+        return Err(controller::player::PlayError::Setup(
+            "--lowered-udp: this run does not start in a harness (--start harness, or robot.toml [start] mode = \"harness\")"
+                .into(),
+        )
+        .into());
     }
     if options.start_mode(&l.robot) == robots::StartMode::Harness && args.gantry {
         return Err(controller::player::PlayError::Setup(

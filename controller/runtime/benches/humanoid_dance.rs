@@ -14,7 +14,6 @@
 //!
 //! Run: `cargo bench -p controller --bench humanoid_dance`
 
-use std::path::PathBuf;
 use std::process::Command;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
@@ -95,7 +94,7 @@ fn python(frames: usize) -> (f64, f64) {
 
 fn main() {
     let full = std::env::args().any(|a| a == "--bench");
-    if !PathBuf::from(workspace_root().join(DANCE)).exists() {
+    if !workspace_root().join(DANCE).exists() {
         println!("holosoma's dance export is not installed: run scripts/setup");
         return;
     }

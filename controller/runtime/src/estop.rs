@@ -1,5 +1,7 @@
 //! A network e-stop: any datagram saying `ESTOP` on the configured UDP address sets the flag the
-//! loop checks every tick. Binds to loopback unless told otherwise.
+//! loop checks every tick. Binds to loopback unless told otherwise. The operator's other one-word
+//! signals (`LOWERED`: the harness has set the robot on its feet) arrive the same way, each on its
+//! own socket and thread, so that nothing but the e-stop shares the e-stop's.
 
 use std::net::{SocketAddr, UdpSocket};
 use std::sync::Arc;
@@ -8,24 +10,34 @@ use std::time::{Duration, Instant};
 
 use firmware_bridge::ratelimit::RateLimit;
 
-/// Listens on `addr` until the returned flag is set (then keeps it set).
+/// Listens on `addr` for `ESTOP` until the returned flag is set (then keeps it set).
 pub fn listen(addr: SocketAddr) -> std::io::Result<(Arc<AtomicBool>, SocketAddr)> {
+    listen_for(addr, "ESTOP", "estop")
+}
+
+/// Listens on `addr` for a datagram saying `word` (any case, surrounding blanks ignored) until
+/// the returned flag is set, on a thread named `name`.
+pub fn listen_for(
+    addr: SocketAddr,
+    word: &'static str,
+    name: &str,
+) -> std::io::Result<(Arc<AtomicBool>, SocketAddr)> {
     let socket = UdpSocket::bind(addr)?;
     socket.set_read_timeout(Some(Duration::from_millis(100)))?;
     let local = socket.local_addr()?;
     let flag = Arc::new(AtomicBool::new(false));
     let set = Arc::clone(&flag);
-    std::thread::Builder::new().name("estop".into()).spawn(move || {
+    std::thread::Builder::new().name(name.into()).spawn(move || {
         let mut buf = [0u8; 64];
         let mut junk = RateLimit::per_second();
         while !set.load(Ordering::Relaxed) {
             if let Ok((n, from)) = socket.recv_from(&mut buf) {
-                if buf[..n].trim_ascii().eq_ignore_ascii_case(b"ESTOP") {
+                if buf[..n].trim_ascii().eq_ignore_ascii_case(word.as_bytes()) {
                     // The flag first: nothing, not even the log line, comes before it.
                     set.store(true, Ordering::Relaxed);
-                    tracing::warn!(%from, "e-stop received");
+                    tracing::warn!(%from, "{word} received");
                 } else if let Some(left_out) = junk.allow(Instant::now()) {
-                    tracing::warn!(%from, bytes = n, left_out, "ignored a datagram that is not ESTOP");
+                    tracing::warn!(%from, bytes = n, left_out, "ignored a datagram that is not {word}");
                 }
             }
         }

@@ -43,6 +43,38 @@ pub enum OnStop {
 }
 
 /// How a run goes. Recorded with every run (as part of [`RunMetadata`]) and read back by replays.
+/// Where a harness start is: the rope lowering the robot, the operator's word awaited (on
+/// hardware, or when a run asks for it), the robot settling on its feet on the motion's first
+/// frame, then free — the motion plays. Recorded on `/log` as each begins.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum HarnessPhase {
+    /// Not a harness start.
+    #[default]
+    None,
+    /// The harness lowers the robot (the policy in control, the commands at rest).
+    Lowering,
+    /// Hanging or standing until the operator says the robot is on its feet.
+    WaitingForOperator,
+    /// On its feet, settling on the motion's first frame.
+    Settling,
+    /// The harness slack, the motion playing.
+    Free,
+}
+
+impl std::fmt::Display for HarnessPhase {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::None => "none",
+            Self::Lowering => "lowering the robot onto its feet",
+            Self::WaitingForOperator => {
+                "waiting for the operator's word that the robot is on its feet (LOWERED)"
+            }
+            Self::Settling => "on its feet, settling on the motion's first frame",
+            Self::Free => "free: the motion plays",
+        })
+    }
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct PlayOptions {

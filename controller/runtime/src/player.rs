@@ -25,7 +25,7 @@ pub use crate::metrics::{Histogram, PlaySummary};
 use crate::motion::{Alignment, EmbeddedMotion};
 use crate::onnx::OnnxModel;
 use crate::options::EstimatorKind;
-pub use crate::options::{EndMode, PlayOptions};
+pub use crate::options::{EndMode, HarnessPhase, PlayOptions};
 use crate::policy::{ObsInputs, ObservationBuilder, PolicyLayout, Term};
 use crate::reference::ReferenceCursor;
 use crate::safety::{Cause, Mode, SafetyMonitor, Transition, govern_position, target_range, tilt_of};
@@ -164,6 +164,11 @@ pub struct Player<L: RobotLink> {
     stop_under_policy: bool,
     /// The mirror's crane, when the robot hangs in its harness: raised, it takes the weight.
     harness_hoist: Option<Arc<AtomicBool>>,
+    /// The operator's word that the harness has set the robot on its feet (hardware, or a
+    /// rehearsal on the mirror): until it comes, the motion waits on its first frame.
+    lowered: Option<Arc<AtomicBool>>,
+    /// The harness start's phase at the last tick.
+    harness_phase: HarnessPhase,
     /// The gait phase of a policy that observes one.
     gait: Option<crate::policy::GaitClock>,
 }
@@ -412,6 +417,8 @@ impl<L: RobotLink> Player<L> {
             standing_since: None,
             stop_under_policy: false,
             harness_hoist: None,
+            lowered: None,
+            harness_phase: HarnessPhase::None,
             gait: crate::policy::GaitClock::of(&layout),
             robot,
             layout,
@@ -424,6 +431,35 @@ impl<L: RobotLink> Player<L> {
     pub fn with_harness_hoist(mut self, hoist: Arc<AtomicBool>) -> Self {
         self.harness_hoist = Some(hoist);
         self
+    }
+
+    /// Has a harness start wait for the operator's word that the robot stands on its feet (the
+    /// flag raised): the policy keeps control, the motion holds its first frame and the commands
+    /// rest until then; the settling time counts from the word. Without a harness start, no
+    /// effect.
+    pub fn with_lowered_signal(mut self, lowered: Arc<AtomicBool>) -> Self {
+        self.lowered = Some(lowered);
+        self
+    }
+
+    /// Where a harness start is (`HarnessPhase::None` for other starts).
+    pub fn harness_phase(&self) -> HarnessPhase {
+        if self.options.start != Some(robots::StartMode::Harness) {
+            return HarnessPhase::None;
+        }
+        let h = self.robot.config.start.harness;
+        let lowering = (h.lower_s / self.dt).round() as usize;
+        let tick = self.cursor.tick();
+        let waiting = self.lowered.as_ref().is_some_and(|f| !f.load(Ordering::Relaxed));
+        if tick < lowering {
+            HarnessPhase::Lowering
+        } else if waiting {
+            HarnessPhase::WaitingForOperator
+        } else if self.cursor.in_ramp() {
+            HarnessPhase::Settling
+        } else {
+            HarnessPhase::Free
+        }
     }
 
     /// Takes the commands of a command-driven policy from a live source (keyboard, gamepad,
@@ -785,6 +821,7 @@ impl<L: RobotLink> Player<L> {
                 io,
                 compute,
                 cause: self.machine.transitions.last().map(|t| t.cause),
+                harness: self.harness_phase,
             });
             sink.push(&self.record);
             // The buses' cycles since the last tick, when the recording asked for them.
@@ -1283,7 +1320,16 @@ impl<L: RobotLink> Player<L> {
             }
         }
         self.previous_reference.copy_from_slice(current);
-        self.cursor.step();
+        let phase = self.harness_phase();
+        if phase != self.harness_phase {
+            tracing::info!(tick = self.tick, "harness: {phase}");
+            self.harness_phase = phase;
+        }
+        // Waiting for the operator's word, the cursor stays where the settling begins (a stop
+        // holds the frame it is on anyway).
+        if phase != HarnessPhase::WaitingForOperator || self.cursor.is_cut() {
+            self.cursor.step();
+        }
         self.policy_steps += 1;
         // Where the robot went: the simulation's truth where there is one, else the estimate.
         let pose = if has_truth {

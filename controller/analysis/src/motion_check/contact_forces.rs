@@ -4,9 +4,7 @@
 //! feet, moving in the air other than falling), the residual says by how much.
 
 use clarabel::algebra::CscMatrix;
-use clarabel::solver::{
-    DefaultSettingsBuilder, DefaultSolver, IPSolver, SolverStatus, SupportedConeT,
-};
+use clarabel::solver::{DefaultSettingsBuilder, DefaultSolver, IPSolver, SolverStatus, SupportedConeT};
 
 /// Weight of the forces' own size against the wrench error: small, so that among the splits that
 /// carry the wrench exactly the smallest forces (spread over every point) win.
@@ -75,14 +73,16 @@ pub fn split(columns: &[[f64; 6]], wrench: [f64; 6], friction: f64) -> Split {
         .max_iter(100)
         .build()
         .expect("the settings are complete");
-    let solved = DefaultSolver::new(&p, &q, &a, &b, &cones, settings).ok().and_then(|mut solver| {
-        solver.solve();
-        matches!(
-            solver.solution.status,
-            SolverStatus::Solved | SolverStatus::AlmostSolved
-        )
-        .then(|| solver.solution.x.clone())
-    });
+    let solved = DefaultSolver::new(&p, &q, &a, &b, &cones, settings)
+        .ok()
+        .and_then(|mut solver| {
+            solver.solve();
+            matches!(
+                solver.solution.status,
+                SolverStatus::Solved | SolverStatus::AlmostSolved
+            )
+            .then(|| solver.solution.x.clone())
+        });
     let x = solved.unwrap_or_else(|| vec![0.0; n]);
     let mut residual = wrench;
     for (c, f) in columns.iter().zip(&x) {
@@ -135,7 +135,10 @@ mod tests {
         let c = columns(&[[0.0, 0.0]]);
         // Pulled up: no force, the whole wrench is left over.
         let up = split(&c, [0.0, 0.0, -50.0, 0.0, 0.0, 0.0], 0.8);
-        assert!(up.forces[0][2].abs() < 0.5 && (up.residual[2] + 50.0).abs() < 0.5, "{up:?}");
+        assert!(
+            up.forces[0][2].abs() < 0.5 && (up.residual[2] + 50.0).abs() < 0.5,
+            "{up:?}"
+        );
         // Pushed sideways harder than friction allows: the cone's edge, the rest left over.
         let side = split(&c, [100.0, 0.0, 100.0, 0.0, 0.0, 0.0], 0.5);
         let [fx, fy, fz] = side.forces[0];

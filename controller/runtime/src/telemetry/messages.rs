@@ -114,6 +114,8 @@ pub(super) struct Messages {
     bus_names: Vec<String>,
     keypoint_views: Vec<String>,
     last_mode: u8,
+    /// The harness phase of the last record.
+    last_harness: crate::options::HarnessPhase,
     last_generated: Option<PlanStatus>,
 }
 
@@ -152,6 +154,7 @@ impl Messages {
             bus_names: info.bus_names.clone(),
             keypoint_views: info.keypoint_views.clone(),
             last_mode: u8::MAX,
+            last_harness: crate::options::HarnessPhase::None,
             last_generated: None,
         }
     }
@@ -247,6 +250,21 @@ impl Messages {
     }
 
     /// `/log`, when a generated reference changed status this tick.
+    /// A line on `/log` as a harness start's phase begins.
+    pub(super) fn harness_log(&mut self, r: &TickRecord, stamp: u64) -> Option<fg::Log> {
+        if r.harness == self.last_harness {
+            return None;
+        }
+        self.last_harness = r.harness;
+        Some(fg::Log {
+            timestamp: fg_time(stamp),
+            level: fg::log::Level::Info as i32,
+            message: format!("tick {}: harness: {}", r.tick, r.harness),
+            name: "harness".into(),
+            ..Default::default()
+        })
+    }
+
     pub(super) fn generated_log(&mut self, r: &TickRecord, stamp: u64) -> Option<fg::Log> {
         let g = r.generated?;
         let (status, past) = (g.status, g.past_plan_s);

@@ -146,6 +146,8 @@ pub struct TickRecord {
     pub cause_len: u8,
     /// Whether that cause is a fault (a safety stop), not the normal course of a run.
     pub cause_fault: bool,
+    /// A harness start's phase.
+    pub harness: crate::options::HarnessPhase,
 }
 
 impl Default for TickRecord {
@@ -198,6 +200,7 @@ impl Default for TickRecord {
             cause: [0; 64],
             cause_len: 0,
             cause_fault: false,
+            harness: crate::options::HarnessPhase::None,
         }
     }
 }
@@ -258,6 +261,8 @@ pub struct TickView<'a> {
     pub compute: std::time::Duration,
     /// The latest transition's cause.
     pub cause: Option<crate::safety::Cause>,
+    /// A harness start's phase.
+    pub harness: crate::options::HarnessPhase,
 }
 
 impl TickRecord {
@@ -347,6 +352,7 @@ impl TickRecord {
         }
         r.io_us = v.io.as_secs_f32() * 1e6;
         r.compute_us = v.compute.as_secs_f32() * 1e6;
+        r.harness = v.harness;
         if let Some(cause) = v.cause {
             use std::io::Write as _;
             let mut cursor = std::io::Cursor::new(&mut r.cause[..]);
@@ -918,6 +924,9 @@ impl TickChannels {
             out.message(&self.log, t, &log)?;
         }
         if let Some(log) = m.generated_log(r, t) {
+            out.message(&self.log, t, &log)?;
+        }
+        if let Some(log) = m.harness_log(r, t) {
             out.message(&self.log, t, &log)?;
         }
         out.message(&self.imu, t, m.imu(r, t))?;
