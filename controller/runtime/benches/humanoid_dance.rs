@@ -34,16 +34,20 @@ fn robodeploy(frames: usize) -> (f64, f64, u64) {
     let root = workspace_root();
     let robot = Robot::load(&root.join("robots/g1/robot.toml")).unwrap();
     let mut layout = PolicyLayout::load(&root.join(DANCE), &robot).unwrap();
-    let (mut reference, _) =
+    let (reference, _) =
         controller::motion::load_reference(None, &root.join(DANCE), &mut layout, &robot, 0).unwrap();
-    if frames < reference.len() {
-        truncate(&mut reference, frames);
-    }
+    // The harness start's lead-in, then the frames asked for (the run stops softly after).
+    let h = robot.config.start.harness;
+    let lead_in = ((h.lower_s + h.settle_s) * 50.0).round() as u64;
+    let options = PlayOptions {
+        max_ticks: (frames < reference.len()).then_some(lead_in + frames as u64),
+        ..PlayOptions::default()
+    };
     let (mut player, mut clock, world) = lockstep_player(
         robot,
         layout,
         reference,
-        PlayOptions::default(),
+        options,
         MirrorConfig::default(),
         Arc::new(AtomicBool::new(false)),
     )
@@ -59,16 +63,6 @@ fn robodeploy(frames: usize) -> (f64, f64, u64) {
     let steps = world.lock().unwrap().stats().physics_steps;
     assert!(!player.summary_so_far().fell, "the G1 fell in the bench run");
     (player.ticks() as f64 * period.as_secs_f64(), took, steps)
-}
-
-/// Keeps the first `frames` ticks of `reference`.
-fn truncate(reference: &mut controller::clip::Reference, frames: usize) {
-    let (n, w) = (reference.n, reference.motion_bodies.len());
-    reference.q.truncate(frames * n);
-    reference.qd.truncate(frames * n);
-    reference.root.truncate(frames);
-    reference.motion_poses.truncate(frames * w);
-    reference.body_pos.truncate(frames * 3 * reference.bodies.len());
 }
 
 /// The Python loop's physics step (holosoma's), s.
