@@ -275,6 +275,168 @@ pub struct RobotConfig {
     /// Safety thresholds of this robot (the run's defaults where it gives none).
     #[serde(default, skip_serializing_if = "SafetyConfig::is_default")]
     pub safety: SafetyConfig,
+    /// Joint dynamics the trainer's simulation gives the joints (rotor armature, friction,
+    /// damping), per joint or group; applied to the compiled model, never to the MJCF file.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub joint_dynamics: Vec<JointDynamics>,
+    /// Physics settings of the trainer's simulation (the model's own where none).
+    #[serde(default, skip_serializing_if = "SimConfig::is_default")]
+    pub sim: SimConfig,
+}
+
+/// Joint dynamics for a joint or a group (robot.toml `[[joint_dynamics]]`): what a trainer such as
+/// mjlab adds per actuator group to a model that lacks it. A later entry wins over an earlier one,
+/// field by field, for the joints both match.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct JointDynamics {
+    /// Joint names or patterns (`*` matches any run of characters: `"*knee*"`).
+    pub joints: Vec<String>,
+    /// Rotor inertia reflected through the gearing, kg·m² (0–10).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub armature: Option<f64>,
+    /// Dry friction, N·m (0–1000).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frictionloss: Option<f64>,
+    /// Viscous damping, N·m·s/rad (0–1000).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub damping: Option<f64>,
+}
+
+/// One joint's dynamics after every `[[joint_dynamics]]` entry (none: the model's own).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct JointDynamicsOf {
+    /// Armature, kg·m².
+    pub armature: Option<f64>,
+    /// Friction loss, N·m.
+    pub frictionloss: Option<f64>,
+    /// Damping, N·m·s/rad.
+    pub damping: Option<f64>,
+}
+
+/// MuJoCo's numerical integrators (robot.toml `[sim] integrator`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Integrator {
+    /// Semi-implicit Euler.
+    Euler,
+    /// Fourth-order Runge-Kutta.
+    Rk4,
+    /// Implicit in velocity.
+    Implicit,
+    /// Implicit in velocity, without the Coriolis terms' derivatives (mjlab's and holosoma's).
+    Implicitfast,
+}
+
+/// Physics settings (robot.toml `[sim]`): the trainer's, where the model file differs.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SimConfig {
+    /// Physics step, s (0.0001 up to the policy period, a whole number of steps per period).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub timestep: Option<f64>,
+    /// Integrator.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub integrator: Option<Integrator>,
+    /// Constraint solver iterations (1–1000).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub iterations: Option<u32>,
+}
+
+impl SimConfig {
+    /// Whether nothing is set.
+    pub fn is_default(&self) -> bool {
+        *self == Self::default()
+    }
+
+    /// Checks every field against its documented range; `period` is the policy's, s.
+    pub fn check(&self, period: f64) -> Result<(), (String, String)> {
+        if let Some(t) = self.timestep {
+            if !(t.is_finite() && (0.0001..=period + 1e-12).contains(&t)) {
+                return Err((
+                    "sim.timestep".into(),
+                    format!(
+                        "{} s is outside [0.0001, {}] (the policy period)",
+                        crate::num(t),
+                        crate::num(period)
+                    ),
+                ));
+            }
+            let steps = period / t;
+            if (steps - steps.round()).abs() > 1e-6 {
+                return Err((
+                    "sim.timestep".into(),
+                    format!(
+                        "{} s does not divide the policy period {} s into whole steps",
+                        crate::num(t),
+                        crate::num(period)
+                    ),
+                ));
+            }
+        }
+        if let Some(i) = self.iterations
+            && !(1..=1000).contains(&i)
+        {
+            return Err(("sim.iterations".into(), format!("{i} is outside [1, 1000]")));
+        }
+        Ok(())
+    }
+}
+
+impl JointDynamics {
+    /// Checks every field against its documented range and every pattern against `joints`.
+    fn check(list: &[Self], joints: &[JointConfig]) -> Result<(), (String, String)> {
+        for (i, d) in list.iter().enumerate() {
+            let at = |field: &str| format!("joint_dynamics[{i}].{field}");
+            if d.joints.is_empty() {
+                return Err((at("joints"), "names no joint".into()));
+            }
+            for p in &d.joints {
+                if !joints.iter().any(|j| matches_pattern(p, &j.name)) {
+                    return Err((at("joints"), format!("{p:?} matches no joint of the robot")));
+                }
+            }
+            if d.armature.is_none() && d.frictionloss.is_none() && d.damping.is_none() {
+                return Err((
+                    at("joints"),
+                    "sets nothing: give armature, frictionloss or damping".into(),
+                ));
+            }
+            for (field, value, hi, unit) in [
+                ("armature", d.armature, 10.0, "kg·m²"),
+                ("frictionloss", d.frictionloss, 1000.0, "N·m"),
+                ("damping", d.damping, 1000.0, "N·m·s/rad"),
+            ] {
+                if let Some(v) = value
+                    && !(v.is_finite() && (0.0..=hi).contains(&v))
+                {
+                    return Err((
+                        at(field),
+                        format!("{} {unit} is outside [0, {}]", crate::num(v), crate::num(hi)),
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+impl RobotConfig {
+    /// The dynamics `[[joint_dynamics]]` gives joint `name`, field by field (the last entry
+    /// matching it that sets a field wins).
+    pub fn joint_dynamics_of(&self, name: &str) -> JointDynamicsOf {
+        let mut out = JointDynamicsOf::default();
+        for d in self
+            .joint_dynamics
+            .iter()
+            .filter(|d| d.joints.iter().any(|p| matches_pattern(p, name)))
+        {
+            out.armature = d.armature.or(out.armature);
+            out.frictionloss = d.frictionloss.or(out.frictionloss);
+            out.damping = d.damping.or(out.damping);
+        }
+        out
+    }
 }
 
 /// A robot's own safety thresholds (robot.toml `[safety]`).
@@ -846,6 +1008,28 @@ pub struct Robot {
 }
 
 impl Robot {
+    /// The robot's model as its trainer simulated it, editable before compiling: the MJCF with
+    /// robot.toml's `[[joint_dynamics]]` and `[sim]` applied (the file itself untouched).
+    pub fn spec(&self) -> Result<mujoco_rs::prelude::MjSpec, mjcf::MujocoError> {
+        let mut spec = mjcf::load_spec(&self.mjcf_path)?;
+        mjcf::apply_trainer_settings(&mut spec, &self.config).map_err(|reason| mjcf::MujocoError::Model {
+            path: self.mjcf_path.display().to_string(),
+            reason,
+        })?;
+        Ok(spec)
+    }
+
+    /// [`Self::spec`], compiled: the model every simulation and check of this robot uses.
+    pub fn model(&self) -> Result<mujoco_rs::prelude::MjModel, mjcf::MujocoError> {
+        if self.config.joint_dynamics.is_empty() && self.config.sim.is_default() {
+            return mjcf::load_model(&self.mjcf_path);
+        }
+        self.spec()?.compile().map_err(|e| mjcf::MujocoError::Model {
+            path: self.mjcf_path.display().to_string(),
+            reason: format!("with robot.toml's joint dynamics and [sim] applied: {e}"),
+        })
+    }
+
     /// Loads and checks `path` (a robot.toml).
     pub fn load(path: &Path) -> Result<Self, RobotError> {
         let err = |place: &str, message: String| RobotError {
@@ -1484,12 +1668,14 @@ impl Robot {
         }
         c.start.check()?;
         c.safety.check(&c.joints)?;
+        JointDynamics::check(&c.joint_dynamics, &c.joints)?;
         if !(1.0..=1000.0).contains(&c.control_rate_hz) {
             return Err((
                 "control_rate_hz".into(),
                 format!("{} Hz is outside [1, 1000]", crate::num(c.control_rate_hz)),
             ));
         }
+        c.sim.check(1.0 / c.control_rate_hz)?;
         if let Some(m) = c.position_margin {
             let narrowest = c
                 .joints

@@ -12,9 +12,10 @@ pub mod spatial;
 
 pub use config::{
     BodyPair, BusConfig, BusKind, BusTiming, HarnessConfig, HumanBody, IMU_SENSOR_KINDS, ImuConfig,
-    ImuSensorNames, Interpolation, JointConfig, KeypointFrame, MAX_HARNESS_LIFT_M, MitModelConfig,
-    OrientationCompare, PositionTargets, RetargetConfig, Robot, RobotConfig, RobotError, SafetyConfig,
-    StartConfig, StartMode, TrackingRule, default_command_timeout, matches_pattern,
+    ImuSensorNames, Integrator, Interpolation, JointConfig, JointDynamics, JointDynamicsOf, KeypointFrame,
+    MAX_HARNESS_LIFT_M, MitModelConfig, OrientationCompare, PositionTargets, RetargetConfig, Robot,
+    RobotConfig, RobotError, SafetyConfig, SimConfig, StartConfig, StartMode, TrackingRule,
+    default_command_timeout, matches_pattern,
 };
 
 /// A file that could not be read, parsed or written, and what was wrong with it.

@@ -89,6 +89,76 @@ pub fn load_spec(path: &Path) -> Result<mujoco_rs::prelude::MjSpec, MujocoError>
     mujoco_rs::prelude::MjSpec::from_xml(path).map_err(|e| model_error(e.to_string()))
 }
 
+/// Applies what robot.toml says of the trainer's simulation to `spec`: `[[joint_dynamics]]`
+/// (armature, friction loss, damping per joint) and `[sim]` (step, integrator, iterations).
+/// `Err` names the MJCF joint robot.toml maps that the model lacks.
+pub fn apply_trainer_settings(
+    spec: &mut mujoco_rs::prelude::MjSpec,
+    config: &crate::RobotConfig,
+) -> Result<(), String> {
+    for j in &config.joints {
+        let d = config.joint_dynamics_of(&j.name);
+        if d == crate::JointDynamicsOf::default() {
+            continue;
+        }
+        let joint = spec
+            .joint_mut(&j.mjcf_joint)
+            .ok_or_else(|| format!("joint {}: the model has no joint {:?}", j.name, j.mjcf_joint))?;
+        if let Some(a) = d.armature {
+            joint.set_armature(a);
+        }
+        if let Some(f) = d.frictionloss {
+            joint.set_frictionloss(f);
+        }
+        if let Some(c) = d.damping {
+            // The linear coefficient; MuJoCo's higher-order terms stay as the model has them.
+            joint.damping_mut()[0] = c;
+        }
+    }
+    let sim = &config.sim;
+    let option = spec.option_mut();
+    if let Some(t) = sim.timestep {
+        option.timestep = t;
+    }
+    if let Some(i) = sim.integrator {
+        option.integrator = i.mujoco();
+    }
+    if let Some(n) = sim.iterations {
+        option.iterations = n as i32;
+    }
+    Ok(())
+}
+
+impl crate::Integrator {
+    const ALL: [Self; 4] = [Self::Euler, Self::Rk4, Self::Implicit, Self::Implicitfast];
+
+    /// MuJoCo's `mjtIntegrator` value.
+    pub fn mujoco(self) -> i32 {
+        use mujoco_rs::mujoco_c::mjtIntegrator as I;
+        (match self {
+            Self::Euler => I::mjINT_EULER,
+            Self::Rk4 => I::mjINT_RK4,
+            Self::Implicit => I::mjINT_IMPLICIT,
+            Self::Implicitfast => I::mjINT_IMPLICITFAST,
+        }) as i32
+    }
+
+    /// The integrator of MuJoCo's `mjtIntegrator` value `code`, if it is one of these.
+    pub fn of_mujoco(code: i32) -> Option<Self> {
+        Self::ALL.into_iter().find(|i| i.mujoco() == code)
+    }
+
+    /// Its name in robot.toml.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Euler => "euler",
+            Self::Rk4 => "rk4",
+            Self::Implicit => "implicit",
+            Self::Implicitfast => "implicitfast",
+        }
+    }
+}
+
 /// Loads an MJCF document from a string after checking the library version.
 pub fn load_model_str(xml: &str) -> Result<MjModel, MujocoError> {
     check_version()?;

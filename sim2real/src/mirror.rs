@@ -34,7 +34,7 @@ use robots::{BusKind, Robot};
 
 use crate::config::{FaultKind, MirrorConfig, Range};
 use crate::model_index::{self, ModelIndex};
-use crate::mujoco::{MujocoError, load_model};
+use crate::mujoco::MujocoError;
 
 /// Why a mirror could not be built.
 #[derive(Debug, thiserror::Error)]
@@ -269,7 +269,8 @@ pub const ADDED_IMU_SENSORS: [&str; 3] = [
     "robodeploy_imu_orientation",
 ];
 
-/// The robot's compiled model with the IMU's three sensors, and their names: the model's own
+/// The robot's compiled model (robot.toml's joint dynamics and [sim] applied) with the IMU's three
+/// sensors, and their names: the model's own
 /// (robot.toml's names, or the ones on the IMU site), and through MuJoCo's model-editing API a
 /// gyro, an accelerometer or a frame orientation on the IMU site for each the model lacks.
 fn model_with_imu_sensors(robot: &Robot) -> Result<(MjModel, [String; 3]), MirrorError> {
@@ -277,9 +278,9 @@ fn model_with_imu_sensors(robot: &Robot) -> Result<(MjModel, [String; 3]), Mirro
     use mujoco_rs::prelude::SpecItem;
     let found = robot.imu_sensors();
     if let [Some(g), Some(a), Some(o)] = &found {
-        return Ok((load_model(&robot.mjcf_path)?, [g.clone(), a.clone(), o.clone()]));
+        return Ok((robot.model()?, [g.clone(), a.clone(), o.clone()]));
     }
-    let mut spec = robots::mjcf::load_spec(&robot.mjcf_path)?;
+    let mut spec = robot.spec()?;
     let kinds = [
         mjtSensor::mjSENS_GYRO,
         mjtSensor::mjSENS_ACCELEROMETER,

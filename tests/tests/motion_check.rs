@@ -75,7 +75,7 @@ fn a_jump_s_torques_agree_with_a_simulated_rollout_of_it() {
     // (legs and waist 300 N·m/rad, 8 N·m·s/rad; the arms at the robot's gains), every torque clipped to the
     // joint's limit and applied as a generalised force. The clip is what the robot did, at 50 Hz.
     let robot = Robot::load(&workspace_root().join("robots/g1/robot.toml")).unwrap();
-    let model = sim2real::mujoco::load_model(&robot.mjcf_path).unwrap();
+    let model = robot.model().unwrap();
     let index = ModelIndex::of_robot(&model, &robot).unwrap();
     let mut data = model.make_data();
     standing(&robot, &mut data, &index);
@@ -233,7 +233,7 @@ fn soles_on_the_floor_read_zero_for_box_capsule_sphere_and_mesh_feet() {
     ];
     for (shape, sole, asset) in shapes {
         let robot = biped_with_soles(&base.join(shape), sole, asset);
-        let model = sim2real::mujoco::load_model(&robot.mjcf_path).unwrap();
+        let model = robot.model().unwrap();
         let index = ModelIndex::of_robot(&model, &robot).unwrap();
         let mut data = model.make_data();
         standing(&robot, &mut data, &index);

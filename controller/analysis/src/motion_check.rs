@@ -283,7 +283,7 @@ pub fn analyze(
     robot: &Robot,
     reference: &Reference,
 ) -> Result<MotionQuality, controller::fk::KinematicsError> {
-    let model = sim2real::mujoco::load_model(&robot.mjcf_path)?;
+    let model = robot.model()?;
     let index = ModelIndex::of_robot(&model, robot)?;
     let (root_q, root_v) = (index.root.qpos, index.root.dof);
     let joints = &robot.config.joints;

@@ -404,7 +404,7 @@ pub fn check(args: &CheckArgs) -> Result<()> {
     if let Some(c) = &l.robot.calibration {
         println!("       calibration merged from {}", c.display());
     }
-    print_model(&l.robot);
+    print_model(&l.robot)?;
     for b in &l.robot.config.buses {
         if let Some(line) = crate::bus::schedule(&l.robot, &b.name) {
             println!("       {:<6} {line}", b.name);
@@ -527,7 +527,7 @@ pub fn check(args: &CheckArgs) -> Result<()> {
 
 /// What MuJoCo compiled of the robot's model: floor, actuators per joint, sensors, keyframes,
 /// and where the mirror's IMU reads.
-fn print_model(robot: &Robot) {
+fn print_model(robot: &Robot) -> Result<()> {
     let m = &robot.mjcf;
     let list = |v: Vec<String>| {
         if v.is_empty() {
@@ -601,6 +601,51 @@ fn print_model(robot: &Robot) {
         robot.config.imu.site,
         named.join(", ")
     );
+    print_dynamics(robot)?;
+    Ok(())
+}
+
+/// The physics and the joints' dynamics as the mirror and the motion check compile them: the
+/// model's own, or robot.toml's `[sim]` and `[[joint_dynamics]]` where it sets them.
+fn print_dynamics(robot: &Robot) -> Result<()> {
+    let model = robot.model()?;
+    let opt = model.opt();
+    let integrator = robots::Integrator::of_mujoco(opt.integrator).map_or("another integrator", |i| i.name());
+    let from = if robot.config.sim.is_default() {
+        "the model's"
+    } else {
+        "robot.toml [sim] over the model's"
+    };
+    println!(
+        "       physics: {} ms step, {integrator}, {} solver iterations ({from}); {} steps per policy tick",
+        1000.0 * opt.timestep,
+        opt.iterations,
+        ((1.0 / robot.config.control_rate_hz) / opt.timestep).round()
+    );
+    // Joints grouped by their compiled armature, friction loss and damping.
+    let index = sim2real::model_index::ModelIndex::of_robot(&model, robot)?;
+    let mut groups: Vec<([f64; 3], bool, Vec<&str>)> = Vec::new();
+    for (j, ids) in robot.config.joints.iter().zip(&index.joints) {
+        let d = ids.dof;
+        let key = [
+            model.dof_armature()[d],
+            model.dof_frictionloss()[d],
+            model.dof_damping()[d],
+        ];
+        let ours = robot.config.joint_dynamics_of(&j.name) != robots::JointDynamicsOf::default();
+        match groups.iter_mut().find(|g| g.0 == key && g.1 == ours) {
+            Some(g) => g.2.push(&j.name),
+            None => groups.push((key, ours, vec![&j.name])),
+        }
+    }
+    for ([armature, friction, damping], ours, joints) in groups {
+        println!(
+            "       joint dynamics{}: armature {armature} kg·m², frictionloss {friction} N·m, damping {damping} N·m·s/rad — {}",
+            if ours { " (robot.toml)" } else { "" },
+            joints.join(", ")
+        );
+    }
+    Ok(())
 }
 
 /// Adds the recorder, the e-stop and the live commands a run asked for.

@@ -1,0 +1,167 @@
+//! The trainer's simulation in the mirror: joint dynamics (armature, friction loss, damping) per
+//! joint or group and physics settings from robot.toml, applied to the compiled model — never to
+//! the user's files — used by the mirror and the motion check, shown by `check`, bad values named.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use robots::Robot;
+use sim2real::config::MirrorConfig;
+use sim2real::host::MirrorHost;
+use sim2real::model_index::ModelIndex;
+use test_support::bin::run_within;
+use test_support::fixtures::workspace_root;
+
+/// rd-biped's robot.toml with `extra` appended, written as `dir/name` (its MJCF where it is).
+fn biped_with(dir: &Path, name: &str, extra: &str) -> PathBuf {
+    let original = workspace_root().join("robots/biped");
+    let text = std::fs::read_to_string(original.join("robot.toml"))
+        .unwrap()
+        .replace(
+            "mjcf = \"biped.xml\"",
+            &format!("mjcf = {:?}", original.join("biped.xml")),
+        );
+    std::fs::create_dir_all(dir).unwrap();
+    let path = dir.join(name);
+    std::fs::write(&path, format!("{text}\n{extra}")).unwrap();
+    path
+}
+
+const DYNAMICS: &str = r#"
+[[joint_dynamics]]
+joints = ["*hip*", "*knee*"]
+armature = 0.02
+frictionloss = 0.3
+
+[[joint_dynamics]]
+joints = ["*knee"]
+armature = 0.05
+damping = 0.7
+
+[sim]
+timestep = 0.0005
+integrator = "implicitfast"
+iterations = 20
+"#;
+
+#[test]
+fn joint_dynamics_and_physics_from_robot_toml_reach_the_mirror_and_check() {
+    let dir = std::env::temp_dir().join(format!("robodeploy-trainer-sim-{}", std::process::id()));
+    let path = biped_with(&dir, "robot.toml", DYNAMICS);
+    let mjcf_before = std::fs::read(workspace_root().join("robots/biped/biped.xml")).unwrap();
+    let robot = Robot::load(&path).unwrap();
+    let model = robot.model().unwrap();
+    let index = ModelIndex::of_robot(&model, &robot).unwrap();
+    let dof = |name: &str| {
+        let i = robot.config.joints.iter().position(|j| j.name == name).unwrap();
+        index.joints[i].dof
+    };
+    // A later entry wins field by field; joints no entry names keep the model's values.
+    let plain = Robot::load(&workspace_root().join("robots/biped/robot.toml"))
+        .unwrap()
+        .model()
+        .unwrap();
+    let (hip, knee, ankle) = (dof("left_hip_pitch"), dof("left_knee"), dof("left_ankle_pitch"));
+    assert_eq!(model.dof_armature()[hip], 0.02);
+    assert_eq!(model.dof_frictionloss()[hip], 0.3);
+    assert_eq!(model.dof_damping()[hip], plain.dof_damping()[hip]);
+    assert_eq!(model.dof_armature()[knee], 0.05);
+    assert_eq!(model.dof_frictionloss()[knee], 0.3);
+    assert_eq!(model.dof_damping()[knee], 0.7);
+    assert_eq!(model.dof_armature()[ankle], plain.dof_armature()[ankle]);
+    assert_eq!(model.opt().timestep, 0.0005);
+    assert_eq!(model.opt().iterations, 20);
+    assert_eq!(
+        robots::Integrator::of_mujoco(model.opt().integrator),
+        Some(robots::Integrator::Implicitfast)
+    );
+    // The mirror steps the physics at robot.toml's step: 40 steps per 20 ms tick.
+    let mut host = MirrorHost::start(robot.clone(), MirrorConfig::default()).unwrap();
+    let start = host.now();
+    let before = host.world.lock().unwrap().stats().physics_steps;
+    let q: Vec<f64> = robot.config.joints.iter().map(|j| j.default_position).collect();
+    for k in 1..=10u32 {
+        host.command_positions(&robot, &q).unwrap();
+        host.wait_until(start + Duration::from_millis(20) * k);
+    }
+    let steps = host.world.lock().unwrap().stats().physics_steps - before;
+    assert!((399..=401).contains(&steps), "{steps} physics steps in 10 ticks");
+    // `check` shows them, marked as robot.toml's.
+    let (code, out, err) = run_within(
+        &["check", "--robot", path.to_str().unwrap()],
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, Some(0), "{out}{err}");
+    assert!(
+        out.contains("physics: 0.5 ms step, implicitfast, 20 solver iterations (robot.toml [sim] over the model's); 40 steps per policy tick"),
+        "{out}"
+    );
+    let knees = out
+        .lines()
+        .find(|l| l.contains("joint dynamics") && l.ends_with("left_knee, right_knee"))
+        .unwrap_or("");
+    assert!(
+        knees.contains("(robot.toml): armature 0.05 kg·m², frictionloss 0.3 N·m, damping 0.7 N·m·s/rad"),
+        "{out}"
+    );
+    // The user's files are untouched.
+    assert_eq!(
+        std::fs::read(workspace_root().join("robots/biped/biped.xml")).unwrap(),
+        mjcf_before
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn bad_joint_dynamics_and_physics_are_refused_by_field_and_nothing_moves() {
+    let dir = std::env::temp_dir().join(format!("robodeploy-trainer-sim-bad-{}", std::process::id()));
+    let cases = [
+        (
+            "[[joint_dynamics]]\njoints = [\"*knee*\"]\narmature = -0.01\n",
+            "joint_dynamics[0].armature: -0.01 kg·m² is outside [0, 10]",
+        ),
+        (
+            "[[joint_dynamics]]\njoints = [\"*knee*\"]\ndamping = nan\n",
+            "joint_dynamics[0].damping: NaN N·m·s/rad is outside [0, 1000]",
+        ),
+        (
+            "[[joint_dynamics]]\njoints = [\"*elbow*\", \"*flipper*\"]\narmature = 0.01\n",
+            "joint_dynamics[0].joints: \"*flipper*\" matches no joint of the robot",
+        ),
+        (
+            "[[joint_dynamics]]\njoints = [\"*knee*\"]\n",
+            "joint_dynamics[0].joints: sets nothing",
+        ),
+        (
+            "[sim]\ntimestep = 0.0\n",
+            "sim.timestep: 0 s is outside [0.0001, 0.02]",
+        ),
+        (
+            "[sim]\ntimestep = 0.05\n",
+            "sim.timestep: 0.05 s is outside [0.0001, 0.02]",
+        ),
+        (
+            "[sim]\ntimestep = 0.003\n",
+            "sim.timestep: 0.003 s does not divide the policy period 0.02 s",
+        ),
+        ("[sim]\nintegrator = \"verlet\"\n", "unknown variant `verlet`"),
+    ];
+    for (i, (extra, want)) in cases.iter().enumerate() {
+        let path = biped_with(&dir, &format!("bad{i}.toml"), extra);
+        let (code, out, err) = run_within(
+            &[
+                "play",
+                "--robot",
+                path.to_str().unwrap(),
+                "--no-record",
+                "--max-seconds",
+                "1",
+            ],
+            Duration::from_secs(120),
+        );
+        assert_eq!(code, Some(2), "{want}: {out}{err}");
+        assert!(err.contains(want), "wanted {want:?} in: {err}");
+        assert!(!out.contains("Running"), "{want}: something moved: {out}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
