@@ -343,7 +343,8 @@ pub struct MjcfSummary {
     pub sensors: Vec<MjcfSensor>,
     /// Keyframes, in model order.
     pub keyframes: Vec<MjcfKeyframe>,
-    /// The world's planes (the floor), by name (`plane<id>` when unnamed).
+    /// The world's planes (the floor), its own or its static bodies', by name (`plane<id>` when
+    /// unnamed).
     pub floor: Vec<String>,
     /// Whether the model has a free joint (a floating base).
     pub floating: bool,
@@ -491,7 +492,9 @@ pub fn summarize_model(model: &MjModel) -> MjcfSummary {
         });
     }
     for g in 0..count(m.ngeom) {
-        if model.geom_bodyid()[g] == 0 && model.geom_type()[g] == _mjtGeomBase::mjGEOM_PLANE {
+        // A plane of the world, or of a static body welded to it (a scene's `floor` body).
+        let body = model.geom_bodyid()[g] as usize;
+        if model.body_weldid()[body] == 0 && model.geom_type()[g] == _mjtGeomBase::mjGEOM_PLANE {
             s.floor.push(name(MjtObjBase::mjOBJ_GEOM, g, "plane"));
         }
     }

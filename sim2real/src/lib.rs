@@ -11,3 +11,4 @@ pub mod mujoco;
 pub mod placement;
 pub mod render;
 pub mod serve;
+pub mod stability;

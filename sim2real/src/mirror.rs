@@ -29,6 +29,7 @@ use firmware_bridge::serial::{LockstepStream, SerialSimWorld, StreamLine};
 use firmware_bridge::time::SimWorld;
 use firmware_bridge::time::{SimInstant, SimRng};
 use mujoco_rs::prelude::*;
+use mujoco_rs::wrappers::mj_model::traits::ModelType;
 use robots::spatial::{quat_conj, quat_mul, quat_of_rpy, quat_rotate};
 use robots::{BusKind, Robot};
 
@@ -143,9 +144,9 @@ enum ChipAnswers {
 struct Gantry {
     pos: [f64; 3],
     quat: [f64; 4],
-    /// Spring and damper on the base's position (N/m, N·s/m) and orientation (N·m/rad,
-    /// N·m·s/rad), sized for the robot held.
-    gains: [f64; 4],
+    /// Springs on the base's position (N/m) and orientation (N·m/rad), sized for the robot held
+    /// (its dampers are the root's joint damping).
+    stiffness: [f64; 2],
 }
 
 /// A harness: a rope from a crane's hook to the robot's root, taut while it carries weight and
@@ -310,6 +311,40 @@ fn model_with_imu_sensors(robot: &Robot) -> Result<(MjModel, [String; 3]), Mirro
     Ok((model, names))
 }
 
+/// `qpos` (the whole model's) in the start pose: robot.toml's keyframe, else the default joint
+/// angles at the joints' addresses `joint_qpos` (robot order); the root is left as it is.
+fn start_pose(robot: &Robot, joint_qpos: &[usize], qpos: &mut [f64]) {
+    match robot.start_keyframe() {
+        Some(k) if k.qpos.len() == qpos.len() => qpos.copy_from_slice(&k.qpos),
+        _ => {
+            for (&a, cfg) in joint_qpos.iter().zip(&robot.config.joints) {
+                qpos[a] = cfg.default_position;
+            }
+        }
+    }
+}
+
+/// The mass (kg) of the tree rooted at `root_body` and its mean moment of inertia about the root
+/// (kg·m²), in `data`'s present pose.
+fn held_mass_and_inertia<M: ModelType>(data: &MjData<M>, root_body: usize) -> (f64, f64) {
+    let m = data.model();
+    let root = data.xpos()[root_body];
+    let (mut mass, mut inertia) = (0.0, 0.0);
+    for b in 1..m.ffi().nbody as usize {
+        if !crate::placement::in_tree(m, b, root_body) {
+            continue;
+        }
+        let bm = m.body_mass()[b];
+        let d = data.xipos()[b];
+        let r2 = (0..3).map(|i| (d[i] - root[i]).powi(2)).sum::<f64>();
+        let own = m.body_inertia()[b];
+        mass += bm;
+        // Averaged over the three axes: ⅔ m r² from the offset, a third of the trace.
+        inertia += 2.0 / 3.0 * bm * r2 + (own[0] + own[1] + own[2]) / 3.0;
+    }
+    (mass.max(1e-3), inertia.max(1e-6))
+}
+
 /// Serial line numbers: Dynamixel lines first (in robot.toml order), then the IMU.
 impl Mirror {
     /// Builds the mirror of `robot`: loads and randomises its model, places it in its default
@@ -332,7 +367,7 @@ impl Mirror {
         if roll != 0.0 || pitch != 0.0 {
             let tilt = quat_of_rpy(roll, pitch, 0.0);
             for g in 0..model.ffi().ngeom as usize {
-                if model.geom_bodyid()[g] == 0
+                if model.body_weldid()[model.geom_bodyid()[g] as usize] == 0
                     && model.geom_type()[g] == mujoco_rs::mujoco_c::_mjtGeomBase::mjGEOM_PLANE
                 {
                     let q = model.geom_quat()[g];
@@ -554,6 +589,23 @@ impl Mirror {
             pushes.push((time(p.at_s)?, time(p.at_s + p.duration_s)?, p.force_n));
         }
 
+        if config.gantry {
+            // The stand's dampers act on the root's own degrees of freedom, where MuJoCo
+            // integrates joint damping implicitly: as an explicit force they would act on the
+            // root body alone (a humanoid's light pelvis) and diverge at a 2 ms step. Sized, like
+            // the springs, for the robot in its start pose.
+            let (mass, inertia) = {
+                let mut posed = model.make_data();
+                let joint_qpos: Vec<usize> = joints.iter().map(|j| j.qpos).collect();
+                start_pose(&robot, &joint_qpos, posed.qpos_mut());
+                posed.forward();
+                held_mass_and_inertia(&posed, root_body)
+            };
+            let d = root_dof;
+            let damping = model.dof_damping_mut();
+            damping[d..d + 3].fill(2.0 * GANTRY_ZETA * mass * GANTRY_OMEGA);
+            damping[d + 3..d + 6].fill(2.0 * GANTRY_ZETA * inertia * GANTRY_OMEGA);
+        }
         let data = MjData::new(Box::new(model));
         let n_joints = joints.len();
         let mut mirror = Self {
@@ -598,16 +650,8 @@ impl Mirror {
     /// gantry.
     fn place_in_default_pose(&mut self) {
         let r = self.root_qpos;
-        match self.robot.start_keyframe().map(|k| k.qpos.clone()) {
-            Some(qpos) if qpos.len() == self.data.qpos().len() => {
-                self.data.qpos_mut().copy_from_slice(&qpos);
-            }
-            _ => {
-                for (j, cfg) in self.joints.iter().zip(&self.robot.config.joints) {
-                    self.data.qpos_mut()[j.qpos] = cfg.default_position;
-                }
-            }
-        }
+        let joint_qpos: Vec<usize> = self.joints.iter().map(|j| j.qpos).collect();
+        start_pose(&self.robot, &joint_qpos, self.data.qpos_mut());
         self.data.forward();
         let lift = if self.config.gantry {
             0.05
@@ -634,16 +678,11 @@ impl Mirror {
             let q = self.data.qpos();
             let r = self.root_qpos;
             let (mass, inertia) = self.held_mass_and_inertia();
-            let (w, z) = (GANTRY_OMEGA, GANTRY_ZETA);
+            let w = GANTRY_OMEGA;
             self.gantry = Some(Gantry {
                 pos: [q[r], q[r + 1], q[r + 2]],
                 quat: [q[r + 3], q[r + 4], q[r + 5], q[r + 6]],
-                gains: [
-                    mass * w * w,
-                    2.0 * z * mass * w,
-                    inertia * w * w,
-                    2.0 * z * inertia * w,
-                ],
+                stiffness: [mass * w * w, inertia * w * w],
             });
         }
         if let (Some(h), false) = (self.config.harness, self.config.gantry) {
@@ -1027,8 +1066,19 @@ impl Mirror {
             (W::mjWARN_BADQVEL, "bad joint velocities"),
             (W::mjWARN_BADQACC, "bad joint accelerations (unstable)"),
         ] {
-            if warnings[w as usize].number > 0 {
-                return Some(format!("MuJoCo warned of {what}"));
+            let warning = &warnings[w as usize];
+            if warning.number > 0 {
+                // MuJoCo notes the degree of freedom it found bad: name its joint.
+                let model = self.data.model();
+                let joint = usize::try_from(warning.lastinfo)
+                    .ok()
+                    .and_then(|dof| model.dof_jntid().get(dof).copied())
+                    .and_then(|j| model.id_to_name(MjtObjBase::mjOBJ_JOINT, usize::try_from(j).ok()?))
+                    .filter(|name| !name.is_empty());
+                return Some(match joint {
+                    Some(name) => format!("MuJoCo warned of {what} at joint {name}"),
+                    None => format!("MuJoCo warned of {what}"),
+                });
             }
         }
         let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
@@ -1057,40 +1107,20 @@ impl Mirror {
     /// The robot's mass (kg) and its mean moment of inertia about the root (kg·m²), in the
     /// present pose.
     fn held_mass_and_inertia(&self) -> (f64, f64) {
-        let m = self.data.model();
-        let root = self.data.xpos()[self.root_body];
-        let (mut mass, mut inertia) = (0.0, 0.0);
-        for b in 1..m.ffi().nbody as usize {
-            let mut a = b;
-            while a != 0 && a != self.root_body {
-                a = m.body_parentid()[a] as usize;
-            }
-            if a != self.root_body {
-                continue;
-            }
-            let bm = m.body_mass()[b];
-            let d = self.data.xipos()[b];
-            let r2 = (0..3).map(|i| (d[i] - root[i]).powi(2)).sum::<f64>();
-            let own = m.body_inertia()[b];
-            mass += bm;
-            // Averaged over the three axes: ⅔ m r² from the offset, a third of the trace.
-            inertia += 2.0 / 3.0 * bm * r2 + (own[0] + own[1] + own[2]) / 3.0;
-        }
-        (mass.max(1e-3), inertia.max(1e-6))
+        held_mass_and_inertia(&self.data, self.root_body)
     }
 
     fn hold_on_gantry(&mut self, g: Gantry) {
         let r = self.root_qpos;
-        let (q, v) = (self.data.qpos(), self.data.qvel());
-        let [k, c, kr, cr] = g.gains;
-        let force: [f64; 3] = std::array::from_fn(|i| k * (g.pos[i] - q[r + i]) - c * v[i]);
-        // Orientation error as a rotation vector (world frame), angular velocity is body-frame.
+        let q = self.data.qpos();
+        let [k, kr] = g.stiffness;
+        // The springs only: the damping is the root's joint damping (set with the stand).
+        let force: [f64; 3] = std::array::from_fn(|i| k * (g.pos[i] - q[r + i]));
+        // Orientation error as a rotation vector (world frame).
         let cur = [q[r + 3], q[r + 4], q[r + 5], q[r + 6]];
         let err = quat_mul(g.quat, quat_conj(cur));
         let s = if err[0] < 0.0 { -2.0 } else { 2.0 };
-        let w_body = [v[3], v[4], v[5]];
-        let w_world = quat_rotate(cur, w_body);
-        let torque: [f64; 3] = std::array::from_fn(|i| kr * s * err[i + 1] - cr * w_world[i]);
+        let torque: [f64; 3] = std::array::from_fn(|i| kr * s * err[i + 1]);
         let x = &mut self.data.xfrc_applied_mut()[self.root_body];
         x[..3].copy_from_slice(&force);
         x[3..].copy_from_slice(&torque);

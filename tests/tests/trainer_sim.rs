@@ -165,3 +165,95 @@ fn bad_joint_dynamics_and_physics_are_refused_by_field_and_nothing_moves() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// holosoma's G1 robot.toml with `extra` appended, written as `dir/name`.
+fn g1_with(dir: &Path, name: &str, extra: &str) -> PathBuf {
+    let root = workspace_root();
+    let text = std::fs::read_to_string(root.join("robots/g1/robot.toml"))
+        .unwrap()
+        .replace("mjcf = \"../../", &format!("mjcf = \"{}/", root.display()));
+    std::fs::create_dir_all(dir).unwrap();
+    let path = dir.join(name);
+    std::fs::write(&path, format!("{text}\n{extra}")).unwrap();
+    path
+}
+
+#[test]
+fn the_g1_holds_still_on_the_gantry_with_its_armature_and_check_names_the_instability_without() {
+    use sim2real::stability::{Hold, settle};
+    // As shipped (the model's armature, its 2 ms step): still on the gantry and in the harness;
+    // with its armature even at holosoma's 5 ms.
+    let dir = std::env::temp_dir().join(format!("robodeploy-trainer-sim-g1-{}", std::process::id()));
+    let shipped = Robot::load(&workspace_root().join("robots/g1/robot.toml")).unwrap();
+    let at_5ms = Robot::load(&g1_with(&dir, "g1-5ms.toml", "[sim]\ntimestep = 0.005\n")).unwrap();
+    for robot in [&shipped, &at_5ms] {
+        for hold in [Hold::Gantry, Hold::Start] {
+            let s = settle(robot, hold).unwrap();
+            assert!(s.stable(), "{s}");
+        }
+    }
+    // Without armature at 5 ms the joints diverge at once: `check` refuses the robot, naming
+    // the joint MuJoCo found and what to change.
+    let bare = g1_with(
+        &dir,
+        "g1-bare.toml",
+        "[[joint_dynamics]]\njoints = [\"*\"]\narmature = 0.0\n\n[sim]\ntimestep = 0.005\n",
+    );
+    let (code, out, err) = run_within(
+        &[
+            "check",
+            "--robot",
+            bare.to_str().unwrap(),
+            "--policy",
+            workspace_root()
+                .join("robots/g1/policies/holosoma_loco_ppo.toml")
+                .to_str()
+                .unwrap(),
+        ],
+        Duration::from_secs(120),
+    );
+    assert_ne!(code, Some(0), "{out}{err}");
+    let line = out
+        .lines()
+        .find(|l| l.contains("stability on the gantry"))
+        .unwrap_or("");
+    assert!(
+        line.contains("unstable at the 5 ms step") && line.contains("at joint ") && line.contains("armature"),
+        "{out}"
+    );
+    assert!(
+        err.contains("the robot's model is not stable at its physics step"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_floor_inside_a_static_body_is_the_floor() {
+    // rd-biped's scene with its floor plane moved into a static body named `floor`.
+    let dir = std::env::temp_dir().join(format!("robodeploy-trainer-sim-floor-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let source = workspace_root().join("robots/biped");
+    let xml = std::fs::read_to_string(source.join("biped.xml")).unwrap();
+    let plane = xml
+        .lines()
+        .find(|l| l.contains("name=\"floor\""))
+        .unwrap()
+        .trim()
+        .to_owned();
+    let moved = xml.replace(
+        &plane,
+        &format!(
+            "<body name=\"floor\" pos=\"0 0 0\">{}</body>",
+            plane.replace("name=\"floor\"", "name=\"ground\"")
+        ),
+    );
+    std::fs::write(dir.join("biped.xml"), moved).unwrap();
+    std::fs::copy(source.join("robot.toml"), dir.join("robot.toml")).unwrap();
+    let robot = Robot::load(&dir.join("robot.toml")).unwrap();
+    assert_eq!(robot.mjcf.floor, vec!["ground".to_owned()]);
+    // The mirror stands the robot on it.
+    let s = sim2real::stability::settle(&robot, sim2real::stability::Hold::Start).unwrap();
+    assert!(s.stable(), "{s}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -405,6 +405,25 @@ pub fn check(args: &CheckArgs) -> Result<()> {
         println!("       calibration merged from {}", c.display());
     }
     print_model(&l.robot)?;
+    // The model at its step, settled before anything depends on it.
+    let mut unstable = Vec::new();
+    for hold in [
+        sim2real::stability::Hold::Gantry,
+        sim2real::stability::Hold::Start,
+    ] {
+        let settle = sim2real::stability::settle(&l.robot, hold)?;
+        println!("       stability {settle}");
+        if !settle.stable() {
+            unstable.push(settle.to_string());
+        }
+    }
+    if !unstable.is_empty() {
+        bail!(
+            "{}: the robot's model is not stable at its physics step:\n  {}",
+            l.robot.mjcf_path.display(),
+            unstable.join("\n  ")
+        );
+    }
     for b in &l.robot.config.buses {
         if let Some(line) = crate::bus::schedule(&l.robot, &b.name) {
             println!("       {:<6} {line}", b.name);
