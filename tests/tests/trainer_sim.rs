@@ -257,3 +257,67 @@ fn a_floor_inside_a_static_body_is_the_floor() {
     assert!(s.stable(), "{s}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn compare_judges_imu_terms_by_each_robots_own_imu() {
+    // rd-biped's WIT AHRS and rd-mini's BNO08x in RVC mode: the gyro term (scale 0.25 on rd-mini)
+    // is judged by what each part can tell apart — and a BNO055 by its own steps.
+    let wit = Robot::load(&workspace_root().join("robots/biped/robot.toml")).unwrap();
+    let biped_layout = controller::policy::PolicyLayout::load(
+        &workspace_root().join("robots/biped/policies/reference_follower.toml"),
+        &wit,
+    )
+    .unwrap();
+    let q = analysis::compare::quanta(&biped_layout, &wit);
+    let gyro = biped_layout
+        .slots
+        .iter()
+        .find(|s| s.term.name() == "gyro")
+        .unwrap();
+    assert_eq!(
+        q[gyro.range.start],
+        Some(firmware_bridge::imu::wit::GYRO_RESOLUTION * 0.25)
+    );
+
+    let mini = Robot::load(&workspace_root().join("robots/mini/robot.toml")).unwrap();
+    let layout = controller::policy::PolicyLayout::load(
+        &workspace_root().join("robots/mini/policies/stand_walk.toml"),
+        &mini,
+    )
+    .unwrap();
+    let slot = layout
+        .slots
+        .iter()
+        .find(|s| s.term.name() == "base_ang_vel")
+        .unwrap();
+    let rvc = firmware_bridge::imu::ImuProtocol::Bno08xRvc.resolution();
+    assert_eq!(
+        analysis::compare::quanta(&layout, &mini)[slot.range.start],
+        Some(rvc.gyro * 0.25)
+    );
+    // The same robot with a BNO055 on its line.
+    let dir = std::env::temp_dir().join(format!("robodeploy-trainer-sim-imu-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let text = std::fs::read_to_string(workspace_root().join("robots/mini/robot.toml"))
+        .unwrap()
+        .replace("protocol = \"bno08x_rvc\"", "protocol = \"bno055\"");
+    for entry in std::fs::read_dir(workspace_root().join("robots/mini")).unwrap() {
+        let p = entry.unwrap().path();
+        if p.is_file() && p.file_name().is_some_and(|n| n != "robot.toml") {
+            std::fs::copy(&p, dir.join(p.file_name().unwrap())).unwrap();
+        }
+    }
+    std::fs::create_dir_all(dir.join("meshes")).unwrap();
+    for entry in std::fs::read_dir(workspace_root().join("robots/mini/meshes")).unwrap() {
+        let p = entry.unwrap().path();
+        std::fs::copy(&p, dir.join("meshes").join(p.file_name().unwrap())).unwrap();
+    }
+    std::fs::write(dir.join("robot.toml"), text).unwrap();
+    let bno055 = Robot::load(&dir.join("robot.toml")).unwrap();
+    let q = analysis::compare::quanta(&layout, &bno055);
+    assert_eq!(
+        q[slot.range.start],
+        Some(firmware_bridge::imu::bno055::GYRO_LSB * 0.25)
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -224,10 +224,11 @@ pub fn best_offset(
 }
 
 /// The buses' resolution of each observation value, in observation units (`None` where no bus
-/// measures it): joint positions and velocities from each joint's device, the IMU's outputs.
+/// measures it): joint positions and velocities from each joint's device, the IMU's outputs by
+/// its protocol (WIT, BNO08x RVC, BNO055).
 pub fn quanta(layout: &PolicyLayout, robot: &robots::Robot) -> Vec<Option<f64>> {
     use controller::policy::Term;
-    use firmware_bridge::imu::wit;
+    let imu = robot.config.imu.protocol.resolution();
     let mut out = vec![None; layout.obs_len];
     for slot in &layout.slots {
         let sh = slot.term.shaping();
@@ -242,12 +243,11 @@ pub fn quanta(layout: &PolicyLayout, robot: &robots::Robot) -> Vec<Option<f64>> 
             .map(|i| match &slot.term {
                 Term::JointPos { .. } => joint(i, 0),
                 Term::JointVel(_) => joint(i, 1),
-                Term::Gyro(_) | Term::BaseAngVel(_) => Some(wit::GYRO_RESOLUTION),
-                Term::Accelerometer(_) => Some(wit::ACCEL_RESOLUTION),
+                // The robot's own IMU, by its protocol's resolution.
+                Term::Gyro(_) | Term::BaseAngVel(_) => Some(imu.gyro),
+                Term::Accelerometer(_) => Some(imu.accel),
                 // Gravity and orientation come from the quaternion: a step of each component.
-                Term::ProjectedGravity(_) | Term::BaseOrientation(_) => {
-                    Some(2.0 * wit::QUATERNION_RESOLUTION)
-                }
+                Term::ProjectedGravity(_) | Term::BaseOrientation(_) => Some(2.0 * imu.quaternion),
                 _ => None,
             })
             .collect();

@@ -23,7 +23,42 @@ pub enum ImuProtocol {
     Bno055,
 }
 
+/// The smallest step of each output a part reports, SI units: what two readings of the same
+/// state can differ by.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Resolution {
+    /// Angular velocity, rad/s.
+    pub gyro: f64,
+    /// Acceleration, m/s².
+    pub accel: f64,
+    /// A component of the orientation quaternion.
+    pub quaternion: f64,
+}
+
 impl ImuProtocol {
+    /// The resolution of the part's outputs as its protocol carries them.
+    pub fn resolution(self) -> Resolution {
+        match self {
+            Self::Wit => Resolution {
+                gyro: wit::GYRO_RESOLUTION,
+                accel: wit::ACCEL_RESOLUTION,
+                quaternion: wit::QUATERNION_RESOLUTION,
+            },
+            // RVC carries angles; the angular velocity is an attitude difference over one frame,
+            // and a quaternion component moves by half an angle's step.
+            Self::Bno08xRvc => Resolution {
+                gyro: rvc::ANGLE_RESOLUTION * rvc::RATE_HZ,
+                accel: rvc::ACCEL_RESOLUTION,
+                quaternion: 0.5 * rvc::ANGLE_RESOLUTION,
+            },
+            Self::Bno055 => Resolution {
+                gyro: bno055::GYRO_LSB,
+                accel: bno055::ACCEL_LSB,
+                quaternion: bno055::QUAT_LSB,
+            },
+        }
+    }
+
     /// The line speed the part runs at, when fixed.
     pub fn fixed_baud(self) -> Option<u32> {
         match self {
