@@ -798,36 +798,78 @@ pub struct ServoModelConfig {
     pub no_load_speed: Option<f64>,
 }
 
+/// A serial servo variant of the robot's own, on its base's family.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ServoVariant {
+    /// A Dynamixel variant.
+    Dynamixel(dxl::models::DxlModel),
+    /// A Feetech (STS/SCS) variant.
+    Feetech(feetech::models::FeetechModel),
+}
+
 impl ServoModelConfig {
-    /// The variant, or the field that is wrong and why.
-    pub fn model(&self) -> Result<dxl::models::DxlModel, (&'static str, String)> {
-        let Some(base) = dxl::models::find(&self.base) else {
-            let known: Vec<&str> = dxl::models::builtin().iter().map(|m| m.name.as_str()).collect();
-            return Err((
-                "base",
-                format!(
-                    "{:?} is not a shipped servo model (known: {})",
-                    self.base,
-                    known.join(", ")
-                ),
-            ));
-        };
-        let mut m = base.clone();
-        m.name = self.name.clone();
-        for (field, given, slot) in [
-            ("nominal_voltage", self.nominal_voltage, &mut m.nominal_voltage),
-            ("stall_torque", self.stall_torque, &mut m.stall_torque),
-            ("stall_current", self.stall_current, &mut m.stall_current),
-            ("no_load_speed", self.no_load_speed, &mut m.no_load_speed),
-        ] {
-            if let Some(v) = given {
-                if !(v.is_finite() && v > 0.0 && v <= 1e4) {
-                    return Err((field, format!("{} must be a positive number", crate::num(v))));
-                }
-                *slot = v;
+    /// The variant, on a shipped Dynamixel or Feetech base, or the field that is wrong and why.
+    pub fn model(&self) -> Result<ServoVariant, (&'static str, String)> {
+        let figure = |field: &'static str, v: f64| {
+            if v.is_finite() && v > 0.0 && v <= 1e4 {
+                Ok(v)
+            } else {
+                Err((field, format!("{} must be a positive number", crate::num(v))))
             }
+        };
+        let given = [
+            ("nominal_voltage", self.nominal_voltage),
+            ("stall_torque", self.stall_torque),
+            ("stall_current", self.stall_current),
+            ("no_load_speed", self.no_load_speed),
+        ];
+        if let Some(base) = dxl::models::find(&self.base) {
+            let mut m = base.clone();
+            m.name = self.name.clone();
+            let slots = [
+                &mut m.nominal_voltage,
+                &mut m.stall_torque,
+                &mut m.stall_current,
+                &mut m.no_load_speed,
+            ];
+            for ((field, v), slot) in given.into_iter().zip(slots) {
+                if let Some(v) = v {
+                    *slot = figure(field, v)?;
+                }
+            }
+            return Ok(ServoVariant::Dynamixel(m));
         }
-        Ok(m)
+        if let Some(base) = feetech::models::find(&self.base) {
+            let mut m = base.clone();
+            m.name = self.name.clone();
+            // The table keeps no-load speed in rad/s; robot.toml gives rpm for every family.
+            let rpm = std::f64::consts::TAU / 60.0;
+            let slots = [
+                (&mut m.nominal_voltage, 1.0),
+                (&mut m.stall_torque, 1.0),
+                (&mut m.stall_current, 1.0),
+                (&mut m.no_load_speed, rpm),
+            ];
+            for ((field, v), (slot, unit)) in given.into_iter().zip(slots) {
+                if let Some(v) = v {
+                    *slot = figure(field, v)? * unit;
+                }
+            }
+            return Ok(ServoVariant::Feetech(m));
+        }
+        let known: Vec<&str> = dxl::models::builtin()
+            .iter()
+            .map(|m| m.name.as_str())
+            .chain(feetech::models::builtin().iter().map(|m| m.name.as_str()))
+            .collect();
+        Err((
+            "base",
+            format!(
+                "{:?} is not a shipped servo model (known: {})",
+                self.base,
+                known.join(", ")
+            ),
+        ))
     }
 }
 
@@ -1003,6 +1045,8 @@ pub struct Robot {
     /// The robot's own servo variants (robot.toml's `servo_models`), checked, with the shipped
     /// model each speaks as.
     pub servo_models: Vec<(dxl::models::DxlModel, String)>,
+    /// The robot's own Feetech servo variants (`[[servo_models]]` on a Feetech base).
+    pub feetech_models: Vec<feetech::models::FeetechModel>,
     /// The calibration.toml merged over the description, when there was one.
     pub calibration: Option<PathBuf>,
 }
@@ -1095,6 +1139,7 @@ impl Robot {
             mit_models.push(m.model().map_err(|(field, message)| err(&at(field), message))?);
         }
         let mut servo_models = Vec::with_capacity(config.servo_models.len());
+        let mut feetech_models = Vec::new();
         for (i, m) in config.servo_models.iter().enumerate() {
             let at = |field: &str| format!("servo_models[{i}] ({}).{field}", m.name);
             if m.name.is_empty() || config.servo_models[..i].iter().any(|o| o.name == m.name) {
@@ -1103,8 +1148,10 @@ impl Robot {
                     format!("{:?} is empty or defined twice", m.name),
                 ));
             }
-            let model = m.model().map_err(|(field, message)| err(&at(field), message))?;
-            servo_models.push((model, m.base.clone()));
+            match m.model().map_err(|(field, message)| err(&at(field), message))? {
+                ServoVariant::Dynamixel(model) => servo_models.push((model, m.base.clone())),
+                ServoVariant::Feetech(model) => feetech_models.push(model),
+            }
         }
         let robot = Self {
             config,
@@ -1113,6 +1160,7 @@ impl Robot {
             mjcf,
             mit_models,
             servo_models,
+            feetech_models,
             calibration: merged,
         };
         robot.check().map_err(|(place, message)| err(&place, message))?;
@@ -1296,9 +1344,12 @@ impl Robot {
             .map_or(name, |(_, base)| base.as_str())
     }
 
-    /// The Feetech servo model called `name` (the shipped table's).
-    pub fn feetech_model(&self, name: &str) -> Option<&'static feetech::models::FeetechModel> {
-        feetech::models::find(name)
+    /// The Feetech servo model called `name`: the robot's own variant, else the shipped table's.
+    pub fn feetech_model(&self, name: &str) -> Option<&feetech::models::FeetechModel> {
+        self.feetech_models
+            .iter()
+            .find(|m| m.name == name)
+            .or_else(|| feetech::models::find(name))
     }
 
     /// The MIT-mode motor model called `name`: the robot's own, else the shipped table's.
@@ -1316,7 +1367,13 @@ impl Robot {
             return Ok(());
         };
         let probe = JointConfig { kp, kd, ..j.clone() };
-        match check_actuator(&probe, bus.kind, &self.mit_models, &self.servo_models) {
+        match check_actuator(
+            &probe,
+            bus.kind,
+            &self.mit_models,
+            &self.servo_models,
+            &self.feetech_models,
+        ) {
             Err(("kp", message)) => Err(message),
             _ => Ok(()),
         }
@@ -1901,8 +1958,14 @@ impl Robot {
                     return Err((at(field), format!("{v} is not allowed")));
                 }
             }
-            check_actuator(j, bus.kind, &self.mit_models, &self.servo_models)
-                .map_err(|(f, msg)| (at(f), msg))?;
+            check_actuator(
+                j,
+                bus.kind,
+                &self.mit_models,
+                &self.servo_models,
+                &self.feetech_models,
+            )
+            .map_err(|(f, msg)| (at(f), msg))?;
         }
         Ok(())
     }
@@ -1929,6 +1992,7 @@ fn check_actuator(
     kind: BusKind,
     own: &[mit::models::MotorModel],
     servos: &[(dxl::models::DxlModel, String)],
+    feetech_own: &[feetech::models::FeetechModel],
 ) -> Result<(), (&'static str, String)> {
     match kind {
         BusKind::MitCan => {
@@ -2039,9 +2103,14 @@ fn check_actuator(
             }
         }
         BusKind::Feetech => {
-            let Some(servo) = feetech::models::find(&j.model) else {
-                let known: Vec<_> = feetech::models::builtin()
+            let Some(servo) = feetech_own
+                .iter()
+                .find(|m| m.name == j.model)
+                .or_else(|| feetech::models::find(&j.model))
+            else {
+                let known: Vec<_> = feetech_own
                     .iter()
+                    .chain(feetech::models::builtin())
                     .map(|m| m.name.as_str())
                     .collect();
                 return Err((

@@ -621,7 +621,50 @@ fn print_model(robot: &Robot) -> Result<()> {
         named.join(", ")
     );
     print_dynamics(robot)?;
+    print_servo_caps(robot);
     Ok(())
+}
+
+/// What a serial servo's firmware lets each joint push with: its Torque Limit (the joint's
+/// `torque_limit`, written by the driver), beside the servo's stall torque and, where the model
+/// drives the joint with a `<position>` actuator of its own, that actuator's force range — the
+/// mirror caps it at the servo's limit.
+fn print_servo_caps(robot: &Robot) {
+    let mut lines: Vec<(String, Vec<&str>)> = Vec::new();
+    for j in &robot.config.joints {
+        let Some(bus) = robot.bus(&j.bus) else { continue };
+        let stall = match bus.kind {
+            robots::BusKind::Dynamixel => robot.dxl_model(&j.model).map(|m| m.stall_torque),
+            robots::BusKind::Feetech => robot.feetech_model(&j.model).map(|m| m.stall_torque),
+            _ => None,
+        };
+        let Some(stall) = stall else { continue };
+        let model_range = robot
+            .mjcf
+            .actuators
+            .iter()
+            .filter(|a| a.joint.as_deref() == Some(j.mjcf_joint.as_str()))
+            .filter(|a| matches!(a.kind, robots::mjcf::ActuatorKind::Position { .. }))
+            .find_map(|a| a.force_range.map(|(lo, hi)| lo.abs().max(hi.abs())));
+        let capped = match model_range {
+            Some(r) if r > j.torque_limit => {
+                format!("; the model's <position> actuator allows {r} N·m: capped")
+            }
+            Some(r) => format!("; the model's <position> actuator allows {r} N·m"),
+            None => String::new(),
+        };
+        let text = format!(
+            "{} {} N·m (the {}'s stall torque {} N·m × gear {}){capped}",
+            j.model, j.torque_limit, j.model, stall, j.gear
+        );
+        match lines.iter_mut().find(|(t, _)| *t == text) {
+            Some((_, joints)) => joints.push(&j.name),
+            None => lines.push((text, vec![&j.name])),
+        }
+    }
+    for (text, joints) in lines {
+        println!("       servo torque limit: {text} — {}", joints.join(", "));
+    }
 }
 
 /// The physics and the joints' dynamics as the mirror and the motion check compile them: the
