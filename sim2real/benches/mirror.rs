@@ -4,6 +4,11 @@
 //! Dynamixel servos at 1 kHz, the emulated IMU at 200 Hz, and a 50 Hz host that encodes and
 //! decodes every CAN frame, Dynamixel packet and IMU packet through the real drivers. One core.
 //!
+//! 2. Each shipped robot (rd-biped, rd-mini, and holosoma's G1 when installed), standing on its
+//!    default pose: the whole lockstep mirror (physics, emulated firmware, wires, the host's real
+//!    drivers at 50 Hz) against bare MuJoCo stepping of the same compiled model for the same
+//!    simulated time — what the mirror adds to the physics.
+//!
 //! Run: `cargo bench -p sim2real --bench mirror`
 
 use std::time::{Duration, Instant};
@@ -44,8 +49,46 @@ fn run(seconds: f64, gantry: bool) -> (Duration, u64) {
     (took, steps)
 }
 
+/// Bare `mj_step` of `robot`'s compiled model, from its default pose, for `seconds`: wall time and
+/// steps.
+fn bare(robot: &Robot, seconds: f64) -> (Duration, u64) {
+    let model = robot.model().unwrap();
+    let index = sim2real::model_index::ModelIndex::of_robot(&model, robot).unwrap();
+    let mut data = model.make_data();
+    for (j, ids) in robot.config.joints.iter().zip(&index.joints) {
+        data.qpos_mut()[ids.qpos] = j.default_position;
+    }
+    data.forward();
+    let low = sim2real::placement::lowest_point(&data, index.root_body).unwrap_or(0.0);
+    data.qpos_mut()[index.root.qpos + 2] -= low;
+    let steps = (seconds / model.opt().timestep).round() as u64;
+    let wall = Instant::now();
+    for _ in 0..steps {
+        data.step();
+    }
+    (wall.elapsed(), steps)
+}
+
+/// The lockstep mirror of `robot` holding its default pose for `seconds`: wall time and steps.
+fn mirrored(robot: &Robot, seconds: f64) -> (Duration, u64) {
+    let mut host = MirrorHost::start(robot.clone(), MirrorConfig::default()).unwrap();
+    let tick = Duration::from_millis(20);
+    let ticks = (seconds / tick.as_secs_f64()).round() as u32;
+    let q: Vec<f64> = robot.config.joints.iter().map(|j| j.default_position).collect();
+    let start = host.now();
+    let before = host.world.lock().unwrap().stats().physics_steps;
+    let wall = Instant::now();
+    for k in 1..=ticks {
+        host.command_positions(robot, &q).unwrap();
+        host.wait_until(start + tick * k);
+    }
+    let took = wall.elapsed();
+    (took, host.world.lock().unwrap().stats().physics_steps - before)
+}
+
 fn main() {
     let quick = !std::env::args().any(|a| a == "--bench");
+    robots_against_bare_physics(if quick { 1.0 } else { 20.0 });
     let seconds = if quick { 2.0 } else { 30.0 };
     println!("rd-biped mirror in lockstep: 1 kHz physics + firmware, 50 Hz host through the real drivers");
     println!(
@@ -59,6 +102,38 @@ fn main() {
             took.as_secs_f64(),
             seconds / took.as_secs_f64(),
             took.as_secs_f64() * 1e6 / steps as f64
+        );
+    }
+}
+
+fn robots_against_bare_physics(seconds: f64) {
+    let root = test_support::fixtures::workspace_root();
+    println!();
+    println!("the lockstep mirror against bare MuJoCo stepping, {seconds} s standing, one core");
+    println!(
+        "{:>10} {:>8} {:>16} {:>18} {:>8}",
+        "robot", "step ms", "bare µs/step", "mirror µs/step", "ratio"
+    );
+    for path in [
+        "robots/biped/robot.toml",
+        "robots/mini/robot.toml",
+        "robots/g1/robot.toml",
+    ] {
+        let Ok(robot) = Robot::load(&root.join(path)) else {
+            println!("{path:>10}: not installed (scripts/setup)");
+            continue;
+        };
+        let (b, bs) = bare(&robot, seconds);
+        let (m, ms) = mirrored(&robot, seconds);
+        let (per_bare, per_mirror) = (
+            b.as_secs_f64() * 1e6 / bs as f64,
+            m.as_secs_f64() * 1e6 / ms as f64,
+        );
+        println!(
+            "{:>10} {:>8} {per_bare:>16.1} {per_mirror:>18.1} {:>7.2}×",
+            robot.config.name,
+            robot.model().unwrap().opt().timestep * 1000.0,
+            per_mirror / per_bare
         );
     }
 }
