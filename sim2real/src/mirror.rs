@@ -260,6 +260,8 @@ pub struct Mirror {
     pushes: Vec<(SimInstant, SimInstant, [f64; 3])>,
     next_fault: usize,
     peak_torque: f64,
+    /// The largest torque each torque-driven joint received at a physics step, N·m (joint side).
+    peak_joint_torque: Vec<f64>,
     stats: MirrorStats,
 }
 
@@ -638,6 +640,7 @@ impl Mirror {
             pushes,
             next_fault: 0,
             peak_torque: 0.0,
+            peak_joint_torque: vec![0.0; n_joints],
             stats: MirrorStats::default(),
         };
         mirror.held = mirror.config.hold_until_driven;
@@ -783,6 +786,18 @@ impl Mirror {
     /// The largest torque any actuator applied so far, N·m (actuator side).
     pub fn peak_actuator_torque(&self) -> f64 {
         self.peak_torque
+    }
+
+    /// The largest torque each joint driven by torque (MIT-mode motors, Robstride) received at
+    /// any physics step since the last [`Self::reset_peak_joint_torques`], N·m on the joint side,
+    /// robot order (0 for joints the model's own actuators drive).
+    pub fn peak_joint_torques(&self) -> &[f64] {
+        &self.peak_joint_torque
+    }
+
+    /// Starts the per-joint torque peaks over.
+    pub fn reset_peak_joint_torques(&mut self) {
+        self.peak_joint_torque.fill(0.0);
     }
 
     /// Clamps the joints into a jig at `pose` (robot joint order), or releases them (`None`).
@@ -963,7 +978,7 @@ impl Mirror {
             self.held = false;
         }
         // Torques (or position goals) from the firmware's last period.
-        for (j, p) in self.joints.iter().zip(&self.plants) {
+        for (i, (j, p)) in self.joints.iter().zip(&self.plants).enumerate() {
             match j.actuator {
                 Some(a) => {
                     // The model's own servo tracks the firmware's goal; with no goal (torque
@@ -976,7 +991,9 @@ impl Mirror {
                 }
                 None => {
                     self.peak_torque = self.peak_torque.max(p.torque.abs());
-                    self.data.qfrc_applied_mut()[j.dof] = j.direction * j.gear * p.torque * j.strength;
+                    let joint_torque = j.direction * j.gear * p.torque * j.strength;
+                    self.peak_joint_torque[i] = self.peak_joint_torque[i].max(joint_torque.abs());
+                    self.data.qfrc_applied_mut()[j.dof] = joint_torque;
                 }
             }
         }

@@ -321,3 +321,53 @@ fn compare_judges_imu_terms_by_each_robots_own_imu() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn an_mit_joint_stopped_mid_swing_by_an_obstacle_stays_within_its_torque_limit() {
+    // rd-biped's knee (AK10-9, a 40 N·m limit below the motor's own) on the gantry, told to
+    // swing 1.2 rad at the robot's stiffness: the bus bounds each command at its cycle. Mid-swing
+    // an obstacle (the jig) stops the joint dead; the motor's own PD, running at its inner rate
+    // between bus cycles, must still stay within the limit (2 % for the encoders' steps).
+    let robot = Robot::load(&workspace_root().join("robots/biped/robot.toml")).unwrap();
+    let knee = robot
+        .config
+        .joints
+        .iter()
+        .position(|j| j.name == "left_knee")
+        .unwrap();
+    let limit = robot.config.joints[knee].torque_limit;
+    let mut host = MirrorHost::start(
+        robot.clone(),
+        MirrorConfig {
+            gantry: true,
+            ..MirrorConfig::default()
+        },
+    )
+    .unwrap();
+    let mut q: Vec<f64> = robot.config.joints.iter().map(|j| j.default_position).collect();
+    q[knee] += 1.2;
+    let start = host.now();
+    let period = Duration::from_millis(20);
+    let mut swing_speed = 0.0f64;
+    for k in 1..=25u32 {
+        host.command_positions(&robot, &q).unwrap();
+        if k == 3 {
+            let mut w = host.world.lock().unwrap();
+            swing_speed =
+                w.data().qvel()[ModelIndex::of_robot(w.data().model(), &robot).unwrap().joints[knee].dof];
+            let here: Vec<f64> = w.joint_positions().collect();
+            w.set_jig(Some(here));
+            w.reset_peak_joint_torques();
+        }
+        // Every physics step of the tick, at the motor's inner rate.
+        host.wait_until(start + period * k);
+    }
+    assert!(
+        swing_speed.abs() > 2.0,
+        "the knee was swinging: {swing_speed} rad/s"
+    );
+    let peak = host.world.lock().unwrap().peak_joint_torques()[knee];
+    assert!(peak > 0.9 * limit, "pushed against the obstacle: {peak:.1} N·m");
+    assert!(peak <= 1.02 * limit, "{peak:.2} N·m against a {limit} N·m limit");
+    eprintln!("swinging at {swing_speed:.1} rad/s, peak {peak:.2} N·m against a {limit} N·m limit");
+}

@@ -322,7 +322,13 @@ impl Cycler {
         }
         if let Some(limits) = &self.torque_limit {
             for &i in &self.joints {
-                if bound_pd(&mut self.sent[i], self.state.q[i], self.state.qd[i], limits[i]) {
+                if bound_pd(
+                    &mut self.sent[i],
+                    self.state.q[i],
+                    self.state.qd[i],
+                    limits[i],
+                    self.timing.period.as_secs_f64(),
+                ) {
                     self.stats.torque_bounded += 1;
                 }
             }
@@ -411,24 +417,41 @@ impl Cycler {
     }
 }
 
-/// Bounds the torque the PD law of `t` asks for at the measured `q`, `qd` to `limit`: the position
-/// target is pulled towards `q` (never past it) and, if damping alone exceeds the limit, the
-/// damping is scaled down. Returns whether `t` changed.
-fn bound_pd(t: &mut JointTarget, q: f64, qd: f64, limit: f64) -> bool {
+/// Bounds the torque the PD law of `t` asks for to `limit` over the whole coming cycle, as the
+/// motor runs it at its inner rate until the next command: at the measured `q`, `qd`; where the
+/// joint gets in `horizon` seconds at that speed; and at both places stopped dead (an obstacle
+/// takes the damping's braking away). The position target is pulled into the range that keeps
+/// every one of them within the limit; if damping and feed-forward alone exceed it at the
+/// measurement, the damping is scaled down. Returns whether `t` changed.
+fn bound_pd(t: &mut JointTarget, q: f64, qd: f64, limit: f64, horizon: f64) -> bool {
     if !(t.enabled && q.is_finite() && qd.is_finite()) {
         return false;
     }
-    let damping = t.kd * (t.qd - qd);
-    let torque = t.kp * (t.q - q) + damping + t.tau;
-    if torque.abs() <= limit {
+    let ahead = q + qd * horizon;
+    let states = [(q, qd), (ahead, qd), (q, 0.0), (ahead, 0.0)];
+    let rest = |t: &JointTarget, v: f64| t.kd * (t.qd - v) + t.tau;
+    let torque = |t: &JointTarget, (at, v): (f64, f64)| t.kp * (t.q - at) + rest(t, v);
+    if states.iter().all(|&s| torque(t, s).abs() <= limit) {
         return false;
     }
-    let wanted = torque.clamp(-limit, limit);
     if t.kp > 0.0 {
-        let q_target = q + (wanted - damping - t.tau) / t.kp;
-        t.q = q_target.clamp(q.min(t.q), q.max(t.q));
+        // Targets within the limit at every state: the intersection of their ranges.
+        let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
+        for (at, v) in states {
+            lo = lo.max(at + (-limit - rest(t, v)) / t.kp);
+            hi = hi.min(at + (limit - rest(t, v)) / t.kp);
+        }
+        t.q = if lo <= hi {
+            t.q.clamp(lo, hi)
+        } else {
+            // No target serves them all (damping alone is beyond the limit at some state):
+            // bound at the measurement, towards the joint.
+            let wanted = (t.kp * (t.q - q) + rest(t, qd)).clamp(-limit, limit);
+            (q + (wanted - rest(t, qd)) / t.kp).clamp(q.min(t.q), q.max(t.q))
+        };
     }
-    let left = t.kp * (t.q - q) + damping + t.tau;
+    let left = torque(t, (q, qd));
+    let damping = t.kd * (t.qd - qd);
     if left.abs() > limit && damping != 0.0 {
         // Damping (and feed-forward) alone are beyond the limit: scale the damping down.
         let room = (limit - (t.kp * (t.q - q) + t.tau).abs()).max(0.0);
@@ -460,8 +483,11 @@ pub(crate) fn copy_joints(
 mod tests {
     use super::*;
 
+    /// A 250 Hz bus cycle, s.
+    const CYCLE: f64 = 0.004;
+
     #[test]
-    fn a_pd_command_is_bounded_to_the_joints_torque_limit_at_the_measured_state() {
+    fn a_pd_command_is_bounded_to_the_joints_torque_limit_over_its_cycle() {
         let t = |q, kp, kd, tau| JointTarget {
             q,
             qd: 0.0,
@@ -472,26 +498,34 @@ mod tests {
         };
         // 150 N·m/rad × 0.5 rad = 75 N·m against a 40 N·m limit: the target moves to 40/150 rad.
         let mut a = t(1.0, 150.0, 3.0, 0.0);
-        assert!(bound_pd(&mut a, 0.5, 0.0, 40.0));
+        assert!(bound_pd(&mut a, 0.5, 0.0, 40.0, CYCLE));
         assert!((a.q - (0.5 + 40.0 / 150.0)).abs() < 1e-12 && a.kp == 150.0);
         // Within the limit: untouched.
         let mut b = t(0.6, 150.0, 3.0, 0.0);
-        assert!(!bound_pd(&mut b, 0.5, 0.0, 40.0));
-        // Moving fast into the target's way: damping alone would give 3 × 20 = 60 N·m; the target
-        // is pulled onto the measured position and the damping scaled to the 40 N·m left.
+        assert!(!bound_pd(&mut b, 0.5, 0.0, 40.0, CYCLE));
+        // Moving fast into the target's way: damping alone would give 3 × 20 = 60 N·m. The target
+        // keeps the torque within the limit now, where the joint is at the cycle's end, and at
+        // both places should the joint stop dead against an obstacle.
         let mut c = t(0.5, 150.0, 3.0, 0.0);
-        assert!(bound_pd(&mut c, 0.5, -20.0, 40.0));
-        let torque = c.kp * (c.q - 0.5) + c.kd * (0.0 - -20.0) + c.tau;
-        assert!(torque.abs() <= 40.0 + 1e-9, "{torque}");
+        assert!(bound_pd(&mut c, 0.5, -20.0, 40.0, CYCLE));
+        for (at, v) in [
+            (0.5, -20.0),
+            (0.5 - 20.0 * CYCLE, -20.0),
+            (0.5, 0.0),
+            (0.5 - 20.0 * CYCLE, 0.0),
+        ] {
+            let torque = c.kp * (c.q - at) + c.kd * (0.0 - v) + c.tau;
+            assert!(torque.abs() <= 40.0 + 1e-9, "{torque} at {at}, {v}");
+        }
         // The other direction, and torque off is never touched.
         let mut d = t(-1.0, 150.0, 3.0, 0.0);
-        assert!(bound_pd(&mut d, 0.0, 0.0, 40.0));
+        assert!(bound_pd(&mut d, 0.0, 0.0, 40.0, CYCLE));
         assert!((d.q + 40.0 / 150.0).abs() < 1e-12);
         let mut off = JointTarget {
             enabled: false,
             ..t(5.0, 150.0, 3.0, 0.0)
         };
-        assert!(!bound_pd(&mut off, 0.0, 0.0, 40.0));
+        assert!(!bound_pd(&mut off, 0.0, 0.0, 40.0, CYCLE));
     }
 
     #[test]
