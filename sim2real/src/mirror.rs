@@ -788,9 +788,9 @@ impl Mirror {
         self.peak_torque
     }
 
-    /// The largest torque each joint driven by torque (MIT-mode motors, Robstride) received at
-    /// any physics step since the last [`Self::reset_peak_joint_torques`], N·m on the joint side,
-    /// robot order (0 for joints the model's own actuators drive).
+    /// The largest torque each joint received at any physics step since the last
+    /// [`Self::reset_peak_joint_torques`] (the motors' applied torque, or the force of the model's
+    /// own servo actuator through its gear), N·m on the joint side, robot order.
     pub fn peak_joint_torques(&self) -> &[f64] {
         &self.peak_joint_torque
     }
@@ -1038,6 +1038,15 @@ impl Mirror {
             return;
         }
         self.data.step();
+        // What the model's own servos gave this step, joint side (the motors' torques are
+        // counted where they are applied, above).
+        for (i, j) in self.joints.iter().enumerate() {
+            if let Some(a) = j.actuator {
+                let m = self.data.model();
+                let torque = (self.data.actuator_force()[a] * m.actuator_gear()[a][0]).abs();
+                self.peak_joint_torque[i] = self.peak_joint_torque[i].max(torque);
+            }
+        }
         if let Some(why) = self.divergence() {
             tracing::warn!(
                 "mirror: the simulation diverged at t = {:.3} s: {why}",
