@@ -341,6 +341,37 @@ pub struct SimConfig {
     /// Constraint solver iterations (1–1000).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub iterations: Option<u32>,
+    /// Constraint solver.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub solver: Option<Solver>,
+    /// Friction cone of the contacts.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cone: Option<FrictionCone>,
+    /// Ratio of frictional to normal constraint impedance (1–100): above 1, contacts slip less.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub impratio: Option<f64>,
+}
+
+/// MuJoCo's constraint solvers (robot.toml `[sim] solver`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Solver {
+    /// Projected Gauss-Seidel.
+    Pgs,
+    /// Conjugate gradient.
+    Cg,
+    /// Newton.
+    Newton,
+}
+
+/// MuJoCo's friction cones (robot.toml `[sim] cone`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FrictionCone {
+    /// Pyramidal (MuJoCo's default).
+    Pyramidal,
+    /// Elliptic.
+    Elliptic,
 }
 
 impl SimConfig {
@@ -378,6 +409,14 @@ impl SimConfig {
             && !(1..=1000).contains(&i)
         {
             return Err(("sim.iterations".into(), format!("{i} is outside [1, 1000]")));
+        }
+        if let Some(r) = self.impratio
+            && !(r.is_finite() && (1.0..=100.0).contains(&r))
+        {
+            return Err((
+                "sim.impratio".into(),
+                format!("{} is outside [1, 100]", crate::num(r)),
+            ));
         }
         Ok(())
     }

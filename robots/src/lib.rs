@@ -11,10 +11,10 @@ pub mod mjcf;
 pub mod spatial;
 
 pub use config::{
-    BodyPair, BusConfig, BusKind, BusTiming, HarnessConfig, HumanBody, IMU_SENSOR_KINDS, ImuConfig,
-    ImuSensorNames, Integrator, Interpolation, JointConfig, JointDynamics, JointDynamicsOf, KeypointFrame,
-    MAX_HARNESS_LIFT_M, MitModelConfig, OrientationCompare, PositionTargets, RetargetConfig, Robot,
-    RobotConfig, RobotError, SafetyConfig, SimConfig, StartConfig, StartMode, TrackingRule,
+    BodyPair, BusConfig, BusKind, BusTiming, FrictionCone, HarnessConfig, HumanBody, IMU_SENSOR_KINDS,
+    ImuConfig, ImuSensorNames, Integrator, Interpolation, JointConfig, JointDynamics, JointDynamicsOf,
+    KeypointFrame, MAX_HARNESS_LIFT_M, MitModelConfig, OrientationCompare, PositionTargets, RetargetConfig,
+    Robot, RobotConfig, RobotError, SafetyConfig, SimConfig, Solver, StartConfig, StartMode, TrackingRule,
     default_command_timeout, matches_pattern,
 };
 

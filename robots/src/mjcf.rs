@@ -126,6 +126,24 @@ pub fn apply_trainer_settings(
     if let Some(n) = sim.iterations {
         option.iterations = n as i32;
     }
+    if let Some(solver) = sim.solver {
+        use mujoco_rs::mujoco_c::mjtSolver as S;
+        option.solver = (match solver {
+            crate::Solver::Pgs => S::mjSOL_PGS,
+            crate::Solver::Cg => S::mjSOL_CG,
+            crate::Solver::Newton => S::mjSOL_NEWTON,
+        }) as i32;
+    }
+    if let Some(cone) = sim.cone {
+        use mujoco_rs::mujoco_c::mjtCone as C;
+        option.cone = (match cone {
+            crate::FrictionCone::Pyramidal => C::mjCONE_PYRAMIDAL,
+            crate::FrictionCone::Elliptic => C::mjCONE_ELLIPTIC,
+        }) as i32;
+    }
+    if let Some(r) = sim.impratio {
+        option.impratio = r;
+    }
     Ok(())
 }
 
@@ -156,6 +174,27 @@ impl crate::Integrator {
             Self::Implicit => "implicit",
             Self::Implicitfast => "implicitfast",
         }
+    }
+}
+
+/// The name of MuJoCo's constraint solver `code` (`mjtSolver`), as robot.toml `[sim] solver` says it.
+pub fn solver_name(code: i32) -> &'static str {
+    use mujoco_rs::mujoco_c::mjtSolver as S;
+    match code {
+        c if c == S::mjSOL_PGS as i32 => "pgs",
+        c if c == S::mjSOL_CG as i32 => "cg",
+        c if c == S::mjSOL_NEWTON as i32 => "newton",
+        _ => "another solver",
+    }
+}
+
+/// The name of MuJoCo's friction cone `code` (`mjtCone`), as robot.toml `[sim] cone` says it.
+pub fn cone_name(code: i32) -> &'static str {
+    use mujoco_rs::mujoco_c::mjtCone as C;
+    match code {
+        c if c == C::mjCONE_PYRAMIDAL as i32 => "pyramidal",
+        c if c == C::mjCONE_ELLIPTIC as i32 => "elliptic",
+        _ => "another cone",
     }
 }
 

@@ -42,6 +42,9 @@ damping = 0.7
 timestep = 0.0005
 integrator = "implicitfast"
 iterations = 20
+solver = "cg"
+cone = "elliptic"
+impratio = 10.0
 "#;
 
 #[test]
@@ -71,6 +74,9 @@ fn joint_dynamics_and_physics_from_robot_toml_reach_the_mirror_and_check() {
     assert_eq!(model.dof_armature()[ankle], plain.dof_armature()[ankle]);
     assert_eq!(model.opt().timestep, 0.0005);
     assert_eq!(model.opt().iterations, 20);
+    assert_eq!(model.opt().impratio, 10.0);
+    assert_eq!(robots::mjcf::solver_name(model.opt().solver), "cg");
+    assert_eq!(robots::mjcf::cone_name(model.opt().cone), "elliptic");
     assert_eq!(
         robots::Integrator::of_mujoco(model.opt().integrator),
         Some(robots::Integrator::Implicitfast)
@@ -94,6 +100,10 @@ fn joint_dynamics_and_physics_from_robot_toml_reach_the_mirror_and_check() {
     assert_eq!(code, Some(0), "{out}{err}");
     assert!(
         out.contains("physics: 0.5 ms step, implicitfast, 20 solver iterations (robot.toml [sim] over the model's); 40 steps per policy tick"),
+        "{out}"
+    );
+    assert!(
+        out.contains("contacts: cg solver, elliptic friction cones, impratio 10"),
         "{out}"
     );
     let knees = out
@@ -145,6 +155,7 @@ fn bad_joint_dynamics_and_physics_are_refused_by_field_and_nothing_moves() {
             "sim.timestep: 0.003 s does not divide the policy period 0.02 s",
         ),
         ("[sim]\nintegrator = \"verlet\"\n", "unknown variant `verlet`"),
+        ("[sim]\nimpratio = 0.5\n", "sim.impratio: 0.5 is outside [1, 100]"),
     ];
     for (i, (extra, want)) in cases.iter().enumerate() {
         let path = biped_with(&dir, &format!("bad{i}.toml"), extra);

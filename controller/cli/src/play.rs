@@ -684,6 +684,12 @@ fn print_dynamics(robot: &Robot) -> Result<()> {
         opt.iterations,
         ((1.0 / robot.config.control_rate_hz) / opt.timestep).round()
     );
+    println!(
+        "       contacts: {} solver, {} friction cones, impratio {}",
+        robots::mjcf::solver_name(opt.solver),
+        robots::mjcf::cone_name(opt.cone),
+        opt.impratio
+    );
     // Joints grouped by their compiled armature, friction loss and damping.
     let index = sim2real::model_index::ModelIndex::of_robot(&model, robot)?;
     let mut groups: Vec<([f64; 3], bool, Vec<&str>)> = Vec::new();
