@@ -19,6 +19,9 @@ pub fn mit_joint(robot: &crate::Robot, j: &JointConfig) -> MitJointConfig {
     c.direction = j.direction;
     c.offset = j.zero_offset;
     c.gear_ratio = j.gear;
+    // Below the motor's own range, the joint's limit is the motor's (where its protocol has one).
+    let at_motor = j.torque_limit / j.gear;
+    c.torque_limit = (at_motor < model.t_max).then_some(at_motor);
     c
 }
 

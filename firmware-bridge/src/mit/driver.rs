@@ -48,6 +48,10 @@ pub struct MitJointConfig {
     pub offset: f64,
     /// Motor turns per joint turn (external reduction after the motor's output), ≥ 1 typically.
     pub gear_ratio: f64,
+    /// The most torque the motor may give, N·m at the motor, for motors whose protocol carries a
+    /// limit (Robstride's `limit_torque`): written when the bus is identified, so the motor's own
+    /// loop holds it between commands. `None`: the motor's full range.
+    pub torque_limit: Option<f64>,
 }
 
 impl MitJointConfig {
@@ -62,6 +66,7 @@ impl MitJointConfig {
             direction: 1.0,
             offset: 0.0,
             gear_ratio: 1.0,
+            torque_limit: None,
         }
     }
 }
@@ -555,6 +560,41 @@ impl<B: CanBus> MitBusDriver<B> {
             uid: u64::from_le_bytes(uid),
             torque_limit: f64::from(f32::from_le_bytes(value)),
         }))
+    }
+
+    /// Writes each Robstride motor's `limit_torque` from its joint's [`MitJointConfig::torque_limit`]
+    /// and reads it back; fails naming the joint whose motor did not take it. Motors of other
+    /// families, and joints without a limit, are left alone. Not for use inside a cycle.
+    pub fn write_torque_limits(&mut self) -> Result<(), MitError> {
+        use super::robstride::{self, comm, param};
+        for k in 0..self.joints.len() {
+            let j = &self.joints[k];
+            let Some(limit) = j.torque_limit else { continue };
+            if j.model.family != super::models::MotorFamily::Robstride {
+                continue;
+            }
+            let (motor, host, name) = (j.motor_id, j.reply_id as u8, j.name.clone());
+            let value = (limit as f32).to_le_bytes();
+            self.bus
+                .send(&robstride::write_param(motor, host, param::LIMIT_TORQUE, value))?;
+            let read = robstride::read_param(motor, host, param::LIMIT_TORQUE);
+            let answer = self.ask(&read, |kind, data2| {
+                kind == comm::READ_PARAM && data2 == u16::from(motor)
+            })?;
+            match answer.and_then(|f| robstride::param_of(f.data())) {
+                Some((param::LIMIT_TORQUE, v)) if v == value => {}
+                got => {
+                    return Err(MitError::Config {
+                        joint: name,
+                        reason: format!(
+                            "motor {motor} did not take limit_torque = {limit} N·m (read back {:?})",
+                            got.map(|(_, v)| f32::from_le_bytes(v))
+                        ),
+                    });
+                }
+            }
+        }
+        Ok(())
     }
 
     /// Sends `request` and returns the first extended frame whose type and `data2` `wanted`

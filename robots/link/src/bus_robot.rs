@@ -83,6 +83,8 @@ where
 {
     fn identify(&mut self) -> Result<(), IoError> {
         self.driver.disable_all()?;
+        // Motors whose protocol carries a torque limit hold the joint's between commands.
+        self.driver.write_torque_limits()?;
         self.enabled = false;
         Ok(())
     }
