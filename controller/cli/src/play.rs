@@ -625,10 +625,10 @@ fn print_model(robot: &Robot) -> Result<()> {
     Ok(())
 }
 
-/// What a serial servo's firmware lets each joint push with: its Torque Limit (the joint's
-/// `torque_limit`, written by the driver), beside the servo's stall torque and, where the model
-/// drives the joint with a `<position>` actuator of its own, that actuator's force range — the
-/// mirror caps it at the servo's limit.
+/// What each joint may push with and what holds it there: a serial servo's Torque Limit (the
+/// joint's `torque_limit`, written by the driver) beside its stall torque and, where the model
+/// drives the joint with a `<position>` actuator of its own, that actuator's force range (the
+/// mirror caps it at the servo's limit); an MIT-mode motor's range and the bus's bound.
 fn print_servo_caps(robot: &Robot) {
     let mut lines: Vec<(String, Vec<&str>)> = Vec::new();
     for j in &robot.config.joints {
@@ -664,6 +664,41 @@ fn print_servo_caps(robot: &Robot) {
     }
     for (text, joints) in lines {
         println!("       servo torque limit: {text} — {}", joints.join(", "));
+    }
+    // MIT-mode motors: the bus bounds every command over its cycle where the joint's limit lies
+    // below the motor's range; Robstride motors also hold it in their own limit_torque.
+    let mut lines: Vec<(String, Vec<&str>)> = Vec::new();
+    for j in &robot.config.joints {
+        if robot
+            .bus(&j.bus)
+            .is_none_or(|b| b.kind != robots::BusKind::MitCan)
+        {
+            continue;
+        }
+        let Some(motor) = robot.mit_model(&j.model) else {
+            continue;
+        };
+        let range = motor.t_max * j.gear;
+        let text = if j.torque_limit < range {
+            let written = if motor.family == firmware_bridge::mit::models::MotorFamily::Robstride {
+                ", written to its limit_torque"
+            } else {
+                ""
+            };
+            format!(
+                "{} {} N·m of the motor's {range} N·m: every command bounded over its bus cycle{written}",
+                j.model, j.torque_limit
+            )
+        } else {
+            format!("{} {} N·m: the motor's own range", j.model, j.torque_limit)
+        };
+        match lines.iter_mut().find(|(t, _)| *t == text) {
+            Some((_, joints)) => joints.push(&j.name),
+            None => lines.push((text, vec![&j.name])),
+        }
+    }
+    for (text, joints) in lines {
+        println!("       motor torque limit: {text} — {}", joints.join(", "));
     }
 }
 
