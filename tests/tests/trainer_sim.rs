@@ -106,6 +106,11 @@ fn joint_dynamics_and_physics_from_robot_toml_reach_the_mirror_and_check() {
         out.contains("contacts: cg solver, elliptic friction cones, impratio 10"),
         "{out}"
     );
+    // And what holds each joint's torque limit.
+    assert!(
+        out.contains("motor torque limit: AK10-9 40 N·m of the motor's 65 N·m: every command bounded over its bus cycle"),
+        "{out}"
+    );
     let knees = out
         .lines()
         .find(|l| l.contains("joint dynamics") && l.ends_with("left_knee, right_knee"))
