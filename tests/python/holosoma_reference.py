@@ -12,6 +12,10 @@ next tick. The tests compare robodeploy's runs on its mirror against what this l
   python holosoma_reference.py walk --robot g1|t1 --robot-dir … --policy-dir … [--vx 0.5]
         [--stand 1] [--walk 10] [--rest 6]
 
+With `--trace PATH` either loop writes the observation the policy saw at every step as CSV (a
+header naming each value, then one row per step), the trainer-side trace `robodeploy compare
+RUN.mcap PATH` reads term by term.
+
 dance prints one JSON object: frames played, joint RMSE (rad), anchor position RMSE (m), whether the
 robot fell (base tilted beyond 0.8 rad), its lowest base height, and the wall time of the loop. walk
 runs the velocity-command policy (its commands ramped at 1 per second, the two-leg gait phase held
@@ -112,7 +116,30 @@ def place_on_floor(model, data, root_qpos):
     mujoco.mj_forward(model, data)
 
 
+class Trace:
+    """The observations a loop fed its policy, one CSV row per step (nothing without a path)."""
+
+    def __init__(self, path):
+        self.file = open(path, "w", encoding="utf-8") if path else None
+        self.header = False
+
+    def write(self, names_and_parts):
+        if not self.file:
+            return
+        if not self.header:
+            names = [f"{n}[{i}]" for n, v in names_and_parts for i in range(len(np.ravel(v)))]
+            self.file.write(",".join(names) + "\n")
+            self.header = True
+        values = np.concatenate([np.ravel(v) for _, v in names_and_parts]).astype(np.float32)
+        self.file.write(",".join(repr(float(x)) for x in values) + "\n")
+
+    def close(self):
+        if self.file:
+            self.file.close()
+
+
 def dance(a):
+    trace = Trace(a.trace)
     export = a.policy_dir / "models/wbt/ppo_g1_29dof_dancing.onnx"
     scene = a.robot_dir / "data/robots/g1/scenes/scene_g1_29dof_wbt_plane.xml"
     meta = metadata(export)
@@ -196,6 +223,7 @@ def dance(a):
             "motion_ref_ori_b": ori,
         }
         obs = np.concatenate([parts[t] for t in terms])
+        trace.write([(t, parts[t]) for t in terms])
         if tick >= hold_ticks:
             # The robot against the frame this tick plays, and its anchor against the motion's.
             joint_sq += float(np.mean((q - frames[frame][0]) ** 2))
@@ -212,6 +240,7 @@ def dance(a):
             fell = True
             break
     wall = time.perf_counter() - t0
+    trace.close()
     result = {
         "frames": total,
         "tracked_ticks": tracked,
@@ -254,6 +283,7 @@ def robot_config(path, variable, keys):
 
 
 def walk(a):
+    trace = Trace(a.trace)
     scene, export, (training, deployment), (ang_scale, vel_scale), gyro_name = ROBOTS[a.robot]
     export = a.policy_dir / export
     meta = metadata(export)
@@ -321,6 +351,7 @@ def walk(a):
             "sin_phase": np.sin(phase),
         }
         obs = np.concatenate([parts[k] for k in sorted(parts)]).astype(np.float32).reshape(1, -1)
+        trace.write([(k, parts[k]) for k in sorted(parts)])
         action = session.run(None, {session.get_inputs()[0].name: obs})[0][0]
         last_action = np.clip(action, -100, 100)
         pd_steps(model, data, (qadr, vadr, act), (kp, kd, effort), default + 0.25 * last_action)
@@ -329,6 +360,7 @@ def walk(a):
             fell = True
             break
     wall = time.perf_counter() - t0
+    trace.close()
     moved = data.qpos[:2] - start
     heading = (yaw_of(data.qpos[3:7]) - yaw0 + math.pi) % (2 * math.pi) - math.pi
     forward = float(moved @ np.array([math.cos(yaw0), math.sin(yaw0)]))
@@ -355,6 +387,7 @@ def main():
     p.add_argument("--policy-dir", type=pathlib.Path, required=True, help="holosoma-inference (.local/holosoma-inference)")
     p.add_argument("--frames", type=int, default=0, help="play only the first N frames of the motion (0: all)")
     p.add_argument("--hold", type=float, default=1.0, help="seconds the policy stands on the first frame first")
+    p.add_argument("--trace", type=pathlib.Path, help="write the observation of every step here (CSV)")
     a = p.parse_args()
     if a.task == "dance":
         dance(a)
