@@ -322,7 +322,8 @@ def walk(a):
     standing_still = False
     last_action = np.zeros(len(names))
     command = np.zeros(3)  # ang_vel_z, lin_vel_x, lin_vel_y
-    ramp = 1.0 * POLICY_DT
+    # The commands move at most `--ramp` per second (0: at once, as `play --command` gives them).
+    ramp = a.ramp * POLICY_DT if a.ramp > 0 else math.inf
     ticks = int(round((a.stand + a.walk + a.rest) / POLICY_DT))
     lowest, fell = math.inf, False
     t0 = time.perf_counter()
@@ -383,6 +384,7 @@ def main():
     p.add_argument("--stand", type=float, default=1.0, help="walk: seconds standing first")
     p.add_argument("--walk", type=float, default=10.0, help="walk: seconds walking")
     p.add_argument("--rest", type=float, default=6.0, help="walk: seconds of rest command after")
+    p.add_argument("--ramp", type=float, default=1.0, help="walk: command ramp, per second (0: a step)")
     p.add_argument("--robot-dir", type=pathlib.Path, required=True, help="the holosoma package (.local/holosoma)")
     p.add_argument("--policy-dir", type=pathlib.Path, required=True, help="holosoma-inference (.local/holosoma-inference)")
     p.add_argument("--frames", type=int, default=0, help="play only the first N frames of the motion (0: all)")
