@@ -223,7 +223,8 @@ def dance(a):
             "motion_ref_ori_b": ori,
         }
         obs = np.concatenate([parts[t] for t in terms])
-        trace.write([(t, parts[t]) for t in terms])
+        # The export's second input, the frame it plays, closes the policy's view of the step.
+        trace.write([(t, parts[t]) for t in terms] + [("time_step", [float(frame)])])
         if tick >= hold_ticks:
             # The robot against the frame this tick plays, and its anchor against the motion's.
             joint_sq += float(np.mean((q - frames[frame][0]) ** 2))
