@@ -12,7 +12,7 @@ use std::collections::VecDeque;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
-use super::wire_time::{frame_bits, frame_time};
+use super::wire_time::{bits_time, frame_bits};
 use super::{CanBus, CanError, CanFrame, CanId};
 use crate::time::{SimInstant, SimRng, SimWorld};
 
@@ -122,10 +122,12 @@ impl Medium {
             });
         }
         let start = self.now.max(self.busy_until);
-        let mut end = start + frame_time(frame, self.bitrate);
+        // The frame's bits once (the stuffing walk is the bus's dearest sum).
+        let bits = frame_bits(frame);
+        let mut end = start + bits_time(bits, self.bitrate);
         self.busy_until = end;
         self.stats.frames += 1;
-        self.stats.bits += u64::from(frame_bits(frame));
+        self.stats.bits += u64::from(bits);
         let mut delivered = *frame;
         match self.fault_for(frame, start) {
             Some(CanFaultKind::Drop) => {
@@ -138,7 +140,7 @@ impl Medium {
             }
             Some(CanFaultKind::CrcError) => {
                 self.stats.delayed += 1;
-                let resend = frame_time(frame, self.bitrate) + bit_time(20, self.bitrate);
+                let resend = bits_time(bits, self.bitrate) + bits_time(20, self.bitrate);
                 end = end + resend;
                 self.busy_until = self.busy_until + resend;
             }
@@ -167,10 +169,6 @@ impl Medium {
         }
         Ok(())
     }
-}
-
-fn bit_time(bits: u64, bitrate: u32) -> Duration {
-    Duration::from_nanos(bits * 1_000_000_000 / u64::from(bitrate.max(1)))
 }
 
 /// An in-process CAN bus. Cloning gives another handle to the same wire.
@@ -461,7 +459,7 @@ mod tests {
         let (t_clean, t_noisy) = (arrival(&clean), arrival(&noisy));
         assert_eq!(
             t_noisy - t_clean,
-            frame_time(&frame(1, 0xAA), 1_000_000) + Duration::from_micros(20)
+            super::super::wire_time::frame_time(&frame(1, 0xAA), 1_000_000) + Duration::from_micros(20)
         );
     }
 

@@ -104,7 +104,12 @@ pub const fn worst_case_bits(dlc: u8, extended: bool) -> u32 {
 
 /// Time `frame` occupies a bus running at `bitrate` bit/s.
 pub fn frame_time(frame: &CanFrame, bitrate: u32) -> Duration {
-    Duration::from_nanos(u64::from(frame_bits(frame)) * 1_000_000_000 / u64::from(bitrate.max(1)))
+    bits_time(frame_bits(frame), bitrate)
+}
+
+/// Time `bits` occupy a bus running at `bitrate` bit/s.
+pub fn bits_time(bits: u32, bitrate: u32) -> Duration {
+    Duration::from_nanos(u64::from(bits) * 1_000_000_000 / u64::from(bitrate.max(1)))
 }
 
 #[cfg(test)]
