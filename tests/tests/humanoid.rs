@@ -171,6 +171,19 @@ fn the_g1_dances_holosomas_whole_motion_from_a_harness_and_ends_standing_under_t
         "joint RMSE {:.4} rad against the Python loop's {py_rmse:.4}\n{s}",
         s.joint_rmse
     );
+    // The body the motion anchors on (the torso) against its reference, aligned alike.
+    let py_anchor = py["anchor_rmse_m"].as_f64().unwrap();
+    let anchor = s
+        .body_rmse
+        .iter()
+        .find(|(b, _)| b == "torso_link")
+        .map(|(_, e)| *e)
+        .unwrap_or_else(|| panic!("no torso_link position error\n{s}"));
+    eprintln!("torso position RMSE {anchor:.3} m, the Python loop's {py_anchor:.3} m");
+    assert!(
+        anchor < 1.5 * py_anchor,
+        "torso position RMSE {anchor:.3} m against the Python loop's {py_anchor:.3}\n{s}"
+    );
     // The dance's policy reads no world term: the estimator and the ground truth cannot differ.
     let (robot, layout, _) = load_dance();
     assert!(!layout.needs_ground_truth(), "{}", robot.config.name);
