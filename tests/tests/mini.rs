@@ -14,6 +14,7 @@ use test_support::bin::{Running, run_within};
 use test_support::fixtures::{venv_python, workspace_root};
 
 mod common;
+mod feetech_mini;
 
 #[global_allocator]
 static ALLOC: test_support::alloc::CountingAllocator = test_support::alloc::CountingAllocator;
@@ -909,28 +910,13 @@ fn a_bno055_is_put_into_fusion_then_read_and_a_silent_one_stops_the_robot() {
     assert!(e.contains("imu.rate_hz") && e.contains("BNO055"), "{e}");
 }
 
-/// rd-mini's file with every servo swapped for a Feetech STS3215 (12 V) on a 1 Mbit/s line, its
-/// speed and torque limits brought within the servo's.
-fn on_feetech(text: &str) -> String {
-    let mut s = text
-        .replace("kind = \"dynamixel\"", "kind = \"feetech\"")
-        .replace("rate = 4000000", "rate = 1000000")
-        .replace("fast_reads = true\n", "")
-        .replace("velocity_limit = 6.0", "velocity_limit = 4.5")
-        .replace("torque_limit = 3.5", "torque_limit = 2.9");
-    for m in ["XL430-W250", "XM430-W350"] {
-        s = s.replace(&format!("model = \"{m}\""), "model = \"STS3215-12V\"");
-    }
-    s
-}
-
 #[test]
 fn a_feetech_servo_variant_of_the_robots_own_runs_and_check_shows_its_limit() {
     // The STS3215 at 9 V: a variant the shipped table lacks, described in robot.toml on the
     // shipped STS3215-12V (what the bus identifies: model 777).
     let text = std::fs::read_to_string(mini("robot.toml")).unwrap();
     let variant = "\n[[servo_models]]\nname = \"STS3215-9V\"\nbase = \"STS3215-12V\"\nnominal_voltage = 9.0\nstall_torque = 2.3\nno_load_speed = 40.0\n";
-    let text = on_feetech(&text)
+    let text = feetech_mini::on_feetech(&text)
         .replace("model = \"STS3215-12V\"", "model = \"STS3215-9V\"")
         .replace("torque_limit = 2.9", "torque_limit = 2.2")
         .replace("velocity_limit = 4.5", "velocity_limit = 4.0")
@@ -997,7 +983,7 @@ fn a_feetech_servo_variant_of_the_robots_own_runs_and_check_shows_its_limit() {
 fn on_feetech_servos_it_stands_its_servos_identify_and_a_vanished_one_stops_it() {
     use firmware_bridge::feetech::table::addr;
     let text = std::fs::read_to_string(mini("robot.toml")).unwrap();
-    let robot = Robot::from_str(&mini("robot.toml"), &on_feetech(&text)).unwrap();
+    let robot = Robot::from_str(&mini("robot.toml"), &feetech_mini::on_feetech(&text)).unwrap();
     assert_eq!(robot.bus("dxl0").unwrap().kind, robots::BusKind::Feetech);
     // `calibrate identify`'s question, answered by the emulated servos.
     {
@@ -1073,14 +1059,15 @@ fn on_feetech_servos_it_stands_its_servos_identify_and_a_vanished_one_stops_it()
     // What the servo cannot do is refused by field, before anything moves.
     let e = Robot::from_str(
         &mini("robot.toml"),
-        &on_feetech(&text).replace("velocity_limit = 4.5", "velocity_limit = 6.0"),
+        &feetech_mini::on_feetech(&text).replace("velocity_limit = 4.5", "velocity_limit = 6.0"),
     )
     .unwrap_err()
     .to_string();
     assert!(e.contains("velocity_limit") && e.contains("no-load speed"), "{e}");
     let e = Robot::from_str(
         &mini("robot.toml"),
-        &on_feetech(&text).replace("rate = 1000000", "rate = 1000000\ncommand_timeout_ms = 100.0"),
+        &feetech_mini::on_feetech(&text)
+            .replace("rate = 1000000", "rate = 1000000\ncommand_timeout_ms = 100.0"),
     )
     .unwrap_err()
     .to_string();

@@ -12,6 +12,8 @@ use sim2real::model_index::ModelIndex;
 use test_support::bin::run_within;
 use test_support::fixtures::workspace_root;
 
+mod feetech_mini;
+
 /// rd-biped's robot.toml with `extra` appended, written as `dir/name` (its MJCF where it is).
 fn biped_with(dir: &Path, name: &str, extra: &str) -> PathBuf {
     let original = workspace_root().join("robots/biped");
@@ -380,15 +382,8 @@ fn joints_stopped_mid_swing_by_an_obstacle_stay_within_their_torque_limits() {
     // the whole cycle.
     let biped = Robot::load(&workspace_root().join("robots/biped/robot.toml")).unwrap();
     let mini_dir = workspace_root().join("robots/mini");
-    let feetech_text = std::fs::read_to_string(mini_dir.join("robot.toml"))
-        .unwrap()
-        .replace("kind = \"dynamixel\"", "kind = \"feetech\"")
-        .replace("rate = 4000000", "rate = 1000000")
-        .replace("fast_reads = true\n", "")
-        .replace("velocity_limit = 6.0", "velocity_limit = 4.5")
-        .replace("torque_limit = 3.5", "torque_limit = 2.9")
-        .replace("model = \"XL430-W250\"", "model = \"STS3215-12V\"")
-        .replace("model = \"XM430-W350\"", "model = \"STS3215-12V\"");
+    let feetech_text =
+        feetech_mini::on_feetech(&std::fs::read_to_string(mini_dir.join("robot.toml")).unwrap());
     let on_feetech = Robot::from_str(&mini_dir.join("robot.toml"), &feetech_text).unwrap();
     for (robot, joint, swing) in [
         (&biped, "left_knee", 1.2),

@@ -630,7 +630,7 @@ fn print_model(robot: &Robot) -> Result<()> {
 /// drives the joint with a `<position>` actuator of its own, that actuator's force range (the
 /// mirror caps it at the servo's limit); an MIT-mode motor's range and the bus's bound.
 fn print_servo_caps(robot: &Robot) {
-    let mut lines: Vec<(String, Vec<&str>)> = Vec::new();
+    let mut lines: Vec<(String, &str)> = Vec::new();
     for j in &robot.config.joints {
         let Some(bus) = robot.bus(&j.bus) else { continue };
         let stall = match bus.kind {
@@ -657,17 +657,12 @@ fn print_servo_caps(robot: &Robot) {
             "{} {} N·m (the {}'s stall torque {} N·m × gear {}){capped}",
             j.model, j.torque_limit, j.model, stall, j.gear
         );
-        match lines.iter_mut().find(|(t, _)| *t == text) {
-            Some((_, joints)) => joints.push(&j.name),
-            None => lines.push((text, vec![&j.name])),
-        }
+        lines.push((format!("servo torque limit: {text}"), j.name.as_str()));
     }
-    for (text, joints) in lines {
-        println!("       servo torque limit: {text} — {}", joints.join(", "));
-    }
+    print_grouped(lines);
     // MIT-mode motors: the bus bounds every command over its cycle where the joint's limit lies
     // below the motor's range; Robstride motors also hold it in their own limit_torque.
-    let mut lines: Vec<(String, Vec<&str>)> = Vec::new();
+    let mut lines: Vec<(String, &str)> = Vec::new();
     for j in &robot.config.joints {
         if robot
             .bus(&j.bus)
@@ -692,14 +687,9 @@ fn print_servo_caps(robot: &Robot) {
         } else {
             format!("{} {} N·m: the motor's own range", j.model, j.torque_limit)
         };
-        match lines.iter_mut().find(|(t, _)| *t == text) {
-            Some((_, joints)) => joints.push(&j.name),
-            None => lines.push((text, vec![&j.name])),
-        }
+        lines.push((format!("motor torque limit: {text}"), j.name.as_str()));
     }
-    for (text, joints) in lines {
-        println!("       motor torque limit: {text} — {}", joints.join(", "));
-    }
+    print_grouped(lines);
 }
 
 /// The physics and the joints' dynamics as the mirror and the motion check compile them: the
@@ -727,28 +717,34 @@ fn print_dynamics(robot: &Robot) -> Result<()> {
     );
     // Joints grouped by their compiled armature, friction loss and damping.
     let index = sim2real::model_index::ModelIndex::of_robot(&model, robot)?;
-    let mut groups: Vec<([f64; 3], bool, Vec<&str>)> = Vec::new();
-    for (j, ids) in robot.config.joints.iter().zip(&index.joints) {
+    let lines = robot.config.joints.iter().zip(&index.joints).map(|(j, ids)| {
         let d = ids.dof;
-        let key = [
+        let ours = robot.config.joint_dynamics_of(&j.name) != robots::JointDynamicsOf::default();
+        let text = format!(
+            "joint dynamics{}: armature {} kg·m², frictionloss {} N·m, damping {} N·m·s/rad",
+            if ours { " (robot.toml)" } else { "" },
             model.dof_armature()[d],
             model.dof_frictionloss()[d],
-            model.dof_damping()[d],
-        ];
-        let ours = robot.config.joint_dynamics_of(&j.name) != robots::JointDynamicsOf::default();
-        match groups.iter_mut().find(|g| g.0 == key && g.1 == ours) {
-            Some(g) => g.2.push(&j.name),
-            None => groups.push((key, ours, vec![&j.name])),
+            model.dof_damping()[d]
+        );
+        (text, j.name.as_str())
+    });
+    print_grouped(lines);
+    Ok(())
+}
+
+/// Prints one line per distinct text, naming the joints that share it, in first-seen order.
+fn print_grouped<'a>(lines: impl IntoIterator<Item = (String, &'a str)>) {
+    let mut groups: Vec<(String, Vec<&str>)> = Vec::new();
+    for (text, joint) in lines {
+        match groups.iter_mut().find(|(t, _)| *t == text) {
+            Some((_, joints)) => joints.push(joint),
+            None => groups.push((text, vec![joint])),
         }
     }
-    for ([armature, friction, damping], ours, joints) in groups {
-        println!(
-            "       joint dynamics{}: armature {armature} kg·m², frictionloss {friction} N·m, damping {damping} N·m·s/rad — {}",
-            if ours { " (robot.toml)" } else { "" },
-            joints.join(", ")
-        );
+    for (text, joints) in groups {
+        println!("       {text} — {}", joints.join(", "));
     }
-    Ok(())
 }
 
 /// Adds the recorder, the e-stop and the live commands a run asked for.

@@ -17,11 +17,10 @@
 use std::process::Command;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use controller::player::PlayOptions;
 use controller::policy::PolicyLayout;
-use controller::safety::Mode;
 use controller::sim::lockstep_player;
 use robots::Robot;
 use sim2real::config::MirrorConfig;
@@ -52,17 +51,12 @@ fn robodeploy(frames: usize) -> (f64, f64, u64) {
         Arc::new(AtomicBool::new(false)),
     )
     .unwrap();
-    let period = Duration::from_millis(20);
     let wall = Instant::now();
-    player.identify().unwrap();
-    while player.mode() != Mode::Off {
-        player.step(&clock).unwrap();
-        player.wait_until(&mut clock, period * player.ticks() as u32);
-    }
+    let summary = player.run(&mut clock).unwrap();
     let took = wall.elapsed().as_secs_f64();
     let steps = world.lock().unwrap().stats().physics_steps;
-    assert!(!player.summary_so_far().fell, "the G1 fell in the bench run");
-    (player.ticks() as f64 * period.as_secs_f64(), took, steps)
+    assert!(!summary.fell, "the G1 fell in the bench run");
+    (summary.ticks as f64 * 0.02, took, steps)
 }
 
 /// The Python loop's physics step (holosoma's), s.
