@@ -195,6 +195,12 @@ def write(facts, out):
         "error = 0.8",
         "seconds = 1.0",
         "",
+        "# The trainer's actuator: holosoma's MuJoCo loop computes the PD torque from the newest",
+        "# targets every physics step, clipped to the effort limits (the motors' torque ranges below).",
+        "[[actuators]]",
+        'joints = ["*"]',
+        'model = "explicit_pd"',
+        "",
     ]
     for e, v in sorted({(e, v) for e, v in zip(effort, velocity)}):
         lines += [

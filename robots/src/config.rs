@@ -282,6 +282,10 @@ pub struct RobotConfig {
     /// Physics settings of the trainer's simulation (the model's own where none).
     #[serde(default, skip_serializing_if = "SimConfig::is_default")]
     pub sim: SimConfig,
+    /// How the trainer's simulation made each joint's torque from its command, per joint or
+    /// group (the mirror does the same; the real robot's firmware is what it is).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub actuators: Vec<crate::actuators::ActuatorGroup>,
 }
 
 /// Joint dynamics for a joint or a group (robot.toml `[[joint_dynamics]]`): what a trainer such as
@@ -1765,6 +1769,7 @@ impl Robot {
         c.start.check()?;
         c.safety.check(&c.joints)?;
         JointDynamics::check(&c.joint_dynamics, &c.joints)?;
+        crate::actuators::ActuatorGroup::check(c, &c.joints)?;
         if !(1.0..=1000.0).contains(&c.control_rate_hz) {
             return Err((
                 "control_rate_hz".into(),

@@ -4,12 +4,14 @@
 //! Loading checks every cross-reference (MJCF joints, bodies, sites and meshes; unique IDs per
 //! bus; limits inside what the motor model can do) and fails with the file, the field and the value.
 
+pub mod actuators;
 pub mod calibration;
 pub mod config;
 pub mod drivers;
 pub mod mjcf;
 pub mod spatial;
 
+pub use actuators::{ActuatorGroup, ActuatorModel, ActuatorOf};
 pub use config::{
     BodyPair, BusConfig, BusKind, BusTiming, FrictionCone, HarnessConfig, HumanBody, IMU_SENSOR_KINDS,
     ImuConfig, ImuSensorNames, Integrator, Interpolation, JointConfig, JointDynamics, JointDynamicsOf,

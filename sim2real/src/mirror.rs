@@ -23,7 +23,7 @@ use firmware_bridge::half_duplex::LineDevices;
 use firmware_bridge::imu::bno055::{self, Bno055};
 use firmware_bridge::imu::emulator::{ImuEmulatorConfig, ImuTruth, WitImuEmulator};
 use firmware_bridge::mit::codec::MotorFault;
-use firmware_bridge::mit::firmware::{InjectedFaults, MitFirmwareConfig, MitMotorFirmware};
+use firmware_bridge::mit::firmware::{InjectedFaults, MitFirmwareConfig, MitMotorFirmware, PdLaw};
 use firmware_bridge::plant::MotorPlant;
 use firmware_bridge::serial::{LockstepStream, SerialSimWorld, StreamLine};
 use firmware_bridge::time::SimWorld;
@@ -31,7 +31,7 @@ use firmware_bridge::time::{SimInstant, SimRng};
 use mujoco_rs::prelude::*;
 use mujoco_rs::wrappers::mj_model::traits::ModelType;
 use robots::spatial::{quat_conj, quat_mul, quat_of_rpy, quat_rotate};
-use robots::{BusKind, Robot};
+use robots::{ActuatorModel, ActuatorOf, BusKind, Robot};
 
 use crate::config::{FaultKind, MirrorConfig, Range};
 use crate::model_index::{self, ModelIndex};
@@ -60,6 +60,38 @@ struct MirrorJoint {
     strength: f64,
     /// A `<position>` actuator of the model driving this joint: it gets the firmware's goal.
     actuator: Option<usize>,
+    /// The trainer's actuator law (robot.toml `[[actuators]]`).
+    law: ActuatorOf,
+    /// The commands of the last `delay + 1` physics steps, newest at `head` (laws the mirror
+    /// computes each step; allocated once).
+    delayed: Vec<Option<PdLaw>>,
+    head: usize,
+    /// The joint's passive damping in the model (after randomisation), N·m·s/rad; an implicit PD
+    /// adds its own to it.
+    passive_damping: f64,
+}
+
+impl MirrorJoint {
+    /// Takes this physics step's command and returns the one that acts now: `delay` steps old.
+    fn delay(&mut self, law: Option<PdLaw>) -> Option<PdLaw> {
+        let n = self.delayed.len();
+        self.head = (self.head + 1) % n;
+        self.delayed[self.head] = law;
+        self.delayed[(self.head + 1) % n]
+    }
+
+    /// The joint torque of a law the mirror computes every physics step, at joint angle `q` and
+    /// speed `qd`, within the motor's clamp, the effort limit and a DC motor's torque–speed line.
+    fn stepped_torque(&self, law: &PdLaw, q: f64, qd: f64) -> f64 {
+        let to_joint = self.direction * self.gear;
+        let motor = law.torque(self.zero_offset + to_joint * q, to_joint * qd);
+        let limit = self
+            .law
+            .effort_limit
+            .map_or(law.limit * self.gear, |e| e.min(law.limit * self.gear));
+        let (low, high) = self.law.torque_bounds(qd, limit);
+        (to_joint * motor).clamp(low, high) * self.strength
+    }
 }
 
 /// The actuator-side view of a joint that firmware reads and drives.
@@ -72,6 +104,8 @@ struct ActuatorPlant {
     goal: Option<f64>,
     /// The most torque the firmware lets its motor give, N·m (actuator side).
     torque_cap: f64,
+    /// The motor's impedance law while its torque is on (MIT motors).
+    law: Option<PdLaw>,
 }
 
 impl MotorPlant for ActuatorPlant {
@@ -326,6 +360,39 @@ fn start_pose(robot: &Robot, joint_qpos: &[usize], qpos: &mut [f64]) {
     }
 }
 
+/// The control of position actuator `a` that tracks `goal` (joint angle) with the model's own
+/// gains but never asks more torque of the joint than the firmware's motor gives
+/// (`torque_cap`, actuator side): the force the actuator would make, clamped, and turned back
+/// into the setpoint that makes it.
+fn capped_position_control(
+    data: &MjData<Box<MjModel>>,
+    a: usize,
+    j: &MirrorJoint,
+    goal: f64,
+    torque_cap: f64,
+) -> f64 {
+    let m = data.model();
+    let kp = m.actuator_gainprm()[a][0];
+    let bias = m.actuator_biasprm()[a];
+    let gear = m.actuator_gear()[a][0];
+    let (length, velocity) = (gear * data.qpos()[j.qpos], gear * data.qvel()[j.dof]);
+    let free = bias[0] + bias[1] * length + bias[2] * velocity;
+    let limit = (torque_cap * j.gear / gear.abs()).max(0.0);
+    // The setpoint is an actuator length: gear × joint angle.
+    let force = (kp * gear * goal + free).clamp(-limit, limit);
+    (force - free) / kp
+}
+
+/// Sets the damping of degree of freedom `dof` in the model `data` steps, where it differs.
+fn set_dof_damping(data: &mut MjData<Box<MjModel>>, dof: usize, damping: f64) {
+    if data.model().dof_damping()[dof] != damping {
+        // SAFETY: one value of an existing array changes; no size, index or address does.
+        #[allow(unsafe_code)]
+        let model = unsafe { data.model_mut() };
+        model.dof_damping_mut()[dof] = damping;
+    }
+}
+
 /// The mass (kg) of the tree rooted at `root_body` and its mean moment of inertia about the root
 /// (kg·m²), in `data`'s present pose.
 fn held_mass_and_inertia<M: ModelType>(data: &MjData<M>, root_body: usize) -> (f64, f64) {
@@ -402,6 +469,17 @@ impl Mirror {
                     && (model.actuator_gainprm()[a][0] + model.actuator_biasprm()[a][1]).abs() < 1e-9
             });
             let truth = config.hardware.joints.get(&j.name);
+            let law = robot.config.actuator_of(&j.name);
+            if law.model.per_physics_step() && actuator.is_some() {
+                return Err(MirrorError::Robot(format!(
+                    "joint {}: robot.toml's actuator model {} computes a torque, but the model \
+                     drives the joint with a <position> actuator",
+                    j.name,
+                    law.model.name()
+                )));
+            }
+            let [lo, hi] = law.delay_steps.map(f64::from);
+            let delay = draw(Range(lo, hi + 1.0)).floor().min(hi) as usize;
             joints.push(MirrorJoint {
                 qpos: ids.qpos,
                 dof: ids.dof,
@@ -415,12 +493,17 @@ impl Mirror {
                 ),
                 strength: draw(rnd.strength_scale),
                 actuator,
+                law,
+                delayed: vec![None; delay + 1],
+                head: 0,
+                passive_damping: 0.0,
             });
         }
-        for j in &joints {
+        for j in &mut joints {
             let scale = draw(rnd.friction_scale);
             model.dof_frictionloss_mut()[j.dof] *= scale;
             model.dof_damping_mut()[j.dof] *= scale;
+            j.passive_damping = model.dof_damping()[j.dof];
         }
         let sensor = |name: &str| {
             model_index::sensor_address(&model, name).map_err(|e| MirrorError::Robot(e.to_string()))
@@ -944,6 +1027,7 @@ impl Mirror {
                     .tick(t, self.firmware_period, &mut self.plants[m.joint]);
                 self.plants[m.joint].goal = m.firmware.position_goal();
                 self.plants[m.joint].torque_cap = m.firmware.torque_cap();
+                self.plants[m.joint].law = m.firmware.pd_law();
             }
         }
         for line in &mut self.dxl {
@@ -978,14 +1062,34 @@ impl Mirror {
             self.held = false;
         }
         // Torques (or position goals) from the firmware's last period.
-        for (i, (j, p)) in self.joints.iter().zip(&self.plants).enumerate() {
+        for (i, (j, p)) in self.joints.iter_mut().zip(&self.plants).enumerate() {
+            if j.law.model.per_physics_step() {
+                // The trainer's law, from the command that acts at this step.
+                let (q, qd) = (self.data.qpos()[j.qpos], self.data.qvel()[j.dof]);
+                let law = j.delay(p.law);
+                let torque = law.map_or(0.0, |l| j.stepped_torque(&l, q, qd));
+                self.peak_torque = self.peak_torque.max((torque / j.gear).abs());
+                self.peak_joint_torque[i] = self.peak_joint_torque[i].max(torque.abs());
+                let mut damping = j.passive_damping;
+                let mut applied = torque;
+                if let (ActuatorModel::ImplicitPd, Some(l)) = (j.law.model, law) {
+                    // MuJoCo integrates joint damping implicitly: the law's damping moves there
+                    // and its explicit share is given back, so the joint feels the same law.
+                    let kd = l.kd * j.gear * j.gear * j.strength;
+                    damping += kd;
+                    applied += kd * qd;
+                }
+                set_dof_damping(&mut self.data, j.dof, damping);
+                self.data.qfrc_applied_mut()[j.dof] = applied;
+                continue;
+            }
             match j.actuator {
                 Some(a) => {
                     // The model's own servo tracks the firmware's goal; with no goal (torque
                     // off) it holds where the joint is, as a position actuator cannot go limp.
                     let q = self.data.qpos()[j.qpos];
                     let goal = p.goal.map_or(q, |g| (g - j.zero_offset) / (j.direction * j.gear));
-                    let ctrl = self.capped_position_control(a, j, goal, p.torque_cap);
+                    let ctrl = capped_position_control(&self.data, a, j, goal, p.torque_cap);
                     self.data.ctrl_mut()[a] = ctrl;
                     self.data.qfrc_applied_mut()[j.dof] = 0.0;
                 }
@@ -1062,23 +1166,6 @@ impl Mirror {
             }
         }
         self.stats.physics_steps += 1;
-    }
-
-    /// The control of position actuator `a` that tracks `goal` (joint angle) with the model's own
-    /// gains but never asks more torque of the joint than the firmware's motor gives
-    /// (`torque_cap`, actuator side): the force the actuator would make, clamped, and turned back
-    /// into the setpoint that makes it.
-    fn capped_position_control(&self, a: usize, j: &MirrorJoint, goal: f64, torque_cap: f64) -> f64 {
-        let m = self.data.model();
-        let kp = m.actuator_gainprm()[a][0];
-        let bias = m.actuator_biasprm()[a];
-        let gear = m.actuator_gear()[a][0];
-        let (length, velocity) = (gear * self.data.qpos()[j.qpos], gear * self.data.qvel()[j.dof]);
-        let free = bias[0] + bias[1] * length + bias[2] * velocity;
-        let limit = (torque_cap * j.gear / gear.abs()).max(0.0);
-        // The setpoint is an actuator length: gear × joint angle.
-        let force = (kp * gear * goal + free).clamp(-limit, limit);
-        (force - free) / kp
     }
 
     /// Why the simulation can no longer be trusted, if it cannot: MuJoCo's own instability

@@ -17,6 +17,7 @@ use sim2real::link::LockstepClock;
 use sim2real::mirror::Mirror;
 
 mod common;
+mod robstride_biped;
 
 #[global_allocator]
 static ALLOC: test_support::alloc::CountingAllocator = test_support::alloc::CountingAllocator;
@@ -111,24 +112,8 @@ fn the_biped_squats_with_the_reference_follower_and_the_log_shows_the_state_mach
 
 #[test]
 fn the_biped_with_its_left_leg_on_robstride_motors_squats_as_well() {
-    // The left leg's six motors swapped for Robstrides of the same class, sharing can0 in the
-    // factory protocol; the right leg stays on MIT mode.
     let text = std::fs::read_to_string(reference_robot_path()).unwrap();
-    let swapped: String = text
-        .split("[[joints]]")
-        .map(|block| {
-            if block.contains("bus = \"can0\"") {
-                block
-                    .replace("model = \"AK80-9\"", "model = \"RS02\"")
-                    .replace("model = \"AK10-9\"", "model = \"RS03\"")
-                    .replace("model = \"DM-J4340\"", "model = \"RS03\"")
-                    .replace("model = \"DM-J4310\"", "model = \"RS00\"")
-            } else {
-                block.to_owned()
-            }
-        })
-        .collect::<Vec<_>>()
-        .join("[[joints]]");
+    let swapped = robstride_biped::left_leg_on_robstride(&text);
     let robot = Robot::from_str(&reference_robot_path(), &swapped).unwrap();
     let family = |name: &str| {
         let j = robot.config.joints.iter().find(|j| j.name == name).unwrap();

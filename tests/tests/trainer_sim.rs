@@ -13,6 +13,7 @@ use test_support::bin::run_within;
 use test_support::fixtures::workspace_root;
 
 mod feetech_mini;
+mod robstride_biped;
 
 /// rd-biped's robot.toml with `extra` appended, written as `dir/name` (its MJCF where it is).
 fn biped_with(dir: &Path, name: &str, extra: &str) -> PathBuf {
@@ -163,6 +164,34 @@ fn bad_joint_dynamics_and_physics_are_refused_by_field_and_nothing_moves() {
         ),
         ("[sim]\nintegrator = \"verlet\"\n", "unknown variant `verlet`"),
         ("[sim]\nimpratio = 0.5\n", "sim.impratio: 0.5 is outside [1, 100]"),
+        (
+            "[[actuators]]\njoints = [\"*\"]\nmodel = \"explicit_pd\"\n",
+            "actuators[0].model: explicit_pd: joint left_shoulder_pitch sits on a Dynamixel bus, which cannot provide it",
+        ),
+        (
+            "[[actuators]]\njoints = [\"*knee\"]\nmodel = \"dc_motor\"\nsaturation_effort = 60.0\n",
+            "actuators[0].model: dc_motor for joint left_knee needs saturation_effort and velocity_limit",
+        ),
+        (
+            "[[actuators]]\njoints = [\"*knee\"]\nmodel = \"servo_magic\"\n",
+            "unknown variant `servo_magic`",
+        ),
+        (
+            "[[actuators]]\njoints = [\"*knee\"]\ndelay_steps = [2, 2]\n",
+            "actuators[0].delay_steps: joint left_knee: a delay needs a law the mirror computes",
+        ),
+        (
+            "[[actuators]]\njoints = [\"*knee\"]\nmodel = \"explicit_pd\"\ndelay_steps = [3, 1]\n",
+            "actuators[0].delay_steps: [3, 1] is not a range within [0, 100] steps",
+        ),
+        (
+            "[[actuators]]\njoints = [\"*knee\"]\nmodel = \"explicit_pd\"\neffort_limit = -1.0\n",
+            "actuators[0].effort_limit: -1 N·m is outside [0, 10000]",
+        ),
+        (
+            "[[actuators]]\njoints = [\"*tail*\"]\nmodel = \"explicit_pd\"\n",
+            "actuators[0].joints: \"*tail*\" matches no joint of the robot",
+        ),
     ];
     for (i, (extra, want)) in cases.iter().enumerate() {
         let path = biped_with(&dir, &format!("bad{i}.toml"), extra);
@@ -375,7 +404,8 @@ fn swing_into_an_obstacle(robot: &Robot, joint: &str, swing: f64) -> (f64, f64) 
 
 #[test]
 fn joints_stopped_mid_swing_by_an_obstacle_stay_within_their_torque_limits() {
-    // Each bus family: the bus bounds each command at its cycle (MIT), or the servo's own
+    // Each bus family: the bus bounds each command at its cycle (MIT), the motor its own
+    // limit_torque (Robstride), or the servo's own
     // current or torque limit holds (Dynamixel, Feetech); either way the torque the joint gets
     // between bus cycles stays within its limit (2 % for the devices' steps). rd-biped's knee
     // (AK10-9, 40 N·m, below the motor's own) peaked at 65 N·m before the bound looked across
@@ -385,8 +415,16 @@ fn joints_stopped_mid_swing_by_an_obstacle_stay_within_their_torque_limits() {
     let feetech_text =
         feetech_mini::on_feetech(&std::fs::read_to_string(mini_dir.join("robot.toml")).unwrap());
     let on_feetech = Robot::from_str(&mini_dir.join("robot.toml"), &feetech_text).unwrap();
+    let biped_path = workspace_root().join("robots/biped/robot.toml");
+    let on_robstride = Robot::from_str(
+        &biped_path,
+        &robstride_biped::left_leg_on_robstride(&std::fs::read_to_string(&biped_path).unwrap()),
+    )
+    .unwrap();
     for (robot, joint, swing) in [
         (&biped, "left_knee", 1.2),
+        // An RS03 (60 N·m) holding the knee's 40 N·m in its own limit_torque.
+        (&on_robstride, "left_knee", 1.2),
         (&biped, "left_elbow", -1.0),
         (&on_feetech, "l_knee", 1.0),
     ] {
@@ -412,4 +450,103 @@ fn joints_stopped_mid_swing_by_an_obstacle_stay_within_their_torque_limits() {
             "{joint}: {peak:.2} N·m against a {limit} N·m limit"
         );
     }
+}
+
+/// rd-biped's left knee on the gantry, told to swing `swing` rad at the robot's stiffness, under
+/// robot.toml with `extra`: its angle and speed every 2 ms for 0.2 s.
+fn knee_swing(dir: &Path, name: &str, extra: &str, swing: f64) -> Vec<(f64, f64)> {
+    let robot = Robot::load(&biped_with(dir, name, extra)).unwrap();
+    let i = robot
+        .config
+        .joints
+        .iter()
+        .position(|j| j.name == "left_knee")
+        .unwrap();
+    let mut host = MirrorHost::start(
+        robot.clone(),
+        MirrorConfig {
+            gantry: true,
+            ..MirrorConfig::default()
+        },
+    )
+    .unwrap();
+    let dof = {
+        let w = host.world.lock().unwrap();
+        ModelIndex::of_robot(w.data().model(), &robot).unwrap().joints[i]
+    };
+    let mut q: Vec<f64> = robot.config.joints.iter().map(|j| j.default_position).collect();
+    q[i] += swing;
+    let start = host.now();
+    let mut trace = Vec::new();
+    for k in 1..=100u32 {
+        if k % 10 == 1 {
+            host.command_positions(&robot, &q).unwrap();
+        }
+        host.wait_until(start + Duration::from_millis(2) * k);
+        let w = host.world.lock().unwrap();
+        trace.push((w.data().qpos()[dof.qpos], w.data().qvel()[dof.dof]));
+    }
+    trace
+}
+
+#[test]
+fn the_trainers_actuator_law_drives_the_mirrors_joints() {
+    let dir = std::env::temp_dir().join(format!("robodeploy-actuators-{}", std::process::id()));
+    let law = |model: &str, more: &str| {
+        format!("[[actuators]]\njoints = [\"left_knee\"]\nmodel = \"{model}\"\n{more}")
+    };
+    let firmware = knee_swing(&dir, "firmware.toml", "", 1.2);
+    let explicit = knee_swing(&dir, "explicit.toml", &law("explicit_pd", ""), 1.2);
+    let implicit = knee_swing(&dir, "implicit.toml", &law("implicit_pd", ""), 1.2);
+    let dc = knee_swing(
+        &dir,
+        "dc.toml",
+        &law("dc_motor", "saturation_effort = 40.0\nvelocity_limit = 3.0\n"),
+        1.2,
+    );
+    let delayed = knee_swing(
+        &dir,
+        "delayed.toml",
+        &law("explicit_pd", "delay_steps = [10, 10]\n"),
+        1.2,
+    );
+    let fastest = |t: &[(f64, f64)]| t.iter().map(|s| s.1.abs()).fold(0.0, f64::max);
+    let apart = |a: &[(f64, f64)], b: &[(f64, f64)]| {
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (x.0 - y.0).abs())
+            .fold(0.0, f64::max)
+    };
+    let tenth = |t: &[(f64, f64)]| t.iter().position(|s| (s.0 - t[0].0).abs() > 0.12).unwrap();
+    eprintln!(
+        "fastest: firmware {:.2}, explicit {:.2}, implicit {:.2}, dc motor {:.2}, delayed {:.2} rad/s; \
+         explicit vs firmware {:.2e} rad, implicit vs explicit {:.4} rad, a tenth of the swing at sample {} delayed, {} not",
+        fastest(&firmware),
+        fastest(&explicit),
+        fastest(&implicit),
+        fastest(&dc),
+        fastest(&delayed),
+        apart(&explicit, &firmware),
+        apart(&implicit, &explicit),
+        tenth(&delayed),
+        tenth(&explicit),
+    );
+    // The motor's own PD at a firmware period of one physics step is the trainer's explicit PD.
+    assert!(apart(&explicit, &firmware) < 1e-9);
+    // Damping handed to the integrator: the same law, a different numerical scheme.
+    let implicit_gap = apart(&implicit, &explicit);
+    assert!(implicit_gap > 0.0 && implicit_gap < 0.05, "{implicit_gap}");
+    // A DC motor gives no torque beyond its no-load speed.
+    assert!(fastest(&firmware) > 4.0);
+    assert!(fastest(&dc) < 3.0 * 1.05, "{}", fastest(&dc));
+    // Ten 1-ms steps' delay: the swing reaches a tenth of its way 10 ms later (5 samples).
+    assert_eq!(
+        tenth(&delayed) - tenth(&explicit),
+        5,
+        "{} vs {}",
+        tenth(&delayed),
+        tenth(&explicit)
+    );
+    assert!(fastest(&delayed) > 4.0);
+    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -621,8 +621,53 @@ fn print_model(robot: &Robot) -> Result<()> {
         named.join(", ")
     );
     print_dynamics(robot)?;
+    print_actuators(robot);
     print_servo_caps(robot);
     Ok(())
+}
+
+/// The law that turns each joint's command into torque in the mirror (robot.toml `[[actuators]]`,
+/// the trainer's), with its effort limit and delay.
+fn print_actuators(robot: &Robot) {
+    let lines = robot.config.joints.iter().filter_map(|j| {
+        let bus = robot.bus(&j.bus)?;
+        let a = robot.config.actuator_of(&j.name);
+        let ours = if robot.config.actuators.is_empty() {
+            ""
+        } else {
+            " (robot.toml)"
+        };
+        let text = match (a.model, bus.kind) {
+            (robots::ActuatorModel::Firmware, robots::BusKind::MitCan) => {
+                "firmware: the motor's own PD at its firmware rate".to_string()
+            }
+            (robots::ActuatorModel::Firmware, _) => "firmware: the servo's own position loop".to_string(),
+            (model, _) => {
+                let range = robot
+                    .mit_model(&j.model)
+                    .map_or(f64::INFINITY, |m| m.t_max * j.gear);
+                let limit = a.effort_limit.map_or(range, |e| e.min(range));
+                let curve = match (a.saturation_effort, a.velocity_limit) {
+                    (Some(stall), Some(speed)) if model == robots::ActuatorModel::DcMotor => {
+                        format!(", torque–speed line {stall} N·m at rest to 0 at {speed} rad/s")
+                    }
+                    _ => String::new(),
+                };
+                let [lo, hi] = a.delay_steps;
+                let delay = match (lo, hi) {
+                    (0, 0) => String::new(),
+                    (l, h) if l == h => format!(", delayed {l} physics steps"),
+                    (l, h) => format!(", delayed {l}–{h} physics steps (drawn per run)"),
+                };
+                format!(
+                    "{} every physics step, effort limit {limit} N·m{curve}{delay}",
+                    model.name()
+                )
+            }
+        };
+        Some((format!("actuator{ours}: {text}"), j.name.as_str()))
+    });
+    print_grouped(lines);
 }
 
 /// What each joint may push with and what holds it there: a serial servo's Torque Limit (the

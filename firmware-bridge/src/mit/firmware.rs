@@ -24,6 +24,30 @@ use crate::can::CanFrame;
 use crate::plant::MotorPlant;
 use crate::time::SimInstant;
 
+/// An MIT motor's impedance law: `τ = kp (p − q) + kd (v − q̇) + t`, clamped to ±`limit`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PdLaw {
+    /// Position target, rad.
+    pub p: f64,
+    /// Velocity target, rad/s.
+    pub v: f64,
+    /// Stiffness, N·m/rad.
+    pub kp: f64,
+    /// Damping, N·m·s/rad.
+    pub kd: f64,
+    /// Feed-forward torque, N·m.
+    pub t: f64,
+    /// Torque clamp, N·m.
+    pub limit: f64,
+}
+
+impl PdLaw {
+    /// The law's torque at position `q` and velocity `qd`, before the clamp.
+    pub fn torque(&self, q: f64, qd: f64) -> f64 {
+        self.kp * (self.p - q) + self.kd * (self.v - qd) + self.t
+    }
+}
+
 /// Configuration of one emulated motor.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MitFirmwareConfig {
@@ -115,6 +139,20 @@ impl MitMotorFirmware {
     /// stiffness: what a simulator's position actuator should track instead of the PD torque.
     pub fn position_goal(&self) -> Option<f64> {
         (self.enabled && self.run_mode == 0 && self.command.kp > 0.0).then_some(self.command.p + self.zero)
+    }
+
+    /// The impedance law the motor runs, in the plant's frame (positions include the encoder
+    /// zero), while torque is on: what a simulator that computes the law itself every physics
+    /// step takes from the motor (the firmware still owns enabling, timeouts and faults).
+    pub fn pd_law(&self) -> Option<PdLaw> {
+        (self.enabled && self.run_mode == 0).then_some(PdLaw {
+            p: self.command.p + self.zero,
+            v: self.command.v,
+            kp: self.command.kp,
+            kd: self.command.kd,
+            t: self.command.t,
+            limit: self.torque_limit,
+        })
     }
 
     /// The most torque the motor gives, N·m: its model's clamp, or a lower limit set in its
@@ -324,14 +362,10 @@ impl MitMotorFirmware {
         if faulted {
             self.enabled = false;
         }
-        self.torque = if self.enabled && self.run_mode == 0 {
-            let c = &self.command;
-            let p = plant.position() - self.zero;
-            let v = plant.velocity();
-            (c.kp * (c.p - p) + c.kd * (c.v - v) + c.t).clamp(-self.torque_limit, self.torque_limit)
-        } else {
-            0.0
-        };
+        self.torque = self.pd_law().map_or(0.0, |law| {
+            law.torque(plant.position(), plant.velocity())
+                .clamp(-law.limit, law.limit)
+        });
         plant.apply_torque(self.torque);
     }
 }
