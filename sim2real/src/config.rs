@@ -145,6 +145,11 @@ pub struct MirrorConfig {
     pub hardware: HardwareTruth,
     /// Where the robot stands when the run begins.
     pub start: StartPose,
+    /// The joint angles the robot starts in (robot.toml order) where a run gives them, instead
+    /// of the default pose: a `policy` start places the robot in its reference's first frame, as
+    /// trainers reset a tracking policy's episode to its motion.
+    #[serde(skip)]
+    pub start_joints: Option<Vec<f64>>,
     /// The floor tilted about the world's x and y axes, degrees (each within ±20): a slope.
     pub floor_tilt_deg: [f64; 2],
 }

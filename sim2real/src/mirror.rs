@@ -347,9 +347,16 @@ fn model_with_imu_sensors(robot: &Robot) -> Result<(MjModel, [String; 3]), Mirro
     Ok((model, names))
 }
 
-/// `qpos` (the whole model's) in the start pose: robot.toml's keyframe, else the default joint
-/// angles at the joints' addresses `joint_qpos` (robot order); the root is left as it is.
-fn start_pose(robot: &Robot, joint_qpos: &[usize], qpos: &mut [f64]) {
+/// `qpos` (the whole model's) in the start pose: the run's `joints` where it gives them, else
+/// robot.toml's keyframe, else the default joint angles, at the joints' addresses `joint_qpos`
+/// (robot order); the root is left as it is.
+fn start_pose(robot: &Robot, joints: Option<&[f64]>, joint_qpos: &[usize], qpos: &mut [f64]) {
+    if let Some(joints) = joints {
+        for (&a, &q) in joint_qpos.iter().zip(joints) {
+            qpos[a] = q;
+        }
+        return;
+    }
     match robot.start_keyframe() {
         Some(k) if k.qpos.len() == qpos.len() => qpos.copy_from_slice(&k.qpos),
         _ => {
@@ -420,6 +427,15 @@ impl Mirror {
     /// pose standing on the floor (or on the gantry), and wires emulated devices to every bus.
     pub fn new(robot: Robot, config: MirrorConfig) -> Result<Self, MirrorError> {
         let (mut model, imu_sensors) = model_with_imu_sensors(&robot)?;
+        if let Some(q) = &config.start_joints
+            && (q.len() != robot.config.joints.len() || q.iter().any(|x| !x.is_finite()))
+        {
+            return Err(MirrorError::Robot(format!(
+                "a start pose of {} angles (finite ones) for {} joints",
+                q.len(),
+                robot.config.joints.len()
+            )));
+        }
         let mut rng = SimRng::new(config.seed);
         let mut draw = |r: Range| r.0 + (r.1 - r.0) * rng.next_f64();
         let rnd = config.randomization.clone();
@@ -682,7 +698,12 @@ impl Mirror {
             let (mass, inertia) = {
                 let mut posed = model.make_data();
                 let joint_qpos: Vec<usize> = joints.iter().map(|j| j.qpos).collect();
-                start_pose(&robot, &joint_qpos, posed.qpos_mut());
+                start_pose(
+                    &robot,
+                    config.start_joints.as_deref(),
+                    &joint_qpos,
+                    posed.qpos_mut(),
+                );
                 posed.forward();
                 held_mass_and_inertia(&posed, root_body)
             };
@@ -737,7 +758,12 @@ impl Mirror {
     fn place_in_default_pose(&mut self) {
         let r = self.root_qpos;
         let joint_qpos: Vec<usize> = self.joints.iter().map(|j| j.qpos).collect();
-        start_pose(&self.robot, &joint_qpos, self.data.qpos_mut());
+        start_pose(
+            &self.robot,
+            self.config.start_joints.as_deref(),
+            &joint_qpos,
+            self.data.qpos_mut(),
+        );
         self.data.forward();
         let lift = if self.config.gantry {
             0.05

@@ -202,7 +202,9 @@ def dance(a):
     shift = data.xpos[torso][:2] - rotate(turn, frames[0][2])[:2]
 
     last_action = np.zeros(len(names))
-    command = np.concatenate([frames[0][0], frames[0][1]])
+    # While the policy holds the first frame, the reference stands still: no velocity in it.
+    still = np.zeros(len(names))
+    command = np.concatenate([frames[0][0], still if hold_ticks > 0 else frames[0][1]])
     ref_quat = frames[0][3]
     joint_sq, anchor_sq, tracked = 0.0, 0.0, 0
     fell, lowest = False, math.inf
@@ -233,7 +235,7 @@ def dance(a):
             anchor_sq += float(np.sum((data.xpos[torso] - ref_anchor) ** 2))
             tracked += 1
         action, jp, jv, _, ref_quat = call(obs, frame)
-        command = np.concatenate([jp, jv])
+        command = np.concatenate([jp, still if tick + 1 < hold_ticks else jv])
         last_action = np.clip(action, -clip, clip)
         pd_steps(model, data, (qadr, vadr, act), (kp, kd, effort), default + scale * last_action)
         lowest = min(lowest, float(data.qpos[2]))

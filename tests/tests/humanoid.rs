@@ -63,6 +63,15 @@ fn dance_player(options: PlayOptions) -> Run {
     .unwrap()
 }
 
+/// The torso's position RMSE against the motion (aligned at the start), m.
+fn torso_rmse(s: &PlaySummary) -> f64 {
+    s.body_rmse
+        .iter()
+        .find(|(b, _)| b == "torso_link")
+        .map(|(_, e)| *e)
+        .unwrap_or_else(|| panic!("no torso_link position error\n{s}"))
+}
+
 /// The root's height and tilt in the mirror.
 fn base(world: &Arc<Mutex<Mirror>>) -> (f64, f64) {
     let p = world.lock().unwrap().root_pose();
@@ -171,19 +180,9 @@ fn the_g1_dances_holosomas_whole_motion_from_a_harness_and_ends_standing_under_t
         "joint RMSE {:.4} rad against the Python loop's {py_rmse:.4}\n{s}",
         s.joint_rmse
     );
-    // The body the motion anchors on (the torso) against its reference, aligned alike.
-    let py_anchor = py["anchor_rmse_m"].as_f64().unwrap();
-    let anchor = s
-        .body_rmse
-        .iter()
-        .find(|(b, _)| b == "torso_link")
-        .map(|(_, e)| *e)
-        .unwrap_or_else(|| panic!("no torso_link position error\n{s}"));
-    eprintln!("torso position RMSE {anchor:.3} m, the Python loop's {py_anchor:.3} m");
-    assert!(
-        anchor < 1.5 * py_anchor,
-        "torso position RMSE {anchor:.3} m against the Python loop's {py_anchor:.3}\n{s}"
-    );
+    // Where the torso drifts over 132 s depends on the start and on every seed's noise (42–66 cm
+    // over four seeds from the harness); like against like is the test below.
+    eprintln!("torso position RMSE {:.3} m from the harness", torso_rmse(&s));
     // The dance's policy reads no world term: the estimator and the ground truth cannot differ.
     let (robot, layout, _) = load_dance();
     assert!(!layout.needs_ground_truth(), "{}", robot.config.name);
@@ -641,40 +640,19 @@ fn the_mirror_walks_the_g1_as_the_trainers_simulation_does_step_for_step() {
         trace.to_str().unwrap(),
     ]);
     assert!(!walked["fell"].as_bool().unwrap(), "{walked}");
-    let quiet = dir.join("quiet.toml");
-    std::fs::write(
-        &quiet,
-        "[randomization]\nimu_noise_scale = 0.0\nusb_latency_us = [0.0, 0.0]\n",
-    )
-    .unwrap();
-    let run = dir.join("g1-walk.mcap");
     let policy = workspace_root().join("robots/g1/policies/holosoma_loco_ppo.toml");
-    let (code, out, err) = run_within(
+    let (out, joint_rms) = play_and_compare(
+        &dir,
+        &trace,
         &[
-            "play",
-            "--robot",
-            g1().to_str().unwrap(),
             "--policy",
             policy.to_str().unwrap(),
-            "--start",
-            "policy",
             "--command",
             "0,0.5,0",
             "--max-seconds",
             "2",
-            "--mirror",
-            quiet.to_str().unwrap(),
-            "--record",
-            run.to_str().unwrap(),
         ],
-        Duration::from_secs(300),
     );
-    assert_eq!(code, Some(0), "{out}{err}");
-    let (code, out, err) = run_within(
-        &["compare", run.to_str().unwrap(), trace.to_str().unwrap()],
-        Duration::from_secs(120),
-    );
-    assert_eq!(code, Some(0), "{out}{err}");
     assert!(out.contains("compared 100 steps"), "{out}");
     let row = |term: &str| {
         out.lines()
@@ -695,14 +673,134 @@ fn the_mirror_walks_the_g1_as_the_trainers_simulation_does_step_for_step() {
     // The first 100 policy steps' joint positions within 0.02 rad RMS of the trainer's
     // simulation (0.009 here: five CAN buses at 500 Hz and the motors' own PD, against PD torques
     // computed every 5 ms physics step).
-    let joint_rms: f64 = row("joint_pos")
-        .split_whitespace()
-        .nth(3)
-        .and_then(|v| v.parse().ok())
-        .unwrap();
     assert!(
         joint_rms < 0.02,
         "joint positions {joint_rms} rad RMS apart:\n{out}"
     );
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A `play` of the G1 with `args` on a quiet mirror (noise and USB latency off; the policy in
+/// control from the first tick, in the reference's first frame), recorded in `dir` and compared
+/// with the trainer-side `trace`: `compare`'s output and its joint_pos RMS difference.
+fn play_and_compare(dir: &Path, trace: &Path, args: &[&str]) -> (String, f64) {
+    let quiet = dir.join("quiet.toml");
+    std::fs::write(
+        &quiet,
+        "[randomization]\nimu_noise_scale = 0.0\nusb_latency_us = [0.0, 0.0]\n",
+    )
+    .unwrap();
+    let run = dir.join("run.mcap");
+    let g1_path = g1();
+    let mut play = vec![
+        "play",
+        "--robot",
+        g1_path.to_str().unwrap(),
+        "--start",
+        "policy",
+        "--mirror",
+        quiet.to_str().unwrap(),
+        "--record",
+        run.to_str().unwrap(),
+        "--overwrite",
+    ];
+    play.extend_from_slice(args);
+    let (code, out, err) = run_within(&play, Duration::from_secs(300));
+    assert_eq!(code, Some(0), "{out}{err}");
+    let (code, out, err) = run_within(
+        &["compare", run.to_str().unwrap(), trace.to_str().unwrap()],
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, Some(0), "{out}{err}");
+    let joint_rms = out
+        .lines()
+        .find(|l| l.split_whitespace().next() == Some("joint_pos"))
+        .and_then(|l| l.split_whitespace().nth(3))
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no joint_pos row:\n{out}"));
+    (out, joint_rms)
+}
+
+#[test]
+fn the_mirror_dances_the_g1_as_the_trainers_simulation_does_step_for_step() {
+    // The Python loop places the G1 in the motion's first frame and holds it there 1.5 s under
+    // the policy before the dance plays; a `policy` start does the same on the mirror (its
+    // reference ramp of 1.5 s from a start already in the first frame), so both runs observe
+    // the same frames at the same steps: the hold and the dance's first 100 frames.
+    let dir = std::env::temp_dir().join(format!("robodeploy-dance-trace-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let trace = dir.join("g1-dance.csv");
+    let danced = python_reference(&[
+        "dance",
+        "--hold",
+        "1.5",
+        "--frames",
+        "100",
+        "--trace",
+        trace.to_str().unwrap(),
+    ]);
+    assert!(!danced["fell"].as_bool().unwrap(), "{danced}");
+    let (out, joint_rms) = play_and_compare(
+        &dir,
+        &trace,
+        &["--policy", dance().to_str().unwrap(), "--max-seconds", "3.5"],
+    );
+    assert!(out.contains("compared 175 steps"), "{out}");
+    for term in ["time_step", "motion_command"] {
+        let row = out.lines().find(|l| l.split_whitespace().next() == Some(term));
+        assert!(row.is_some_and(|r| r.contains("equal")), "{term}:\n{out}");
+    }
+    // Joint positions within 0.02 rad RMS over the hold and the first 100 frames (0.004 here).
+    assert!(
+        joint_rms < 0.02,
+        "joint positions {joint_rms} rad RMS apart:\n{out}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn the_g1_dances_the_whole_motion_on_a_quiet_mirror_as_far_off_its_path_as_the_trainers_simulation() {
+    // Like against like: both start in the motion's first frame and hold it 1.5 s under the
+    // policy, noise and latency off. The torso's position RMSE over the whole 132 s dance is
+    // drift more than tracking, and drift is chaotic: 40 cm here against the Python loop's 100
+    // (with a 1 s hold the Python loop drifts 44 cm, and the mirror 42–66 cm over seeds).
+    let reference = std::thread::Builder::new()
+        .name("python-reference".into())
+        .spawn(|| python_reference(&["dance", "--hold", "1.5"]))
+        .unwrap();
+    let (robot, layout, motion) = load_dance();
+    let mut quiet = MirrorConfig::default();
+    quiet.randomization.imu_noise_scale = 0.0;
+    quiet.randomization.usb_latency_us = sim2real::config::Range(0.0, 0.0);
+    let options = PlayOptions {
+        start: Some(robots::StartMode::Policy),
+        ..PlayOptions::default()
+    };
+    let (mut p, mut clock, world) = lockstep_player(
+        robot,
+        layout,
+        motion,
+        options,
+        quiet,
+        Arc::new(AtomicBool::new(false)),
+    )
+    .unwrap();
+    let (s, _) = run_watching(&mut p, &mut clock, &world);
+    assert!(!s.fell && (s.played - 1.0).abs() < 1e-9, "{s}");
+    let py = reference.join().unwrap();
+    assert!(!py["fell"].as_bool().unwrap(), "{py}");
+    let (py_joint, py_anchor) = (
+        py["joint_rmse_rad"].as_f64().unwrap(),
+        py["anchor_rmse_m"].as_f64().unwrap(),
+    );
+    let anchor = torso_rmse(&s);
+    eprintln!(
+        "joint RMSE {:.4} rad, torso {anchor:.3} m; the Python loop's {py_joint:.4} rad, {py_anchor:.3} m",
+        s.joint_rmse
+    );
+    assert!(s.joint_rmse < 1.2 * py_joint, "{s}");
+    assert!(
+        anchor < 1.5 * py_anchor,
+        "torso position RMSE {anchor:.3} m against the Python loop's {py_anchor:.3}\n{s}"
+    );
 }

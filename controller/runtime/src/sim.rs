@@ -26,7 +26,7 @@ pub fn lockstep_player(
     mirror: sim2real::config::MirrorConfig,
     stop: Arc<std::sync::atomic::AtomicBool>,
 ) -> Result<LockstepRun, crate::player::PlayError> {
-    let mirror = mirror.for_run(&robot, options.start_mode(&robot));
+    let mirror = for_run(mirror, &robot, &options, &reference);
     let world =
         Mirror::new(robot.clone(), mirror).map_err(|e| crate::player::PlayError::Setup(e.to_string()))?;
     let hoist = world.harness_hoist();
@@ -37,6 +37,23 @@ pub fn lockstep_player(
         player = player.with_harness_hoist(h);
     }
     Ok((player, LockstepClock::new(Arc::clone(&world)), world))
+}
+
+/// The mirror's settings for a run of `reference`: held until driven, in the harness for a
+/// harness start; for a `policy` start the robot stands in the reference's first frame, where a
+/// trainer resets a tracking episode (the policy owns the robot from that first tick).
+fn for_run(
+    mirror: sim2real::config::MirrorConfig,
+    robot: &Robot,
+    options: &crate::player::PlayOptions,
+    reference: &crate::clip::Reference,
+) -> sim2real::config::MirrorConfig {
+    let start = options.start_mode(robot);
+    let mut mirror = mirror.for_run(robot, start);
+    if start == robots::StartMode::Policy && mirror.start_joints.is_none() && !reference.is_empty() {
+        mirror.start_joints = Some(reference.q[..reference.n].to_vec());
+    }
+    mirror
 }
 
 /// A wired run: the player, the wall clock with the mirror's ground truth, and the served mirror
@@ -55,7 +72,7 @@ pub fn wired_player(
     stop: Arc<std::sync::atomic::AtomicBool>,
     on_start: fn(),
 ) -> Result<WiredRun, crate::player::PlayError> {
-    let mirror = mirror.for_run(&robot, options.start_mode(&robot));
+    let mirror = for_run(mirror, &robot, &options, &reference);
     let world =
         Mirror::new(robot.clone(), mirror).map_err(|e| crate::player::PlayError::Setup(e.to_string()))?;
     let hoist = world.harness_hoist();
