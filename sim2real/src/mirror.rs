@@ -238,6 +238,8 @@ pub struct MirrorStats {
     /// CPU time spent inside the mirror (physics, firmware, wires), for benches that separate
     /// the controller's share.
     pub busy: Duration,
+    /// Of `busy`, the time in MuJoCo's own step.
+    pub physics: Duration,
 }
 
 /// The joint index that stands for the IMU in a fault schedule (`joint = "imu"`).
@@ -1167,7 +1169,9 @@ impl Mirror {
             self.stats.physics_steps += 1;
             return;
         }
+        let stepping = std::time::Instant::now();
         self.data.step();
+        self.stats.physics += stepping.elapsed();
         // What the model's own servos gave this step, joint side (the motors' torques are
         // counted where they are applied, above).
         for (i, j) in self.joints.iter().enumerate() {
@@ -1453,7 +1457,7 @@ impl Mirror {
             .min(self.next_firmware)
             .min(self.imu.emulator.next_output());
         for line in &self.can {
-            if let Some(a) = line.motors.iter().filter_map(|m| m.node.next_arrival()).min() {
+            if let Some((a, _)) = line.bus.next_arrival_among(line.motors.iter().map(|m| &m.node)) {
                 t = t.min(a);
             }
         }
@@ -1477,12 +1481,15 @@ impl Mirror {
         self.now = t;
         for line in &mut self.can {
             line.bus.set_now(t);
-            for m in &mut line.motors {
-                while let Some(frame) = m.node.try_recv() {
-                    if let Some(reply) = m.firmware.on_frame(t, &frame, &self.plants[m.joint]) {
-                        // A send refused while bus-off is lost, as on a real bus.
-                        let _ = m.node.send(&reply);
-                    }
+            // Frames due by now, in their order of arrival.
+            while let Some((a, i)) = line.bus.next_arrival_among(line.motors.iter().map(|m| &m.node))
+                && a <= t
+            {
+                let m = &mut line.motors[i];
+                let Some(frame) = m.node.try_recv() else { break };
+                if let Some(reply) = m.firmware.on_frame(t, &frame, &self.plants[m.joint]) {
+                    // A send refused while bus-off is lost, as on a real bus.
+                    let _ = m.node.send(&reply);
                 }
             }
         }

@@ -230,6 +230,24 @@ impl VirtualCanBus {
         self.lock().now
     }
 
+    /// Among `nodes` (this bus's), the one whose next frame arrives first, and when: one look at
+    /// the wire for many nodes (ties go to the earlier node).
+    pub fn next_arrival_among<'a>(
+        &self,
+        nodes: impl IntoIterator<Item = &'a VirtualCanNode>,
+    ) -> Option<(SimInstant, usize)> {
+        let m = self.lock();
+        let mut first: Option<(SimInstant, usize)> = None;
+        for (i, node) in nodes.into_iter().enumerate() {
+            if let Some(&(t, _)) = m.nodes[node.index].rx.front()
+                && first.is_none_or(|(f, _)| t < f)
+            {
+                first = Some((t, i));
+            }
+        }
+        first
+    }
+
     /// Counters so far.
     pub fn stats(&self) -> CanBusStats {
         self.lock().stats
