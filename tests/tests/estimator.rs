@@ -9,9 +9,9 @@ use std::time::Duration;
 
 use controller::clip::{Clip, Reference};
 use controller::player::{EndMode, PlayOptions, PlaySummary};
-use controller::policy::PolicyLayout;
 use controller::safety::{Cause, Mode};
 use controller::sim::lockstep_player;
+use policy::PolicyLayout;
 use robot_link::{IoError, JointTarget, RobotLink, RobotState, TickClock};
 use robots::{Robot, reference_robot_path};
 use sim2real::config::{MirrorConfig, Push};

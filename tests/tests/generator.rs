@@ -11,8 +11,8 @@ use std::time::{Duration, Instant};
 use controller::clip::Reference;
 use controller::generator::{Generator, GeneratorOptions, GeneratorWorker, PlanStatus};
 use controller::player::{EndMode, PlayOptions, Player};
-use controller::policy::PolicyLayout;
 use controller::safety::Mode;
+use policy::PolicyLayout;
 use robots::{Robot, reference_robot_path};
 use sim2real::config::MirrorConfig;
 use test_support::bin::robodeploy;
@@ -424,8 +424,8 @@ fn the_shipped_generator_is_what_its_script_fits() {
         std::fs::read_to_string(dir.join("squat_ar.toml")).unwrap(),
         std::fs::read_to_string(biped("generators/squat_ar.toml")).unwrap()
     );
-    let mut fitted = controller::onnx::OnnxModel::load_tensors(&dir.join("squat_ar.onnx")).unwrap();
-    let mut shipped = controller::onnx::OnnxModel::load_tensors(&biped("generators/squat_ar.onnx")).unwrap();
+    let mut fitted = policy::onnx::OnnxModel::load_tensors(&dir.join("squat_ar.onnx")).unwrap();
+    let mut shipped = policy::onnx::OnnxModel::load_tensors(&biped("generators/squat_ar.onnx")).unwrap();
     // The history, then the command (intensity 0.7: both parts of the model count).
     let mut history: Vec<f32> = (0..8 * 18).map(|i| ((i as f32) * 0.37).sin() * 0.3).collect();
     history.push(0.7);

@@ -257,7 +257,7 @@ fn keypoint_run(policy: &Path, project_through: &[Camera], cameras: &[Camera]) -
     use controller::clip::{Clip, Reference};
     use controller::keypoints::track::KeypointReference;
     let robot = robots::Robot::load(&robots::reference_robot_path()).unwrap();
-    let layout = controller::policy::PolicyLayout::load(policy, &robot).unwrap();
+    let layout = policy::PolicyLayout::load(policy, &robot).unwrap();
     let clip = Clip::load(&biped("clips/squat.csv")).unwrap();
     let mut reference = Reference::from_clip(&clip, &robot, layout.manifest.rate_hz).unwrap();
     // The 2D references as `robodeploy project` makes them: the clip at 30 Hz, projected.
@@ -288,7 +288,7 @@ use controller::keypoints::camera::Camera;
 /// A lockstep run of `reference` under `layout` on the default mirror, default options.
 fn on_the_mirror(
     robot: robots::Robot,
-    layout: controller::policy::PolicyLayout,
+    layout: policy::PolicyLayout,
     reference: controller::clip::Reference,
 ) -> Result<controller::sim::LockstepRun, controller::player::PlayError> {
     controller::sim::lockstep_player(
@@ -313,7 +313,7 @@ fn played_as_2d_references_the_robots_keypoints_are_measured_per_view_and_tick()
     let mut run = keypoint_run(&policy, &cams, &cams);
     run.player.identify().unwrap();
     let (mut measured, mut worst) = (0, [0.0f64; 2]);
-    let layout = controller::policy::PolicyLayout::load(
+    let layout = policy::PolicyLayout::load(
         &policy,
         &robots::Robot::load(&robots::reference_robot_path()).unwrap(),
     )
@@ -416,7 +416,7 @@ fn a_policy_observing_keypoints_without_references_is_refused() {
     let robot = robots::Robot::load(&robots::reference_robot_path()).unwrap();
     let policy =
         test_support::fixtures::workspace_root().join("tests/fixtures/policies/keypoint_follower.toml");
-    let layout = controller::policy::PolicyLayout::load(&policy, &robot).unwrap();
+    let layout = policy::PolicyLayout::load(&policy, &robot).unwrap();
     let reference =
         Reference::from_clip(&Clip::load(&biped("clips/squat.csv")).unwrap(), &robot, 50.0).unwrap();
     let err = on_the_mirror(robot, layout, reference)

@@ -44,8 +44,7 @@ fn command_driven_player_on(
     mirror: sim2real::config::MirrorConfig,
     options: controller::player::PlayOptions,
 ) -> (controller::sim::LockstepRun, human::commands::CommandSpec) {
-    let mut layout =
-        controller::policy::PolicyLayout::load(&mini("policies/stand_walk.toml"), &robot).unwrap();
+    let mut layout = policy::PolicyLayout::load(&mini("policies/stand_walk.toml"), &robot).unwrap();
     let spec = layout.manifest.commands.clone().unwrap();
     let (reference, _) =
         controller::motion::load_reference(None, Path::new("unused"), &mut layout, &robot, 0).unwrap();
@@ -740,7 +739,7 @@ fn a_steady_command_driven_tick_with_live_commands_and_recording_allocates_nothi
 
 #[test]
 fn per_value_scales_and_offsets_shape_a_term_and_wrong_lengths_are_named() {
-    use controller::policy::{ObsInputs, ObservationBuilder, PolicyLayout};
+    use policy::{ObsInputs, ObservationBuilder, PolicyLayout};
     let robot = Robot::load(&mini("robot.toml")).unwrap();
     let path = mini("policies/stand_walk.toml");
     let text = std::fs::read_to_string(&path).unwrap();

@@ -4,7 +4,7 @@
 #[global_allocator]
 static ALLOC: test_support::alloc::CountingAllocator = test_support::alloc::CountingAllocator;
 
-use controller::onnx::{OnnxError, OnnxModel};
+use policy::onnx::{OnnxError, OnnxModel};
 
 #[derive(serde::Deserialize)]
 struct Case {

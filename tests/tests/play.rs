@@ -8,9 +8,9 @@ use std::time::Duration;
 
 use controller::clip::{Clip, Reference};
 use controller::player::{PlayOptions, PlaySummary, Player};
-use controller::policy::PolicyLayout;
 use controller::safety::{Cause, Mode};
 use controller::sim::lockstep_player;
+use policy::PolicyLayout;
 use robots::{Robot, reference_robot_path};
 use sim2real::config::MirrorConfig;
 use sim2real::link::LockstepClock;
@@ -690,10 +690,7 @@ onnx.save(m, {out:?})
     );
     assert_eq!(layout.robot_index[0], 19);
     assert!((layout.kp[3] - robot.config.joints[3].kp * 0.9).abs() < 1e-9);
-    assert_eq!(
-        layout.manifest.action.scale,
-        Some(controller::policy::ActionScale::One(1.0))
-    );
+    assert_eq!(layout.manifest.action.scale, Some(policy::ActionScale::One(1.0)));
     let (mut p, mut clock, _w) = player(
         dir.join("meta.toml"),
         biped("clips/squat.csv"),
@@ -752,7 +749,7 @@ fn reference_body_positions_come_from_forward_kinematics_on_the_robot_model() {
 
 #[test]
 fn command_values_from_the_command_line_reach_the_observation() {
-    use controller::policy::ObservationBuilder;
+    use policy::ObservationBuilder;
     let robot = Robot::load(&reference_robot_path()).unwrap();
     let dir = std::env::temp_dir().join(format!("play-cmd-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();

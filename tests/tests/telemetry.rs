@@ -6,9 +6,9 @@ use std::sync::atomic::AtomicBool;
 
 use controller::clip::{Clip, Reference};
 use controller::player::PlayOptions;
-use controller::policy::PolicyLayout;
 use controller::sim::lockstep_player;
 use controller::telemetry::{Backpressure, TelemetrySink, TickRecord};
+use policy::PolicyLayout;
 use robot_link::RobotLink;
 use robots::{Robot, reference_robot_path};
 use sim2real::config::MirrorConfig;

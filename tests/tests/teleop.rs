@@ -12,7 +12,6 @@ use std::time::{Duration, Instant};
 
 use controller::clip::Reference;
 use controller::player::{EndMode, PlayOptions, PlaySummary, Player};
-use controller::policy::PolicyLayout;
 use human::body_map::Frame;
 use human::bvh::Bvh;
 use human::ik::Ik;
@@ -20,6 +19,7 @@ use human::retarget::bvh_joint;
 use human::teleop::{Phase, Teleop, TeleopOptions, TeleopStatus, user_frames};
 use human::vmc::{Serials, VmcReceiver};
 use human::vr_send::{SendOptions, send};
+use policy::PolicyLayout;
 use robot_link::GroundTruth;
 use robot_link::TickClock;
 use robots::spatial;
@@ -110,7 +110,7 @@ fn teleoperate_with(
 ) -> Run {
     let robot = Robot::load(&robots::reference_robot_path()).unwrap();
     let mut layout = PolicyLayout::load(policy, &robot).unwrap();
-    let model = controller::onnx::OnnxModel::load(&layout.onnx_path).unwrap();
+    let model = policy::onnx::OnnxModel::load(&layout.onnx_path).unwrap();
     layout.bind_model(model.inputs(), model.output().1).unwrap();
     let receiver = VmcReceiver::start("127.0.0.1:0".parse().unwrap(), Serials::default()).unwrap();
     let mut teleop = Teleop::start(&robot, &receiver, options).unwrap();
@@ -536,7 +536,7 @@ fn a_sparse_input_policy_sees_the_trackers_at_t_and_t_minus_one() {
     assert_eq!(layout.obs_len, 114);
 
     // The observation stacks the newest tracker poses first, then the previous tick's.
-    let mut builder = controller::policy::ObservationBuilder::new(&layout);
+    let mut builder = policy::ObservationBuilder::new(&layout);
     let zeros = vec![0.0; 20];
     let past = vec![0.0f32; 20];
     let still = common::Still {
@@ -547,7 +547,7 @@ fn a_sparse_input_policy_sees_the_trackers_at_t_and_t_minus_one() {
     for k in 0..2 {
         let trackers: [f64; 27] = std::array::from_fn(|i| (10 * k + i) as f64 * 0.01);
         builder.build(
-            &controller::policy::ObsInputs {
+            &policy::ObsInputs {
                 trackers: Some(&trackers),
                 ..common::at_rest(&zeros, &past, &still)
             },

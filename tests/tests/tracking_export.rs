@@ -8,9 +8,9 @@ use std::sync::atomic::AtomicBool;
 
 use controller::motion::ReferenceSource;
 use controller::player::{PlayOptions, PlaySummary};
-use controller::policy::PolicyLayout;
 use controller::sim::lockstep_player;
 use controller::telemetry::{Backpressure, TelemetrySink};
+use policy::PolicyLayout;
 use robots::{Robot, reference_robot_path};
 use sim2real::config::{MirrorConfig, StartPose};
 use test_support::fixtures::fixture;

@@ -310,7 +310,7 @@ fn compare_judges_imu_terms_by_each_robots_own_imu() {
     // rd-biped's WIT AHRS and rd-mini's BNO08x in RVC mode: the gyro term (scale 0.25 on rd-mini)
     // is judged by what each part can tell apart — and a BNO055 by its own steps.
     let wit = Robot::load(&workspace_root().join("robots/biped/robot.toml")).unwrap();
-    let biped_layout = controller::policy::PolicyLayout::load(
+    let biped_layout = policy::PolicyLayout::load(
         &workspace_root().join("robots/biped/policies/reference_follower.toml"),
         &wit,
     )
@@ -327,7 +327,7 @@ fn compare_judges_imu_terms_by_each_robots_own_imu() {
     );
 
     let mini = Robot::load(&workspace_root().join("robots/mini/robot.toml")).unwrap();
-    let layout = controller::policy::PolicyLayout::load(
+    let layout = policy::PolicyLayout::load(
         &workspace_root().join("robots/mini/policies/stand_walk.toml"),
         &mini,
     )

@@ -10,8 +10,8 @@ use sim2real::config::MirrorConfig;
 
 use controller::clip::{Clip, Reference};
 use controller::player::{PlayOptions, PlaySummary};
-use controller::policy::PolicyLayout;
 use controller::sim::lockstep_player;
+use policy::PolicyLayout;
 
 use crate::AnalysisError;
 

@@ -8,7 +8,7 @@ use controller::npy::NpyArray;
 use controller::options::RunMetadata;
 
 use crate::AnalysisError;
-use controller::policy::PolicyLayout;
+use policy::PolicyLayout;
 
 /// Observations per policy step (running ticks only), and where they came from.
 #[derive(Debug, Clone, PartialEq)]
@@ -227,7 +227,7 @@ pub fn best_offset(
 /// measures it): joint positions and velocities from each joint's device, the IMU's outputs by
 /// its protocol (WIT, BNO08x RVC, BNO055).
 pub fn quanta(layout: &PolicyLayout, robot: &robots::Robot) -> Vec<Option<f64>> {
-    use controller::policy::Term;
+    use policy::Term;
     let imu = robot.config.imu.protocol.resolution();
     let mut out = vec![None; layout.obs_len];
     for slot in &layout.slots {

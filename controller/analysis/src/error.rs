@@ -21,7 +21,7 @@ pub enum AnalysisError {
     Clip(#[from] controller::clip::ClipError),
     /// A policy manifest cannot be used.
     #[error(transparent)]
-    Policy(#[from] controller::policy::PolicyError),
+    Policy(#[from] policy::PolicyError),
     /// Running the loop failed.
     #[error(transparent)]
     Play(#[from] controller::player::PlayError),

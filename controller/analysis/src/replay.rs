@@ -15,7 +15,7 @@ use controller::options::RunMetadata;
 
 use crate::AnalysisError;
 use controller::player::Player;
-use controller::policy::PolicyLayout;
+use policy::PolicyLayout;
 use robot_link::GroundTruth;
 use robot_link::TickClock;
 use robot_link::{IoError, JointTarget, RobotLink, RobotState};

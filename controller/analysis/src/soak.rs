@@ -12,11 +12,11 @@ use std::time::Duration;
 
 use controller::clip::{Clip, Reference};
 use controller::options::{EndMode, PlayOptions};
-use controller::policy::PolicyLayout;
 use controller::safety::Mode;
 use controller::sim::lockstep_player;
 use controller::telemetry::{Backpressure, RecordingInfo, TelemetrySink};
 use firmware_bridge::time::SimRng;
+use policy::PolicyLayout;
 use robots::Robot;
 use sim2real::config::{FaultKind, MirrorConfig, Push, ScheduledFault};
 

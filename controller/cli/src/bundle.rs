@@ -44,7 +44,7 @@ pub struct BundleArgs {
 pub fn run(args: &BundleArgs) -> Result<()> {
     // Load both as a run would: a bundle of files that do not load helps nobody.
     let robot = robots::Robot::load(&args.robot)?;
-    let layout = controller::policy::PolicyLayout::load(&args.policy, &robot)?;
+    let layout = policy::PolicyLayout::load(&args.policy, &robot)?;
     let robot_dir = folder_of(&args.robot)?;
     let policy_dir = folder_of(&args.policy)?;
     if !layout.onnx_path.starts_with(&policy_dir) {
@@ -76,7 +76,7 @@ pub fn run(args: &BundleArgs) -> Result<()> {
     let exe = std::env::current_exe().context("cannot find this binary")?;
     let mut libs = Vec::new();
     for name in LIBRARIES {
-        let found = controller::native::search_dirs()
+        let found = policy::native::search_dirs()
             .into_iter()
             .map(|d| d.join(name))
             .find(|p| p.is_file())

@@ -73,9 +73,9 @@ fn code_of(e: &(dyn std::error::Error + 'static)) -> Option<u8> {
             H::Motion { .. } | H::Model(_) | H::Mujoco(_) | H::Map(_) | H::Calibration(_) => BAD_INPUT,
         });
     }
-    if let Some(e) = e.downcast_ref::<controller::onnx::OnnxError>() {
+    if let Some(e) = e.downcast_ref::<policy::onnx::OnnxError>() {
         return Some(match e {
-            controller::onnx::OnnxError::Runtime(_) => FAILED,
+            policy::onnx::OnnxError::Runtime(_) => FAILED,
             _ => BAD_INPUT,
         });
     }
@@ -88,7 +88,7 @@ fn code_of(e: &(dyn std::error::Error + 'static)) -> Option<u8> {
     }
     let bad_input = e.is::<robots::RobotError>()
         || e.is::<robots::FileError>()
-        || e.is::<controller::policy::PolicyError>()
+        || e.is::<policy::PolicyError>()
         || e.is::<controller::clip::ClipError>()
         || e.is::<controller::npy::NpyError>()
         || e.is::<sim2real::mirror::MirrorError>()

@@ -265,8 +265,8 @@ fn compare(
     use analysis::compare::{Alignment, best_offset, compare, quanta, trace_from_export, trace_from_run};
     let (a, meta) = trace_from_run(run)?;
     let robot = robots::Robot::load(&meta.robot)?;
-    let mut layout = controller::policy::PolicyLayout::load(&meta.policy, &robot)?;
-    let model = controller::onnx::OnnxModel::load(&layout.onnx_path)?;
+    let mut layout = policy::PolicyLayout::load(&meta.policy, &robot)?;
+    let model = policy::onnx::OnnxModel::load(&layout.onnx_path)?;
     layout.bind_model(model.inputs(), model.output().1)?;
     let is_run = other.extension().is_some_and(|e| e.eq_ignore_ascii_case("mcap"));
     let b = if is_run {
@@ -346,7 +346,7 @@ fn doctor(mjcf: &std::path::Path, onnx: &std::path::Path) -> Result<()> {
         sim2real::mujoco::loaded_version_string(),
         sim2real::mujoco::loaded_version()
     );
-    let info = controller::onnx::runtime_info()?;
+    let info = policy::onnx::runtime_info()?;
     println!("ONNX Runtime  {info}");
     // Where the two libraries came from: beside the binary (a bundle, an install) or the checkout.
     for lib in loaded_libraries() {
@@ -377,7 +377,7 @@ fn doctor(mjcf: &std::path::Path, onnx: &std::path::Path) -> Result<()> {
     );
 
     let mut policy =
-        controller::onnx::OnnxModel::load(onnx).with_context(|| format!("loading {}", onnx.display()))?;
+        policy::onnx::OnnxModel::load(onnx).with_context(|| format!("loading {}", onnx.display()))?;
     let (in_name, in_len) = policy.input();
     let (out_name, out_len) = policy.output();
     println!(

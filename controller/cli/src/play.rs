@@ -13,9 +13,9 @@ use controller::clip::Reference;
 use controller::generator::{Generator, GeneratorOptions, GeneratorSummary, GeneratorWorker};
 use controller::motion::ReferenceSource;
 use controller::player::{PlayOptions, PlaySummary, Player};
-use controller::policy::PolicyLayout;
 use controller::sim::{lockstep_player, wired_player};
 use controller::telemetry::{Backpressure, TelemetrySink};
+use policy::PolicyLayout;
 use robot_link::RobotLink;
 
 /// Arguments of `play`.

@@ -10,11 +10,11 @@ use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand};
 use controller::clip::Reference;
 use controller::player::{EndMode, PlayOptions, Player};
-use controller::policy::{PolicyLayout, Term};
 use human::bvh::Bvh;
 use human::teleop::{Teleop, TeleopOptions, TeleopStatus};
 use human::vmc::{Resampler, Serials, VMC_PORT, VmcReceiver};
 use human::vr_send::{SendOptions, send};
+use policy::{PolicyLayout, Term};
 use robots::Robot;
 use sim2real::mirror::Mirror;
 
@@ -138,7 +138,7 @@ pub fn vr(cmd: VrCommand) -> Result<()> {
 pub fn teleop(args: &TeleopArgs) -> Result<std::process::ExitCode> {
     let robot = Robot::load(&args.robot)?;
     let mut layout = PolicyLayout::load(&args.policy, &robot)?;
-    let model = controller::onnx::OnnxModel::load(&layout.onnx_path)?;
+    let model = policy::onnx::OnnxModel::load(&layout.onnx_path)?;
     layout.bind_model(model.inputs(), model.output().1)?;
     if layout
         .slots

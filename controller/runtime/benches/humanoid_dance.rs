@@ -20,8 +20,8 @@ use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
 use controller::player::PlayOptions;
-use controller::policy::PolicyLayout;
 use controller::sim::lockstep_player;
+use policy::PolicyLayout;
 use robots::Robot;
 use sim2real::config::MirrorConfig;
 use test_support::fixtures::{venv_python, workspace_root};

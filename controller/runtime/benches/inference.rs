@@ -5,7 +5,7 @@
 
 use std::time::Instant;
 
-use controller::onnx::OnnxModel;
+use policy::onnx::OnnxModel;
 use test_support::stats::Summary;
 
 const WARMUP: usize = 200;

@@ -12,11 +12,11 @@ use std::time::Duration;
 
 use controller::clip::Reference;
 use controller::player::{EndMode, PlayOptions, Player};
-use controller::policy::PolicyLayout;
 use human::bvh::Bvh;
 use human::teleop::{Teleop, TeleopOptions};
 use human::vmc::{Serials, VmcReceiver};
 use human::vr_send::{SendOptions, send};
+use policy::PolicyLayout;
 use robots::{Robot, reference_robot_path};
 use sim2real::link::{PacedLockstepClock, lockstep_robot};
 use sim2real::mirror::Mirror;
@@ -30,7 +30,7 @@ fn main() {
         &robot,
     )
     .unwrap();
-    let model = controller::onnx::OnnxModel::load(&layout.onnx_path).unwrap();
+    let model = policy::onnx::OnnxModel::load(&layout.onnx_path).unwrap();
     layout.bind_model(model.inputs(), model.output().1).unwrap();
     let receiver = VmcReceiver::start("127.0.0.1:0".parse().unwrap(), Serials::default()).unwrap();
     let mut teleop = Teleop::start(&robot, &receiver, TeleopOptions::default()).unwrap();

@@ -31,7 +31,7 @@ use test_support::stats::Summary;
 mod common;
 use common::files;
 use controller::clip::Reference;
-use controller::policy::PolicyLayout;
+use policy::PolicyLayout;
 use robots::{Robot, reference_robot_path};
 
 /// The reference robot and the squat as a BeyondMimic-convention export carrying its motion
@@ -81,7 +81,7 @@ fn keypoint_references() -> (Robot, PolicyLayout, Reference) {
 /// The squat generator's model alone: one step (8 frames in, 3 out, 18 joints), p50/p99.
 fn generator_step() -> Summary {
     let model = reference_robot_path().with_file_name("generators/squat_ar.onnx");
-    let mut m = controller::onnx::OnnxModel::load_tensors(&model).unwrap();
+    let mut m = policy::onnx::OnnxModel::load_tensors(&model).unwrap();
     // The history, then the command (the intensity).
     let (history, mut next) = (vec![0.1f32; 8 * 18 + 1], vec![0.0f32; 3 * 18]);
     let mut samples = Vec::with_capacity(20_000);

@@ -5,8 +5,8 @@
 use robot_link::JointTarget;
 use robots::JointConfig;
 
-use crate::policy::{ActionKind, PolicyLayout};
 use crate::safety::{TargetRule, govern_position, govern_torque};
+use policy::{ActionKind, PolicyLayout};
 
 /// Turns one tick's actions into targets; remembers past actions for the observation.
 #[derive(Debug)]

@@ -25,7 +25,7 @@ use robots::{FileError, Robot};
 
 use crate::clip::{Clip, Reference};
 use crate::metrics::Histogram;
-use crate::onnx::{OnnxError, OnnxModel};
+use policy::onnx::{OnnxError, OnnxModel};
 
 /// Most frames of history or horizon a description may ask for.
 pub const MAX_FRAMES: usize = 256;
@@ -219,8 +219,8 @@ impl GeneratorOptions {
 
 /// Whether `layout` can track a generated reference: joint angles and velocities only (no
 /// reference bodies, anchor or embedded motion, which a generator does not produce).
-pub fn check_policy(layout: &crate::policy::PolicyLayout) -> Result<(), String> {
-    use crate::policy::Term;
+pub fn check_policy(layout: &policy::PolicyLayout) -> Result<(), String> {
+    use policy::Term;
     let unsupported: Vec<&str> = layout
         .slots
         .iter()

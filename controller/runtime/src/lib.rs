@@ -2,8 +2,8 @@
 //! observation, runs the ONNX policy, maps and limits its actions and writes them back.
 //!
 //! The tick path: [`player`] (the loop and its modes) over [`reference`] (where the reference is
-//! this tick), [`policy`] (the contract: observation layout and action mapping), [`onnx`],
-//! [`safety`] (governor, faults) and [`metrics`]; around it [`estop`], [`realtime`], [`telemetry`]
+//! this tick), the `policy` crate (the contract, the observation, ONNX inference), [`action`]
+//! (action mapping and the governor), [`safety`] (modes, faults) and [`metrics`]; around it [`estop`], [`realtime`], [`telemetry`]
 //! (the recording sink) and the inputs: [`clip`] files and live references.
 
 pub mod action;
@@ -16,12 +16,9 @@ pub mod keypoints;
 pub mod live;
 pub mod metrics;
 pub mod motion;
-pub mod native;
 pub mod npy;
-pub mod onnx;
 pub mod options;
 pub mod player;
-pub mod policy;
 pub mod realtime;
 pub mod reference;
 pub mod safety;

@@ -17,29 +17,9 @@ use robots::{Robot, spatial};
 use std::path::{Path, PathBuf};
 
 use crate::clip::{Clip, Reference};
-use crate::onnx::OnnxModel;
 use crate::player::PlayError;
-use crate::policy::{PolicyLayout, Term};
-
-/// The reference anchor's position in the robot anchor's frame. Poses are `[x, y, z, w, qx, qy,
-/// qz]` in the world.
-pub fn anchor_pos_b(robot: [f64; 7], reference: [f64; 7]) -> [f64; 3] {
-    let q = [robot[3], robot[4], robot[5], robot[6]];
-    spatial::quat_rotate(
-        spatial::quat_conj(q),
-        spatial::sub(
-            [reference[0], reference[1], reference[2]],
-            [robot[0], robot[1], robot[2]],
-        ),
-    )
-}
-
-/// The first two columns of `R(q_robot⁻¹ ⊗ q_reference)`, row by row: `r00, r01, r10, r11, r20,
-/// r21`.
-pub fn anchor_ori_b(robot: [f64; 4], reference: [f64; 4]) -> [f64; 6] {
-    let m = spatial::mat_of_quat(spatial::quat_mul(spatial::quat_conj(robot), reference));
-    [m[0][0], m[0][1], m[1][0], m[1][1], m[2][0], m[2][1]]
-}
+use policy::onnx::OnnxModel;
+use policy::{PolicyLayout, Term};
 
 /// The transform that puts a reference onto the robot: a turn about the vertical through the
 /// reference's first anchor position, then a horizontal shift.
@@ -629,26 +609,5 @@ mod tests {
         );
         // Its orientation turned with it.
         assert!((spatial::heading_of_quat([later[3], later[4], later[5], later[6]]) - a.yaw()).abs() < 1e-12);
-    }
-
-    #[test]
-    fn anchor_terms_are_zero_and_identity_when_robot_and_reference_coincide() {
-        let pose = [0.3, -0.2, 0.9, H, 0.0, H, 0.0];
-        assert_eq!(anchor_pos_b(pose, pose), [0.0; 3]);
-        let o = anchor_ori_b([H, 0.0, H, 0.0], [H, 0.0, H, 0.0]);
-        for (v, want) in o.iter().zip([1.0, 0.0, 0.0, 1.0, 0.0, 0.0]) {
-            assert!((v - want).abs() < 1e-12, "{o:?}");
-        }
-    }
-
-    #[test]
-    fn the_reference_ahead_of_a_turned_robot_is_ahead_in_its_frame() {
-        // Robot facing +y at the origin; reference 1 m along +y: 1 m along the robot's x.
-        let robot = [0.0, 0.0, 0.0, H, 0.0, 0.0, H];
-        let p = anchor_pos_b(robot, [0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0]);
-        assert!((p[0] - 1.0).abs() < 1e-12 && p[1].abs() < 1e-12, "{p:?}");
-        // Reference facing +x, robot facing +y: relative yaw −90°: r01 = sin 90° = 1.
-        let o = anchor_ori_b([H, 0.0, 0.0, H], [1.0, 0.0, 0.0, 0.0]);
-        assert!((o[1] - 1.0).abs() < 1e-12 && (o[2] + 1.0).abs() < 1e-12, "{o:?}");
     }
 }

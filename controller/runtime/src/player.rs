@@ -23,13 +23,13 @@ use crate::keypoints::track::KeypointTrack;
 use crate::metrics::RunMetrics;
 pub use crate::metrics::{Histogram, PlaySummary};
 use crate::motion::{Alignment, EmbeddedMotion};
-use crate::onnx::OnnxModel;
 use crate::options::EstimatorKind;
 pub use crate::options::{EndMode, HarnessPhase, PlayOptions};
-use crate::policy::{ObsInputs, ObservationBuilder, PolicyLayout, Term};
 use crate::reference::ReferenceCursor;
 use crate::safety::{Cause, Mode, SafetyMonitor, Transition, govern_position, target_range, tilt_of};
 use crate::telemetry::{TelemetrySink, TickRecord, TickView};
+use policy::onnx::OnnxModel;
+use policy::{ObsInputs, ObservationBuilder, PolicyLayout, Term};
 
 /// Why a run could not start or continue.
 #[derive(Debug, thiserror::Error)]
@@ -39,10 +39,10 @@ pub enum PlayError {
     Io(#[from] IoError),
     /// The policy.
     #[error(transparent)]
-    Onnx(#[from] crate::onnx::OnnxError),
+    Onnx(#[from] policy::onnx::OnnxError),
     /// The policy manifest.
     #[error(transparent)]
-    Policy(#[from] crate::policy::PolicyError),
+    Policy(#[from] policy::PolicyError),
     /// The recording.
     #[error(transparent)]
     Telemetry(#[from] crate::telemetry::TelemetryError),
@@ -62,7 +62,7 @@ impl PlayError {
     pub fn kind(&self) -> ErrorKind {
         match self {
             Self::Io(e) => e.kind(),
-            Self::Onnx(crate::onnx::OnnxError::Runtime(_)) => ErrorKind::Unavailable,
+            Self::Onnx(policy::onnx::OnnxError::Runtime(_)) => ErrorKind::Unavailable,
             Self::Onnx(_) | Self::Policy(_) | Self::Setup(_) | Self::Kinematics(_) | Self::Clip(_) => {
                 ErrorKind::BadInput
             }
@@ -170,7 +170,7 @@ pub struct Player<L: RobotLink> {
     /// The harness start's phase at the last tick.
     harness_phase: HarnessPhase,
     /// The gait phase of a policy that observes one.
-    gait: Option<crate::policy::GaitClock>,
+    gait: Option<policy::GaitClock>,
 }
 
 impl<L: RobotLink> Player<L> {
@@ -291,10 +291,10 @@ impl<L: RobotLink> Player<L> {
             .max()
             .unwrap_or(0)
             + 1;
-        if frames > crate::policy::MAX_FRAMES_AHEAD {
+        if frames > policy::MAX_FRAMES_AHEAD {
             return Err(PlayError::Setup(format!(
                 "the policy looks {frames} frames ahead; at most {}",
-                crate::policy::MAX_FRAMES_AHEAD
+                policy::MAX_FRAMES_AHEAD
             )));
         }
         let k_actions = layout
@@ -419,7 +419,7 @@ impl<L: RobotLink> Player<L> {
             harness_hoist: None,
             lowered: None,
             harness_phase: HarnessPhase::None,
-            gait: crate::policy::GaitClock::of(&layout),
+            gait: policy::GaitClock::of(&layout),
             robot,
             layout,
         })
@@ -979,7 +979,7 @@ impl<L: RobotLink> Player<L> {
         self.mapper.reset(&self.layout.default_q);
         self.cursor.restart();
         self.policy_steps = 0;
-        self.gait = crate::policy::GaitClock::of(&self.layout);
+        self.gait = policy::GaitClock::of(&self.layout);
         self.go(Mode::Running, cause);
         self.policy_tick(has_truth);
     }
@@ -1234,7 +1234,11 @@ impl<L: RobotLink> Player<L> {
             command,
             ramp: psi,
             reference: self.cursor.view(),
-            truth: self.world_valid.then_some(&self.world),
+            truth: self.world_valid.then_some(policy::SimTruth {
+                root_pose: self.world.root_pose,
+                base_lin_vel: self.world.base_lin_vel,
+                foot_contacts: &self.world.foot_contacts,
+            }),
             trackers: self.cursor.trackers(),
             base_ang_vel,
             robot_anchor,

@@ -11,7 +11,7 @@ use crate::clip::Reference;
 use crate::generator::PlanReader;
 use crate::motion::{Alignment, MotionFrame};
 use crate::options::{EndMode, PlayOptions};
-use crate::policy::ReferenceView;
+use policy::ReferenceView;
 
 /// The reference frames the observation sees at one tick, policy order.
 #[derive(Debug)]

@@ -20,7 +20,7 @@ pub type LockstepRun = (
 /// that advances the mirror between ticks.
 pub fn lockstep_player(
     robot: Robot,
-    layout: crate::policy::PolicyLayout,
+    layout: policy::PolicyLayout,
     reference: crate::clip::Reference,
     options: crate::player::PlayOptions,
     mirror: sim2real::config::MirrorConfig,
@@ -65,7 +65,7 @@ pub type WiredRun = (crate::player::Player<WiredRobot>, ServedClock, ServedMirro
 /// first on each).
 pub fn wired_player(
     robot: Robot,
-    layout: crate::policy::PolicyLayout,
+    layout: policy::PolicyLayout,
     reference: crate::clip::Reference,
     options: crate::player::PlayOptions,
     mirror: sim2real::config::MirrorConfig,

@@ -6,8 +6,8 @@
 
 use std::collections::BTreeMap;
 
-use controller::policy::PolicyManifest;
-use controller::policy::export::{ModelFacts, fill};
+use policy::PolicyManifest;
+use policy::export::{ModelFacts, fill};
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
@@ -36,7 +36,7 @@ fuzz_target!(|data: &[u8]| {
     };
     let path = std::path::Path::new("/nonexistent/robodeploy-fuzz/policy.toml");
     if let Ok(layout) =
-        controller::policy::PolicyLayout::parse(path, &text, robodeploy_fuzz::reference_robot())
+        policy::PolicyLayout::parse(path, &text, robodeploy_fuzz::reference_robot())
     {
         assert_eq!(layout.action_scale.len(), layout.robot_index.len());
     }

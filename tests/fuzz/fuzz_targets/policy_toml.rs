@@ -13,7 +13,7 @@ fuzz_target!(|data: &[u8]| {
     };
     let path = std::path::Path::new("/nonexistent/robodeploy-fuzz/policy.toml");
     if let Ok(layout) =
-        controller::policy::PolicyLayout::parse(path, text, robodeploy_fuzz::reference_robot())
+        policy::PolicyLayout::parse(path, text, robodeploy_fuzz::reference_robot())
     {
         assert_eq!(
             layout.manifest.joints.len(),

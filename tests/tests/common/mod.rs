@@ -1,6 +1,6 @@
 //! What several whole-path test files share: a robot at rest, as the observation builder sees it.
 
-use controller::policy::{ObsInputs, ReferenceView};
+use policy::{ObsInputs, ReferenceView};
 
 /// A reference that stands still at the pose it holds, its root `height` m up.
 #[derive(Debug)]

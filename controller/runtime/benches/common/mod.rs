@@ -2,7 +2,7 @@
 //! the squat clip.
 
 use controller::clip::{Clip, Reference};
-use controller::policy::PolicyLayout;
+use policy::PolicyLayout;
 use robots::{Robot, reference_robot_path};
 
 /// The reference robot, the reference follower and the squat clip at the policy's rate.

@@ -106,7 +106,7 @@ fn environment_for(path: &Path) -> Result<&'static Environment, OnnxError> {
 
 /// What a model file says of itself without running it: its custom metadata properties (empty
 /// when it has none) and its input names.
-pub fn read_facts(path: &Path) -> Result<crate::policy::export::ModelFacts, OnnxError> {
+pub fn read_facts(path: &Path) -> Result<crate::export::ModelFacts, OnnxError> {
     robots::check_regular_file(path).map_err(|reason| OnnxError::Load {
         path: path.to_path_buf(),
         reason,
@@ -124,7 +124,7 @@ pub fn read_facts(path: &Path) -> Result<crate::policy::export::ModelFacts, Onnx
             metadata.insert(key, v);
         }
     }
-    Ok(crate::policy::export::ModelFacts {
+    Ok(crate::export::ModelFacts {
         metadata,
         inputs: session.inputs().iter().map(|i| i.name().to_owned()).collect(),
     })

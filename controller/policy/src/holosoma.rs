@@ -21,8 +21,8 @@
 
 use serde_json::Value;
 
-use super::export::{Metadata, Problem};
-use super::{ActionScale, HistoryOrder, PolicyManifest, Shaping, Term};
+use crate::contract::{ActionScale, HistoryOrder, PolicyManifest, Shaping, Term};
+use crate::export::{Metadata, Problem};
 
 /// The metadata key that marks a holosoma export.
 pub const JOINTS_KEY: &str = "dof_names";

@@ -14,7 +14,7 @@
 
 use std::collections::BTreeMap;
 
-use super::{ActionScale, HistoryOrder, PolicyManifest, Shaping, Term};
+use crate::contract::{ActionScale, HistoryOrder, PolicyManifest, Shaping, Term};
 
 /// Where a value came from and what is wrong with it: `(place, message)`.
 pub type Problem = (String, String);
