@@ -89,24 +89,26 @@ struct Machine {
 #[derive(Debug)]
 pub struct Player<L: RobotLink> {
     robot: Robot,
-    layout: PolicyLayout,
-    model: OnnxModel,
-    obs_builder: ObservationBuilder,
     options: PlayOptions,
     io: L,
-    stop: Arc<AtomicBool>,
-    estop: Option<Arc<AtomicBool>>,
-    /// The stop flag as this tick's checks saw it (recorded, so a replay sees the same).
-    stop_seen: bool,
     dt: f64,
     tick: u64,
-    machine: Machine,
-    monitor: SafetyMonitor,
-    cursor: ReferenceCursor,
-    mapper: ActionMapper,
     metrics: RunMetrics,
-    /// The motion a tracking export carries, when the policy is one.
-    embedded: Option<EmbeddedMotion>,
+    /// What the robot reported this tick and what it is commanded (robot order).
+    state: RobotState,
+    targets: Vec<JointTarget>,
+    telemetry: Option<TelemetrySink>,
+    record: Box<TickRecord>,
+    world: WorldStage,
+    reference: ReferenceStage,
+    lifecycle: Lifecycle,
+    policy: PolicyStage,
+}
+
+/// The world stage of a run: where the robot is, from its kinematics and the estimator or the
+/// simulation's ground truth, and its keypoints through the cameras.
+#[derive(Debug)]
+struct WorldStage {
     /// The robot's anchor, bodies, feet and root rate through its model (when it has feet or
     /// the policy needs them).
     kinematics: Option<RobotKinematics>,
@@ -119,7 +121,7 @@ pub struct Player<L: RobotLink> {
     estimate: Estimate,
     /// The robot's place in the world as the observation reads it: the estimate, or the
     /// simulation's ground truth with `--estimator ground-truth`; and whether it is usable.
-    world: GroundTruth,
+    observed: GroundTruth,
     world_valid: bool,
     /// The policy observes the robot's place in the world (decided once, at start).
     reads_world: bool,
@@ -128,34 +130,36 @@ pub struct Player<L: RobotLink> {
     /// estimate.
     truth_to_world: Alignment,
     truth_mapped: bool,
-    // Buffers, robot order unless named policy_.
-    state: RobotState,
-    targets: Vec<JointTarget>,
-    start_pose: Vec<f64>,
+    truth: GroundTruth,
+}
+
+/// The reference stage of a run: where the reference is this tick, and how the robot's tracked
+/// bodies and anchor compare with it.
+#[derive(Debug)]
+struct ReferenceStage {
+    cursor: ReferenceCursor,
     /// The reference of the previous tick and, per joint, the reference at its sample's time.
     previous_reference: Vec<f64>,
     aligned_reference: Vec<f64>,
-    policy_q: Vec<f64>,
-    policy_qd: Vec<f64>,
-    policy_default: Vec<f64>,
-    policy_last_targets: Vec<f64>,
-    obs: Vec<f32>,
-    truth: GroundTruth,
     /// The robot's anchor and the reference's as the last policy tick observed them.
     anchors: Option<([f64; 7], [f64; 7])>,
     /// Position error of each tracked motion body at the last policy tick, m (simulation).
     body_errors: Vec<f64>,
     /// Whether `body_errors` holds this run's errors (ground truth and tracked bodies).
     has_body_errors: bool,
-    telemetry: Option<TelemetrySink>,
-    record: Box<TickRecord>,
-    /// The live commands of a command-driven policy (the manifest's `[commands]`).
-    commands: Option<LiveCommands>,
-    /// The policy observes no reference: the run stands in for a clip with the default pose and
-    /// measures where the robot goes instead of how it tracks.
-    command_driven: bool,
-    /// Steps the policy took since it took control (its phase counter).
-    policy_steps: u64,
+}
+
+/// The lifecycle of a run: modes and their transitions, the safety monitor, the stop and e-stop
+/// flags, how a run starts (the harness) and where a stop takes the robot.
+#[derive(Debug)]
+struct Lifecycle {
+    stop: Arc<AtomicBool>,
+    estop: Option<Arc<AtomicBool>>,
+    /// The stop flag as this tick's checks saw it (recorded, so a replay sees the same).
+    stop_seen: bool,
+    machine: Machine,
+    monitor: SafetyMonitor,
+    start_pose: Vec<f64>,
     /// Where a soft stop goes (robot order): the default pose, or the sit keyframe.
     stop_pose: Vec<f64>,
     /// The tick the robot started standing after a soft stop (`OnStop::Stay`).
@@ -169,6 +173,30 @@ pub struct Player<L: RobotLink> {
     lowered: Option<Arc<AtomicBool>>,
     /// The harness start's phase at the last tick.
     harness_phase: HarnessPhase,
+}
+
+/// The policy stage of a run: the contract, the model, the observation and its buffers (policy
+/// order), the action mapping, and what a command-driven or motion-carrying policy adds.
+#[derive(Debug)]
+struct PolicyStage {
+    layout: PolicyLayout,
+    model: OnnxModel,
+    obs_builder: ObservationBuilder,
+    mapper: ActionMapper,
+    /// The motion a tracking export carries, when the policy is one.
+    embedded: Option<EmbeddedMotion>,
+    policy_q: Vec<f64>,
+    policy_qd: Vec<f64>,
+    policy_default: Vec<f64>,
+    policy_last_targets: Vec<f64>,
+    obs: Vec<f32>,
+    /// The live commands of a command-driven policy (the manifest's `[commands]`).
+    commands: Option<LiveCommands>,
+    /// The policy observes no reference: the run stands in for a clip with the default pose and
+    /// measures where the robot goes instead of how it tracks.
+    command_driven: bool,
+    /// Steps the policy took since it took control (its phase counter).
+    policy_steps: u64,
     /// The gait phase of a policy that observes one.
     gait: Option<policy::GaitClock>,
 }
@@ -354,74 +382,82 @@ impl<L: RobotLink> Player<L> {
             cursor.set_keypoints(k.reference_obs_all().to_vec(), k.obs_width());
         }
         Ok(Self {
-            embedded,
-            kinematics,
-            keypoints,
-            keypoints_measured: false,
-            estimator,
-            estimate: Estimate::default(),
-            world: GroundTruth {
-                foot_contacts: vec![false; robot.config.feet.len()],
-                ..GroundTruth::default()
+            world: WorldStage {
+                kinematics,
+                keypoints,
+                keypoints_measured: false,
+                estimator,
+                estimate: Estimate::default(),
+                observed: GroundTruth {
+                    foot_contacts: vec![false; robot.config.feet.len()],
+                    ..GroundTruth::default()
+                },
+                world_valid: false,
+                reads_world: layout.needs_ground_truth(),
+                truth_to_world: Alignment::default(),
+                truth_mapped: false,
+                truth: GroundTruth {
+                    foot_contacts: vec![false; robot.config.feet.len()],
+                    ..GroundTruth::default()
+                },
             },
-            world_valid: false,
-            reads_world: layout.needs_ground_truth(),
-            truth_to_world: Alignment::default(),
-            truth_mapped: false,
+            reference: ReferenceStage {
+                cursor,
+                previous_reference: default_q.clone(),
+                aligned_reference: default_q.clone(),
+                anchors: None,
+                body_errors: vec![0.0; tracked_bodies],
+                has_body_errors: false,
+            },
+            lifecycle: Lifecycle {
+                monitor: {
+                    let (limits, tracking) = options.limits.for_robot(&robot, dt);
+                    let names: Vec<String> = robot.config.joints.iter().map(|j| j.name.clone()).collect();
+                    SafetyMonitor::new(limits, tracking, &names, dt, robot.config.imu.rate_hz)
+                },
+                stop,
+                estop: None,
+                stop_seen: false,
+                machine: Machine {
+                    mode: Mode::Off,
+                    ticks: 0,
+                    transitions: Vec::with_capacity(64),
+                    pending: None,
+                },
+                start_pose: default_q.clone(),
+                stop_pose,
+                standing_since: None,
+                stop_under_policy: false,
+                harness_hoist: None,
+                lowered: None,
+                harness_phase: HarnessPhase::None,
+            },
+            policy: PolicyStage {
+                embedded,
+                mapper: ActionMapper::new(n, k_actions, &default_q),
+                obs_builder: ObservationBuilder::new(&layout),
+                obs: vec![0.0; layout.obs_len],
+                model,
+                policy_q: vec![0.0; n],
+                policy_qd: vec![0.0; n],
+                policy_default: layout.robot_index.iter().map(|&r| default_q[r]).collect(),
+                policy_last_targets: vec![0.0; n],
+                commands,
+                command_driven,
+                policy_steps: 0,
+                gait: policy::GaitClock::of(&layout),
+                layout,
+            },
             dt,
-            cursor,
-            mapper: ActionMapper::new(n, k_actions, &default_q),
-            monitor: {
-                let (limits, tracking) = options.limits.for_robot(&robot, dt);
-                let names: Vec<String> = robot.config.joints.iter().map(|j| j.name.clone()).collect();
-                SafetyMonitor::new(limits, tracking, &names, dt, robot.config.imu.rate_hz)
-            },
             metrics,
-            obs_builder: ObservationBuilder::new(&layout),
-            obs: vec![0.0; layout.obs_len],
-            model,
             options,
             io,
-            stop,
-            estop: None,
-            stop_seen: false,
             tick: 0,
-            machine: Machine {
-                mode: Mode::Off,
-                ticks: 0,
-                transitions: Vec::with_capacity(64),
-                pending: None,
-            },
             state: RobotState::new(n),
             targets: vec![JointTarget::default(); n],
-            start_pose: default_q.clone(),
-            previous_reference: default_q.clone(),
-            aligned_reference: default_q.clone(),
-            policy_q: vec![0.0; n],
-            policy_qd: vec![0.0; n],
-            policy_default: layout.robot_index.iter().map(|&r| default_q[r]).collect(),
-            policy_last_targets: vec![0.0; n],
-            truth: GroundTruth {
-                foot_contacts: vec![false; robot.config.feet.len()],
-                ..GroundTruth::default()
-            },
-            anchors: None,
-            body_errors: vec![0.0; tracked_bodies],
-            has_body_errors: false,
             telemetry: None,
             record: Box::default(),
-            commands,
-            command_driven,
-            policy_steps: 0,
-            stop_pose,
-            standing_since: None,
-            stop_under_policy: false,
-            harness_hoist: None,
-            lowered: None,
-            harness_phase: HarnessPhase::None,
-            gait: policy::GaitClock::of(&layout),
             robot,
-            layout,
         })
     }
 
@@ -429,7 +465,7 @@ impl<L: RobotLink> Player<L> {
     ///
     /// [`OnStop::Harness`]: crate::options::OnStop::Harness
     pub fn with_harness_hoist(mut self, hoist: Arc<AtomicBool>) -> Self {
-        self.harness_hoist = Some(hoist);
+        self.lifecycle.harness_hoist = Some(hoist);
         self
     }
 
@@ -438,7 +474,7 @@ impl<L: RobotLink> Player<L> {
     /// rest until then; the settling time counts from the word. Without a harness start, no
     /// effect.
     pub fn with_lowered_signal(mut self, lowered: Arc<AtomicBool>) -> Self {
-        self.lowered = Some(lowered);
+        self.lifecycle.lowered = Some(lowered);
         self
     }
 
@@ -449,13 +485,17 @@ impl<L: RobotLink> Player<L> {
         }
         let h = self.robot.config.start.harness;
         let lowering = (h.lower_s / self.dt).round() as usize;
-        let tick = self.cursor.tick();
-        let waiting = self.lowered.as_ref().is_some_and(|f| !f.load(Ordering::Relaxed));
+        let tick = self.reference.cursor.tick();
+        let waiting = self
+            .lifecycle
+            .lowered
+            .as_ref()
+            .is_some_and(|f| !f.load(Ordering::Relaxed));
         if tick < lowering {
             HarnessPhase::Lowering
         } else if waiting {
             HarnessPhase::WaitingForOperator
-        } else if self.cursor.in_ramp() {
+        } else if self.reference.cursor.in_ramp() {
             HarnessPhase::Settling
         } else {
             HarnessPhase::Free
@@ -466,39 +506,41 @@ impl<L: RobotLink> Player<L> {
     /// UDP): each policy tick the newest targets, clamped to the manifest's ranges and ramped.
     /// Without one the commands stay at their initial values (`--command`, the defaults).
     pub fn with_commands(mut self, reader: CommandReader) -> Result<Self, PlayError> {
-        let (Some(spec), Some(initial)) = (&self.layout.manifest.commands, self.layout.command_values())
-        else {
+        let (Some(spec), Some(initial)) = (
+            &self.policy.layout.manifest.commands,
+            self.policy.layout.command_values(),
+        ) else {
             return Err(PlayError::Setup(format!(
                 "{}: the policy has no [commands] section, so nothing takes live commands",
-                self.layout.path.display()
+                self.policy.layout.path.display()
             )));
         };
-        self.commands = Some(LiveCommands::new(spec, initial, Some(reader), self.dt));
+        self.policy.commands = Some(LiveCommands::new(spec, initial, Some(reader), self.dt));
         Ok(self)
     }
 
     /// Sets the commands in force to `values` from now on, bypassing sources and ramps (a replay
     /// feeding back what a run recorded). No effect without `[commands]`.
     pub fn set_commands(&mut self, values: &[f64]) {
-        if let Some(c) = &mut self.commands {
+        if let Some(c) = &mut self.policy.commands {
             c.set(values);
         }
     }
 
     /// The live commands in force (with the manifest's `[commands]`).
     pub fn commands(&self) -> Option<&[f64]> {
-        self.commands.as_ref().map(LiveCommands::current)
+        self.policy.commands.as_ref().map(LiveCommands::current)
     }
 
     /// Whether the policy observes no reference (it runs with no clip, on its commands).
     pub fn is_command_driven(&self) -> bool {
-        self.command_driven
+        self.policy.command_driven
     }
 
     /// An e-stop input: when the flag is set, the robot goes to damping at once (a fault, unlike
     /// the soft stop of SIGINT).
     pub fn with_estop(mut self, flag: Arc<AtomicBool>) -> Self {
-        self.estop = Some(flag);
+        self.lifecycle.estop = Some(flag);
         self
     }
 
@@ -506,7 +548,7 @@ impl<L: RobotLink> Player<L> {
     /// frames: each tick takes the newest frame from `live` (lock-free, no allocation). Pair it
     /// with a one-frame reference and [`EndMode::Loop`].
     pub fn with_live(mut self, live: LiveReader) -> Self {
-        self.cursor.set_live(live);
+        self.reference.cursor.set_live(live);
         self
     }
 
@@ -514,41 +556,41 @@ impl<L: RobotLink> Player<L> {
     /// samples the newest plan at its time and at the times ahead it observes. Pair it with a
     /// one-frame reference (the standby pose) and [`EndMode::Loop`].
     pub fn with_generated(mut self, plans: crate::generator::PlanReader) -> Self {
-        self.cursor.set_generated(plans);
+        self.reference.cursor.set_generated(plans);
         self
     }
 
     /// The observation the policy saw at the last policy tick.
     pub fn observation(&self) -> &[f32] {
-        &self.obs
+        &self.policy.obs
     }
 
     /// The reference of the last tick, robot order.
     pub fn reference_q(&self) -> &[f64] {
-        self.cursor.current_q()
+        self.reference.cursor.current_q()
     }
 
     /// The 2D keypoint errors per view of the last tick (empty when it measured none).
     pub fn keypoint_errors(&self) -> &[crate::keypoints::track::ViewTick] {
-        match &self.keypoints {
-            Some(k) if self.keypoints_measured => k.errors(),
+        match &self.world.keypoints {
+            Some(k) if self.world.keypoints_measured => k.errors(),
             _ => &[],
         }
     }
 
     /// The policy's default pose, robot order (a generated reference's standby).
     pub fn layout_default_q(&self) -> &[f64] {
-        &self.layout.default_q
+        &self.policy.layout.default_q
     }
 
     /// How far ahead of its tick the policy reads the reference, s (what a generator must cover).
     pub fn lookahead_s(&self) -> f64 {
-        self.cursor.lookahead_s()
+        self.reference.cursor.lookahead_s()
     }
 
     /// The generated reference's plans (counts, changes, status), with a generator.
     pub fn generated(&self) -> Option<&crate::generator::PlanReader> {
-        self.cursor.generated()
+        self.reference.cursor.generated()
     }
 
     /// Records every tick as MCAP through `sink`.
@@ -591,12 +633,12 @@ impl<L: RobotLink> Player<L> {
 
     /// The current mode.
     pub fn mode(&self) -> Mode {
-        self.machine.mode
+        self.lifecycle.machine.mode
     }
 
     /// Transitions so far.
     pub fn transitions(&self) -> &[Transition] {
-        &self.machine.transitions
+        &self.lifecycle.machine.transitions
     }
 
     /// The last measured state (robot order).
@@ -633,10 +675,11 @@ impl<L: RobotLink> Player<L> {
             motion_bodies: bodies.to_vec(),
             anchor,
             keypoint_views: self
+                .world
                 .keypoints
                 .as_ref()
                 .map_or_else(Vec::new, KeypointTrack::views),
-            commands: self.commands.as_ref().map_or_else(Vec::new, |c| {
+            commands: self.policy.commands.as_ref().map_or_else(Vec::new, |c| {
                 c.spec().names.iter().cloned().zip(c.spec().kinds()).collect()
             }),
             live: None,
@@ -647,13 +690,13 @@ impl<L: RobotLink> Player<L> {
 
     /// The motion bodies the run measures, and which is the anchor.
     pub fn motion_bodies(&self) -> (&[String], Option<usize>) {
-        let r = self.cursor.reference();
+        let r = self.reference.cursor.reference();
         (&r.motion_bodies, r.anchor)
     }
 
     /// Ticks of the reference at the policy rate.
     pub fn reference_ticks(&self) -> usize {
-        self.cursor.reference().len()
+        self.reference.cursor.reference().len()
     }
 
     /// Ticks run.
@@ -662,7 +705,7 @@ impl<L: RobotLink> Player<L> {
     }
 
     fn go(&mut self, to: Mode, cause: Cause) {
-        let m = &mut self.machine;
+        let m = &mut self.lifecycle.machine;
         if m.transitions.len() < m.transitions.capacity() {
             m.transitions.push(Transition {
                 tick: self.tick,
@@ -697,19 +740,19 @@ impl<L: RobotLink> Player<L> {
 
     /// Runs to the end (Off), waiting on `clock` between ticks.
     pub fn run(&mut self, clock: &mut dyn TickClock) -> Result<PlaySummary, PlayError> {
-        if self.machine.mode == Mode::Off {
+        if self.lifecycle.machine.mode == Mode::Off {
             self.identify()?;
         }
         let period = Duration::from_nanos((self.dt * 1e9).round() as u64);
         let start = clock.elapsed();
-        while self.machine.mode != Mode::Off {
+        while self.lifecycle.machine.mode != Mode::Off {
             self.step(clock)?;
             let deadline = start + period * (self.tick as u32);
             let missed = self.io.wait_until(clock, deadline);
             if missed {
                 self.metrics.overruns += 1;
             }
-            self.monitor.deadline(missed);
+            self.lifecycle.monitor.deadline(missed);
             self.metrics
                 .jitter
                 .record(clock.elapsed().saturating_sub(deadline));
@@ -735,7 +778,7 @@ impl<L: RobotLink> Player<L> {
         let t0 = Instant::now();
         let read = self.io.read(&mut self.state);
         let t_read = t0.elapsed();
-        let has_truth = clock.ground_truth(&mut self.truth);
+        let has_truth = clock.ground_truth(&mut self.world.truth);
         let c0 = Instant::now();
         if let Err(e) = read {
             self.fail(Cause::BusFailure);
@@ -745,28 +788,32 @@ impl<L: RobotLink> Player<L> {
             self.go(Mode::Off, Cause::BusFailure);
             return Err(e.into());
         }
-        self.stop_seen = self.stop.load(Ordering::Relaxed);
-        let estop = self.estop.as_ref().is_some_and(|f| f.load(Ordering::Relaxed));
-        if let Some(cause) = self.monitor.check(
-            self.machine.mode,
+        self.lifecycle.stop_seen = self.lifecycle.stop.load(Ordering::Relaxed);
+        let estop = self
+            .lifecycle
+            .estop
+            .as_ref()
+            .is_some_and(|f| f.load(Ordering::Relaxed));
+        if let Some(cause) = self.lifecycle.monitor.check(
+            self.lifecycle.machine.mode,
             &self.state,
             &self.targets,
             estop,
-            self.stop_seen,
+            self.lifecycle.stop_seen,
         ) {
             self.fail(cause);
         }
         if has_truth {
-            if self.truth.simulation_failed {
+            if self.world.truth.simulation_failed {
                 self.fail(Cause::SimulationFailed);
             }
             // A fall counts while the soft start, the policy or the soft stop is in control; a
             // robot folding up under damping after the run has handed over has not fallen.
             let in_control = matches!(
-                self.machine.mode,
+                self.lifecycle.machine.mode,
                 Mode::SoftStart | Mode::Running | Mode::Stopping
             );
-            let p = self.truth.root_pose;
+            let p = self.world.truth.root_pose;
             self.metrics.fell |= in_control && tilt_of([p[3], p[4], p[5], p[6]]) > self.options.limits.tilt;
         }
         self.estimate_world(has_truth);
@@ -777,58 +824,67 @@ impl<L: RobotLink> Player<L> {
         let write = self.io.write(&self.targets);
         let io = t_read + w0.elapsed();
         self.metrics.io.record(io);
-        if let Some(source) = self.cursor.take_live_source() {
+        if let Some(source) = self.reference.cursor.take_live_source() {
             self.metrics.live_latency.record(source.elapsed());
         }
         if let Some(sink) = &mut self.telemetry {
             self.record.fill(&TickView {
                 tick: self.tick,
                 now: clock.elapsed(),
-                mode: self.machine.mode,
+                mode: self.lifecycle.machine.mode,
                 state: &self.state,
                 targets: &self.targets,
-                reference_q: self.cursor.current_q(),
-                reference_root: self.cursor.current_root(),
-                tracking: self.machine.mode == Mode::Running && self.cursor.tracked(),
-                anchors: self.anchors,
-                body_errors: if self.has_body_errors {
-                    &self.body_errors
+                reference_q: self.reference.cursor.current_q(),
+                reference_root: self.reference.cursor.current_root(),
+                tracking: self.lifecycle.machine.mode == Mode::Running && self.reference.cursor.tracked(),
+                anchors: self.reference.anchors,
+                body_errors: if self.reference.has_body_errors {
+                    &self.reference.body_errors
                 } else {
                     &[]
                 },
-                estimate: self.estimator.as_ref().map(|_| &self.estimate),
-                generated: self.cursor.generated().map(crate::generator::PlanReader::tick),
-                keypoint_errors: match &self.keypoints {
-                    Some(k) if self.keypoints_measured => k.errors(),
+                estimate: self.world.estimator.as_ref().map(|_| &self.world.estimate),
+                generated: self
+                    .reference
+                    .cursor
+                    .generated()
+                    .map(crate::generator::PlanReader::tick),
+                keypoint_errors: match &self.world.keypoints {
+                    Some(k) if self.world.keypoints_measured => k.errors(),
                     _ => &[],
                 },
                 triangulated_mm: self
+                    .world
                     .keypoints
                     .as_ref()
-                    .filter(|_| self.keypoints_measured)
+                    .filter(|_| self.world.keypoints_measured)
                     .and_then(KeypointTrack::triangulated_mm),
                 truth_in_world: has_truth.then(|| {
-                    let t = self.truth_to_world.apply(self.truth.root_pose);
-                    (t, self.truth.base_lin_vel)
+                    let t = self.world.truth_to_world.apply(self.world.truth.root_pose);
+                    (t, self.world.truth.base_lin_vel)
                 }),
-                actions: self.mapper.actions(),
-                obs: &self.obs,
-                commands: self.commands.as_ref().map_or(&[][..], LiveCommands::current),
-                truth: &self.truth,
+                actions: self.policy.mapper.actions(),
+                obs: &self.policy.obs,
+                commands: self
+                    .policy
+                    .commands
+                    .as_ref()
+                    .map_or(&[][..], LiveCommands::current),
+                truth: &self.world.truth,
                 has_truth,
-                stop_requested: self.stop_seen,
+                stop_requested: self.lifecycle.stop_seen,
                 bus_times: self.io.bus_times(),
                 io,
                 compute,
-                cause: self.machine.transitions.last().map(|t| t.cause),
-                harness: self.harness_phase,
+                cause: self.lifecycle.machine.transitions.last().map(|t| t.cause),
+                harness: self.lifecycle.harness_phase,
             });
             sink.push(&self.record);
             // The buses' cycles since the last tick, when the recording asked for them.
             self.io.drain_cycles(&mut |c| sink.push_cycle(c));
         }
         self.tick += 1;
-        self.machine.ticks += 1;
+        self.lifecycle.machine.ticks += 1;
         if let Err(e) = write {
             self.fail(Cause::BusFailure);
             return Err(e.into());
@@ -839,10 +895,11 @@ impl<L: RobotLink> Player<L> {
     /// A fault: hold (if running), then damping, then off; straight to damping when a bus has
     /// damped itself.
     fn fail(&mut self, cause: Cause) {
-        match self.machine.mode {
+        match self.lifecycle.machine.mode {
             // A bus damped itself already: the rest follow now, no hold.
             Mode::SoftStart | Mode::Running | Mode::Stopping
-                if cause.damps_at_once() && !self.machine.pending.is_some_and(|c| c.damps_at_once()) =>
+                if cause.damps_at_once()
+                    && !self.lifecycle.machine.pending.is_some_and(|c| c.damps_at_once()) =>
             {
                 self.go(Mode::Damped, cause);
             }
@@ -851,24 +908,26 @@ impl<L: RobotLink> Player<L> {
                 self.begin_soft_stop();
             }
             Mode::SoftStart | Mode::Running => self.go(Mode::Stopping, cause),
-            Mode::Stopping if !self.machine.pending.is_some_and(|c| c.is_fault()) && cause.is_fault() => {
+            Mode::Stopping
+                if !self.lifecycle.machine.pending.is_some_and(|c| c.is_fault()) && cause.is_fault() =>
+            {
                 // A fault during a soft stop cuts it short.
                 self.go(Mode::Damped, cause);
             }
             _ => {}
         }
-        self.machine.pending = Some(cause);
+        self.lifecycle.machine.pending = Some(cause);
     }
 
     /// The state machine: fills `targets` for this tick.
     fn advance(&mut self, has_truth: bool) {
-        let elapsed = self.machine.ticks as f64 * self.dt;
-        match self.machine.mode {
+        let elapsed = self.lifecycle.machine.ticks as f64 * self.dt;
+        match self.lifecycle.machine.mode {
             Mode::Off => {}
             Mode::Ready if self.options.start != Some(robots::StartMode::Pd) => {
                 // The policy takes the robot from its first tick (on the floor, or in the
                 // harness that lowers it).
-                self.start_pose.copy_from_slice(&self.state.q);
+                self.lifecycle.start_pose.copy_from_slice(&self.state.q);
                 // Nothing was commanded yet: the governor's speed limit starts from where the
                 // joints are.
                 for (t, &q) in self.targets.iter_mut().zip(&self.state.q) {
@@ -877,7 +936,7 @@ impl<L: RobotLink> Player<L> {
                 self.take_control(Cause::Start, has_truth);
             }
             Mode::Ready => {
-                self.start_pose.copy_from_slice(&self.state.q);
+                self.lifecycle.start_pose.copy_from_slice(&self.state.q);
                 self.go(Mode::SoftStart, Cause::Start);
                 self.soft_start_targets();
             }
@@ -886,13 +945,13 @@ impl<L: RobotLink> Player<L> {
             }
             Mode::SoftStart => self.soft_start_targets(),
             Mode::Running if self.clip_done() => {
-                let cause = if self.cursor.finished() {
+                let cause = if self.reference.cursor.finished() {
                     Cause::ClipFinished
                 } else {
                     Cause::TimeUp
                 };
                 self.go(Mode::Stopping, cause);
-                self.machine.pending = Some(cause);
+                self.lifecycle.machine.pending = Some(cause);
                 self.begin_soft_stop();
                 self.stopping_targets(has_truth);
             }
@@ -912,15 +971,15 @@ impl<L: RobotLink> Player<L> {
     /// and IMU, the estimator fed every IMU sample since the last tick and corrected by the legs,
     /// then what the observation reads — the estimate, or ground truth when the run asks for it.
     fn estimate_world(&mut self, has_truth: bool) {
-        let Some(k) = &mut self.kinematics else {
-            self.world_valid = has_truth;
+        let Some(k) = &mut self.world.kinematics else {
+            self.world.world_valid = has_truth;
             if has_truth {
-                self.world.clone_from(&self.truth);
+                self.world.observed.clone_from(&self.world.truth);
             }
             return;
         };
         k.update(self.state.quat, &self.state.q, &self.state.qd, None);
-        if let Some(e) = &mut self.estimator {
+        if let Some(e) = &mut self.world.estimator {
             for sample in &self.state.imu_samples {
                 e.propagate(sample);
             }
@@ -937,64 +996,72 @@ impl<L: RobotLink> Player<L> {
                 switches[..k.feet()].copy_from_slice(&self.state.foot_switches);
                 legs.switches = Some(switches);
             }
-            self.estimate = e.correct(&legs, self.state.imu_missed <= IMU_FRESH_TICKS);
+            self.world.estimate = e.correct(&legs, self.state.imu_missed <= IMU_FRESH_TICKS);
         }
         let ground_truth = self.options.estimator == EstimatorKind::GroundTruth;
-        if ground_truth || self.estimator.is_none() {
-            self.world_valid = has_truth;
+        if ground_truth || self.world.estimator.is_none() {
+            self.world.world_valid = has_truth;
             if has_truth {
-                self.world.clone_from(&self.truth);
+                self.world.observed.clone_from(&self.world.truth);
             }
         } else {
-            let (p, q) = (self.estimate.position, k.root_rotation());
-            self.world.root_pose = [p[0], p[1], p[2], q[0], q[1], q[2], q[3]];
-            self.world.base_lin_vel = self.estimate.velocity_base;
-            for (c, e) in self.world.foot_contacts.iter_mut().zip(&self.estimate.contacts) {
+            let (p, q) = (self.world.estimate.position, k.root_rotation());
+            self.world.observed.root_pose = [p[0], p[1], p[2], q[0], q[1], q[2], q[3]];
+            self.world.observed.base_lin_vel = self.world.estimate.velocity_base;
+            for (c, e) in self
+                .world
+                .observed
+                .foot_contacts
+                .iter_mut()
+                .zip(&self.world.estimate.contacts)
+            {
                 *c = *e;
             }
-            self.world.simulation_failed = false;
-            if has_truth && self.estimate.valid && !self.truth_mapped {
-                self.truth_to_world = Alignment::new(self.truth.root_pose, self.world.root_pose, true);
-                self.truth_mapped = true;
+            self.world.observed.simulation_failed = false;
+            if has_truth && self.world.estimate.valid && !self.world.truth_mapped {
+                self.world.truth_to_world =
+                    Alignment::new(self.world.truth.root_pose, self.world.observed.root_pose, true);
+                self.world.truth_mapped = true;
             }
-            if has_truth && self.estimate.valid {
-                let t = self.truth_to_world.apply(self.truth.root_pose);
-                let velocity = spatial::quat_rotate([t[3], t[4], t[5], t[6]], self.truth.base_lin_vel);
+            if has_truth && self.world.estimate.valid {
+                let t = self.world.truth_to_world.apply(self.world.truth.root_pose);
+                let velocity = spatial::quat_rotate([t[3], t[4], t[5], t[6]], self.world.truth.base_lin_vel);
                 self.metrics.add_estimate(
-                    &self.estimate,
+                    &self.world.estimate,
                     [t[0], t[1], t[2]],
                     velocity,
-                    &self.truth.foot_contacts,
+                    &self.world.truth.foot_contacts,
                 );
             }
-            self.world_valid = self.estimate.valid;
+            self.world.world_valid = self.world.estimate.valid;
         }
-        let p = self.world.root_pose;
-        k.set_root_position(self.world_valid.then_some([p[0], p[1], p[2]]));
+        let p = self.world.observed.root_pose;
+        k.set_root_position(self.world.world_valid.then_some([p[0], p[1], p[2]]));
     }
 
     /// The policy takes control: from the default pose as its last action, the reference from
     /// its start.
     fn take_control(&mut self, cause: Cause, has_truth: bool) {
-        self.mapper.reset(&self.layout.default_q);
-        self.cursor.restart();
-        self.policy_steps = 0;
-        self.gait = policy::GaitClock::of(&self.layout);
+        self.policy.mapper.reset(&self.policy.layout.default_q);
+        self.reference.cursor.restart();
+        self.policy.policy_steps = 0;
+        self.policy.gait = policy::GaitClock::of(&self.policy.layout);
         self.go(Mode::Running, cause);
         self.policy_tick(has_truth);
     }
 
     fn soft_start_targets(&mut self) {
-        let s = ((self.machine.ticks + 1) as f64 * self.dt / self.options.soft_start_s).min(1.0);
+        let s = ((self.lifecycle.machine.ticks + 1) as f64 * self.dt / self.options.soft_start_s).min(1.0);
         let g = self.options.soft_start_gain + (1.0 - self.options.soft_start_gain) * s;
         let margin = self.options.limits.position_margin;
         for (i, j) in self.robot.config.joints.iter().enumerate() {
-            let q = self.start_pose[i] + (self.layout.default_q[i] - self.start_pose[i]) * s;
+            let q = self.lifecycle.start_pose[i]
+                + (self.policy.layout.default_q[i] - self.lifecycle.start_pose[i]) * s;
             self.targets[i] = JointTarget {
                 q: q.clamp(j.position_limits[0] + margin, j.position_limits[1] - margin),
                 qd: 0.0,
-                kp: self.layout.kp[i] * g,
-                kd: self.layout.kd[i],
+                kp: self.policy.layout.kp[i] * g,
+                kd: self.policy.layout.kd[i],
                 tau: 0.0,
                 enabled: true,
             };
@@ -1004,10 +1071,10 @@ impl<L: RobotLink> Player<L> {
     /// A soft stop while the policy is in control: it stays in control, the reference held where
     /// the stop came and blended to the standing pose, the commands ramped to rest.
     fn begin_soft_stop(&mut self) {
-        self.stop_under_policy = true;
-        self.cursor.cut_here();
+        self.lifecycle.stop_under_policy = true;
+        self.reference.cursor.cut_here();
         let settle = (self.options.settle_s / self.dt).round().max(1.0) as u32;
-        if let Some(c) = &mut self.commands {
+        if let Some(c) = &mut self.policy.commands {
             c.wind_down(settle);
         }
     }
@@ -1021,10 +1088,10 @@ impl<L: RobotLink> Player<L> {
     /// [`OnStop`]: crate::options::OnStop
     fn stopping_targets(&mut self, has_truth: bool) {
         use crate::options::OnStop;
-        let soft = self.machine.pending.is_some_and(|c| !c.is_fault());
+        let soft = self.lifecycle.machine.pending.is_some_and(|c| !c.is_fault());
         let ticks = |s: f64, dt: f64| (s / dt).round().max(1.0) as u64;
         if !soft {
-            if self.machine.ticks >= 1 {
+            if self.lifecycle.machine.ticks >= 1 {
                 self.go(Mode::Damped, Cause::HoldDone);
                 self.damping_targets();
             } else {
@@ -1032,30 +1099,30 @@ impl<L: RobotLink> Player<L> {
             }
             return;
         }
-        if !self.stop_under_policy {
+        if !self.lifecycle.stop_under_policy {
             // The PD soft start was still on: blend its targets to the default pose, then damp.
             let stop_ticks = ticks(self.options.end_s, self.dt);
-            if self.machine.ticks >= stop_ticks {
+            if self.lifecycle.machine.ticks >= stop_ticks {
                 self.go(Mode::Damped, Cause::HoldDone);
                 self.damping_targets();
             } else {
-                self.blend_targets(stop_ticks - self.machine.ticks);
+                self.blend_targets(stop_ticks - self.lifecycle.machine.ticks);
             }
             return;
         }
         let settle = ticks(self.options.settle_s, self.dt);
-        if self.machine.ticks < settle {
+        if self.lifecycle.machine.ticks < settle {
             self.policy_tick(has_truth);
             return;
         }
         let stay = |p: &mut Self| {
-            let since = *p.standing_since.get_or_insert_with(|| {
+            let since = *p.lifecycle.standing_since.get_or_insert_with(|| {
                 // A fresh stop request ends the stay: the one that began it is spent.
-                p.stop.store(false, Ordering::Relaxed);
+                p.lifecycle.stop.store(false, Ordering::Relaxed);
                 p.tick
             });
             let stood = (p.tick - since) as f64 * p.dt;
-            let again = p.stop_seen && p.tick > since;
+            let again = p.lifecycle.stop_seen && p.tick > since;
             if !again && p.options.stand_s.is_none_or(|s| stood < s) {
                 p.policy_tick(has_truth);
             } else {
@@ -1065,14 +1132,14 @@ impl<L: RobotLink> Player<L> {
         };
         match self.options.on_stop {
             OnStop::Stay => stay(self),
-            OnStop::Harness => match &self.harness_hoist {
+            OnStop::Harness => match &self.lifecycle.harness_hoist {
                 // The mirror's crane takes the weight while the policy keeps the robot standing.
                 Some(hoist) => {
                     if !hoist.swap(true, Ordering::Relaxed) {
                         tracing::info!(tick = self.tick, "harness: the crane takes the robot's weight");
                     }
                     let hoisting = ticks(self.robot.config.start.harness.lower_s, self.dt);
-                    if self.machine.ticks - settle < hoisting {
+                    if self.lifecycle.machine.ticks - settle < hoisting {
                         self.policy_tick(has_truth);
                     } else {
                         self.go(Mode::Damped, Cause::HoldDone);
@@ -1081,7 +1148,7 @@ impl<L: RobotLink> Player<L> {
                 }
                 // On the robot the operator has the crane take the weight, then stops again.
                 None => {
-                    if self.standing_since.is_none() {
+                    if self.lifecycle.standing_since.is_none() {
                         tracing::warn!(
                             tick = self.tick,
                             "harness: take the robot's weight with the crane, then stop again (Ctrl-C or the e-stop)"
@@ -1092,7 +1159,7 @@ impl<L: RobotLink> Player<L> {
             },
             OnStop::Sit => {
                 let sit = ticks(self.options.sit_s, self.dt);
-                let done = self.machine.ticks - settle;
+                let done = self.lifecycle.machine.ticks - settle;
                 if done >= sit {
                     self.go(Mode::Damped, Cause::HoldDone);
                     self.damping_targets();
@@ -1114,7 +1181,7 @@ impl<L: RobotLink> Player<L> {
         let a = 1.0 / left.max(1) as f64;
         let margin = self.options.limits.position_margin;
         let joints = &self.robot.config.joints;
-        for ((t, d), j) in self.targets.iter_mut().zip(&self.stop_pose).zip(joints) {
+        for ((t, d), j) in self.targets.iter_mut().zip(&self.lifecycle.stop_pose).zip(joints) {
             // The blend is governed from the previous target like any command: far from the
             // stop pose with few ticks left it would otherwise outrun the joint's speed.
             let wanted = t.q + (d - t.q) * a;
@@ -1125,8 +1192,8 @@ impl<L: RobotLink> Player<L> {
 
     fn hold_targets(&mut self) {
         for (i, t) in self.targets.iter_mut().enumerate() {
-            t.kp = self.layout.kp[i];
-            t.kd = self.layout.kd[i];
+            t.kp = self.policy.layout.kp[i];
+            t.kd = self.policy.layout.kd[i];
             t.qd = 0.0;
             t.tau = 0.0;
             t.enabled = true;
@@ -1134,7 +1201,7 @@ impl<L: RobotLink> Player<L> {
     }
 
     fn damping_targets(&mut self) {
-        for (t, &kd) in self.targets.iter_mut().zip(&self.layout.kd) {
+        for (t, &kd) in self.targets.iter_mut().zip(&self.policy.layout.kd) {
             *t = JointTarget {
                 q: t.q,
                 kd,
@@ -1145,21 +1212,22 @@ impl<L: RobotLink> Player<L> {
     }
 
     fn clip_done(&self) -> bool {
-        self.options.max_ticks.is_some_and(|m| self.tick >= m) || self.cursor.finished()
+        self.options.max_ticks.is_some_and(|m| self.tick >= m) || self.reference.cursor.finished()
     }
 
     fn policy_tick(&mut self, has_truth: bool) {
-        self.keypoints_measured = false;
-        let frame = self.embedded.as_ref().map(|e| e.frame(&self.model));
+        self.world.keypoints_measured = false;
+        let frame = self.policy.embedded.as_ref().map(|e| e.frame(&self.policy.model));
         let (mut robot_anchor, mut base_ang_vel) = ([0.0; 7], self.state.gyro);
         robot_anchor[3..].copy_from_slice(&self.state.quat);
-        if let Some(k) = &self.kinematics {
+        if let Some(k) = &self.world.kinematics {
             robot_anchor = k.anchor_pose();
             base_ang_vel = k.imu_to_root(self.state.gyro);
         }
-        if self.reads_world && !self.world_valid {
-            let why = match &self.estimator {
+        if self.world.reads_world && !self.world.world_valid {
+            let why = match &self.world.estimator {
                 Some(_) if self.options.estimator != EstimatorKind::GroundTruth => self
+                    .world
                     .estimate
                     .problem
                     .unwrap_or(crate::estimator::EstimateProblem::NotInitialised),
@@ -1169,28 +1237,30 @@ impl<L: RobotLink> Player<L> {
             self.hold_targets();
             return;
         }
-        if self.cursor.tick() == 0
-            && let Some(first) = self.cursor.first_anchor(frame.as_ref())
+        if self.reference.cursor.tick() == 0
+            && let Some(first) = self.reference.cursor.first_anchor(frame.as_ref())
         {
             // The run starts tracking: the motion is put under the robot.
-            let alignment = Alignment::new(first, robot_anchor, self.world_valid);
+            let alignment = Alignment::new(first, robot_anchor, self.world.world_valid);
             tracing::info!(
                 yaw_deg = alignment.yaw().to_degrees(),
                 "reference aligned to the robot's anchor"
             );
-            self.cursor.align(alignment);
+            self.reference.cursor.align(alignment);
         }
-        let psi = self
-            .cursor
-            .update(&self.layout.default_q, &self.layout.robot_index, frame.as_ref());
-        if let (Some(track), Some(k)) = (&mut self.keypoints, &self.kinematics) {
+        let psi = self.reference.cursor.update(
+            &self.policy.layout.default_q,
+            &self.policy.layout.robot_index,
+            frame.as_ref(),
+        );
+        if let (Some(track), Some(k)) = (&mut self.world.keypoints, &self.world.kinematics) {
             // The robot's keypoints in the reference's frame (where its cameras are): placed by
             // the estimate for the observation, by the simulation's truth for the errors.
-            let alignment = self.cursor.alignment();
+            let alignment = self.reference.cursor.alignment();
             let undo = |p: [f64; 3]| alignment.map_or(p, |a| a.undo_point(p));
             let observed = k.root_position();
             let measured = if has_truth {
-                let t = self.truth_to_world.apply(self.truth.root_pose);
+                let t = self.world.truth_to_world.apply(self.world.truth.root_pose);
                 [t[0], t[1], t[2]]
             } else {
                 observed
@@ -1200,70 +1270,80 @@ impl<L: RobotLink> Player<L> {
                 |i| undo(k.keypoint_position_from(i, measured)),
             );
         }
-        let next = self.cursor.next_frame();
-        let this = self.cursor.frame_at(self.cursor.tick());
+        let next = self.reference.cursor.next_frame();
+        let this = self.reference.cursor.frame_at(self.reference.cursor.tick());
         let time_step = self
+            .policy
             .embedded
             .as_ref()
             .map_or(next as f64, |e| e.time_step(this, next));
-        for (p, &r) in self.layout.robot_index.iter().enumerate() {
-            self.policy_q[p] = self.state.q[r];
-            self.policy_qd[p] = self.state.qd[r];
-            self.policy_last_targets[p] = self.targets[r].q;
+        for (p, &r) in self.policy.layout.robot_index.iter().enumerate() {
+            self.policy.policy_q[p] = self.state.q[r];
+            self.policy.policy_qd[p] = self.state.qd[r];
+            self.policy.policy_last_targets[p] = self.targets[r].q;
         }
         // After a harness start the commands rest while the robot is lowered and settles.
-        let rest = self.options.start == Some(robots::StartMode::Harness) && self.cursor.in_ramp();
+        let rest = self.options.start == Some(robots::StartMode::Harness) && self.reference.cursor.in_ramp();
         let command = self
+            .policy
             .commands
             .as_mut()
             .map(|c| if rest { c.rest() } else { c.update(Instant::now()) });
-        if let Some(g) = &mut self.gait {
+        if let Some(g) = &mut self.policy.gait {
             g.advance(command.unwrap_or(&[]));
         }
         let inputs = ObsInputs {
             gyro: self.state.gyro,
             accel: self.state.accel,
             quat: self.state.quat,
-            q: &self.policy_q,
-            qd: &self.policy_qd,
-            default_q: &self.policy_default,
-            past_actions: self.mapper.past(),
-            last_targets: &self.policy_last_targets,
-            step: self.policy_steps,
+            q: &self.policy.policy_q,
+            qd: &self.policy.policy_qd,
+            default_q: &self.policy.policy_default,
+            past_actions: self.policy.mapper.past(),
+            last_targets: &self.policy.policy_last_targets,
+            step: self.policy.policy_steps,
             dt: self.dt,
             command,
             ramp: psi,
-            reference: self.cursor.view(),
-            truth: self.world_valid.then_some(policy::SimTruth {
-                root_pose: self.world.root_pose,
-                base_lin_vel: self.world.base_lin_vel,
-                foot_contacts: &self.world.foot_contacts,
+            reference: self.reference.cursor.view(),
+            truth: self.world.world_valid.then_some(policy::SimTruth {
+                root_pose: self.world.observed.root_pose,
+                base_lin_vel: self.world.observed.base_lin_vel,
+                foot_contacts: &self.world.observed.foot_contacts,
             }),
-            trackers: self.cursor.trackers(),
+            trackers: self.reference.cursor.trackers(),
             base_ang_vel,
             robot_anchor,
             time_step,
-            robot_keypoints: self.keypoints.as_ref().map_or(&[][..], KeypointTrack::robot_obs),
-            gait: self.gait.map_or([0.0; 2], |g| g.phase),
+            robot_keypoints: self
+                .world
+                .keypoints
+                .as_ref()
+                .map_or(&[][..], KeypointTrack::robot_obs),
+            gait: self.policy.gait.map_or([0.0; 2], |g| g.phase),
         };
-        self.obs_builder.build(&inputs, &mut self.obs);
-        if self.cursor.reference().anchor.is_some() {
-            self.anchors = Some((robot_anchor, self.cursor.view().anchor_pose()));
+        self.policy.obs_builder.build(&inputs, &mut self.policy.obs);
+        if self.reference.cursor.reference().anchor.is_some() {
+            self.reference.anchors = Some((robot_anchor, self.reference.cursor.view().anchor_pose()));
         }
-        if !self.obs.iter().all(|x| x.is_finite()) {
+        if !self.policy.obs.iter().all(|x| x.is_finite()) {
             self.fail(Cause::NonFinite { what: "observation" });
             self.hold_targets();
             return;
         }
-        if self.model.run(&self.obs, self.mapper.actions_mut()).is_err()
-            || !self.mapper.actions().iter().all(|a| a.is_finite())
+        if self
+            .policy
+            .model
+            .run(&self.policy.obs, self.policy.mapper.actions_mut())
+            .is_err()
+            || !self.policy.mapper.actions().iter().all(|a| a.is_finite())
         {
             self.fail(Cause::NonFinite { what: "action" });
             self.hold_targets();
             return;
         }
-        let limited = self.mapper.map(
-            &self.layout,
+        let limited = self.policy.mapper.map(
+            &self.policy.layout,
             &self.robot.config.joints,
             &self.state.q,
             &mut self.targets,
@@ -1278,71 +1358,77 @@ impl<L: RobotLink> Player<L> {
         }
         // Where each tracked body is against the reference's (simulation: the robot's place is
         // known).
-        self.has_body_errors = false;
-        if let (true, Some(k)) = (has_truth, &self.kinematics) {
-            let now = self.cursor.motion_now();
-            let t = self.truth_to_world.apply(self.truth.root_pose);
-            for (b, e) in self.body_errors.iter_mut().enumerate() {
+        self.reference.has_body_errors = false;
+        if let (true, Some(k)) = (has_truth, &self.world.kinematics) {
+            let now = self.reference.cursor.motion_now();
+            let t = self.world.truth_to_world.apply(self.world.truth.root_pose);
+            for (b, e) in self.reference.body_errors.iter_mut().enumerate() {
                 // Where the body really is: the true root, the measured joints.
                 let p = k.body_position_from(b, [t[0], t[1], t[2]]);
                 *e = spatial::norm(spatial::sub(p, [now[b][0], now[b][1], now[b][2]]));
             }
-            self.has_body_errors = !self.body_errors.is_empty();
+            self.reference.has_body_errors = !self.reference.body_errors.is_empty();
         }
         // Tracking error against the clip (not during the ramp or the end).
         // Each joint's sample is compared with the reference at the time it was taken (`age`
         // before the tick, between this tick's frame and the last): the error of the motion, not
         // of how old the feedback is.
-        let current = self.cursor.current_q();
+        let current = self.reference.cursor.current_q();
         for (((r, &now), &before), &age) in self
+            .reference
             .aligned_reference
             .iter_mut()
             .zip(current)
-            .zip(&self.previous_reference)
+            .zip(&self.reference.previous_reference)
             .zip(&self.state.age)
         {
             let back = (age.as_secs_f64() / self.dt).min(1.0);
             *r = now + (before - now) * back;
         }
-        if self.cursor.in_clip() && !self.command_driven {
+        if self.reference.cursor.in_clip() && !self.policy.command_driven {
             let root = has_truth.then(|| {
                 (
-                    self.truth_to_world.apply(self.truth.root_pose),
-                    self.cursor.current_root(),
+                    self.world.truth_to_world.apply(self.world.truth.root_pose),
+                    self.reference.cursor.current_root(),
                 )
             });
             self.metrics
-                .add_tracking(&self.state.q, &self.aligned_reference, root);
+                .add_tracking(&self.state.q, &self.reference.aligned_reference, root);
             self.metrics.reference_jitter.push(current, self.dt);
             self.metrics.robot_jitter.push(&self.state.q, self.dt);
-            if self.has_body_errors {
-                self.metrics.add_bodies(self.body_errors.iter().copied());
+            if self.reference.has_body_errors {
+                self.metrics
+                    .add_bodies(self.reference.body_errors.iter().copied());
             }
-            if let Some(track) = &mut self.keypoints {
-                track.measure(self.cursor.frame_at(self.cursor.tick()));
-                self.keypoints_measured = true;
+            if let Some(track) = &mut self.world.keypoints {
+                track.measure(self.reference.cursor.frame_at(self.reference.cursor.tick()));
+                self.world.keypoints_measured = true;
             }
         }
-        self.previous_reference.copy_from_slice(current);
+        self.reference.previous_reference.copy_from_slice(current);
         let phase = self.harness_phase();
-        if phase != self.harness_phase {
+        if phase != self.lifecycle.harness_phase {
             tracing::info!(tick = self.tick, "harness: {phase}");
-            self.harness_phase = phase;
+            self.lifecycle.harness_phase = phase;
         }
         // Waiting for the operator's word, the cursor stays where the settling begins (a stop
         // holds the frame it is on anyway).
-        if phase != HarnessPhase::WaitingForOperator || self.cursor.is_cut() {
-            self.cursor.step();
+        if phase != HarnessPhase::WaitingForOperator || self.reference.cursor.is_cut() {
+            self.reference.cursor.step();
         }
-        self.policy_steps += 1;
+        self.policy.policy_steps += 1;
         // Where the robot went: the simulation's truth where there is one, else the estimate.
         let pose = if has_truth {
-            Some(self.truth.root_pose)
+            Some(self.world.truth.root_pose)
         } else {
-            self.world_valid.then_some(self.world.root_pose)
+            self.world.world_valid.then_some(self.world.observed.root_pose)
         };
         if let (Some(l), Some(pose)) = (&mut self.metrics.locomotion, pose) {
-            let commands = self.commands.as_ref().map_or(&[][..], LiveCommands::current);
+            let commands = self
+                .policy
+                .commands
+                .as_ref()
+                .map_or(&[][..], LiveCommands::current);
             let _ = l.add(pose, commands, self.dt);
         }
     }
@@ -1357,23 +1443,23 @@ impl<L: RobotLink> Player<L> {
         let mut summary = self.metrics.summary(
             self.tick,
             took,
-            &self.machine.transitions,
-            self.cursor.is_live(),
-            self.cursor.reference().len(),
+            &self.lifecycle.machine.transitions,
+            self.reference.cursor.is_live(),
+            self.reference.cursor.reference().len(),
         );
-        summary.keypoints = self.keypoints.as_ref().map(KeypointTrack::summary);
+        summary.keypoints = self.world.keypoints.as_ref().map(KeypointTrack::summary);
         summary
     }
 
     /// Asks for a soft stop (what SIGINT does).
     /// Whether a stop has been asked for (signal, e-stop or [`Self::request_stop`]).
     pub fn stop_flag(&self) -> &AtomicBool {
-        &self.stop
+        &self.lifecycle.stop
     }
 
     /// Asks the run to stop, as Ctrl-C does.
     pub fn request_stop(&self) {
-        self.stop.store(true, Ordering::Relaxed);
+        self.lifecycle.stop.store(true, Ordering::Relaxed);
     }
 }
 
