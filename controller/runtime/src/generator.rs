@@ -24,7 +24,7 @@ use human::live::{LiveReader, LiveWriter, carry_forward, live_channel};
 use robots::{FileError, Robot};
 
 use crate::clip::{Clip, Reference};
-use crate::metrics::Histogram;
+use crate::histogram::Histogram;
 use policy::onnx::{OnnxError, OnnxModel};
 
 /// Most frames of history or horizon a description may ask for.

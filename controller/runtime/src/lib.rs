@@ -8,10 +8,12 @@
 
 pub mod action;
 pub mod clip;
+pub mod error;
 pub mod estimator;
 pub mod estop;
 pub mod fk;
 pub mod generator;
+pub mod histogram;
 pub mod keypoints;
 pub mod live;
 pub mod metrics;

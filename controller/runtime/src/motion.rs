@@ -17,7 +17,7 @@ use robots::{Robot, spatial};
 use std::path::{Path, PathBuf};
 
 use crate::clip::{Clip, Reference};
-use crate::player::PlayError;
+use crate::error::PlayError;
 use policy::onnx::OnnxModel;
 use policy::{PolicyLayout, Term};
 

@@ -3,7 +3,7 @@
 //! reference is ([`crate::reference`]), the observation ([`crate::policy`]), the action mapping
 //! and governor ([`crate::action`]), the safety checks ([`crate::safety::SafetyMonitor`]), the
 //! run's measurements ([`crate::metrics`]) and its record ([`crate::telemetry`]); this file only
-//! sequences them. Every buffer is sized before the first tick; a steady-state tick allocates
+//! sequences them (its error, [`PlayError`], lives below everything it calls). Every buffer is sized before the first tick; a steady-state tick allocates
 //! nothing and takes no lock.
 
 use std::sync::Arc;
@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 
 use human::commands::{CommandReader, LiveCommands};
 use human::live::LiveReader;
-use robot_link::{ErrorKind, GroundTruth, IoError, JointTarget, RobotLink, RobotState, TickClock};
+use robot_link::{GroundTruth, JointTarget, RobotLink, RobotState, TickClock};
 use robots::{Robot, spatial};
 
 use crate::action::ActionMapper;
@@ -31,45 +31,7 @@ use crate::telemetry::{TelemetrySink, TickRecord, TickView};
 use policy::onnx::OnnxModel;
 use policy::{ObsInputs, ObservationBuilder, PolicyLayout, Term};
 
-/// Why a run could not start or continue.
-#[derive(Debug, thiserror::Error)]
-pub enum PlayError {
-    /// The buses.
-    #[error(transparent)]
-    Io(#[from] IoError),
-    /// The policy.
-    #[error(transparent)]
-    Onnx(#[from] policy::onnx::OnnxError),
-    /// The policy manifest.
-    #[error(transparent)]
-    Policy(#[from] policy::PolicyError),
-    /// The recording.
-    #[error(transparent)]
-    Telemetry(#[from] crate::telemetry::TelemetryError),
-    /// Forward kinematics of the reference on the robot's model.
-    #[error(transparent)]
-    Kinematics(#[from] crate::fk::KinematicsError),
-    /// The clip.
-    #[error(transparent)]
-    Clip(#[from] crate::clip::ClipError),
-    /// The inputs of a run do not fit together (reference and policy, model and robot).
-    #[error("{0}")]
-    Setup(String),
-}
-
-impl PlayError {
-    /// What kind of failure this is.
-    pub fn kind(&self) -> ErrorKind {
-        match self {
-            Self::Io(e) => e.kind(),
-            Self::Onnx(policy::onnx::OnnxError::Runtime(_)) => ErrorKind::Unavailable,
-            Self::Onnx(_) | Self::Policy(_) | Self::Setup(_) | Self::Kinematics(_) | Self::Clip(_) => {
-                ErrorKind::BadInput
-            }
-            Self::Telemetry(_) => ErrorKind::Io,
-        }
-    }
-}
+pub use crate::error::PlayError;
 
 /// Ticks without an IMU sample the estimator still counts as fresh.
 const IMU_FRESH_TICKS: u32 = 2;
