@@ -322,8 +322,8 @@ fn a_steady_state_tick_with_the_exports_motion_and_kinematics_allocates_nothing(
 
 #[test]
 fn an_anchor_above_the_imus_body_is_reached_through_the_joints_between() {
-    use controller::fk::RobotKinematics;
     use robots::spatial;
+    use world::RobotKinematics;
     let robot = Robot::load(&reference_robot_path()).unwrap();
     // The head sits above the pelvis (the IMU's body) through head_yaw (about z) and head_pitch.
     let mut k = RobotKinematics::new(&robot, Some("head"), &["head".to_owned()]).unwrap();

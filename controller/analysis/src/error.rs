@@ -27,7 +27,7 @@ pub enum AnalysisError {
     Play(#[from] controller::player::PlayError),
     /// The robot's model could not be used.
     #[error(transparent)]
-    Kinematics(#[from] controller::fk::KinematicsError),
+    Kinematics(#[from] world::KinematicsError),
     /// Output could not be written.
     #[error("cannot write {}: {source}", path.display())]
     Write {

@@ -279,10 +279,7 @@ impl std::fmt::Display for MotionQuality {
 }
 
 /// Analyses `reference` on `robot`'s model.
-pub fn analyze(
-    robot: &Robot,
-    reference: &Reference,
-) -> Result<MotionQuality, controller::fk::KinematicsError> {
+pub fn analyze(robot: &Robot, reference: &Reference) -> Result<MotionQuality, world::KinematicsError> {
     let model = robot.model()?;
     let index = ModelIndex::of_robot(&model, robot)?;
     let (root_q, root_v) = (index.root.qpos, index.root.dof);

@@ -13,13 +13,13 @@ use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
 use controller::clip::{Clip, Reference};
-use controller::estimator::{Estimator, EstimatorConfig, LegKinematics};
 use controller::player::PlayOptions;
 use controller::sim::lockstep_player;
 use policy::PolicyLayout;
 use robots::{Robot, reference_robot_path};
 use sim2real::config::{MirrorConfig, Randomization, Range};
 use test_support::stats::Summary;
+use world::estimator::{Estimator, EstimatorConfig, LegKinematics};
 
 fn randomized(seed: u64) -> MirrorConfig {
     MirrorConfig {

@@ -20,7 +20,7 @@ pub enum PlayError {
     Telemetry(#[from] crate::telemetry::TelemetryError),
     /// Forward kinematics of the reference on the robot's model.
     #[error(transparent)]
-    Kinematics(#[from] crate::fk::KinematicsError),
+    Kinematics(#[from] world::KinematicsError),
     /// The clip.
     #[error(transparent)]
     Clip(#[from] crate::clip::ClipError),

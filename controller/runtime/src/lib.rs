@@ -9,7 +9,6 @@
 pub mod action;
 pub mod clip;
 pub mod error;
-pub mod estimator;
 pub mod estop;
 pub mod fk;
 pub mod generator;

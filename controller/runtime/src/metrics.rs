@@ -567,7 +567,7 @@ impl RunMetrics {
     /// position, world velocity and the feet's contacts.
     pub fn add_estimate(
         &mut self,
-        estimate: &crate::estimator::Estimate,
+        estimate: &world::estimator::Estimate,
         truth_position: [f64; 3],
         truth_velocity: [f64; 3],
         truth_contacts: &[bool],

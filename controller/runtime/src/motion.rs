@@ -443,7 +443,7 @@ pub const MODEL_MISMATCH_M: f64 = 0.05;
 pub fn worst_body_mismatch(
     robot: &Robot,
     reference: &Reference,
-) -> Result<Option<(String, f64, usize)>, crate::fk::KinematicsError> {
+) -> Result<Option<(String, f64, usize)>, world::KinematicsError> {
     let bodies = &reference.motion_bodies;
     // The model is posed from the motion's root: only a motion that tracks the root body says
     // where that is.

@@ -17,8 +17,6 @@ use robots::{Robot, spatial};
 
 use crate::action::ActionMapper;
 use crate::clip::Reference;
-use crate::estimator::{Estimate, Estimator, EstimatorConfig, LegKinematics, MAX_FEET};
-use crate::fk::RobotKinematics;
 use crate::keypoints::track::KeypointTrack;
 use crate::metrics::RunMetrics;
 pub use crate::metrics::{Histogram, PlaySummary};
@@ -30,6 +28,8 @@ use crate::safety::{Cause, Mode, SafetyMonitor, Transition, govern_position, tar
 use crate::telemetry::{TelemetrySink, TickRecord, TickView};
 use policy::onnx::OnnxModel;
 use policy::{ObsInputs, ObservationBuilder, PolicyLayout, Term};
+use world::RobotKinematics;
+use world::estimator::{Estimate, Estimator, EstimatorConfig, LegKinematics, MAX_FEET};
 
 pub use crate::error::PlayError;
 
@@ -1192,8 +1192,8 @@ impl<L: RobotLink> Player<L> {
                     .world
                     .estimate
                     .problem
-                    .unwrap_or(crate::estimator::EstimateProblem::NotInitialised),
-                _ => crate::estimator::EstimateProblem::NoGroundTruth,
+                    .unwrap_or(world::estimator::EstimateProblem::NotInitialised),
+                _ => world::estimator::EstimateProblem::NoGroundTruth,
             };
             self.fail(Cause::EstimateInvalid(why));
             self.hold_targets();

@@ -153,7 +153,7 @@ pub enum Cause {
     /// The mirrored simulation diverged (unstable or non-finite physics).
     SimulationFailed,
     /// The state estimate a policy reads is not usable, and why.
-    EstimateInvalid(crate::estimator::EstimateProblem),
+    EstimateInvalid(world::estimator::EstimateProblem),
     /// An e-stop input fired.
     EStop,
     /// A bus failed as a whole.

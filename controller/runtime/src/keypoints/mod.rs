@@ -27,7 +27,7 @@ pub enum KeypointError {
     NoMap(std::path::PathBuf),
     /// The robot's model could not be posed.
     #[error(transparent)]
-    Kinematics(#[from] crate::fk::KinematicsError),
+    Kinematics(#[from] world::KinematicsError),
     /// The reference names no keypoint the robot maps.
     #[error("the reference's keypoints ({0}) are none of the robot's [keypoints]")]
     NoCommonKeypoint(String),

@@ -34,7 +34,7 @@ pub struct EstimateRecord {
     /// The robot has an estimator.
     pub present: bool,
     /// What it said.
-    pub estimate: crate::estimator::Estimate,
+    pub estimate: world::estimator::Estimate,
     /// Ground truth in the estimate's frame, root pose and base-frame velocity (simulation).
     pub truth: Option<([f64; 7], [f64; 3])>,
 }
@@ -238,7 +238,7 @@ pub struct TickView<'a> {
     /// This tick's triangulated keypoint error, mm.
     pub triangulated_mm: Option<f64>,
     /// The state estimate, for a robot with an estimator.
-    pub estimate: Option<&'a crate::estimator::Estimate>,
+    pub estimate: Option<&'a world::estimator::Estimate>,
     /// Ground truth in the estimate's frame: root pose and base-frame velocity (simulation).
     pub truth_in_world: Option<([f64; 7], [f64; 3])>,
     /// Raw actions.
