@@ -65,7 +65,7 @@ fn generated_run_with(options: GeneratorOptions, command: Option<&[f64]>) -> Run
     let (worker, plans) = generator
         .start(&default_q, options, player.lookahead_s())
         .unwrap();
-    let mut player = player.with_generated(plans);
+    let mut player = player.with_source(plans);
     player.identify().unwrap();
     Run {
         player,

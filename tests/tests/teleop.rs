@@ -139,7 +139,9 @@ fn teleoperate_with(
         Arc::clone(&stop),
     )
     .unwrap()
-    .with_live(teleop.live.take().unwrap());
+    .with_source(controller::reference::TeleopStream::new(
+        teleop.live.take().unwrap(),
+    ));
     let addr = receiver.local_addr();
     let fed = Arc::clone(&ended);
     let feeder = std::thread::Builder::new()

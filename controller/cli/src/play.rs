@@ -223,7 +223,7 @@ impl PendingGenerator {
         let (worker, plans) = self
             .generator
             .start(&standby, self.options, player.lookahead_s())?;
-        Ok((player.with_generated(plans), worker, rate))
+        Ok((player.with_source(plans), worker, rate))
     }
 }
 

@@ -222,7 +222,8 @@ pub fn teleop(args: &TeleopArgs) -> Result<std::process::ExitCode> {
     let summary = if args.hardware {
         let io = robot_link::hardware::open(&robot)?;
         let mut clock = robot_link::WallClock::start();
-        let player = Player::new(robot, layout, reference, play, io, stop)?.with_live(live);
+        let player = Player::new(robot, layout, reference, play, io, stop)?
+            .with_source(controller::reference::TeleopStream::new(live));
         let mut player = crate::play::record(player, rec, run, "teleop", true)?;
         player.run(&mut clock)?
     } else {
@@ -235,7 +236,8 @@ pub fn teleop(args: &TeleopArgs) -> Result<std::process::ExitCode> {
         ));
         let io = sim2real::link::lockstep_robot(&robot, &world)?;
         let mut clock = sim2real::link::PacedLockstepClock::new(Arc::clone(&world));
-        let player = Player::new(robot, layout, reference, play, io, stop)?.with_live(live);
+        let player = Player::new(robot, layout, reference, play, io, stop)?
+            .with_source(controller::reference::TeleopStream::new(live));
         let mut player = crate::play::record(player, rec, run, "teleop", true)?;
         player.run(&mut clock)?
     };

@@ -53,7 +53,9 @@ fn main() {
         Arc::new(AtomicBool::new(false)),
     )
     .unwrap()
-    .with_live(teleop.live.take().unwrap());
+    .with_source(controller::reference::TeleopStream::new(
+        teleop.live.take().unwrap(),
+    ));
     let bvh = Bvh::load(
         &test_support::fixtures::workspace_root().join("data/mocap/cmu_13_26_direct-traffic-wave.bvh"),
     )

@@ -111,7 +111,7 @@ fn generated_reference() -> Summary {
             0.1,
         )
         .unwrap();
-    let summary = lockstep_compute_with((robot, layout, reference), |p| p.with_generated(plans));
+    let summary = lockstep_compute_with((robot, layout, reference), |p| p.with_source(plans));
     let stats = worker.finish();
     assert_eq!(stats.failed, 0);
     summary

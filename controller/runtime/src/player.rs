@@ -11,7 +11,6 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use human::commands::{CommandReader, LiveCommands};
-use human::live::LiveReader;
 use robot_link::{GroundTruth, JointTarget, RobotLink, RobotState, TickClock};
 use robots::{Robot, spatial};
 
@@ -23,7 +22,7 @@ pub use crate::metrics::{Histogram, PlaySummary};
 use crate::motion::{Alignment, EmbeddedMotion};
 use crate::options::EstimatorKind;
 pub use crate::options::{EndMode, HarnessPhase, PlayOptions};
-use crate::reference::ReferenceCursor;
+use crate::reference::{LiveSource, ReferenceCursor};
 use crate::safety::{Cause, Mode, SafetyMonitor, Transition, govern_position, target_range, tilt_of};
 use crate::telemetry::{TelemetrySink, TickRecord, TickView};
 use policy::onnx::OnnxModel;
@@ -506,19 +505,12 @@ impl<L: RobotLink> Player<L> {
         self
     }
 
-    /// Tracks a reference another thread computes live (teleoperation) instead of the clip's
-    /// frames: each tick takes the newest frame from `live` (lock-free, no allocation). Pair it
-    /// with a one-frame reference and [`EndMode::Loop`].
-    pub fn with_live(mut self, live: LiveReader) -> Self {
-        self.reference.cursor.set_live(live);
-        self
-    }
-
-    /// Takes the reference from a motion generator's plans (see [`crate::generator`]): each tick
-    /// samples the newest plan at its time and at the times ahead it observes. Pair it with a
-    /// one-frame reference (the standby pose) and [`EndMode::Loop`].
-    pub fn with_generated(mut self, plans: crate::generator::PlanReader) -> Self {
-        self.reference.cursor.set_generated(plans);
+    /// Takes the reference from `source` instead of the clip's frames: a teleoperator's stream
+    /// ([`crate::reference::TeleopStream`]), a motion generator's plans
+    /// ([`crate::generator::PlanReader`]), or any other [`LiveSource`]. Pair it with a one-frame
+    /// reference (the standby pose) and [`EndMode::Loop`].
+    pub fn with_source(mut self, source: impl LiveSource + 'static) -> Self {
+        self.reference.cursor.set_source(Box::new(source));
         self
     }
 

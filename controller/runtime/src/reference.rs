@@ -1,7 +1,7 @@
-//! Where the reference is at each tick: the clip's frames (or a live frame another thread
-//! computes), held at the first frame while the start-up ramp ψ rises, then played, then held,
-//! blended to the default pose or looped at the end; and the frames ahead the policy looks at, in
-//! its joint order. Every buffer is sized at construction.
+//! Where the reference is at each tick: the clip's frames (or those of a [`LiveSource`]: a
+//! teleoperator's stream, a motion generator's plans), held at the first frame while the start-up
+//! ramp ψ rises, then played, then held, blended to the default pose or looped at the end; and the
+//! frames ahead the policy looks at, in its joint order. Every buffer is sized at construction.
 
 use std::time::Instant;
 
@@ -47,15 +47,113 @@ impl ReferenceView for Frames {
     }
 }
 
-/// A live source of reference frames, and what the loop has taken from it.
+/// What a [`LiveSource`] did with a tick.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Fed {
+    /// It wrote the one-frame table the cursor plays (its row 0: joints, velocities, root).
+    Table,
+    /// It filled every frame ahead itself.
+    Frames,
+}
+
+/// The frames ahead of a tick, policy order, for a source that fills them itself.
 #[derive(Debug)]
-struct Live {
+pub struct FramesAhead<'a> {
+    /// Joint positions per frame.
+    pub q: &'a mut [Vec<f64>],
+    /// Joint velocities per frame.
+    pub qd: &'a mut [Vec<f64>],
+    /// Root poses per frame.
+    pub root: &'a mut [[f64; 7]],
+}
+
+/// A reference computed while the run goes: a teleoperator's stream, a motion generator's plans.
+/// The cursor keeps the timing (ramp, end, soft stop, look-ahead); the source says what the
+/// reference is now — it feeds the one-frame table the cursor plays, or fills the frames ahead
+/// itself. A new kind of source implements this and changes neither the cursor nor the loop.
+/// Called on the loop's thread every tick: no allocation, no lock.
+pub trait LiveSource: std::fmt::Debug + Send {
+    /// This tick's reference, `t` s of motion time after the ramp, frames `dt` apart;
+    /// `robot_index[p]` is the robot joint of policy joint `p`; `table` is the one-frame
+    /// reference (robot order).
+    fn feed(
+        &mut self,
+        t: f64,
+        dt: f64,
+        robot_index: &[usize],
+        table: &mut Reference,
+        ahead: FramesAhead<'_>,
+    ) -> Fed;
+
+    /// The VR trackers' values for the `tracker_poses` term, where the source has them.
+    fn trackers(&self) -> Option<&[f64; TRACKER_VALUES]> {
+        None
+    }
+
+    /// The arrival of the input behind the command about to be sent, once per input (the
+    /// input-to-command latency).
+    fn take_input_arrival(&mut self) -> Option<Instant> {
+        None
+    }
+
+    /// A motion generator's plans (counts, changes, status), for its telemetry and summary.
+    fn plans(&self) -> Option<&PlanReader> {
+        None
+    }
+}
+
+/// A teleoperator's stream: each tick the newest frame another thread retargeted, lock-free.
+#[derive(Debug)]
+pub struct TeleopStream {
     reader: LiveReader,
     /// Arrival of the input behind this tick's frame, when no command used it yet.
     source: Option<Instant>,
     /// The input the last command used.
     used: Option<Instant>,
     trackers: [f64; TRACKER_VALUES],
+}
+
+impl TeleopStream {
+    /// The stream `reader` hands over.
+    pub fn new(reader: LiveReader) -> Self {
+        Self {
+            reader,
+            source: None,
+            used: None,
+            trackers: [0.0; TRACKER_VALUES],
+        }
+    }
+}
+
+impl LiveSource for TeleopStream {
+    fn feed(
+        &mut self,
+        _t: f64,
+        _dt: f64,
+        _robot_index: &[usize],
+        table: &mut Reference,
+        _ahead: FramesAhead<'_>,
+    ) -> Fed {
+        let frame = self.reader.latest();
+        let n = table.n;
+        table.q[..n].copy_from_slice(&frame.q);
+        table.qd[..n].copy_from_slice(&frame.qd);
+        table.root[0] = frame.root;
+        self.trackers = frame.trackers;
+        // Latency counts to the first command that uses an input, not the ones after it.
+        self.source = frame.source.filter(|s| Some(*s) != self.used);
+        Fed::Table
+    }
+
+    fn trackers(&self) -> Option<&[f64; TRACKER_VALUES]> {
+        Some(&self.trackers)
+    }
+
+    fn take_input_arrival(&mut self) -> Option<Instant> {
+        let source = self.source.take()?;
+        self.used = Some(source);
+        Some(source)
+    }
 }
 
 /// The reference's cursor.
@@ -70,9 +168,8 @@ pub struct ReferenceCursor {
     ramp_ticks: usize,
     end_ticks: usize,
     end: EndMode,
-    live: Option<Live>,
-    /// A motion generator's plans, when it supplies the frames.
-    generated: Option<PlanReader>,
+    /// A source computing the reference while the run goes, when the clip is not it.
+    source: Option<Box<dyn LiveSource>>,
     /// The policy's period, s.
     dt: f64,
     /// Where the motion was put for this run (set when a run starts tracking an anchor).
@@ -118,8 +215,7 @@ impl ReferenceCursor {
             ramp_ticks: (options.ramp_s / dt).round() as usize,
             end_ticks: (options.end_s / dt).round() as usize,
             end: options.end,
-            live: None,
-            generated: None,
+            source: None,
             dt,
             reference,
             cut: None,
@@ -168,15 +264,15 @@ impl ReferenceCursor {
         self.keypoint_obs = values;
     }
 
-    /// Takes the frames from a motion generator's plans: this tick's and those ahead at their
-    /// times (the generator's clock starts when the ramp ends).
-    pub fn set_generated(&mut self, plans: PlanReader) {
-        self.generated = Some(plans);
+    /// Takes each tick's reference from `source` instead of the clip (its clock starts when the
+    /// ramp ends).
+    pub fn set_source(&mut self, source: Box<dyn LiveSource>) {
+        self.source = Some(source);
     }
 
-    /// The generator's plans, when it supplies the frames.
+    /// The generator's plans, when a generator supplies the frames.
     pub fn generated(&self) -> Option<&PlanReader> {
-        self.generated.as_ref()
+        self.source.as_deref().and_then(LiveSource::plans)
     }
 
     /// How far ahead of its tick the policy reads the reference, s.
@@ -184,19 +280,9 @@ impl ReferenceCursor {
         (self.frames.q.len() - 1) as f64 * self.dt
     }
 
-    /// Takes each tick's frame from `reader` instead of the clip (the reference is one frame).
-    pub fn set_live(&mut self, reader: LiveReader) {
-        self.live = Some(Live {
-            reader,
-            source: None,
-            used: None,
-            trackers: [0.0; TRACKER_VALUES],
-        });
-    }
-
     /// Whether frames come from a live source (a teleoperator or a generator).
     pub fn is_live(&self) -> bool {
-        self.live.is_some() || self.generated.is_some()
+        self.source.is_some()
     }
 
     /// The clip's frames.
@@ -313,15 +399,12 @@ impl ReferenceCursor {
 
     /// The live devices' values for the `tracker_poses` term, with a live source.
     pub fn trackers(&self) -> Option<&[f64; TRACKER_VALUES]> {
-        self.live.as_ref().map(|l| &l.trackers)
+        self.source.as_deref().and_then(LiveSource::trackers)
     }
 
     /// The arrival of the input behind the command about to be sent, once per input.
     pub fn take_live_source(&mut self) -> Option<Instant> {
-        let live = self.live.as_mut()?;
-        let source = live.source.take()?;
-        live.used = Some(source);
-        Some(source)
+        self.source.as_mut()?.take_input_arrival()
     }
 
     /// Positions the frames for this tick and returns ψ (0 → 1 over the ramp). `default_q` is
@@ -348,16 +431,6 @@ impl ReferenceCursor {
             }
             return 1.0;
         }
-        if let Some(live) = &mut self.live {
-            let frame = live.reader.latest();
-            let n = self.reference.n;
-            self.reference.q[..n].copy_from_slice(&frame.q);
-            self.reference.qd[..n].copy_from_slice(&frame.qd);
-            self.reference.root[0] = frame.root;
-            live.trackers = frame.trackers;
-            // Latency counts to the first command that uses an input, not the ones after it.
-            live.source = frame.source.filter(|s| Some(*s) != live.used);
-        }
         let (ramp, len) = (self.ramp_ticks, self.reference.len());
         let psi = if ramp == 0 {
             1.0
@@ -365,21 +438,25 @@ impl ReferenceCursor {
             (self.tick as f64 / ramp as f64).min(1.0)
         };
         let base = self.tick.saturating_sub(ramp);
-        if let Some(g) = &mut self.generated {
-            let t = base as f64 * self.dt;
-            g.begin_tick(t, self.dt);
-            for f in 0..self.frames.q.len() {
-                let (q, qd) = g.sample(t + f as f64 * self.dt);
+        if let Some(source) = &mut self.source {
+            let ahead = FramesAhead {
+                q: &mut self.frames.q,
+                qd: &mut self.frames.qd,
+                root: &mut self.frames.root,
+            };
+            let fed = source.feed(
+                base as f64 * self.dt,
+                self.dt,
+                robot_index,
+                &mut self.reference,
+                ahead,
+            );
+            if fed == Fed::Frames {
                 for (p, &r) in robot_index.iter().enumerate() {
-                    self.frames.q[f][p] = q[r];
-                    self.frames.qd[f][p] = qd[r];
+                    self.current_q[r] = self.frames.q[0][p];
                 }
-                self.frames.root[f] = self.reference.root[0];
+                return psi;
             }
-            for (p, &r) in robot_index.iter().enumerate() {
-                self.current_q[r] = self.frames.q[0][p];
-            }
-            return psi;
         }
         let base = if self.end == EndMode::Loop {
             base % len
