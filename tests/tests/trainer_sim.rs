@@ -369,19 +369,24 @@ fn compare_judges_imu_terms_by_each_robots_own_imu() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// `joint` of `robot` on the gantry, told to swing `swing` rad at the robot's stiffness and
-/// stopped dead mid-swing by an obstacle (the jig) after three ticks: its speed then, and the
-/// largest torque it got at any physics step after (the motors' inner rate), N·m.
-fn swing_into_an_obstacle(robot: &Robot, joint: &str, swing: f64) -> (f64, f64) {
-    let i = robot.config.joints.iter().position(|j| j.name == joint).unwrap();
-    let mut host = MirrorHost::start(
+/// `robot`'s mirror in lockstep with the robot held on the gantry, feet off the floor.
+fn on_gantry(robot: &Robot) -> MirrorHost {
+    MirrorHost::start(
         robot.clone(),
         MirrorConfig {
             gantry: true,
             ..MirrorConfig::default()
         },
     )
-    .unwrap();
+    .unwrap()
+}
+
+/// `joint` of `robot` on the gantry, told to swing `swing` rad at the robot's stiffness and
+/// stopped dead mid-swing by an obstacle (the jig) after three ticks: its speed then, and the
+/// largest torque it got at any physics step after (the motors' inner rate), N·m.
+fn swing_into_an_obstacle(robot: &Robot, joint: &str, swing: f64) -> (f64, f64) {
+    let i = robot.config.joints.iter().position(|j| j.name == joint).unwrap();
+    let mut host = on_gantry(robot);
     let mut q: Vec<f64> = robot.config.joints.iter().map(|j| j.default_position).collect();
     q[i] += swing;
     let start = host.now();
@@ -462,14 +467,7 @@ fn knee_swing(dir: &Path, name: &str, extra: &str, swing: f64) -> Vec<(f64, f64)
         .iter()
         .position(|j| j.name == "left_knee")
         .unwrap();
-    let mut host = MirrorHost::start(
-        robot.clone(),
-        MirrorConfig {
-            gantry: true,
-            ..MirrorConfig::default()
-        },
-    )
-    .unwrap();
+    let mut host = on_gantry(&robot);
     let dof = {
         let w = host.world.lock().unwrap();
         ModelIndex::of_robot(w.data().model(), &robot).unwrap().joints[i]
