@@ -24,6 +24,9 @@ pub enum PlayError {
     /// The clip.
     #[error(transparent)]
     Clip(#[from] crate::clip::ClipError),
+    /// The motion a tracking export carries.
+    #[error(transparent)]
+    Motion(#[from] crate::motion::MotionError),
     /// The inputs of a run do not fit together (reference and policy, model and robot).
     #[error("{0}")]
     Setup(String),
@@ -35,9 +38,12 @@ impl PlayError {
         match self {
             Self::Io(e) => e.kind(),
             Self::Onnx(policy::onnx::OnnxError::Runtime(_)) => ErrorKind::Unavailable,
-            Self::Onnx(_) | Self::Policy(_) | Self::Setup(_) | Self::Kinematics(_) | Self::Clip(_) => {
-                ErrorKind::BadInput
-            }
+            Self::Onnx(_)
+            | Self::Policy(_)
+            | Self::Setup(_)
+            | Self::Kinematics(_)
+            | Self::Clip(_)
+            | Self::Motion(_) => ErrorKind::BadInput,
             Self::Telemetry(_) => ErrorKind::Io,
         }
     }

@@ -21,6 +21,21 @@ use crate::error::PlayError;
 use policy::onnx::OnnxModel;
 use policy::{PolicyLayout, Term};
 
+/// Why the motion a tracking export carries could not be found or read.
+#[derive(Debug, thiserror::Error)]
+pub enum MotionError {
+    /// The export's outputs or the policy's terms do not hold a motion as its convention says
+    /// (the message names the export, the output and what was expected).
+    #[error("{0}")]
+    Export(String),
+    /// ONNX Runtime failed on a call.
+    #[error(transparent)]
+    Onnx(#[from] policy::onnx::OnnxError),
+    /// The robot's model could not place the motion's root.
+    #[error(transparent)]
+    Kinematics(#[from] world::KinematicsError),
+}
+
 /// The transform that puts a reference onto the robot: a turn about the vertical through the
 /// reference's first anchor position, then a horizontal shift.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -194,51 +209,51 @@ impl EmbeddedMotion {
         model: &mut OnnxModel,
         layout: &PolicyLayout,
         start_step: usize,
-    ) -> Result<Option<Self>, String> {
+    ) -> Result<Option<Self>, MotionError> {
         let names: Vec<&str> = model.extra_outputs().iter().map(|o| o.0.as_str()).collect();
         let convention = MotionConvention::of(&names);
         let wanted = convention.outputs();
         let present: Vec<Option<usize>> = wanted.iter().map(|o| names.iter().position(|n| n == o)).collect();
         if present.iter().all(Option::is_none) {
             if start_step != 0 {
-                return Err(format!(
+                return Err(MotionError::Export(format!(
                     "--start-step {start_step}: {} carries no motion",
                     layout.onnx_path.display()
-                ));
+                )));
             }
             return Ok(None);
         }
         let mut outputs = [0; 4];
         for (k, p) in present.iter().enumerate() {
             outputs[k] = p.ok_or_else(|| {
-                format!(
+                MotionError::Export(format!(
                     "{} has motion outputs but not {:?} (a tracking export has {})",
                     layout.onnx_path.display(),
                     wanted[k],
                     wanted.join(", ")
-                )
+                ))
             })?;
         }
         let shape = |k: usize| &model.extra_outputs()[outputs[k]].1;
         let j = layout.robot_index.len();
         let b = layout.manifest.motion_bodies.len();
         if convention == MotionConvention::Holosoma && b != 1 {
-            return Err(format!(
+            return Err(MotionError::Export(format!(
                 "{}: a holosoma export returns one body's pose (the anchor), but the policy names {b} motion \
                  bodies",
                 layout.onnx_path.display()
-            ));
+            )));
         }
         let expect = convention.shapes(j, b);
         for (k, want) in expect.iter().enumerate() {
             if shape(k) != want {
-                return Err(format!(
+                return Err(MotionError::Export(format!(
                     "{}: output {} has shape {:?}, but the policy has {j} joints and {b} motion bodies \
                      (body_names) so {want:?} is expected",
                     layout.onnx_path.display(),
                     wanted[k],
                     shape(k)
-                ));
+                )));
             }
         }
         let time_step_at = layout
@@ -247,10 +262,10 @@ impl EmbeddedMotion {
             .find(|s| matches!(s.term, Term::TimeStep(_)))
             .map(|s| s.range.start)
             .ok_or_else(|| {
-                format!(
+                MotionError::Export(format!(
                     "{} carries a motion but the policy has no time_step term to choose its frame",
                     layout.onnx_path.display()
-                )
+                ))
             })?;
         let mut motion = Self {
             convention,
@@ -264,20 +279,20 @@ impl EmbeddedMotion {
         };
         motion.frames = motion.count_frames(model)?;
         if start_step >= motion.frames {
-            return Err(format!(
+            return Err(MotionError::Export(format!(
                 "--start-step {start_step}: the motion {} carries has {} frames",
                 layout.onnx_path.display(),
                 motion.frames
-            ));
+            )));
         }
         Ok(Some(motion))
     }
 
     /// Runs the model on a zero observation for frame `step`; its outputs then hold that frame.
-    pub fn seek(&mut self, model: &mut OnnxModel, step: usize) -> Result<(), String> {
+    pub fn seek(&mut self, model: &mut OnnxModel, step: usize) -> Result<(), MotionError> {
         self.obs.fill(0.0);
         self.obs[self.time_step_at] = step as f32;
-        model.run(&self.obs, &mut self.actions).map_err(|e| e.to_string())
+        Ok(model.run(&self.obs, &mut self.actions)?)
     }
 
     /// The frame the last call of `model` returned.
@@ -291,7 +306,7 @@ impl EmbeddedMotion {
         }
     }
 
-    fn snapshot(&mut self, model: &mut OnnxModel, step: usize) -> Result<Vec<f32>, String> {
+    fn snapshot(&mut self, model: &mut OnnxModel, step: usize) -> Result<Vec<f32>, MotionError> {
         self.seek(model, step)?;
         let f = self.frame(model);
         Ok([f.joint_pos, f.joint_vel, f.body_pos, f.body_quat].concat())
@@ -301,7 +316,7 @@ impl EmbeddedMotion {
     /// the first step from which every later step returns the same frame (found by bisection
     /// against a step far beyond any motion). A motion that ends on a frame held exactly still
     /// counts that hold once: the frames it drops are identical to the last.
-    fn count_frames(&mut self, model: &mut OnnxModel) -> Result<usize, String> {
+    fn count_frames(&mut self, model: &mut OnnxModel) -> Result<usize, MotionError> {
         let last = self.snapshot(model, MAX_FRAMES)?;
         let (mut lo, mut hi) = (0usize, MAX_FRAMES);
         if self.snapshot(model, 0)? == last {
@@ -317,7 +332,9 @@ impl EmbeddedMotion {
             }
         }
         if hi >= MAX_FRAMES {
-            return Err(format!("the embedded motion is longer than {MAX_FRAMES} frames"));
+            return Err(MotionError::Export(format!(
+                "the embedded motion is longer than {MAX_FRAMES} frames"
+            )));
         }
         Ok(hi + 1)
     }
@@ -330,7 +347,7 @@ impl EmbeddedMotion {
         model: &mut OnnxModel,
         layout: &PolicyLayout,
         robot: &Robot,
-    ) -> Result<Reference, String> {
+    ) -> Result<Reference, MotionError> {
         let n = robot.config.joints.len();
         let ticks = self.frames - self.start_step;
         let bodies = &layout.manifest.motion_bodies;
@@ -373,25 +390,25 @@ impl EmbeddedMotion {
                 qd[r] = f64::from(f.joint_vel[p]);
             }
             if let Some(bad) = q.iter().chain(&qd).position(|v| !v.is_finite()) {
-                return Err(format!(
+                return Err(MotionError::Export(format!(
                     "frame {step} of the embedded motion has a non-finite joint value ({bad})"
-                ));
+                )));
             }
             for (b, name) in bodies.iter().enumerate() {
                 let q = &f.body_quat[4 * b..4 * b + 4];
                 let norm = q.iter().map(|v| f64::from(*v).powi(2)).sum::<f64>().sqrt();
                 if !((1.0 - UNIT_TOLERANCE)..=(1.0 + UNIT_TOLERANCE)).contains(&norm) {
-                    return Err(format!(
+                    return Err(MotionError::Export(format!(
                         "frame {step} of the embedded motion: body {name}'s {} {q:?} has norm {norm:.4}, \
                          not a unit quaternion",
                         self.convention.outputs()[3]
-                    ));
+                    )));
                 }
                 let pose = f.body_pose(b);
                 if pose.iter().any(|v| !v.is_finite()) {
-                    return Err(format!(
+                    return Err(MotionError::Export(format!(
                         "frame {step} of the embedded motion: body {name} has a non-finite or zero pose"
-                    ));
+                    )));
                 }
                 reference.motion_poses.push(pose);
             }
@@ -411,11 +428,13 @@ impl EmbeddedMotion {
                 .step_by(bodies.len())
                 .copied()
                 .collect();
-            reference.root = crate::fk::root_poses_from_body(robot, &reference, &bodies[a], &anchor)
-                .map_err(|e| e.to_string())?;
+            reference.root = crate::fk::root_poses_from_body(robot, &reference, &bodies[a], &anchor)?;
         }
         if let Some(m) = reference.root.first().and_then(|r| crate::clip::upside_down(*r)) {
-            return Err(format!("the motion {} carries: {m}", layout.onnx_path.display()));
+            return Err(MotionError::Export(format!(
+                "the motion {} carries: {m}",
+                layout.onnx_path.display()
+            )));
         }
         self.seek(model, self.start_step)?;
         Ok(reference)
@@ -535,9 +554,7 @@ pub fn load_reference(
     let mut model = OnnxModel::load(&layout.onnx_path)?;
     layout.bind_model(model.inputs(), model.output().1)?;
     let layout = &*layout;
-    if let Some(mut motion) =
-        EmbeddedMotion::find(&mut model, layout, start_step).map_err(PlayError::Setup)?
-    {
+    if let Some(mut motion) = EmbeddedMotion::find(&mut model, layout, start_step)? {
         if let Some(c) = clip.filter(|c| !same_file(c, &layout.onnx_path)) {
             return Err(PlayError::Setup(format!(
                 "{} carries its own motion; leave out the clip {} (or export the policy without one)",
@@ -545,7 +562,7 @@ pub fn load_reference(
                 c.display()
             )));
         }
-        let reference = motion.read(&mut model, layout, robot).map_err(PlayError::Setup)?;
+        let reference = motion.read(&mut model, layout, robot)?;
         if let Some((body, error, frame)) = worst_body_mismatch(robot, &reference)?
             && error > MODEL_MISMATCH_M
         {

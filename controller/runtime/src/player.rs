@@ -235,8 +235,7 @@ impl<L: RobotLink> Player<L> {
         }
         let body_width = 3 * reference.bodies.len();
         layout.bind_model(model.inputs(), model.output().1)?;
-        let mut embedded =
-            EmbeddedMotion::find(&mut model, &layout, options.start_step).map_err(PlayError::Setup)?;
+        let mut embedded = EmbeddedMotion::find(&mut model, &layout, options.start_step)?;
         if let Some(e) = &embedded
             && reference.len() != e.frames - e.start_step
         {
@@ -336,7 +335,7 @@ impl<L: RobotLink> Player<L> {
         let tracked_bodies = reference.motion_bodies.len();
         if let Some(e) = &mut embedded {
             // The first tick observes the first frame: one call before anything moves.
-            e.seek(&mut model, e.start_step).map_err(PlayError::Setup)?;
+            e.seek(&mut model, e.start_step)?;
         }
         let mut cursor = ReferenceCursor::new(reference, frames, body_width, &default_q, &options, dt);
         if let Some(k) = &keypoints {
