@@ -17,6 +17,7 @@ use robots::{Robot, spatial};
 use crate::action::ActionMapper;
 use crate::clip::Reference;
 use crate::keypoints::track::KeypointTrack;
+use crate::lifecycle::{Lifecycle, Machine};
 use crate::metrics::RunMetrics;
 pub use crate::metrics::{Histogram, PlaySummary};
 use crate::motion::{Alignment, EmbeddedMotion};
@@ -25,26 +26,13 @@ pub use crate::options::{EndMode, HarnessPhase, PlayOptions};
 use crate::reference::{LiveSource, ReferenceCursor};
 use crate::safety::{Cause, Mode, SafetyMonitor, Transition, govern_position, target_range, tilt_of};
 use crate::telemetry::{TelemetrySink, TickRecord, TickView};
+use crate::world_stage::WorldStage;
 use policy::onnx::OnnxModel;
 use policy::{ObsInputs, ObservationBuilder, PolicyLayout, Term};
 use world::RobotKinematics;
-use world::estimator::{Estimate, Estimator, EstimatorConfig, LegKinematics, MAX_FEET};
+use world::estimator::{Estimate, Estimator, EstimatorConfig};
 
 pub use crate::error::PlayError;
-
-/// Ticks without an IMU sample the estimator still counts as fresh.
-const IMU_FRESH_TICKS: u32 = 2;
-
-/// The state machine's place.
-#[derive(Debug)]
-struct Machine {
-    mode: Mode,
-    /// Ticks in the current mode.
-    ticks: u64,
-    transitions: Vec<Transition>,
-    /// The cause that started the current stop, if any.
-    pending: Option<Cause>,
-}
 
 /// The controller of one run.
 #[derive(Debug)]
@@ -66,34 +54,6 @@ pub struct Player<L: RobotLink> {
     policy: PolicyStage,
 }
 
-/// The world stage of a run: where the robot is, from its kinematics and the estimator or the
-/// simulation's ground truth, and its keypoints through the cameras.
-#[derive(Debug)]
-struct WorldStage {
-    /// The robot's anchor, bodies, feet and root rate through its model (when it has feet or
-    /// the policy needs them).
-    kinematics: Option<RobotKinematics>,
-    /// The state estimator, for a robot with feet.
-    estimator: Option<Estimator>,
-    /// 2D keypoint references, when the run has them; and whether this tick measured them.
-    keypoints: Option<KeypointTrack>,
-    keypoints_measured: bool,
-    /// Its estimate this tick.
-    estimate: Estimate,
-    /// The robot's place in the world as the observation reads it: the estimate, or the
-    /// simulation's ground truth with `--estimator ground-truth`; and whether it is usable.
-    observed: GroundTruth,
-    world_valid: bool,
-    /// The policy observes the robot's place in the world (decided once, at start).
-    reads_world: bool,
-    /// Ground truth (simulation) into the estimate's world: where the estimator started, for
-    /// the tracking metrics, which compare the true robot with a reference placed by the
-    /// estimate.
-    truth_to_world: Alignment,
-    truth_mapped: bool,
-    truth: GroundTruth,
-}
-
 /// The reference stage of a run: where the reference is this tick, and how the robot's tracked
 /// bodies and anchor compare with it.
 #[derive(Debug)]
@@ -108,32 +68,6 @@ struct ReferenceStage {
     body_errors: Vec<f64>,
     /// Whether `body_errors` holds this run's errors (ground truth and tracked bodies).
     has_body_errors: bool,
-}
-
-/// The lifecycle of a run: modes and their transitions, the safety monitor, the stop and e-stop
-/// flags, how a run starts (the harness) and where a stop takes the robot.
-#[derive(Debug)]
-struct Lifecycle {
-    stop: Arc<AtomicBool>,
-    estop: Option<Arc<AtomicBool>>,
-    /// The stop flag as this tick's checks saw it (recorded, so a replay sees the same).
-    stop_seen: bool,
-    machine: Machine,
-    monitor: SafetyMonitor,
-    start_pose: Vec<f64>,
-    /// Where a soft stop goes (robot order): the default pose, or the sit keyframe.
-    stop_pose: Vec<f64>,
-    /// The tick the robot started standing after a soft stop (`OnStop::Stay`).
-    standing_since: Option<u64>,
-    /// The soft stop under way began with the policy in control (it keeps it).
-    stop_under_policy: bool,
-    /// The mirror's crane, when the robot hangs in its harness: raised, it takes the weight.
-    harness_hoist: Option<Arc<AtomicBool>>,
-    /// The operator's word that the harness has set the robot on its feet (hardware, or a
-    /// rehearsal on the mirror): until it comes, the motion waits on its first frame.
-    lowered: Option<Arc<AtomicBool>>,
-    /// The harness start's phase at the last tick.
-    harness_phase: HarnessPhase,
 }
 
 /// The policy stage of a run: the contract, the model, the observation and its buffers (policy
@@ -769,7 +703,12 @@ impl<L: RobotLink> Player<L> {
             let p = self.world.truth.root_pose;
             self.metrics.fell |= in_control && tilt_of([p[3], p[4], p[5], p[6]]) > self.options.limits.tilt;
         }
-        self.estimate_world(has_truth);
+        self.world.update(
+            &self.state,
+            has_truth,
+            self.options.estimator == EstimatorKind::GroundTruth,
+            &mut self.metrics,
+        );
         self.advance(has_truth);
         let compute = c0.elapsed();
         self.metrics.compute.record(compute);
@@ -918,78 +857,6 @@ impl<L: RobotLink> Player<L> {
             }
             Mode::Damped => self.damping_targets(),
         }
-    }
-
-    /// The robot's place in the world this tick: the kinematics posed from the measured joints
-    /// and IMU, the estimator fed every IMU sample since the last tick and corrected by the legs,
-    /// then what the observation reads — the estimate, or ground truth when the run asks for it.
-    fn estimate_world(&mut self, has_truth: bool) {
-        let Some(k) = &mut self.world.kinematics else {
-            self.world.world_valid = has_truth;
-            if has_truth {
-                self.world.observed.clone_from(&self.world.truth);
-            }
-            return;
-        };
-        k.update(self.state.quat, &self.state.q, &self.state.qd, None);
-        if let Some(e) = &mut self.world.estimator {
-            for sample in &self.state.imu_samples {
-                e.propagate(sample);
-            }
-            let mut legs = LegKinematics::default();
-            for f in 0..k.feet().min(MAX_FEET) {
-                legs.position[f] = k.foot_in_root(f);
-                (legs.contact[f], legs.contact_velocity[f]) = k.foot_contact(f);
-                legs.sole_depth[f] = k.sole_depth(f);
-                legs.load[f] = k.foot_load(f, legs.contact[f], &self.state.tau);
-            }
-            // Foot switches where the robot has them (robot.toml [[contacts]], one per foot).
-            if self.state.foot_switches.len() == k.feet() && k.feet() <= MAX_FEET {
-                let mut switches = [false; MAX_FEET];
-                switches[..k.feet()].copy_from_slice(&self.state.foot_switches);
-                legs.switches = Some(switches);
-            }
-            self.world.estimate = e.correct(&legs, self.state.imu_missed <= IMU_FRESH_TICKS);
-        }
-        let ground_truth = self.options.estimator == EstimatorKind::GroundTruth;
-        if ground_truth || self.world.estimator.is_none() {
-            self.world.world_valid = has_truth;
-            if has_truth {
-                self.world.observed.clone_from(&self.world.truth);
-            }
-        } else {
-            let (p, q) = (self.world.estimate.position, k.root_rotation());
-            self.world.observed.root_pose = [p[0], p[1], p[2], q[0], q[1], q[2], q[3]];
-            self.world.observed.base_lin_vel = self.world.estimate.velocity_base;
-            for (c, e) in self
-                .world
-                .observed
-                .foot_contacts
-                .iter_mut()
-                .zip(&self.world.estimate.contacts)
-            {
-                *c = *e;
-            }
-            self.world.observed.simulation_failed = false;
-            if has_truth && self.world.estimate.valid && !self.world.truth_mapped {
-                self.world.truth_to_world =
-                    Alignment::new(self.world.truth.root_pose, self.world.observed.root_pose, true);
-                self.world.truth_mapped = true;
-            }
-            if has_truth && self.world.estimate.valid {
-                let t = self.world.truth_to_world.apply(self.world.truth.root_pose);
-                let velocity = spatial::quat_rotate([t[3], t[4], t[5], t[6]], self.world.truth.base_lin_vel);
-                self.metrics.add_estimate(
-                    &self.world.estimate,
-                    [t[0], t[1], t[2]],
-                    velocity,
-                    &self.world.truth.foot_contacts,
-                );
-            }
-            self.world.world_valid = self.world.estimate.valid;
-        }
-        let p = self.world.observed.root_pose;
-        k.set_root_position(self.world.world_valid.then_some([p[0], p[1], p[2]]));
     }
 
     /// The policy takes control: from the default pose as its last action, the reference from
