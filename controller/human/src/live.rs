@@ -12,9 +12,7 @@ use std::time::Instant;
 
 use crossbeam::queue::ArrayQueue;
 
-/// Values of the `tracker_poses` observation term for three devices (headset, left and right
-/// controller): position (3) and the first two columns of the rotation (6) each.
-pub const TRACKER_VALUES: usize = 27;
+pub use policy::TRACKER_VALUES;
 
 /// A reference computed live by another thread: the frame to track now, robot joint order, and
 /// when the input it came from arrived.

@@ -6,8 +6,8 @@
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 
-use human::commands::CommandSpec;
-use human::live::TRACKER_VALUES;
+use crate::TRACKER_VALUES;
+use crate::commands::CommandSpec;
 
 use robots::Robot;
 

@@ -5,6 +5,7 @@
 //! tick without allocating ([`observation`]), and ONNX inference ([`onnx`], the pinned runtime
 //! found by [`native`]).
 
+pub mod commands;
 pub mod contract;
 pub mod export;
 pub mod holosoma;
@@ -14,3 +15,7 @@ pub mod onnx;
 
 pub use contract::*;
 pub use observation::*;
+
+/// Values of the `tracker_poses` observation term for three devices (headset, left and right
+/// controller): position (3) and the first two columns of the rotation (6) each.
+pub const TRACKER_VALUES: usize = 27;

@@ -3,7 +3,7 @@
 //! ([`ObservationBuilder`]), and the geometry terms share (projected gravity, poses in the robot's
 //! heading frame, the motion anchor's position and orientation in the robot anchor's frame).
 
-use human::live::TRACKER_VALUES;
+use crate::TRACKER_VALUES;
 use robots::spatial;
 
 use crate::contract::{HistoryOrder, PolicyLayout, Term, TermSlot, Trig};
