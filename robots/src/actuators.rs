@@ -4,7 +4,7 @@
 //! saturation, and an actuation delay. Names and laws as mjlab and Isaac Lab document their
 //! actuator configurations (`IdealPDActuator`, `ImplicitActuator`, `DCMotor`, `DelayedPDActuator`).
 
-use crate::config::{BusKind, JointConfig, RobotConfig, matches_pattern};
+use crate::config::{BusKind, JointConfig, RobotConfig, check_range, matches_pattern};
 
 /// The law that makes a joint's torque from its command.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
@@ -99,6 +99,12 @@ pub struct ActuatorOf {
 pub const MAX_DELAY_STEPS: u32 = 100;
 
 impl ActuatorOf {
+    /// The effort limit in force, N·m at the joint: robot.toml's, never beyond the motor's
+    /// `motor_range` (its torque clamp through the gearing).
+    pub fn limit(&self, motor_range: f64) -> f64 {
+        self.effort_limit.map_or(motor_range, |e| e.min(motor_range))
+    }
+
     /// The DC motor's torque bounds at joint speed `qd` (rad/s), within `limit`: `(low, high)`.
     /// Other laws: `(-limit, limit)`.
     pub fn torque_bounds(&self, qd: f64, limit: f64) -> (f64, f64) {
@@ -151,19 +157,7 @@ impl ActuatorGroup {
                 ("saturation_effort", a.saturation_effort, 0.0, 10_000.0, "N·m"),
                 ("velocity_limit", a.velocity_limit, 0.1, 1000.0, "rad/s"),
             ] {
-                if let Some(v) = value
-                    && !(v.is_finite() && (lo..=hi).contains(&v))
-                {
-                    return Err((
-                        at(field),
-                        format!(
-                            "{} {unit} is outside [{}, {}]",
-                            crate::num(v),
-                            crate::num(lo),
-                            crate::num(hi)
-                        ),
-                    ));
-                }
+                check_range(&at(field), value, lo, hi, unit)?;
             }
             if let Some([lo, hi]) = a.delay_steps
                 && (lo > hi || hi > MAX_DELAY_STEPS)

@@ -450,14 +450,7 @@ impl JointDynamics {
                 ("frictionloss", d.frictionloss, 1000.0, "N·m"),
                 ("damping", d.damping, 1000.0, "N·m·s/rad"),
             ] {
-                if let Some(v) = value
-                    && !(v.is_finite() && (0.0..=hi).contains(&v))
-                {
-                    return Err((
-                        at(field),
-                        format!("{} {unit} is outside [0, {}]", crate::num(v), crate::num(hi)),
-                    ));
-                }
+                check_range(&at(field), value, 0.0, hi, unit)?;
             }
         }
         Ok(())
@@ -537,6 +530,29 @@ pub struct TrackingRule {
     pub error: f64,
     /// For longer than this, s (0.02–10).
     pub seconds: f64,
+}
+
+/// An optional field of robot.toml within `[lo, hi]` (finite), or `(field, message)` naming its
+/// value and the range.
+pub(crate) fn check_range(
+    field: &str,
+    value: Option<f64>,
+    lo: f64,
+    hi: f64,
+    unit: &str,
+) -> Result<(), (String, String)> {
+    match value {
+        Some(v) if !(v.is_finite() && (lo..=hi).contains(&v)) => Err((
+            field.to_owned(),
+            format!(
+                "{} {unit} is outside [{}, {}]",
+                crate::num(v),
+                crate::num(lo),
+                crate::num(hi)
+            ),
+        )),
+        _ => Ok(()),
+    }
 }
 
 /// Whether `name` matches `pattern`, where `*` stands for any run of characters.

@@ -85,10 +85,7 @@ impl MirrorJoint {
     fn stepped_torque(&self, law: &PdLaw, q: f64, qd: f64) -> f64 {
         let to_joint = self.direction * self.gear;
         let motor = law.torque(self.zero_offset + to_joint * q, to_joint * qd);
-        let limit = self
-            .law
-            .effort_limit
-            .map_or(law.limit * self.gear, |e| e.min(law.limit * self.gear));
+        let limit = self.law.limit(law.limit * self.gear);
         let (low, high) = self.law.torque_bounds(qd, limit);
         (to_joint * motor).clamp(low, high) * self.strength
     }

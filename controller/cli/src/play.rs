@@ -646,7 +646,7 @@ fn print_actuators(robot: &Robot) {
                 let range = robot
                     .mit_model(&j.model)
                     .map_or(f64::INFINITY, |m| m.t_max * j.gear);
-                let limit = a.effort_limit.map_or(range, |e| e.min(range));
+                let limit = a.limit(range);
                 let curve = match (a.saturation_effort, a.velocity_limit) {
                     (Some(stall), Some(speed)) if model == robots::ActuatorModel::DcMotor => {
                         format!(", torque–speed line {stall} N·m at rest to 0 at {speed} rad/s")
