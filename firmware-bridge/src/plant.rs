@@ -15,13 +15,29 @@ pub trait MotorPlant {
 
 /// Checks the figures a model table gives a servo's motor (nominal voltage, stall torque and
 /// current, no-load speed): each a positive number; the message names the model and the field.
-pub fn check_motor_figures(model: &str, figures: [(&str, f64); 4]) -> Result<(), String> {
-    for (field, v) in figures {
-        if !(v.is_finite() && v > 0.0) {
-            return Err(format!("[{model}] {field} = {v}: must be a positive number"));
+pub fn check_motor_figures(model: &str, figures: [(&'static str, f64); 4]) -> Result<(), BadMotorFigure> {
+    for (field, value) in figures {
+        if !(value.is_finite() && value > 0.0) {
+            return Err(BadMotorFigure {
+                model: model.to_owned(),
+                field,
+                value,
+            });
         }
     }
     Ok(())
+}
+
+/// A model table's motor figure that is not a positive number.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("[{model}] {field} = {value}: must be a positive number")]
+pub struct BadMotorFigure {
+    /// The servo model.
+    pub model: String,
+    /// The figure's field.
+    pub field: &'static str,
+    /// Its value.
+    pub value: f64,
 }
 
 /// A brushed DC motor with its gearbox, from the figures servo data sheets give: the constants

@@ -1076,6 +1076,16 @@ pub struct RetargetConfig {
     pub pairs: Vec<BodyPair>,
 }
 
+/// Gains from outside robot.toml (a policy manifest) that the joint's actuator cannot hold.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{joint}: {message}")]
+pub struct GainsOutOfRange {
+    /// The joint.
+    pub joint: String,
+    /// The actuator's ranges against the gains.
+    pub message: String,
+}
+
 /// A robot description that failed to load: the file, the place in it, and what is wrong.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error("{file}: {place}: {message}")]
@@ -1115,10 +1125,7 @@ impl Robot {
     /// robot.toml's `[[joint_dynamics]]` and `[sim]` applied (the file itself untouched).
     pub fn spec(&self) -> Result<mujoco_rs::prelude::MjSpec, mjcf::MujocoError> {
         let mut spec = mjcf::load_spec(&self.mjcf_path)?;
-        mjcf::apply_trainer_settings(&mut spec, &self.config).map_err(|reason| mjcf::MujocoError::Model {
-            path: self.mjcf_path.display().to_string(),
-            reason,
-        })?;
+        mjcf::apply_trainer_settings(&mut spec, &self.config)?;
         Ok(spec)
     }
 
@@ -1140,7 +1147,7 @@ impl Robot {
             place: place.to_owned(),
             message,
         };
-        let text = crate::read_text(path).map_err(|m| err("file", m))?;
+        let text = crate::read_text(path).map_err(|m| err("file", m.to_string()))?;
         Self::from_str(path, &text)
     }
 
@@ -1421,7 +1428,7 @@ impl Robot {
 
     /// Whether `kp`/`kd` (joint side) fit `j`'s actuator: the error names the actuator's ranges.
     /// For gains that come from elsewhere (a policy manifest) than robot.toml.
-    pub fn check_gains(&self, j: &JointConfig, kp: f64, kd: f64) -> Result<(), String> {
+    pub fn check_gains(&self, j: &JointConfig, kp: f64, kd: f64) -> Result<(), GainsOutOfRange> {
         let Some(bus) = self.bus(&j.bus) else {
             return Ok(());
         };
@@ -1433,7 +1440,10 @@ impl Robot {
             &self.servo_models,
             &self.feetech_models,
         ) {
-            Err(("kp", message)) => Err(message),
+            Err(("kp", message)) => Err(GainsOutOfRange {
+                joint: j.name.clone(),
+                message,
+            }),
             _ => Ok(()),
         }
     }

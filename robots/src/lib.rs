@@ -13,11 +13,11 @@ pub mod spatial;
 
 pub use actuators::{ActuatorGroup, ActuatorModel, ActuatorOf};
 pub use config::{
-    BodyPair, BusConfig, BusKind, BusTiming, FrictionCone, HarnessConfig, HumanBody, IMU_SENSOR_KINDS,
-    ImuConfig, ImuSensorNames, Integrator, Interpolation, JointConfig, JointDynamics, JointDynamicsOf,
-    KeypointFrame, MAX_HARNESS_LIFT_M, MitModelConfig, OrientationCompare, PositionTargets, RetargetConfig,
-    Robot, RobotConfig, RobotError, SafetyConfig, SimConfig, Solver, StartConfig, StartMode, TrackingRule,
-    default_command_timeout, matches_pattern,
+    BodyPair, BusConfig, BusKind, BusTiming, FrictionCone, GainsOutOfRange, HarnessConfig, HumanBody,
+    IMU_SENSOR_KINDS, ImuConfig, ImuSensorNames, Integrator, Interpolation, JointConfig, JointDynamics,
+    JointDynamicsOf, KeypointFrame, MAX_HARNESS_LIFT_M, MitModelConfig, OrientationCompare, PositionTargets,
+    RetargetConfig, Robot, RobotConfig, RobotError, SafetyConfig, SimConfig, Solver, StartConfig, StartMode,
+    TrackingRule, default_command_timeout, matches_pattern,
 };
 
 /// A file that could not be read, parsed or written, and what was wrong with it.
@@ -32,10 +32,10 @@ pub struct FileError {
 
 impl FileError {
     /// `message` about `path`.
-    pub fn new(path: &std::path::Path, message: impl Into<String>) -> Self {
+    pub fn new(path: &std::path::Path, message: impl std::fmt::Display) -> Self {
         Self {
             path: path.to_path_buf(),
-            message: message.into(),
+            message: message.to_string(),
         }
     }
 }
@@ -45,22 +45,39 @@ pub const MAX_TEXT_FILE_BYTES: u64 = 256 << 20;
 
 /// Reads a text input file: refused unless it is a regular file of at most
 /// [`MAX_TEXT_FILE_BYTES`] (a device such as `/dev/zero`, a folder or a FIFO would hang or exhaust
-/// memory), and valid UTF-8. The message says what is wrong, without the path (callers name it).
-pub fn read_text(path: &std::path::Path) -> Result<String, String> {
+/// memory), and valid UTF-8. The error says what is wrong, without the path (callers name it).
+pub fn read_text(path: &std::path::Path) -> Result<String, ReadError> {
     check_regular_file(path)?;
-    std::fs::read_to_string(path).map_err(|e| format!("cannot read: {e}"))
+    std::fs::read_to_string(path).map_err(ReadError::Unreadable)
 }
 
 /// Refuses anything but a regular file of at most [`MAX_TEXT_FILE_BYTES`].
-pub fn check_regular_file(path: &std::path::Path) -> Result<(), String> {
-    let meta = std::fs::metadata(path).map_err(|e| format!("cannot read: {e}"))?;
+pub fn check_regular_file(path: &std::path::Path) -> Result<(), ReadError> {
+    let meta = std::fs::metadata(path).map_err(ReadError::Unreadable)?;
     if !meta.is_file() {
-        return Err("not a regular file".into());
+        return Err(ReadError::NotRegular);
     }
     if meta.len() > MAX_TEXT_FILE_BYTES {
-        return Err(format!("{} bytes: larger than {MAX_TEXT_FILE_BYTES}", meta.len()));
+        return Err(ReadError::TooLarge { bytes: meta.len() });
     }
     Ok(())
+}
+
+/// Why an input file was not read (the path is the caller's to name).
+#[derive(Debug, thiserror::Error)]
+pub enum ReadError {
+    /// The system refused (missing, no permission) or the text is not UTF-8.
+    #[error("cannot read: {0}")]
+    Unreadable(std::io::Error),
+    /// A folder, device or pipe.
+    #[error("not a regular file")]
+    NotRegular,
+    /// Larger than [`MAX_TEXT_FILE_BYTES`].
+    #[error("{bytes} bytes: larger than {MAX_TEXT_FILE_BYTES}")]
+    TooLarge {
+        /// The file's size.
+        bytes: u64,
+    },
 }
 
 /// A number as a person reads it in an error: plain when ordinary, in exponent form when huge or

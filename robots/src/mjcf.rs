@@ -39,6 +39,14 @@ pub enum MujocoError {
         /// MuJoCo's own message, or what is wrong with a file.
         reason: String,
     },
+    /// robot.toml maps a joint to an MJCF joint the model lacks.
+    #[error("joint {joint}: the model has no joint {mjcf_joint:?}")]
+    MissingJoint {
+        /// The joint in robot.toml.
+        joint: String,
+        /// The MJCF joint it names.
+        mjcf_joint: String,
+    },
 }
 
 /// `mj_version()` of the loaded library (3017000 for 3.17.0).
@@ -73,7 +81,7 @@ pub fn load_model(path: &Path) -> Result<MjModel, MujocoError> {
         path: path.display().to_string(),
         reason,
     };
-    check_files(path).map_err(model_error)?;
+    check_files(path)?;
     MjModel::from_xml(path).map_err(|e| model_error(e.to_string()))
 }
 
@@ -85,7 +93,7 @@ pub fn load_spec(path: &Path) -> Result<mujoco_rs::prelude::MjSpec, MujocoError>
         path: path.display().to_string(),
         reason,
     };
-    check_files(path).map_err(model_error)?;
+    check_files(path)?;
     mujoco_rs::prelude::MjSpec::from_xml(path).map_err(|e| model_error(e.to_string()))
 }
 
@@ -95,7 +103,7 @@ pub fn load_spec(path: &Path) -> Result<mujoco_rs::prelude::MjSpec, MujocoError>
 pub fn apply_trainer_settings(
     spec: &mut mujoco_rs::prelude::MjSpec,
     config: &crate::RobotConfig,
-) -> Result<(), String> {
+) -> Result<(), MujocoError> {
     for j in &config.joints {
         let d = config.joint_dynamics_of(&j.name);
         if d == crate::JointDynamicsOf::default() {
@@ -103,7 +111,10 @@ pub fn apply_trainer_settings(
         }
         let joint = spec
             .joint_mut(&j.mjcf_joint)
-            .ok_or_else(|| format!("joint {}: the model has no joint {:?}", j.name, j.mjcf_joint))?;
+            .ok_or_else(|| MujocoError::MissingJoint {
+                joint: j.name.clone(),
+                mjcf_joint: j.mjcf_joint.clone(),
+            })?;
         if let Some(a) = d.armature {
             joint.set_armature(a);
         }
@@ -213,7 +224,11 @@ const MAX_INCLUDE_DEPTH: usize = 16;
 /// Checks that `main` and every file it includes or names as an asset are regular files of at
 /// most [`crate::MAX_TEXT_FILE_BYTES`]. Paths resolve as MuJoCo resolves them: includes against the main file's
 /// folder, assets against `meshdir`/`texturedir` (else `assetdir`, else the main file's folder).
-fn check_files(main: &Path) -> Result<(), String> {
+fn check_files(main: &Path) -> Result<(), MujocoError> {
+    let refused = |reason: String| MujocoError::Model {
+        path: main.display().to_string(),
+        reason,
+    };
     let folder = main.parent().unwrap_or(Path::new("."));
     let mut xml = vec![(main.to_path_buf(), 0usize)];
     let mut assets: Vec<(PathBuf, &'static str)> = Vec::new();
@@ -224,15 +239,18 @@ fn check_files(main: &Path) -> Result<(), String> {
             0 => e,
             _ => format!("included {}: {e}", file.display()),
         };
-        let text = crate::read_text(&file).map_err(within)?;
-        let doc = roxmltree::Document::parse(&text).map_err(|e| within(format!("not valid XML: {e}")))?;
+        let text = crate::read_text(&file).map_err(|e| refused(within(e.to_string())))?;
+        let doc =
+            roxmltree::Document::parse(&text).map_err(|e| refused(within(format!("not valid XML: {e}"))))?;
         for node in doc.descendants().filter(roxmltree::Node::is_element) {
             let attr = |a: &str| node.attribute(a).map(PathBuf::from);
             match node.tag_name().name() {
                 "include" => {
                     let Some(f) = attr("file") else { continue };
                     if depth + 1 > MAX_INCLUDE_DEPTH {
-                        return Err(within(format!("includes nest deeper than {MAX_INCLUDE_DEPTH}")));
+                        return Err(refused(within(format!(
+                            "includes nest deeper than {MAX_INCLUDE_DEPTH}"
+                        ))));
                     }
                     xml.push((folder.join(f), depth + 1));
                 }
@@ -258,7 +276,8 @@ fn check_files(main: &Path) -> Result<(), String> {
             Some(d) => folder.join(d).join(&file),
             None => folder.join(&file),
         };
-        crate::check_regular_file(&path).map_err(|e| format!("{kind} file {}: {e}", path.display()))?;
+        crate::check_regular_file(&path)
+            .map_err(|e| refused(format!("{kind} file {}: {e}", path.display())))?;
     }
     Ok(())
 }

@@ -21,11 +21,8 @@ pub struct ObsTrace {
 
 /// Reads the observations of a recorded run's Running ticks, and what the run was made from.
 pub fn trace_from_run(path: &Path) -> Result<(ObsTrace, RunMetadata), AnalysisError> {
-    run_trace(path).map_err(|m| AnalysisError::file(path, m))
-}
-
-fn run_trace(path: &Path) -> Result<(ObsTrace, RunMetadata), String> {
-    let bytes = crate::recording::read(path)?;
+    let unreadable = |e| AnalysisError::recording(path, e);
+    let bytes = crate::recording::read(path).map_err(unreadable)?;
     let mut trace = ObsTrace {
         steps: Vec::new(),
         ticks: Vec::new(),
@@ -39,21 +36,23 @@ fn run_trace(path: &Path) -> Result<(ObsTrace, RunMetadata), String> {
             return Ok(());
         }
         let v = <telemetry_schema::PolicyStep as prost::Message>::decode(m.data)
-            .map_err(|e| format!("/policy: {e}"))?;
+            .map_err(|e| crate::recording::RecordingError::decode("/policy", e))?;
         if !v.running {
             return Ok(());
         }
         trace.steps.push(v.observation);
         trace.ticks.push(v.tick);
         Ok(())
-    })?;
+    })
+    .map_err(unreadable)?;
+    let bad = |m: String| AnalysisError::file(path, m);
     if trace.steps.is_empty() {
-        return Err("no Running ticks with observations".to_owned());
+        return Err(bad("no Running ticks with observations".to_owned()));
     }
     let run = run
         .get("run")
-        .ok_or_else(|| "the recording does not say how it was run".to_owned())
-        .and_then(|json| RunMetadata::from_json(json).map_err(|e| format!("run metadata: {e}")))?
+        .ok_or_else(|| bad("the recording does not say how it was run".to_owned()))
+        .and_then(|json| RunMetadata::from_json(json).map_err(|e| bad(format!("run metadata: {e}"))))?
         .resolved_from(path.parent().unwrap_or(Path::new(".")));
     Ok((trace, run))
 }
@@ -61,12 +60,9 @@ fn run_trace(path: &Path) -> Result<(ObsTrace, RunMetadata), String> {
 /// Reads an observation export: `.npz` with an `obs` array (steps × values), or CSV with one
 /// observation per row (a header row is skipped).
 pub fn trace_from_export(path: &Path) -> Result<ObsTrace, AnalysisError> {
-    export_trace(path).map_err(|m| AnalysisError::file(path, m))
-}
-
-fn export_trace(path: &Path) -> Result<ObsTrace, String> {
+    let bad = |m: &dyn std::fmt::Display| AnalysisError::file(path, m);
     let steps: Vec<Vec<f32>> = if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("npz")) {
-        let arrays = controller::npy::read_npz(path).map_err(|e| e.message)?;
+        let arrays = controller::npy::read_npz(path).map_err(|e| bad(&e.message))?;
         match arrays.get("obs") {
             Some(NpyArray::Numbers { shape, data }) if shape.len() == 2 && shape[0] > 0 && shape[1] > 0 => {
                 data.chunks(shape[1])
@@ -74,12 +70,12 @@ fn export_trace(path: &Path) -> Result<ObsTrace, String> {
                     .collect()
             }
             Some(_) => {
-                return Err("obs must be a steps × values number array".into());
+                return Err(bad(&"obs must be a steps × values number array"));
             }
-            None => return Err("no obs array".into()),
+            None => return Err(bad(&"no obs array")),
         }
     } else {
-        let text = robots::read_text(path)?;
+        let text = robots::read_text(path).map_err(|e| bad(&e))?;
         let mut rows = Vec::new();
         for (i, line) in text
             .lines()
@@ -90,13 +86,13 @@ fn export_trace(path: &Path) -> Result<ObsTrace, String> {
             match parsed {
                 Ok(row) => rows.push(row),
                 Err(_) if rows.is_empty() => {} // a header
-                Err(_) => return Err(format!("line {}: not numbers", i + 1)),
+                Err(_) => return Err(bad(&format_args!("line {}: not numbers", i + 1))),
             }
         }
         rows
     };
     if steps.is_empty() {
-        return Err("no observations (one row per step, one column per value)".into());
+        return Err(bad(&"no observations (one row per step, one column per value)"));
     }
     let n = steps.len() as u64;
     Ok(ObsTrace {

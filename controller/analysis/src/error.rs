@@ -13,6 +13,14 @@ pub enum AnalysisError {
         /// What is wrong.
         message: String,
     },
+    /// A recording cannot be read.
+    #[error("{}: {source}", file.display())]
+    Recording {
+        /// The recording.
+        file: PathBuf,
+        /// Why.
+        source: crate::recording::RecordingError,
+    },
     /// The inputs do not fit together (two traces, a trace and a policy).
     #[error("{0}")]
     Mismatch(String),
@@ -40,10 +48,18 @@ pub enum AnalysisError {
 
 impl AnalysisError {
     /// `message` about `file`.
-    pub fn file(file: &std::path::Path, message: impl Into<String>) -> Self {
+    pub fn file(file: &std::path::Path, message: impl std::fmt::Display) -> Self {
         Self::File {
             file: file.to_path_buf(),
-            message: message.into(),
+            message: message.to_string(),
+        }
+    }
+
+    /// A failure reading the recording `file`.
+    pub fn recording(file: &std::path::Path, source: crate::recording::RecordingError) -> Self {
+        Self::Recording {
+            file: file.to_path_buf(),
+            source,
         }
     }
 

@@ -11,17 +11,127 @@ pub const MAX_RECORDING_BYTES: u64 = 4 << 30;
 const MAX_COMPRESSION_RATIO: u64 = 256;
 
 /// The bytes of the recording at `path`, checked (see the module docs).
-pub fn read(path: &Path) -> Result<Vec<u8>, String> {
-    let meta = std::fs::metadata(path).map_err(|e| format!("cannot read: {e}"))?;
+pub fn read(path: &Path) -> Result<Vec<u8>, RecordingError> {
+    let meta = std::fs::metadata(path).map_err(RecordingError::Unreadable)?;
     if !meta.is_file() {
-        return Err("not a regular file".into());
+        return Err(RecordingError::NotRegular);
     }
     if meta.len() > MAX_RECORDING_BYTES {
-        return Err(format!("{} bytes: larger than {MAX_RECORDING_BYTES}", meta.len()));
+        return Err(RecordingError::TooLarge { bytes: meta.len() });
     }
-    let bytes = std::fs::read(path).map_err(|e| format!("cannot read: {e}"))?;
+    let bytes = std::fs::read(path).map_err(RecordingError::Unreadable)?;
     check_chunks(&bytes)?;
     Ok(bytes)
+}
+
+/// Why a recording cannot be read (the path is the caller's to name).
+#[derive(Debug, thiserror::Error)]
+pub enum RecordingError {
+    /// The system refused.
+    #[error("cannot read: {0}")]
+    Unreadable(std::io::Error),
+    /// A folder, device or pipe.
+    #[error("not a regular file")]
+    NotRegular,
+    /// Larger than [`MAX_RECORDING_BYTES`].
+    #[error("{bytes} bytes: larger than {MAX_RECORDING_BYTES}")]
+    TooLarge {
+        /// The file's size.
+        bytes: u64,
+    },
+    /// No MCAP magic at the start.
+    #[error("not an MCAP file (no magic)")]
+    NotMcap,
+    /// The file ends inside its first record: nothing to read.
+    #[error("the recording ends inside a record at byte {0}")]
+    Cut(usize),
+    /// A chunk whose sizes, compression or CRC cannot be true.
+    #[error("chunk at byte {at}: {damage}")]
+    Chunk {
+        /// Where the chunk starts.
+        at: usize,
+        /// What is wrong with it.
+        damage: ChunkDamage,
+    },
+    /// A channel record's string longer than the record.
+    #[error("channel record: {0} longer than the record")]
+    Channel(&'static str),
+    /// A record the `mcap` crate cannot parse.
+    #[error("{0}")]
+    Record(String),
+    /// A message on a channel never announced.
+    #[error("message on unknown channel {0}")]
+    UnknownChannel(u16),
+    /// A message whose payload its reader cannot decode.
+    #[error("{topic}: {reason}")]
+    Decode {
+        /// The message's topic.
+        topic: String,
+        /// The decoder's message.
+        reason: String,
+    },
+}
+
+impl RecordingError {
+    /// A payload on `topic` that `reason` says cannot be decoded.
+    pub fn decode(topic: &str, reason: impl std::fmt::Display) -> Self {
+        Self::Decode {
+            topic: topic.to_owned(),
+            reason: reason.to_string(),
+        }
+    }
+}
+
+/// What is wrong with a chunk.
+#[derive(Debug, thiserror::Error)]
+pub enum ChunkDamage {
+    /// Its header ends early.
+    #[error("truncated chunk header")]
+    TruncatedHeader,
+    /// Its compression's name is not UTF-8.
+    #[error("chunk compression is not text")]
+    CompressionNotText,
+    /// Its records run past the record holding them.
+    #[error("claims {compressed} compressed bytes in a {record}-byte record")]
+    PastRecord {
+        /// Claimed compressed size.
+        compressed: u64,
+        /// The record's size.
+        record: usize,
+    },
+    /// Its uncompressed size is beyond any real compression ratio.
+    #[error("claims {uncompressed} bytes uncompressed from {compressed}: corrupted")]
+    Ratio {
+        /// Claimed uncompressed size.
+        uncompressed: u64,
+        /// Its compressed size.
+        compressed: u64,
+    },
+    /// The decompressor failed.
+    #[error("{codec}: {source}")]
+    Decompress {
+        /// `lz4` or `zstd`.
+        codec: &'static str,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// A compression other than lz4, zstd or none.
+    #[error("compression {0:?} is not supported (lz4, zstd or none)")]
+    Compression(String),
+    /// Decompressed to another size than claimed.
+    #[error("{got} bytes uncompressed where the chunk claims {claimed}")]
+    Size {
+        /// Bytes decompressed.
+        got: usize,
+        /// Bytes claimed.
+        claimed: u64,
+    },
+    /// The CRC does not match.
+    #[error("CRC mismatch: the chunk is damaged")]
+    Crc,
+    /// A record inside runs past the chunk's end.
+    #[error("a record runs past the chunk's end")]
+    RecordPastEnd,
 }
 
 const MAGIC: &[u8] = b"\x89MCAP0\r\n";
@@ -81,34 +191,32 @@ struct Chunk<'a> {
     records: &'a [u8],
 }
 
-fn chunk(body: &[u8]) -> Result<Chunk<'_>, String> {
+fn chunk(body: &[u8]) -> Result<Chunk<'_>, ChunkDamage> {
+    use ChunkDamage::TruncatedHeader;
     // start time, end time, uncompressed size, crc, compression (len + text), records (len + bytes).
-    let uncompressed = u64_at(body, 16).ok_or("truncated chunk header")?;
-    let crc = u32_at(body, 24).ok_or("truncated chunk header")?;
-    let compression_len = u32_at(body, 28).ok_or("truncated chunk header")? as usize;
-    let records_at = 32usize
-        .checked_add(compression_len)
-        .ok_or("truncated chunk header")?;
+    let uncompressed = u64_at(body, 16).ok_or(TruncatedHeader)?;
+    let crc = u32_at(body, 24).ok_or(TruncatedHeader)?;
+    let compression_len = u32_at(body, 28).ok_or(TruncatedHeader)? as usize;
+    let records_at = 32usize.checked_add(compression_len).ok_or(TruncatedHeader)?;
     let compression = body
         .get(32..records_at)
         .and_then(|c| std::str::from_utf8(c).ok())
-        .ok_or("chunk compression is not text")?;
-    let compressed = u64_at(body, records_at).ok_or("truncated chunk header")?;
+        .ok_or(ChunkDamage::CompressionNotText)?;
+    let compressed = u64_at(body, records_at).ok_or(TruncatedHeader)?;
     let records = usize::try_from(compressed)
         .ok()
         .and_then(|c| (records_at + 8).checked_add(c))
         .and_then(|e| body.get(records_at + 8..e))
-        .ok_or_else(|| {
-            format!(
-                "claims {compressed} compressed bytes in a {}-byte record",
-                body.len()
-            )
+        .ok_or(ChunkDamage::PastRecord {
+            compressed,
+            record: body.len(),
         })?;
     let limit = compressed.saturating_mul(MAX_COMPRESSION_RATIO).max(1 << 20);
     if uncompressed > limit {
-        return Err(format!(
-            "claims {uncompressed} bytes uncompressed from {compressed}: corrupted"
-        ));
+        return Err(ChunkDamage::Ratio {
+            uncompressed,
+            compressed,
+        });
     }
     Ok(Chunk {
         uncompressed,
@@ -121,7 +229,7 @@ fn chunk(body: &[u8]) -> Result<Chunk<'_>, String> {
 impl Chunk<'_> {
     /// The records, decompressed into `out` (bounded by the claimed size) and checked against the
     /// claimed size and CRC.
-    fn decompress_into(&self, out: &mut Vec<u8>) -> Result<(), String> {
+    fn decompress_into(&self, out: &mut Vec<u8>) -> Result<(), ChunkDamage> {
         use std::io::Read;
         out.clear();
         let claimed = self.uncompressed;
@@ -131,27 +239,26 @@ impl Chunk<'_> {
             "lz4" => {
                 lz4::Decoder::new(self.records)
                     .and_then(|mut d| bounded(&mut d))
-                    .map_err(|e| format!("lz4: {e}"))?;
+                    .map_err(|source| ChunkDamage::Decompress { codec: "lz4", source })?;
             }
             "zstd" => {
                 zstd::stream::read::Decoder::new(self.records)
                     .and_then(|mut d| bounded(&mut d))
-                    .map_err(|e| format!("zstd: {e}"))?;
+                    .map_err(|source| ChunkDamage::Decompress {
+                        codec: "zstd",
+                        source,
+                    })?;
             }
-            other => {
-                return Err(format!(
-                    "compression {other:?} is not supported (lz4, zstd or none)"
-                ));
-            }
+            other => return Err(ChunkDamage::Compression(other.to_owned())),
         }
         if out.len() as u64 != claimed {
-            return Err(format!(
-                "{} bytes uncompressed where the chunk claims {claimed}",
-                out.len()
-            ));
+            return Err(ChunkDamage::Size {
+                got: out.len(),
+                claimed,
+            });
         }
         if self.crc != 0 && crc32fast::hash(out) != self.crc {
-            return Err("CRC mismatch: the chunk is damaged".into());
+            return Err(ChunkDamage::Crc);
         }
         Ok(())
     }
@@ -159,16 +266,16 @@ impl Chunk<'_> {
 
 /// Walks the top-level records and refuses a chunk whose sizes cannot be true (before anything
 /// is allocated for it).
-pub fn check_chunks(b: &[u8]) -> Result<(), String> {
+pub fn check_chunks(b: &[u8]) -> Result<(), RecordingError> {
     if !b.starts_with(MAGIC) {
-        return Err("not an MCAP file (no magic)".into());
+        return Err(RecordingError::NotMcap);
     }
     let mut at = MAGIC.len();
     // A cut tail is not checked here: the reader gives what came before it.
     while let Next::Record { op, body, end } = next_record(b, at) {
         match op {
             OP_CHUNK => {
-                chunk(body).map_err(|e| format!("chunk at byte {at}: {e}"))?;
+                chunk(body).map_err(|damage| RecordingError::Chunk { at, damage })?;
             }
             OP_FOOTER => break,
             _ => {}
@@ -193,8 +300,8 @@ pub struct Message<'a> {
 
 /// Checks every length prefix of a channel record against the record: the `mcap` crate reserves
 /// a string's claimed length before reading it (found by fuzzing: a flipped bit asked for 3.5 GB).
-fn check_channel(record: &[u8]) -> Result<(), String> {
-    let bad = |what: &str| format!("channel record: {what} longer than the record");
+fn check_channel(record: &[u8]) -> Result<(), RecordingError> {
+    let bad = RecordingError::Channel;
     // id, schema id; then topic and message encoding.
     let mut at = 4;
     for what in ["topic", "message encoding"] {
@@ -237,15 +344,15 @@ impl Walk {
         &mut self,
         op: u8,
         body: &[u8],
-        each: &mut impl FnMut(Message<'_>) -> Result<(), String>,
-    ) -> Result<(), String> {
+        each: &mut impl FnMut(Message<'_>) -> Result<(), RecordingError>,
+    ) -> Result<(), RecordingError> {
         if op != OP_CHANNEL && op != OP_MESSAGE {
             return Ok(());
         }
         if op == OP_CHANNEL {
             check_channel(body)?;
         }
-        match mcap::parse_record(op, body).map_err(|e| e.to_string())? {
+        match mcap::parse_record(op, body).map_err(|e| RecordingError::Record(e.to_string()))? {
             mcap::records::Record::Channel(c) => {
                 self.channels.insert(c.id, c);
             }
@@ -253,7 +360,7 @@ impl Walk {
                 let c = self
                     .channels
                     .get(&header.channel_id)
-                    .ok_or_else(|| format!("message on unknown channel {}", header.channel_id))?;
+                    .ok_or(RecordingError::UnknownChannel(header.channel_id))?;
                 each(Message {
                     topic: &c.topic,
                     metadata: &c.metadata,
@@ -273,13 +380,14 @@ impl Walk {
 /// are decompressed no further than their claimed size and checked against it and their CRC (the
 /// crate's reader loops forever on a chunk shorter than it claims; found by fuzzing). A recording
 /// cut short (a crash, a full disk) gives every message before the cut and a warning; damage
-/// inside the file is an error.
+/// inside the file is an error. `each` says why it cannot take a message with
+/// [`RecordingError::decode`].
 pub fn for_each_message(
     bytes: &[u8],
-    mut each: impl FnMut(Message<'_>) -> Result<(), String>,
-) -> Result<(), String> {
+    mut each: impl FnMut(Message<'_>) -> Result<(), RecordingError>,
+) -> Result<(), RecordingError> {
     if !bytes.starts_with(MAGIC) {
-        return Err("not an MCAP file (no magic)".into());
+        return Err(RecordingError::NotMcap);
     }
     let mut walk = Walk::default();
     let mut records = Vec::new();
@@ -294,14 +402,14 @@ pub fn for_each_message(
                 );
                 return Ok(());
             }
-            Next::Cut => return Err(format!("the recording ends inside a record at byte {at}")),
+            Next::Cut => return Err(RecordingError::Cut(at)),
             Next::Record { op: OP_FOOTER, .. } => return Ok(()),
             Next::Record {
                 op: OP_CHUNK,
                 body,
                 end,
             } => {
-                let damaged = |e: String| format!("chunk at byte {at}: {e}");
+                let damaged = |damage| RecordingError::Chunk { at, damage };
                 chunk(body)
                     .and_then(|c| c.decompress_into(&mut records))
                     .map_err(damaged)?;
@@ -309,7 +417,7 @@ pub fn for_each_message(
                 loop {
                     match next_record(&records, inner) {
                         Next::End => break,
-                        Next::Cut => return Err(damaged("a record runs past the chunk's end".into())),
+                        Next::Cut => return Err(damaged(ChunkDamage::RecordPastEnd)),
                         Next::Record { op, body, end } => {
                             walk.visit(op, body, &mut each)?;
                             inner = end;
@@ -335,7 +443,7 @@ mod tests {
         "/../../tests/fuzz/corpus/mcap_recording/"
     );
 
-    fn topics(file: &str) -> Result<Vec<String>, String> {
+    fn topics(file: &str) -> Result<Vec<String>, RecordingError> {
         let bytes = std::fs::read(format!("{CORPUS}{file}")).unwrap();
         check_chunks(&bytes)?;
         let mut topics = Vec::new();
@@ -361,7 +469,7 @@ mod tests {
             "regression-channel-string-length",
             "regression-metadata-value-past-map",
         ] {
-            let err = topics(file).unwrap_err();
+            let err = topics(file).unwrap_err().to_string();
             assert!(err.contains("longer than the record"), "{file}: {err}");
         }
     }
@@ -369,7 +477,9 @@ mod tests {
     #[test]
     fn a_chunk_whose_data_ends_before_its_claimed_size_is_refused_not_looped_on() {
         // Found by the mcap_recording fuzz target: the mcap crate's reader spun forever on it.
-        let err = topics("regression-chunk-shorter-than-claimed").unwrap_err();
+        let err = topics("regression-chunk-shorter-than-claimed")
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("chunk at byte"), "{err}");
     }
 }

@@ -14,6 +14,7 @@ use robots::Robot;
 use controller::options::RunMetadata;
 
 use crate::AnalysisError;
+use crate::recording::RecordingError;
 use controller::player::Player;
 use policy::PolicyLayout;
 use robot_link::GroundTruth;
@@ -46,16 +47,18 @@ pub struct Recording {
     pub ticks: Vec<RecordedTick>,
 }
 
-fn numbers(v: &serde_json::Value, key: &str) -> Result<Vec<f64>, String> {
+fn numbers(v: &serde_json::Value, key: &str) -> Result<Vec<f64>, RecordingError> {
+    let bad = |reason: String| RecordingError::decode("/replay", reason);
     v[key]
         .as_array()
-        .ok_or_else(|| format!("/replay message without {key:?}"))?
+        .ok_or_else(|| bad(format!("message without {key:?}")))?
         .iter()
         .map(|x| {
             if x.is_null() {
                 Ok(f64::NAN)
             } else {
-                x.as_f64().ok_or_else(|| format!("{key}: {x} is not a number"))
+                x.as_f64()
+                    .ok_or_else(|| bad(format!("{key}: {x} is not a number")))
             }
         })
         .collect()
@@ -63,11 +66,7 @@ fn numbers(v: &serde_json::Value, key: &str) -> Result<Vec<f64>, String> {
 
 /// Reads the `/replay` channel of an MCAP file written by `play`.
 pub fn read_recording(path: &Path) -> Result<Recording, AnalysisError> {
-    recording(path).map_err(|m| AnalysisError::file(path, m))
-}
-
-fn recording(path: &Path) -> Result<Recording, String> {
-    let bytes = crate::recording::read(path)?;
+    let bytes = crate::recording::read(path).map_err(|e| AnalysisError::recording(path, e))?;
     let mut run = BTreeMap::new();
     let mut ticks = Vec::new();
     crate::recording::for_each_message(&bytes, |m| {
@@ -78,7 +77,7 @@ fn recording(path: &Path) -> Result<Recording, String> {
             run = m.metadata.clone();
         }
         let v: serde_json::Value =
-            serde_json::from_slice(m.data).map_err(|e| format!("/replay message: {e}"))?;
+            serde_json::from_slice(m.data).map_err(|e| RecordingError::decode("/replay", e))?;
         let (q, qd, tau) = (numbers(&v, "q")?, numbers(&v, "qd")?, numbers(&v, "tau")?);
         let n = q.len();
         let mut state = RobotState::new(n);
@@ -106,25 +105,24 @@ fn recording(path: &Path) -> Result<Recording, String> {
         ] {
             let got = numbers(&v, key)?.len();
             if got != want {
-                return Err(format!(
-                    "/replay tick {}: {key} has {got} values for {n} joints",
-                    v["tick"]
+                return Err(RecordingError::decode(
+                    "/replay",
+                    format!("tick {}: {key} has {got} values for {n} joints", v["tick"]),
                 ));
             }
         }
         for (key, got) in [("stale", state.stale.len()), ("age_ms", state.age.len())] {
             if got != n {
-                return Err(format!(
-                    "/replay tick {}: {key} has {got} values for {n} joints",
-                    v["tick"]
+                return Err(RecordingError::decode(
+                    "/replay",
+                    format!("tick {}: {key} has {got} values for {n} joints", v["tick"]),
                 ));
             }
         }
         if imu.len() != 10 {
-            return Err(format!(
-                "{}: /replay imu has {} values",
-                path.display(),
-                imu.len()
+            return Err(RecordingError::decode(
+                "/replay",
+                format!("imu has {} values", imu.len()),
             ));
         }
         state.gyro = [imu[0], imu[1], imu[2]];
@@ -138,11 +136,14 @@ fn recording(path: &Path) -> Result<Recording, String> {
             Vec::new()
         };
         if samples.len() % 11 != 0 || samples.len() / 11 > robot_link::IMU_HISTORY {
-            return Err(format!(
-                "/replay tick {}: imu_samples has {} values (11 per sample, at most {})",
-                v["tick"],
-                samples.len(),
-                robot_link::IMU_HISTORY
+            return Err(RecordingError::decode(
+                "/replay",
+                format!(
+                    "tick {}: imu_samples has {} values (11 per sample, at most {})",
+                    v["tick"],
+                    samples.len(),
+                    robot_link::IMU_HISTORY
+                ),
             ));
         }
         state.imu_samples = samples
@@ -157,14 +158,17 @@ fn recording(path: &Path) -> Result<Recording, String> {
         let pose = numbers(&v, "base_pose")?;
         let lin = numbers(&v, "base_lin_vel")?;
         if pose.len() != 7 || lin.len() != 3 {
-            return Err(format!(
-                "/replay tick {}: base_pose has {} values (7), base_lin_vel {} (3)",
-                v["tick"],
-                pose.len(),
-                lin.len()
+            return Err(RecordingError::decode(
+                "/replay",
+                format!(
+                    "tick {}: base_pose has {} values (7), base_lin_vel {} (3)",
+                    v["tick"],
+                    pose.len(),
+                    lin.len()
+                ),
             ));
         }
-        let truth = (!pose[0].is_nan()).then(|| -> Result<GroundTruth, String> {
+        let truth = (!pose[0].is_nan()).then(|| -> Result<GroundTruth, RecordingError> {
             Ok(GroundTruth {
                 root_pose: std::array::from_fn(|i| pose[i]),
                 base_lin_vel: [lin[0], lin[1], lin[2]],
@@ -198,11 +202,12 @@ fn recording(path: &Path) -> Result<Recording, String> {
             },
         });
         Ok(())
-    })?;
+    })
+    .map_err(|e| AnalysisError::recording(path, e))?;
     if ticks.is_empty() {
-        return Err(format!(
-            "{}: no /replay messages (record with robodeploy play)",
-            path.display()
+        return Err(AnalysisError::file(
+            path,
+            "no /replay messages (record with robodeploy play)",
         ));
     }
     Ok(Recording { run, ticks })

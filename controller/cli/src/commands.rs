@@ -89,7 +89,7 @@ pub fn start(
             "commands: keyboard — W/S ↑/↓ forward, A/D sideways, Q/E ←/→ turn, space resets; Ctrl-C stops"
         );
     } else if args.gamepad {
-        let pad = GilrsPad::open().map_err(anyhow::Error::msg)?;
+        let pad = GilrsPad::open()?;
         let pads = pad.connected();
         if pads.is_empty() {
             println!(

@@ -64,12 +64,18 @@ fn code_of(e: &(dyn std::error::Error + 'static)) -> Option<u8> {
         return Some(match e {
             A::Play(p) => of_kind(p.kind()),
             A::Write { .. } => IO_FAILURE,
-            A::File { .. } | A::Mismatch(_) | A::Kinematics(_) | A::Clip(_) | A::Policy(_) => BAD_INPUT,
+            A::File { .. }
+            | A::Recording { .. }
+            | A::Mismatch(_)
+            | A::Kinematics(_)
+            | A::Clip(_)
+            | A::Policy(_) => BAD_INPUT,
         });
     }
     if let Some(e) = e.downcast_ref::<H>() {
         return Some(match e {
             H::Read { .. } | H::Io { .. } => IO_FAILURE,
+            H::Gamepad(_) => FAILED,
             H::Motion { .. } | H::Model(_) | H::Mujoco(_) | H::Map(_) | H::Calibration(_) => BAD_INPUT,
         });
     }

@@ -236,7 +236,7 @@ fn load_generator(args: &GeneratorArgs, l: &mut Loaded) -> Result<Option<Pending
     if let Some(values) = &args.generator_command {
         generator.set_command(values).context("--generator-command")?;
     }
-    controller::generator::check_policy(&l.layout).map_err(|m| anyhow::anyhow!("--generator: {m}"))?;
+    controller::generator::check_policy(&l.layout).map_err(|e| anyhow::anyhow!("--generator: {e}"))?;
     l.reference = Reference::hold(&l.layout.default_q, generator.root(), l.layout.manifest.rate_hz);
     l.source = ReferenceSource::Generated(path.clone());
     let d = &generator.description;

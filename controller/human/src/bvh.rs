@@ -90,7 +90,7 @@ impl Bvh {
         robots::check_regular_file(path).map_err(|message| HumanError::Motion {
             file: path.to_path_buf(),
             line: 0,
-            message,
+            message: message.to_string(),
         })?;
         let text = std::fs::read_to_string(path).map_err(|source| HumanError::Read {
             file: path.to_path_buf(),
@@ -154,7 +154,7 @@ impl Bvh {
                     }
                 }
                 "OFFSET" => {
-                    let v = floats(words, 3).map_err(|m| err(path, n, m))?;
+                    let v = floats(words, 3, path, n)?;
                     if in_end == 0 {
                         let j = stack
                             .last()
@@ -358,12 +358,21 @@ impl Bvh {
     }
 }
 
-fn floats<'a>(words: impl Iterator<Item = &'a str>, n: usize) -> Result<Vec<f64>, String> {
+/// `n` finite numbers from the rest of line `line` of `path`.
+fn floats<'a>(
+    words: impl Iterator<Item = &'a str>,
+    n: usize,
+    path: &Path,
+    line: usize,
+) -> Result<Vec<f64>, HumanError> {
     let v = words
-        .map(|w| w.parse::<f64>().map_err(|_| format!("{w:?} is not a number")))
+        .map(|w| {
+            w.parse::<f64>()
+                .map_err(|_| err(path, line, format_args!("{w:?} is not a number")))
+        })
         .collect::<Result<Vec<_>, _>>()?;
     if v.len() != n || v.iter().any(|x| !x.is_finite()) {
-        return Err(format!("expected {n} finite numbers"));
+        return Err(err(path, line, format_args!("expected {n} finite numbers")));
     }
     Ok(v)
 }

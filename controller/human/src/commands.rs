@@ -420,9 +420,9 @@ impl std::fmt::Debug for GilrsPad {
 }
 
 impl GilrsPad {
-    /// Opens the gamepad subsystem; the message says why it cannot.
-    pub fn open() -> Result<Self, String> {
-        let gilrs = gilrs::Gilrs::new().map_err(|e| format!("cannot open gamepads: {e}"))?;
+    /// Opens the gamepad subsystem; the error says why it cannot.
+    pub fn open() -> Result<Self, crate::HumanError> {
+        let gilrs = gilrs::Gilrs::new().map_err(|e| crate::HumanError::Gamepad(e.to_string()))?;
         Ok(Self { gilrs })
     }
 
@@ -572,7 +572,7 @@ pub enum Dropped {
     /// Not a version-1 message with the right number of values.
     Malformed(String),
     /// A value outside its range.
-    OutOfRange(String),
+    OutOfRange(policy::commands::CommandValuesError),
     /// Not newer than the newest taken.
     OutOfOrder,
 }
@@ -737,7 +737,7 @@ mod tests {
         assert_eq!(parse_datagram(&spec, ok, Some(5)), Err(Dropped::OutOfOrder));
         let far = br#"{"version": 1, "seq": 6, "command": [0.9, 0.0, 0.5]}"#;
         assert!(
-            matches!(parse_datagram(&spec, far, None), Err(Dropped::OutOfRange(m)) if m.contains("lin_vel_x = 0.9"))
+            matches!(parse_datagram(&spec, far, None), Err(Dropped::OutOfRange(e)) if e.to_string().contains("lin_vel_x = 0.9"))
         );
         for bad in [
             &br#"{"version": 2, "seq": 6, "command": [0.1, 0.0, 0.5]}"#[..],

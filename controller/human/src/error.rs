@@ -36,6 +36,9 @@ pub enum HumanError {
     /// The retargeting map, the recording and the options do not fit together.
     #[error("{0}")]
     Map(String),
+    /// The gamepad subsystem cannot be opened (gilrs's message).
+    #[error("cannot open gamepads: {0}")]
+    Gamepad(String),
     /// A user's calibration (T-pose) failed.
     #[error("{0}")]
     Calibration(String),

@@ -124,7 +124,8 @@ impl CommandSpec {
         }
         if let Some(d) = &self.default {
             same_length("default", d.len())?;
-            self.check_values(d).map_err(|m| (field("default"), m))?;
+            self.check_values(d)
+                .map_err(|e| (field("default"), e.to_string()))?;
         }
         for (what, values) in [("ramp", &self.ramp), ("step", &self.step)] {
             if let Some(v) = values {
@@ -156,18 +157,20 @@ impl CommandSpec {
 
     /// Whether `values` are as many as the commands and each within its range; the message names
     /// the first that is not.
-    pub fn check_values(&self, values: &[f64]) -> Result<(), String> {
+    pub fn check_values(&self, values: &[f64]) -> Result<(), CommandValuesError> {
         if values.len() != self.names.len() {
-            return Err(format!(
-                "{} values for {} commands ({})",
-                values.len(),
-                self.names.len(),
-                self.names.join(", ")
-            ));
+            return Err(CommandValuesError::Count {
+                given: values.len(),
+                names: self.names.clone(),
+            });
         }
-        for ((name, [lo, hi]), v) in self.names.iter().zip(&self.ranges).zip(values) {
-            if !(v.is_finite() && (*lo..=*hi).contains(v)) {
-                return Err(format!("{name} = {v} is outside its range [{lo}, {hi}]"));
+        for ((name, &[lo, hi]), &value) in self.names.iter().zip(&self.ranges).zip(values) {
+            if !(value.is_finite() && (lo..=hi).contains(&value)) {
+                return Err(CommandValuesError::OutOfRange {
+                    name: name.clone(),
+                    value,
+                    range: [lo, hi],
+                });
             }
         }
         Ok(())
@@ -232,4 +235,27 @@ impl CommandSpec {
             };
         }
     }
+}
+
+/// Command values that do not fit the manifest's `[commands]`.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum CommandValuesError {
+    /// Not one value per command.
+    #[error("{given} values for {} commands ({})", names.len(), names.join(", "))]
+    Count {
+        /// Values given.
+        given: usize,
+        /// The commands, in order.
+        names: Vec<String>,
+    },
+    /// A value outside its command's range (or not finite).
+    #[error("{name} = {value} is outside its range [{}, {}]", range[0], range[1])]
+    OutOfRange {
+        /// The command.
+        name: String,
+        /// The value given.
+        value: f64,
+        /// The range, low and high.
+        range: [f64; 2],
+    },
 }

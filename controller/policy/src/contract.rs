@@ -463,20 +463,27 @@ pub const MAX_PAST_ACTIONS: usize = 16;
 pub const MAX_FRAMES_AHEAD: usize = 64;
 
 /// The documented ranges of a term's own fields (its shaping is checked by the caller).
-fn check_term(term: &Term) -> Result<(), String> {
+fn check_term(term: &Term) -> Result<(), TermFieldError> {
     let s = term.shaping();
     if let Some(c) = s.clip
         && !(c.is_finite() && c > 0.0)
     {
-        return Err(format!("clip = {c} must be a positive number"));
+        return Err(TermFieldError::new(
+            "clip",
+            format!("clip = {c} must be a positive number"),
+        ));
     }
     if !(s.scale.abs() <= 1e6 && s.offset.abs() <= 1e6) {
-        return Err(format!("scale {} / offset {} beyond ±1e6", s.scale, s.offset));
+        return Err(TermFieldError::new(
+            "scale",
+            format!("scale {} / offset {} beyond ±1e6", s.scale, s.offset),
+        ));
     }
     match term {
-        Term::LastActions { k, .. } if !(1..=MAX_PAST_ACTIONS).contains(k) => {
-            Err(format!("k = {k} is outside [1, {MAX_PAST_ACTIONS}]"))
-        }
+        Term::LastActions { k, .. } if !(1..=MAX_PAST_ACTIONS).contains(k) => Err(TermFieldError::new(
+            "k",
+            format!("k = {k} is outside [1, {MAX_PAST_ACTIONS}]"),
+        )),
         Term::RefJointPos { frames, .. }
         | Term::RefJointVel { frames, .. }
         | Term::RefRootPose { frames, .. }
@@ -484,14 +491,17 @@ fn check_term(term: &Term) -> Result<(), String> {
         | Term::RefKeypoints { frames, .. }
             if frames.is_empty() || frames.iter().any(|&f| f > MAX_FRAMES_AHEAD - 1) =>
         {
-            Err(format!(
-                "frames {frames:?}: one to many offsets, each at most {} ticks ahead",
-                MAX_FRAMES_AHEAD - 1
+            Err(TermFieldError::new(
+                "frames",
+                format!(
+                    "frames {frames:?}: one to many offsets, each at most {} ticks ahead",
+                    MAX_FRAMES_AHEAD - 1
+                ),
             ))
         }
-        Term::Command { values, .. } if values.iter().any(|v| !v.is_finite()) || values.len() > 64 => {
-            Err(format!("values {values:?}: at most 64 finite numbers"))
-        }
+        Term::Command { values, .. } if values.iter().any(|v| !v.is_finite()) || values.len() > 64 => Err(
+            TermFieldError::new("values", format!("values {values:?}: at most 64 finite numbers")),
+        ),
         Term::GaitPhase {
             period_s,
             standing_below,
@@ -501,8 +511,11 @@ fn check_term(term: &Term) -> Result<(), String> {
             && standing_below.is_finite()
             && (0.0..=1.0).contains(standing_below)) =>
         {
-            Err(format!(
-                "period_s = {period_s} (0.05–60 s) or standing_below = {standing_below} (0–1) is out of range"
+            Err(TermFieldError::new(
+                "period_s",
+                format!(
+                    "period_s = {period_s} (0.05–60 s) or standing_below = {standing_below} (0–1) is out of range"
+                ),
             ))
         }
         Term::Phase {
@@ -510,16 +523,40 @@ fn check_term(term: &Term) -> Result<(), String> {
             period_ticks,
             ..
         } => match (period_s, period_ticks) {
-            (Some(p), None) if !(0.01..=3600.0).contains(p) => {
-                Err(format!("period_s = {p} is outside [0.01, 3600] s"))
-            }
-            (None, Some(p)) if !(1..=1_000_000).contains(p) => {
-                Err(format!("period_ticks = {p} is outside [1, 1000000]"))
-            }
-            (Some(_), Some(_)) | (None, None) => Err("give exactly one of period_s and period_ticks".into()),
+            (Some(p), None) if !(0.01..=3600.0).contains(p) => Err(TermFieldError::new(
+                "period_s",
+                format!("period_s = {p} is outside [0.01, 3600] s"),
+            )),
+            (None, Some(p)) if !(1..=1_000_000).contains(p) => Err(TermFieldError::new(
+                "period_ticks",
+                format!("period_ticks = {p} is outside [1, 1000000]"),
+            )),
+            (Some(_), Some(_)) | (None, None) => Err(TermFieldError::new(
+                "period_s",
+                "give exactly one of period_s and period_ticks",
+            )),
             _ => Ok(()),
         },
         _ => Ok(()),
+    }
+}
+
+/// A term's own field outside its documented range; the message names field, value and range.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{message}")]
+pub struct TermFieldError {
+    /// The field.
+    pub field: &'static str,
+    /// Its value against the range.
+    pub message: String,
+}
+
+impl TermFieldError {
+    fn new(field: &'static str, message: impl Into<String>) -> Self {
+        Self {
+            field,
+            message: message.into(),
+        }
     }
 }
 
@@ -754,7 +791,7 @@ impl PolicyLayout {
         let text = robots::read_text(path).map_err(|message| PolicyError {
             file: path.to_path_buf(),
             place: "file".to_owned(),
-            message,
+            message: message.to_string(),
         })?;
         Self::parse(path, &text, robot)
     }
@@ -906,7 +943,9 @@ impl PolicyLayout {
             let place = format!("observation[{i}] (command).values");
             match &manifest.commands {
                 Some(spec) if values.is_empty() => *values = spec.defaults(),
-                Some(spec) => spec.check_values(values).map_err(|m| err(&place, m))?,
+                Some(spec) => spec
+                    .check_values(values)
+                    .map_err(|e| err(&place, e.to_string()))?,
                 None if values.is_empty() => {
                     return Err(err(
                         &place,
@@ -936,7 +975,7 @@ impl PolicyLayout {
         for (i, term) in manifest.observation.iter().enumerate() {
             let s = term.shaping();
             let place = format!("observation[{i}] ({})", term.name());
-            check_term(term).map_err(|m| err(&place, m))?;
+            check_term(term).map_err(|e| err(&place, e.to_string()))?;
             if let Term::GaitPhase {
                 period_s,
                 standing_below,
@@ -1057,9 +1096,9 @@ impl PolicyLayout {
                     format!("{}: kp {} / kd {} must not be negative", j.name, kp[r], kd[r]),
                 ));
             }
-            if let Err(m) = robot.check_gains(j, kp[r], kd[r]) {
-                return Err(err("stiffness", format!("{}: {m}", j.name)));
-            }
+            robot
+                .check_gains(j, kp[r], kd[r])
+                .map_err(|e| err("stiffness", e.to_string()))?;
         }
         Ok(Self {
             manifest,
@@ -1098,10 +1137,10 @@ impl PolicyLayout {
             )));
         }
         if let Some(spec) = &self.manifest.commands {
-            spec.check_values(values).map_err(|m| PolicyError {
+            spec.check_values(values).map_err(|e| PolicyError {
                 file: self.path.clone(),
                 place: "commands.ranges".into(),
-                message: m,
+                message: e.to_string(),
             })?;
         }
         current.copy_from_slice(values);

@@ -164,16 +164,12 @@ impl Metadata<'_> {
 
 /// The term an export's observation name stands for (`command` is the reference motion's joint
 /// positions and velocities when the export's command is `motion`).
-fn term_of(name: &str, commands: &[String]) -> Result<Term, String> {
+fn term_of(name: &str, commands: &[String]) -> Result<Term, TermNotBuilt> {
     let s = Shaping::default();
     Ok(match name {
         "command" if commands.is_empty() || commands.iter().any(|c| c == "motion") => Term::MotionCommand(s),
         "command" => {
-            return Err(format!(
-                "the `command` term of command {:?} is not a motion; give its values in a manifest \
-                 ([[observation]] term = \"command\", values = […])",
-                commands.join(",")
-            ));
+            return Err(TermNotBuilt::CommandNotMotion(commands.join(",")));
         }
         "motion_anchor_pos_b" => Term::MotionAnchorPosB(s),
         "motion_anchor_ori_b" => Term::MotionAnchorOriB(s),
@@ -186,13 +182,22 @@ fn term_of(name: &str, commands: &[String]) -> Result<Term, String> {
         },
         "joint_vel" | "joint_vel_rel" => Term::JointVel(s),
         "actions" | "last_action" => Term::LastActions { k: 1, shaping: s },
-        other => {
-            return Err(format!(
-                "unknown observation term {other:?}; robodeploy builds {} (or write a manifest)",
-                KNOWN_TERMS.join(", ")
-            ));
-        }
+        other => return Err(TermNotBuilt::Unknown(other.to_owned())),
     })
+}
+
+/// An export's observation name that robodeploy cannot build by itself.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+enum TermNotBuilt {
+    /// `command` of a command that is not a motion: its values are the user's to give.
+    #[error(
+        "the `command` term of command {0:?} is not a motion; give its values in a manifest \
+         ([[observation]] term = \"command\", values = […])"
+    )]
+    CommandNotMotion(String),
+    /// A name outside [`KNOWN_TERMS`].
+    #[error("unknown observation term {0:?}; robodeploy builds {known} (or write a manifest)", known = KNOWN_TERMS.join(", "))]
+    Unknown(String),
 }
 
 /// The observation terms the metadata lists, with history, scale and clip where it gives them;
@@ -215,7 +220,7 @@ fn observation(meta: &Metadata<'_>, has_time_step: bool) -> Result<Vec<Term>, Pr
     let mut terms = Vec::with_capacity(n + 1);
     for (i, name) in names.iter().enumerate() {
         let place = || format!("ONNX metadata observation_names[{i}]");
-        let mut term = term_of(name, &commands).map_err(|m| (place(), m))?;
+        let mut term = term_of(name, &commands).map_err(|e| (place(), e.to_string()))?;
         let sh = term_shaping(&mut term);
         if let Some((key, h)) = &history {
             match h[i] {

@@ -69,7 +69,7 @@ fn number(v: &Value, place: &str) -> Result<f64, Problem> {
 }
 
 /// The term a holosoma observation function stands for.
-fn term_of(func: &str) -> Result<Term, String> {
+fn term_of(func: &str) -> Result<Term, UnknownFunction> {
     let name = func.rsplit(':').next().unwrap_or(func);
     let s = Shaping::default();
     Ok(match name {
@@ -85,14 +85,17 @@ fn term_of(func: &str) -> Result<Term, String> {
         },
         "dof_vel" => Term::JointVel(s),
         "actions" => Term::LastActions { k: 1, shaping: s },
-        other => {
-            return Err(format!(
-                "holosoma observation function {func:?} ({other}) is not one robodeploy builds; write a \
-                 manifest with its terms"
-            ));
-        }
+        _ => return Err(UnknownFunction(func.to_owned())),
     })
 }
+
+/// A holosoma observation function robodeploy does not build.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "holosoma observation function {0:?} ({name}) is not one robodeploy builds; write a manifest with its terms",
+    name = .0.rsplit(':').next().unwrap_or(.0)
+)]
+struct UnknownFunction(String);
 
 /// The `actor_obs` group as the deployment code concatenates it: terms sorted by name.
 fn observation(config: &Value) -> Result<Vec<Term>, Problem> {
@@ -120,7 +123,7 @@ fn observation(config: &Value) -> Result<Vec<Term>, Problem> {
         let place = format!("ONNX metadata experiment_config observation/groups/actor_obs/terms/{name}");
         let spec = &terms[name];
         let func = spec.get("func").and_then(Value::as_str).unwrap_or(name);
-        let mut term = term_of(func).map_err(|m| (place.clone(), m))?;
+        let mut term = term_of(func).map_err(|e| (place.clone(), e.to_string()))?;
         let scale = match spec.get("scale") {
             None | Some(Value::Null) => 1.0,
             Some(v) => number(v, &format!("{place}/scale"))?,

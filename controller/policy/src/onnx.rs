@@ -15,7 +15,7 @@ use crate::native;
 mod bound;
 
 /// Why a policy model could not be loaded or run.
-#[derive(Debug, thiserror::Error)]
+#[derive(Debug, Clone, thiserror::Error)]
 #[non_exhaustive]
 pub enum OnnxError {
     /// The ONNX Runtime library is missing or of the wrong version.
@@ -52,30 +52,36 @@ pub enum OnnxError {
     Run(String),
 }
 
-static ENVIRONMENT: OnceLock<Result<Environment, String>> = OnceLock::new();
+/// Loaded once; a failure is kept and given to every caller (the library is not retried).
+static ENVIRONMENT: OnceLock<Result<Environment, OnnxError>> = OnceLock::new();
 
 /// The process-wide ONNX Runtime environment, loading the pinned library on first use.
 pub fn environment() -> Result<&'static Environment, OnnxError> {
     ENVIRONMENT
         .get_or_init(|| {
-            let path = native::find_onnxruntime().map_err(|e| e.to_string())?;
-            let version = native::onnxruntime_version(&path).map_err(|e| e.to_string())?;
+            let runtime = |e: &dyn std::fmt::Display| OnnxError::Runtime(e.to_string());
+            let path = native::find_onnxruntime().map_err(|e| runtime(&e))?;
+            let version = native::onnxruntime_version(&path).map_err(|e| runtime(&e))?;
             if version != native::ONNXRUNTIME_VERSION {
-                return Err(format!(
+                return Err(runtime(&format_args!(
                     "{} is ONNX Runtime {version}, but this build is pinned to {}; run `scripts/setup` to \
                      reinstall the pinned library",
                     path.display(),
                     native::ONNXRUNTIME_VERSION
-                ));
+                )));
             }
             ort::init_from(&path)
-                .map_err(|e| format!("{e}; run `scripts/setup` to reinstall the pinned library"))?
+                .map_err(|e| {
+                    runtime(&format_args!(
+                        "{e}; run `scripts/setup` to reinstall the pinned library"
+                    ))
+                })?
                 .with_name("robodeploy")
                 .build()
-                .map_err(|e| e.to_string())
+                .map_err(|e| runtime(&e))
         })
         .as_ref()
-        .map_err(|e| OnnxError::Runtime(e.clone()))
+        .map_err(Clone::clone)
 }
 
 /// The loaded ONNX Runtime's version and build description, for `doctor` and logs.
@@ -109,7 +115,7 @@ fn environment_for(path: &Path) -> Result<&'static Environment, OnnxError> {
 pub fn read_facts(path: &Path) -> Result<crate::export::ModelFacts, OnnxError> {
     robots::check_regular_file(path).map_err(|reason| OnnxError::Load {
         path: path.to_path_buf(),
-        reason,
+        reason: reason.to_string(),
     })?;
     let env = environment_for(path)?;
     let load_err = load_error(path);
@@ -151,16 +157,32 @@ pub struct OnnxModel {
 /// The name of the action output when a model has several outputs.
 pub const ACTION_OUTPUT: &str = "actions";
 
-/// The shape of a float tensor of fixed size with batch 1 (a free leading dimension counts as
-/// the batch), or why it is not one.
-fn fixed_shape(dtype: &ValueType) -> Result<Vec<i64>, String> {
+/// Why a model's input or output is not the tensor it must be.
+#[derive(Debug, thiserror::Error)]
+enum ShapeError {
+    #[error("is {0}, not a tensor")]
+    NotTensor(String),
+    #[error("has element type {0:?}, expected float32")]
+    NotFloat(TensorElementType),
+    #[error("has shape {dims:?}, expected {expected}")]
+    Shape { dims: Vec<i64>, expected: &'static str },
+}
+
+/// A float tensor's dimensions, or why it is not one.
+fn float_dims(dtype: &ValueType) -> Result<&[i64], ShapeError> {
     let (Some(shape), Some(ty)) = (dtype.tensor_shape(), dtype.tensor_type()) else {
-        return Err(format!("is {dtype:?}, not a tensor"));
+        return Err(ShapeError::NotTensor(format!("{dtype:?}")));
     };
     if ty != TensorElementType::Float32 {
-        return Err(format!("has element type {ty:?}, expected float32"));
+        return Err(ShapeError::NotFloat(ty));
     }
-    let dims: &[i64] = shape;
+    Ok(shape)
+}
+
+/// The shape of a float tensor of fixed size with batch 1 (a free leading dimension counts as
+/// the batch), or why it is not one.
+fn fixed_shape(dtype: &ValueType) -> Result<Vec<i64>, ShapeError> {
+    let dims = float_dims(dtype)?;
     let mut out = dims.to_vec();
     if let Some(first) = out.first_mut()
         && *first < 0
@@ -168,28 +190,27 @@ fn fixed_shape(dtype: &ValueType) -> Result<Vec<i64>, String> {
         *first = 1;
     }
     if out.first() != Some(&1) || out.iter().any(|&d| d <= 0) || out.iter().product::<i64>() > 1 << 26 {
-        return Err(format!(
-            "has shape {dims:?}, expected [1, …] with fixed sizes (at most 2^26 values)"
-        ));
+        return Err(ShapeError::Shape {
+            dims: dims.to_vec(),
+            expected: "[1, …] with fixed sizes (at most 2^26 values)",
+        });
     }
     Ok(out)
 }
 
 /// Length of a `[batch?, n]` or `[n]` float tensor, or why it is not one.
-fn vector_len(dtype: &ValueType) -> Result<usize, String> {
-    let (Some(shape), Some(ty)) = (dtype.tensor_shape(), dtype.tensor_type()) else {
-        return Err(format!("is {dtype:?}, not a tensor"));
+fn vector_len(dtype: &ValueType) -> Result<usize, ShapeError> {
+    let dims = float_dims(dtype)?;
+    let shape_error = |expected| ShapeError::Shape {
+        dims: dims.to_vec(),
+        expected,
     };
-    if ty != TensorElementType::Float32 {
-        return Err(format!("has element type {ty:?}, expected float32"));
-    }
-    let dims: &[i64] = shape;
     let n = match dims {
         [n] => *n,
         [b, n] if *b == 1 || *b < 0 => *n,
-        _ => return Err(format!("has shape {dims:?}, expected [n] or [batch, n]")),
+        _ => return Err(shape_error("[n] or [batch, n]")),
     };
-    usize::try_from(n).map_err(|_| format!("has shape {dims:?}: the feature size must be fixed"))
+    usize::try_from(n).map_err(|_| shape_error("a fixed feature size"))
 }
 
 impl OnnxModel {
@@ -210,7 +231,7 @@ impl OnnxModel {
     fn open(path: &Path, tensors: bool) -> Result<Self, OnnxError> {
         robots::check_regular_file(path).map_err(|reason| OnnxError::Load {
             path: path.to_path_buf(),
-            reason,
+            reason: reason.to_string(),
         })?;
         let env = environment_for(path)?;
         let load_err = load_error(path);
@@ -271,11 +292,10 @@ impl OnnxModel {
         }
         let mut bound_outputs = vec![(output.name().to_owned(), output_shape)];
         bound_outputs.extend(extra_outputs.iter().cloned());
-        let bound =
-            bound::BoundTensors::new(&input_shapes, &bound_outputs).map_err(|reason| OnnxError::Load {
-                path: path.to_path_buf(),
-                reason,
-            })?;
+        let bound = bound::BoundTensors::new(&input_shapes, &bound_outputs).map_err(|e| OnnxError::Load {
+            path: path.to_path_buf(),
+            reason: e.to_string(),
+        })?;
         Ok(Self {
             shapes: input_shapes
                 .into_iter()
@@ -350,6 +370,6 @@ impl OnnxModel {
         check("action", self.output_len, actions.len())?;
         self.bound
             .run(&mut self.session, obs, actions)
-            .map_err(OnnxError::Run)
+            .map_err(|e| OnnxError::Run(e.to_string()))
     }
 }

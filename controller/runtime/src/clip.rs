@@ -116,7 +116,7 @@ impl Clip {
             place: place.to_owned(),
             message,
         };
-        let text = robots::read_text(&side).map_err(|m| err("file", m))?;
+        let text = robots::read_text(&side).map_err(|m| err("file", m.to_string()))?;
         MotionSidecar::parse(&side, &text).map(Some)
     }
 }
@@ -174,7 +174,7 @@ impl Clip {
         let text = robots::read_text(path).map_err(|message| ClipError {
             file: path.to_path_buf(),
             place: "file".into(),
-            message,
+            message: message.to_string(),
         })?;
         Self::parse_headerless_csv(path, &text, sidecar)
     }
@@ -414,7 +414,7 @@ impl Clip {
         let text = robots::read_text(path).map_err(|message| ClipError {
             file: path.to_path_buf(),
             place: "file".into(),
-            message,
+            message: message.to_string(),
         })?;
         Self::parse_csv(path, &text)
     }

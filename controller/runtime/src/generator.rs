@@ -56,6 +56,17 @@ pub enum GeneratorError {
     /// Options out of their ranges.
     #[error("generator options: {0}")]
     Options(String),
+    /// A command value out of its range.
+    #[error("command: {0}")]
+    Command(#[from] CommandValueError),
+    /// The policy observes what a generator does not give.
+    #[error("{}: observes {observes}: a motion generator gives joint angles only", .policy.display())]
+    PolicyNeedsMore {
+        /// The policy manifest.
+        policy: PathBuf,
+        /// The terms (or "motion bodies") it would lack.
+        observes: String,
+    },
     /// The worker thread could not start.
     #[error("cannot start the generator's worker: {0}")]
     Thread(std::io::Error),
@@ -103,24 +114,46 @@ pub struct GeneratorCommand {
     pub values: Vec<f64>,
 }
 
+/// Command values that do not fit a generator's command.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum CommandValueError {
+    /// Not one value per name.
+    #[error("{given} values for {} ({})", names.len(), names.join(", "))]
+    Count {
+        /// Values given.
+        given: usize,
+        /// The command's names.
+        names: Vec<String>,
+    },
+    /// A value not finite or beyond ±1000.
+    #[error("{name} = {value}: a finite value within ±1000")]
+    OutOfRange {
+        /// Its name.
+        name: String,
+        /// The value.
+        value: f64,
+    },
+}
+
 impl GeneratorCommand {
     /// Checks `values` against the command: one per name, finite, within ±1000.
-    pub fn check(&self, values: &[f64]) -> Result<(), String> {
+    pub fn check(&self, values: &[f64]) -> Result<(), CommandValueError> {
         if values.len() != self.names.len() {
-            return Err(format!(
-                "{} values for {} ({})",
-                values.len(),
-                self.names.len(),
-                self.names.join(", ")
-            ));
+            return Err(CommandValueError::Count {
+                given: values.len(),
+                names: self.names.clone(),
+            });
         }
-        if let Some((name, v)) = self
+        if let Some((name, &value)) = self
             .names
             .iter()
             .zip(values)
             .find(|(_, v)| !(v.is_finite() && v.abs() <= 1000.0))
         {
-            return Err(format!("{name} = {v}: a finite value within ±1000"));
+            return Err(CommandValueError::OutOfRange {
+                name: name.clone(),
+                value,
+            });
         }
         Ok(())
     }
@@ -158,7 +191,8 @@ impl GeneratorDescription {
             if !(1..=16).contains(&c.names.len()) {
                 return Err(bad("command.names", format!("{} names: 1–16", c.names.len())));
             }
-            c.check(&c.values).map_err(|m| bad("command.values", m))?;
+            c.check(&c.values)
+                .map_err(|e| bad("command.values", e.to_string()))?;
             if c.input == d.input {
                 return Err(bad(
                     "command.input",
@@ -201,17 +235,18 @@ impl Default for GeneratorOptions {
 
 impl GeneratorOptions {
     /// Checks the ranges: forecast 0–2 s, blend 0.05–10 s, stall ≥ 0 s.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), GeneratorError> {
+        let out_of_range = |m: String| Err(GeneratorError::Options(m));
         if !(self.forecast_s.is_finite() && (0.0..=2.0).contains(&self.forecast_s)) {
-            return Err(format!("forecast {} s: 0–2 s", self.forecast_s));
+            return out_of_range(format!("forecast {} s: 0–2 s", self.forecast_s));
         }
         if !(self.blend_s.is_finite() && (0.05..=10.0).contains(&self.blend_s)) {
-            return Err(format!("blend {} s: 0.05–10 s", self.blend_s));
+            return out_of_range(format!("blend {} s: 0.05–10 s", self.blend_s));
         }
         if let Some(s) = self.stall_after_s
             && !(s.is_finite() && s >= 0.0)
         {
-            return Err(format!("stall after {s} s: a time ≥ 0"));
+            return out_of_range(format!("stall after {s} s: a time ≥ 0"));
         }
         Ok(())
     }
@@ -219,7 +254,7 @@ impl GeneratorOptions {
 
 /// Whether `layout` can track a generated reference: joint angles and velocities only (no
 /// reference bodies, anchor or embedded motion, which a generator does not produce).
-pub fn check_policy(layout: &policy::PolicyLayout) -> Result<(), String> {
+pub fn check_policy(layout: &policy::PolicyLayout) -> Result<(), GeneratorError> {
     use policy::Term;
     let unsupported: Vec<&str> = layout
         .slots
@@ -230,15 +265,14 @@ pub fn check_policy(layout: &policy::PolicyLayout) -> Result<(), String> {
     if unsupported.is_empty() && layout.manifest.motion_bodies.is_empty() {
         Ok(())
     } else {
-        Err(format!(
-            "{} observes {}: a motion generator gives joint angles only",
-            layout.path.display(),
-            if unsupported.is_empty() {
+        Err(GeneratorError::PolicyNeedsMore {
+            policy: layout.path.clone(),
+            observes: if unsupported.is_empty() {
                 "motion bodies".to_owned()
             } else {
                 unsupported.join(", ")
-            }
-        ))
+            },
+        })
     }
 }
 
@@ -389,8 +423,7 @@ impl Generator {
             self.description.command.as_ref().ok_or_else(|| {
                 GeneratorError::Options(format!("{} takes no command", self.path.display()))
             })?;
-        c.check(values)
-            .map_err(|m| GeneratorError::Options(format!("command: {m}")))?;
+        c.check(values)?;
         self.command = values.to_vec();
         Ok(())
     }
@@ -419,7 +452,7 @@ impl Generator {
         options: GeneratorOptions,
         lookahead_s: f64,
     ) -> Result<(GeneratorWorker, PlanReader), GeneratorError> {
-        options.check().map_err(GeneratorError::Options)?;
+        options.check()?;
         let d = &self.description;
         let (j, n, k) = (d.joints.len(), d.history, d.horizon);
         // What the loop may need: frames it played for the forecast's velocity, up to three steps
@@ -1114,7 +1147,7 @@ mod tests {
 
     #[test]
     fn options_out_of_range_are_refused() {
-        let bad = |o: GeneratorOptions| o.check().unwrap_err();
+        let bad = |o: GeneratorOptions| o.check().unwrap_err().to_string();
         let d = GeneratorOptions::default();
         assert!(d.check().is_ok());
         assert!(bad(GeneratorOptions { forecast_s: 3.0, ..d }).contains("forecast 3 s"));

@@ -40,16 +40,22 @@ impl From<String> for NpyError {
     }
 }
 
+impl From<&str> for NpyError {
+    fn from(message: &str) -> Self {
+        message.to_owned().into()
+    }
+}
+
 /// Reads every array of an `.npz` file by name (without the `.npy` suffix).
 pub fn read_npz(path: &Path) -> Result<BTreeMap<String, NpyArray>, NpyError> {
-    read_npz_entries(path).map_err(|message| NpyError {
+    read_npz_entries(path).map_err(|e| NpyError {
         file: Some(path.to_path_buf()),
-        message,
+        message: e.message,
     })
 }
 
-fn read_npz_entries(path: &Path) -> Result<BTreeMap<String, NpyArray>, String> {
-    robots::check_regular_file(path)?;
+fn read_npz_entries(path: &Path) -> Result<BTreeMap<String, NpyArray>, NpyError> {
+    robots::check_regular_file(path).map_err(|e| e.to_string())?;
     let file = std::fs::File::open(path).map_err(|e| format!("cannot open: {e}"))?;
     let mut zip = zip::ZipArchive::new(file).map_err(|e| format!("not an .npz (zip) file: {e}"))?;
     let mut out = BTreeMap::new();
@@ -62,7 +68,7 @@ fn read_npz_entries(path: &Path) -> Result<BTreeMap<String, NpyArray>, String> {
             .map_err(|e| format!("{name}: {e}"))?;
         out.insert(
             name.clone(),
-            parse_npy_text(&bytes).map_err(|e| format!("array {name:?}: {e}"))?,
+            parse_npy(&bytes).map_err(|e| format!("array {name:?}: {e}"))?,
         );
     }
     Ok(out)
@@ -70,10 +76,6 @@ fn read_npz_entries(path: &Path) -> Result<BTreeMap<String, NpyArray>, String> {
 
 /// Parses one `.npy` document.
 pub fn parse_npy(bytes: &[u8]) -> Result<NpyArray, NpyError> {
-    parse_npy_text(bytes).map_err(NpyError::from)
-}
-
-fn parse_npy_text(bytes: &[u8]) -> Result<NpyArray, String> {
     if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
         return Err("not an .npy array (bad magic)".into());
     }
@@ -83,7 +85,7 @@ fn parse_npy_text(bytes: &[u8]) -> Result<NpyArray, String> {
             u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize,
             12,
         ),
-        v => return Err(format!("unsupported .npy version {v}")),
+        v => return Err(format!("unsupported .npy version {v}").into()),
     };
     let header = bytes
         .get(start..start + header_len)
@@ -119,12 +121,12 @@ fn parse_npy_text(bytes: &[u8]) -> Result<NpyArray, String> {
     let data = &bytes[start + header_len..];
     let unsupported = || format!("unsupported dtype {descr:?} (need <f4, <f8, <i4, <i8 or <U)");
     if !descr.is_char_boundary(2.min(descr.len())) || descr.len() < 3 {
-        return Err(unsupported());
+        return Err(unsupported().into());
     }
     let (kind, size) = descr.split_at(2);
-    let size: usize = size.parse().map_err(|_| unsupported())?;
+    let size: usize = size.parse().map_err(|_| NpyError::from(unsupported()))?;
     if size == 0 {
-        return Err(unsupported());
+        return Err(unsupported().into());
     }
     // A `<U` item is `size` UTF-32 characters; the fuzzer found `<U` sizes whose byte count overflows.
     let item_bytes = if kind.ends_with('U') {
@@ -136,10 +138,7 @@ fn parse_npy_text(bytes: &[u8]) -> Result<NpyArray, String> {
         .and_then(|b| count.checked_mul(b))
         .ok_or("array too large")?;
     if data.len() < need {
-        return Err(format!(
-            "{} data bytes for shape {shape:?} of {descr}",
-            data.len()
-        ));
+        return Err(format!("{} data bytes for shape {shape:?} of {descr}", data.len()).into());
     }
     let numbers = |f: &dyn Fn(&[u8]) -> f64| NpyArray::Numbers {
         shape: shape.clone(),
@@ -164,9 +163,7 @@ fn parse_npy_text(bytes: &[u8]) -> Result<NpyArray, String> {
                 .collect(),
         },
         _ => {
-            return Err(format!(
-                "unsupported dtype {descr:?} (need <f4, <f8, <i4, <i8 or <U)"
-            ));
+            return Err(format!("unsupported dtype {descr:?} (need <f4, <f8, <i4, <i8 or <U)").into());
         }
     })
 }

@@ -114,7 +114,7 @@ pub fn parse_table(source_name: &str, text: &str) -> Result<Vec<DxlModel>, DxlMo
                 ("no_load_speed", m.no_load_speed),
             ],
         )
-        .map_err(err)?;
+        .map_err(|e| err(e.to_string()))?;
         if f64::from(m.pwm_limit) > PWM_FULL_SCALE {
             return Err(err(format!(
                 "[{name}] pwm_limit = {}: at most {PWM_FULL_SCALE}",

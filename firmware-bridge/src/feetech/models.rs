@@ -68,7 +68,7 @@ pub fn parse_table(source_name: &str, text: &str) -> Result<Vec<FeetechModel>, F
                 ("no_load_speed", m.no_load_speed),
             ],
         )
-        .map_err(err)?;
+        .map_err(|e| err(e.to_string()))?;
         if m.min_voltage >= m.max_voltage {
             return Err(err(format!("[{name}] min_voltage must be below max_voltage")));
         }

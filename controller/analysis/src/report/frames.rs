@@ -14,14 +14,27 @@ pub(super) struct Moment {
     pub q: Vec<f64>,
 }
 
+/// Why the pictures of a run could not be drawn.
+#[derive(Debug, thiserror::Error)]
+pub(super) enum FramesError {
+    #[error(transparent)]
+    Robot(#[from] robots::RobotError),
+    #[error(transparent)]
+    Mujoco(#[from] sim2real::mujoco::MujocoError),
+    #[error(transparent)]
+    Model(#[from] sim2real::model_index::ModelIndexError),
+    #[error("PNG encoding: {0}")]
+    Png(std::io::Error),
+}
+
 /// PNGs of `moments` of the robot at `robot_toml`, captioned.
 pub(super) fn render_moments(
     robot_toml: &Path,
     moments: &[Moment],
-) -> Result<Vec<(String, Vec<u8>)>, String> {
-    let robot = robots::Robot::load(robot_toml).map_err(|e| e.to_string())?;
-    let model = sim2real::mujoco::load_model(&robot.mjcf_path).map_err(|e| e.to_string())?;
-    let index = sim2real::model_index::ModelIndex::of_robot(&model, &robot).map_err(|e| e.to_string())?;
+) -> Result<Vec<(String, Vec<u8>)>, FramesError> {
+    let robot = robots::Robot::load(robot_toml)?;
+    let model = sim2real::mujoco::load_model(&robot.mjcf_path)?;
+    let index = sim2real::model_index::ModelIndex::of_robot(&model, &robot)?;
     let root = index.root.qpos;
     let adr: Vec<usize> = index.joints.iter().map(|j| j.qpos).collect();
     let mut data = MjData::new(Box::new(model));
@@ -44,7 +57,7 @@ pub(super) fn render_moments(
         let target = [m.base[0], m.base[1], m.base[2] - 0.1];
         let png = render(&mut data, &camera, target)
             .to_png()
-            .map_err(|e| e.to_string())?;
+            .map_err(FramesError::Png)?;
         out.push((m.caption.clone(), png));
     }
     Ok(out)

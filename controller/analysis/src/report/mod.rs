@@ -6,6 +6,8 @@
 //! root, bodies, estimator and timing plots (`plotters`, SVG), the safety phases shaded behind
 //! each — with its plots also as SVG files in `plots/`, `summary.md` and `summary.json`.
 
+use crate::recording::RecordingError;
+use plot::PlotError;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::Path;
@@ -187,8 +189,8 @@ fn floats(v: &serde_json::Value) -> Vec<f64> {
 }
 
 /// A typed message of `m`'s channel.
-fn decode<M: prost::Message + Default>(m: &crate::recording::Message<'_>) -> Result<M, String> {
-    M::decode(m.data).map_err(|e| format!("{}: {e}", m.topic))
+fn decode<M: prost::Message + Default>(m: &crate::recording::Message<'_>) -> Result<M, RecordingError> {
+    M::decode(m.data).map_err(|e| RecordingError::decode(m.topic, e))
 }
 
 /// `[x, y, z]` of a message vector (NaN when absent).
@@ -205,11 +207,8 @@ fn pose7(p: Option<&pb::Pose>) -> [f64; 7] {
 }
 
 fn read(path: &Path) -> Result<Series, AnalysisError> {
-    read_series(path).map_err(|m| AnalysisError::file(path, m))
-}
-
-fn read_series(path: &Path) -> Result<Series, String> {
-    let bytes = crate::recording::read(path)?;
+    let unreadable = |e| AnalysisError::recording(path, e);
+    let bytes = crate::recording::read(path).map_err(unreadable)?;
     let mut s = Series {
         tilt_limit: controller::safety::SafetyLimits::default().tilt,
         ..Series::default()
@@ -237,7 +236,7 @@ fn read_series(path: &Path) -> Result<Series, String> {
             }
             "/replay" => {
                 let v: serde_json::Value =
-                    serde_json::from_slice(m.data).map_err(|e| format!("{}: {e}", m.topic))?;
+                    serde_json::from_slice(m.data).map_err(|e| RecordingError::decode(m.topic, e))?;
                 if s.base_pose.is_empty() {
                     let meta = &m.metadata;
                     s.reference_ticks = meta.get("reference_ticks").and_then(|n| n.parse().ok());
@@ -330,9 +329,10 @@ fn read_series(path: &Path) -> Result<Series, String> {
             _ => {}
         }
         Ok(())
-    })?;
+    })
+    .map_err(unreadable)?;
     if s.q.is_empty() {
-        return Err("no /joint_state messages".to_owned());
+        return Err(AnalysisError::file(path, "no /joint_state messages"));
     }
     Ok(s)
 }
@@ -823,7 +823,7 @@ fn failures(s: &Series, summary: &RunSummary) -> Vec<String> {
 }
 
 /// The report page and its plots (name, SVG).
-fn page(log: &Path, s: &Series, summary: &RunSummary) -> Result<(String, Vec<(String, String)>), String> {
+fn page(log: &Path, s: &Series, summary: &RunSummary) -> Result<(String, Vec<(String, String)>), PlotError> {
     use plot::{BLUE, GREEN, Line, MEASURED, ORANGE, REFERENCE, TimePlot};
     let phases = phases(s);
     let mut plots: Vec<(String, String)> = Vec::new();
@@ -1031,7 +1031,7 @@ fn page(log: &Path, s: &Series, summary: &RunSummary) -> Result<(String, Vec<(St
                 }
             }
             Err(e) => {
-                let _ = writeln!(html, "<p>No pictures: {}</p>", escape(&e));
+                let _ = writeln!(html, "<p>No pictures: {}</p>", escape(&e.to_string()));
             }
         },
     }

@@ -52,10 +52,33 @@ pub(super) fn mode_color(mode: &str) -> Option<RGBColor> {
     })
 }
 
+/// Why a plot could not be drawn.
+#[derive(Debug, Clone, thiserror::Error)]
+pub enum PlotError {
+    /// No font to measure labels with.
+    #[error(
+        "the report's plots need a TrueType font: none of DejaVu Sans, Liberation Sans or FreeSans is \
+         installed (Debian: apt-get install fonts-dejavu-core)"
+    )]
+    NoFont,
+    /// The font file found is not one plotters reads.
+    #[error("the installed font could not be read")]
+    BadFont,
+    /// plotters failed drawing (its message).
+    #[error("drawing failed: {0}")]
+    Draw(String),
+}
+
+impl PlotError {
+    fn draw(e: impl std::error::Error) -> Self {
+        Self::Draw(e.to_string())
+    }
+}
+
 /// Finds a TrueType font on the machine for plotters to measure its labels with (the SVG names
 /// the family; the viewer draws it). Registered once.
-fn fonts() -> Result<(), String> {
-    static FONT: std::sync::OnceLock<Result<(), String>> = std::sync::OnceLock::new();
+fn fonts() -> Result<(), PlotError> {
+    static FONT: std::sync::OnceLock<Result<(), PlotError>> = std::sync::OnceLock::new();
     FONT.get_or_init(|| {
         let candidates = [
             "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
@@ -68,16 +91,11 @@ fn fonts() -> Result<(), String> {
         let bytes = candidates
             .iter()
             .find_map(|p| std::fs::read(p).ok())
-            .ok_or_else(|| {
-                "the report's plots need a TrueType font: none of DejaVu Sans, Liberation Sans or \
-                 FreeSans is installed (Debian: apt-get install fonts-dejavu-core)"
-                    .to_owned()
-            })?;
+            .ok_or(PlotError::NoFont)?;
         // Registered for the life of the process (plotters keeps a 'static reference).
         let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
         for style in [FontStyle::Normal, FontStyle::Bold] {
-            plotters::style::register_font("sans-serif", style, bytes)
-                .map_err(|_| "the installed font could not be read".to_owned())?;
+            plotters::style::register_font("sans-serif", style, bytes).map_err(|_| PlotError::BadFont)?;
         }
         Ok(())
     })
@@ -110,7 +128,7 @@ fn ranges(plot: &TimePlot<'_>, phases: &[Phase]) -> Option<((f64, f64), (f64, f6
 }
 
 /// `plot` as an SVG document, with `phases` shaded behind it.
-pub(super) fn time_plot(plot: &TimePlot<'_>, phases: &[Phase]) -> Result<String, String> {
+pub(super) fn time_plot(plot: &TimePlot<'_>, phases: &[Phase]) -> Result<String, PlotError> {
     fonts()?;
     let Some(((x0, x1), (y0, y1))) = ranges(plot, phases) else {
         return Ok(format!("<p>{}: no data</p>", plot.title));
@@ -118,14 +136,14 @@ pub(super) fn time_plot(plot: &TimePlot<'_>, phases: &[Phase]) -> Result<String,
     let mut svg = String::new();
     {
         let root = SVGBackend::with_string(&mut svg, plot.size).into_drawing_area();
-        root.fill(&WHITE).map_err(|e| e.to_string())?;
+        root.fill(&WHITE).map_err(PlotError::draw)?;
         let mut chart = ChartBuilder::on(&root)
             .caption(plot.title, ("sans-serif", 14))
             .margin(6)
             .x_label_area_size(30)
             .y_label_area_size(52)
             .build_cartesian_2d(x0..x1, y0..y1)
-            .map_err(|e| e.to_string())?;
+            .map_err(PlotError::draw)?;
         chart
             .configure_mesh()
             .x_desc("time (s)")
@@ -136,12 +154,12 @@ pub(super) fn time_plot(plot: &TimePlot<'_>, phases: &[Phase]) -> Result<String,
             .max_light_lines(2)
             .light_line_style(RGBColor(238, 238, 238))
             .draw()
-            .map_err(|e| e.to_string())?;
+            .map_err(PlotError::draw)?;
         chart
             .draw_series(phases.iter().filter_map(|p| {
                 mode_color(&p.mode).map(|c| Rectangle::new([(p.from, y0), (p.to, y1)], c.mix(0.18).filled()))
             }))
-            .map_err(|e| e.to_string())?;
+            .map_err(PlotError::draw)?;
         for &limit in &plot.limits {
             chart
                 .draw_series(DashedLineSeries::new(
@@ -150,7 +168,7 @@ pub(super) fn time_plot(plot: &TimePlot<'_>, phases: &[Phase]) -> Result<String,
                     4,
                     LIMIT.stroke_width(1),
                 ))
-                .map_err(|e| e.to_string())?;
+                .map_err(PlotError::draw)?;
         }
         for line in &plot.lines {
             let style = line.color.stroke_width(2);
@@ -167,7 +185,7 @@ pub(super) fn time_plot(plot: &TimePlot<'_>, phases: &[Phase]) -> Result<String,
             for run in runs.into_iter().filter(|r| !r.is_empty()) {
                 let drawn = chart
                     .draw_series(LineSeries::new(run, style))
-                    .map_err(|e| e.to_string())?;
+                    .map_err(PlotError::draw)?;
                 if first && plot.legend {
                     let color = line.color;
                     drawn
@@ -185,15 +203,15 @@ pub(super) fn time_plot(plot: &TimePlot<'_>, phases: &[Phase]) -> Result<String,
                 .label_font(("sans-serif", 11))
                 .position(SeriesLabelPosition::UpperRight)
                 .draw()
-                .map_err(|e| e.to_string())?;
+                .map_err(PlotError::draw)?;
         }
-        root.present().map_err(|e| e.to_string())?;
+        root.present().map_err(PlotError::draw)?;
     }
     Ok(svg)
 }
 
 /// The safety timeline: each phase of the state machine as a coloured band, named.
-pub(super) fn timeline(phases: &[Phase], size: (u32, u32)) -> Result<String, String> {
+pub(super) fn timeline(phases: &[Phase], size: (u32, u32)) -> Result<String, PlotError> {
     fonts()?;
     let (Some(first), Some(last)) = (phases.first(), phases.last()) else {
         return Ok("<p>no safety transitions recorded</p>".into());
@@ -202,13 +220,13 @@ pub(super) fn timeline(phases: &[Phase], size: (u32, u32)) -> Result<String, Str
     let mut svg = String::new();
     {
         let root = SVGBackend::with_string(&mut svg, size).into_drawing_area();
-        root.fill(&WHITE).map_err(|e| e.to_string())?;
+        root.fill(&WHITE).map_err(PlotError::draw)?;
         let mut chart = ChartBuilder::on(&root)
             .margin(6)
             .x_label_area_size(30)
             .y_label_area_size(52)
             .build_cartesian_2d(x0..x1, 0.0..1.0)
-            .map_err(|e| e.to_string())?;
+            .map_err(PlotError::draw)?;
         chart
             .configure_mesh()
             .disable_y_mesh()
@@ -217,21 +235,21 @@ pub(super) fn timeline(phases: &[Phase], size: (u32, u32)) -> Result<String, Str
             .x_labels(8)
             .label_style(("sans-serif", 11))
             .draw()
-            .map_err(|e| e.to_string())?;
+            .map_err(PlotError::draw)?;
         for p in phases {
             let Some(c) = mode_color(&p.mode) else { continue };
             chart
                 .draw_series([Rectangle::new([(p.from, 0.0), (p.to, 1.0)], c.filled())])
-                .map_err(|e| e.to_string())?;
+                .map_err(PlotError::draw)?;
             // The name where it fits.
             let px_per_s = f64::from(size.0.saturating_sub(64)) / (x1 - x0);
             if (p.to - p.from) * px_per_s > 7.0 * p.mode.len() as f64 {
                 chart
                     .draw_series([Text::new(p.mode.clone(), (p.from, 0.62), ("sans-serif", 12))])
-                    .map_err(|e| e.to_string())?;
+                    .map_err(PlotError::draw)?;
             }
         }
-        root.present().map_err(|e| e.to_string())?;
+        root.present().map_err(PlotError::draw)?;
     }
     Ok(svg)
 }

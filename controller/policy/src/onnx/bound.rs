@@ -40,7 +40,17 @@ pub(super) struct BoundTensors {
 // alone; moving them to another thread is sound (ONNX Runtime has no thread affinity for them).
 unsafe impl Send for BoundTensors {}
 
-fn check(status: OrtStatusPtr) -> Result<(), String> {
+/// A call into ONNX Runtime's C API that returned an error status.
+#[derive(Debug, thiserror::Error)]
+#[error("{call}: {message}")]
+pub(super) struct OrtCallFailed {
+    /// The C function.
+    call: &'static str,
+    /// ONNX Runtime's message.
+    message: String,
+}
+
+fn check(call: &'static str, status: OrtStatusPtr) -> Result<(), OrtCallFailed> {
     if status.0.is_null() {
         return Ok(());
     }
@@ -51,28 +61,34 @@ fn check(status: OrtStatusPtr) -> Result<(), String> {
         .into_owned();
     // SAFETY: released once, after reading its message.
     unsafe { (api.ReleaseStatus)(status.0) };
-    Err(message)
+    Err(OrtCallFailed { call, message })
 }
 
 /// A float tensor of `shape` over a new buffer.
-fn tensor(memory: *mut OrtMemoryInfo, name: &str, shape: &[i64]) -> Result<Bound, String> {
+fn tensor(memory: *mut OrtMemoryInfo, name: &str, shape: &[i64]) -> Result<Bound, OrtCallFailed> {
     let n = shape.iter().product::<i64>().max(0) as usize;
     let mut bound = Bound {
-        _name: CString::new(name).map_err(|e| e.to_string())?,
+        _name: CString::new(name).map_err(|e| OrtCallFailed {
+            call: "CreateTensorWithDataAsOrtValue",
+            message: format!("tensor name {name:?}: {e}"),
+        })?,
         buffer: vec![0.0; n].into_boxed_slice(),
         value: std::ptr::null_mut(),
     };
     // SAFETY: the buffer is owned by `bound` and outlives the value (released first in Drop).
     unsafe {
-        check((ort::api().CreateTensorWithDataAsOrtValue)(
-            memory,
-            bound.buffer.as_mut_ptr().cast::<c_void>(),
-            n * size_of::<f32>(),
-            shape.as_ptr(),
-            shape.len(),
-            ONNXTensorElementDataType::ONNX_TENSOR_ELEMENT_DATA_TYPE_FLOAT,
-            &mut bound.value,
-        ))?;
+        check(
+            "CreateTensorWithDataAsOrtValue",
+            (ort::api().CreateTensorWithDataAsOrtValue)(
+                memory,
+                bound.buffer.as_mut_ptr().cast::<c_void>(),
+                n * size_of::<f32>(),
+                shape.as_ptr(),
+                shape.len(),
+                ONNXTensorElementDataType::ONNX_TENSOR_ELEMENT_DATA_TYPE_FLOAT,
+                &mut bound.value,
+            ),
+        )?;
     }
     Ok(bound)
 }
@@ -80,10 +96,13 @@ fn tensor(memory: *mut OrtMemoryInfo, name: &str, shape: &[i64]) -> Result<Bound
 impl BoundTensors {
     /// A tensor of its shape for each input (in the session's order) and for each output (the
     /// action output first).
-    pub(super) fn new(inputs: &[(String, Vec<i64>)], outputs: &[(String, Vec<i64>)]) -> Result<Self, String> {
+    pub(super) fn new(
+        inputs: &[(String, Vec<i64>)],
+        outputs: &[(String, Vec<i64>)],
+    ) -> Result<Self, OrtCallFailed> {
         let mut memory = std::ptr::null_mut();
         // SAFETY: out-pointer to a local; released in Drop (or below on error).
-        check(unsafe {
+        check("CreateCpuMemoryInfo", unsafe {
             (ort::api().CreateCpuMemoryInfo)(
                 OrtAllocatorType::OrtArenaAllocator,
                 OrtMemType::OrtMemTypeDefault,
@@ -126,7 +145,7 @@ impl BoundTensors {
         session: &mut Session,
         obs: &[f32],
         actions: &mut [f32],
-    ) -> Result<(), String> {
+    ) -> Result<(), OrtCallFailed> {
         let mut at = 0;
         for input in &mut self.inputs {
             let n = input.buffer.len();
@@ -137,16 +156,19 @@ impl BoundTensors {
         // by `self` and outlive the call; the output tensor is pre-allocated with the model's shape,
         // so ONNX Runtime writes into our buffer instead of allocating.
         unsafe {
-            check((ort::api().Run)(
-                session.ptr_mut(),
-                std::ptr::null(),
-                self.input_names.as_ptr(),
-                self.input_values.as_ptr(),
-                self.inputs.len(),
-                self.output_names.as_ptr(),
-                self.outputs.len(),
-                self.output_values.as_mut_ptr(),
-            ))?;
+            check(
+                "Run",
+                (ort::api().Run)(
+                    session.ptr_mut(),
+                    std::ptr::null(),
+                    self.input_names.as_ptr(),
+                    self.input_values.as_ptr(),
+                    self.inputs.len(),
+                    self.output_names.as_ptr(),
+                    self.outputs.len(),
+                    self.output_values.as_mut_ptr(),
+                ),
+            )?;
         }
         actions.copy_from_slice(&self.outputs[0].buffer);
         Ok(())

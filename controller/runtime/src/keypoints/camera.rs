@@ -118,7 +118,7 @@ pub fn cameras_from_str(path: &Path, text: &str) -> Result<Vec<Camera>, FileErro
             return Err(bad("position", format!("{:?}: each within ±1000 m", c.position)));
         }
         let rotation = match (c.look_at, c.orientation) {
-            (Some(target), None) => look_at(c.position, target).map_err(|m| bad("look_at", m))?,
+            (Some(target), None) => look_at(c.position, target).map_err(|e| bad("look_at", e.to_string()))?,
             (None, Some(q)) => {
                 let norm = q.iter().map(|v| v * v).sum::<f64>().sqrt();
                 if !norm.is_finite() || (norm - 1.0).abs() > 1e-3 {
@@ -155,20 +155,31 @@ pub fn cameras_from_str(path: &Path, text: &str) -> Result<Vec<Camera>, FileErro
     Ok(cameras)
 }
 
+/// Why a `look_at` target gives no camera orientation.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+enum LookAtError {
+    #[error("{0:?} is not a point")]
+    NotAPoint([f64; 3]),
+    #[error("the camera looks at its own centre")]
+    OwnCentre,
+    #[error("straight up or down: give an orientation instead")]
+    Vertical,
+}
+
 /// The camera frame at `eye` looking at `target`, the image's up along the world's +z.
-fn look_at(eye: [f64; 3], target: [f64; 3]) -> Result<spatial::Mat3, String> {
+fn look_at(eye: [f64; 3], target: [f64; 3]) -> Result<spatial::Mat3, LookAtError> {
     if target.iter().any(|v| !v.is_finite()) {
-        return Err(format!("{target:?} is not a point"));
+        return Err(LookAtError::NotAPoint(target));
     }
     let forward = spatial::sub(target, eye);
     let n = spatial::norm(forward);
     if n < 1e-6 {
-        return Err("the camera looks at its own centre".into());
+        return Err(LookAtError::OwnCentre);
     }
     let z = spatial::scale(forward, 1.0 / n);
     let right = spatial::cross(z, [0.0, 0.0, 1.0]);
     if spatial::norm(right) < 1e-6 {
-        return Err("straight up or down: give an orientation instead".into());
+        return Err(LookAtError::Vertical);
     }
     let x = spatial::scale(right, 1.0 / spatial::norm(right));
     let y = spatial::cross(z, x);

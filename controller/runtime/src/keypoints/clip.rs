@@ -223,35 +223,55 @@ fn view_cameras<'a>(
 
 /// A keypoint checked: confidence within [0, 1] (COCO's visibility flags 1 and 2 count as 1), and
 /// when seen, finite and on the camera's image. `place` names it in the error.
-fn checked(p: [f64; 3], camera: Option<&Camera>, place: impl Fn() -> String) -> Result<[f64; 3], String> {
+fn checked(
+    p: [f64; 3],
+    camera: Option<&Camera>,
+    place: impl Fn() -> String,
+) -> Result<[f64; 3], BadKeypoint> {
     let confidence = p[2];
     if !confidence.is_finite() || confidence < 0.0 {
-        return Err(format!(
-            "{}: confidence {confidence} is not within [0, 1]",
-            place()
-        ));
+        return Err(BadKeypoint::Confidence {
+            place: place(),
+            confidence,
+        });
     }
     let confidence = confidence.min(1.0);
     if confidence <= MIN_CONFIDENCE {
         return Ok([f64::NAN, f64::NAN, 0.0]);
     }
     if !(p[0].is_finite() && p[1].is_finite()) {
-        return Err(format!("{}: ({}, {}) is not a pixel", place(), p[0], p[1]));
+        return Err(BadKeypoint::NotAPixel {
+            place: place(),
+            at: [p[0], p[1]],
+        });
     }
     if let Some(c) = camera
         && !c.sees([p[0], p[1]])
     {
-        return Err(format!(
-            "{}: ({}, {}) is outside camera {}'s {}×{} image",
-            place(),
-            p[0],
-            p[1],
-            c.name,
-            c.width,
-            c.height
-        ));
+        return Err(BadKeypoint::OffImage {
+            place: place(),
+            at: [p[0], p[1]],
+            camera: c.name.clone(),
+            size: [c.width, c.height],
+        });
     }
     Ok([p[0], p[1], confidence])
+}
+
+/// A keypoint that is not one, named by its place in the file.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+enum BadKeypoint {
+    #[error("{place}: confidence {confidence} is not within [0, 1]")]
+    Confidence { place: String, confidence: f64 },
+    #[error("{place}: ({}, {}) is not a pixel", at[0], at[1])]
+    NotAPixel { place: String, at: [f64; 2] },
+    #[error("{place}: ({}, {}) is outside camera {camera}'s {}×{} image", at[0], at[1], size[0], size[1])]
+    OffImage {
+        place: String,
+        at: [f64; 2],
+        camera: String,
+        size: [u32; 2],
+    },
 }
 
 /// Where a run's 2D keypoint references come from (what `play --keypoints` was given, and what
@@ -447,7 +467,7 @@ pub fn coco_from_str(
                     let point = checked([p[0], p[1], p[2]], camera, || {
                         format!("image {}, {}", image.text, names[n])
                     })
-                    .map_err(&bad)?;
+                    .map_err(|e| bad(e.to_string()))?;
                     clip.points.push(point);
                 }
             }
