@@ -463,7 +463,7 @@ fn the_shipped_foxglove_layouts_are_what_the_command_writes_and_every_plot_reads
             .map(|j| j.name.clone())
             .collect();
         let layout: serde_json::Value = serde_json::from_str(&written).unwrap();
-        let paths = controller::telemetry::layout::message_paths(&layout);
+        let paths = viewers::layout::message_paths(&layout);
         assert!(paths.len() >= 3 * joints.len(), "{} paths", paths.len());
         for path in paths {
             // `/topic.field[:]{name=="joint"}.field`: the topic is recorded, each field is in

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::Args;
-use controller::telemetry::layout::{LayoutJoint, foxglove_layout};
+use viewers::layout::{LayoutJoint, foxglove_layout};
 
 /// Arguments of `layout`.
 #[derive(Debug, Args)]
@@ -47,6 +47,11 @@ pub fn layout_json(robot: &robots::Robot) -> Result<String> {
             limits: j.position_limits,
         })
         .collect();
-    let layout = foxglove_layout(&robot.config.name, &robot.config.root_body, &joints);
+    let layout = foxglove_layout(
+        &robot.config.name,
+        &robot.config.root_body,
+        &joints,
+        controller::keypoints::FAILURE_PX,
+    );
     Ok(serde_json::to_string_pretty(&layout)? + "\n")
 }

@@ -967,7 +967,7 @@ pub(crate) fn start_recording(
         Backpressure::Block
     };
     let live = match rec.live_view {
-        Some(addr) => Some(Arc::new(controller::live::LiveView::serve(
+        Some(addr) => Some(Arc::new(viewers::live::LiveView::serve(
             addr,
             &format!("robodeploy: {robot}"),
         )?)),

@@ -15,7 +15,6 @@ pub mod generator;
 pub mod histogram;
 pub mod keypoints;
 mod lifecycle;
-pub mod live;
 pub mod metrics;
 pub mod motion;
 pub mod npy;

@@ -8,6 +8,7 @@ use telemetry_schema as pb;
 use super::{MODE_NAMES, RecordingInfo, TickRecord};
 use crate::generator::PlanStatus;
 use robot_link::CycleRecord;
+use viewers::fg_time;
 
 /// `[x, y, z]` as a message vector.
 pub(super) fn vec3(v: [f64; 3]) -> Option<pb::Vector3> {
@@ -29,29 +30,6 @@ pub(super) fn pose(p: [f64; 7]) -> Option<pb::Pose> {
             w: p[3],
         }),
     })
-}
-
-/// The same pose as Foxglove's well-known `Pose`.
-pub(super) fn fg_pose(p: [f64; 7]) -> fg::Pose {
-    fg::Pose {
-        position: Some(fg::Vector3 {
-            x: p[0],
-            y: p[1],
-            z: p[2],
-        }),
-        orientation: Some(fg::Quaternion {
-            x: p[4],
-            y: p[5],
-            z: p[6],
-            w: p[3],
-        }),
-    }
-}
-
-/// Foxglove's timestamp of `ns` since the epoch (the latest it can hold past 2106).
-pub(super) fn fg_time(ns: u64) -> Option<fg::Timestamp> {
-    let sec = u32::try_from(ns / 1_000_000_000).unwrap_or(u32::MAX);
-    Some(fg::Timestamp::new(sec, (ns % 1_000_000_000) as u32))
 }
 
 /// The name of item `i`, or a stand-in past the names given.

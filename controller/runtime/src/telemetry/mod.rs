@@ -10,9 +10,7 @@
 //! In wall-clock runs the loop never waits for the logger: a full ring drops the record and counts
 //! it. In lockstep runs simulated time can wait, so the loop blocks instead and nothing is dropped.
 
-pub mod layout;
 mod messages;
-mod robot3d;
 
 use robot_link::CycleRecord;
 use std::collections::BTreeMap;
@@ -383,8 +381,8 @@ pub enum TelemetryError {
         message: String,
     },
     /// The robot's model could not give the per-link frames.
-    #[error("{0}")]
-    Kinematics(String),
+    #[error(transparent)]
+    Robot3d(#[from] viewers::robot3d::Robot3dError),
     /// The logger thread could not start, or died.
     #[error("telemetry logger: {0}")]
     Logger(String),
@@ -464,7 +462,7 @@ pub struct RecordingInfo {
     /// (`lin_vel_x`, `lin_vel_y`, `ang_vel_z`, `other`).
     pub commands: Vec<(String, human::commands::CommandKind)>,
     /// A live view that serves every channel as it is written.
-    pub live: Option<Arc<crate::live::LiveView>>,
+    pub live: Option<Arc<viewers::live::LiveView>>,
     /// The robot's feet (robot.toml order), named in `/estimator`.
     pub foot_names: Vec<String>,
     /// What the recording's times are.
@@ -503,7 +501,7 @@ struct Channel {
 /// The MCAP writer and the live view, fed the same encoded bytes; counts what it wrote.
 struct Out<W: std::io::Write + std::io::Seek> {
     mcap: std::mem::ManuallyDrop<mcap::Writer<W>>,
-    live: Option<Arc<crate::live::LiveView>>,
+    live: Option<Arc<viewers::live::LiveView>>,
     sequence: u32,
     counts: BTreeMap<String, u64>,
     buf: Vec<u8>,
@@ -548,7 +546,7 @@ impl<W: std::io::Write + std::io::Seek> Out<W> {
         };
         self.mcap.write_to_known_channel(&header, data)?;
         if let Some(live) = &channel.live {
-            crate::live::publish(live, data, time_ns);
+            viewers::live::publish(live, data, time_ns);
         }
         match self.counts.get_mut(&channel.topic) {
             Some(n) => *n += 1,
@@ -704,7 +702,7 @@ impl TelemetrySink {
         let mut messages = messages::Messages::new(info);
         // The robot in 3D: its links' frames and its geometry, when the model is known.
         let mut robot = match &info.kinematics {
-            Some((mjcf, joints)) => Some(robot3d::Links::new(mjcf, joints, &info.root_frame)?),
+            Some((mjcf, joints)) => Some(viewers::robot3d::Links::new(mjcf, joints, &info.root_frame)?),
             None => None,
         };
         let clock = info.clock;
@@ -910,7 +908,7 @@ impl TickChannels {
         &self,
         out: &mut Out<W>,
         m: &mut messages::Messages,
-        robot: Option<&mut (robot3d::Links, foxglove::schemas::SceneUpdate)>,
+        robot: Option<&mut (viewers::robot3d::Links, foxglove::schemas::SceneUpdate)>,
         text: &mut String,
         r: &TickRecord,
         t: u64,
@@ -937,9 +935,9 @@ impl TickChannels {
         if let Some((robot, reference)) = r.anchors {
             for (channel, p) in [(&self.robot_anchor, robot), (&self.reference_anchor, reference)] {
                 let pose = fg::PoseInFrame {
-                    timestamp: messages::fg_time(t),
+                    timestamp: viewers::fg_time(t),
                     frame_id: "world".into(),
-                    pose: Some(messages::fg_pose(p)),
+                    pose: Some(viewers::fg_pose(p)),
                 };
                 out.message(channel, t, &pose)?;
             }
@@ -948,7 +946,7 @@ impl TickChannels {
             let first = !out.counts.contains_key("/robot");
             if first || r.tick.is_multiple_of(SCENE_EVERY) {
                 for e in &mut scene.entities {
-                    e.timestamp = messages::fg_time(t);
+                    e.timestamp = viewers::fg_time(t);
                 }
                 if first {
                     out.message(&self.robot, t, scene)?;
@@ -957,7 +955,7 @@ impl TickChannels {
                     let mut buf = Vec::new();
                     prost::Message::encode(&*scene, &mut buf)
                         .map_err(|e| mcap::McapError::Io(std::io::Error::other(e)))?;
-                    crate::live::publish(live, &buf, t);
+                    viewers::live::publish(live, &buf, t);
                 }
             }
             let root = root_pose(r);

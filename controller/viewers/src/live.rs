@@ -99,7 +99,7 @@ impl LiveView {
     }
 
     /// A channel as the recording has it: topic, schema, message encoding, metadata.
-    pub(crate) fn channel(
+    pub fn channel(
         &self,
         topic: &str,
         schema: &foxglove::Schema,
@@ -128,6 +128,6 @@ impl Drop for LiveView {
 }
 
 /// Hands an encoded message to a live channel, stamped with the recording's time.
-pub(crate) fn publish(channel: &foxglove::RawChannel, data: &[u8], time_ns: u64) {
+pub fn publish(channel: &foxglove::RawChannel, data: &[u8], time_ns: u64) {
     channel.log_with_meta(data, foxglove::PartialMetadata::with_log_time(time_ns));
 }

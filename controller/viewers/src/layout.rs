@@ -21,8 +21,9 @@ pub struct LayoutJoint {
     pub limits: [f64; 2],
 }
 
-/// The layout for a robot whose root frame is `root`, with `joints` in robot order.
-pub fn foxglove_layout(robot: &str, root: &str, joints: &[LayoutJoint]) -> Value {
+/// The layout for a robot whose root frame is `root`, with `joints` in robot order; the keypoint
+/// plot marks errors over `keypoint_failure_px` as failures.
+pub fn foxglove_layout(robot: &str, root: &str, joints: &[LayoutJoint], keypoint_failure_px: f64) -> Value {
     let mut panels = serde_json::Map::new();
     let mut buses: Vec<&str> = Vec::new();
     for j in joints {
@@ -76,7 +77,7 @@ pub fn foxglove_layout(robot: &str, root: &str, joints: &[LayoutJoint]) -> Value
                 series("/policy.keypoint_errors[1].mean_px", "view 2 mean", "#9ad86e"),
                 series("/policy.keypoint_errors[1].max_px", "view 2 max", "#f5a623"),
             ],
-            "referenceLines": [{"value": crate::keypoints::FAILURE_PX, "color": "#e05d5d"}],
+            "referenceLines": [{"value": keypoint_failure_px, "color": "#e05d5d"}],
             "showLegend": true, "legendDisplay": "floating", "isSynced": true,
             "xAxisVal": "timestamp", "showXAxisLabels": true, "showYAxisLabels": true,
         }),

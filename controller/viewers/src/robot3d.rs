@@ -16,11 +16,26 @@ use mujoco_rs::mujoco_c::_mjtGeomBase as G;
 use mujoco_rs::prelude::{MjData, MjModel};
 use robots::spatial;
 
-use super::TelemetryError;
-use super::messages::{fg_pose, fg_time};
+use crate::{fg_pose, fg_time};
+
+/// Why the robot's model cannot give its links' frames and geometry.
+#[derive(Debug, thiserror::Error)]
+pub enum Robot3dError {
+    /// MuJoCo could not load the model.
+    #[error(transparent)]
+    Mujoco(#[from] sim2real::mujoco::MujocoError),
+    /// The model lacks the root or a joint the run names.
+    #[error("{source} ({})", mjcf.display())]
+    Model {
+        /// The MJCF file.
+        mjcf: std::path::PathBuf,
+        /// What it lacks.
+        source: sim2real::model_index::ModelIndexError,
+    },
+}
 
 /// Forward kinematics of the recorded joints: each link's pose in its parent's frame.
-pub(super) struct Links {
+pub struct Links {
     data: MjData<Box<MjModel>>,
     root_qpos: usize,
     joint_qpos: Vec<usize>,
@@ -33,17 +48,16 @@ pub(super) struct Links {
 
 impl Links {
     /// The links of `mjcf`, whose joints `joints` are in robot order; the root body is `root`.
-    pub(super) fn new(
-        mjcf: &Path,
-        joints: &[String],
-        root: &str,
-    ) -> Result<(Self, fg::SceneUpdate), TelemetryError> {
+    pub fn new(mjcf: &Path, joints: &[String], root: &str) -> Result<(Self, fg::SceneUpdate), Robot3dError> {
         use mujoco_rs::wrappers::mj_model::MjtObjBase;
-        let model =
-            sim2real::mujoco::load_model(mjcf).map_err(|e| TelemetryError::Kinematics(e.to_string()))?;
+        let model = sim2real::mujoco::load_model(mjcf)?;
         let joints: Vec<&str> = joints.iter().map(String::as_str).collect();
-        let index = sim2real::model_index::ModelIndex::new(&model, root, &joints, &[])
-            .map_err(|e| TelemetryError::Kinematics(format!("{e} ({})", mjcf.display())))?;
+        let index = sim2real::model_index::ModelIndex::new(&model, root, &joints, &[]).map_err(|source| {
+            Robot3dError::Model {
+                mjcf: mjcf.to_path_buf(),
+                source,
+            }
+        })?;
         let (root_body, root_qpos) = (index.root_body, index.root.qpos);
         let name = |b: usize| {
             model
@@ -76,7 +90,7 @@ impl Links {
 
     /// Every link's frame for `q` (robot order) with the root at `root_pose` `[x, y, z, w, qx,
     /// qy, qz]` in the world, stamped `stamp`.
-    pub(super) fn update(&mut self, root_pose: [f64; 7], q: &[f64], stamp: u64) -> &fg::FrameTransforms {
+    pub fn update(&mut self, root_pose: [f64; 7], q: &[f64], stamp: u64) -> &fg::FrameTransforms {
         let qpos = self.data.qpos_mut();
         qpos[self.root_qpos..self.root_qpos + 7].copy_from_slice(&root_pose);
         for (&adr, &v) in self.joint_qpos.iter().zip(q) {
