@@ -343,3 +343,91 @@ fn marching_in_place_the_contacts_agree_and_the_velocity_follows() {
     assert!(e.contact_agreement >= 0.98, "{e}");
     assert!(e.velocity_rmse < 0.05, "{e}");
 }
+
+/// The mirror as issue 33 measures a walking estimate: IMU noise ×1.5 and both biases drifting,
+/// mass, friction and strength randomised.
+fn noisy_mirror(seed: u64) -> MirrorConfig {
+    MirrorConfig {
+        seed,
+        randomization: sim2real::config::Randomization {
+            mass_scale: sim2real::config::Range(0.95, 1.05),
+            friction_scale: sim2real::config::Range(0.8, 1.2),
+            strength_scale: sim2real::config::Range(0.9, 1.0),
+            imu_noise_scale: 1.5,
+            imu_gyro_bias_walk_dps: 0.01,
+            imu_accel_bias_walk: 0.005,
+            ..Default::default()
+        },
+        ..MirrorConfig::default()
+    }
+}
+
+/// holosoma's trained locomotion policy walking `robot` 20 s from its harness, 0.5 m/s ahead
+/// while turning 0.3 rad/s, on the noisy mirror.
+fn walk_with_turns(robot: &str) -> PlaySummary {
+    let root = test_support::fixtures::workspace_root();
+    let dir = root.join("robots").join(robot);
+    let loaded = Robot::load(&dir.join("robot.toml")).unwrap();
+    let mut layout = PolicyLayout::load(&dir.join("policies/holosoma_loco_ppo.toml"), &loaded).unwrap();
+    // Turning rate, forward, leftward.
+    layout.set_command(&[0.3, 0.5, 0.0]).unwrap();
+    let (reference, _) =
+        controller::motion::load_reference(None, &layout.onnx_path.clone(), &mut layout, &loaded, 0).unwrap();
+    // A command-driven run goes on until stopped: 20 s of it.
+    let options = PlayOptions {
+        max_ticks: Some(20 * 50),
+        end: EndMode::Stand,
+        ..PlayOptions::default()
+    };
+    let (mut p, mut clock, _w) = lockstep_player(
+        loaded,
+        layout,
+        reference,
+        options,
+        noisy_mirror(3),
+        Arc::new(AtomicBool::new(false)),
+    )
+    .unwrap();
+    p.run(&mut clock).unwrap()
+}
+
+#[test]
+fn walking_20_s_with_turns_the_g1_and_t1_estimates_keep_their_height_and_place() {
+    for robot in ["g1", "t1"] {
+        let s = walk_with_turns(robot);
+        assert!(!s.fell, "{robot}\n{s}");
+        let e = s.estimator.unwrap();
+        let walked = s.locomotion.as_ref().unwrap().distance_m;
+        assert!(walked > 5.0, "{robot} walked {walked:.2} m\n{s}");
+        // Issue 33's acceptance on height and drift, for both.
+        assert!(e.height_rmse < 0.01, "{robot}: {e}");
+        assert!(
+            e.final_position_error < 0.02 * walked,
+            "{robot}: {e} over {walked:.2} m"
+        );
+        if robot == "g1" {
+            assert!(
+                e.velocity_rmse < 0.05 && e.contact_agreement > 0.97,
+                "{robot}: {e}"
+            );
+        }
+    }
+}
+
+#[test]
+fn on_the_gantry_the_summary_says_the_robot_was_held_and_compares_nothing() {
+    let s = run(
+        squat,
+        PlayOptions {
+            max_ticks: Some(150),
+            ..PlayOptions::default()
+        },
+        MirrorConfig {
+            gantry: true,
+            ..MirrorConfig::default()
+        },
+    );
+    assert!(s.estimator.is_none(), "{s}");
+    assert!(s.estimator_held_ticks > 100, "{s}");
+    assert!(s.to_string().contains("the robot was held the whole run"), "{s}");
+}

@@ -56,6 +56,8 @@ pub struct PlaySummary {
     pub anchor: Option<usize>,
     /// The state estimate against the simulation's truth (runs with both).
     pub estimator: Option<EstimatorAccuracy>,
+    /// Ticks the estimator ran with the robot held (a harness, a gantry): not compared.
+    pub estimator_held_ticks: u64,
     /// A command-driven run (no clip): where the robot went against its commands. Such a run
     /// reports no clip-tracking numbers.
     pub locomotion: Option<LocomotionSummary>,
@@ -111,8 +113,18 @@ impl std::fmt::Display for PlaySummary {
                 writeln!(f, "anchor ({name}) RMSE: {:.1} cm", 100.0 * e)?;
             }
         }
-        if let Some(e) = &self.estimator {
-            writeln!(f, "state estimate: {e}")?;
+        match (&self.estimator, self.estimator_held_ticks) {
+            (Some(e), 0) => writeln!(f, "state estimate: {e}")?,
+            (Some(e), held) => writeln!(
+                f,
+                "state estimate: {e} (after {held} ticks held off the ground, not compared)"
+            )?,
+            (None, 0) => {}
+            (None, _) => writeln!(
+                f,
+                "state estimate: the robot was held the whole run (its feet never carried its weight): \
+                 no ground to compare it on"
+            )?,
         }
         writeln!(f, "fell: {}", if self.fell { "YES" } else { "no" })?;
         if self.locomotion.is_some() {
@@ -418,6 +430,7 @@ struct EstimatorErrors {
     max_position_error: f64,
     feet_agreeing: u64,
     feet_compared: u64,
+    held_ticks: u64,
 }
 
 /// How well the state estimate followed the simulation's truth over a run.
@@ -563,6 +576,11 @@ impl RunMetrics {
         }
     }
 
+    /// Counts a tick the estimator ran with the robot held (nothing to compare).
+    pub fn add_held_tick(&mut self) {
+        self.estimator.held_ticks += 1;
+    }
+
     /// Adds one tick of the estimate against the truth in the estimate's frame: its world
     /// position, world velocity and the feet's contacts.
     pub fn add_estimate(
@@ -663,6 +681,7 @@ impl RunMetrics {
                     },
                 }
             }),
+            estimator_held_ticks: self.estimator.held_ticks,
             locomotion: self.locomotion.as_ref().and_then(LocomotionMetrics::summary),
             jitter_rad_s3: self.reference_jitter.mean().zip(self.robot_jitter.mean()),
             generator: None,

@@ -751,7 +751,8 @@ impl<L: RobotLink> Player<L> {
                     .as_ref()
                     .filter(|_| self.world.keypoints_measured)
                     .and_then(KeypointTrack::triangulated_mm),
-                truth_in_world: has_truth.then(|| {
+                // Held off the ground, the estimate has no truth to be compared with.
+                truth_in_world: (has_truth && self.world.truth_mapped).then(|| {
                     let t = self.world.truth_to_world.apply(self.world.truth.root_pose);
                     (t, self.world.truth.base_lin_vel)
                 }),

@@ -98,11 +98,18 @@ impl WorldStage {
                 *c = *e;
             }
             self.observed.simulation_failed = false;
-            if has_truth && self.estimate.valid && !self.truth_mapped {
+            // Held in the air, the estimate has no ground to be compared on; the filter starts
+            // again on landing, and the truth is mapped into its world from there.
+            let on_ground = self.estimate.valid && !self.estimate.held;
+            if self.estimate.held {
+                self.truth_mapped = false;
+                metrics.add_held_tick();
+            }
+            if has_truth && on_ground && !self.truth_mapped {
                 self.truth_to_world = Alignment::new(self.truth.root_pose, self.observed.root_pose, true);
                 self.truth_mapped = true;
             }
-            if has_truth && self.estimate.valid {
+            if has_truth && on_ground {
                 let t = self.truth_to_world.apply(self.truth.root_pose);
                 let velocity = spatial::quat_rotate([t[3], t[4], t[5], t[6]], self.truth.base_lin_vel);
                 metrics.add_estimate(

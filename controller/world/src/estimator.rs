@@ -49,6 +49,16 @@ pub struct EstimatorConfig {
     pub contact_load: f64,
     /// …and lifts off below this share.
     pub contact_unload: f64,
+    /// The robot is held (a harness, a gantry, a hand) while its feet together carry less than
+    /// this share of its weight…
+    pub held_below: f64,
+    /// …and stands once they carry more than this share: the filter starts again there, the
+    /// floor under its feet.
+    pub standing_above: f64,
+    /// The floor is level: a standing foot's sole is at the height the robot first stood on,
+    /// within this much, m (1σ); 0: no such assumption (uneven ground: the height then rests on
+    /// where each foot landed alone, and drifts).
+    pub floor_noise: f64,
 }
 
 impl Default for EstimatorConfig {
@@ -65,6 +75,9 @@ impl Default for EstimatorConfig {
             contact_speed: 0.35,
             contact_load: 0.03,
             contact_unload: 0.01,
+            held_below: 0.2,
+            standing_above: 0.6,
+            floor_noise: 0.005,
         }
     }
 }
@@ -90,6 +103,9 @@ pub struct Estimate {
     pub loads: [f64; MAX_FEET],
     /// Feet in use.
     pub feet: usize,
+    /// The robot is held (its feet carry almost none of its weight): the estimate is the filter
+    /// running in the air, for a policy that observes it; nothing to compare with the ground.
+    pub held: bool,
     /// The outputs can be used: initialised, fed finite, fresh data.
     pub valid: bool,
     /// Why not, when they cannot.
@@ -132,6 +148,7 @@ impl Default for Estimate {
             contacts: [false; MAX_FEET],
             loads: [f64::NAN; MAX_FEET],
             feet: 0,
+            held: false,
             valid: false,
             problem: Some(EstimateProblem::NotInitialised),
         }
@@ -200,6 +217,8 @@ pub struct Estimator {
     still: u32,
     /// Inputs were bad this tick (non-finite or stale).
     input_fault: bool,
+    /// The feet carry (almost) none of the robot's weight: the filter starts again when they do.
+    held: bool,
 }
 
 /// How long the IMU must look still before the filter starts, s.
@@ -238,6 +257,7 @@ impl Estimator {
             initialised: false,
             still: 0,
             input_fault: false,
+            held: false,
         }
     }
 
@@ -246,6 +266,27 @@ impl Estimator {
         self.initialised = false;
         self.last_sample = None;
         self.still = 0;
+        self.held = false;
+    }
+
+    /// Whether the robot is held, from the share of its weight its feet carry (with
+    /// hysteresis) while the IMU says something else carries it (still, feeling gravity: not a
+    /// push, a fall or a jump, whose feet are unloaded too); unknown loads (a robot whose buses
+    /// report no torque) never say held. True on the tick a held robot stands again.
+    fn update_held(&mut self, legs: &LegKinematics, still: bool) -> bool {
+        let loads = &legs.load[..self.feet];
+        if self.feet == 0 || loads.iter().any(|l| !l.is_finite()) || self.weight <= 0.0 {
+            self.held = false;
+            return false;
+        }
+        let share = loads.iter().map(|l| l.max(0.0)).sum::<f64>() / self.weight;
+        let was = self.held;
+        self.held = if was {
+            share < self.config.standing_above
+        } else {
+            share < self.config.held_below && still
+        };
+        was && !self.held
     }
 
     /// Integrates one IMU sample (base axes): propagates the state and its covariance.
@@ -368,7 +409,10 @@ impl Estimator {
         }
         let r = spatial::mat_of_quat(self.quat);
         let settled = f64::from(self.still) * self.nominal_dt >= STILL_S;
-        if !self.initialised && finite && settled {
+        // Lowered onto its feet (from a harness, a gantry, a hand): the filter that ran in the
+        // air starts over with the floor under the feet that now carry the robot.
+        let landed = finite && self.update_held(legs, settled);
+        if finite && ((!self.initialised && settled) || (self.initialised && landed)) {
             self.initialise(legs, &r);
         }
         if self.initialised && finite {
@@ -427,6 +471,17 @@ impl Estimator {
                     );
                 }
             }
+            // A level floor: a standing sole is at the height the robot first stood on (z = 0),
+            // which makes the height observable; without it, the height drifts.
+            if c.floor_noise > 0.0 && !self.held {
+                for (f, stood) in standing.iter().enumerate().take(self.feet) {
+                    if self.contacts[f] && *stood {
+                        let sole_below_origin =
+                            spatial::mat_apply(&r, spatial::sub(legs.contact[f], legs.position[f]))[2];
+                        self.measure(FEET + 3 * f + 2, None, -sole_below_origin, c.floor_noise.powi(2));
+                    }
+                }
+            }
             for f in 0..self.feet {
                 if !self.contacts[f] {
                     continue;
@@ -475,6 +530,7 @@ impl Estimator {
             contacts,
             loads: legs.load,
             feet: self.feet,
+            held: self.held,
             valid,
             problem,
         }
@@ -614,6 +670,90 @@ mod tests {
         legs.contact[0][2] = -0.44;
         let down = step(&mut e, &legs);
         assert_eq!(&down.contacts[..2], &[true, true], "{down:?}");
+    }
+
+    #[test]
+    fn a_robot_held_in_the_air_says_so_and_starts_again_on_its_feet_on_the_floor() {
+        let weight = 160.0;
+        let mut e = Estimator::new(EstimatorConfig::default(), 2, [0.0, 0.0, -9.81], weight, 200.0);
+        let mut legs = standing_legs();
+        let mut tick = 0u64;
+        let mut step = |e: &mut Estimator, legs: &LegKinematics| {
+            for k in 0..4 {
+                e.propagate(&sample(4 * tick + k, [0.0, 0.0, 9.81]));
+            }
+            tick += 1;
+            e.correct(legs, true)
+        };
+        // Hanging 10 cm up in a harness: the legs carry nothing.
+        legs.load = [1.0, 1.0, 0.0, 0.0];
+        let mut held = Estimate::default();
+        for _ in 0..60 {
+            held = step(&mut e, &legs);
+        }
+        assert!(held.valid && held.held, "{held:?}");
+        // Lowered: the feet take the weight, the filter starts again with its soles at z = 0.
+        legs.load = [0.5 * weight, 0.5 * weight, 0.0, 0.0];
+        let mut down = Estimate::default();
+        for _ in 0..100 {
+            down = step(&mut e, &legs);
+        }
+        assert!(down.valid && !down.held, "{down:?}");
+        assert!((down.position[2] - 0.44).abs() < 1e-3, "{down:?}");
+        // Half the weight on the feet is not yet standing after being held (hysteresis)…
+        legs.load = [0.01 * weight, 0.01 * weight, 0.0, 0.0];
+        assert!(step(&mut e, &legs).held);
+        legs.load = [0.25 * weight, 0.25 * weight, 0.0, 0.0];
+        assert!(step(&mut e, &legs).held, "50 % of the weight after being held");
+        legs.load = [0.4 * weight, 0.4 * weight, 0.0, 0.0];
+        assert!(!step(&mut e, &legs).held);
+    }
+
+    /// Steps in place for `steps` steps with an accelerometer reading `accel_z` upward (a bias
+    /// the filter must learn), each foot lifted 5 cm in turn; the height error at the end, m.
+    fn stepping_height_error(config: EstimatorConfig, steps: u64, accel_z: f64) -> f64 {
+        let mut e = Estimator::new(config, 2, [0.0, 0.0, -9.81], 160.0, 200.0);
+        let mut tick = 0u64;
+        let mut step = |e: &mut Estimator, legs: &LegKinematics, accel: f64| {
+            for k in 0..4 {
+                e.propagate(&sample(4 * tick + k, [0.0, 0.0, accel]));
+            }
+            tick += 1;
+            e.correct(legs, true)
+        };
+        let standing = standing_legs();
+        for _ in 0..60 {
+            step(&mut e, &standing, 9.81);
+        }
+        let mut last = Estimate::default();
+        for n in 0..steps {
+            let mut lifted = standing;
+            let f = (n % 2) as usize;
+            lifted.position[f][2] += 0.05;
+            lifted.contact[f][2] += 0.05;
+            for _ in 0..15 {
+                step(&mut e, &lifted, accel_z);
+            }
+            for _ in 0..10 {
+                last = step(&mut e, &standing, accel_z);
+            }
+        }
+        (last.position[2] - 0.44).abs()
+    }
+
+    #[test]
+    fn stepping_in_place_the_level_floor_keeps_the_height_the_landings_alone_lose() {
+        let on_floor = stepping_height_error(EstimatorConfig::default(), 200, 10.01);
+        let landings_only = stepping_height_error(
+            EstimatorConfig {
+                floor_noise: 0.0,
+                ..EstimatorConfig::default()
+            },
+            200,
+            10.01,
+        );
+        assert!(on_floor < 2e-3, "{on_floor}");
+        assert!(landings_only > 2.0 * on_floor, "{landings_only} vs {on_floor}");
     }
 
     #[test]

@@ -352,6 +352,7 @@ impl Messages {
         let m = &mut self.estimate;
         m.timestamp = Some(pb::timestamp(stamp));
         m.valid = x.valid;
+        m.held = x.held;
         m.position = vec3(x.position);
         m.velocity = vec3(x.velocity);
         m.velocity_base = vec3(x.velocity_base);
