@@ -71,6 +71,7 @@ impl WorldStage {
                 (legs.contact[f], legs.contact_velocity[f]) = k.foot_contact(f);
                 legs.sole_depth[f] = k.sole_depth(f);
                 legs.load[f] = k.foot_load(f, legs.contact[f], &state.tau);
+                legs.leg_weight[f] = k.leg_weight(f);
             }
             // Foot switches where the robot has them (robot.toml [[contacts]], one per foot).
             if state.foot_switches.len() == k.feet() && k.feet() <= MAX_FEET {

@@ -49,6 +49,13 @@ pub struct EstimatorConfig {
     pub contact_load: f64,
     /// …and lifts off below this share.
     pub contact_unload: f64,
+    /// A foot moving faster than `contact_speed` lifts off below this share of its leg's own
+    /// weight: what the torques of a swinging leg read as a load (its inertia, unmodelled
+    /// friction), so the threshold scales with the leg.
+    pub leg_unload: f64,
+    /// A foot carrying more than this share of the robot's weight stands, however high the
+    /// legs put it or however fast (the ground pushes on nothing else).
+    pub carrying: f64,
     /// The robot is held (a harness, a gantry, a hand) while its feet together carry less than
     /// this share of its weight…
     pub held_below: f64,
@@ -75,6 +82,8 @@ impl Default for EstimatorConfig {
             contact_speed: 0.35,
             contact_load: 0.03,
             contact_unload: 0.01,
+            leg_unload: 0.5,
+            carrying: 0.25,
             held_below: 0.2,
             standing_above: 0.6,
             floor_noise: 0.005,
@@ -170,6 +179,9 @@ pub struct LegKinematics {
     pub switches: Option<[bool; MAX_FEET]>,
     /// The ground's vertical push on each foot from the legs' joint torques, N (NaN: unknown).
     pub load: [f64; MAX_FEET],
+    /// Each leg's weight, hip to toe, N (0: unknown): a swinging leg's own dynamics read as a
+    /// load of about this much, so the contact thresholds scale with it.
+    pub leg_weight: [f64; MAX_FEET],
 }
 
 impl Default for LegKinematics {
@@ -181,6 +193,7 @@ impl Default for LegKinematics {
             sole_depth: [0.0; MAX_FEET],
             switches: None,
             load: [f64::NAN; MAX_FEET],
+            leg_weight: [0.0; MAX_FEET],
         }
     }
 }
@@ -445,13 +458,18 @@ impl Estimator {
                         ));
                         // The legs' torques, where they tell: an unloaded foot is not standing
                         // (it hovers, or is about to lift), a landing one takes weight.
-                        let load = legs.load[f];
-                        let unloaded = load.is_finite() && load < self.config.contact_unload * self.weight;
-                        let loaded = !load.is_finite() || load > self.config.contact_load * self.weight;
+                        let (c, load, leg) = (&self.config, legs.load[f], legs.leg_weight[f]);
+                        let unloaded = load.is_finite() && load < c.contact_unload * self.weight;
+                        // Lighter than a swinging leg's own reading, and moving: lifting off (a
+                        // foot unloading slowly in place still touches).
+                        let lifting =
+                            load.is_finite() && load < c.leg_unload * leg && speed > c.contact_speed;
+                        let loaded = !load.is_finite() || load > c.contact_load * self.weight;
+                        let carrying = load.is_finite() && load > c.carrying * self.weight;
                         if self.contacts[f] {
-                            height < self.config.contact_off_m && !unloaded
+                            height < c.contact_off_m && !unloaded && !lifting
                         } else {
-                            height < self.config.contact_on_m && speed < self.config.contact_speed && loaded
+                            carrying || (height < c.contact_on_m && speed < c.contact_speed && loaded)
                         }
                     }
                 };
@@ -754,6 +772,65 @@ mod tests {
         );
         assert!(on_floor < 2e-3, "{on_floor}");
         assert!(landings_only > 2.0 * on_floor, "{landings_only} vs {on_floor}");
+    }
+
+    #[test]
+    fn a_light_foot_lifts_off_when_it_moves_and_keeps_touching_while_it_unloads_in_place() {
+        let weight = 160.0;
+        let run = |up_speed: f64| {
+            let mut e = Estimator::new(EstimatorConfig::default(), 2, [0.0, 0.0, -9.81], weight, 200.0);
+            let mut legs = standing_legs();
+            legs.leg_weight = [36.0, 36.0, 0.0, 0.0];
+            legs.load = [0.5 * weight, 0.5 * weight, 0.0, 0.0];
+            let mut tick = 0u64;
+            let mut last = Estimate::default();
+            for n in 0..70 {
+                if n >= 60 {
+                    // Foot 0 carries 10 N (above 1 % of the weight, under half its leg's weight)…
+                    legs.load = [10.0, weight - 10.0, 0.0, 0.0];
+                    // …and rises at `up_speed` (the legs' own motion, relative to the base).
+                    legs.contact_velocity[0] = [0.0, 0.0, up_speed];
+                }
+                for k in 0..4 {
+                    e.propagate(&sample(4 * tick + k, [0.0, 0.0, 9.81]));
+                }
+                tick += 1;
+                last = e.correct(&legs, true);
+            }
+            last.contacts[0]
+        };
+        assert!(!run(0.5), "lifting at 0.5 m/s: off the ground");
+        assert!(run(0.0), "unloading in place: still touching");
+    }
+
+    #[test]
+    fn a_foot_carrying_a_quarter_of_the_weight_stands_wherever_the_legs_put_it() {
+        let weight = 160.0;
+        let mut e = Estimator::new(EstimatorConfig::default(), 2, [0.0, 0.0, -9.81], weight, 200.0);
+        let mut legs = standing_legs();
+        legs.load = [0.5 * weight, 0.5 * weight, 0.0, 0.0];
+        let mut tick = 0u64;
+        let mut step = |e: &mut Estimator, legs: &LegKinematics| {
+            for k in 0..4 {
+                e.propagate(&sample(4 * tick + k, [0.0, 0.0, 9.81]));
+            }
+            tick += 1;
+            e.correct(legs, true)
+        };
+        for _ in 0..60 {
+            step(&mut e, &legs);
+        }
+        // Foot 0 lifted 5 cm, unloaded: in the air.
+        legs.position[0][2] += 0.05;
+        legs.contact[0][2] += 0.05;
+        legs.load = [0.0, weight, 0.0, 0.0];
+        assert!(!step(&mut e, &legs).contacts[0]);
+        // It carries 30 % of the weight while the kinematics still put it 3 cm up (a step down,
+        // a compliant sole): standing.
+        legs.position[0][2] -= 0.02;
+        legs.contact[0][2] -= 0.02;
+        legs.load = [0.3 * weight, 0.7 * weight, 0.0, 0.0];
+        assert!(step(&mut e, &legs).contacts[0]);
     }
 
     #[test]

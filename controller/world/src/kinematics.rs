@@ -40,6 +40,8 @@ pub struct RobotKinematics {
     /// Each foot's leg: the degrees of freedom between the root and the foot, each with its
     /// robot joint.
     legs: Vec<Vec<(usize, usize)>>,
+    /// Each leg's weight (every body below the root on the foot's side: hip to toe), N.
+    leg_weights: Vec<f64>,
     /// Scratch for a point's Jacobian (3 × nv).
     jac: Vec<f64>,
     /// Root degrees of freedom in `qvel`, and the joints'.
@@ -93,6 +95,53 @@ impl RobotKinematics {
                 dofs
             })
             .collect();
+        let g = spatial::norm(model.opt().gravity);
+        let parents = model.body_parentid();
+        let masses = model.body_mass();
+        let leg_weights = index
+            .feet
+            .iter()
+            .map(|&foot| {
+                // The leg's top: the highest body on the foot's path with no other foot below it
+                // (a waist carrying both legs is not one leg's).
+                let ancestors = |mut b: usize| {
+                    let mut up = Vec::new();
+                    while b != 0 {
+                        up.push(b);
+                        b = parents[b] as usize;
+                    }
+                    up
+                };
+                let others: Vec<usize> = index
+                    .feet
+                    .iter()
+                    .filter(|&&f| f != foot)
+                    .flat_map(|&f| ancestors(f))
+                    .collect();
+                let mut top = foot;
+                loop {
+                    let parent = parents[top] as usize;
+                    if parent == 0 || parent == index.root_body || others.contains(&parent) {
+                        break;
+                    }
+                    top = parent;
+                }
+                let below_top = |mut b: usize| loop {
+                    if b == top {
+                        return true;
+                    }
+                    if b == 0 || b == index.root_body {
+                        return false;
+                    }
+                    b = parents[b] as usize;
+                };
+                (0..masses.len())
+                    .filter(|&b| below_top(b))
+                    .map(|b| masses[b])
+                    .sum::<f64>()
+                    * g
+            })
+            .collect();
         let nv = model.ffi().nv as usize;
         Ok(Self {
             root_qpos: index.root.qpos,
@@ -102,6 +151,7 @@ impl RobotKinematics {
             feet: index.feet.clone(),
             soles,
             legs,
+            leg_weights,
             jac: vec![0.0; 3 * nv],
             data: MjData::new(Box::new(model)),
             imu,
@@ -275,6 +325,12 @@ impl RobotKinematics {
         let inverse = spatial::rows(spatial::mat(&jjt).inverse());
         let f = spatial::mat_apply(&inverse, rhs);
         spatial::quat_rotate(self.root_rotation, f)[2]
+    }
+
+    /// Leg `k`'s weight (hip to toe), N: what a swinging leg's own dynamics can make its load
+    /// read, the scale of the contact thresholds.
+    pub fn leg_weight(&self, k: usize) -> f64 {
+        self.leg_weights[k]
     }
 
     /// The robot's weight, N.
