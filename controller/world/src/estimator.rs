@@ -782,10 +782,9 @@ mod tests {
             let mut legs = standing_legs();
             legs.leg_weight = [36.0, 36.0, 0.0, 0.0];
             legs.load = [0.5 * weight, 0.5 * weight, 0.0, 0.0];
-            let mut tick = 0u64;
             let mut last = Estimate::default();
-            for n in 0..70 {
-                if n >= 60 {
+            for tick in 0..70u64 {
+                if tick >= 60 {
                     // Foot 0 carries 10 N (above 1 % of the weight, under half its leg's weight)…
                     legs.load = [10.0, weight - 10.0, 0.0, 0.0];
                     // …and rises at `up_speed` (the legs' own motion, relative to the base).
@@ -794,7 +793,6 @@ mod tests {
                 for k in 0..4 {
                     e.propagate(&sample(4 * tick + k, [0.0, 0.0, 9.81]));
                 }
-                tick += 1;
                 last = e.correct(&legs, true);
             }
             last.contacts[0]
