@@ -62,6 +62,11 @@ pub struct EstimatorConfig {
     /// …and stands once they carry more than this share: the filter starts again there, the
     /// floor under its feet.
     pub standing_above: f64,
+    /// A standing foot's base velocity further than this many standard deviations from the
+    /// filter's (Mahalanobis distance over the three axes) is not taken: a foot that slips,
+    /// pivots, or reads as loaded in the air (a fast swing's torques). Every standing foot refused
+    /// for [`MAX_REFUSED_TICKS`] in a row is taken again, so the filter cannot lock itself out.
+    pub velocity_gate: f64,
     /// The floor is level: a standing foot's sole is at the height the robot first stood on,
     /// within this much, m (1σ); 0: no such assumption (uneven ground: the height then rests on
     /// where each foot landed alone, and drifts).
@@ -84,6 +89,7 @@ impl Default for EstimatorConfig {
             contact_unload: 0.01,
             leg_unload: 0.5,
             carrying: 0.25,
+            velocity_gate: 5.0,
             held_below: 0.2,
             standing_above: 0.6,
             floor_noise: 0.005,
@@ -232,7 +238,12 @@ pub struct Estimator {
     input_fault: bool,
     /// The feet carry (almost) none of the robot's weight: the filter starts again when they do.
     held: bool,
+    /// Ticks in a row on which every standing foot's velocity was refused.
+    refused_ticks: u32,
 }
+
+/// Ticks the filter may refuse every standing foot's velocity in a row (then it takes them).
+pub const MAX_REFUSED_TICKS: u32 = 5;
 
 /// How long the IMU must look still before the filter starts, s.
 const STILL_S: f64 = 0.2;
@@ -271,6 +282,7 @@ impl Estimator {
             still: 0,
             input_fault: false,
             held: false,
+            refused_ticks: 0,
         }
     }
 
@@ -500,20 +512,39 @@ impl Estimator {
                     }
                 }
             }
+            let r_v = c.kinematic_velocity_noise.powi(2);
+            // Refused for too long, the legs are believed again until they agree with the filter.
+            let trust_all = self.refused_ticks >= MAX_REFUSED_TICKS;
+            let (mut standing_feet, mut outside) = (0, 0);
             for f in 0..self.feet {
                 if !self.contacts[f] {
                     continue;
                 }
+                standing_feet += 1;
                 // Where the foot touches stays still: the base moves opposite to that point's
                 // motion relative to it (a foot rolling onto its edge keeps the edge still).
                 let v_rel = spatial::mat_apply(
                     &r,
                     spatial::add(spatial::cross(omega, legs.contact[f]), legs.contact_velocity[f]),
                 );
+                let distance2: f64 = (0..3)
+                    .map(|k| (-v_rel[k] - self.x[V + k]).powi(2) / (self.p[(V + k) * self.n + V + k] + r_v))
+                    .sum();
+                if distance2 > c.velocity_gate.powi(2) {
+                    outside += 1;
+                    if !trust_all {
+                        continue;
+                    }
+                }
                 for (k, v) in v_rel.iter().enumerate() {
-                    self.measure(V + k, None, -v, c.kinematic_velocity_noise.powi(2));
+                    self.measure(V + k, None, -v, r_v);
                 }
             }
+            self.refused_ticks = if standing_feet > 0 && outside == standing_feet {
+                self.refused_ticks.saturating_add(1)
+            } else {
+                0
+            };
             // A foot that just landed stands at this height until it lifts off again (latched:
             // a foot that rises slowly must not carry its ground up with it).
             for (f, stood) in standing.iter().enumerate().take(self.feet) {
@@ -829,6 +860,30 @@ mod tests {
         legs.contact[0][2] -= 0.02;
         legs.load = [0.3 * weight, 0.7 * weight, 0.0, 0.0];
         assert!(step(&mut e, &legs).contacts[0]);
+    }
+
+    #[test]
+    fn a_foot_that_slips_for_a_few_ticks_does_not_drag_the_velocity_and_a_lasting_one_is_taken() {
+        let run = |slip_ticks: u64| {
+            let mut e = Estimator::new(EstimatorConfig::default(), 2, [0.0, 0.0, -9.81], 160.0, 200.0);
+            let mut legs = standing_legs();
+            let mut last = Estimate::default();
+            for tick in 0..(60 + slip_ticks) {
+                // Both feet's kinematics say the base moves at 2 m/s while the IMU feels nothing.
+                let slipping = tick >= 60;
+                for f in 0..2 {
+                    legs.contact_velocity[f] = if slipping { [-2.0, 0.0, 0.0] } else { [0.0; 3] };
+                }
+                for k in 0..4 {
+                    e.propagate(&sample(4 * tick + k, [0.0, 0.0, 9.81]));
+                }
+                last = e.correct(&legs, true);
+            }
+            last.velocity[0]
+        };
+        assert!(run(3).abs() < 0.05, "{}", run(3));
+        let lasting = run(u64::from(MAX_REFUSED_TICKS) + 20);
+        assert!(lasting > 0.5, "a lasting disagreement is believed: {lasting}");
     }
 
     #[test]
