@@ -53,8 +53,8 @@ pub struct EstimatorConfig {
     /// weight: what the torques of a swinging leg read as a load (its inertia, unmodelled
     /// friction), so the threshold scales with the leg.
     pub leg_unload: f64,
-    /// A foot carrying more than this share of the robot's weight stands, however high the
-    /// legs put it or however fast (the ground pushes on nothing else).
+    /// A foot carrying more than this share of the robot's weight stands (lands, or stays
+    /// down), however high the legs put it or however fast: the ground pushes on nothing else.
     pub carrying: f64,
     /// The robot is held (a harness, a gantry, a hand) while its feet together carry less than
     /// this share of its weight…
@@ -479,7 +479,7 @@ impl Estimator {
                         let loaded = !load.is_finite() || load > c.contact_load * self.weight;
                         let carrying = load.is_finite() && load > c.carrying * self.weight;
                         if self.contacts[f] {
-                            height < c.contact_off_m && !unloaded && !lifting
+                            carrying || (height < c.contact_off_m && !unloaded && !lifting)
                         } else {
                             carrying || (height < c.contact_on_m && speed < c.contact_speed && loaded)
                         }
