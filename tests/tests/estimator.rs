@@ -411,19 +411,25 @@ fn walking_20_s_with_turns_the_g1_and_t1_estimates_hold_velocity_height_place_an
 }
 
 #[test]
-fn on_the_gantry_the_summary_says_the_robot_was_held_and_compares_nothing() {
-    let s = run(
+fn on_the_gantry_the_summary_and_the_report_say_the_robot_was_held_and_compare_nothing() {
+    let dir = std::env::temp_dir().join(format!("estimator-gantry-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("gantry.mcap");
+    let s = run_recorded(
         squat,
-        PlayOptions {
-            max_ticks: Some(150),
-            ..PlayOptions::default()
-        },
         MirrorConfig {
             gantry: true,
             ..MirrorConfig::default()
         },
+        &path,
     );
     assert!(s.estimator.is_none(), "{s}");
     assert!(s.estimator_held_ticks > 100, "{s}");
     assert!(s.to_string().contains("the robot was held the whole run"), "{s}");
+    let report = analysis::report::write_report(&path, &dir.join("report")).unwrap();
+    assert!(report.estimator.is_none(), "{report:?}");
+    assert!(report.estimator_held_ticks > 100, "{report:?}");
+    let page = std::fs::read_to_string(dir.join("report/summary.md")).unwrap();
+    assert!(page.contains("the robot was held the whole run"), "{page}");
+    std::fs::remove_dir_all(&dir).unwrap();
 }

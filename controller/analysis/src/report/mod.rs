@@ -71,6 +71,8 @@ pub struct RunSummary {
     /// The state estimate against the truth over the whole run (simulation runs with an
     /// estimator).
     pub estimator: Option<EstimatorFigures>,
+    /// Ticks the estimate ran with the robot held (a harness, a gantry): not compared.
+    pub estimator_held_ticks: usize,
     /// A command-driven run (no clip): where the robot went against its commands, while the
     /// policy was in control (simulation runs). Such a run has no clip-tracking numbers.
     pub locomotion: Option<controller::metrics::LocomotionSummary>,
@@ -157,6 +159,8 @@ struct Series {
     tilt_limit: f64,
     /// Each tick with a valid estimate and the truth beside it.
     estimator: Vec<EstimateTick>,
+    /// Ticks the estimate says the robot was held.
+    estimator_held: usize,
     /// Tracked motion bodies, their anchor, and their position errors per tick (m).
     motion_bodies: Vec<String>,
     anchor_body: Option<String>,
@@ -290,6 +294,7 @@ fn read(path: &Path) -> Result<Series, AnalysisError> {
             }
             "/estimator" => {
                 let v: pb::StateEstimate = decode(&m)?;
+                s.estimator_held += usize::from(v.held);
                 let Some(truth) = v.truth_position.as_ref().filter(|_| v.valid) else {
                     return Ok(());
                 };
@@ -335,6 +340,18 @@ fn read(path: &Path) -> Result<Series, AnalysisError> {
         return Err(AnalysisError::file(path, "no /joint_state messages"));
     }
     Ok(s)
+}
+
+/// What the report says of a run whose robot was held throughout (a gantry, a harness never let go).
+const HELD_THROUGHOUT: &str = "the robot was held the whole run (its feet never carried its weight): no ground to compare the estimate on";
+
+/// The ticks held before the estimate could be compared, when there were any.
+fn held_note(held: usize) -> String {
+    if held > 0 {
+        format!(" after {held} ticks held off the ground, not compared")
+    } else {
+        String::new()
+    }
 }
 
 fn quantiles(v: &[f64]) -> [f64; 3] {
@@ -561,6 +578,7 @@ fn summarize(s: &Series) -> RunSummary {
     RunSummary {
         locomotion,
         estimator,
+        estimator_held_ticks: s.estimator_held,
         body_rmse_cm,
         anchor_rmse_cm,
         ticks: s.q.len(),
@@ -720,9 +738,16 @@ pub fn write_report(log: &Path, dir: &Path) -> Result<RunSummary, AnalysisError>
     if let Some(e) = &summary.estimator {
         let _ = writeln!(
             md,
-            "| state estimate vs truth | velocity RMSE {:.3} m/s, height RMSE {:.1} mm, position error {:.1} cm at the end, contacts agree {:.1} % ({} ticks) |",
-            e.velocity_rmse, e.height_rmse_mm, e.final_position_error_cm, e.contact_agreement_pct, e.ticks
+            "| state estimate vs truth | velocity RMSE {:.3} m/s, height RMSE {:.1} mm, position error {:.1} cm at the end, contacts agree {:.1} % ({} ticks){} |",
+            e.velocity_rmse,
+            e.height_rmse_mm,
+            e.final_position_error_cm,
+            e.contact_agreement_pct,
+            e.ticks,
+            held_note(summary.estimator_held_ticks)
         );
+    } else if summary.estimator_held_ticks > 0 {
+        let _ = writeln!(md, "| state estimate vs truth | {HELD_THROUGHOUT} |");
     }
     let _ = writeln!(md, "\n## Safety events\n");
     for (tick, mode, cause) in &summary.safety_events {
@@ -952,10 +977,16 @@ fn page(log: &Path, s: &Series, summary: &RunSummary) -> Result<(String, Vec<(St
         row(
             "state estimate vs truth",
             format!(
-                "velocity {:.3} m/s, height {:.1} mm RMSE; {:.1} cm off at the end; contacts agree {:.1} %",
-                e.velocity_rmse, e.height_rmse_mm, e.final_position_error_cm, e.contact_agreement_pct
+                "velocity {:.3} m/s, height {:.1} mm RMSE; {:.1} cm off at the end; contacts agree {:.1} %{}",
+                e.velocity_rmse,
+                e.height_rmse_mm,
+                e.final_position_error_cm,
+                e.contact_agreement_pct,
+                held_note(summary.estimator_held_ticks)
             ),
         );
+    } else if summary.estimator_held_ticks > 0 {
+        row("state estimate vs truth", HELD_THROUGHOUT.to_owned());
     }
     html.push_str("</table>\n");
 
