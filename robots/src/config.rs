@@ -286,6 +286,10 @@ pub struct RobotConfig {
     /// group (the mirror does the same; the real robot's firmware is what it is).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub actuators: Vec<crate::actuators::ActuatorGroup>,
+    /// The state estimator's noises and thresholds (`[estimator]`, every field optional; see
+    /// [`crate::EstimatorConfig`] for each one's default and range).
+    #[serde(default, skip_serializing_if = "crate::EstimatorConfig::is_default")]
+    pub estimator: crate::EstimatorConfig,
 }
 
 /// Joint dynamics for a joint or a group (robot.toml `[[joint_dynamics]]`): what a trainer such as
@@ -1793,6 +1797,7 @@ impl Robot {
             }
         }
         c.start.check()?;
+        c.estimator.check()?;
         c.safety.check(&c.joints)?;
         JointDynamics::check(&c.joint_dynamics, &c.joints)?;
         crate::actuators::ActuatorGroup::check(c, &c.joints)?;

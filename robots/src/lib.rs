@@ -8,6 +8,7 @@ pub mod actuators;
 pub mod calibration;
 pub mod config;
 pub mod drivers;
+pub mod estimator;
 pub mod mjcf;
 pub mod spatial;
 
@@ -19,6 +20,7 @@ pub use config::{
     RetargetConfig, Robot, RobotConfig, RobotError, SafetyConfig, SimConfig, Solver, StartConfig, StartMode,
     TrackingRule, default_command_timeout, matches_pattern,
 };
+pub use estimator::EstimatorConfig;
 
 /// A file that could not be read, parsed or written, and what was wrong with it.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]

@@ -192,6 +192,16 @@ fn bad_joint_dynamics_and_physics_are_refused_by_field_and_nothing_moves() {
             "[[actuators]]\njoints = [\"*tail*\"]\nmodel = \"explicit_pd\"\n",
             "actuators[0].joints: \"*tail*\" matches no joint of the robot",
         ),
+        // The estimator's settings (issue 33), by field.
+        (
+            "[estimator]\nfloor_noise = -0.01\n",
+            "estimator.floor_noise: -0.01 m is outside [0, 1]",
+        ),
+        (
+            "[estimator]\ncontact_on_m = 0.05\n",
+            "estimator.contact_off_m: 0.02 m is below contact_on_m = 0.05 m",
+        ),
+        ("[estimator]\nfloor = 0.0\n", "unknown field `floor`"),
     ];
     for (i, (extra, want)) in cases.iter().enumerate() {
         let path = biped_with(&dir, &format!("bad{i}.toml"), extra);

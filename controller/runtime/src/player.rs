@@ -30,7 +30,7 @@ use crate::world_stage::WorldStage;
 use policy::onnx::OnnxModel;
 use policy::{ObsInputs, ObservationBuilder, PolicyLayout, Term};
 use world::RobotKinematics;
-use world::estimator::{Estimate, Estimator, EstimatorConfig};
+use world::estimator::{Estimate, Estimator};
 
 pub use crate::error::PlayError;
 
@@ -185,7 +185,7 @@ impl<L: RobotLink> Player<L> {
         let keypoints = keypoint_setup(&robot, &layout, &mut reference, &mut kinematics)?;
         let estimator = match &kinematics {
             Some(k) if k.feet() > 0 => Some(Estimator::new(
-                EstimatorConfig::default(),
+                robot.config.estimator,
                 k.feet(),
                 k.gravity(),
                 k.weight(),
