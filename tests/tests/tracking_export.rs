@@ -403,3 +403,38 @@ fn an_exported_default_pose_just_past_a_limit_by_the_rounding_is_clamped() {
         .to_string();
     assert!(e.contains("default_pose") && e.contains("left_hip_yaw"), "{e}");
 }
+
+#[test]
+fn an_export_without_its_action_scale_is_refused_by_name_not_played_at_scale_1() {
+    // The export as a trainer might write it but for one key: `action_scale` (its real scales
+    // are 0.025–0.087 rad; 1 would swing every joint tens of degrees too far).
+    let dir = std::env::temp_dir().join(format!("robodeploy-no-scale-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let stripped = dir.join("no_action_scale.onnx");
+    let script = "import onnx, sys\n\
+                  m = onnx.load(sys.argv[1])\n\
+                  keep = [p for p in m.metadata_props if p.key != 'action_scale']\n\
+                  assert len(keep) < len(m.metadata_props)\n\
+                  del m.metadata_props[:]\n\
+                  m.metadata_props.extend(keep)\n\
+                  onnx.save(m, sys.argv[2])\n";
+    let status = std::process::Command::new(test_support::fixtures::venv_python())
+        .args(["-c", script])
+        .arg(fixture("rd_biped_tracking.onnx"))
+        .arg(&stripped)
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let policy = stripped.to_str().unwrap();
+    for args in [
+        &["check", "--policy", policy][..],
+        &["play", "--policy", policy, "--no-record"],
+    ] {
+        let command = args[0];
+        let (code, out, err) = test_support::bin::run_within(args, std::time::Duration::from_secs(120));
+        assert_eq!(code, Some(2), "{command}: {out}{err}");
+        assert!(err.contains("action.scale: missing"), "{command}: {err}");
+        assert!(!out.contains("Running"), "{command}: something moved: {out}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -599,7 +599,7 @@ pub struct ActionSpec {
     /// What an action means.
     pub kind: ActionKind,
     /// Scale of a position action, rad per unit: one number, or one per joint in policy order
-    /// (default: the ONNX metadata's `action_scale`, else 1).
+    /// (default: the ONNX metadata's `action_scale`; neither is an error).
     #[serde(default)]
     pub scale: Option<ActionScale>,
     /// Clip of the raw action.
@@ -877,7 +877,18 @@ impl PolicyLayout {
         let a = &manifest.action;
         let nyquist = manifest.rate_hz / 2.0;
         let scales = match &a.scale {
-            None => vec![1.0; manifest.joints.len()],
+            // Torques are a share of each joint's limit: no scale.
+            None if a.kind == ActionKind::Torque => vec![1.0; manifest.joints.len()],
+            // A scale changes what the robot does: a missing one is an error, never 1.
+            None => {
+                return Err(err(
+                    "action.scale",
+                    "missing: the manifest's [action] gives no scale and the ONNX file has no \
+                     action_scale metadata (a training export writes it); give it as `scale = …` \
+                     (one number, or one per joint)"
+                        .to_owned(),
+                ));
+            }
             Some(ActionScale::One(v)) => vec![*v; manifest.joints.len()],
             Some(ActionScale::PerJoint(v)) if v.len() == manifest.joints.len() => v.clone(),
             Some(ActionScale::PerJoint(v)) => {
