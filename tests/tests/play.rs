@@ -909,3 +909,47 @@ fn end_stand_keeps_the_robot_standing_under_the_policy_until_the_operator_stops(
     let stop = p.transitions().iter().find(|t| t.to == Mode::Stopping).unwrap();
     assert_eq!((stop.from, stop.cause), (Mode::Running, Cause::StopRequested));
 }
+
+#[test]
+fn a_run_whose_every_command_the_governor_limited_does_not_end_as_a_success() {
+    // The follower with its actions scaled ×10: every target lands beyond the joints' limits.
+    // On the gantry the robot cannot fall, so only the governor's count can tell.
+    let dir = std::env::temp_dir().join(format!("robodeploy-saturated-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let policies = reference_robot_path().with_file_name("policies");
+    let text = std::fs::read_to_string(policies.join("reference_follower.toml"))
+        .unwrap()
+        .replacen("scale = 1.0\n", "scale = 10.0\n", 1)
+        .replace(
+            "onnx = \"reference_follower.onnx\"",
+            &format!("onnx = {:?}", policies.join("reference_follower.onnx")),
+        );
+    assert!(text.contains("scale = 10.0"));
+    let manifest = dir.join("scaled.toml");
+    std::fs::write(&manifest, text).unwrap();
+    let (code, out, err) = test_support::bin::run_within(
+        &[
+            "play",
+            "--policy",
+            manifest.to_str().unwrap(),
+            "--gantry",
+            "--max-seconds",
+            "4",
+            "--no-record",
+        ],
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, Some(1), "{out}{err}");
+    assert!(
+        out.contains("success (no fall, no safety stop, played to the end"),
+        "{out}"
+    );
+    assert!(out.contains("): NO"), "{out}");
+    let last = out.lines().last().unwrap_or_default();
+    assert!(
+        last.starts_with("result: finished, but the governor limited")
+            && last.contains("of the policy's commands"),
+        "{out}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}

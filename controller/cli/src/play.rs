@@ -1289,6 +1289,10 @@ pub fn finish(summary: &PlaySummary) -> std::process::ExitCode {
             println!("result: finished, but the recording failed: {e}");
             std::process::ExitCode::from(crate::exit::IO_FAILURE)
         }
+        (None, controller::metrics::RunOutcome::Finished) if summary.governor_saturated() => {
+            println!("result: finished, but {}", summary.saturation());
+            std::process::ExitCode::from(crate::exit::FAILED)
+        }
         _ => {
             println!("result: {outcome}");
             crate::exit::of_outcome(&outcome)

@@ -36,6 +36,8 @@ pub struct PlaySummary {
     pub fell: bool,
     /// Policy ticks where the governor changed a command (limit, speed or torque saturation).
     pub limited_ticks: u64,
+    /// Policy ticks the governor saw.
+    pub governed_ticks: u64,
     /// The state machine's course.
     pub transitions: Vec<Transition>,
     /// Per-tick compute time (observe, infer, limit).
@@ -143,9 +145,12 @@ impl std::fmt::Display for PlaySummary {
         }
         writeln!(
             f,
-            "ticks where the governor limited a command: {}",
-            self.limited_ticks
+            "ticks where the governor limited a command: {} of {}",
+            self.limited_ticks, self.governed_ticks
         )?;
+        if self.governor_saturated() {
+            writeln!(f, "governor: {}", self.saturation())?;
+        }
         writeln!(f, "compute per tick: {}", self.compute)?;
         writeln!(f, "bus I/O per tick: {}", self.io)?;
         writeln!(f, "tick start lateness: {}", self.jitter)?;
@@ -270,14 +275,36 @@ pub const ROOT_SUCCESS_M: f64 = 1.0;
 /// ReActor's success bound on the root's orientation error, rad (45°).
 pub const ROOT_SUCCESS_RAD: f64 = std::f64::consts::FRAC_PI_4;
 
+/// A run in which the governor changed more than this share of the policy's commands did not
+/// run the policy: the limits did.
+pub const SATURATED_SHARE: f64 = 0.5;
+
 impl PlaySummary {
-    /// Whether the run counts as a success ([`tracking_success`]).
+    /// Whether the run counts as a success ([`tracking_success`]; and the policy, not the
+    /// governor, commanded the robot).
     pub fn success(&self) -> bool {
         tracking_success(
             self.fell,
             matches!(self.outcome(), RunOutcome::SafetyStop { .. }),
             Some(self.played),
             self.root_max_error,
+        ) && !self.governor_saturated()
+    }
+
+    /// The governor changed more than [`SATURATED_SHARE`] of the policy's commands (over at
+    /// least 10 of them): the policy's actions do not fit the robot.
+    pub fn governor_saturated(&self) -> bool {
+        self.governed_ticks >= 10 && self.limited_ticks as f64 > SATURATED_SHARE * self.governed_ticks as f64
+    }
+
+    /// What a saturated governor means, for the verdict.
+    pub fn saturation(&self) -> String {
+        format!(
+            "the governor limited {:.0} % of the policy's commands ({} of {} ticks): its actions do not fit \
+             this robot (action scale, default pose, joint order?)",
+            100.0 * self.limited_ticks as f64 / self.governed_ticks.max(1) as f64,
+            self.limited_ticks,
+            self.governed_ticks
         )
     }
 }
@@ -528,6 +555,8 @@ pub struct RunMetrics {
     pub overruns: u64,
     /// Policy ticks where the governor changed a command.
     pub limited_ticks: u64,
+    /// Policy ticks the governor saw.
+    pub governed_ticks: u64,
     /// The base tilted beyond the limit at some point.
     pub fell: bool,
     /// Compute per tick.
@@ -643,6 +672,7 @@ impl RunMetrics {
                 .then(|| (self.sq_root_error / self.root_samples as f64).sqrt()),
             fell: self.fell,
             limited_ticks: self.limited_ticks,
+            governed_ticks: self.governed_ticks,
             transitions: transitions.to_vec(),
             compute: self.compute.clone(),
             io: self.io.clone(),

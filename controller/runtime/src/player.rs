@@ -1174,6 +1174,7 @@ impl<L: RobotLink> Player<L> {
                 targets: self.robot.config.safety.position_targets,
             },
         );
+        self.metrics.governed_ticks += 1;
         if limited > 0 {
             self.metrics.limited_ticks += 1;
         }
