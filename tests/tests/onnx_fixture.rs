@@ -105,3 +105,52 @@ fn inference_allocates_nothing_after_the_first_run() {
     assert!(stats.is_zero(), "{stats:?}");
     assert!(actions.iter().all(|a| a.is_finite()));
 }
+
+/// Writes a model `actions = W · obs` with a rank-`rank` input and output (W: 2 × 4, row i
+/// holding i + 1 at column i), built with the `onnx` package.
+fn linear_model(rank: usize, path: &std::path::Path) {
+    let script = "import onnx, sys\n\
+                  from onnx import helper, TensorProto, numpy_helper\n\
+                  import numpy as np\n\
+                  rank = int(sys.argv[2])\n\
+                  w = np.zeros((4, 2), np.float32); w[0, 0] = 1.0; w[1, 1] = 2.0\n\
+                  shape_in = [4] if rank == 1 else [1, 4]\n\
+                  shape_out = [2] if rank == 1 else [1, 2]\n\
+                  g = helper.make_graph([helper.make_node('MatMul', ['obs', 'w'], ['actions'])], 'linear',\n\
+                      [helper.make_tensor_value_info('obs', TensorProto.FLOAT, shape_in)],\n\
+                      [helper.make_tensor_value_info('actions', TensorProto.FLOAT, shape_out)],\n\
+                      [numpy_helper.from_array(w, 'w')])\n\
+                  m = helper.make_model(g, opset_imports=[helper.make_opsetid('', 17)])\n\
+                  m.ir_version = 8\n\
+                  onnx.checker.check_model(m)\n\
+                  onnx.save(m, sys.argv[1])\n";
+    let status = std::process::Command::new(test_support::fixtures::venv_python())
+        .args(["-c", script])
+        .arg(path)
+        .arg(rank.to_string())
+        .status()
+        .unwrap();
+    assert!(status.success());
+}
+
+#[test]
+fn a_rank_1_model_is_fed_with_its_own_rank_and_runs_like_the_batched_one() {
+    // A model whose input and output are plain vectors (no batch dimension): fed `[1, n]`
+    // tensors, ONNX Runtime refused every inference ("Invalid rank for input") and the loop saw
+    // only non-finite actions.
+    let dir = std::env::temp_dir().join(format!("robodeploy-rank1-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let obs = [0.5f32, -1.0, 3.0, 7.0];
+    let mut results = Vec::new();
+    for rank in [1, 2] {
+        let path = dir.join(format!("linear_rank{rank}.onnx"));
+        linear_model(rank, &path);
+        let mut model = OnnxModel::load(&path).unwrap_or_else(|e| panic!("rank {rank}: {e}"));
+        let mut actions = [0.0f32; 2];
+        model.run(&obs, &mut actions).unwrap();
+        results.push(actions);
+    }
+    assert_eq!(results[0], [0.5, -2.0]);
+    assert_eq!(results[0], results[1]);
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -198,19 +198,23 @@ fn fixed_shape(dtype: &ValueType) -> Result<Vec<i64>, ShapeError> {
     Ok(out)
 }
 
-/// Length of a `[batch?, n]` or `[n]` float tensor, or why it is not one.
-fn vector_len(dtype: &ValueType) -> Result<usize, ShapeError> {
+/// The shape to bind a `[batch?, n]` or `[n]` float tensor with (the model's own rank: a rank-1
+/// input fed a `[1, n]` tensor fails every inference), or why it is not one.
+fn vector_shape(dtype: &ValueType) -> Result<Vec<i64>, ShapeError> {
     let dims = float_dims(dtype)?;
     let shape_error = |expected| ShapeError::Shape {
         dims: dims.to_vec(),
         expected,
     };
-    let n = match dims {
-        [n] => *n,
-        [b, n] if *b == 1 || *b < 0 => *n,
+    let (n, rank) = match dims {
+        [n] => (*n, 1),
+        [b, n] if *b == 1 || *b < 0 => (*n, 2),
         _ => return Err(shape_error("[n] or [batch, n]")),
     };
-    usize::try_from(n).map_err(|_| shape_error("a fixed feature size"))
+    if n <= 0 {
+        return Err(shape_error("a fixed feature size"));
+    }
+    Ok(if rank == 1 { vec![n] } else { vec![1, n] })
 }
 
 impl OnnxModel {
@@ -268,7 +272,7 @@ impl OnnxModel {
             if tensors {
                 fixed_shape(dtype)
             } else {
-                vector_len(dtype).map(|n| vec![1, n as i64])
+                vector_shape(dtype)
             }
         };
         let mut input_shapes = Vec::with_capacity(session.inputs().len());
@@ -296,7 +300,7 @@ impl OnnxModel {
             path: path.to_path_buf(),
             reason: e.to_string(),
         })?;
-        Ok(Self {
+        Self {
             shapes: input_shapes
                 .into_iter()
                 .chain(std::iter::once((
@@ -312,7 +316,19 @@ impl OnnxModel {
             output_len,
             path: path.to_path_buf(),
             session,
-        })
+        }
+        .tried()
+    }
+
+    /// The model after one inference on zeros: what ONNX Runtime refuses only when it runs (a
+    /// rank, an operator's shape rule) is a load error, before anything moves.
+    fn tried(mut self) -> Result<Self, OnnxError> {
+        let (obs, mut actions) = (vec![0.0; self.input_len], vec![0.0; self.output_len]);
+        self.run(&obs, &mut actions).map_err(|e| OnnxError::Load {
+            path: self.path.clone(),
+            reason: format!("one inference on zeros failed: {e}"),
+        })?;
+        Ok(self)
     }
 
     /// The model file.
