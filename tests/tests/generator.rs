@@ -437,3 +437,53 @@ fn the_shipped_generator_is_what_its_script_fits() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn a_generator_whose_every_step_fails_leaves_a_run_that_is_no_success() {
+    // The squat generator's description over a model of the same shapes whose every frame is
+    // NaN: each step fails, the follower only ever holds standby.
+    let dir = std::env::temp_dir().join(format!("robodeploy-nan-generator-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let model = dir.join("nan_ar.onnx");
+    let script = "import onnx, sys\n\
+                  import numpy as np\n\
+                  from onnx import helper, TensorProto, numpy_helper\n\
+                  nodes = [helper.make_node('Slice', ['history', 'starts', 'ends', 'axes'], ['last']),\n\
+                           helper.make_node('Mul', ['last', 'nan'], ['frames'])]\n\
+                  inits = [numpy_helper.from_array(np.array([5], np.int64), 'starts'),\n\
+                           numpy_helper.from_array(np.array([8], np.int64), 'ends'),\n\
+                           numpy_helper.from_array(np.array([1], np.int64), 'axes'),\n\
+                           numpy_helper.from_array(np.array([np.nan], np.float32), 'nan')]\n\
+                  g = helper.make_graph(nodes, 'nan_ar',\n\
+                      [helper.make_tensor_value_info('history', TensorProto.FLOAT, [1, 8, 18]),\n\
+                       helper.make_tensor_value_info('command', TensorProto.FLOAT, [1, 1])],\n\
+                      [helper.make_tensor_value_info('frames', TensorProto.FLOAT, [1, 3, 18])], inits)\n\
+                  m = helper.make_model(g, opset_imports=[helper.make_opsetid('', 17)])\n\
+                  m.ir_version = 8\n\
+                  onnx.checker.check_model(m)\n\
+                  onnx.save(m, sys.argv[1])\n";
+    let status = std::process::Command::new(test_support::fixtures::venv_python())
+        .args(["-c", script])
+        .arg(&model)
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let text = std::fs::read_to_string(biped("generators/squat_ar.toml"))
+        .unwrap()
+        .replace("onnx = \"squat_ar.onnx\"", &format!("onnx = {model:?}"))
+        .replace(
+            "seed_clip = \"../clips/squat.csv\"",
+            &format!("seed_clip = {:?}", biped("clips/squat.csv")),
+        );
+    let description = dir.join("nan_ar.toml");
+    std::fs::write(&description, text).unwrap();
+    let (ok, out) = play_generator(&description, &["--max-seconds", "3"]);
+    assert!(!ok, "{out}");
+    assert!(out.contains("reference played: none"), "{out}");
+    assert!(
+        out.lines()
+            .any(|l| l.starts_with("result: finished, but the generated reference never came")),
+        "{out}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -1289,8 +1289,11 @@ pub fn finish(summary: &PlaySummary) -> std::process::ExitCode {
             println!("result: finished, but the recording failed: {e}");
             std::process::ExitCode::from(crate::exit::IO_FAILURE)
         }
-        (None, controller::metrics::RunOutcome::Finished) if summary.governor_saturated() => {
-            println!("result: finished, but {}", summary.saturation());
+        (None, controller::metrics::RunOutcome::Finished) if summary.shortfall().is_some() => {
+            println!(
+                "result: finished, but {}",
+                summary.shortfall().unwrap_or_default()
+            );
             std::process::ExitCode::from(crate::exit::FAILED)
         }
         _ => {

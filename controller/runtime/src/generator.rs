@@ -1025,6 +1025,13 @@ pub struct GeneratorSummary {
     pub horizon: usize,
 }
 
+impl GeneratorSummary {
+    /// No tick ever tracked a generated plan (every step failed, or none came in time).
+    pub fn never_came(&self) -> bool {
+        self.counts.fresh_ticks == 0
+    }
+}
+
 impl std::fmt::Display for GeneratorSummary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let (w, c) = (&self.worker, &self.counts);

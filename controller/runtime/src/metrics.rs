@@ -136,7 +136,14 @@ impl std::fmt::Display for PlaySummary {
                 if self.success() { "yes" } else { "NO" }
             )?;
         } else {
-            writeln!(f, "reference played: {:.0} %", 100.0 * self.played)?;
+            match self.generator.as_ref().filter(|g| g.never_came()) {
+                Some(g) => writeln!(
+                    f,
+                    "reference played: none — the generator produced no usable plan ({} steps, {} failed)",
+                    g.worker.steps, g.worker.failed
+                )?,
+                None => writeln!(f, "reference played: {:.0} %", 100.0 * self.played)?,
+            }
             writeln!(
                 f,
                 "success (no fall, no safety stop, played to the end, root within 1 m and 45°): {}",
@@ -288,7 +295,21 @@ impl PlaySummary {
             matches!(self.outcome(), RunOutcome::SafetyStop { .. }),
             Some(self.played),
             self.root_max_error,
-        ) && !self.governor_saturated()
+        ) && self.shortfall().is_none()
+    }
+
+    /// What kept a run that finished from doing what it was asked, if anything: the governor
+    /// commanded instead of the policy, or the generated reference never came.
+    pub fn shortfall(&self) -> Option<String> {
+        if self.governor_saturated() {
+            return Some(self.saturation());
+        }
+        self.generator.as_ref().filter(|g| g.never_came()).map(|g| {
+            format!(
+                "the generated reference never came: {} steps, {} failed (the robot stood on standby)",
+                g.worker.steps, g.worker.failed
+            )
+        })
     }
 
     /// The governor changed more than [`SATURATED_SHARE`] of the policy's commands (over at
