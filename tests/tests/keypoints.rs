@@ -512,3 +512,79 @@ fn play_with_keypoint_references_reports_each_view() {
     assert!(!out.status.success() && err.contains("side"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn references_with_no_keypoint_seen_are_refused_not_reported_as_0_px() {
+    let dir = scratch("unseen");
+    let (squat, cams) = (biped("clips/squat.csv"), biped("cameras.toml"));
+    // COCO results of track 7 only, every keypoint sure.
+    let detections: Vec<serde_json::Value> = (0..30)
+        .map(|f| {
+            let values: Vec<f64> = (0..17).flat_map(|i| [600.0 + f64::from(i), 300.0, 0.9]).collect();
+            serde_json::json!({"image_id": f, "category_id": 1, "track_id": 7, "keypoints": values})
+        })
+        .collect();
+    let coco = dir.join("results.json");
+    std::fs::write(&coco, serde_json::to_string(&detections).unwrap()).unwrap();
+    // The same with every confidence 0.
+    let unsure: Vec<serde_json::Value> = detections
+        .iter()
+        .map(|d| {
+            let mut d = d.clone();
+            for k in d["keypoints"].as_array_mut().unwrap().chunks_mut(3) {
+                k[2] = serde_json::json!(0.0);
+            }
+            d
+        })
+        .collect();
+    let zero = dir.join("zero.json");
+    std::fs::write(&zero, serde_json::to_string(&unsure).unwrap()).unwrap();
+    for (file, person) in [(&coco, "9"), (&zero, "7")] {
+        let args: Vec<&std::ffi::OsStr> = vec![
+            "--clip".as_ref(),
+            squat.as_os_str(),
+            "--camera".as_ref(),
+            cams.as_os_str(),
+            "--against".as_ref(),
+            file.as_os_str(),
+            "--view".as_ref(),
+            "front".as_ref(),
+            "--person".as_ref(),
+            person.as_ref(),
+        ];
+        let (ok, text) = project(&args);
+        assert!(!ok, "{text}");
+        assert!(text.contains("no keypoint is seen in any of its"), "{text}");
+        assert!(!text.contains("0.00 px"), "{text}");
+        // play --keypoints refuses them the same way, before anything moves.
+        let policy =
+            test_support::fixtures::workspace_root().join("tests/fixtures/policies/keypoint_follower.toml");
+        let out = robodeploy()
+            .arg("play")
+            .arg("--policy")
+            .arg(&policy)
+            .arg("--keypoints")
+            .arg(file)
+            .arg("--cameras")
+            .arg(&cams)
+            .args([
+                "--view",
+                "front",
+                "--person",
+                person,
+                "--fps",
+                "30",
+                "--no-record",
+            ])
+            .output()
+            .unwrap();
+        let (stdout, stderr) = (
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr),
+        );
+        assert_eq!(out.status.code(), Some(2), "{stdout}{stderr}");
+        assert!(stderr.contains("no keypoint is seen in any of its"), "{stderr}");
+        assert!(!stdout.contains("Running"), "{stdout}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}

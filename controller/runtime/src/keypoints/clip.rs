@@ -90,6 +90,27 @@ impl KeypointClip {
         std::fs::write(path, out).map_err(|e| FileError::new(path, format!("cannot write: {e}")))
     }
 
+    /// Refuses references in which no keypoint is ever seen: zero measurements give no error to
+    /// report, not an error of 0 px. `person`: the COCO person asked for.
+    pub fn require_seen(&self, path: &Path, person: Option<u64>) -> Result<(), FileError> {
+        if self.points.iter().any(|p| p[2] > 0.0) {
+            return Ok(());
+        }
+        let why = match person {
+            Some(p) => {
+                format!("every confidence is 0, person {p} (--person) is in no annotation, or there are none")
+            }
+            None => "every confidence is 0, or there are no annotations".to_owned(),
+        };
+        Err(FileError::new(
+            path,
+            format!(
+                "no keypoint is seen in any of its {} frames ({why}): nothing to compare against",
+                self.len()
+            ),
+        ))
+    }
+
     /// Reads the project's CSV; every keypoint seen must lie on its camera's image when
     /// `cameras` are given.
     pub fn load_csv(path: &Path, cameras: &[Camera]) -> Result<Self, FileError> {
@@ -308,6 +329,7 @@ impl KeypointSource {
         let path = &self.keypoints;
         if !path.extension().is_some_and(|e| e.eq_ignore_ascii_case("json")) {
             let clip = KeypointClip::load_csv(path, &cameras)?;
+            clip.require_seen(path, None)?;
             return Ok((cameras, clip));
         }
         let view = match (&self.view, cameras.as_slice()) {
@@ -332,6 +354,7 @@ impl KeypointSource {
             fps: self.fps,
         };
         let clip = load_coco(path, &options, Some(camera))?;
+        clip.require_seen(path, self.person)?;
         Ok((cameras, clip))
     }
 }
