@@ -588,3 +588,61 @@ fn references_with_no_keypoint_seen_are_refused_not_reported_as_0_px() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn coco_frames_are_timed_by_their_image_id_so_a_skipped_frame_shifts_nothing() {
+    let dir = scratch("coco-gap");
+    let keypoints = dir.join("squat.csv");
+    squat_keypoints(&biped("cameras.toml"), &keypoints);
+    let cameras = controller::keypoints::camera::load_cameras(&biped("cameras.toml")).unwrap();
+    let clip = controller::keypoints::clip::KeypointClip::load_csv(&keypoints, &cameras).unwrap();
+    // A detector's results on the front camera's video at 30 fps with frames 10–12 missing
+    // altogether (no entry of anyone): numeric image ids, as COCO result lists have them.
+    let coco = controller::keypoints::clip::COCO_KEYPOINTS;
+    let mut detections = Vec::new();
+    for f in (0..clip.len()).filter(|f| !(10..=12).contains(f)) {
+        let seen = clip.at(f, 0);
+        let values: Vec<f64> = coco
+            .iter()
+            .flat_map(|name| {
+                let k = clip.names.iter().position(|n| n == name).unwrap();
+                [seen[k][0], seen[k][1], 0.9]
+            })
+            .collect();
+        detections.push(serde_json::json!({"image_id": f, "category_id": 1, "keypoints": values}));
+    }
+    let path = dir.join("results.json");
+    std::fs::write(&path, serde_json::to_string(&detections).unwrap()).unwrap();
+    let c = compare(
+        &biped("cameras.toml"),
+        &path,
+        &["--view", "front", "--fps", "30"],
+        &dir.join("coco.json"),
+    );
+    let front = &c["views"][0];
+    assert!(front["compared"].as_u64().unwrap() > 0, "{c}");
+    assert!(
+        front["max_px"].as_f64().unwrap() < 1e-6,
+        "every frame where it was: {c}"
+    );
+    // Two images numbered as one frame are refused by name.
+    detections.push(serde_json::json!({"image_id": "frame_0003.png", "category_id": 1, "keypoints": detections[3]["keypoints"].clone()}));
+    std::fs::write(&path, serde_json::to_string(&detections).unwrap()).unwrap();
+    let squat = biped("clips/squat.csv");
+    let cams = biped("cameras.toml");
+    let (ok, text) = project(&[
+        "--clip".as_ref(),
+        squat.as_os_str(),
+        "--camera".as_ref(),
+        cams.as_os_str(),
+        "--against".as_ref(),
+        path.as_os_str(),
+        "--view".as_ref(),
+        "front".as_ref(),
+    ]);
+    assert!(
+        !ok && text.contains("its frame number is another image's"),
+        "{text}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -384,6 +384,9 @@ pub fn load_coco(
     coco_from_str(path, &text, options, camera)
 }
 
+/// Frames a COCO file's image ids may span (about 9 h at 30 fps).
+const MAX_COCO_FRAMES: u64 = 1_000_000;
+
 /// [`load_coco`] from text already read (`path` names it in errors).
 pub fn coco_from_str(
     path: &Path,
@@ -430,11 +433,14 @@ pub fn coco_from_str(
     // Detections by frame (image), in the file's order within a frame.
     let mut frames: BTreeMap<ImageKey, Vec<&serde_json::Value>> = BTreeMap::new();
     for image in &images {
-        frames.entry(ImageKey::of(image)).or_default();
+        frames.entry(ImageKey::checked(image).map_err(&bad)?).or_default();
     }
     for (i, d) in detections.iter().enumerate() {
         let image = image_key(&d["image_id"]).ok_or_else(|| bad(format!("detection {i}: no image_id")))?;
-        frames.entry(ImageKey::of(&image)).or_default().push(d);
+        frames
+            .entry(ImageKey::checked(&image).map_err(&bad)?)
+            .or_default()
+            .push(d);
     }
     if frames.is_empty() {
         return Err(bad("no detections".into()));
@@ -450,6 +456,10 @@ pub fn coco_from_str(
         times: Vec::with_capacity(frames.len()),
         points: Vec::with_capacity(frames.len() * names.len()),
     };
+    // Frames are timed by their image's number (a detector that skipped a frame leaves a gap,
+    // not a shift of every later one); by their rank only when some id has no number.
+    let first = frames.keys().next().and_then(|k| k.number);
+    let numbered = frames.keys().all(|k| k.number.is_some());
     for (k, (image, found)) in frames.iter().enumerate() {
         let chosen: Vec<&&serde_json::Value> = match options.person {
             Some(p) => found.iter().filter(|d| person_of(d) == Some(p)).collect(),
@@ -467,7 +477,30 @@ pub fn coco_from_str(
                 ids.join(", ")
             )));
         }
-        clip.times.push(k as f64 / options.fps);
+        let frame = match (numbered, image.number, first) {
+            (true, Some(n), Some(first)) => n - first,
+            _ => k as u64,
+        };
+        if frame > MAX_COCO_FRAMES {
+            return Err(bad(format!(
+                "image {}: frame {frame} after the first: ids span more than {MAX_COCO_FRAMES} frames",
+                image.text
+            )));
+        }
+        let next = clip.times.len() as u64;
+        if frame < next {
+            return Err(bad(format!(
+                "image {}: its frame number is another image's (ids must number the frames once each)",
+                image.text
+            )));
+        }
+        // Frames no detection mentions are unseen (not bridged by interpolation).
+        for missing in next..frame {
+            clip.times.push(missing as f64 / options.fps);
+            clip.points
+                .extend(std::iter::repeat_n([f64::NAN, f64::NAN, 0.0], names.len()));
+        }
+        clip.times.push(frame as f64 / options.fps);
         match chosen.first() {
             None => clip
                 .points
@@ -508,7 +541,7 @@ fn image_key(v: &serde_json::Value) -> Option<String> {
     }
 }
 
-/// Images in order: by the number in their id ("frame_012.jpg" → 12), then by the text.
+/// Images in order: by the last number in their id ("cam2_frame_012.jpg" → 12), then by the text.
 #[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord)]
 struct ImageKey {
     number: Option<u64>,
@@ -517,10 +550,25 @@ struct ImageKey {
 
 impl ImageKey {
     fn of(text: &str) -> Self {
-        let digits: String = text.chars().filter(char::is_ascii_digit).collect();
+        let end = text.rfind(|c: char| c.is_ascii_digit()).map_or(0, |i| i + 1);
+        let start = text[..end]
+            .rfind(|c: char| !c.is_ascii_digit())
+            .map_or(0, |i| i + 1);
         Self {
-            number: digits.parse().ok(),
+            number: text[start..end].parse().ok(),
             text: text.to_owned(),
         }
+    }
+
+    /// Refuses an id whose number cannot be a frame's (more digits than a u64 holds).
+    fn checked(text: &str) -> Result<Self, String> {
+        let key = Self::of(text);
+        if key.number.is_none() && text.chars().any(|c| c.is_ascii_digit()) {
+            return Err(format!(
+                "image id {:?}: its number is beyond 2^64 (frames are timed by it)",
+                text.chars().take(40).collect::<String>()
+            ));
+        }
+        Ok(key)
     }
 }
