@@ -87,6 +87,17 @@ fn policy_manifests_with_absurd_numbers_are_refused_by_field() {
             "action.lowpass_hz: 1e-9 is outside [0.1, 25]",
         ),
         ("scale = 1.0", "scale = 1e308", "action.scale: 1e308 is outside"),
+        // Issue 34: 0 is not "unset", and a term pasted twice is not two terms.
+        (
+            "rate_hz = 50.0",
+            "rate_hz = 0.0",
+            "rate_hz: 0 Hz is outside [1, 1000]",
+        ),
+        (
+            "[[observation]]\nterm = \"projected_gravity\"\n",
+            "[[observation]]\nterm = \"projected_gravity\"\n\n[[observation]]\nterm = \"projected_gravity\"\n",
+            "(projected_gravity): the same term as observation[",
+        ),
     ] {
         let policy = manifest(&dir, "bad", from, to);
         refused(&args(&[&"check", &"--policy", &policy]), needle);

@@ -623,8 +623,13 @@ pub struct PolicyManifest {
     pub description: String,
     /// ONNX file, relative to the manifest.
     pub onnx: PathBuf,
-    /// Control rate the policy was trained at, Hz (default: the robot's `control_rate_hz`).
-    #[serde(default)]
+    /// Control rate the policy was trained at, Hz, as the manifest gives it (`rate_hz`, 1–1000;
+    /// none: the robot's `control_rate_hz`).
+    #[serde(default, rename = "rate_hz", skip_serializing_if = "Option::is_none")]
+    pub declared_rate_hz: Option<f64>,
+    /// The rate the policy runs at: the declared one, else the robot's (set when the manifest is
+    /// resolved against a robot).
+    #[serde(skip)]
     pub rate_hz: f64,
     /// Joint names in the policy's order, mapped to the robot's joints by name (default: the
     /// ONNX metadata's `joint_names`).
@@ -666,6 +671,7 @@ impl PolicyManifest {
         Self {
             description: String::new(),
             onnx,
+            declared_rate_hz: None,
             rate_hz: 0.0,
             joints: Vec::new(),
             default_pose: None,
@@ -823,9 +829,7 @@ impl PolicyLayout {
         };
         let onnx_path = path.parent().unwrap_or(Path::new(".")).join(&manifest.onnx);
         fill_from_metadata(&mut manifest, &onnx_path).map_err(|(place, m)| err(&place, m))?;
-        if manifest.rate_hz == 0.0 {
-            manifest.rate_hz = robot.config.control_rate_hz;
-        }
+        manifest.rate_hz = manifest.declared_rate_hz.unwrap_or(robot.config.control_rate_hz);
         let names: Vec<&str> = robot.config.joints.iter().map(|j| j.name.as_str()).collect();
         let mut robot_index = Vec::with_capacity(manifest.joints.len());
         for (i, name) in manifest.joints.iter().enumerate() {
@@ -987,6 +991,14 @@ impl PolicyLayout {
             let s = term.shaping();
             let place = format!("observation[{i}] ({})", term.name());
             check_term(term).map_err(|e| err(&place, e.to_string()))?;
+            if let Some(j) = manifest.observation[..i].iter().position(|t| t == term) {
+                return Err(err(
+                    &place,
+                    format!(
+                        "the same term as observation[{j}]: a term is observed once (a copy pasted twice?)"
+                    ),
+                ));
+            }
             if let Term::GaitPhase {
                 period_s,
                 standing_below,

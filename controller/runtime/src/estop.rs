@@ -32,7 +32,10 @@ pub fn listen_for(
         let mut junk = RateLimit::per_second();
         while !set.load(Ordering::Relaxed) {
             if let Ok((n, from)) = socket.recv_from(&mut buf) {
-                if buf[..n].trim_ascii().eq_ignore_ascii_case(word.as_bytes()) {
+                // A C sender's `sizeof` brings the string's NUL along: trailing NULs are padding.
+                let text = buf[..n].trim_ascii_end();
+                let end = text.iter().rposition(|&b| b != 0).map_or(0, |i| i + 1);
+                if text[..end].trim_ascii().eq_ignore_ascii_case(word.as_bytes()) {
                     // The flag first: nothing, not even the log line, comes before it.
                     set.store(true, Ordering::Relaxed);
                     tracing::warn!(%from, "{word} received");
@@ -43,4 +46,22 @@ pub fn listen_for(
         }
     })?;
     Ok((flag, local))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_estop_sent_with_its_c_string_nul_is_taken() {
+        let (flag, local) = listen_for("127.0.0.1:0".parse().unwrap(), "ESTOP", "estop-test").unwrap();
+        let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
+        // `send(fd, "ESTOP", sizeof "ESTOP", …)` from C sends six bytes; a fixed buffer, more.
+        socket.send_to(b"ESTOP\0\0\0", local).unwrap();
+        let deadline = Instant::now() + Duration::from_secs(30);
+        while !flag.load(Ordering::Relaxed) {
+            assert!(Instant::now() < deadline, "ESTOP\\0 was not taken");
+            std::thread::yield_now();
+        }
+    }
 }

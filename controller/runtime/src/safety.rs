@@ -176,6 +176,7 @@ impl std::fmt::Display for Cause {
             Self::StaleFeedback { joint, name, cycles } => {
                 write!(f, "joint {name} ({joint}): no feedback for {cycles} bus cycles")
             }
+            Self::StaleImu { ticks: u32::MAX } => write!(f, "IMU: never sent a sample"),
             Self::StaleImu { ticks } => write!(f, "IMU: no sample for {ticks} ticks"),
             Self::DeviceFault { joint, name } => write!(f, "joint {name} ({joint}): device fault"),
             Self::NonFinite { what } => write!(f, "non-finite {what}"),
@@ -499,6 +500,18 @@ pub fn govern_torque(j: &JointConfig, tau: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_imu_that_never_sent_says_never_not_four_billion_ticks() {
+        assert_eq!(
+            Cause::StaleImu { ticks: u32::MAX }.to_string(),
+            "IMU: never sent a sample"
+        );
+        assert_eq!(
+            Cause::StaleImu { ticks: 3 }.to_string(),
+            "IMU: no sample for 3 ticks"
+        );
+    }
 
     fn joint() -> JointConfig {
         JointConfig {
