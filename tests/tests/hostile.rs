@@ -678,3 +678,72 @@ fn emulators_stop_cleanly_on_sigint_with_their_summary() {
         );
     }
 }
+
+/// Copies recording `from` to `to` with `edit` (Python, on `meta`: the `/replay` channel's
+/// metadata, and `first`: its first message as JSON) applied, through Python's `mcap`.
+fn rewrite_recording(from: &Path, to: &Path, edit: &str) {
+    let script = format!(
+        "import json, sys\n\
+         from mcap.reader import make_reader\n\
+         from mcap.writer import Writer\n\
+         r = make_reader(open(sys.argv[1], 'rb'))\n\
+         w = Writer(open(sys.argv[2], 'wb'))\n\
+         w.start()\n\
+         schemas, channels, firsts = {{}}, {{}}, set()\n\
+         for schema, channel, message in r.iter_messages():\n\
+         \x20   if schema is not None and schema.id not in schemas:\n\
+         \x20       schemas[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)\n\
+         \x20   if channel.id not in channels:\n\
+         \x20       meta = dict(channel.metadata)\n\
+         \x20       if channel.topic == '/replay':\n\
+         \x20           run = json.loads(meta['run'])\n\
+         \x20           {edit_meta}\n\
+         \x20           meta['run'] = json.dumps(run)\n\
+         \x20       channels[channel.id] = w.register_channel(channel.topic, channel.message_encoding, schemas.get(channel.schema_id, 0), meta)\n\
+         \x20   data = message.data\n\
+         \x20   if channel.topic == '/replay' and '/replay' not in firsts:\n\
+         \x20       firsts.add('/replay')\n\
+         \x20       first = json.loads(data)\n\
+         \x20       {edit_first}\n\
+         \x20       data = json.dumps(first).encode()\n\
+         \x20   w.add_message(channels[channel.id], message.log_time, data, message.publish_time)\n\
+         w.finish()\n",
+        edit_meta = edit.split('|').next().unwrap_or("pass"),
+        edit_first = edit.split('|').nth(1).unwrap_or("pass"),
+    );
+    let out = std::process::Command::new(test_support::fixtures::venv_python())
+        .args(["-c", &script])
+        .arg(from)
+        .arg(to)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+}
+
+#[test]
+fn a_replay_of_absurd_recorded_options_or_a_missing_reading_is_refused_or_held_never_a_panic() {
+    let dir = std::env::temp_dir().join(format!("robodeploy-replay-hostile-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let run = dir.join("run.mcap");
+    let (code, out, err) = run_within(
+        &args(&[&"play", &"--max-seconds", &"2", &"--record", &run]),
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, Some(0), "{out}{err}");
+    // A ramp of 1e300 s (it overflowed the reference's tick count): refused by name, exit 2.
+    let ramp = dir.join("ramp.mcap");
+    rewrite_recording(&run, &ramp, "run['options']['ramp_s'] = 1e300|pass");
+    let (code, out, err) = run_within(&args(&[&"replay", &ramp]), Duration::from_secs(120));
+    assert_eq!(code, Some(2), "{out}{err}");
+    assert!(
+        err.contains("recorded run options: ramp_s: 1e300 is outside [0, 60]"),
+        "{err}"
+    );
+    // The first tick's joint positions missing (null): no panic in the governor.
+    let null = dir.join("null.mcap");
+    rewrite_recording(&run, &null, "pass|first['q'] = [None] * len(first['q'])");
+    let (code, out, err) = run_within(&args(&[&"replay", &null]), Duration::from_secs(120));
+    assert!(!err.contains("panicked"), "{out}{err}");
+    assert!(code.is_some_and(|c| c != 101), "{out}{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

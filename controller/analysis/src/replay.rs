@@ -421,6 +421,9 @@ pub fn replay(path: &Path) -> Result<ReplayReport, AnalysisError> {
         );
     }
     let options = run.options;
+    options
+        .check()
+        .map_err(|(field, m)| AnalysisError::file(path, format!("recorded run options: {field}: {m}")))?;
     let joints = robot.config.joints.iter().map(|j| j.name.clone()).collect();
     let ticks = Arc::new(rec.ticks);
     let reads = Arc::new(AtomicUsize::new(0));

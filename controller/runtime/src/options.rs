@@ -142,6 +142,48 @@ impl PlayOptions {
         self
     }
 
+    /// Each option within the range `play` takes it in (the flags' own ranges; the rest from
+    /// robot.toml's): options read back from a recording are checked as the flags are. The
+    /// error names the option.
+    pub fn check(&self) -> Result<(), (String, String)> {
+        let l = &self.limits;
+        for (name, value, lo, hi) in [
+            ("soft_start_s", self.soft_start_s, 0.0, 60.0),
+            ("soft_start_gain", self.soft_start_gain, 0.0, 1.0),
+            ("ramp_s", self.ramp_s, 0.0, 60.0),
+            ("end_s", self.end_s, 0.0, 60.0),
+            ("damping_s", self.damping_s, 0.0, 60.0),
+            ("sit_s", self.sit_s, 0.1, 60.0),
+            ("settle_s", self.settle_s, 0.02, 30.0),
+            ("stand_s", self.stand_s.unwrap_or(0.0), 0.0, 86_400.0),
+            ("limits.tilt", l.tilt, 0.0, std::f64::consts::PI),
+            ("limits.position_margin", l.position_margin, 0.0, 0.2),
+            ("limits.tracking_error", l.tracking_error, 0.0, 100.0),
+        ] {
+            if !(value.is_finite() && (lo..=hi).contains(&value)) {
+                return Err((
+                    name.to_owned(),
+                    format!(
+                        "{} is outside [{}, {}]",
+                        robots::num(value),
+                        robots::num(lo),
+                        robots::num(hi)
+                    ),
+                ));
+            }
+        }
+        for (name, value, lo, hi) in [
+            ("limits.stale_cycles", l.stale_cycles, 1, 100),
+            ("limits.overruns", l.overruns, 1, 1_000_000),
+            ("limits.tracking_ticks", l.tracking_ticks, 1, 1_000_000),
+        ] {
+            if !(lo..=hi).contains(&value) {
+                return Err((name.to_owned(), format!("{value} is outside [{lo}, {hi}]")));
+            }
+        }
+        Ok(())
+    }
+
     /// The start mode (robot.toml's when the run names none).
     pub fn start_mode(&self, robot: &robots::Robot) -> robots::StartMode {
         self.start.unwrap_or(robot.config.start.mode)

@@ -488,7 +488,13 @@ pub fn govern_position(
     rate_limit: Option<f64>,
 ) -> f64 {
     let max_step = rate_limit.unwrap_or(j.velocity_limit).min(j.velocity_limit) * dt;
-    let stepped = wanted.clamp(previous - max_step, previous + max_step);
+    // A previous target that is not a number (a replay's missing reading) bounds nothing; it
+    // must not panic the loop. A wanted NaN stays NaN for the caller's non-finite check.
+    let stepped = if previous.is_finite() && max_step.is_finite() && max_step >= 0.0 {
+        wanted.clamp(previous - max_step, previous + max_step)
+    } else {
+        wanted
+    };
     stepped.clamp(range[0], range[1])
 }
 
@@ -500,6 +506,16 @@ pub fn govern_torque(j: &JointConfig, tau: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_governor_never_panics_on_a_target_that_is_not_a_number() {
+        let j = joint();
+        let range = [-1.0, 1.0];
+        assert_eq!(govern_position(&j, f64::NAN, 0.5, 0.02, range, None), 0.5);
+        assert_eq!(govern_position(&j, f64::NAN, 5.0, 0.02, range, None), 1.0);
+        assert!(govern_position(&j, 0.0, f64::NAN, 0.02, range, None).is_nan());
+        assert_eq!(govern_position(&j, 0.0, 0.5, 0.02, range, None), 0.2);
+    }
 
     #[test]
     fn an_imu_that_never_sent_says_never_not_four_billion_ticks() {
