@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use firmware_bridge::can::socketcand::{ClientLimits, SocketcandClient, SocketcandServer};
 use firmware_bridge::can::virtual_bus::VirtualCanBus;
-use firmware_bridge::can::{CanFrame, CanId};
+use firmware_bridge::can::{CanBus, CanFrame, CanId};
 use firmware_bridge::mit::driver::{JointCommand, MitBusDriver, MitJointConfig};
 use firmware_bridge::mit::firmware::MitFirmwareConfig;
 use firmware_bridge::mit::models::find;
@@ -270,4 +270,53 @@ fn a_client_that_stops_reading_is_dropped_and_frees_the_bus() {
             "the stalled client kept the bus"
         );
     }
+}
+
+#[test]
+#[allow(
+    unsafe_code,
+    reason = "a signal handler installed without SA_RESTART, and signals sent to the reading thread, to interrupt its read"
+)]
+fn a_read_interrupted_by_a_signal_waits_on_and_the_bus_is_not_lost() {
+    // SIGSTOP/SIGCONT, a profiler or a debugger interrupt a blocked read with EINTR; it was
+    // taken for a lost bus (exit 5).
+    extern "C" fn ignore(_: libc::c_int) {}
+    // SAFETY: a zeroed sigaction with a handler that does nothing, installed for SIGUSR1 only.
+    unsafe {
+        let mut action: libc::sigaction = std::mem::zeroed();
+        action.sa_sigaction = ignore as extern "C" fn(libc::c_int) as usize;
+        action.sa_flags = 0;
+        libc::sigemptyset(&mut action.sa_mask);
+        assert_eq!(libc::sigaction(libc::SIGUSR1, &action, std::ptr::null_mut()), 0);
+    }
+    // A bus with nothing on it: the read waits its whole deadline.
+    let bus = VirtualCanBus::new("can0", 1_000_000);
+    let start = std::time::Instant::now();
+    let server = SocketcandServer::spawn("127.0.0.1:0".parse().unwrap(), "can0", bus.attach(), move || {
+        start.elapsed()
+    })
+    .unwrap();
+    let mut client = SocketcandClient::connect(server.local_addr(), "can0", Duration::from_secs(5)).unwrap();
+    let (tx, rx) = std::sync::mpsc::sync_channel(1);
+    let reader = std::thread::Builder::new()
+        .name("interrupted-reader".into())
+        .spawn(move || {
+            // SAFETY: pthread_self has no preconditions.
+            tx.send(unsafe { libc::pthread_self() }).unwrap();
+            client.recv_until(std::time::Instant::now() + Duration::from_millis(500))
+        })
+        .unwrap();
+    let thread = rx.recv().unwrap();
+    let mut sent = 0;
+    while !reader.is_finished() {
+        // SAFETY: the thread is not joined yet, so its id is valid (a finished one gets ESRCH).
+        if unsafe { libc::pthread_kill(thread, libc::SIGUSR1) } == 0 {
+            sent += 1;
+        }
+        // The signals' pace, not a wait for something to happen.
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let result = reader.join().unwrap();
+    assert!(sent > 10, "{sent} signals");
+    assert!(matches!(result, Ok(None)), "{result:?}");
 }

@@ -97,6 +97,8 @@ impl CanBus for SocketCanBus {
                         reason: format!("error frame: {e:?}"),
                     });
                 }
+                // A signal interrupted the wait: wait again for what is left.
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
                 Err(e)
                     if matches!(
                         e.kind(),

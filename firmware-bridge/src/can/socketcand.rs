@@ -380,6 +380,8 @@ impl SocketcandClient {
                     });
                 }
                 Ok(n) => self.framer.push(&chunk[..n]),
+                // A signal (SIGSTOP/SIGCONT, a profiler) interrupted the wait: the bus is fine.
+                Err(e) if e.kind() == ErrorKind::Interrupted => {}
                 Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => return Ok(None),
                 Err(e) => {
                     return Err(CanError::Disconnected {
