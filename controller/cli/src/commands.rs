@@ -24,10 +24,11 @@ pub struct CommandArgs {
     #[arg(long)]
     pub gamepad: bool,
     /// Live commands from UDP datagrams on ADDR (default 127.0.0.1:9870; another address only
-    /// when given): one JSON object each, {"version": 1, "seq": N, "command": [..]}, seq rising,
-    /// one value per manifest command within its range. Malformed, out-of-range and
-    /// out-of-order datagrams are dropped and counted; silence longer than `timeout_s` hands
-    /// back to the defaults.
+    /// when given): one JSON object each, {"version": 1, "seq": N, "command": [..]}, seq rising
+    /// (optionally "session": S — a sender that starts over sends a new one; a seq more than
+    /// 1024 behind the newest also counts as starting over), one value per manifest command
+    /// within its range. Malformed, out-of-range, late and repeated datagrams are dropped and
+    /// counted; silence longer than `timeout_s` hands back to the defaults.
     #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:9870")]
     pub command_udp: Option<SocketAddr>,
 }

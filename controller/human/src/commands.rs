@@ -550,8 +550,11 @@ pub fn spawn_gamepad(
 
 /// The UDP command message, version 1: one JSON object per datagram,
 /// `{"version": 1, "seq": 17, "command": [0.3, 0.0, 0.0]}` — `seq` rising (a datagram whose
-/// `seq` is not above the newest taken is dropped as out of order), `command` one value per
-/// manifest command, in its order and within its range (a message outside is dropped whole).
+/// `seq` is at most [`SEQ_WINDOW`] behind the newest taken is dropped as late or repeated; one
+/// further behind is a sender that started over, and is taken), `session` optional (a sender
+/// that starts over may say so with a new one: its `seq` then starts afresh), `command` one
+/// value per manifest command, in its order and within its range (a message outside is dropped
+/// whole).
 #[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct UdpCommand {
@@ -559,8 +562,35 @@ pub struct UdpCommand {
     pub version: u64,
     /// Sequence number, rising.
     pub seq: u64,
+    /// The sender's session (default 0): a new one restarts the sequence.
+    #[serde(default)]
+    pub session: u64,
     /// The commands.
     pub command: Vec<f64>,
+}
+
+/// How far behind the newest taken a datagram's `seq` may be and still count as late or
+/// repeated (dropped); further behind, the sender started over (taken). One datagram with a
+/// huge `seq` thus cannot lock the commands out for the rest of the run.
+pub const SEQ_WINDOW: u64 = 1024;
+
+/// The newest datagram taken: its session and sequence number.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Newest {
+    /// Its session.
+    pub session: u64,
+    /// Its sequence number.
+    pub seq: u64,
+}
+
+impl UdpCommand {
+    /// This message as the newest taken.
+    pub fn newest(&self) -> Newest {
+        Newest {
+            session: self.session,
+            seq: self.seq,
+        }
+    }
 }
 
 /// Largest datagram read; anything longer is malformed.
@@ -573,7 +603,7 @@ pub enum Dropped {
     Malformed(String),
     /// A value outside its range.
     OutOfRange(policy::commands::CommandValuesError),
-    /// Not newer than the newest taken.
+    /// Late or repeated: at most [`SEQ_WINDOW`] behind the newest taken, or equal to it.
     OutOfOrder,
 }
 
@@ -581,7 +611,7 @@ pub enum Dropped {
 pub fn parse_datagram(
     spec: &CommandSpec,
     bytes: &[u8],
-    newest_seq: Option<u64>,
+    newest: Option<Newest>,
 ) -> Result<UdpCommand, Dropped> {
     let m: UdpCommand = serde_json::from_slice(bytes).map_err(|e| Dropped::Malformed(e.to_string()))?;
     if m.version != UDP_MESSAGE_VERSION {
@@ -598,7 +628,9 @@ pub fn parse_datagram(
         )));
     }
     spec.check_values(&m.command).map_err(Dropped::OutOfRange)?;
-    if newest_seq.is_some_and(|s| m.seq <= s) {
+    let late =
+        newest.is_some_and(|n| n.session == m.session && m.seq <= n.seq && n.seq - m.seq <= SEQ_WINDOW);
+    if late {
         return Err(Dropped::OutOfOrder);
     }
     Ok(m)
@@ -633,7 +665,7 @@ pub fn spawn_udp(
                 };
                 match counted {
                     Ok(m) => {
-                        newest = Some(m.seq);
+                        newest = Some(m.newest());
                         stats.accepted.fetch_add(1, Ordering::Relaxed);
                         writer.publish(&m.command);
                     }
@@ -730,11 +762,42 @@ mod tests {
     }
 
     #[test]
+    fn a_huge_seq_or_a_sender_that_starts_over_does_not_lock_the_commands_out() {
+        let spec = walk();
+        let msg = |seq: u64, session: u64| {
+            format!(r#"{{"version": 1, "seq": {seq}, "session": {session}, "command": [0.1, 0.0, 0.0]}}"#)
+        };
+        let at = |seq, session| Some(Newest { session, seq });
+        // After seq 2^64 − 1, a sender's seq 1: far behind, it started over: taken.
+        assert!(parse_datagram(&spec, msg(1, 0).as_bytes(), at(u64::MAX, 0)).is_ok());
+        // Late or repeated within the window: dropped.
+        assert_eq!(
+            parse_datagram(&spec, msg(99, 0).as_bytes(), at(100, 0)),
+            Err(Dropped::OutOfOrder)
+        );
+        assert_eq!(
+            parse_datagram(&spec, msg(100, 0).as_bytes(), at(100, 0)),
+            Err(Dropped::OutOfOrder)
+        );
+        assert_eq!(
+            parse_datagram(&spec, msg(5000 - SEQ_WINDOW, 0).as_bytes(), at(5000, 0)),
+            Err(Dropped::OutOfOrder)
+        );
+        assert!(parse_datagram(&spec, msg(5000 - SEQ_WINDOW - 1, 0).as_bytes(), at(5000, 0)).is_ok());
+        // A new session starts its sequence afresh.
+        assert!(parse_datagram(&spec, msg(0, 7).as_bytes(), at(100, 6)).is_ok());
+        // Without a session field, session 0.
+        let plain = br#"{"version": 1, "seq": 3, "command": [0.1, 0.0, 0.0]}"#;
+        assert_eq!(parse_datagram(&spec, plain, None).unwrap().session, 0);
+    }
+
+    #[test]
     fn datagrams_outside_the_contract_are_named_and_dropped() {
         let spec = walk();
         let ok = br#"{"version": 1, "seq": 5, "command": [0.3, 0.0, 0.5]}"#;
         assert_eq!(parse_datagram(&spec, ok, None).unwrap().command, [0.3, 0.0, 0.5]);
-        assert_eq!(parse_datagram(&spec, ok, Some(5)), Err(Dropped::OutOfOrder));
+        let after = |seq| Some(Newest { session: 0, seq });
+        assert_eq!(parse_datagram(&spec, ok, after(5)), Err(Dropped::OutOfOrder));
         let far = br#"{"version": 1, "seq": 6, "command": [0.9, 0.0, 0.5]}"#;
         assert!(
             matches!(parse_datagram(&spec, far, None), Err(Dropped::OutOfRange(e)) if e.to_string().contains("lin_vel_x = 0.9"))
