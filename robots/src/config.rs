@@ -559,6 +559,29 @@ pub(crate) fn check_range(
     }
 }
 
+/// An IMU's mounting and biases within their documented ranges: angles within ±360°, gyro
+/// biases within ±10 rad/s, accelerometer biases within ±50 m/s² (a saturated part reads ±16 g).
+pub(crate) fn check_imu_mounting(
+    prefix: &str,
+    rpy_deg: [f64; 3],
+    gyro_bias: [f64; 3],
+    accel_bias: [f64; 3],
+) -> Result<(), (String, String)> {
+    for (field, v, bound, unit) in [
+        ("mounting_rpy_deg", rpy_deg, 360.0, "°"),
+        ("gyro_bias", gyro_bias, 10.0, "rad/s"),
+        ("accel_bias", accel_bias, 50.0, "m/s²"),
+    ] {
+        if let Some(x) = v.iter().find(|x| !(x.is_finite() && x.abs() <= bound)) {
+            return Err((
+                format!("{prefix}.{field}"),
+                format!("{} {unit} is outside ±{}", crate::num(*x), crate::num(bound)),
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Whether `name` matches `pattern`, where `*` stands for any run of characters.
 pub fn matches_pattern(pattern: &str, name: &str) -> bool {
     let parts: Vec<&str> = pattern.split('*').collect();
@@ -1190,6 +1213,13 @@ impl Robot {
                 j.homing_offset_ticks = c.homing_offset_ticks;
             }
             if let Some(imu) = cal.imu {
+                check_imu_mounting("imu", imu.mounting_rpy_deg, imu.gyro_bias, imu.accel_bias).map_err(
+                    |(place, message)| RobotError {
+                        file: cal_path.clone(),
+                        place,
+                        message,
+                    },
+                )?;
                 config.imu.mounting_rpy_deg = imu.mounting_rpy_deg;
                 config.imu.gyro_bias = imu.gyro_bias;
                 config.imu.accel_bias = imu.accel_bias;
@@ -1923,15 +1953,7 @@ impl Robot {
                 format!("{} is outside (0, 1000]", c.imu.rate_hz),
             ));
         }
-        for (field, v) in [
-            ("imu.mounting_rpy_deg", c.imu.mounting_rpy_deg),
-            ("imu.gyro_bias", c.imu.gyro_bias),
-            ("imu.accel_bias", c.imu.accel_bias),
-        ] {
-            if v.iter().any(|x| !x.is_finite()) {
-                return Err((field.into(), format!("{v:?} is not finite")));
-            }
-        }
+        check_imu_mounting("imu", c.imu.mounting_rpy_deg, c.imu.gyro_bias, c.imu.accel_bias)?;
         let mut names = BTreeSet::new();
         let mut ids = BTreeSet::new();
         let mut mjcf_joints = BTreeSet::new();

@@ -537,6 +537,12 @@ fn robot_files_with_impossible_ids_rates_devices_and_values_are_refused_by_field
             "mounting_rpy_deg = [nan, 0.0, 0.0]",
             "imu.mounting_rpy_deg",
         ),
+        // Issue 34: finite is not enough.
+        (
+            "mounting_rpy_deg = [0.0, 0.0, 0.0]",
+            "mounting_rpy_deg = [1e308, 0.0, 0.0]",
+            "imu.mounting_rpy_deg: 1e308 ° is outside ±360",
+        ),
         (
             "bus = \"dxl0\"\nid = 1",
             "bus = \"dxl0\"\nid = 253",
