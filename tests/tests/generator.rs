@@ -462,12 +462,7 @@ fn a_generator_whose_every_step_fails_leaves_a_run_that_is_no_success() {
                   m.ir_version = 8\n\
                   onnx.checker.check_model(m)\n\
                   onnx.save(m, sys.argv[1])\n";
-    let status = std::process::Command::new(test_support::fixtures::venv_python())
-        .args(["-c", script])
-        .arg(&model)
-        .status()
-        .unwrap();
-    assert!(status.success());
+    test_support::fixtures::run_python(script, &[model.as_os_str()]);
     let text = std::fs::read_to_string(biped("generators/squat_ar.toml"))
         .unwrap()
         .replace("onnx = \"squat_ar.onnx\"", &format!("onnx = {model:?}"))

@@ -717,13 +717,7 @@ fn rewrite_recording(from: &Path, to: &Path, edit: &str) {
         edit_meta = edit.split('|').next().unwrap_or("pass"),
         edit_first = edit.split('|').nth(1).unwrap_or("pass"),
     );
-    let out = std::process::Command::new(test_support::fixtures::venv_python())
-        .args(["-c", &script])
-        .arg(from)
-        .arg(to)
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    test_support::fixtures::run_python(&script, &[from.as_os_str(), to.as_os_str()]);
 }
 
 #[test]

@@ -124,13 +124,8 @@ fn linear_model(rank: usize, path: &std::path::Path) {
                   m.ir_version = 8\n\
                   onnx.checker.check_model(m)\n\
                   onnx.save(m, sys.argv[1])\n";
-    let status = std::process::Command::new(test_support::fixtures::venv_python())
-        .args(["-c", script])
-        .arg(path)
-        .arg(rank.to_string())
-        .status()
-        .unwrap();
-    assert!(status.success());
+    let rank = rank.to_string();
+    test_support::fixtures::run_python(script, &[path.as_os_str(), rank.as_ref()]);
 }
 
 #[test]

@@ -418,13 +418,8 @@ fn an_export_without_its_action_scale_is_refused_by_name_not_played_at_scale_1()
                   del m.metadata_props[:]\n\
                   m.metadata_props.extend(keep)\n\
                   onnx.save(m, sys.argv[2])\n";
-    let status = std::process::Command::new(test_support::fixtures::venv_python())
-        .args(["-c", script])
-        .arg(fixture("rd_biped_tracking.onnx"))
-        .arg(&stripped)
-        .status()
-        .unwrap();
-    assert!(status.success());
+    let export = fixture("rd_biped_tracking.onnx");
+    test_support::fixtures::run_python(script, &[export.as_os_str(), stripped.as_os_str()]);
     let policy = stripped.to_str().unwrap();
     for args in [
         &["check", "--policy", policy][..],

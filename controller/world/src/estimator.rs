@@ -587,6 +587,18 @@ mod tests {
         }
     }
 
+    /// One policy tick at a time on an IMU at rest: four 200 Hz samples of gravity, then the legs.
+    fn still_imu_ticks() -> impl FnMut(&mut Estimator, &LegKinematics) -> Estimate {
+        let mut tick = 0u64;
+        move |e, legs| {
+            for k in 0..4 {
+                e.propagate(&sample(4 * tick + k, [0.0, 0.0, 9.81]));
+            }
+            tick += 1;
+            e.correct(legs, true)
+        }
+    }
+
     fn standing_legs() -> LegKinematics {
         LegKinematics {
             position: [[0.0, 0.1, -0.4], [0.0, -0.1, -0.4], [0.0; 3], [0.0; 3]],
@@ -623,14 +635,7 @@ mod tests {
     fn a_lifted_foot_is_in_the_air_and_lands_again() {
         let mut e = Estimator::new(EstimatorConfig::default(), 2, [0.0, 0.0, -9.81], 160.0, 200.0);
         let mut legs = standing_legs();
-        let mut tick = 0u64;
-        let mut step = |e: &mut Estimator, legs: &LegKinematics| {
-            for k in 0..4 {
-                e.propagate(&sample(4 * tick + k, [0.0, 0.0, 9.81]));
-            }
-            tick += 1;
-            e.correct(legs, true)
-        };
+        let mut step = still_imu_ticks();
         for _ in 0..50 {
             step(&mut e, &legs);
         }
@@ -653,14 +658,7 @@ mod tests {
         let weight = 160.0;
         let mut e = Estimator::new(EstimatorConfig::default(), 2, [0.0, 0.0, -9.81], weight, 200.0);
         let mut legs = standing_legs();
-        let mut tick = 0u64;
-        let mut step = |e: &mut Estimator, legs: &LegKinematics| {
-            for k in 0..4 {
-                e.propagate(&sample(4 * tick + k, [0.0, 0.0, 9.81]));
-            }
-            tick += 1;
-            e.correct(legs, true)
-        };
+        let mut step = still_imu_ticks();
         // Hanging 10 cm up in a harness: the legs carry nothing.
         legs.load = [1.0, 1.0, 0.0, 0.0];
         let mut held = Estimate::default();
@@ -765,14 +763,7 @@ mod tests {
         let mut e = Estimator::new(EstimatorConfig::default(), 2, [0.0, 0.0, -9.81], weight, 200.0);
         let mut legs = standing_legs();
         legs.load = [0.5 * weight, 0.5 * weight, 0.0, 0.0];
-        let mut tick = 0u64;
-        let mut step = |e: &mut Estimator, legs: &LegKinematics| {
-            for k in 0..4 {
-                e.propagate(&sample(4 * tick + k, [0.0, 0.0, 9.81]));
-            }
-            tick += 1;
-            e.correct(legs, true)
-        };
+        let mut step = still_imu_ticks();
         for _ in 0..60 {
             step(&mut e, &legs);
         }

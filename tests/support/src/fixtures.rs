@@ -39,3 +39,21 @@ pub fn venv_python() -> PathBuf {
     );
     path
 }
+
+/// Runs `script` (Python source) with the project's interpreter and `args`, for fixtures a test
+/// makes with the third-party packages there (`onnx`, `mcap`).
+///
+/// # Panics
+/// With the script's error output when it fails.
+pub fn run_python(script: &str, args: &[&std::ffi::OsStr]) {
+    let out = std::process::Command::new(venv_python())
+        .args(["-c", script])
+        .args(args)
+        .output()
+        .expect("the project's Python runs");
+    assert!(
+        out.status.success(),
+        "python failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
