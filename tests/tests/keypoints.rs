@@ -27,6 +27,14 @@ fn project(args: &[&std::ffi::OsStr]) -> (bool, String) {
     (out.status.success(), text)
 }
 
+/// The squat projected through the shipped cameras into `dir`/squat.csv, read back.
+fn projected_squat(dir: &Path) -> controller::keypoints::clip::KeypointClip {
+    let keypoints = dir.join("squat.csv");
+    squat_keypoints(&biped("cameras.toml"), &keypoints);
+    let cameras = controller::keypoints::camera::load_cameras(&biped("cameras.toml")).unwrap();
+    controller::keypoints::clip::KeypointClip::load_csv(&keypoints, &cameras).unwrap()
+}
+
 /// Projects the squat through `cameras` into `out`.
 fn squat_keypoints(cameras: &Path, out: &Path) {
     let clip = biped("clips/squat.csv");
@@ -63,10 +71,8 @@ fn compare(cameras: &Path, reference: &Path, extra: &[&str], json: &Path) -> ser
 #[test]
 fn a_clip_seen_by_two_cameras_reloads_exactly_and_a_2_px_camera_bias_reads_as_2_px() {
     let dir = scratch("bias");
+    let clip = projected_squat(&dir);
     let keypoints = dir.join("squat.csv");
-    squat_keypoints(&biped("cameras.toml"), &keypoints);
-    let cameras = controller::keypoints::camera::load_cameras(&biped("cameras.toml")).unwrap();
-    let clip = controller::keypoints::clip::KeypointClip::load_csv(&keypoints, &cameras).unwrap();
     assert_eq!(clip.views, ["front", "side"]);
     assert_eq!(clip.names.len(), 17);
     assert_eq!(clip.len(), 211, "7 s at 30 Hz");
@@ -105,10 +111,7 @@ fn a_clip_seen_by_two_cameras_reloads_exactly_and_a_2_px_camera_bias_reads_as_2_
 #[test]
 fn coco_keypoints_pick_the_person_by_id_and_skip_missing_and_unsure_points() {
     let dir = scratch("coco");
-    let keypoints = dir.join("squat.csv");
-    squat_keypoints(&biped("cameras.toml"), &keypoints);
-    let cameras = controller::keypoints::camera::load_cameras(&biped("cameras.toml")).unwrap();
-    let clip = controller::keypoints::clip::KeypointClip::load_csv(&keypoints, &cameras).unwrap();
+    let clip = projected_squat(&dir);
     // A pose estimator's results on the front camera's video: the robot as track 7 in COCO's
     // order, a passer-by as track 3; frame 10 without the robot, its left wrist never sure, its
     // nose missing every 5th frame.
@@ -592,10 +595,7 @@ fn references_with_no_keypoint_seen_are_refused_not_reported_as_0_px() {
 #[test]
 fn coco_frames_are_timed_by_their_image_id_so_a_skipped_frame_shifts_nothing() {
     let dir = scratch("coco-gap");
-    let keypoints = dir.join("squat.csv");
-    squat_keypoints(&biped("cameras.toml"), &keypoints);
-    let cameras = controller::keypoints::camera::load_cameras(&biped("cameras.toml")).unwrap();
-    let clip = controller::keypoints::clip::KeypointClip::load_csv(&keypoints, &cameras).unwrap();
+    let clip = projected_squat(&dir);
     // A detector's results on the front camera's video at 30 fps with frames 10–12 missing
     // altogether (no entry of anyone): numeric image ids, as COCO result lists have them.
     let coco = controller::keypoints::clip::COCO_KEYPOINTS;
