@@ -1261,3 +1261,86 @@ fn check_flags_limbs_that_pass_through_each_other() {
     );
     std::fs::remove_file(&path).unwrap();
 }
+
+#[test]
+fn bundle_refuses_an_out_it_would_pack_or_overwrite_and_clips_that_clash_or_are_not_clips() {
+    let root = test_support::fixtures::workspace_root();
+    let dir = std::env::temp_dir().join(format!("bundle-refused-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let robot_dir = robots::reference_robot_path().with_file_name("");
+    let squat = robot_dir.join("clips/squat.csv");
+    // A clip of the same name from another folder, and a file that is no clip.
+    let other = dir.join("other");
+    std::fs::create_dir_all(&other).unwrap();
+    std::fs::copy(&squat, other.join("squat.csv")).unwrap();
+    let not_a_clip = dir.join("notes.csv");
+    std::fs::write(&not_a_clip, "hello\n").unwrap();
+    let existing = dir.join("there.tar.gz");
+    std::fs::write(&existing, "keep me").unwrap();
+    let inside = robot_dir.join("bundle.tar.gz");
+    let robot_toml = robots::reference_robot_path();
+    let (other_squat, out_a, out_b) = (
+        other.join("squat.csv"),
+        dir.join("a.tar.gz"),
+        dir.join("b.tar.gz"),
+    );
+    let cases: [(Vec<&std::ffi::OsStr>, &str); 5] = [
+        (
+            vec!["--out".as_ref(), inside.as_os_str()],
+            "which the bundle packs",
+        ),
+        (
+            vec!["--out".as_ref(), robot_toml.as_os_str()],
+            "which the bundle packs",
+        ),
+        (
+            vec!["--out".as_ref(), existing.as_os_str()],
+            "a file is there already",
+        ),
+        (
+            vec![
+                "--clip".as_ref(),
+                squat.as_os_str(),
+                other_squat.as_os_str(),
+                "--out".as_ref(),
+                out_a.as_os_str(),
+            ],
+            "is also",
+        ),
+        (
+            vec![
+                "--clip".as_ref(),
+                not_a_clip.as_os_str(),
+                "--out".as_ref(),
+                out_b.as_os_str(),
+            ],
+            "notes.csv",
+        ),
+    ];
+    for (args, needle) in cases {
+        let out = robodeploy().arg("bundle").args(&args).output().unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
+        assert!(stderr.contains(needle), "{args:?}: {stderr}");
+    }
+    assert!(!inside.exists(), "nothing written inside the robot's folder");
+    assert_eq!(std::fs::read_to_string(&existing).unwrap(), "keep me");
+    assert!(robot_toml.is_file() && std::fs::metadata(&robot_toml).unwrap().len() > 100);
+    // A relative --policy inside its folder is what it says, and an existing --out may be
+    // replaced when asked.
+    let out = robodeploy()
+        .current_dir(&root)
+        .args([
+            "bundle",
+            "--policy",
+            "robots/biped/policies/reference_follower.toml",
+            "--overwrite",
+            "--out",
+        ])
+        .arg(&existing)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(std::fs::metadata(&existing).unwrap().len() > 1000);
+    std::fs::remove_dir_all(&dir).unwrap();
+}

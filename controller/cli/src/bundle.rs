@@ -35,9 +35,13 @@ pub struct BundleArgs {
     /// Clips to pack (repeat or list).
     #[arg(long, num_args = 0..)]
     clip: Vec<PathBuf>,
-    /// The tarball to write (gzipped).
+    /// The tarball to write (gzipped); outside the folders it packs, and not over an existing
+    /// file unless --overwrite.
     #[arg(long, default_value = "out/robodeploy-bundle.tar.gz")]
     out: PathBuf,
+    /// Replace an existing --out.
+    #[arg(long)]
+    overwrite: bool,
 }
 
 /// Runs `bundle`.
@@ -47,7 +51,9 @@ pub fn run(args: &BundleArgs) -> Result<()> {
     let layout = policy::PolicyLayout::load(&args.policy, &robot)?;
     let robot_dir = folder_of(&args.robot)?;
     let policy_dir = folder_of(&args.policy)?;
-    if !layout.onnx_path.starts_with(&policy_dir) {
+    // Compared resolved, as the folders are (a relative --policy names the same files).
+    let onnx = std::fs::canonicalize(&layout.onnx_path).unwrap_or_else(|_| layout.onnx_path.clone());
+    if !onnx.starts_with(&policy_dir) {
         bail!(
             "--policy {}: its ONNX file {} lies outside the policy's folder, which is what is packed",
             args.policy.display(),
@@ -85,10 +91,25 @@ pub fn run(args: &BundleArgs) -> Result<()> {
             })?;
         libs.push((name, found));
     }
+    check_out(&args.out, args.overwrite, &[&robot_dir, &policy_dir])?;
+    let mut seen_names: Vec<(String, &Path)> = Vec::new();
     for c in &args.clip {
         if !c.is_file() {
-            bail!("--clip {}: not a file", c.display());
+            bail!(robots::FileError::new(c, "--clip: not a file"));
         }
+        // A clip is packed only if it reads as one.
+        controller::clip::Clip::load(c)?;
+        let name = file_name(c);
+        if let Some((_, other)) = seen_names.iter().find(|(n, _)| *n == name) {
+            bail!(robots::FileError::new(
+                c,
+                format!(
+                    "--clip: its name {name:?} is also {}'s: both would be clips/{name} in the bundle",
+                    other.display()
+                )
+            ));
+        }
+        seen_names.push((name, c));
     }
 
     let top = format!("robodeploy-{}", robot.config.name);
@@ -165,6 +186,52 @@ pub fn run(args: &BundleArgs) -> Result<()> {
         if clip_names.is_empty() { "" } else { ", clips/" }
     );
     print!("{readme}");
+    Ok(())
+}
+
+/// Refuses an `out` inside a folder it packs (the tarball would pack itself as it grows, or
+/// overwrite a packed file), and an existing one unless `overwrite`.
+fn check_out(out: &Path, overwrite: bool, packed: &[&PathBuf]) -> Result<()> {
+    let parent = out
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    // The folder may not exist yet: resolve the deepest part that does.
+    let mut existing = parent.to_path_buf();
+    let mut rest = Vec::new();
+    while !existing.exists() {
+        match (existing.file_name().map(ToOwned::to_owned), existing.parent()) {
+            (Some(name), Some(up)) => {
+                rest.push(name);
+                existing = up.to_path_buf();
+            }
+            _ => break,
+        }
+    }
+    let mut resolved = std::fs::canonicalize(if existing.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        &existing
+    })
+    .with_context(|| format!("cannot resolve {}", parent.display()))?;
+    for name in rest.into_iter().rev() {
+        resolved.push(name);
+    }
+    if let Some(dir) = packed.iter().find(|d| resolved.starts_with(d)) {
+        bail!(robots::FileError::new(
+            out,
+            format!(
+                "--out lies inside {}, which the bundle packs: write it elsewhere",
+                dir.display()
+            )
+        ));
+    }
+    if out.exists() && !overwrite {
+        bail!(robots::FileError::new(
+            out,
+            "--out: a file is there already; give another path, or --overwrite"
+        ));
+    }
     Ok(())
 }
 
