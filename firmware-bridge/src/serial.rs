@@ -193,6 +193,45 @@ impl<W: SerialSimWorld> ByteStream for LockstepStream<W> {
     }
 }
 
+/// Writes to the terminal never block (see [`deliver`]).
+fn set_nonblocking(master: &serialport::TTYPort) -> std::io::Result<()> {
+    use std::os::fd::{AsRawFd, BorrowedFd};
+    #[allow(
+        unsafe_code,
+        reason = "serialport's TTYPort gives its descriptor only as a raw fd"
+    )]
+    // SAFETY: `master` owns the descriptor and outlives this borrow.
+    let fd = unsafe { BorrowedFd::borrow_raw(master.as_raw_fd()) };
+    let flags = rustix::fs::fcntl_getfl(fd)?;
+    rustix::fs::fcntl_setfl(fd, flags | rustix::fs::OFlags::NONBLOCK)?;
+    Ok(())
+}
+
+/// Like a UART whose reader stopped reading: writes what fits in the terminal's buffer now and
+/// returns how many bytes were lost. On a blocking descriptor a reply larger than the room left
+/// in a terminal nobody reads (a client gone, or not reading) would wait forever — and so would
+/// whoever stops the server.
+fn deliver(master: &mut serialport::TTYPort, bytes: &[u8]) -> std::io::Result<usize> {
+    let mut rest = bytes;
+    while !rest.is_empty() {
+        match master.write(rest) {
+            Ok(0) => break,
+            Ok(k) => rest = &rest[k..],
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::TimedOut | std::io::ErrorKind::WouldBlock
+                ) =>
+            {
+                break;
+            }
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(rest.len())
+}
+
 /// Serves line `line` of a world on a pseudo-terminal, in wall-clock time: programs open
 /// [`PtyServer::path`] like a USB serial adapter.
 #[derive(Debug)]
@@ -215,6 +254,7 @@ impl PtyServer {
         let path = serialport::SerialPort::name(&slave)
             .ok_or_else(|| std::io::Error::other("the pseudo-terminal has no device path"))?;
         serialport::SerialPort::set_timeout(&mut master, resolution).map_err(std::io::Error::other)?;
+        set_nonblocking(&master)?;
         let stop = Arc::new(AtomicBool::new(false));
         let flag = Arc::clone(&stop);
         let lost_bytes = Arc::new(std::sync::atomic::AtomicU64::new(0));
@@ -234,6 +274,7 @@ impl PtyServer {
                         Ok(n) => n,
                         Err(e) if e.kind() == std::io::ErrorKind::TimedOut => 0,
                         Err(e) if e.kind() == std::io::ErrorKind::Interrupted => 0,
+                        Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => 0,
                         Err(e) => {
                             tracing::warn!("pseudo-terminal read failed: {e}; stopping the serial server");
                             break;
@@ -251,26 +292,15 @@ impl PtyServer {
                         }
                         w.host_receive(line, &mut outbound);
                     }
-                    // Like a UART whose reader stopped reading: what does not fit in the
-                    // terminal's buffer now is lost (counted), and the line stays up.
-                    let mut rest = &outbound[..];
-                    while !rest.is_empty() {
-                        match master.write(rest) {
-                            Ok(0) => break,
-                            Ok(k) => rest = &rest[k..],
-                            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-                            Err(e) if e.kind() == std::io::ErrorKind::TimedOut => break,
-                            Err(e) => {
-                                tracing::warn!(
-                                    "pseudo-terminal write failed: {e}; stopping the serial server"
-                                );
-                                return;
-                            }
+                    let lost = match deliver(&mut master, &outbound) {
+                        Ok(lost) => lost,
+                        Err(e) => {
+                            tracing::warn!("pseudo-terminal write failed: {e}; stopping the serial server");
+                            return;
                         }
-                    }
-                    if !rest.is_empty() {
-                        let lost =
-                            dropped.fetch_add(rest.len() as u64, Ordering::Relaxed) + rest.len() as u64;
+                    };
+                    if lost > 0 {
+                        let lost = dropped.fetch_add(lost as u64, Ordering::Relaxed) + lost as u64;
                         if let Some(left_out) = overflow_log.allow(std::time::Instant::now()) {
                             tracing::warn!(
                                 lost,
@@ -306,5 +336,34 @@ impl Drop for PtyServer {
         if let Some(t) = self.thread.take() {
             let _ = t.join();
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_reply_nobody_reads_is_dropped_not_waited_on() {
+        // A megabyte into a terminal whose other end is open and never read: a blocking write
+        // would wait forever (and with it whoever stops the server).
+        let (mut master, _slave) = serialport::TTYPort::pair().unwrap();
+        serialport::SerialPort::set_timeout(&mut master, Duration::from_micros(200)).unwrap();
+        set_nonblocking(&master).unwrap();
+        let (done, wait) = std::sync::mpsc::sync_channel(1);
+        let writer = std::thread::Builder::new()
+            .name("pty-writer".into())
+            .spawn(move || {
+                let lost = deliver(&mut master, &vec![0x55; 1 << 20]);
+                let _ = done.send(lost.map_err(|e| e.to_string()));
+            })
+            .unwrap();
+        // A deadline only so that a regression fails instead of hanging; the write returns at once.
+        let lost = wait
+            .recv_timeout(Duration::from_secs(30))
+            .expect("the write blocked")
+            .unwrap();
+        assert!(lost > 0 && lost < 1 << 20, "{lost} bytes lost");
+        writer.join().unwrap();
     }
 }
