@@ -2,10 +2,44 @@
 //! the defaults below): its noises, its contact thresholds, how it tells a held robot. The
 //! filter itself is `world::estimator`.
 
+/// Which filter estimates the base.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FilterKind {
+    /// The linear Kalman filter (Bloesch et al. 2012, linear form): orientation from the IMU's
+    /// own fusion, position, velocity, accelerometer bias and feet estimated.
+    Linear,
+    /// The contact-aided invariant EKF (Hartley et al. 2020): orientation estimated too, from
+    /// the gyro and the legs, with both IMU biases; its leg measurements' error does not depend
+    /// on the estimate.
+    #[default]
+    Invariant,
+}
+
+impl std::fmt::Display for FilterKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Linear => "linear Kalman filter",
+            Self::Invariant => "invariant EKF",
+        })
+    }
+}
+
 /// The filter's noises and the contact thresholds.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct EstimatorConfig {
+    /// `"invariant"` (the default) or `"linear"`.
+    pub filter: FilterKind,
+    /// Gyro white noise, rad/s/√Hz (the invariant filter integrates the gyro).
+    pub gyro_noise: f64,
+    /// Gyro bias random walk, rad/s/√s.
+    pub gyro_bias_walk: f64,
+    /// The IMU's own fused orientation as a measurement of the invariant filter's, rad (1σ per
+    /// axis); 0: not used. Standing still, tilt and accelerometer bias cannot be told apart
+    /// from the legs alone, and the gyro's heading bias not at all; the IMU's fusion (levelled
+    /// by gravity, its gyro bias taken at start) tells them.
+    pub imu_attitude_noise: f64,
     /// Accelerometer white noise, m/s²/√Hz.
     pub accel_noise: f64,
     /// Accelerometer bias random walk, m/s²/√s.
@@ -56,6 +90,10 @@ pub struct EstimatorConfig {
 impl Default for EstimatorConfig {
     fn default() -> Self {
         Self {
+            filter: FilterKind::default(),
+            gyro_noise: 0.005,
+            gyro_bias_walk: 1e-4,
+            imu_attitude_noise: 0.02,
             accel_noise: 0.2,
             bias_walk: 0.005,
             stance_foot_walk: 0.0005,
@@ -88,6 +126,9 @@ impl EstimatorConfig {
         use crate::config::check_range;
         let field = |f: &str| format!("estimator.{f}");
         for (name, value, lo, hi, unit) in [
+            ("gyro_noise", self.gyro_noise, 1e-6, 1.0, "rad/s/√Hz"),
+            ("gyro_bias_walk", self.gyro_bias_walk, 0.0, 0.1, "rad/s/√s"),
+            ("imu_attitude_noise", self.imu_attitude_noise, 0.0, 1.0, "rad"),
             ("accel_noise", self.accel_noise, 1e-4, 10.0, "m/s²/√Hz"),
             ("bias_walk", self.bias_walk, 0.0, 1.0, "m/s²/√s"),
             ("stance_foot_walk", self.stance_foot_walk, 0.0, 1.0, "m/√s"),
@@ -190,6 +231,10 @@ mod tests {
         assert_eq!(bad("velocity_gate = nan"), "estimator.velocity_gate");
         assert_eq!(bad("held_below = 0.7"), "estimator.held_below");
         assert_eq!(bad("contact_unload = 0.5"), "estimator.contact_unload");
+        assert_eq!(bad("gyro_noise = -1.0"), "estimator.gyro_noise");
+        let linear: EstimatorConfig = toml::from_str("filter = \"linear\"").unwrap();
+        assert_eq!(linear.filter, FilterKind::Linear);
+        assert!(toml::from_str::<EstimatorConfig>("filter = \"ukf\"").is_err());
         let no_floor: EstimatorConfig = toml::from_str("floor_noise = 0.0").unwrap();
         assert!(no_floor.check().is_ok() && no_floor.floor_noise == 0.0);
     }

@@ -20,7 +20,7 @@ pub use config::{
     RetargetConfig, Robot, RobotConfig, RobotError, SafetyConfig, SimConfig, Solver, StartConfig, StartMode,
     TrackingRule, default_command_timeout, matches_pattern,
 };
-pub use estimator::EstimatorConfig;
+pub use estimator::{EstimatorConfig, FilterKind};
 
 /// A file that could not be read, parsed or written, and what was wrong with it.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]

@@ -134,6 +134,28 @@ pub fn exp(w: [f64; 3]) -> Mat3 {
     rows(DMat3::from_quat(DQuat::from_scaled_axis(DVec3::from(w))))
 }
 
+/// The left Jacobian of the rotation group at `w`: how a rotation vector's increment moves the
+/// translations carried with it (`exp` of SE(3) and its extensions is `[exp(w), J(w)·t]`).
+pub fn so3_left_jacobian(w: [f64; 3]) -> Mat3 {
+    let w = DVec3::from(w);
+    let angle = w.length();
+    let k = DMat3::from_cols(
+        DVec3::new(0.0, w.z, -w.y),
+        DVec3::new(-w.z, 0.0, w.x),
+        DVec3::new(w.y, -w.x, 0.0),
+    );
+    // Series below a small angle: (1 − cos φ)/φ² → ½, (φ − sin φ)/φ³ → ⅙.
+    let (a, b) = if angle < 1e-6 {
+        (0.5, 1.0 / 6.0)
+    } else {
+        (
+            (1.0 - angle.cos()) / angle.powi(2),
+            (angle - angle.sin()) / angle.powi(3),
+        )
+    };
+    rows(DMat3::IDENTITY + k * a + k * k * b)
+}
+
 /// The logarithm: rotation to rotation vector, angle in [0, π] (the short way round).
 pub fn log(r: &Mat3) -> [f64; 3] {
     quat_log(quat_of_mat(r))
@@ -236,6 +258,13 @@ mod tests {
             assert!(close(&r, &mat_of_quat(quat_of_mat(&r))), "{w:?}");
         }
         assert!((heading(&yaw(1.2)) - 1.2).abs() < 1e-12);
+        // The left Jacobian is the derivative of exp: exp(w + ε) ≈ exp(J(w)·ε) · exp(w).
+        let (w, e) = ([0.4, -0.7, 0.2], [1e-6, 2e-6, -1e-6]);
+        let moved = mat_mul(&exp(mat_apply(&so3_left_jacobian(w), e)), &exp(w));
+        assert!(
+            (0..3).all(|i| (0..3).all(|j| (moved[i][j] - exp(add(w, e))[i][j]).abs() < 1e-11)),
+            "{moved:?}"
+        );
         assert!((heading_of_quat(quat_of_mat(&yaw(-2.5))) + 2.5).abs() < 1e-12);
         // A quarter turn about z takes x to y; rows are rows.
         let r = exp([0.0, 0.0, std::f64::consts::FRAC_PI_2]);

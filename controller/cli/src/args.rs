@@ -201,8 +201,13 @@ impl From<StartArg> for robots::StartMode {
 /// Where the world terms of the observation come from (`--estimator`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum EstimatorArg {
-    /// The state estimator on what the robot measures (IMU, joints): what the hardware runs.
+    /// The state estimator on what the robot measures (IMU, joints): what the hardware runs,
+    /// with the filter robot.toml's `[estimator] filter` names (the invariant EKF by default).
     Kf,
+    /// The state estimator with the contact-aided invariant EKF.
+    Invariant,
+    /// The state estimator with the linear Kalman filter.
+    Linear,
     /// The simulation's ground truth (the mirror only).
     GroundTruth,
 }
@@ -211,6 +216,8 @@ impl From<EstimatorArg> for controller::options::EstimatorKind {
     fn from(a: EstimatorArg) -> Self {
         match a {
             EstimatorArg::Kf => Self::Kf,
+            EstimatorArg::Invariant => Self::Invariant,
+            EstimatorArg::Linear => Self::Linear,
             EstimatorArg::GroundTruth => Self::GroundTruth,
         }
     }

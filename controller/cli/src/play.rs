@@ -65,9 +65,10 @@ pub struct PlayArgs {
     #[arg(long, default_value_t = 1.5, value_parser = crate::args::within(0.0, 60.0))]
     ramp: f64,
     /// Where the base velocity and height, foot contacts and anchor position a policy observes
-    /// come from: the state estimator (a Kalman filter on the IMU and leg kinematics; recorded on
-    /// /estimator with the mirror's truth beside it), or the mirror's ground truth. The hardware
-    /// always runs the estimator.
+    /// come from: the state estimator on the IMU and leg kinematics (`kf`: the filter robot.toml's
+    /// [estimator] filter names, the invariant EKF unless it says otherwise; `invariant` or
+    /// `linear` choose one for this run; recorded on /estimator with the mirror's truth beside
+    /// it), or the mirror's ground truth. The hardware always runs the estimator.
     #[arg(long, value_enum, default_value_t = crate::args::EstimatorArg::Kf)]
     estimator: crate::args::EstimatorArg,
     /// Stop (softly) after this many seconds of the run, whatever the clip.

@@ -10,7 +10,9 @@
 //! the distance walked, contacts agree ≥ 97 %. Tables a person reads.
 //!
 //! Run: `cargo bench -p controller --bench estimator` (8 seeds for rd-biped's clips, 3 per walking
-//! robot, 20 s runs); as a test (`cargo test --benches`) 1 seed and 6 s runs.
+//! robot, 20 s runs, both filters side by side); as a test (`cargo test --benches`) 1 seed and 6 s
+//! runs of the default filter. `-- --bench --filter linear|invariant` runs one filter,
+//! `--walking` only the walking robots.
 
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
@@ -23,7 +25,7 @@ use policy::PolicyLayout;
 use robots::{Robot, reference_robot_path};
 use sim2real::config::{MirrorConfig, Randomization, Range};
 use test_support::stats::Summary;
-use world::estimator::{Estimator, EstimatorConfig, LegKinematics};
+use world::estimator::{Estimator, EstimatorConfig, FilterKind, LegKinematics};
 
 fn randomized(seed: u64) -> MirrorConfig {
     MirrorConfig {
@@ -41,8 +43,12 @@ fn randomized(seed: u64) -> MirrorConfig {
     }
 }
 
-fn compute_per_tick() -> Summary {
-    let mut e = Estimator::new(EstimatorConfig::default(), 2, [0.0, 0.0, -9.81], 160.0, 200.0);
+fn compute_per_tick(filter: FilterKind) -> Summary {
+    let config = EstimatorConfig {
+        filter,
+        ..EstimatorConfig::default()
+    };
+    let mut e = Estimator::new(config, 2, [0.0, 0.0, -9.81], 160.0, 200.0);
     let legs = LegKinematics {
         position: [[0.0, 0.07, -0.4], [0.0, -0.07, -0.4], [0.0; 3], [0.0; 3]],
         contact: [[0.02, 0.07, -0.44], [0.02, -0.07, -0.44], [0.0; 3], [0.0; 3]],
@@ -79,11 +85,13 @@ fn walk(
     seconds: f64,
     pushed: bool,
     seed: u64,
+    filter: FilterKind,
 ) -> controller::metrics::PlaySummary {
     let dir = test_support::fixtures::workspace_root()
         .join("robots")
         .join(robot);
-    let loaded = Robot::load(&dir.join("robot.toml")).unwrap();
+    let mut loaded = Robot::load(&dir.join("robot.toml")).unwrap();
+    loaded.config.estimator.filter = filter;
     let mut layout = PolicyLayout::load(&dir.join("policies").join(policy), &loaded).unwrap();
     layout.set_command(command).unwrap();
     let onnx = layout.onnx_path.clone();
@@ -118,12 +126,19 @@ fn walk(
     p.run(&mut clock).unwrap()
 }
 
-fn walking_robots(quick: bool) {
+fn walking_robots(quick: bool, filters: &[FilterKind]) {
     let (seeds, seconds) = if quick { (1, 6.0) } else { (3, 20.0) };
     println!(
         "\nwalking robots on their own policies, randomised mirror, {seeds} seeds × {seconds} s (median / worst):\n\
-         {:<8} {:<20} {:>9} {:>16} {:>16} {:>18} {:>16}",
-        "robot", "scenario", "walked m", "vel RMSE m/s", "height RMSE mm", "drift % (cm)", "contacts %"
+         {:<8} {:<20} {:<10} {:>9} {:>16} {:>16} {:>18} {:>16}",
+        "robot",
+        "scenario",
+        "filter",
+        "walked m",
+        "vel RMSE m/s",
+        "height RMSE mm",
+        "drift % (cm)",
+        "contacts %"
     );
     let still = [0.0, 0.0, 0.0];
     // (robot, policy, walking command in the manifest's order)
@@ -140,10 +155,14 @@ fn walking_robots(quick: bool) {
             scenarios.push(("walking, turning", w, false));
             scenarios.push(("walking, pushed", w, true));
         }
-        for (name, command, pushed) in scenarios {
+        for ((name, command, pushed), &filter) in scenarios
+            .iter()
+            .flat_map(|s| filters.iter().map(move |f| (*s, f)))
+        {
             let runs: Vec<_> = (0..seeds)
-                .map(|seed| walk(robot, policy, &command, seconds, pushed, seed))
+                .map(|seed| walk(robot, policy, &command, seconds, pushed, seed, filter))
                 .collect();
+            let filter = filter_name(filter);
             let fell = runs.iter().filter(|s| s.fell).count();
             let measured: Vec<(f64, controller::metrics::EstimatorAccuracy)> = runs
                 .iter()
@@ -151,7 +170,7 @@ fn walking_robots(quick: bool) {
                 .filter_map(|s| Some((s.locomotion.as_ref()?.distance_m, s.estimator?)))
                 .collect();
             if measured.is_empty() {
-                println!("{robot:<8} {name:<20} fell in all {seeds} runs");
+                println!("{robot:<8} {name:<20} {filter:<10} fell in all {seeds} runs");
                 continue;
             }
             let stat = |f: &dyn Fn(&(f64, controller::metrics::EstimatorAccuracy)) -> f64,
@@ -171,7 +190,7 @@ fn walking_robots(quick: bool) {
                 format!("({m:.1} / {w:.1} cm)")
             };
             println!(
-                "{robot:<8} {name:<20} {walked:>9.2} {:>16} {:>16} {:>18} {:>16}{}",
+                "{robot:<8} {name:<20} {filter:<10} {walked:>9.2} {:>16} {:>16} {:>18} {:>16}{}",
                 pair(stat(&|(_, e)| e.velocity_rmse, true), 3),
                 pair(stat(&|(_, e)| 1000.0 * e.height_rmse, true), 1),
                 drift,
@@ -186,18 +205,39 @@ fn walking_robots(quick: bool) {
     }
 }
 
+fn filter_name(filter: FilterKind) -> &'static str {
+    match filter {
+        FilterKind::Linear => "linear",
+        FilterKind::Invariant => "invariant",
+    }
+}
+
 fn main() {
-    let quick = !std::env::args().any(|a| a == "--bench");
+    let args: Vec<String> = std::env::args().collect();
+    let quick = !args.iter().any(|a| a == "--bench");
+    let filters: Vec<FilterKind> = match args.iter().position(|a| a == "--filter").map(|i| args.get(i + 1)) {
+        Some(Some(f)) if f == "linear" => vec![FilterKind::Linear],
+        Some(Some(f)) if f == "invariant" => vec![FilterKind::Invariant],
+        _ if quick => vec![FilterKind::default()],
+        _ => vec![FilterKind::Invariant, FilterKind::Linear],
+    };
+    if args.iter().any(|a| a == "--walking") {
+        walking_robots(quick, &filters);
+        return;
+    }
     let seeds = if quick { 3 } else { 8 };
-    let robot = Robot::load(&reference_robot_path()).unwrap();
-    println!(
-        "state estimator compute per tick (4 IMU samples + the legs, 2 feet): {}",
-        compute_per_tick()
-    );
+    let reference = Robot::load(&reference_robot_path()).unwrap();
+    for &filter in &filters {
+        println!(
+            "state estimator compute per tick (4 IMU samples + the legs, 2 feet), {}: {}",
+            filter_name(filter),
+            compute_per_tick(filter)
+        );
+    }
     println!(
         "rd-biped on the randomised mirror, {seeds} seeds per clip (median / worst over seeds):\n\
-         {:<22} {:>16} {:>16} {:>16} {:>16} {:>12}",
-        "clip", "vel RMSE m/s", "vert vel m/s", "height RMSE mm", "end error cm", "contacts %"
+         {:<22} {:<10} {:>16} {:>16} {:>16} {:>16} {:>12}",
+        "clip", "filter", "vel RMSE m/s", "vert vel m/s", "height RMSE mm", "end error cm", "contacts %"
     );
     let clips = reference_robot_path().with_file_name("clips");
     let fixtures = test_support::fixtures::workspace_root().join("tests/fixtures/motion");
@@ -207,56 +247,63 @@ fn main() {
         clips.join("wave_and_look.csv"),
         clips.join("cmu_traffic_wave.csv"),
     ] {
-        let clip = path.file_name().unwrap().to_string_lossy().into_owned();
-        let (mut rows, mut fell) = (Vec::new(), 0);
-        for seed in 0..seeds {
-            let layout = PolicyLayout::load(
-                &reference_robot_path().with_file_name("policies/reference_follower.toml"),
-                &robot,
-            )
-            .unwrap();
-            let c = Clip::load(&path).unwrap();
-            let reference = Reference::from_clip(&c, &robot, 50.0).unwrap();
-            let (mut p, mut clock, _w) = lockstep_player(
-                robot.clone(),
-                layout,
-                reference,
-                PlayOptions::default(),
-                randomized(seed),
-                Arc::new(AtomicBool::new(false)),
-            )
-            .unwrap();
-            let s = p.run(&mut clock).unwrap();
-            // A robot that fell is not a state to estimate: those runs are counted, not measured.
-            match s.estimator {
-                Some(e) if !s.fell => rows.push(e),
-                _ => fell += 1,
+        for &filter in &filters {
+            let clip = path.file_name().unwrap().to_string_lossy().into_owned();
+            let (mut rows, mut fell) = (Vec::new(), 0);
+            let mut robot = reference.clone();
+            robot.config.estimator.filter = filter;
+            for seed in 0..seeds {
+                let layout = PolicyLayout::load(
+                    &reference_robot_path().with_file_name("policies/reference_follower.toml"),
+                    &robot,
+                )
+                .unwrap();
+                let c = Clip::load(&path).unwrap();
+                let reference = Reference::from_clip(&c, &robot, 50.0).unwrap();
+                let (mut p, mut clock, _w) = lockstep_player(
+                    robot.clone(),
+                    layout,
+                    reference,
+                    PlayOptions::default(),
+                    randomized(seed),
+                    Arc::new(AtomicBool::new(false)),
+                )
+                .unwrap();
+                let s = p.run(&mut clock).unwrap();
+                // A robot that fell is not a state to estimate: those runs are counted, not measured.
+                match s.estimator {
+                    Some(e) if !s.fell => rows.push(e),
+                    _ => fell += 1,
+                }
             }
+            let filter = filter_name(filter);
+            if rows.is_empty() {
+                println!(
+                    "{clip:<22} {filter:<10} the robot fell in all {seeds} runs (the follower cannot balance this clip)"
+                );
+                continue;
+            }
+            let stat = |f: &dyn Fn(&controller::metrics::EstimatorAccuracy) -> f64, worst_is_max: bool| {
+                let mut v: Vec<f64> = rows.iter().map(f).collect();
+                v.sort_by(f64::total_cmp);
+                let worst = if worst_is_max { v[v.len() - 1] } else { v[0] };
+                format!("{:.3} / {:.3}", v[v.len() / 2], worst)
+            };
+            println!(
+                "{:<22} {filter:<10} {:>16} {:>16} {:>16} {:>16} {:>12}{}",
+                clip,
+                stat(&|e| e.velocity_rmse, true),
+                stat(&|e| e.vertical_velocity_rmse, true),
+                stat(&|e| 1000.0 * e.height_rmse, true),
+                stat(&|e| 100.0 * e.final_position_error, true),
+                stat(&|e| 100.0 * e.contact_agreement, false),
+                if fell > 0 {
+                    format!("  ({fell} of {seeds} runs fell, not counted)")
+                } else {
+                    String::new()
+                },
+            );
         }
-        if rows.is_empty() {
-            println!("{clip:<22} the robot fell in all {seeds} runs (the follower cannot balance this clip)");
-            continue;
-        }
-        let stat = |f: &dyn Fn(&controller::metrics::EstimatorAccuracy) -> f64, worst_is_max: bool| {
-            let mut v: Vec<f64> = rows.iter().map(f).collect();
-            v.sort_by(f64::total_cmp);
-            let worst = if worst_is_max { v[v.len() - 1] } else { v[0] };
-            format!("{:.3} / {:.3}", v[v.len() / 2], worst)
-        };
-        println!(
-            "{:<22} {:>16} {:>16} {:>16} {:>16} {:>12}{}",
-            clip,
-            stat(&|e| e.velocity_rmse, true),
-            stat(&|e| e.vertical_velocity_rmse, true),
-            stat(&|e| 1000.0 * e.height_rmse, true),
-            stat(&|e| 100.0 * e.final_position_error, true),
-            stat(&|e| 100.0 * e.contact_agreement, false),
-            if fell > 0 {
-                format!("  ({fell} of {seeds} runs fell, not counted)")
-            } else {
-                String::new()
-            },
-        );
     }
-    walking_robots(quick);
+    walking_robots(quick, &filters);
 }

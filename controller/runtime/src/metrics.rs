@@ -116,10 +116,11 @@ impl std::fmt::Display for PlaySummary {
             }
         }
         match (&self.estimator, self.estimator_held_ticks) {
-            (Some(e), 0) => writeln!(f, "state estimate: {e}")?,
+            (Some(e), 0) => writeln!(f, "state estimate ({}): {e}", e.filter)?,
             (Some(e), held) => writeln!(
                 f,
-                "state estimate: {e} (after {held} ticks held off the ground, not compared)"
+                "state estimate ({}): {e} (after {held} ticks held off the ground, not compared)",
+                e.filter
             )?,
             (None, 0) => {}
             (None, _) => writeln!(
@@ -479,11 +480,14 @@ struct EstimatorErrors {
     feet_agreeing: u64,
     feet_compared: u64,
     held_ticks: u64,
+    filter: world::estimator::FilterKind,
 }
 
 /// How well the state estimate followed the simulation's truth over a run.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct EstimatorAccuracy {
+    /// The filter that made the estimate.
+    pub filter: world::estimator::FilterKind,
     /// Ticks compared (the estimate valid, the truth known).
     pub ticks: u64,
     /// Base velocity RMSE (norm of the error vector), m/s.
@@ -642,6 +646,7 @@ impl RunMetrics {
     ) {
         use robots::spatial::{dot, norm, sub};
         let e = &mut self.estimator;
+        e.filter = estimate.filter;
         let dv = sub(estimate.velocity, truth_velocity);
         e.ticks += 1;
         e.sq_velocity += dot(dv, dv);
@@ -719,6 +724,7 @@ impl RunMetrics {
                 let e = &self.estimator;
                 let n = e.ticks as f64;
                 EstimatorAccuracy {
+                    filter: e.filter,
                     ticks: e.ticks,
                     velocity_rmse: (e.sq_velocity / n).sqrt(),
                     vertical_velocity_rmse: (e.sq_vertical_velocity / n).sqrt(),

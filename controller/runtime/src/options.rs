@@ -194,11 +194,28 @@ impl PlayOptions {
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum EstimatorKind {
-    /// The state estimator on the measured data (what hardware runs).
+    /// The state estimator on the measured data (what hardware runs), the filter robot.toml's
+    /// `[estimator] filter` names.
     #[default]
     Kf,
+    /// The same with the invariant EKF, whatever robot.toml says.
+    Invariant,
+    /// The same with the linear Kalman filter, whatever robot.toml says.
+    Linear,
     /// The simulation's ground truth (the mirror only).
     GroundTruth,
+}
+
+impl EstimatorKind {
+    /// The estimator's settings: robot.toml's, with the filter this run asks for.
+    pub fn config(self, robot: &robots::EstimatorConfig) -> robots::EstimatorConfig {
+        let filter = match self {
+            Self::Invariant => robots::FilterKind::Invariant,
+            Self::Linear => robots::FilterKind::Linear,
+            Self::Kf | Self::GroundTruth => robot.filter,
+        };
+        robots::EstimatorConfig { filter, ..*robot }
+    }
 }
 
 impl Default for PlayOptions {

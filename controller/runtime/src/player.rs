@@ -185,7 +185,7 @@ impl<L: RobotLink> Player<L> {
         let keypoints = keypoint_setup(&robot, &layout, &mut reference, &mut kinematics)?;
         let estimator = match &kinematics {
             Some(k) if k.feet() > 0 => Some(Estimator::new(
-                robot.config.estimator,
+                options.estimator.config(&robot.config.estimator),
                 k.feet(),
                 k.gravity(),
                 k.weight(),

@@ -1,28 +1,33 @@
-//! State estimation from what the robot measures: the base's position and velocity, the
-//! accelerometer's bias and the feet's positions, by the linear Kalman filter of legged robots
-//! (Bloesch et al., "State Estimation for Legged Robots", RSS 2012, in its linear form). Every IMU
-//! sample propagates (specific force turned into the world by the IMU's orientation, gravity
-//! added); every tick the legs correct: each foot's position relative to the base from the
-//! joints (forward kinematics of the robot's model), and for each foot on the ground, the base
-//! velocity that keeps it still. A foot in the air gets a large process noise, so it follows the
-//! kinematics without moving the base. Orientation is the IMU's own.
+//! State estimation from what the robot measures: the base's position, velocity and orientation,
+//! the IMU's biases and the feet's positions, by one of two filters (robot.toml `[estimator]
+//! filter`): the contact-aided invariant EKF ([`invariant`], the default) or the linear Kalman
+//! filter ([`linear`]). Every IMU sample propagates; every tick the legs correct: each foot's
+//! position relative to the base from the joints (forward kinematics of the robot's model), and
+//! for each foot on the ground, the base velocity that keeps it still. A foot in the air gets a
+//! large process noise, so it follows the kinematics without moving the base.
 //!
-//! Contact comes from foot switches where the robot has them, otherwise from the legs: a foot
-//! lands when it comes back within `contact_on_m` of the height it last stood at, slowly, and
-//! takes a share of the weight (the ground's push on it, from the joint torques the buses
-//! report); it lifts off when it rises beyond `contact_off_m` or carries almost nothing
-//! (hysteresis on both).
+//! Contact, the held robot and the gates are decided here, the same for both filters. Contact
+//! comes from foot switches where the robot has them, otherwise from the legs: a foot lands when
+//! it comes back within `contact_on_m` of the height it last stood at, slowly, and takes a share
+//! of the weight (the ground's push on it, from the joint torques the buses report); it lifts off
+//! when it rises beyond `contact_off_m` or carries almost nothing (hysteresis on both).
 //!
 //! The world frame is the robot's start: the base above the origin, the floor at z = 0 under
-//! feet that stand on it, the IMU's heading. Measurements are processed one scalar at a time
-//! (equivalent for independent noises): no matrix inverse, nothing allocated after construction.
+//! feet that stand on it, the IMU's heading. Nothing is allocated after construction.
 
-use robots::spatial;
+mod invariant;
+mod kalman;
+mod linear;
+
+use robots::spatial::{self, Mat3};
+
+use invariant::InvariantFilter;
+use linear::LinearFilter;
+
+pub use robots::{EstimatorConfig, FilterKind};
 
 /// Feet the filter tracks at most.
 pub const MAX_FEET: usize = 4;
-
-pub use robots::EstimatorConfig;
 
 /// What the filter says this tick.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -33,6 +38,9 @@ pub struct Estimate {
     pub velocity: [f64; 3],
     /// Base velocity in the base's own frame, m/s.
     pub velocity_base: [f64; 3],
+    /// Base orientation `[w, x, y, z]`, base to world: the invariant filter's own; the linear
+    /// filter's is the IMU's.
+    pub orientation: [f64; 4],
     /// Standard deviations of position and velocity (world axes).
     pub position_std: [f64; 3],
     /// …
@@ -48,6 +56,8 @@ pub struct Estimate {
     /// The robot is held (its feet carry almost none of its weight): the estimate is the filter
     /// running in the air, for a policy that observes it; nothing to compare with the ground.
     pub held: bool,
+    /// The filter that made it.
+    pub filter: FilterKind,
     /// The outputs can be used: initialised, fed finite, fresh data.
     pub valid: bool,
     /// Why not, when they cannot.
@@ -84,6 +94,7 @@ impl Default for Estimate {
             position: [0.0; 3],
             velocity: [0.0; 3],
             velocity_base: [0.0; 3],
+            orientation: spatial::QUAT_IDENTITY,
             position_std: [0.0; 3],
             velocity_std: [0.0; 3],
             accel_bias: [0.0; 3],
@@ -91,6 +102,7 @@ impl Default for Estimate {
             loads: [f64::NAN; MAX_FEET],
             feet: 0,
             held: false,
+            filter: FilterKind::default(),
             valid: false,
             problem: Some(EstimateProblem::NotInitialised),
         }
@@ -131,21 +143,67 @@ impl Default for LegKinematics {
     }
 }
 
-const P: usize = 0;
-const V: usize = 3;
-const B: usize = 6;
-const FEET: usize = 9;
+/// What the estimator asks of a filter: the IMU propagates it, the legs correct it (a tick's
+/// measurements between `begin` and `finish`, in the base's frame; each filter turns them into
+/// its world), and it reports the base.
+trait Filter {
+    /// Base to world, as the filter has it.
+    fn rotation(&self) -> Mat3;
+    /// The IMU's own orientation this tick (the linear filter's; the invariant filter keeps its own).
+    fn set_attitude(&mut self, imu: &Mat3);
+    /// Starts at rest: the base at `base`, each foot where the legs put it, the IMU's orientation.
+    fn start(&mut self, imu: &Mat3, base: [f64; 3], feet_body: &[[f64; 3]]);
+    /// One IMU sample of `dt` seconds (gyro, rad/s, and specific force, m/s², base axes); each
+    /// foot's position walks by `foot_walk`, m/√s.
+    fn propagate(&mut self, gyro: [f64; 3], accel: [f64; 3], dt: f64, foot_walk: &[f64; MAX_FEET]);
+    fn begin(&mut self);
+    /// Foot `f`'s origin relative to the base, base axes, with this variance per axis.
+    fn foot(&mut self, f: usize, body: [f64; 3], variance: f64);
+    /// The base's velocity in its own axes (from a standing foot).
+    fn base_velocity(&mut self, body: [f64; 3], variance: f64);
+    /// Foot `f`'s origin at this world height.
+    fn floor(&mut self, f: usize, height: f64, variance: f64);
+    fn finish(&mut self);
+    /// Foot `f` left the ground: where it is no longer says anything about the base.
+    fn release_foot(&mut self, f: usize, variance: f64);
+    fn position(&self) -> [f64; 3];
+    fn velocity(&self) -> [f64; 3];
+    fn position_std(&self) -> [f64; 3];
+    fn velocity_std(&self) -> [f64; 3];
+    fn accel_bias(&self) -> [f64; 3];
+    /// Whether a measurement failed or the state went non-finite since the last call.
+    fn take_fault(&mut self) -> bool;
+}
 
-/// The filter.
+#[derive(Debug, Clone)]
+#[allow(clippy::large_enum_variant, reason = "one per run, made once: nothing to save by boxing")]
+enum Filters {
+    Linear(LinearFilter),
+    Invariant(InvariantFilter),
+}
+
+impl Filters {
+    fn get(&self) -> &dyn Filter {
+        match self {
+            Self::Linear(f) => f,
+            Self::Invariant(f) => f,
+        }
+    }
+
+    fn get_mut(&mut self) -> &mut dyn Filter {
+        match self {
+            Self::Linear(f) => f,
+            Self::Invariant(f) => f,
+        }
+    }
+}
+
+/// The estimator: a filter, the contacts, the held robot.
 #[derive(Debug, Clone)]
 pub struct Estimator {
     config: EstimatorConfig,
     feet: usize,
-    n: usize,
-    x: Vec<f64>,
-    p: Vec<f64>,
-    /// The gain of a scalar update.
-    gain: Vec<f64>,
+    filter: Filters,
     gravity: [f64; 3],
     /// The robot's weight, N.
     weight: f64,
@@ -179,8 +237,9 @@ const STILL_S: f64 = 0.2;
 const MAX_GAP_PERIODS: f64 = 4.0;
 
 impl Estimator {
-    /// A filter for `feet` feet (at most [`MAX_FEET`]), gravity `gravity` (the model's), a robot
-    /// weighing `weight` N, an IMU streaming at `imu_rate_hz`.
+    /// An estimator for `feet` feet (at most [`MAX_FEET`]), gravity `gravity` (the model's), a
+    /// robot weighing `weight` N, an IMU streaming at `imu_rate_hz`; `config.filter` chooses the
+    /// filter.
     pub fn new(
         config: EstimatorConfig,
         feet: usize,
@@ -189,14 +248,13 @@ impl Estimator {
         imu_rate_hz: f64,
     ) -> Self {
         let feet = feet.min(MAX_FEET);
-        let n = FEET + 3 * feet;
         Self {
             config,
             feet,
-            n,
-            x: vec![0.0; n],
-            p: vec![0.0; n * n],
-            gain: vec![0.0; n],
+            filter: match config.filter {
+                FilterKind::Linear => Filters::Linear(LinearFilter::new(config, feet, gravity)),
+                FilterKind::Invariant => Filters::Invariant(InvariantFilter::new(config, feet, gravity)),
+            },
             gravity,
             weight,
             quat: [1.0, 0.0, 0.0, 0.0],
@@ -211,6 +269,11 @@ impl Estimator {
             held: false,
             refused_ticks: 0,
         }
+    }
+
+    /// The filter this estimator runs.
+    pub fn filter(&self) -> FilterKind {
+        self.config.filter
     }
 
     /// Starts over: the next tick initialises again.
@@ -270,82 +333,17 @@ impl Estimator {
         if !self.initialised || dt == 0.0 {
             return;
         }
-        let r = spatial::mat_of_quat(self.quat);
-        let bias = [self.x[B], self.x[B + 1], self.x[B + 2]];
-        let a = spatial::add(
-            spatial::mat_apply(&r, spatial::sub(sample.accel, bias)),
-            self.gravity,
-        );
-        for (k, ak) in a.iter().enumerate() {
-            self.x[P + k] += self.x[V + k] * dt + 0.5 * ak * dt * dt;
-            self.x[V + k] += ak * dt;
-        }
-        // P ← F P Fᵀ + Q. F is the identity but for three blocks (p/v: dt·I, p/b: −½dt²·R,
-        // v/b: −dt·R), so only the rows, then the columns, of p and v change.
-        let n = self.n;
-        let (h, q) = (dt, -0.5 * dt * dt);
-        for j in 0..n {
-            let pb = &self.p;
-            let bias_r: [f64; 3] =
-                std::array::from_fn(|k| (0..3).map(|m| r[k][m] * pb[(B + m) * n + j]).sum());
-            for (k, br) in bias_r.iter().enumerate() {
-                let (pk, vk) = (self.p[(P + k) * n + j], self.p[(V + k) * n + j]);
-                self.p[(P + k) * n + j] = pk + h * vk + q * br;
-                self.p[(V + k) * n + j] = vk - dt * br;
-            }
-        }
-        for i in 0..n {
-            let row = i * n;
-            let bias_r: [f64; 3] =
-                std::array::from_fn(|k| (0..3).map(|m| r[k][m] * self.p[row + B + m]).sum());
-            for (k, br) in bias_r.iter().enumerate() {
-                let (pk, vk) = (self.p[row + P + k], self.p[row + V + k]);
-                self.p[row + P + k] = pk + h * vk + q * br;
-                self.p[row + V + k] = vk - dt * br;
-            }
-        }
         let c = &self.config;
-        for k in 0..3 {
-            self.p[(V + k) * n + V + k] += c.accel_noise.powi(2) * dt;
-            self.p[(P + k) * n + P + k] += c.accel_noise.powi(2) * dt.powi(3) / 3.0;
-            self.p[(B + k) * n + B + k] += c.bias_walk.powi(2) * dt;
-        }
-        for foot in 0..self.feet {
-            let walk = if self.contacts[foot] {
+        let foot_walk = std::array::from_fn(|f| {
+            if self.contacts[f] {
                 c.stance_foot_walk
             } else {
                 c.swing_foot_walk
-            };
-            for k in 0..3 {
-                let i = FEET + 3 * foot + k;
-                self.p[i * n + i] += walk * walk * dt;
             }
-        }
-    }
-
-    /// One scalar measurement `y = xᵢ − xⱼ` (`j`: none) with variance `r`.
-    fn measure(&mut self, i: usize, j: Option<usize>, y: f64, r: f64) {
-        let n = self.n;
-        // g = P hᵀ
-        for row in 0..n {
-            self.gain[row] = self.p[row * n + i] - j.map_or(0.0, |j| self.p[row * n + j]);
-        }
-        let s = self.gain[i] - j.map_or(0.0, |j| self.gain[j]) + r;
-        if !(s.is_finite() && s > 0.0) {
-            self.input_fault = true;
-            return;
-        }
-        let innovation = y - (self.x[i] - j.map_or(0.0, |j| self.x[j]));
-        // x += g/s · innovation; P −= g gᵀ / s
-        for row in 0..n {
-            self.x[row] += self.gain[row] / s * innovation;
-        }
-        for row in 0..n {
-            let gr = self.gain[row] / s;
-            for col in 0..n {
-                self.p[row * n + col] -= gr * self.gain[col];
-            }
-        }
+        });
+        let filter = self.filter.get_mut();
+        filter.set_attitude(&spatial::mat_of_quat(self.quat));
+        filter.propagate(sample.gyro, sample.accel, dt, &foot_walk);
     }
 
     /// Corrects with this tick's leg kinematics. `imu_fresh`: the IMU delivered recently.
@@ -359,131 +357,28 @@ impl Estimator {
         if !finite {
             self.input_fault = true;
         }
-        let r = spatial::mat_of_quat(self.quat);
+        let imu_r = spatial::mat_of_quat(self.quat);
+        self.filter.get_mut().set_attitude(&imu_r);
         let settled = f64::from(self.still) * self.nominal_dt >= STILL_S;
         // Lowered onto its feet (from a harness, a gantry, a hand): the filter that ran in the
         // air starts over with the floor under the feet that now carry the robot.
         let landed = finite && self.update_held(legs, settled);
         if finite && ((!self.initialised && settled) || (self.initialised && landed)) {
-            self.initialise(legs, &r);
+            self.initialise(legs, &imu_r);
         }
         if self.initialised && finite {
-            let omega = self.gyro;
-            let world_foot = |legs: &LegKinematics, f: usize| spatial::mat_apply(&r, legs.position[f]);
-            // Contacts first: they decide which feet correct the velocity. A foot's height above
-            // where it last stood is measured against another standing foot where there is one
-            // (the legs alone, the base cancels), else through the base's estimated height.
-            let patch_z = |f: usize| spatial::mat_apply(&r, legs.contact[f])[2];
-            let standing = self.contacts;
-            for f in 0..self.feet {
-                let was = self.contacts[f];
-                self.contacts[f] = match legs.switches {
-                    Some(s) => s[f],
-                    None => {
-                        let other = (0..self.feet).find(|&j| j != f && standing[j]);
-                        let height = match other {
-                            Some(j) => patch_z(f) - patch_z(j) + self.ground[j] - self.ground[f],
-                            None => self.x[P + 2] + patch_z(f) - self.ground[f],
-                        };
-                        let speed = spatial::norm(spatial::add(
-                            [self.x[V], self.x[V + 1], self.x[V + 2]],
-                            spatial::mat_apply(
-                                &r,
-                                spatial::add(
-                                    spatial::cross(omega, legs.contact[f]),
-                                    legs.contact_velocity[f],
-                                ),
-                            ),
-                        ));
-                        // The legs' torques, where they tell: an unloaded foot is not standing
-                        // (it hovers, or is about to lift), a landing one takes weight.
-                        let (c, load, leg) = (&self.config, legs.load[f], legs.leg_weight[f]);
-                        let unloaded = load.is_finite() && load < c.contact_unload * self.weight;
-                        // Lighter than a swinging leg's own reading, and moving: lifting off (a
-                        // foot unloading slowly in place still touches).
-                        let lifting =
-                            load.is_finite() && load < c.leg_unload * leg && speed > c.contact_speed;
-                        let loaded = !load.is_finite() || load > c.contact_load * self.weight;
-                        let carrying = load.is_finite() && load > c.carrying * self.weight;
-                        if self.contacts[f] {
-                            carrying || (height < c.contact_off_m && !unloaded && !lifting)
-                        } else {
-                            carrying || (height < c.contact_on_m && speed < c.contact_speed && loaded)
-                        }
-                    }
-                };
-                if was && !self.contacts[f] {
-                    self.release_foot(f);
-                }
-            }
-            let c = self.config;
-            for f in 0..self.feet {
-                let rel = world_foot(legs, f);
-                for (k, y) in rel.into_iter().enumerate() {
-                    self.measure(
-                        FEET + 3 * f + k,
-                        Some(P + k),
-                        y,
-                        c.kinematic_position_noise.powi(2),
-                    );
-                }
-            }
-            // A level floor: a standing sole is at the height the robot first stood on (z = 0),
-            // which makes the height observable; without it, the height drifts.
-            if c.floor_noise > 0.0 && !self.held {
-                for (f, stood) in standing.iter().enumerate().take(self.feet) {
-                    if self.contacts[f] && *stood {
-                        let sole_below_origin =
-                            spatial::mat_apply(&r, spatial::sub(legs.contact[f], legs.position[f]))[2];
-                        self.measure(FEET + 3 * f + 2, None, -sole_below_origin, c.floor_noise.powi(2));
-                    }
-                }
-            }
-            let r_v = c.kinematic_velocity_noise.powi(2);
-            // Refused for too long, the legs are believed again until they agree with the filter.
-            let trust_all = self.refused_ticks >= MAX_REFUSED_TICKS;
-            let (mut standing_feet, mut outside) = (0, 0);
-            for f in 0..self.feet {
-                if !self.contacts[f] {
-                    continue;
-                }
-                standing_feet += 1;
-                // Where the foot touches stays still: the base moves opposite to that point's
-                // motion relative to it (a foot rolling onto its edge keeps the edge still).
-                let v_rel = spatial::mat_apply(
-                    &r,
-                    spatial::add(spatial::cross(omega, legs.contact[f]), legs.contact_velocity[f]),
-                );
-                let distance2: f64 = (0..3)
-                    .map(|k| (-v_rel[k] - self.x[V + k]).powi(2) / (self.p[(V + k) * self.n + V + k] + r_v))
-                    .sum();
-                if distance2 > c.velocity_gate.powi(2) {
-                    outside += 1;
-                    if !trust_all {
-                        continue;
-                    }
-                }
-                for (k, v) in v_rel.iter().enumerate() {
-                    self.measure(V + k, None, -v, r_v);
-                }
-            }
-            self.refused_ticks = if standing_feet > 0 && outside == standing_feet {
-                self.refused_ticks.saturating_add(1)
-            } else {
-                0
-            };
+            let stood = self.update_contacts(legs, &imu_r);
+            self.measure_legs(legs, &stood);
             // A foot that just landed stands at this height until it lifts off again (latched:
             // a foot that rises slowly must not carry its ground up with it).
-            for (f, stood) in standing.iter().enumerate().take(self.feet) {
-                if self.contacts[f] && !stood {
-                    self.ground[f] = self.x[P + 2] + patch_z(f);
-                }
+            let base_z = self.filter.get().position()[2];
+            for f in (0..self.feet).filter(|&f| self.contacts[f] && !stood[f]) {
+                self.ground[f] = base_z + spatial::mat_apply(&imu_r, legs.contact[f])[2];
             }
-            self.symmetrise();
         }
         let problem = if !self.initialised {
             Some(EstimateProblem::NotInitialised)
-        } else if self.input_fault || !self.x.iter().chain(&self.p).all(|v| v.is_finite()) {
+        } else if self.filter.get_mut().take_fault() || self.input_fault {
             Some(EstimateProblem::NonFinite)
         } else if !imu_fresh {
             Some(EstimateProblem::StaleImu)
@@ -492,84 +387,154 @@ impl Estimator {
         };
         let valid = problem.is_none();
         self.input_fault = false;
-        let std = |i: usize| self.p[i * self.n + i].max(0.0).sqrt();
-        let velocity = [self.x[V], self.x[V + 1], self.x[V + 2]];
+        let filter = self.filter.get();
+        let velocity = filter.velocity();
         let mut contacts = [false; MAX_FEET];
         contacts[..self.feet].copy_from_slice(&self.contacts[..self.feet]);
         Estimate {
-            position: [self.x[P], self.x[P + 1], self.x[P + 2]],
+            position: filter.position(),
             velocity,
-            velocity_base: spatial::mat_apply(&spatial::transpose(&r), velocity),
-            position_std: [std(P), std(P + 1), std(P + 2)],
-            velocity_std: [std(V), std(V + 1), std(V + 2)],
-            accel_bias: [self.x[B], self.x[B + 1], self.x[B + 2]],
+            velocity_base: spatial::mat_apply(&spatial::transpose(&filter.rotation()), velocity),
+            orientation: spatial::quat_of_mat(&filter.rotation()),
+            position_std: filter.position_std(),
+            velocity_std: filter.velocity_std(),
+            accel_bias: filter.accel_bias(),
             contacts,
             loads: legs.load,
             feet: self.feet,
             held: self.held,
+            filter: self.config.filter,
             valid,
             problem,
         }
     }
 
+    /// Which feet stand this tick (the IMU's orientation puts the legs in the world): each
+    /// foot's height above where it last stood, its speed, its load. A foot that leaves the
+    /// ground is released in the filter. Returns the contacts before.
+    fn update_contacts(&mut self, legs: &LegKinematics, r: &Mat3) -> [bool; MAX_FEET] {
+        let omega = self.gyro;
+        // A foot's height above where it last stood is measured against another standing foot
+        // where there is one (the legs alone, the base cancels), else through the base's
+        // estimated height.
+        let patch_z = |f: usize| spatial::mat_apply(r, legs.contact[f])[2];
+        let standing = self.contacts;
+        let (base, base_velocity) = (self.filter.get().position(), self.filter.get().velocity());
+        for f in 0..self.feet {
+            let was = self.contacts[f];
+            self.contacts[f] = match legs.switches {
+                Some(s) => s[f],
+                None => {
+                    let other = (0..self.feet).find(|&j| j != f && standing[j]);
+                    let height = match other {
+                        Some(j) => patch_z(f) - patch_z(j) + self.ground[j] - self.ground[f],
+                        None => base[2] + patch_z(f) - self.ground[f],
+                    };
+                    let speed = spatial::norm(spatial::add(
+                        base_velocity,
+                        spatial::mat_apply(
+                            r,
+                            spatial::add(spatial::cross(omega, legs.contact[f]), legs.contact_velocity[f]),
+                        ),
+                    ));
+                    // The legs' torques, where they tell: an unloaded foot is not standing
+                    // (it hovers, or is about to lift), a landing one takes weight.
+                    let (c, load, leg) = (&self.config, legs.load[f], legs.leg_weight[f]);
+                    let unloaded = load.is_finite() && load < c.contact_unload * self.weight;
+                    // Lighter than a swinging leg's own reading, and moving: lifting off (a
+                    // foot unloading slowly in place still touches).
+                    let lifting = load.is_finite() && load < c.leg_unload * leg && speed > c.contact_speed;
+                    let loaded = !load.is_finite() || load > c.contact_load * self.weight;
+                    let carrying = load.is_finite() && load > c.carrying * self.weight;
+                    if self.contacts[f] {
+                        carrying || (height < c.contact_off_m && !unloaded && !lifting)
+                    } else {
+                        carrying || (height < c.contact_on_m && speed < c.contact_speed && loaded)
+                    }
+                }
+            };
+            if was && !self.contacts[f] {
+                self.filter
+                    .get_mut()
+                    .release_foot(f, self.config.swing_foot_walk.powi(2));
+            }
+        }
+        standing
+    }
+
+    /// The legs' measurements: every foot's place relative to the base; standing feet on the
+    /// level floor (those that stood before this tick too); each standing foot's velocity
+    /// (gated) for the base's.
+    fn measure_legs(&mut self, legs: &LegKinematics, stood: &[bool; MAX_FEET]) {
+        let c = self.config;
+        let (feet, contacts, held, omega) = (self.feet, self.contacts, self.held, self.gyro);
+        let filter = self.filter.get_mut();
+        filter.begin();
+        for f in 0..feet {
+            filter.foot(f, legs.position[f], c.kinematic_position_noise.powi(2));
+        }
+        // A level floor: a standing sole is at the height the robot first stood on (z = 0),
+        // which makes the height observable; without it, the height drifts.
+        if c.floor_noise > 0.0 && !held {
+            let r = filter.rotation();
+            for f in (0..feet).filter(|&f| contacts[f] && stood[f]) {
+                let sole_below_origin =
+                    spatial::mat_apply(&r, spatial::sub(legs.contact[f], legs.position[f]))[2];
+                filter.floor(f, -sole_below_origin, c.floor_noise.powi(2));
+            }
+        }
+        let r_v = c.kinematic_velocity_noise.powi(2);
+        // Refused for too long, the legs are believed again until they agree with the filter.
+        let trust_all = self.refused_ticks >= MAX_REFUSED_TICKS;
+        let (mut standing_feet, mut outside) = (0, 0);
+        let r = filter.rotation();
+        for f in (0..feet).filter(|&f| contacts[f]) {
+            standing_feet += 1;
+            // Where the foot touches stays still: the base moves opposite to that point's
+            // motion relative to it (a foot rolling onto its edge keeps the edge still).
+            let body = spatial::scale(
+                spatial::add(spatial::cross(omega, legs.contact[f]), legs.contact_velocity[f]),
+                -1.0,
+            );
+            let (world, v, std) = (
+                spatial::mat_apply(&r, body),
+                filter.velocity(),
+                filter.velocity_std(),
+            );
+            let distance2: f64 = (0..3)
+                .map(|k| (world[k] - v[k]).powi(2) / (std[k].powi(2) + r_v))
+                .sum();
+            if distance2 > c.velocity_gate.powi(2) {
+                outside += 1;
+                if !trust_all {
+                    continue;
+                }
+            }
+            filter.base_velocity(body, r_v);
+        }
+        filter.finish();
+        self.refused_ticks = if standing_feet > 0 && outside == standing_feet {
+            self.refused_ticks.saturating_add(1)
+        } else {
+            0
+        };
+    }
+
     /// The robot stands on its feet at the world's origin: the base above them so the soles
     /// touch z = 0, still.
-    fn initialise(&mut self, legs: &LegKinematics, r: &spatial::Mat3) {
-        let n = self.n;
-        self.x.fill(0.0);
-        self.p.fill(0.0);
-        let mut height = 0.0;
-        for f in 0..self.feet {
-            height += legs.sole_depth[f] - spatial::mat_apply(r, legs.position[f])[2];
-        }
-        self.x[P + 2] = if self.feet > 0 {
-            height / self.feet as f64
-        } else {
-            0.0
-        };
-        for f in 0..self.feet {
-            let w = spatial::mat_apply(r, legs.position[f]);
-            for (k, wk) in w.iter().enumerate() {
-                self.x[FEET + 3 * f + k] = self.x[P + k] + wk;
-            }
-            self.ground[f] = self.x[P + 2] + spatial::mat_apply(r, legs.contact[f])[2];
-        }
-        let mut var = |i: usize, v: f64| self.p[i * n + i] = v;
-        for k in 0..3 {
-            var(P + k, 1e-6);
-            var(V + k, 1e-4);
-            var(B + k, 0.3f64.powi(2));
-        }
-        for i in FEET..n {
-            var(i, 1e-4);
+    fn initialise(&mut self, legs: &LegKinematics, r: &Mat3) {
+        let feet = self.feet;
+        let height = (0..feet)
+            .map(|f| legs.sole_depth[f] - spatial::mat_apply(r, legs.position[f])[2])
+            .sum::<f64>()
+            / feet.max(1) as f64;
+        let base = [0.0, 0.0, height];
+        self.filter.get_mut().start(r, base, &legs.position[..feet]);
+        for f in 0..feet {
+            self.ground[f] = height + spatial::mat_apply(r, legs.contact[f])[2];
         }
         self.contacts = [true; MAX_FEET];
         self.initialised = true;
-    }
-
-    /// A foot left the ground: where it is no longer says anything about the base (its state
-    /// forgets its correlations and becomes uncertain).
-    fn release_foot(&mut self, f: usize) {
-        let n = self.n;
-        for k in 0..3 {
-            let i = FEET + 3 * f + k;
-            for j in 0..n {
-                self.p[i * n + j] = 0.0;
-                self.p[j * n + i] = 0.0;
-            }
-            self.p[i * n + i] = self.config.swing_foot_walk.powi(2);
-        }
-    }
-
-    fn symmetrise(&mut self) {
-        let n = self.n;
-        for i in 0..n {
-            for j in i + 1..n {
-                let m = 0.5 * (self.p[i * n + j] + self.p[j * n + i]);
-                self.p[i * n + j] = m;
-                self.p[j * n + i] = m;
-            }
-        }
     }
 }
 
@@ -577,6 +542,14 @@ impl Estimator {
 mod tests {
     use super::*;
     use std::time::Duration;
+
+    /// Each test of the filters' behaviour runs on both.
+    fn both_filters() -> [EstimatorConfig; 2] {
+        [FilterKind::Invariant, FilterKind::Linear].map(|filter| EstimatorConfig {
+            filter,
+            ..EstimatorConfig::default()
+        })
+    }
 
     fn sample(k: u64, accel: [f64; 3]) -> robot_link::ImuSample {
         robot_link::ImuSample {
@@ -610,77 +583,83 @@ mod tests {
 
     #[test]
     fn a_robot_standing_still_stays_put_and_learns_its_accelerometer_bias() {
-        let mut e = Estimator::new(EstimatorConfig::default(), 2, [0.0, 0.0, -9.81], 160.0, 200.0);
-        let legs = standing_legs();
-        // The accelerometer reads gravity plus a bias of 0.3 m/s² along x.
-        let mut last = Estimate::default();
-        for tick in 0..3000u64 {
-            for k in 0..4 {
-                e.propagate(&sample(4 * tick + k, [0.3, 0.0, 9.81]));
+        for config in both_filters() {
+            let mut e = Estimator::new(config, 2, [0.0, 0.0, -9.81], 160.0, 200.0);
+            let legs = standing_legs();
+            // The accelerometer reads gravity plus a bias of 0.3 m/s² along x.
+            let mut last = Estimate::default();
+            for tick in 0..3000u64 {
+                for k in 0..4 {
+                    e.propagate(&sample(4 * tick + k, [0.3, 0.0, 9.81]));
+                }
+                last = e.correct(&legs, true);
             }
-            last = e.correct(&legs, true);
+            assert!(last.valid);
+            assert!((last.position[2] - 0.44).abs() < 1e-3, "{last:?}");
+            assert!(
+                spatial::norm([last.position[0], last.position[1], 0.0]) < 0.01,
+                "{last:?}"
+            );
+            assert!(spatial::norm(last.velocity) < 0.01, "{last:?}");
+            assert!((last.accel_bias[0] - 0.3).abs() < 0.05, "{last:?}");
+            assert_eq!(&last.contacts[..2], &[true, true]);
         }
-        assert!(last.valid);
-        assert!((last.position[2] - 0.44).abs() < 1e-3, "{last:?}");
-        assert!(
-            spatial::norm([last.position[0], last.position[1], 0.0]) < 0.01,
-            "{last:?}"
-        );
-        assert!(spatial::norm(last.velocity) < 0.01, "{last:?}");
-        assert!((last.accel_bias[0] - 0.3).abs() < 0.05, "{last:?}");
-        assert_eq!(&last.contacts[..2], &[true, true]);
     }
 
     #[test]
     fn a_lifted_foot_is_in_the_air_and_lands_again() {
-        let mut e = Estimator::new(EstimatorConfig::default(), 2, [0.0, 0.0, -9.81], 160.0, 200.0);
-        let mut legs = standing_legs();
-        let mut step = still_imu_ticks();
-        for _ in 0..50 {
-            step(&mut e, &legs);
+        for config in both_filters() {
+            let mut e = Estimator::new(config, 2, [0.0, 0.0, -9.81], 160.0, 200.0);
+            let mut legs = standing_legs();
+            let mut step = still_imu_ticks();
+            for _ in 0..50 {
+                step(&mut e, &legs);
+            }
+            legs.position[0][2] = -0.35;
+            legs.contact[0][2] = -0.39;
+            let up = step(&mut e, &legs);
+            assert_eq!(&up.contacts[..2], &[false, true], "{up:?}");
+            assert!(
+                (up.position[2] - 0.44).abs() < 2e-3,
+                "the standing foot holds the base: {up:?}"
+            );
+            legs.position[0][2] = -0.4;
+            legs.contact[0][2] = -0.44;
+            let down = step(&mut e, &legs);
+            assert_eq!(&down.contacts[..2], &[true, true], "{down:?}");
         }
-        legs.position[0][2] = -0.35;
-        legs.contact[0][2] = -0.39;
-        let up = step(&mut e, &legs);
-        assert_eq!(&up.contacts[..2], &[false, true], "{up:?}");
-        assert!(
-            (up.position[2] - 0.44).abs() < 2e-3,
-            "the standing foot holds the base: {up:?}"
-        );
-        legs.position[0][2] = -0.4;
-        legs.contact[0][2] = -0.44;
-        let down = step(&mut e, &legs);
-        assert_eq!(&down.contacts[..2], &[true, true], "{down:?}");
     }
 
     #[test]
     fn a_robot_held_in_the_air_says_so_and_starts_again_on_its_feet_on_the_floor() {
-        let weight = 160.0;
-        let mut e = Estimator::new(EstimatorConfig::default(), 2, [0.0, 0.0, -9.81], weight, 200.0);
-        let mut legs = standing_legs();
-        let mut step = still_imu_ticks();
-        // Hanging 10 cm up in a harness: the legs carry nothing.
-        legs.load = [1.0, 1.0, 0.0, 0.0];
-        let mut held = Estimate::default();
-        for _ in 0..60 {
-            held = step(&mut e, &legs);
+        for config in both_filters() {
+            let weight = 160.0;
+            let mut e = Estimator::new(config, 2, [0.0, 0.0, -9.81], weight, 200.0);
+            let mut legs = standing_legs();
+            let mut step = still_imu_ticks();
+            // Hanging 10 cm up in a harness: the legs carry nothing.
+            legs.load = [1.0, 1.0, 0.0, 0.0];
+            let mut held = Estimate::default();
+            for _ in 0..60 {
+                held = step(&mut e, &legs);
+            }
+            assert!(held.valid && held.held, "{held:?}");
+            // Lowered: the feet take the weight, the filter starts again with its soles at z = 0.
+            legs.load = [0.5 * weight, 0.5 * weight, 0.0, 0.0];
+            let mut down = Estimate::default();
+            for _ in 0..100 {
+                down = step(&mut e, &legs);
+            }
+            assert!(down.valid && !down.held, "{down:?}");
+            assert!((down.position[2] - 0.44).abs() < 1e-3, "{down:?}");
+            // Half the weight on the feet is not yet standing after being held (hysteresis)…
+            legs.load = [0.01 * weight, 0.01 * weight, 0.0, 0.0];
+            assert!(step(&mut e, &legs).held);
+            legs.load = [0.25 * weight, 0.25 * weight, 0.0, 0.0];
+            assert!(step(&mut e, &legs).held, "50 % of the weight after being held");
+            legs.load = [0.4 * weight, 0.4 * weight, 0.0, 0.0];
+            assert!(!step(&mut e, &legs).held);
         }
-        assert!(held.valid && held.held, "{held:?}");
-        // Lowered: the feet take the weight, the filter starts again with its soles at z = 0.
-        legs.load = [0.5 * weight, 0.5 * weight, 0.0, 0.0];
-        let mut down = Estimate::default();
-        for _ in 0..100 {
-            down = step(&mut e, &legs);
-        }
-        assert!(down.valid && !down.held, "{down:?}");
-        assert!((down.position[2] - 0.44).abs() < 1e-3, "{down:?}");
-        // Half the weight on the feet is not yet standing after being held (hysteresis)…
-        legs.load = [0.01 * weight, 0.01 * weight, 0.0, 0.0];
-        assert!(step(&mut e, &legs).held);
-        legs.load = [0.25 * weight, 0.25 * weight, 0.0, 0.0];
-        assert!(step(&mut e, &legs).held, "50 % of the weight after being held");
-        legs.load = [0.4 * weight, 0.4 * weight, 0.0, 0.0];
-        assert!(!step(&mut e, &legs).held);
     }
 
     /// Steps in place for `steps` steps with an accelerometer reading `accel_z` upward (a bias
@@ -717,111 +696,146 @@ mod tests {
 
     #[test]
     fn stepping_in_place_the_level_floor_keeps_the_height_the_landings_alone_lose() {
-        let on_floor = stepping_height_error(EstimatorConfig::default(), 200, 10.01);
-        let landings_only = stepping_height_error(
-            EstimatorConfig {
-                floor_noise: 0.0,
-                ..EstimatorConfig::default()
-            },
-            200,
-            10.01,
-        );
-        assert!(on_floor < 2e-3, "{on_floor}");
-        assert!(landings_only > 2.0 * on_floor, "{landings_only} vs {on_floor}");
+        for config in both_filters() {
+            let on_floor = stepping_height_error(config, 200, 10.01);
+            let landings_only = stepping_height_error(
+                EstimatorConfig {
+                    floor_noise: 0.0,
+                    ..config
+                },
+                200,
+                10.01,
+            );
+            assert!(on_floor < 2e-3, "{on_floor}");
+            assert!(landings_only > 2.0 * on_floor, "{landings_only} vs {on_floor}");
+        }
     }
 
     #[test]
     fn a_light_foot_lifts_off_when_it_moves_and_keeps_touching_while_it_unloads_in_place() {
-        let weight = 160.0;
-        let run = |up_speed: f64| {
-            let mut e = Estimator::new(EstimatorConfig::default(), 2, [0.0, 0.0, -9.81], weight, 200.0);
-            let mut legs = standing_legs();
-            legs.leg_weight = [36.0, 36.0, 0.0, 0.0];
-            legs.load = [0.5 * weight, 0.5 * weight, 0.0, 0.0];
-            let mut last = Estimate::default();
-            for tick in 0..70u64 {
-                if tick >= 60 {
-                    // Foot 0 carries 10 N (above 1 % of the weight, under half its leg's weight)…
-                    legs.load = [10.0, weight - 10.0, 0.0, 0.0];
-                    // …and rises at `up_speed` (the legs' own motion, relative to the base).
-                    legs.contact_velocity[0] = [0.0, 0.0, up_speed];
+        for config in both_filters() {
+            let weight = 160.0;
+            let run = |up_speed: f64| {
+                let mut e = Estimator::new(config, 2, [0.0, 0.0, -9.81], weight, 200.0);
+                let mut legs = standing_legs();
+                legs.leg_weight = [36.0, 36.0, 0.0, 0.0];
+                legs.load = [0.5 * weight, 0.5 * weight, 0.0, 0.0];
+                let mut last = Estimate::default();
+                for tick in 0..70u64 {
+                    if tick >= 60 {
+                        // Foot 0 carries 10 N (above 1 % of the weight, under half its leg's weight)…
+                        legs.load = [10.0, weight - 10.0, 0.0, 0.0];
+                        // …and rises at `up_speed` (the legs' own motion, relative to the base).
+                        legs.contact_velocity[0] = [0.0, 0.0, up_speed];
+                    }
+                    for k in 0..4 {
+                        e.propagate(&sample(4 * tick + k, [0.0, 0.0, 9.81]));
+                    }
+                    last = e.correct(&legs, true);
                 }
-                for k in 0..4 {
-                    e.propagate(&sample(4 * tick + k, [0.0, 0.0, 9.81]));
-                }
-                last = e.correct(&legs, true);
-            }
-            last.contacts[0]
-        };
-        assert!(!run(0.5), "lifting at 0.5 m/s: off the ground");
-        assert!(run(0.0), "unloading in place: still touching");
+                last.contacts[0]
+            };
+            assert!(!run(0.5), "lifting at 0.5 m/s: off the ground");
+            assert!(run(0.0), "unloading in place: still touching");
+        }
     }
 
     #[test]
     fn a_foot_carrying_a_quarter_of_the_weight_stands_wherever_the_legs_put_it() {
-        let weight = 160.0;
-        let mut e = Estimator::new(EstimatorConfig::default(), 2, [0.0, 0.0, -9.81], weight, 200.0);
-        let mut legs = standing_legs();
-        legs.load = [0.5 * weight, 0.5 * weight, 0.0, 0.0];
-        let mut step = still_imu_ticks();
-        for _ in 0..60 {
-            step(&mut e, &legs);
+        for config in both_filters() {
+            let weight = 160.0;
+            let mut e = Estimator::new(config, 2, [0.0, 0.0, -9.81], weight, 200.0);
+            let mut legs = standing_legs();
+            legs.load = [0.5 * weight, 0.5 * weight, 0.0, 0.0];
+            let mut step = still_imu_ticks();
+            for _ in 0..60 {
+                step(&mut e, &legs);
+            }
+            // Foot 0 lifted 5 cm, unloaded: in the air.
+            legs.position[0][2] += 0.05;
+            legs.contact[0][2] += 0.05;
+            legs.load = [0.0, weight, 0.0, 0.0];
+            assert!(!step(&mut e, &legs).contacts[0]);
+            // It carries 30 % of the weight while the kinematics still put it 3 cm up (a step down,
+            // a compliant sole): standing.
+            legs.position[0][2] -= 0.02;
+            legs.contact[0][2] -= 0.02;
+            legs.load = [0.3 * weight, 0.7 * weight, 0.0, 0.0];
+            assert!(step(&mut e, &legs).contacts[0]);
         }
-        // Foot 0 lifted 5 cm, unloaded: in the air.
-        legs.position[0][2] += 0.05;
-        legs.contact[0][2] += 0.05;
-        legs.load = [0.0, weight, 0.0, 0.0];
-        assert!(!step(&mut e, &legs).contacts[0]);
-        // It carries 30 % of the weight while the kinematics still put it 3 cm up (a step down,
-        // a compliant sole): standing.
-        legs.position[0][2] -= 0.02;
-        legs.contact[0][2] -= 0.02;
-        legs.load = [0.3 * weight, 0.7 * weight, 0.0, 0.0];
-        assert!(step(&mut e, &legs).contacts[0]);
     }
 
     #[test]
     fn a_foot_that_slips_for_a_few_ticks_does_not_drag_the_velocity_and_a_lasting_one_is_taken() {
-        let run = |slip_ticks: u64| {
-            let mut e = Estimator::new(EstimatorConfig::default(), 2, [0.0, 0.0, -9.81], 160.0, 200.0);
-            let mut legs = standing_legs();
-            let mut last = Estimate::default();
-            for tick in 0..(60 + slip_ticks) {
-                // Both feet's kinematics say the base moves at 2 m/s while the IMU feels nothing.
-                let slipping = tick >= 60;
-                for f in 0..2 {
-                    legs.contact_velocity[f] = if slipping { [-2.0, 0.0, 0.0] } else { [0.0; 3] };
+        for config in both_filters() {
+            let run = |slip_ticks: u64| {
+                let mut e = Estimator::new(config, 2, [0.0, 0.0, -9.81], 160.0, 200.0);
+                let mut legs = standing_legs();
+                let mut last = Estimate::default();
+                for tick in 0..(60 + slip_ticks) {
+                    // Both feet's kinematics say the base moves at 2 m/s while the IMU feels nothing.
+                    let slipping = tick >= 60;
+                    for f in 0..2 {
+                        legs.contact_velocity[f] = if slipping { [-2.0, 0.0, 0.0] } else { [0.0; 3] };
+                    }
+                    for k in 0..4 {
+                        e.propagate(&sample(4 * tick + k, [0.0, 0.0, 9.81]));
+                    }
+                    last = e.correct(&legs, true);
                 }
-                for k in 0..4 {
-                    e.propagate(&sample(4 * tick + k, [0.0, 0.0, 9.81]));
-                }
-                last = e.correct(&legs, true);
+                last.velocity[0]
+            };
+            assert!(run(3).abs() < 0.05, "{}", run(3));
+            let lasting = run(u64::from(MAX_REFUSED_TICKS) + 20);
+            assert!(lasting > 0.5, "a lasting disagreement is believed: {lasting}");
+        }
+    }
+
+    #[test]
+    fn a_biased_gyro_does_not_tilt_the_invariant_filter() {
+        // Standing still for a minute on a gyro biased 0.5 °/s about x and y: integrated alone,
+        // 42° of tilt. The legs, gravity and the IMU's own tilt hold it level.
+        let bias = 0.5f64.to_radians();
+        let mut e = Estimator::new(EstimatorConfig::default(), 2, [0.0, 0.0, -9.81], 160.0, 200.0);
+        assert_eq!(e.filter(), FilterKind::Invariant);
+        let legs = standing_legs();
+        let mut last = Estimate::default();
+        for tick in 0..3000u64 {
+            for k in 0..4 {
+                e.propagate(&robot_link::ImuSample {
+                    gyro: [bias, -bias, 0.0],
+                    ..sample(4 * tick + k, [0.0, 0.0, 9.81])
+                });
             }
-            last.velocity[0]
-        };
-        assert!(run(3).abs() < 0.05, "{}", run(3));
-        let lasting = run(u64::from(MAX_REFUSED_TICKS) + 20);
-        assert!(lasting > 0.5, "a lasting disagreement is believed: {lasting}");
+            last = e.correct(&legs, true);
+        }
+        let up = spatial::quat_rotate(last.orientation, [0.0, 0.0, 1.0]);
+        let tilt = spatial::angle_between(up, [0.0, 0.0, 1.0]).to_degrees();
+        assert!(last.valid && tilt < 0.5, "tilt {tilt}°: {last:?}");
+        assert!(spatial::norm(last.velocity) < 0.01, "{last:?}");
+        assert!((last.position[2] - 0.44).abs() < 2e-3, "{last:?}");
     }
 
     #[test]
     fn non_finite_or_stale_input_makes_the_estimate_invalid() {
-        let mut e = Estimator::new(EstimatorConfig::default(), 2, [0.0, 0.0, -9.81], 160.0, 200.0);
-        let legs = standing_legs();
-        // Not before the IMU has looked still for 0.2 s (40 samples at 200 Hz).
-        for k in 0..39 {
-            e.propagate(&sample(k, [0.0, 0.0, 9.81]));
+        for config in both_filters() {
+            let mut e = Estimator::new(config, 2, [0.0, 0.0, -9.81], 160.0, 200.0);
+            let legs = standing_legs();
+            // Not before the IMU has looked still for 0.2 s (40 samples at 200 Hz).
+            for k in 0..39 {
+                e.propagate(&sample(k, [0.0, 0.0, 9.81]));
+            }
+            assert!(!e.correct(&legs, true).valid, "not settled yet");
+            e.propagate(&sample(39, [0.0, 0.0, 9.81]));
+            assert!(e.correct(&legs, true).valid);
+            e.propagate(&sample(40, [f64::NAN, 0.0, 9.81]));
+            assert!(!e.correct(&legs, true).valid);
+            e.propagate(&sample(41, [0.0, 0.0, 9.81]));
+            assert!(e.correct(&legs, true).valid, "a good sample again: valid again");
+            assert!(!e.correct(&legs, false).valid, "stale IMU");
+            let mut bad = legs;
+            bad.contact_velocity[1][0] = f64::INFINITY;
+            assert!(!e.correct(&bad, true).valid);
         }
-        assert!(!e.correct(&legs, true).valid, "not settled yet");
-        e.propagate(&sample(39, [0.0, 0.0, 9.81]));
-        assert!(e.correct(&legs, true).valid);
-        e.propagate(&sample(40, [f64::NAN, 0.0, 9.81]));
-        assert!(!e.correct(&legs, true).valid);
-        e.propagate(&sample(41, [0.0, 0.0, 9.81]));
-        assert!(e.correct(&legs, true).valid, "a good sample again: valid again");
-        assert!(!e.correct(&legs, false).valid, "stale IMU");
-        let mut bad = legs;
-        bad.contact_velocity[1][0] = f64::INFINITY;
-        assert!(!e.correct(&bad, true).valid);
     }
 }
