@@ -176,7 +176,10 @@ trait Filter {
 }
 
 #[derive(Debug, Clone)]
-#[allow(clippy::large_enum_variant, reason = "one per run, made once: nothing to save by boxing")]
+#[allow(
+    clippy::large_enum_variant,
+    reason = "one per run, made once: nothing to save by boxing"
+)]
 enum Filters {
     Linear(LinearFilter),
     Invariant(InvariantFilter),
