@@ -5,11 +5,12 @@ use std::time::Duration;
 
 use firmware_bridge::feetech::driver::{
     FeetechBusDriver, FeetechDriverOptions, FeetechError, FeetechJointConfig, LockstepFeetechPort, gains_for,
+    scan,
 };
 use firmware_bridge::feetech::models::find;
 use firmware_bridge::feetech::packet::error;
 use firmware_bridge::feetech::wire::FeetechRig;
-use firmware_bridge::half_duplex::{ReplyFault, ServoTransport};
+use firmware_bridge::half_duplex::{LinkError, ReplyFault, ServoTransport, StatusPacket};
 use firmware_bridge::time::SimWorld;
 use test_support::alloc::{CountingAllocator, count_allocations};
 
@@ -46,6 +47,59 @@ fn tick(d: &mut Driver, q: &[f64]) -> usize {
         w.step_until(end);
     }
     report.stale
+}
+
+/// A line on which every answer to a read of servo `garbled` arrives with a bad checksum (its
+/// pings come through).
+struct GarbledReads {
+    inner: LockstepFeetechPort<FeetechRig>,
+    garbled: u8,
+    reading_it: bool,
+}
+
+impl ServoTransport for GarbledReads {
+    type Codec = <LockstepFeetechPort<FeetechRig> as ServoTransport>::Codec;
+    type Instant = <LockstepFeetechPort<FeetechRig> as ServoTransport>::Instant;
+
+    fn now(&self) -> Self::Instant {
+        self.inner.now()
+    }
+
+    fn baud(&self) -> u32 {
+        self.inner.baud()
+    }
+
+    fn send(&mut self, id: u8, instruction: u8, params: &[u8]) -> Result<(), LinkError> {
+        self.reading_it = id == self.garbled && instruction == firmware_bridge::feetech::packet::inst::READ;
+        self.inner.send(id, instruction, params)
+    }
+
+    fn recv_status(&mut self, deadline: Self::Instant) -> Result<StatusPacket<'_>, LinkError> {
+        if self.reading_it {
+            self.inner.recv_status(deadline)?;
+            return Err(LinkError::Crc);
+        }
+        self.inner.recv_status(deadline)
+    }
+
+    fn recv_raw(&mut self, total: usize, deadline: Self::Instant) -> Result<&[u8], LinkError> {
+        self.inner.recv_raw(total, deadline)
+    }
+}
+
+#[test]
+fn a_scan_goes_on_past_a_servo_whose_reads_come_back_garbled() {
+    let (rig, _) = setup(3);
+    let port = GarbledReads {
+        inner: LockstepFeetechPort::new(Arc::clone(&rig), 0, BAUD),
+        garbled: 2,
+        reading_it: false,
+    };
+    // Servo 2 answers pings but not one read: it is not listed (its model is unknown), and
+    // servo 3 after it is.
+    let hits = scan(port, 1..=3, Duration::from_millis(5)).unwrap();
+    let ids: Vec<u8> = hits.iter().map(|h| h.id).collect();
+    assert_eq!(ids, [1, 3], "{hits:?}");
 }
 
 #[test]

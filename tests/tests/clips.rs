@@ -204,5 +204,14 @@ fn motion_files_with_a_wrong_or_missing_description_are_named() {
         e.contains("root.motion.toml: root_body: body 3 of 3 in body_pos_w"),
         "{e}"
     );
+    // A sidecar rate that disagrees with the NPZ's own: refused, not played at either speed.
+    let npz = dir.join("rate.npz");
+    std::fs::copy(motion_fixture("squat_beyondmimic.npz"), &npz).unwrap();
+    std::fs::write(dir.join("rate.motion.toml"), format!("fps = 50.0\n{side}")).unwrap();
+    let e = Clip::load(&npz).unwrap_err().to_string();
+    assert!(
+        e.contains("rate.motion.toml: fps: 50 disagrees with the NPZ's own fps = 30"),
+        "{e}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -331,6 +331,45 @@ fn flags_with_absurd_values_are_refused_by_name() {
             args(&[&"batch", &"--jobs", &"0"]),
             "'--jobs <JOBS>': 0 is outside [1, 256]",
         ),
+        // Judged after parsing, with the other flags: refused by name all the same (they were
+        // exit 1).
+        (
+            args(&[
+                &"dxl",
+                &"emulate",
+                &"--servo",
+                &"1:XM430-W350",
+                &"--baud",
+                &"12345",
+            ]),
+            "--baud: 12345: X-series servos support",
+        ),
+        (
+            args(&[&"dxl", &"emulate", &"--servo", &"1:XM430-W350", &"--baud", &"0"]),
+            "--baud: 0:",
+        ),
+        (
+            args(&[
+                &"can",
+                &"emulate",
+                &"--motor",
+                &"1:AK80-9",
+                &"--motor",
+                &"1:AK80-9",
+            ]),
+            "--motor: motor ID 1 is given twice",
+        ),
+        (
+            args(&[
+                &"feetech",
+                &"emulate",
+                &"--servo",
+                &"1:STS3215",
+                &"--servo",
+                &"1:STS3215",
+            ]),
+            "--servo: servo ID 1 is given twice",
+        ),
     ] {
         refused(&list, needle);
     }

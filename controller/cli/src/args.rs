@@ -2,6 +2,26 @@
 
 /// Parses `ID:MODEL` with the ID in `ids` and the model among `known`; `what` names the device
 /// kind in messages ("motor", "servo").
+/// A flag refused after parsing, where judging it needs the other flags or a file: exit 2
+/// (bad input), like a value clap refuses.
+#[derive(Debug, thiserror::Error)]
+#[error("--{flag}: {why}")]
+pub struct FlagError {
+    /// The flag, without its dashes.
+    pub flag: String,
+    /// What is wrong, with the value.
+    pub why: String,
+}
+
+impl FlagError {
+    pub fn new(flag: impl Into<String>, why: impl std::fmt::Display) -> Self {
+        Self {
+            flag: flag.into(),
+            why: why.to_string(),
+        }
+    }
+}
+
 pub fn id_and_model(
     s: &str,
     what: &str,

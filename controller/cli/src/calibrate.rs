@@ -8,6 +8,8 @@ use std::time::Duration;
 
 use crate::console::ConsoleOperator;
 use anyhow::{Context, Result, bail};
+
+use crate::args::FlagError;
 use calibration::operator::Operator;
 use calibration::procedure::{Method, Options, Outcome, Plan, Session};
 use calibration::rig::LinkRig;
@@ -145,7 +147,11 @@ pub fn run(cmd: CalibrateCommand) -> Result<()> {
 
 fn load(t: &Target) -> Result<Robot> {
     if t.yes && t.hardware {
-        bail!("--yes is for the mirror only: on hardware every step is confirmed by the person at the robot");
+        return Err(FlagError::new(
+            "yes",
+            "for the mirror only: on hardware every step is confirmed by the person at the robot",
+        )
+        .into());
     }
     Ok(Robot::load(&t.robot)?)
 }

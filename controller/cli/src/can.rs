@@ -4,7 +4,9 @@ use std::io::Write as _;
 use std::net::SocketAddr;
 use std::time::Duration;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
+
+use crate::args::FlagError;
 use clap::{Args, Subcommand};
 use firmware_bridge::can::socketcan::SocketCanBus;
 use firmware_bridge::can::socketcand::{SocketcandClient, SocketcandServer};
@@ -98,7 +100,7 @@ fn emulate(args: &EmulateArgs) -> Result<()> {
     let mut rig = MitRig::new(vec![bus.clone()], Duration::from_micros(500));
     for (id, name) in &args.motors {
         if args.motors.iter().filter(|(other, _)| other == id).count() > 1 {
-            bail!("motor ID {id} is given twice");
+            return Err(FlagError::new("motor", format!("motor ID {id} is given twice")).into());
         }
         let model = models::find(name).context("model checked by the parser")?;
         rig.add_motor(
@@ -149,7 +151,11 @@ fn scan_cmd(args: &ScanArgs) -> Result<()> {
             timeout,
         )?,
         (None, Some(iface)) => scan(&mut SocketCanBus::open(iface)?, model, ids, timeout)?,
-        (None, None) => bail!("give --socketcand HOST:PORT or --socketcan IFACE"),
+        (None, None) => {
+            return Err(
+                FlagError::new("socketcand", "give --socketcand HOST:PORT or --socketcan IFACE").into(),
+            );
+        }
     };
     println!(
         "{:>4} {:>8} {:>9} {:>9} {:>8} {:>7}  fault",

@@ -5,7 +5,7 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use clap::Args;
 use human::commands::{self, CommandReader, CommandSpec, CommandStats, GilrsPad, TerminalGuard};
 
@@ -76,7 +76,11 @@ pub fn start(
             "keyboard" | "gamepad" => name.clone(),
             _ => "command-udp".into(),
         };
-        bail!("--{flag}: the policy's manifest has no [commands] section to take live commands");
+        return Err(crate::args::FlagError::new(
+            flag,
+            "the policy's manifest has no [commands] section to take live commands",
+        )
+        .into());
     };
     let (writer, reader) = commands::command_channel(spec.names.len());
     let stats = Arc::new(CommandStats::default());

@@ -4,7 +4,9 @@ use std::io::Write as _;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
+
+use crate::args::FlagError;
 use clap::{Args, Subcommand};
 use firmware_bridge::dxl::driver::{hardware_error_names, scan};
 use firmware_bridge::dxl::models;
@@ -85,15 +87,19 @@ pub fn run(cmd: DxlCommand) -> Result<()> {
 fn emulate(args: &EmulateArgs) -> Result<()> {
     let stop = crate::args::StopSignal::install()?;
     if code_of_baud(args.baud).is_none() {
-        bail!(
-            "--baud {}: X-series servos support 9600, 57600, 115200, 1000000, 2000000, 3000000, 4000000 and 4500000",
-            args.baud
-        );
+        return Err(FlagError::new(
+            "baud",
+            format!(
+                "{}: X-series servos support 9600, 57600, 115200, 1000000, 2000000, 3000000, 4000000 and 4500000",
+                args.baud
+            ),
+        )
+        .into());
     }
     let mut servos = Vec::new();
     for (id, name) in &args.servos {
         if args.servos.iter().filter(|(other, _)| other == id).count() > 1 {
-            bail!("servo ID {id} is given twice");
+            return Err(FlagError::new("servo", format!("servo ID {id} is given twice")).into());
         }
         servos.push((*id, models::find(name).context("model checked by the parser")?));
     }

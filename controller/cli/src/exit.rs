@@ -99,7 +99,8 @@ fn code_of(e: &(dyn std::error::Error + 'static)) -> Option<u8> {
         || e.is::<controller::npy::NpyError>()
         || e.is::<sim2real::mirror::MirrorError>()
         || e.is::<sim2real::model_index::ModelIndexError>()
-        || e.is::<clap::Error>();
+        || e.is::<clap::Error>()
+        || e.is::<crate::args::FlagError>();
     if bad_input {
         return Some(BAD_INPUT);
     }

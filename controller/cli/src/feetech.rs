@@ -5,7 +5,9 @@ use std::io::Write as _;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
+
+use crate::args::FlagError;
 use clap::{Args, Subcommand};
 use firmware_bridge::feetech::driver::{SerialFeetechPort, error_names, scan};
 use firmware_bridge::feetech::models;
@@ -79,12 +81,12 @@ pub fn run(cmd: FeetechCommand) -> Result<()> {
 fn emulate(args: &EmulateArgs) -> Result<()> {
     let stop = crate::args::StopSignal::install()?;
     if index_of_baud(args.baud).is_none() {
-        bail!("--baud {}: STS servos run at {BAUDS:?}", args.baud);
+        return Err(FlagError::new("baud", format!("{}: STS servos run at {BAUDS:?}", args.baud)).into());
     }
     let mut servos = Vec::new();
     for (id, name) in &args.servos {
         if args.servos.iter().filter(|(other, _)| other == id).count() > 1 {
-            bail!("servo ID {id} is given twice");
+            return Err(FlagError::new("servo", format!("servo ID {id} is given twice")).into());
         }
         servos.push((*id, models::find(name).context("model checked by the parser")?));
     }

@@ -37,17 +37,64 @@ pub fn init() -> Logging {
         tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info,ort=warn".into());
     let (filter, handle) = tracing_subscriber::reload::Layer::new(filter);
     let _ = FILTER.set(handle);
+    use tracing_subscriber::Layer as _;
     tracing_subscriber::registry()
         .with(filter)
         .with(
             tracing_subscriber::fmt::layer()
                 .with_ansi(colour)
-                .with_writer(writer),
+                .with_writer(writer)
+                .with_filter(ThrottledServers::default()),
         )
         .init();
     Logging {
         dropped,
         _writer: guard,
+    }
+}
+
+/// Libraries whose lines one client can provoke at will (the live server's WebSocket stack: a
+/// line per junk connection): at most one line a second from each place in their code.
+const THROTTLED_TARGETS: [&str; 3] = ["foxglove", "tungstenite", "tokio_tungstenite"];
+
+/// Rate-limits [`THROTTLED_TARGETS`]; the project's own lines rate-limit where they are written.
+#[derive(Debug, Default)]
+struct ThrottledServers {
+    limits: std::sync::Mutex<
+        std::collections::HashMap<tracing::callsite::Identifier, firmware_bridge::ratelimit::RateLimit>,
+    >,
+}
+
+impl ThrottledServers {
+    fn throttled(meta: &tracing::Metadata<'_>) -> bool {
+        THROTTLED_TARGETS
+            .iter()
+            .any(|t| meta.target() == *t || meta.target().starts_with(&format!("{t}::")))
+    }
+}
+
+impl<S> tracing_subscriber::layer::Filter<S> for ThrottledServers {
+    fn enabled(&self, meta: &tracing::Metadata<'_>, _: &tracing_subscriber::layer::Context<'_, S>) -> bool {
+        if !Self::throttled(meta) {
+            return true;
+        }
+        // Never waits: a line another thread is deciding about right now is left out.
+        let Ok(mut limits) = self.limits.try_lock() else {
+            return false;
+        };
+        limits
+            .entry(meta.callsite())
+            .or_insert_with(firmware_bridge::ratelimit::RateLimit::per_second)
+            .allow(std::time::Instant::now())
+            .is_some()
+    }
+
+    fn callsite_enabled(&self, meta: &'static tracing::Metadata<'static>) -> tracing::subscriber::Interest {
+        if Self::throttled(meta) {
+            tracing::subscriber::Interest::sometimes()
+        } else {
+            tracing::subscriber::Interest::always()
+        }
     }
 }
 
@@ -81,5 +128,51 @@ pub fn last_words(text: String) {
         });
     if writer.is_ok() {
         let _ = finished.recv_timeout(std::time::Duration::from_secs(1));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::{Arc, Mutex};
+
+    #[derive(Clone, Default)]
+    struct Captured(Arc<Mutex<Vec<u8>>>);
+
+    impl std::io::Write for Captured {
+        fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
+            self.0.lock().unwrap().extend_from_slice(bytes);
+            Ok(bytes.len())
+        }
+
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn a_flood_of_server_lines_is_one_line_and_our_own_lines_all_pass() {
+        use tracing_subscriber::Layer as _;
+        use tracing_subscriber::layer::SubscriberExt as _;
+        let captured = Captured::default();
+        let sink = captured.clone();
+        let subscriber = tracing_subscriber::registry().with(
+            tracing_subscriber::fmt::layer()
+                .with_ansi(false)
+                .with_writer(move || sink.clone())
+                .with_filter(ThrottledServers::default()),
+        );
+        tracing::subscriber::with_default(subscriber, || {
+            // What a junk client provokes in the live server, a thousand times.
+            for k in 0..1000 {
+                tracing::error!(target: "foxglove::websocket::server", "Dropping client 127.0.0.1:{k}: handshake failed");
+            }
+            for k in 0..3 {
+                tracing::warn!("our own line {k}");
+            }
+        });
+        let text = String::from_utf8(captured.0.lock().unwrap().clone()).unwrap();
+        assert_eq!(text.matches("handshake failed").count(), 1, "{text}");
+        assert_eq!(text.matches("our own line").count(), 3, "{text}");
     }
 }

@@ -5,6 +5,8 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::{Context, Result, bail};
+
+use crate::args::FlagError;
 use clap::Args;
 use robots::Robot;
 
@@ -1078,16 +1080,20 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         })?;
     }
     if !(args.ramp.is_finite() && args.ramp >= 0.0) {
-        bail!("--ramp {} is not a duration", args.ramp);
+        return Err(FlagError::new("ramp", format!("{} is not a duration", args.ramp)).into());
     }
     let rate = l.layout.manifest.rate_hz;
     let max_ticks = match args.max_seconds {
         Some(s) if s.is_finite() && s > 0.0 => Some((s * rate).round() as u64),
-        Some(s) => bail!("--max-seconds {s} is not a duration"),
+        Some(s) => return Err(FlagError::new("max-seconds", format!("{s} is not a duration")).into()),
         None => None,
     };
     if args.hardware && args.estimator == crate::args::EstimatorArg::GroundTruth {
-        bail!("--estimator ground-truth: the hardware has no ground truth; it runs the estimator (kf)");
+        return Err(FlagError::new(
+            "estimator",
+            "ground-truth: the hardware has no ground truth; it runs the estimator (kf, invariant or linear)",
+        )
+        .into());
     }
     let mut options = PlayOptions {
         estimator: args.estimator.into(),

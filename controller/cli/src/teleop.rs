@@ -7,6 +7,8 @@ use std::sync::atomic::AtomicBool;
 use std::sync::{Arc, Mutex};
 
 use anyhow::{Context, Result, bail};
+
+use crate::args::FlagError;
 use clap::{Args, Subcommand};
 use controller::clip::Reference;
 use controller::player::{EndMode, PlayOptions, Player};
@@ -103,7 +105,7 @@ pub fn vr(cmd: VrCommand) -> Result<()> {
     let VrCommand::Send(args) = cmd;
     let bvh = Bvh::load(&args.bvh)?;
     if !(args.rate.is_finite() && (1.0..=1000.0).contains(&args.rate)) {
-        bail!("--rate {} is not a tracker rate", args.rate);
+        return Err(FlagError::new("rate", format!("{} is not a tracker rate", args.rate)).into());
     }
     let options = SendOptions {
         rate_hz: args.rate,
@@ -151,12 +153,12 @@ pub fn teleop(args: &TeleopArgs) -> Result<std::process::ExitCode> {
         );
     }
     for (what, v) in [
-        ("--tpose", args.tpose),
-        ("--lost-after", args.lost_after),
-        ("--blend", args.blend),
+        ("tpose", args.tpose),
+        ("lost-after", args.lost_after),
+        ("blend", args.blend),
     ] {
         if !(v.is_finite() && v > 0.0) {
-            bail!("{what} {v} is not a duration");
+            return Err(FlagError::new(what, format!("{v} is not a duration")).into());
         }
     }
     let rate = layout.manifest.rate_hz;
@@ -187,7 +189,7 @@ pub fn teleop(args: &TeleopArgs) -> Result<std::process::ExitCode> {
         .context("the teleoperation's live reference was taken already")?;
     let max_ticks = match args.max_seconds {
         Some(s) if s.is_finite() && s > 0.0 => Some((s * rate).round() as u64),
-        Some(s) => bail!("--max-seconds {s} is not a duration"),
+        Some(s) => return Err(FlagError::new("max-seconds", format!("{s} is not a duration")).into()),
         None => None,
     };
     let play = PlayOptions {

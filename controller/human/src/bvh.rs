@@ -76,6 +76,10 @@ pub const FRAME_TIME_S: std::ops::RangeInclusive<f64> = 0.001..=1.0;
 /// Longest recording, s.
 pub const MAX_DURATION_S: f64 = 3600.0;
 
+/// The largest magnitude of an OFFSET or channel value (centimetres or degrees): a kilometre, or
+/// a thousand turns; beyond, the file is not a capture (a body scaled to nothing around it).
+pub const MAX_VALUE: f64 = 1e5;
+
 fn err(path: &Path, line: usize, message: impl std::fmt::Display) -> HumanError {
     HumanError::Motion {
         file: path.to_path_buf(),
@@ -258,6 +262,13 @@ impl Bvh {
                 if !v.is_finite() {
                     return Err(err(path, n, format!("{w} is not finite")));
                 }
+                if v.abs() > MAX_VALUE {
+                    return Err(err(
+                        path,
+                        n,
+                        format!("{w} is outside ±{MAX_VALUE:e} (cm or degrees)"),
+                    ));
+                }
                 motion.push(v);
             }
             if motion.len() - before != channels {
@@ -374,6 +385,13 @@ fn floats<'a>(
     if v.len() != n || v.iter().any(|x| !x.is_finite()) {
         return Err(err(path, line, format_args!("expected {n} finite numbers")));
     }
+    if let Some(x) = v.iter().find(|x| x.abs() > MAX_VALUE) {
+        return Err(err(
+            path,
+            line,
+            format_args!("{x} is outside ±{MAX_VALUE:e} (cm or degrees)"),
+        ));
+    }
     Ok(v)
 }
 
@@ -458,6 +476,21 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("Frames: 2, but 1 rows"), "{e}");
+        // Finite but absurd: a channel of 1e300 made a clip scaled to nothing.
+        let e = Bvh::parse(path, &good.replace("0 18 0 0 0 0 0 0 0", "0 1e300 0 0 0 0 0 0 0"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("bad.bvh:19") && e.contains("1e300 is outside ±1e5"),
+            "{e}"
+        );
+        let e = Bvh::parse(
+            path,
+            &good.replace("OFFSET 1 0 0\nCHANNELS", "OFFSET 1e9 0 0\nCHANNELS"),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("bad.bvh:8") && e.contains("outside ±1e5"), "{e}");
         let e = Bvh::parse(
             path,
             &good.replace(

@@ -209,11 +209,22 @@ fn observation(meta: &Metadata<'_>, has_time_step: bool) -> Result<Vec<Term>, Pr
     ))?;
     let commands = meta.names("command_names").unwrap_or_default();
     let n = names.len();
-    let history = match meta.per_term("observation_terms_history_length", n)? {
-        Some(h) => Some(("observation_terms_history_length", h)),
-        None => meta
-            .per_term("observation_history_lengths", n)?
-            .map(|h| ("observation_history_lengths", h)),
+    // BeyondMimic's key and mjlab's: an export carrying both must say the same in both, or
+    // which one the training used is unknown.
+    let history = match (
+        meta.per_term("observation_terms_history_length", n)?,
+        meta.per_term("observation_history_lengths", n)?,
+    ) {
+        (Some(a), Some(b)) if a != b => {
+            return Err((
+                "ONNX metadata observation_terms_history_length".to_owned(),
+                format!(
+                    "{a:?} disagrees with observation_history_lengths {b:?}: which history did the training use?"
+                ),
+            ));
+        }
+        (Some(h), _) => Some(("observation_terms_history_length", h)),
+        (None, h) => h.map(|h| ("observation_history_lengths", h)),
     };
     let scales = meta.per_term("observation_terms_scale", n)?;
     let clips = meta.per_term("observation_terms_clip", n)?;
@@ -519,6 +530,25 @@ mod tests {
         let e = fill(&mut manifest(), &facts(&pairs, false)).unwrap_err();
         assert_eq!(e.0, "ONNX metadata observation_terms_scale");
         assert!(e.1.contains("2 values for 4 observation_names"), "{e:?}");
+    }
+
+    #[test]
+    fn the_two_frameworks_history_keys_must_agree() {
+        let mut pairs = TRACKING.to_vec();
+        pairs[6] = ("observation_names", "base_ang_vel,joint_pos,joint_vel,actions");
+        pairs.push(("observation_terms_history_length", "0.000,3.000,3.000,0.000"));
+        pairs.push(("observation_history_lengths", "0.000,3.000,3.000,0.000"));
+        let mut m = manifest();
+        fill(&mut m, &facts(&pairs, false)).unwrap();
+        assert_eq!(m.observation[1].shaping().history, 3);
+        pairs.pop();
+        pairs.push(("observation_history_lengths", "0.000,5.000,3.000,0.000"));
+        let e = fill(&mut manifest(), &facts(&pairs, false)).unwrap_err();
+        assert_eq!(e.0, "ONNX metadata observation_terms_history_length");
+        assert!(
+            e.1.contains("disagrees with observation_history_lengths"),
+            "{e:?}"
+        );
     }
 
     #[test]

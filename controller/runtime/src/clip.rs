@@ -377,6 +377,21 @@ impl Clip {
         if !(fps.is_finite() && (1.0..=1000.0).contains(&fps)) {
             return Err(err("fps", format!("{} is outside [1, 1000]", robots::num(fps))));
         }
+        // The file's own rate decides; a sidecar that says another would play it at the wrong
+        // speed if it were believed, and is wrong if not.
+        if let Some(said) = sidecar.and_then(|s| s.fps)
+            && (said - fps).abs() > 1e-6 * fps
+        {
+            return Err(ClipError {
+                file: sidecar_path(path),
+                place: "fps".into(),
+                message: format!(
+                    "{} disagrees with the NPZ's own fps = {} (leave it out for a motion NPZ)",
+                    robots::num(said),
+                    robots::num(fps)
+                ),
+            });
+        }
         let (t, j, q) = match numbers("joint_pos")? {
             (&[t, j], q) if j > 0 => (t, j, q),
             (s, _) => return Err(err("joint_pos", format!("has shape {s:?}, expected (T, J)"))),

@@ -598,6 +598,8 @@ struct Worker {
 
 impl Worker {
     fn run(mut self) {
+        // A model failing every step would write a line per step: one a second, with the count.
+        let mut failure_log = firmware_bridge::ratelimit::RateLimit::per_second();
         let (j, k) = (self.plan.joints, self.horizon);
         let n = self.history_len;
         while !self.shared.stop.load(Ordering::Relaxed) {
@@ -648,7 +650,12 @@ impl Worker {
             }) {
                 stats.failed += 1;
                 drop(stats);
-                tracing::warn!("motion generator step at {generated_s:.2} s failed: {e}");
+                if let Some(left_out) = failure_log.allow(Instant::now()) {
+                    tracing::warn!(
+                        left_out,
+                        "motion generator step at {generated_s:.2} s failed: {e}"
+                    );
+                }
                 std::thread::park_timeout(Duration::from_millis(5));
                 continue;
             }

@@ -150,6 +150,13 @@ pub enum Cause {
         limit: f64,
         limit_s: f64,
     },
+    /// The accelerometer read far beyond anything a robot feels, tick after tick.
+    ImuSaturated {
+        /// Its reading, g.
+        g: f64,
+        /// Ticks in a row.
+        ticks: u32,
+    },
     /// The mirrored simulation diverged (unstable or non-finite physics).
     SimulationFailed,
     /// The state estimate a policy reads is not usable, and why.
@@ -193,6 +200,10 @@ impl std::fmt::Display for Cause {
                 "joint {name} ({joint}): {:.0}° from its target, beyond its {:.0}° for more than {limit_s} s",
                 error.to_degrees(),
                 limit.to_degrees()
+            ),
+            Self::ImuSaturated { g, ticks } => write!(
+                f,
+                "IMU: the accelerometer reads {g:.1} g for {ticks} ticks (saturated or broken; a robot feels about 1 g)"
             ),
             Self::SimulationFailed => write!(f, "the mirror's simulation diverged"),
             Self::EstimateInvalid(why) => write!(f, "the state estimate the policy reads is invalid: {why}"),
@@ -329,7 +340,13 @@ pub struct SafetyMonitor {
     off_target: Vec<u32>,
     /// Deadline overruns in a row.
     overrun_run: u32,
+    /// Ticks in a row the accelerometer read beyond [`SATURATED_G`].
+    saturated_run: u32,
 }
+
+/// An accelerometer reading this many g for longer than the IMU's staleness limit is saturated
+/// or broken: a robot's impacts pass in milliseconds, standing and walking feel about one g.
+pub const SATURATED_G: f64 = 8.0;
 
 impl SafetyMonitor {
     /// A monitor for the joints `names` with their tracking-error stops, a loop ticking every
@@ -352,6 +369,7 @@ impl SafetyMonitor {
             names: names.iter().map(|n| JointName::new(n)).collect(),
             dt,
             overrun_run: 0,
+            saturated_run: 0,
         }
     }
 
@@ -388,6 +406,14 @@ impl SafetyMonitor {
             let off = tracking && t.enabled && t.kp > 0.0 && (t.q - q).abs() > limit.error;
             *count = if off { count.saturating_add(1) } else { 0 };
         }
+        let g = robots::spatial::norm(state.accel) / 9.80665;
+        // Counted from the first tick, so a stream saturated from the start stops the soft start
+        // before it commands anything.
+        self.saturated_run = if g > SATURATED_G {
+            self.saturated_run.saturating_add(1)
+        } else {
+            0
+        };
         if !matches!(mode, Mode::SoftStart | Mode::Running | Mode::Stopping) {
             return None;
         }
@@ -410,6 +436,12 @@ impl SafetyMonitor {
         }
         if s.imu_missed > self.imu_limit {
             return Some(Cause::StaleImu { ticks: s.imu_missed });
+        }
+        if self.saturated_run > self.imu_limit {
+            return Some(Cause::ImuSaturated {
+                g,
+                ticks: self.saturated_run,
+            });
         }
         let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
         if !(finite(&s.q) && finite(&s.qd) && finite(&s.gyro) && finite(&s.quat)) {
@@ -515,6 +547,28 @@ mod tests {
         assert_eq!(govern_position(&j, f64::NAN, 5.0, 0.02, range, None), 1.0);
         assert!(govern_position(&j, 0.0, f64::NAN, 0.02, range, None).is_nan());
         assert_eq!(govern_position(&j, 0.0, 0.5, 0.02, range, None), 0.2);
+    }
+
+    #[test]
+    fn a_saturated_accelerometer_stops_the_soft_start_and_an_impact_does_not() {
+        let mut monitor = SafetyMonitor::new(SafetyLimits::default(), Vec::new(), &[], 0.02, 200.0);
+        let mut state = robot_link::RobotState::new(0);
+        state.imu_missed = 0;
+        // An impact: 12 g for one tick, then gravity again.
+        state.accel = [0.0, 0.0, 12.0 * 9.81];
+        assert_eq!(monitor.check(Mode::Running, &state, &[], false, false), None);
+        state.accel = [0.0, 0.0, 9.81];
+        assert_eq!(monitor.check(Mode::Running, &state, &[], false, false), None);
+        // A stream stuck at full scale from the first tick: refused as soon as the soft start
+        // would begin.
+        let mut monitor = SafetyMonitor::new(SafetyLimits::default(), Vec::new(), &[], 0.02, 200.0);
+        state.accel = [32.0 * 9.81, 0.0, 0.0];
+        for _ in 0..5 {
+            assert_eq!(monitor.check(Mode::Ready, &state, &[], false, false), None);
+        }
+        let cause = monitor.check(Mode::SoftStart, &state, &[], false, false);
+        assert!(matches!(cause, Some(Cause::ImuSaturated { .. })), "{cause:?}");
+        assert!(cause.unwrap().to_string().contains("reads 32.0 g"));
     }
 
     #[test]

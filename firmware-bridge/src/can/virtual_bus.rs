@@ -2,7 +2,8 @@
 //!
 //! Frames are serialised on the wire as on a real bus: each occupies [`wire_time::frame_time`] at
 //! the bus bitrate, starts when the wire is free, and reaches every other node when it ends. Nodes
-//! have bounded receive FIFOs (overflow drops the frame and counts it, as a controller does).
+//! have bounded receive FIFOs (overflow drops the frame and counts it, as a controller does) and
+//! bounded transmit queues (a send beyond them is refused, as a kernel's full queue refuses it).
 //! Faults from a [`CanFaultPlan`] drop, delay, corrupt or truncate frames, or put the bus off.
 //!
 //! The bus does not advance time itself: whoever owns the simulated world does (see
@@ -18,6 +19,11 @@ use crate::time::{SimInstant, SimRng, SimWorld};
 
 /// Receive FIFO depth of each node.
 pub const RX_FIFO_DEPTH: usize = 256;
+
+/// Frames a node may have waiting for the wire (a SocketCAN interface's transmit queue): a sender
+/// beyond it is refused, so no sender (a flooding client, one that left) can fill the wire's
+/// future with frames that everyone else's wait behind.
+pub const TX_QUEUE_FRAMES: usize = 64;
 
 /// A fault applied to frames on the wire.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -76,11 +82,15 @@ pub struct CanBusStats {
     pub rx_overflow: u64,
     /// Sends refused while bus-off.
     pub refused_bus_off: u64,
+    /// Sends refused because the sender's transmit queue was full.
+    pub refused_queue_full: u64,
 }
 
 #[derive(Debug)]
 struct Node {
     rx: VecDeque<(SimInstant, CanFrame)>,
+    /// When each of its frames not yet off the wire ends.
+    tx: VecDeque<SimInstant>,
 }
 
 #[derive(Debug)]
@@ -121,11 +131,23 @@ impl Medium {
                 bus: self.name.clone(),
             });
         }
+        let now = self.now;
+        let queue = &mut self.nodes[from].tx;
+        while queue.front().is_some_and(|&end| end <= now) {
+            queue.pop_front();
+        }
+        if queue.len() >= TX_QUEUE_FRAMES {
+            self.stats.refused_queue_full += 1;
+            return Err(CanError::TxQueueFull {
+                bus: self.name.clone(),
+            });
+        }
         let start = self.now.max(self.busy_until);
         // The frame's bits once (the stuffing walk is the bus's dearest sum).
         let bits = frame_bits(frame);
         let mut end = start + bits_time(bits, self.bitrate);
         self.busy_until = end;
+        self.nodes[from].tx.push_back(end);
         self.stats.frames += 1;
         self.stats.bits += u64::from(bits);
         let mut delivered = *frame;
@@ -212,6 +234,7 @@ impl VirtualCanBus {
         let mut m = self.lock();
         m.nodes.push(Node {
             rx: VecDeque::with_capacity(RX_FIFO_DEPTH),
+            tx: VecDeque::with_capacity(TX_QUEUE_FRAMES),
         });
         VirtualCanNode {
             bus: self.clone(),
@@ -380,6 +403,31 @@ mod tests {
     }
 
     #[test]
+    fn a_flooding_sender_is_refused_beyond_its_transmit_queue_and_the_others_still_get_on() {
+        let bus = VirtualCanBus::new("can0", 1_000_000);
+        let (flood, host, motor) = (bus.attach(), bus.attach(), bus.attach());
+        // A client queueing 100 000 frames at once: 64 go, the rest are refused (its queue is
+        // full), so what it left behind drains in 64 frame times, not 13 s.
+        let sent = (0..100_000)
+            .filter(|&k| flood.send(&frame(0x7FF, k as u8)).is_ok())
+            .count();
+        assert_eq!(sent, TX_QUEUE_FRAMES);
+        assert_eq!(bus.stats().refused_queue_full, 100_000 - TX_QUEUE_FRAMES as u64);
+        // The host's own command still gets on the wire, behind at most those 64.
+        host.send(&frame(1, 0xAA)).unwrap();
+        let mut w = EmptyWorld {
+            now: SimInstant::ZERO,
+            bus: bus.clone(),
+        };
+        w.step_until(SimInstant::ZERO + Duration::from_millis(10));
+        let got: Vec<CanFrame> = std::iter::from_fn(|| motor.try_recv()).collect();
+        assert_eq!(got.len(), TX_QUEUE_FRAMES + 1);
+        assert_eq!(got.last().map(|f| f.data()[0]), Some(0xAA));
+        // The queue drains as the wire carries it: the sender may queue again.
+        assert!(flood.send(&frame(0x7FF, 0)).is_ok());
+    }
+
+    #[test]
     fn frames_are_serialised_on_the_wire_and_reach_every_other_node() {
         let bus = VirtualCanBus::new("can0", 1_000_000);
         let (a, b, c) = (bus.attach(), bus.attach(), bus.attach());
@@ -485,8 +533,17 @@ mod tests {
     fn receive_fifo_overflow_is_counted() {
         let bus = VirtualCanBus::new("can0", 1_000_000);
         let (a, _b) = (bus.attach(), bus.attach());
-        for _ in 0..RX_FIFO_DEPTH + 3 {
-            a.send(&frame(1, 0)).unwrap();
+        // The receiver never reads; the sender waits out its full transmit queue.
+        let (mut sent, mut t) = (0, SimInstant::ZERO);
+        while sent < RX_FIFO_DEPTH + 3 {
+            match a.send(&frame(1, 0)) {
+                Ok(()) => sent += 1,
+                Err(CanError::TxQueueFull { .. }) => {
+                    t = t + Duration::from_millis(1);
+                    bus.set_now(t);
+                }
+                Err(e) => panic!("{e}"),
+            }
         }
         assert_eq!(bus.stats().rx_overflow, 3);
     }

@@ -363,8 +363,14 @@ impl<T: FeetechTransport> FeetechBusDriver<T> {
             match self.exchange(id, inst::PING, &[], &mut []) {
                 Ok(_) => {
                     let mut b = [0u8; 5];
-                    self.read(id, addr::FIRMWARE_MAJOR, &mut b)?;
-                    return Ok(Some((u16::from_le_bytes([b[3], b[4]]), [b[0], b[1]])));
+                    match self.read(id, addr::FIRMWARE_MAJOR, &mut b) {
+                        Ok(()) => return Ok(Some((u16::from_le_bytes([b[3], b[4]]), [b[0], b[1]]))),
+                        Err(FeetechError::Link(LinkError::Io(e))) => {
+                            return Err(FeetechError::Link(LinkError::Io(e)));
+                        }
+                        // A late or garbled answer to the model read: ask again.
+                        Err(_) => {}
+                    }
                 }
                 Err(LinkError::Io(e)) => return Err(FeetechError::Link(LinkError::Io(e))),
                 Err(_) => {}
@@ -600,8 +606,12 @@ pub fn scan<T: FeetechTransport>(
         let Some((model_number, firmware)) = d.ping(id)? else {
             continue;
         };
+        // A servo whose state read comes back late or garbled is still listed (its readings
+        // zero, as `dxl scan` does); one bad reply never ends the scan of the others.
         let mut state = [0u8; 10];
-        d.read(id, addr::PRESENT_POSITION, &mut state)?;
+        if let Err(FeetechError::Link(LinkError::Io(e))) = d.read(id, addr::PRESENT_POSITION, &mut state) {
+            return Err(FeetechError::Link(LinkError::Io(e)));
+        }
         hits.push(ScanHit {
             id,
             model_number,

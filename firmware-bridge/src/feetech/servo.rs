@@ -419,6 +419,13 @@ impl StsServo {
             if !writable(at) {
                 continue;
             }
+            // An ID of 254 (broadcast) or 255 or a baud index the servo has no rate for
+            // would leave it unreachable: the firmware keeps the old value.
+            if (at == addr::ID && v >= packet::BROADCAST_ID)
+                || (at == addr::BAUD && table::baud_of_index(v).is_none())
+            {
+                continue;
+            }
             if at == addr::TORQUE_ENABLE && v == 128 {
                 // The present position becomes the middle of the range.
                 let present = i32::from(word(&self.table, addr::PRESENT_POSITION));
@@ -574,6 +581,31 @@ mod tests {
             s.tick(SimInstant::ZERO, p);
             p.integrate(1e-3);
         }
+    }
+
+    #[test]
+    fn an_id_or_baud_that_would_make_it_unreachable_is_not_taken() {
+        let (mut s, _) = servo();
+        let baud = s.table[usize::from(addr::BAUD)];
+        for (at, v) in [
+            (addr::ID, 254),
+            (addr::ID, 255),
+            (addr::BAUD, 200),
+            (addr::BAUD, 8),
+        ] {
+            s.handle(3, inst::WRITE, &[addr::LOCK, 0]);
+            s.handle(3, inst::WRITE, &[at, v]);
+            assert_eq!(s.id(), 3, "after writing {v} at {at}");
+            assert_eq!(
+                s.table[usize::from(addr::BAUD)],
+                baud,
+                "after writing {v} at {at}"
+            );
+        }
+        // A good ID is taken, and the servo answers to it.
+        s.handle(3, inst::WRITE, &[addr::ID, 9]);
+        assert_eq!(s.id(), 9);
+        assert!(s.handle(9, inst::PING, &[]).is_some());
     }
 
     #[test]

@@ -44,6 +44,9 @@ pub struct Camera {
     pub rotation: spatial::Mat3,
 }
 
+/// A camera's name is a label in a recording's channels and a report: at most this long.
+pub const MAX_NAME_CHARS: usize = 64;
+
 #[derive(Debug, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 struct CameraFile {
@@ -83,10 +86,18 @@ pub fn cameras_from_str(path: &Path, text: &str) -> Result<Vec<Camera>, FileErro
     }
     let mut cameras: Vec<Camera> = Vec::with_capacity(file.camera.len());
     for (i, c) in file.camera.into_iter().enumerate() {
-        let at = |field: &str| format!("camera[{i}] ({}).{field}", c.name);
+        // A name too long to be one is not echoed back whole.
+        let shown: String = c.name.chars().take(MAX_NAME_CHARS).collect();
+        let at = |field: &str| format!("camera[{i}] ({shown}).{field}");
         let bad = |field: &str, m: String| FileError::new(path, format!("{}: {m}", at(field)));
-        if c.name.is_empty() || c.name.contains(['/', ',']) {
-            return Err(bad("name", "not empty, without '/' or ','".into()));
+        if c.name.is_empty() || c.name.chars().count() > MAX_NAME_CHARS || c.name.contains(['/', ',']) {
+            return Err(bad(
+                "name",
+                format!(
+                    "{} characters: 1–{MAX_NAME_CHARS}, without '/' or ','",
+                    c.name.chars().count()
+                ),
+            ));
         }
         if cameras.iter().any(|k| k.name == c.name) {
             return Err(bad("name", "another camera has this name".into()));
@@ -296,6 +307,32 @@ mod tests {
         // Looking along −x, the world's +y is to the camera's right.
         let left = c.project([0.0, 0.5, 1.0]).unwrap();
         assert!(left[0] > 320.0, "{left:?}");
+    }
+
+    #[test]
+    fn a_camera_name_that_is_no_label_is_refused_without_being_echoed() {
+        let text = |name: &str| {
+            format!(
+                "[[camera]]\nname = \"{name}\"\nwidth = 640\nheight = 480\nfx = 500.0\nfy = 500.0\ncx = 320.0\ncy = 240.0\nposition = [2.0, 0.0, 1.0]\nlook_at = [0.0, 0.0, 1.0]\n"
+            )
+        };
+        let long = "x".repeat(1 << 20);
+        let e = cameras_from_str(Path::new("c.toml"), &text(&long))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains(".name: 1048576 characters: 1–64"),
+            "{}",
+            &e[..e.len().min(300)]
+        );
+        assert!(e.len() < 400, "the name is not echoed whole: {} bytes", e.len());
+        for bad in ["", "a/b", "a,b"] {
+            assert!(
+                cameras_from_str(Path::new("c.toml"), &text(bad)).is_err(),
+                "{bad:?}"
+            );
+        }
+        assert!(cameras_from_str(Path::new("c.toml"), &text(&"x".repeat(64))).is_ok());
     }
 
     #[test]
