@@ -342,11 +342,11 @@ fn flags_with_absurd_values_are_refused_by_name() {
                 &"--baud",
                 &"12345",
             ]),
-            "--baud: 12345: X-series servos support",
+            "--baud 12345: X-series servos support",
         ),
         (
             args(&[&"dxl", &"emulate", &"--servo", &"1:XM430-W350", &"--baud", &"0"]),
-            "--baud: 0:",
+            "--baud 0:",
         ),
         (
             args(&[
@@ -784,5 +784,124 @@ fn a_replay_of_absurd_recorded_options_or_a_missing_reading_is_refused_or_held_n
     let (code, out, err) = run_within(&args(&[&"replay", &null]), Duration::from_secs(120));
     assert!(!err.contains("panicked"), "{out}{err}");
     assert!(code.is_some_and(|c| c != 101), "{out}{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_report_of_a_recording_without_its_end_or_its_replay_channel_is_no_success() {
+    let dir = scratch("report-verdict");
+    let run = dir.join("run.mcap");
+    let (code, out, err) = run_within(&args(&[&"play", &"--record", &run]), Duration::from_secs(300));
+    assert_eq!(code, Some(0), "{out}{err}");
+    let report = |file: &Path| {
+        let out_dir = dir.join("report");
+        let (code, stdout, stderr) = run_within(
+            &args(&[&"report", &file, &"--out", &out_dir]),
+            Duration::from_secs(120),
+        );
+        assert_eq!(code, Some(0), "{stdout}{stderr}");
+        let summary: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out_dir.join("summary.json")).unwrap()).unwrap();
+        (summary, stdout)
+    };
+    let (whole, stdout) = report(&run);
+    assert_eq!(whole["success"], true, "the whole squat is a success: {stdout}");
+    // The same file cut at 60 % (a SIGKILL, a full disk): its end is not in it.
+    let bytes = std::fs::read(&run).unwrap();
+    let cut = dir.join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() * 6 / 10]).unwrap();
+    let (summary, stdout) = report(&cut);
+    assert_eq!(summary["success"], false, "{stdout}");
+    assert!(summary["recording_cut_at"].is_u64(), "{summary}");
+    assert!(
+        stdout.contains("success: NO (the recording is cut at byte"),
+        "{stdout}"
+    );
+    // Without its /replay channel, whether it fell and how much it played are unknown.
+    let no_replay = dir.join("no-replay.mcap");
+    test_support::fixtures::run_python(
+        "import sys\n\
+         from mcap.reader import make_reader\n\
+         from mcap.writer import Writer\n\
+         r = make_reader(open(sys.argv[1], 'rb'))\n\
+         w = Writer(open(sys.argv[2], 'wb'))\n\
+         w.start()\n\
+         schemas, channels = {}, {}\n\
+         for schema, channel, message in r.iter_messages():\n\
+         \x20   if channel.topic == '/replay':\n\
+         \x20       continue\n\
+         \x20   if schema is not None and schema.id not in schemas:\n\
+         \x20       schemas[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)\n\
+         \x20   if channel.id not in channels:\n\
+         \x20       channels[channel.id] = w.register_channel(channel.topic, channel.message_encoding, schemas.get(channel.schema_id, 0), dict(channel.metadata))\n\
+         \x20   w.add_message(channels[channel.id], message.log_time, message.data, message.publish_time)\n\
+         w.finish()\n",
+        &[run.as_os_str(), no_replay.as_os_str()],
+    );
+    let (summary, stdout) = report(&no_replay);
+    assert_eq!(summary["success"], false, "{stdout}");
+    assert!(stdout.contains("no /replay channel"), "{stdout}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_path_another_run_records_into_is_refused_and_a_failed_start_does_not_block_it() {
+    let dir = scratch("record-lock");
+    let x = dir.join("x.mcap");
+    let mut a = test_support::bin::Running::start(&args(&[&"play", &"--end", &"loop", &"--record", &x]));
+    a.wait_for("soft start done", Duration::from_secs(120));
+    // A second run told to overwrite the file the first is writing: refused by name, nothing
+    // written into it.
+    let (code, out, err) = run_within(
+        &args(&[&"play", &"--record", &x, &"--overwrite"]),
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, Some(2), "{out}{err}");
+    assert!(err.contains("another run is recording into it now"), "{err}");
+    let sent = std::process::Command::new("kill")
+        .args(["-INT", &a.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(sent.success());
+    let _ = a.finish();
+    let (code, out, err) = run_within(&args(&[&"replay", &x]), Duration::from_secs(120));
+    assert_eq!(code, Some(0), "the first run's recording is whole: {out}{err}");
+    // What a run that failed before its first message leaves (an MCAP file with its header and
+    // no message) is no recording to keep: it does not block the path.
+    let y = dir.join("y.mcap");
+    test_support::fixtures::run_python(
+        "import sys\nfrom mcap.writer import Writer\nw = Writer(open(sys.argv[1], 'wb'))\nw.start()\nw.finish()\n",
+        &[y.as_os_str()],
+    );
+    assert!(std::fs::metadata(&y).unwrap().len() > 0);
+    let (code, out, err) = run_within(
+        &args(&[&"play", &"--max-seconds", &"1", &"--record", &y]),
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, Some(0), "{out}{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_recording_moved_to_another_folder_still_replays_and_compares_and_says_where_it_found_its_files() {
+    let dir = scratch("moved");
+    let run = dir.join("a/run.mcap");
+    let (code, out, err) = run_within(
+        &args(&[&"play", &"--max-seconds", &"1", &"--record", &run]),
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, Some(0), "{out}{err}");
+    // Moved two folders deeper: the files it names relative to its old folder are not there.
+    let moved = dir.join("b/c/d/run.mcap");
+    std::fs::create_dir_all(moved.parent().unwrap()).unwrap();
+    std::fs::rename(&run, &moved).unwrap();
+    for list in [args(&[&"replay", &moved]), args(&[&"compare", &moved, &moved])] {
+        let (code, out, err) = run_within(&list, Duration::from_secs(120));
+        assert_eq!(code, Some(0), "{list:?}: {out}{err}");
+        assert!(
+            err.contains("is not beside the recording (it moved from"),
+            "{list:?}: {err}"
+        );
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }

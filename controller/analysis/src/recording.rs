@@ -375,7 +375,20 @@ impl Walk {
     }
 }
 
-/// Calls `each` with every message of `bytes`, in file order. The records are walked here, not
+/// How a recording ends.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Ending {
+    /// With its footer: the logger finished the file.
+    Finished,
+    /// Without one, at byte `at` (at a record's end or inside one): the process was killed or
+    /// its disk filled; what happened after is not in the file.
+    Cut {
+        /// Where the bytes stop.
+        at: usize,
+    },
+}
+
+/// Calls `each` with every message of `bytes`, in file order, and says how the file ends. The records are walked here, not
 /// by the `mcap` crate's reader: every length is bounded by the bytes it claims to cover, chunks
 /// are decompressed no further than their claimed size and checked against it and their CRC (the
 /// crate's reader loops forever on a chunk shorter than it claims; found by fuzzing). A recording
@@ -385,7 +398,7 @@ impl Walk {
 pub fn for_each_message(
     bytes: &[u8],
     mut each: impl FnMut(Message<'_>) -> Result<(), RecordingError>,
-) -> Result<(), RecordingError> {
+) -> Result<Ending, RecordingError> {
     if !bytes.starts_with(MAGIC) {
         return Err(RecordingError::NotMcap);
     }
@@ -394,16 +407,16 @@ pub fn for_each_message(
     let mut at = MAGIC.len();
     loop {
         match next_record(bytes, at) {
-            Next::End => return Ok(()),
+            Next::End => return Ok(Ending::Cut { at }),
             Next::Cut if walk.delivered > 0 => {
                 tracing::warn!(
                     "the recording ends early (inside a record at byte {at}): read {} messages before the cut",
                     walk.delivered
                 );
-                return Ok(());
+                return Ok(Ending::Cut { at });
             }
             Next::Cut => return Err(RecordingError::Cut(at)),
-            Next::Record { op: OP_FOOTER, .. } => return Ok(()),
+            Next::Record { op: OP_FOOTER, .. } => return Ok(Ending::Finished),
             Next::Record {
                 op: OP_CHUNK,
                 body,

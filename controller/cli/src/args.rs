@@ -5,11 +5,11 @@
 /// A flag refused after parsing, where judging it needs the other flags or a file: exit 2
 /// (bad input), like a value clap refuses.
 #[derive(Debug, thiserror::Error)]
-#[error("--{flag}: {why}")]
+#[error("--{flag}{why}")]
 pub struct FlagError {
     /// The flag, without its dashes.
     pub flag: String,
-    /// What is wrong, with the value.
+    /// What is wrong, as it follows the flag's name (" 12345: …", ": …", " is …").
     pub why: String,
 }
 

@@ -149,7 +149,7 @@ fn load(t: &Target) -> Result<Robot> {
     if t.yes && t.hardware {
         return Err(FlagError::new(
             "yes",
-            "for the mirror only: on hardware every step is confirmed by the person at the robot",
+            " is for the mirror only: on hardware every step is confirmed by the person at the robot",
         )
         .into());
     }

@@ -100,7 +100,7 @@ fn emulate(args: &EmulateArgs) -> Result<()> {
     let mut rig = MitRig::new(vec![bus.clone()], Duration::from_micros(500));
     for (id, name) in &args.motors {
         if args.motors.iter().filter(|(other, _)| other == id).count() > 1 {
-            return Err(FlagError::new("motor", format!("motor ID {id} is given twice")).into());
+            return Err(FlagError::new("motor", format!(": motor ID {id} is given twice")).into());
         }
         let model = models::find(name).context("model checked by the parser")?;
         rig.add_motor(
@@ -152,9 +152,7 @@ fn scan_cmd(args: &ScanArgs) -> Result<()> {
         )?,
         (None, Some(iface)) => scan(&mut SocketCanBus::open(iface)?, model, ids, timeout)?,
         (None, None) => {
-            return Err(
-                FlagError::new("socketcand", "give --socketcand HOST:PORT or --socketcan IFACE").into(),
-            );
+            return Err(FlagError::new("socketcand", " HOST:PORT or --socketcan IFACE: give one").into());
         }
     };
     println!(

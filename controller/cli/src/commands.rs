@@ -78,7 +78,7 @@ pub fn start(
         };
         return Err(crate::args::FlagError::new(
             flag,
-            "the policy's manifest has no [commands] section to take live commands",
+            ": the policy's manifest has no [commands] section to take live commands",
         )
         .into());
     };

@@ -90,7 +90,7 @@ fn emulate(args: &EmulateArgs) -> Result<()> {
         return Err(FlagError::new(
             "baud",
             format!(
-                "{}: X-series servos support 9600, 57600, 115200, 1000000, 2000000, 3000000, 4000000 and 4500000",
+                " {}: X-series servos support 9600, 57600, 115200, 1000000, 2000000, 3000000, 4000000 and 4500000",
                 args.baud
             ),
         )
@@ -99,7 +99,7 @@ fn emulate(args: &EmulateArgs) -> Result<()> {
     let mut servos = Vec::new();
     for (id, name) in &args.servos {
         if args.servos.iter().filter(|(other, _)| other == id).count() > 1 {
-            return Err(FlagError::new("servo", format!("servo ID {id} is given twice")).into());
+            return Err(FlagError::new("servo", format!(": servo ID {id} is given twice")).into());
         }
         servos.push((*id, models::find(name).context("model checked by the parser")?));
     }

@@ -81,12 +81,12 @@ pub fn run(cmd: FeetechCommand) -> Result<()> {
 fn emulate(args: &EmulateArgs) -> Result<()> {
     let stop = crate::args::StopSignal::install()?;
     if index_of_baud(args.baud).is_none() {
-        return Err(FlagError::new("baud", format!("{}: STS servos run at {BAUDS:?}", args.baud)).into());
+        return Err(FlagError::new("baud", format!(" {}: STS servos run at {BAUDS:?}", args.baud)).into());
     }
     let mut servos = Vec::new();
     for (id, name) in &args.servos {
         if args.servos.iter().filter(|(other, _)| other == id).count() > 1 {
-            return Err(FlagError::new("servo", format!("servo ID {id} is given twice")).into());
+            return Err(FlagError::new("servo", format!(": servo ID {id} is given twice")).into());
         }
         servos.push((*id, models::find(name).context("model checked by the parser")?));
     }

@@ -237,9 +237,14 @@ fn dispatch(command: Command) -> Result<std::process::ExitCode> {
                 None => format!("joint RMSE {:.2}°", s.joints_rmse_deg),
             };
             println!(
-                "report in {}: {headline}, {} safety events",
+                "report in {}: {headline}, {} safety events; success: {}",
                 out.display(),
-                s.safety_events.len()
+                s.safety_events.len(),
+                if s.success {
+                    "yes".to_owned()
+                } else {
+                    format!("NO ({})", s.failures.join("; "))
+                }
             );
             Ok(std::process::ExitCode::SUCCESS)
         }

@@ -883,6 +883,7 @@ fn with_recorder<L: RobotLink>(
         generator: args.generator.generator.as_ref().map(absolute),
         keypoints: args.keypoints.source().map(|k| k.map_paths(absolute)),
         options: *options,
+        recorded_in: None,
     };
     record(player, &args.rec, run, &stem, args.wall || args.hardware)
 }
@@ -950,14 +951,39 @@ pub(crate) fn start_recording(
             if let Some(dir) = p.parent().filter(|d| !d.as_os_str().is_empty()) {
                 std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
             }
-            // A file with something in it is a recording; devices and empty files are not.
-            let recorded = std::fs::metadata(p).is_ok_and(|m| m.is_file() && m.len() > 0);
-            anyhow::ensure!(
-                rec.overwrite || !recorded,
-                "--record {}: a recording is there already; give another path, or --overwrite",
-                p.display()
-            );
-            (p.clone(), None)
+            // Locked for the length of the run, like the default names: two runs given one path
+            // would write one file at once and leave it corrupt.
+            let file = std::fs::OpenOptions::new()
+                .write(true)
+                .create(true)
+                .truncate(false)
+                .open(p)
+                .with_context(|| format!("cannot open {}", p.display()))?;
+            if file.try_lock().is_err() {
+                return Err(FlagError::new(
+                    "record",
+                    format!(
+                        " {}: another run is recording into it now; give another path",
+                        p.display()
+                    ),
+                )
+                .into());
+            }
+            if !rec.overwrite && holds_a_recording(p) {
+                return Err(FlagError::new(
+                    "record",
+                    format!(
+                        " {}: a recording is there already; give another path, or --overwrite",
+                        p.display()
+                    ),
+                )
+                .into());
+            }
+            if file.metadata().is_ok_and(|m| m.is_file()) {
+                file.set_len(0)
+                    .with_context(|| format!("cannot empty {}", p.display()))?;
+            }
+            (p.clone(), Some(file))
         }
         None => {
             let (path, file) = claim(Path::new("out/runs"), &format!("{robot}-{stem}"))?;
@@ -1080,18 +1106,18 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         })?;
     }
     if !(args.ramp.is_finite() && args.ramp >= 0.0) {
-        return Err(FlagError::new("ramp", format!("{} is not a duration", args.ramp)).into());
+        return Err(FlagError::new("ramp", format!(" {} is not a duration", args.ramp)).into());
     }
     let rate = l.layout.manifest.rate_hz;
     let max_ticks = match args.max_seconds {
         Some(s) if s.is_finite() && s > 0.0 => Some((s * rate).round() as u64),
-        Some(s) => return Err(FlagError::new("max-seconds", format!("{s} is not a duration")).into()),
+        Some(s) => return Err(FlagError::new("max-seconds", format!(" {s} is not a duration")).into()),
         None => None,
     };
     if args.hardware && args.estimator == crate::args::EstimatorArg::GroundTruth {
         return Err(FlagError::new(
             "estimator",
-            "ground-truth: the hardware has no ground truth; it runs the estimator (kf, invariant or linear)",
+            " ground-truth: the hardware has no ground truth; it runs the estimator (kf, invariant or linear)",
         )
         .into());
     }
@@ -1251,6 +1277,34 @@ fn describe_start(robot: &Robot, mode: robots::StartMode, pd_s: f64) -> String {
              then the policy takes over",
             100.0 * robot.config.start.pd_gain
         ),
+    }
+}
+
+/// Whether `path` holds a recording worth keeping: a file with at least one message, or any
+/// other file with something in it (not ours to judge). An empty file, or the header of a run
+/// that failed before its first tick, is not.
+fn holds_a_recording(path: &Path) -> bool {
+    match std::fs::metadata(path) {
+        // Devices and pipes are not recordings (and reading one may never end).
+        Ok(m) if !m.is_file() || m.len() == 0 => return false,
+        // A header and the run's files take a few hundred kilobytes at most.
+        Ok(m) if m.len() > 4 << 20 => return true,
+        Ok(_) => {}
+        Err(_) => return false,
+    }
+    let Ok(bytes) = std::fs::read(path) else {
+        return false;
+    };
+    let mut messages = 0usize;
+    match analysis::recording::for_each_message(&bytes, |_| {
+        messages += 1;
+        Ok(())
+    }) {
+        Ok(_) => messages > 0,
+        // Cut before its first message.
+        Err(analysis::recording::RecordingError::Cut(_)) => false,
+        // Not a recording we can read (another kind of file, damage): kept.
+        Err(_) => true,
     }
 }
 

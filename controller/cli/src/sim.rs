@@ -125,11 +125,7 @@ fn mirror_config(path: Option<&Path>, gantry: bool, robot: &Robot) -> Result<Mir
 
 fn stand(args: &StandArgs) -> Result<()> {
     if !(args.seconds.is_finite() && args.seconds > 0.0 && args.fps > 0.0 && args.fps <= 100.0) {
-        return Err(crate::args::FlagError::new(
-            "seconds",
-            "--seconds must be positive and --fps in (0, 100]",
-        )
-        .into());
+        return Err(crate::args::FlagError::new("seconds", " must be positive and --fps in (0, 100]").into());
     }
     let robot = Robot::load(&args.robot)?;
     let config = mirror_config(args.mirror.as_deref(), args.gantry, &robot)?;

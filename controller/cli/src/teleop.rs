@@ -105,7 +105,7 @@ pub fn vr(cmd: VrCommand) -> Result<()> {
     let VrCommand::Send(args) = cmd;
     let bvh = Bvh::load(&args.bvh)?;
     if !(args.rate.is_finite() && (1.0..=1000.0).contains(&args.rate)) {
-        return Err(FlagError::new("rate", format!("{} is not a tracker rate", args.rate)).into());
+        return Err(FlagError::new("rate", format!(" {} is not a tracker rate", args.rate)).into());
     }
     let options = SendOptions {
         rate_hz: args.rate,
@@ -158,7 +158,7 @@ pub fn teleop(args: &TeleopArgs) -> Result<std::process::ExitCode> {
         ("blend", args.blend),
     ] {
         if !(v.is_finite() && v > 0.0) {
-            return Err(FlagError::new(what, format!("{v} is not a duration")).into());
+            return Err(FlagError::new(what, format!(" {v} is not a duration")).into());
         }
     }
     let rate = layout.manifest.rate_hz;
@@ -189,7 +189,7 @@ pub fn teleop(args: &TeleopArgs) -> Result<std::process::ExitCode> {
         .context("the teleoperation's live reference was taken already")?;
     let max_ticks = match args.max_seconds {
         Some(s) if s.is_finite() && s > 0.0 => Some((s * rate).round() as u64),
-        Some(s) => return Err(FlagError::new("max-seconds", format!("{s} is not a duration")).into()),
+        Some(s) => return Err(FlagError::new("max-seconds", format!(" {s} is not a duration")).into()),
         None => None,
     };
     let play = PlayOptions {
@@ -218,6 +218,7 @@ pub fn teleop(args: &TeleopArgs) -> Result<std::process::ExitCode> {
         generator: None,
         keypoints: None,
         options: play,
+        recorded_in: None,
     };
     // Teleoperation runs on the wall clock (paced on the mirror): records drop rather than wait.
     let rec = &args.rec;

@@ -51,6 +51,54 @@ pub struct CommandStats {
     pub out_of_range: AtomicU64,
     /// Messages older than one already taken (sequence number not above the newest).
     pub stale: AtomicU64,
+    /// Datagrams beyond their sender's rate ([`SOURCE_RATE_HZ`]), dropped unread.
+    pub flooded: AtomicU64,
+}
+
+/// Datagrams a second one sender may have parsed (a command source sends at 50–500 Hz); beyond
+/// it they are dropped before parsing, so a flood costs the receiving thread a `recv` each, not
+/// a parse, and never starves the machine's other threads.
+pub const SOURCE_RATE_HZ: f64 = 1000.0;
+
+/// Senders the limiter tells apart at once (the least recently heard gives way).
+const SOURCES: usize = 16;
+
+/// A token bucket per sender: [`SOURCE_RATE_HZ`], bursts of a tenth of a second.
+#[derive(Debug)]
+struct SourceLimiter {
+    buckets: [(Option<SocketAddr>, f64, Instant); SOURCES],
+}
+
+impl SourceLimiter {
+    fn new(now: Instant) -> Self {
+        Self {
+            buckets: [(None, 0.0, now); SOURCES],
+        }
+    }
+
+    /// Whether a datagram from `from` at `now` may be parsed.
+    fn allow(&mut self, from: SocketAddr, now: Instant) -> bool {
+        let burst = SOURCE_RATE_HZ / 10.0;
+        let slot = match self.buckets.iter().position(|b| b.0 == Some(from)) {
+            Some(i) => i,
+            None => {
+                let oldest = (0..SOURCES)
+                    .min_by_key(|&i| (self.buckets[i].0.is_some(), self.buckets[i].2))
+                    .expect("SOURCES > 0");
+                self.buckets[oldest] = (Some(from), burst, now);
+                oldest
+            }
+        };
+        let (_, tokens, last) = &mut self.buckets[slot];
+        *tokens = (*tokens + now.duration_since(*last).as_secs_f64() * SOURCE_RATE_HZ).min(burst);
+        *last = now;
+        if *tokens >= 1.0 {
+            *tokens -= 1.0;
+            true
+        } else {
+            false
+        }
+    }
 }
 
 impl CommandStats {
@@ -59,6 +107,7 @@ impl CommandStats {
         self.malformed.load(Ordering::Relaxed)
             + self.out_of_range.load(Ordering::Relaxed)
             + self.stale.load(Ordering::Relaxed)
+            + self.flooded.load(Ordering::Relaxed)
     }
 }
 
@@ -66,13 +115,17 @@ impl std::fmt::Display for CommandStats {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "{} accepted, {} dropped ({} malformed, {} out of range, {} out of order)",
+            "{} accepted, {} dropped ({} malformed, {} out of range, {} out of order",
             self.accepted.load(Ordering::Relaxed),
             self.dropped(),
             self.malformed.load(Ordering::Relaxed),
             self.out_of_range.load(Ordering::Relaxed),
-            self.stale.load(Ordering::Relaxed)
-        )
+            self.stale.load(Ordering::Relaxed),
+        )?;
+        match self.flooded.load(Ordering::Relaxed) {
+            0 => f.write_str(")"),
+            n => write!(f, ", {n} beyond their sender's rate, unread)"),
+        }
     }
 }
 
@@ -654,10 +707,17 @@ pub fn spawn_udp(
         .spawn(move || {
             let mut buf = [0u8; MAX_DATAGRAM + 1];
             let mut newest = None;
+            let mut limiter = SourceLimiter::new(Instant::now());
             while !stop.load(Ordering::Relaxed) {
-                let Ok(len) = socket.recv(&mut buf) else {
+                let Ok((len, from)) = socket.recv_from(&mut buf) else {
                     continue;
                 };
+                if !limiter.allow(from, Instant::now()) {
+                    if stats.flooded.fetch_add(1, Ordering::Relaxed) == 0 {
+                        tracing::warn!(%from, "udp commands: a sender beyond {SOURCE_RATE_HZ} datagrams/s; the rest are dropped unread");
+                    }
+                    continue;
+                }
                 let counted = if len > MAX_DATAGRAM {
                     Err(Dropped::Malformed(format!("longer than {MAX_DATAGRAM} bytes")))
                 } else {
@@ -699,6 +759,29 @@ mod tests {
             "#,
         )
         .unwrap()
+    }
+
+    #[test]
+    fn a_flooding_sender_is_cut_to_its_rate_and_another_sender_still_gets_through() {
+        let t0 = Instant::now();
+        let mut limiter = SourceLimiter::new(t0);
+        let (flood, operator): (SocketAddr, SocketAddr) = (
+            "127.0.0.1:4000".parse().unwrap(),
+            "127.0.0.1:4001".parse().unwrap(),
+        );
+        // 70 000 datagrams within one millisecond: its burst (a tenth of a second's worth) passes.
+        let passed = (0..70_000)
+            .filter(|&k| limiter.allow(flood, t0 + Duration::from_nanos(k * 14)))
+            .count();
+        let burst = SOURCE_RATE_HZ / 10.0;
+        assert!((burst..=burst + 1.0).contains(&(passed as f64)), "{passed}");
+        // The operator, meanwhile, at 100 Hz: every datagram taken.
+        let at = t0 + Duration::from_millis(1);
+        assert!((0..100).all(|k| limiter.allow(operator, at + Duration::from_millis(10 * k))));
+        // A second later the flood has its rate again, not its backlog.
+        let later = t0 + Duration::from_secs(1);
+        let passed = (0..10_000).filter(|_| limiter.allow(flood, later)).count();
+        assert_eq!(passed as f64, SOURCE_RATE_HZ / 10.0);
     }
 
     #[test]

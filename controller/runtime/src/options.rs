@@ -267,6 +267,10 @@ pub struct RunMetadata {
     pub keypoints: Option<crate::keypoints::clip::KeypointSource>,
     /// The options.
     pub options: PlayOptions,
+    /// The folder the recording was written in (absolute): where the files named relative to
+    /// it are looked for when the recording has moved since.
+    #[serde(default)]
+    pub recorded_in: Option<PathBuf>,
 }
 
 impl RunMetadata {
@@ -293,14 +297,35 @@ impl RunMetadata {
             clip: self.clip.as_ref().map(relative),
             generator: self.generator.as_ref().map(relative),
             keypoints: self.keypoints.as_ref().map(|k| k.map_paths(relative)),
+            recorded_in: Some(base.clone()),
             ..self.clone()
         }
     }
 
     /// The files of a run read from a recording in `dir`, as paths to open (undoes
-    /// [`Self::relative_to`]; absolute paths of older recordings stay as they are).
+    /// [`Self::relative_to`]; absolute paths of older recordings stay as they are). A file not
+    /// found beside a recording that has moved is taken from where the recording was written,
+    /// and the log says so.
     pub fn resolved_from(&self, dir: &std::path::Path) -> Self {
-        let resolve = |p: &PathBuf| if p.is_relative() { dir.join(p) } else { p.clone() };
+        let resolve = |p: &PathBuf| {
+            if !p.is_relative() {
+                return p.clone();
+            }
+            let here = dir.join(p);
+            match &self.recorded_in {
+                Some(origin) if !here.exists() && origin.join(p).exists() => {
+                    let there = origin.join(p);
+                    tracing::warn!(
+                        "{} is not beside the recording (it moved from {}): using {}",
+                        here.display(),
+                        origin.display(),
+                        there.display()
+                    );
+                    there
+                }
+                _ => here,
+            }
+        };
         Self {
             robot: resolve(&self.robot),
             policy: resolve(&self.policy),
@@ -328,6 +353,7 @@ mod tests {
             generator: None,
             keypoints: None,
             options: PlayOptions::default(),
+            recorded_in: None,
         };
         let dir = here.join("out/runs");
         let stored = m.relative_to(&dir);
@@ -341,6 +367,32 @@ mod tests {
         ] {
             assert_eq!(normalize(a), normalize(&std::path::absolute(b).unwrap()));
         }
+    }
+
+    #[test]
+    fn a_recording_moved_to_another_folder_finds_its_files_where_it_was_written() {
+        let root = std::env::temp_dir().join(format!("run-moved-{}", std::process::id()));
+        let (project, elsewhere) = (root.join("project"), root.join("results/2026"));
+        std::fs::create_dir_all(project.join("out")).unwrap();
+        std::fs::create_dir_all(&elsewhere).unwrap();
+        std::fs::write(project.join("robot.toml"), "").unwrap();
+        let m = RunMetadata {
+            robot: project.join("robot.toml"),
+            policy: project.join("policy.toml"),
+            clip: None,
+            command: None,
+            command_source: None,
+            generator: None,
+            keypoints: None,
+            options: PlayOptions::default(),
+            recorded_in: None,
+        };
+        let stored = m.relative_to(&project.join("out"));
+        let moved = stored.resolved_from(&elsewhere);
+        assert_eq!(normalize(&moved.robot), project.join("robot.toml"));
+        // A file found nowhere keeps the path beside the recording (the error names it there).
+        assert_eq!(moved.policy, elsewhere.join("../policy.toml"));
+        std::fs::remove_dir_all(&root).unwrap();
     }
 
     /// `a/b/../c` → `a/c`, lexically.
@@ -379,6 +431,7 @@ mod tests {
                 max_ticks: Some(7),
                 ..PlayOptions::default()
             },
+            recorded_in: Some("/data/runs".into()),
         };
         assert_eq!(RunMetadata::from_json(&m.to_json()).unwrap(), m);
         // Options a recording leaves out keep their defaults; unknown ones are refused.

@@ -42,8 +42,18 @@ pub struct RunSummary {
     /// Share of the reference played (when the recording says how long it was).
     pub played: Option<f64>,
     /// Success: no fall, no safety stop, the reference played to its end, and (simulation) the
-    /// root never more than 1 m or 45° from the reference's — [`tracking_success`].
+    /// root never more than 1 m or 45° from the reference's — [`tracking_success`]; and a
+    /// recording that says all of it (finished, with its `/replay` channel). Never for a run
+    /// whose end is not in the file.
     pub success: bool,
+    /// Where the recording stops without its footer (the run was killed, or its disk filled):
+    /// what happened after is unknown. None: the logger finished the file.
+    pub recording_cut_at: Option<usize>,
+    /// The recording has its `/replay` channel (the run's options, the reference's length, the
+    /// truth): without it, whether the robot fell and how much it played are unknown.
+    pub replay_recorded: bool,
+    /// Why the run is not a success, in words (empty when it is).
+    pub failures: Vec<String>,
     /// Mean magnitude of the third time derivative of joint positions, rad/s³ (the robot's, over
     /// the tracking window).
     pub jitter: f64,
@@ -167,6 +177,10 @@ struct Series {
     body_errors: Vec<Vec<f64>>,
     /// The run played no clip (a command-driven policy).
     command_driven: bool,
+    /// How the file ends.
+    ending: Option<crate::recording::Ending>,
+    /// `/replay` messages seen.
+    replay_messages: usize,
     /// What its commands mean, and per `/policy` message whether the policy ran and the commands.
     command_kinds: Vec<controller::metrics::CommandKind>,
     running: Vec<bool>,
@@ -219,7 +233,7 @@ fn read(path: &Path) -> Result<Series, AnalysisError> {
     };
     // Times from the run's start: a wall-clock recording's are Unix times.
     let mut t0: Option<u64> = None;
-    crate::recording::for_each_message(&bytes, |m| {
+    let ending = crate::recording::for_each_message(&bytes, |m| {
         let zero = *t0.get_or_insert(m.log_time);
         let time = |log_time: u64| log_time.saturating_sub(zero) as f64 * 1e-9;
         match m.topic {
@@ -254,6 +268,7 @@ fn read(path: &Path) -> Result<Series, AnalysisError> {
                         .is_some_and(|r| r.clip.is_none() && r.generator.is_none());
                     s.run = run;
                 }
+                s.replay_messages += 1;
                 let p = floats(&v["base_pose"]);
                 s.base_pose
                     .push(std::array::from_fn(|i| p.get(i).copied().unwrap_or(f64::NAN)));
@@ -336,6 +351,7 @@ fn read(path: &Path) -> Result<Series, AnalysisError> {
         Ok(())
     })
     .map_err(unreadable)?;
+    s.ending = Some(ending);
     if s.q.is_empty() {
         return Err(AnalysisError::file(path, "no /joint_state messages"));
     }
@@ -504,16 +520,24 @@ fn summarize(s: &Series) -> RunSummary {
     let played = s
         .reference_ticks
         .map(|n| (window.len() as f64 / n.max(1) as f64).min(1.0));
-    let success = if s.command_driven {
-        !fell.unwrap_or(false) && !s.faulted
-    } else {
-        tracking_success(
-            fell.unwrap_or(false),
-            s.faulted,
-            played,
-            has_truth.then_some(root_max),
-        )
+    let recording_cut_at = match s.ending {
+        Some(crate::recording::Ending::Cut { at }) => Some(at),
+        _ => None,
     };
+    let replay_recorded = s.replay_messages > 0;
+    // A verdict needs the whole run in the file: what is not there is not a success.
+    let known = recording_cut_at.is_none() && replay_recorded;
+    let success = known
+        && if s.command_driven {
+            !fell.unwrap_or(false) && !s.faulted
+        } else {
+            tracking_success(
+                fell.unwrap_or(false),
+                s.faulted,
+                played,
+                has_truth.then_some(root_max),
+            )
+        };
     // Jitter (the loop's own measure): third differences over runs of consecutive ticks.
     let (mut robot_jitter, mut reference_jitter) = (Jitter::new(n), Jitter::new(n));
     let mut previous: Option<usize> = None;
@@ -601,6 +625,9 @@ fn summarize(s: &Series) -> RunSummary {
         safety_stop: s.faulted,
         played,
         success,
+        recording_cut_at,
+        replay_recorded,
+        failures: Vec::new(),
         jitter: robot_jitter.mean().unwrap_or(0.0),
         reference_jitter: reference_jitter.mean().unwrap_or(0.0),
         generator: generator_figures(s),
@@ -619,7 +646,8 @@ fn summarize(s: &Series) -> RunSummary {
 /// Writes the report of the run `log` into `dir`; returns the summary.
 pub fn write_report(log: &Path, dir: &Path) -> Result<RunSummary, AnalysisError> {
     let s = read(log)?;
-    let summary = summarize(&s);
+    let mut summary = summarize(&s);
+    summary.failures = failures(&s, &summary);
     std::fs::create_dir_all(dir).map_err(|e| AnalysisError::write(dir, e))?;
     let json = serde_json::to_string_pretty(&summary)
         .map_err(|e| AnalysisError::write(&dir.join("summary.json"), std::io::Error::other(e)))?;
@@ -666,6 +694,12 @@ pub fn write_report(log: &Path, dir: &Path) -> Result<RunSummary, AnalysisError>
         );
     }
     let yes = |b: bool| if b { "yes" } else { "NO" };
+    if let Some(at) = summary.recording_cut_at {
+        let _ = writeln!(
+            md,
+            "| recording | CUT at byte {at}: the run's end is not in the file |"
+        );
+    }
     if let Some(fell) = summary.fell {
         let _ = writeln!(md, "| fell | {} |", if fell { "YES" } else { "no" });
     }
@@ -824,6 +858,15 @@ fn worst_tick(s: &Series) -> Option<usize> {
 /// Why a run failed, in words (empty when it succeeded).
 fn failures(s: &Series, summary: &RunSummary) -> Vec<String> {
     let mut why = Vec::new();
+    if let Some(at) = summary.recording_cut_at {
+        let last = s.time.last().copied().unwrap_or(0.0);
+        why.push(format!(
+            "the recording is cut at byte {at} ({last:.2} s in; the run was killed or its disk filled): how it ended is unknown"
+        ));
+    }
+    if !summary.replay_recorded {
+        why.push("no /replay channel: whether the robot fell and how much it played are unknown".into());
+    }
     if summary.fell == Some(true) {
         let at = fall_tick(s)
             .and_then(|k| s.time.get(k))
