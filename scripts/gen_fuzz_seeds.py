@@ -236,3 +236,39 @@ coco = [{"image_id": 0, "category_id": 1, "track_id": 7, "score": 0.9, "keypoint
         {"image_id": 0, "category_id": 1, "track_id": 3, "score": 0.6, "keypoints": decoy},
         {"image_id": 1, "category_id": 1, "track_id": 3, "score": 0.6, "keypoints": decoy}]
 write("keypoint_inputs", "coco_results.json", json.dumps(coco))
+
+# COCO image ids, three bytes each (style, then a 16-bit number): plain numbers with a gap, file
+# names around the number, and two ids of one frame number.
+def coco_id(style, number):
+    return bytes([style]) + struct.pack("<H", number)
+
+
+write("coco_image_ids", "gap", coco_id(0, 1) + coco_id(0, 5) + coco_id(0, 3))
+write("coco_image_ids", "names", coco_id(1, 16) + coco_id(1, 18))
+write("coco_image_ids", "duplicate", coco_id(0, 2) + coco_id(2, 2))
+
+# holosoma's training configuration for the reference robot (a synthetic one, in its layout: the
+# robot's efforts and standing pose, the control's action scale by effort over stiffness, the actor
+# group's terms with their scales, the motion command's anchor body).
+import tomllib
+
+joints = [j["name"] for j in tomllib.loads((ROOT.parent.parent.parent / "robots" / "biped" / "robot.toml").read_text())["joints"]]
+holosoma = {
+    "robot": {
+        "dof_effort_limit_list": [20.0] * len(joints),
+        "init_state": {"default_joint_angles": {j: 0.0 for j in joints}},
+        "control": {"action_scale": 0.25, "action_scales_by_effort_limit_over_p_gain": True,
+                    "clip_actions": True, "action_clip_value": 100.0},
+    },
+    "observation": {"groups": {"actor_obs": {"history_length": 1, "terms": {
+        "motion_command": {"func": "holosoma.managers.observation.terms.wbt:motion_command", "scale": 1.0, "clip": None},
+        "base_ang_vel": {"func": "holosoma.managers.observation.terms.wbt:base_ang_vel", "scale": 0.25, "clip": None},
+        "dof_pos": {"func": "holosoma.managers.observation.terms.wbt:dof_pos", "scale": 1.0, "clip": None},
+        "dof_vel": {"func": "holosoma.managers.observation.terms.wbt:dof_vel", "scale": 0.05, "clip": None},
+        "actions": {"func": "holosoma.managers.observation.terms.wbt:actions", "scale": 1.0, "clip": None},
+    }}}},
+    "command": {"setup_terms": {"motion_command": {"params": {"motion_config": {"body_name_ref": ["pelvis"]}}}}},
+}
+write("holosoma_metadata", "reference_robot.json", json.dumps(holosoma, indent=1))
+holosoma["observation"]["groups"]["actor_obs"]["history_length"] = 4
+write("holosoma_metadata", "history_4.json", json.dumps(holosoma))

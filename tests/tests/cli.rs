@@ -1344,3 +1344,19 @@ fn bundle_refuses_an_out_it_would_pack_or_overwrite_and_clips_that_clash_or_are_
     assert!(std::fs::metadata(&existing).unwrap().len() > 1000);
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn play_that_cannot_open_its_buses_still_ends_with_its_result_line() {
+    // No `can0` on a test machine: the run cannot start, and says so as its last line.
+    let out = robodeploy()
+        .args(["play", "--hardware", "--no-record"])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let last = stdout.lines().last().unwrap_or_default();
+    assert_eq!(out.status.code(), Some(5), "{stdout}");
+    assert!(
+        last.starts_with("result: I/O failure: ") && last.contains("can0"),
+        "{stdout}"
+    );
+}

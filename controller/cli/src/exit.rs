@@ -47,7 +47,24 @@ fn of_kind(kind: ErrorKind) -> u8 {
 /// The status of a command that failed with `error`: the first error in its chain whose kind is
 /// known decides.
 pub fn of_error(error: &anyhow::Error) -> ExitCode {
-    ExitCode::from(error.chain().find_map(code_of).unwrap_or(FAILED))
+    ExitCode::from(status_of_error(error))
+}
+
+/// [`of_error`] as a number.
+pub fn status_of_error(error: &anyhow::Error) -> u8 {
+    error.chain().find_map(code_of).unwrap_or(FAILED)
+}
+
+/// What a status means, in the words of the table above.
+pub fn meaning(status: u8) -> &'static str {
+    match status {
+        FINISHED => "finished",
+        BAD_INPUT => "bad input, nothing moved",
+        SAFETY_STOP => "safety stop",
+        OPERATOR_STOP => "stopped by the operator",
+        IO_FAILURE => "I/O failure",
+        _ => "failed",
+    }
 }
 
 fn code_of(e: &(dyn std::error::Error + 'static)) -> Option<u8> {

@@ -198,6 +198,16 @@ fn run() -> Result<std::process::ExitCode> {
     result
 }
 
+/// `play` and `teleop` end with their `result:` line also when they fail before the run (a bus
+/// that cannot open, a file refused): scripts read the last line whatever happened.
+fn with_result_line(result: Result<std::process::ExitCode>) -> Result<std::process::ExitCode> {
+    if let Err(e) = &result {
+        let status = exit::status_of_error(e);
+        println!("result: {}: {e:#}", exit::meaning(status));
+    }
+    result
+}
+
 fn dispatch(command: Command) -> Result<std::process::ExitCode> {
     let done = |r: Result<()>| r.map(|()| std::process::ExitCode::SUCCESS);
     match command {
@@ -211,11 +221,11 @@ fn dispatch(command: Command) -> Result<std::process::ExitCode> {
         Command::Bus(cmd) => done(bus::run(cmd)),
         Command::Calibrate(cmd) => done(calibrate::run(cmd)),
         Command::Sim(cmd) => done(sim::run(cmd)),
-        Command::Play(args) => play::play(&args),
+        Command::Play(args) => with_result_line(play::play(&args)),
         Command::Check(args) => done(play::check(&args)),
         Command::Batch(args) => done(batch::run(&args)),
         Command::Retarget(args) => done(retarget::run(&args)),
-        Command::Teleop(args) => teleop::teleop(&args),
+        Command::Teleop(args) => with_result_line(teleop::teleop(&args)),
         Command::Soak(args) => soak::run(&args),
         Command::Vr(cmd) => done(teleop::vr(cmd)),
         Command::Compare {

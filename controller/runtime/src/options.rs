@@ -345,15 +345,11 @@ mod tests {
     fn run_files_are_named_from_the_recordings_folder_and_found_again_from_there() {
         let here = std::env::current_dir().unwrap();
         let m = RunMetadata {
-            robot: here.join("robots/biped/robot.toml"),
-            policy: "robots/biped/policies/p.toml".into(),
             clip: Some("/elsewhere/clip.csv".into()),
-            command: None,
-            command_source: None,
-            generator: None,
-            keypoints: None,
-            options: PlayOptions::default(),
-            recorded_in: None,
+            ..files(
+                here.join("robots/biped/robot.toml"),
+                "robots/biped/policies/p.toml".into(),
+            )
         };
         let dir = here.join("out/runs");
         let stored = m.relative_to(&dir);
@@ -376,9 +372,20 @@ mod tests {
         std::fs::create_dir_all(project.join("out")).unwrap();
         std::fs::create_dir_all(&elsewhere).unwrap();
         std::fs::write(project.join("robot.toml"), "").unwrap();
-        let m = RunMetadata {
-            robot: project.join("robot.toml"),
-            policy: project.join("policy.toml"),
+        let m = files(project.join("robot.toml"), project.join("policy.toml"));
+        let stored = m.relative_to(&project.join("out"));
+        let moved = stored.resolved_from(&elsewhere);
+        assert_eq!(normalize(&moved.robot), project.join("robot.toml"));
+        // A file found nowhere keeps the path beside the recording (the error names it there).
+        assert_eq!(moved.policy, elsewhere.join("../policy.toml"));
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+
+    /// A run of `robot` and `policy` with nothing else.
+    fn files(robot: PathBuf, policy: PathBuf) -> RunMetadata {
+        RunMetadata {
+            robot,
+            policy,
             clip: None,
             command: None,
             command_source: None,
@@ -386,13 +393,7 @@ mod tests {
             keypoints: None,
             options: PlayOptions::default(),
             recorded_in: None,
-        };
-        let stored = m.relative_to(&project.join("out"));
-        let moved = stored.resolved_from(&elsewhere);
-        assert_eq!(normalize(&moved.robot), project.join("robot.toml"));
-        // A file found nowhere keeps the path beside the recording (the error names it there).
-        assert_eq!(moved.policy, elsewhere.join("../policy.toml"));
-        std::fs::remove_dir_all(&root).unwrap();
+        }
     }
 
     /// `a/b/../c` → `a/c`, lexically.

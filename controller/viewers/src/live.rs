@@ -34,6 +34,32 @@ impl ServerListener for Subscriptions {
     }
 }
 
+/// Messages queued per viewer before the oldest are dropped (the server's own bound): a viewer
+/// that stops reading costs at most this many.
+pub const VIEWER_BACKLOG: usize = 256;
+
+/// The live server's runtime: one worker thread at the lowest priority (nice 19), so viewers —
+/// however many, however slow — get what the loop and the bus threads leave of the cores.
+fn runtime() -> Result<&'static tokio::runtime::Runtime, String> {
+    static RUNTIME: std::sync::OnceLock<Result<tokio::runtime::Runtime, String>> = std::sync::OnceLock::new();
+    RUNTIME
+        .get_or_init(|| {
+            tokio::runtime::Builder::new_multi_thread()
+                .worker_threads(1)
+                .max_blocking_threads(1)
+                .thread_name("live-view")
+                .on_thread_start(|| {
+                    // Refused nowhere a process may lower its own priority; ignored if it is.
+                    let _ = rustix::process::nice(19);
+                })
+                .enable_all()
+                .build()
+                .map_err(|e| e.to_string())
+        })
+        .as_ref()
+        .map_err(Clone::clone)
+}
+
 /// A running live view.
 pub struct LiveView {
     context: Arc<foxglove::Context>,
@@ -53,16 +79,18 @@ impl LiveView {
     pub fn serve(addr: SocketAddr, name: &str) -> Result<Self, LiveError> {
         let context = foxglove::Context::new();
         let subscriptions = Arc::new(Subscriptions::default());
-        let server = context
+        let runtime = runtime().map_err(|message| LiveError { addr, message })?;
+        let builder = context
             .websocket_server()
+            .message_backlog_size(VIEWER_BACKLOG)
             .name(name)
             .bind(addr.ip().to_string(), addr.port())
-            .listener(Arc::clone(&subscriptions) as Arc<dyn ServerListener>)
-            .start_blocking()
-            .map_err(|e| LiveError {
-                addr,
-                message: e.to_string(),
-            })?;
+            .listener(Arc::clone(&subscriptions) as Arc<dyn ServerListener>);
+        // Started inside the runtime, the server runs on it.
+        let server = runtime.block_on(builder.start()).map_err(|e| LiveError {
+            addr,
+            message: e.to_string(),
+        })?;
         let bound = SocketAddr::new(addr.ip(), server.port());
         Ok(Self {
             context,
@@ -130,4 +158,28 @@ impl Drop for LiveView {
 /// Hands an encoded message to a live channel, stamped with the recording's time.
 pub fn publish(channel: &foxglove::RawChannel, data: &[u8], time_ns: u64) {
     channel.log_with_meta(data, foxglove::PartialMetadata::with_log_time(time_ns));
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_live_server_runs_on_its_own_thread_at_the_lowest_priority() {
+        let view = LiveView::serve("127.0.0.1:0".parse().unwrap(), "test").unwrap();
+        assert!(view.addr().ip().is_loopback());
+        // A task of the server's runtime, as the server's own run: on a thread named for it,
+        // at nice 19.
+        let runtime = runtime().unwrap();
+        let (name, nice) = runtime
+            .block_on(runtime.spawn(async {
+                (
+                    std::thread::current().name().map(str::to_owned),
+                    rustix::process::getpriority_process(None),
+                )
+            }))
+            .unwrap();
+        assert_eq!(name.as_deref(), Some("live-view"));
+        assert_eq!(nice.unwrap(), 19);
+    }
 }

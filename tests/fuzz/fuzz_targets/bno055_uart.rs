@@ -3,44 +3,4 @@
 //! chip (every answer a well-formed response, nothing else).
 #![no_main]
 
-use firmware_bridge::imu::bno055::{Bno055, Bno055Host, READ_RESPONSE, STATUS_RESPONSE};
-use firmware_bridge::time::SimInstant;
-use libfuzzer_sys::fuzz_target;
-
-fuzz_target!(|data: &[u8]| {
-    let mut host = Bno055Host::new(100.0);
-    let mut t = 0.0;
-    for chunk in data.chunks(9) {
-        let _ = host.request(t);
-        t += 0.003;
-        host.feed(chunk, |s| {
-            assert!(
-                s.quat
-                    .iter()
-                    .chain(&s.gyro)
-                    .chain(&s.accel)
-                    .all(|v| v.is_finite())
-            );
-            let norm = s.quat.iter().map(|q| q * q).sum::<f64>();
-            assert!((norm - 1.0).abs() < 1e-9, "{:?}", s.quat);
-        });
-    }
-    let mut chip = Bno055::new();
-    let mut out = Vec::new();
-    for (k, chunk) in data.chunks(5).enumerate() {
-        out.clear();
-        chip.receive(SimInstant::from_nanos(k as u64 * 1_000_000), chunk, &mut out);
-        let mut rest = &out[..];
-        while !rest.is_empty() {
-            match rest[0] {
-                STATUS_RESPONSE => rest = &rest[2..],
-                READ_RESPONSE => {
-                    let len = usize::from(rest[1]);
-                    assert!((1..=128).contains(&len));
-                    rest = &rest[2 + len..];
-                }
-                other => panic!("answer starts with {other:#04x}"),
-            }
-        }
-    }
-});
+libfuzzer_sys::fuzz_target!(|data: &[u8]| fuzz_targets::bno055_uart::run(data));

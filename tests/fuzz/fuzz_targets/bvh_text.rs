@@ -2,15 +2,4 @@
 //! taken without a panic.
 #![no_main]
 
-use libfuzzer_sys::fuzz_target;
-
-fuzz_target!(|data: &[u8]| {
-    let Ok(text) = std::str::from_utf8(data) else {
-        return;
-    };
-    if let Ok(bvh) = human::bvh::Bvh::parse(std::path::Path::new("fuzz.bvh"), text) {
-        assert!(bvh.frames() >= 1);
-        let _ = bvh.pose(0);
-        let _ = bvh.pose(bvh.frames() - 1);
-    }
-});
+libfuzzer_sys::fuzz_target!(|data: &[u8]| fuzz_targets::bvh_text::run(data));

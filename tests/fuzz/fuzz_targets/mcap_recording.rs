@@ -2,14 +2,4 @@
 //! check and the message walk.
 #![no_main]
 
-use libfuzzer_sys::fuzz_target;
-
-fuzz_target!(|data: &[u8]| {
-    if analysis::recording::check_chunks(data).is_ok() {
-        let mut n = 0u64;
-        let _ = analysis::recording::for_each_message(data, |m| {
-            n += m.data.len() as u64;
-            Ok(())
-        });
-    }
-});
+libfuzzer_sys::fuzz_target!(|data: &[u8]| fuzz_targets::mcap_recording::run(data));

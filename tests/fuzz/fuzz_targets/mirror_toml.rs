@@ -2,14 +2,4 @@
 //! the range check against the reference robot (joints named, periods, noise, latencies, masses).
 #![no_main]
 
-use libfuzzer_sys::fuzz_target;
-use sim2real::config::MirrorConfig;
-
-fuzz_target!(|data: &[u8]| {
-    let Ok(text) = std::str::from_utf8(data) else {
-        return;
-    };
-    if let Ok(config) = toml::from_str::<MirrorConfig>(text) {
-        let _ = config.check(robodeploy_fuzz::reference_robot());
-    }
-});
+libfuzzer_sys::fuzz_target!(|data: &[u8]| fuzz_targets::mirror_toml::run(data));

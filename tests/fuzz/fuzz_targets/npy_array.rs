@@ -2,8 +2,4 @@
 //! parser, which must refuse impossible shapes rather than allocate them.
 #![no_main]
 
-use libfuzzer_sys::fuzz_target;
-
-fuzz_target!(|data: &[u8]| {
-    let _ = controller::npy::parse_npy(data);
-});
+libfuzzer_sys::fuzz_target!(|data: &[u8]| fuzz_targets::npy_array::run(data));

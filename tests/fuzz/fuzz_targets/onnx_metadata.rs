@@ -4,40 +4,4 @@
 //! manifest against the reference robot, as `play --policy export.onnx` runs them.
 #![no_main]
 
-use std::collections::BTreeMap;
-
-use policy::PolicyManifest;
-use policy::export::{ModelFacts, fill};
-use libfuzzer_sys::fuzz_target;
-
-fuzz_target!(|data: &[u8]| {
-    let Some((&first, rest)) = data.split_first() else {
-        return;
-    };
-    let Ok(text) = std::str::from_utf8(rest) else {
-        return;
-    };
-    let metadata: BTreeMap<String, String> = text
-        .lines()
-        .filter_map(|l| l.split_once('\t'))
-        .map(|(k, v)| (k.to_owned(), v.to_owned()))
-        .collect();
-    let inputs = if first & 1 == 1 {
-        vec!["obs".to_owned(), "time_step".to_owned()]
-    } else {
-        vec!["obs".to_owned()]
-    };
-    let mut manifest = PolicyManifest::for_onnx("/nonexistent/robodeploy-fuzz/export.onnx".into());
-    if fill(&mut manifest, &ModelFacts { metadata, inputs }).is_err() {
-        return;
-    }
-    let Ok(text) = toml::to_string(&manifest) else {
-        return;
-    };
-    let path = std::path::Path::new("/nonexistent/robodeploy-fuzz/policy.toml");
-    if let Ok(layout) =
-        policy::PolicyLayout::parse(path, &text, robodeploy_fuzz::reference_robot())
-    {
-        assert_eq!(layout.action_scale.len(), layout.robot_index.len());
-    }
-});
+libfuzzer_sys::fuzz_target!(|data: &[u8]| fuzz_targets::onnx_metadata::run(data));

@@ -5,27 +5,4 @@
 //! ONNX file's metadata is refused for the missing file rather than loading a model per input.
 #![no_main]
 
-use libfuzzer_sys::fuzz_target;
-
-fuzz_target!(|data: &[u8]| {
-    let Ok(text) = std::str::from_utf8(data) else {
-        return;
-    };
-    let path = std::path::Path::new("/nonexistent/robodeploy-fuzz/policy.toml");
-    if let Ok(layout) =
-        policy::PolicyLayout::parse(path, text, robodeploy_fuzz::reference_robot())
-    {
-        assert_eq!(
-            layout.manifest.joints.len(),
-            robodeploy_fuzz::reference_robot().config.joints.len()
-        );
-    }
-    let generator = std::path::Path::new("/nonexistent/robodeploy-fuzz/generator.toml");
-    if let Ok(d) = controller::generator::GeneratorDescription::from_str(generator, text) {
-        assert!((1..=256).contains(&d.history) && (1..=256).contains(&d.horizon));
-        assert!((1.0..=1000.0).contains(&d.frame_hz) && !d.joints.is_empty());
-        if let Some(c) = &d.command {
-            assert!((1..=16).contains(&c.names.len()) && c.check(&c.values).is_ok());
-        }
-    }
-});
+libfuzzer_sys::fuzz_target!(|data: &[u8]| fuzz_targets::policy_toml::run(data));

@@ -2,10 +2,4 @@
 //! the whole-path tests cover).
 #![no_main]
 
-use libfuzzer_sys::fuzz_target;
-
-fuzz_target!(|data: &[u8]| {
-    if let Ok(text) = std::str::from_utf8(data) {
-        let _ = toml::from_str::<robots::RobotConfig>(text);
-    }
-});
+libfuzzer_sys::fuzz_target!(|data: &[u8]| fuzz_targets::robot_toml::run(data));

@@ -2,22 +2,4 @@
 //! be finite (it reaches the estimator and the policy), its quaternion a unit one.
 #![no_main]
 
-use firmware_bridge::imu::rvc::RvcDecoder;
-use libfuzzer_sys::fuzz_target;
-
-fuzz_target!(|data: &[u8]| {
-    let mut decoder = RvcDecoder::new();
-    for chunk in data.chunks(7) {
-        decoder.feed(chunk, |s| {
-            assert!(
-                s.quat
-                    .iter()
-                    .chain(&s.gyro)
-                    .chain(&s.accel)
-                    .all(|v| v.is_finite())
-            );
-            let norm = s.quat.iter().map(|q| q * q).sum::<f64>();
-            assert!((norm - 1.0).abs() < 1e-9, "{:?}", s.quat);
-        });
-    }
-});
+libfuzzer_sys::fuzz_target!(|data: &[u8]| fuzz_targets::rvc_stream::run(data));

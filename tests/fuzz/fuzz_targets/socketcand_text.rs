@@ -1,18 +1,4 @@
 //! socketcand's text protocol: any bytes through the framer, every message parsed.
 #![no_main]
 
-use firmware_bridge::can::socketcand::{Framer, parse};
-use libfuzzer_sys::fuzz_target;
-
-fuzz_target!(|data: &[u8]| {
-    let mut framer = Framer::default();
-    for chunk in data.chunks(7) {
-        framer.push(chunk);
-        while let Some((span, is_message)) = framer.next_span() {
-            if is_message && let Ok(text) = std::str::from_utf8(framer.bytes(span.clone())) {
-                let _ = parse(text);
-            }
-            framer.consume(span.end);
-        }
-    }
-});
+libfuzzer_sys::fuzz_target!(|data: &[u8]| fuzz_targets::socketcand_text::run(data));

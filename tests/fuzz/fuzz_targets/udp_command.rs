@@ -3,29 +3,4 @@
 //! (they reach the policy as they are).
 #![no_main]
 
-use human::commands::{CommandSpec, Newest, parse_datagram};
-use libfuzzer_sys::fuzz_target;
-
-fn spec() -> CommandSpec {
-    CommandSpec {
-        names: vec!["lin_vel_x".into(), "lin_vel_y".into(), "ang_vel_z".into()],
-        ranges: vec![[-0.5, 1.0], [-0.3, 0.3], [-1.0, 1.0]],
-        default: None,
-        ramp: None,
-        step: None,
-        kinds: None,
-        gamepad: None,
-        timeout_s: 0.5,
-    }
-}
-
-fuzz_target!(|data: &[u8]| {
-    let spec = spec();
-    for newest in [None, Some(Newest { session: 0, seq: 10 })] {
-        if let Ok(m) = parse_datagram(&spec, data, newest) {
-            assert!(spec.check_values(&m.command).is_ok(), "{:?}", m.command);
-            // Ten is inside the window: only a newer one, or another session's, is taken.
-            assert!(newest.is_none_or(|n| m.seq > n.seq || m.session != n.session));
-        }
-    }
-});
+libfuzzer_sys::fuzz_target!(|data: &[u8]| fuzz_targets::udp_command::run(data));

@@ -1,17 +1,4 @@
 //! The WIT AHRS serial stream: any bytes, in any chunking, through the decoder.
 #![no_main]
 
-use firmware_bridge::imu::wit::WitDecoder;
-use libfuzzer_sys::fuzz_target;
-
-fuzz_target!(|data: &[u8]| {
-    let mut decoder = WitDecoder::default();
-    let mut samples = 0usize;
-    for chunk in data.chunks(5) {
-        decoder.feed(chunk, |s| {
-            assert!(s.quat.iter().all(|q| q.is_finite()));
-            samples += 1;
-        });
-    }
-    let _ = samples;
-});
+libfuzzer_sys::fuzz_target!(|data: &[u8]| fuzz_targets::wit_stream::run(data));

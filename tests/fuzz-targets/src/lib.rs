@@ -1,0 +1,65 @@
+//! The fuzz targets' bodies: every parser that takes bytes from outside, with what must hold of
+//! whatever it accepts. `tests/fuzz` wraps each in a cargo-fuzz target (nightly, libFuzzer);
+//! the test suite replays every committed corpus through them on stable, in the one build
+//! (`tests/tests/fuzz_corpora.rs`).
+
+pub mod bno055_uart;
+pub mod bvh_text;
+pub mod clip_csv;
+pub mod coco_image_ids;
+pub mod dxl_packet;
+pub mod feetech_packets;
+pub mod holosoma_metadata;
+pub mod keypoint_inputs;
+pub mod mcap_recording;
+pub mod mirror_toml;
+pub mod mit_frames;
+pub mod motion_csv;
+pub mod npy_array;
+pub mod onnx_metadata;
+pub mod osc_vmc;
+pub mod policy_toml;
+pub mod robot_toml;
+pub mod rvc_stream;
+pub mod socketcand_text;
+pub mod udp_command;
+pub mod wit_stream;
+
+/// A target: one input through its parser.
+pub type Target = fn(&[u8]);
+
+/// Every target by name (its folder under `tests/fuzz/corpus`).
+pub const TARGETS: &[(&str, Target)] = &[
+    ("bno055_uart", bno055_uart::run),
+    ("bvh_text", bvh_text::run),
+    ("clip_csv", clip_csv::run),
+    ("coco_image_ids", coco_image_ids::run),
+    ("dxl_packet", dxl_packet::run),
+    ("feetech_packets", feetech_packets::run),
+    ("holosoma_metadata", holosoma_metadata::run),
+    ("keypoint_inputs", keypoint_inputs::run),
+    ("mcap_recording", mcap_recording::run),
+    ("mirror_toml", mirror_toml::run),
+    ("mit_frames", mit_frames::run),
+    ("motion_csv", motion_csv::run),
+    ("npy_array", npy_array::run),
+    ("onnx_metadata", onnx_metadata::run),
+    ("osc_vmc", osc_vmc::run),
+    ("policy_toml", policy_toml::run),
+    ("robot_toml", robot_toml::run),
+    ("rvc_stream", rvc_stream::run),
+    ("socketcand_text", socketcand_text::run),
+    ("udp_command", udp_command::run),
+    ("wit_stream", wit_stream::run),
+];
+
+/// The reference robot, loaded once per process.
+///
+/// # Panics
+/// When the checkout's reference robot does not load (the fuzzing is then meaningless).
+pub fn reference_robot() -> &'static robots::Robot {
+    static ROBOT: std::sync::OnceLock<robots::Robot> = std::sync::OnceLock::new();
+    ROBOT.get_or_init(|| {
+        robots::Robot::load(&robots::reference_robot_path()).expect("the reference robot loads")
+    })
+}
