@@ -1185,6 +1185,15 @@ impl Robot {
             place: place.to_owned(),
             message,
         };
+        // A model given where its description belongs: say what is expected, not a TOML error.
+        if text.trim_start().starts_with('<') {
+            return Err(err(
+                "file",
+                "is XML (an MJCF model?); a robot is described by a robot.toml that names its model \
+                 (`mjcf = \"scene.xml\"`), its buses and its joints: see robots/*/robot.toml"
+                    .into(),
+            ));
+        }
         let mut config: RobotConfig = toml::from_str(text).map_err(|e| {
             let span = e
                 .span()
@@ -2285,6 +2294,13 @@ mod start_and_safety_tests {
             kp: 10.0,
             kd: 1.0,
         }
+    }
+
+    #[test]
+    fn a_model_given_for_its_description_says_what_is_expected() {
+        let e = Robot::from_str(Path::new("scene.xml"), "<mujoco model=\"g1\">\n</mujoco>\n").unwrap_err();
+        assert_eq!(e.place, "file");
+        assert!(e.message.contains("is XML (an MJCF model?)"), "{e}");
     }
 
     #[test]

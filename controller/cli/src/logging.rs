@@ -67,9 +67,11 @@ struct ThrottledServers {
 
 impl ThrottledServers {
     fn throttled(meta: &tracing::Metadata<'_>) -> bool {
-        THROTTLED_TARGETS
-            .iter()
-            .any(|t| meta.target() == *t || meta.target().starts_with(&format!("{t}::")))
+        THROTTLED_TARGETS.iter().any(|t| {
+            meta.target()
+                .strip_prefix(t)
+                .is_some_and(|rest| rest.is_empty() || rest.starts_with("::"))
+        })
     }
 }
 
