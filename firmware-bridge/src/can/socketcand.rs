@@ -539,6 +539,9 @@ struct Session {
     send_failures: crate::ratelimit::SharedRateLimit,
 }
 
+/// How long a client's frame may wait for room in the bus's transmit queue before it is dropped.
+const QUEUE_WAIT: Duration = Duration::from_secs(1);
+
 #[derive(PartialEq)]
 enum Mode {
     Greeted,
@@ -634,7 +637,7 @@ impl Session {
                     }
                     (Ok(Message::Echo), _) => "< echo >",
                     (Ok(Message::Send(frame)), Mode::Raw) => {
-                        if let Err(e) = self.node.send(&frame) {
+                        if let Err(e) = self.send_waiting(&frame) {
                             self.send_failed(&e);
                         }
                         ""
@@ -666,6 +669,24 @@ impl Session {
             }
         }
         Ok(())
+    }
+
+    /// Sends `frame`, waiting while the node's transmit queue is full, as socketcand's blocking
+    /// write to its CAN socket does: the client's further frames wait in its TCP connection (a
+    /// wire that lags the wall clock delays them, it does not lose them), and a client that leaves
+    /// takes what it had queued with it. Gives up after [`QUEUE_WAIT`], or when stopping.
+    fn send_waiting(&self, frame: &CanFrame) -> Result<(), CanError> {
+        let give_up = Instant::now() + QUEUE_WAIT;
+        loop {
+            match self.node.send(frame) {
+                Err(CanError::TxQueueFull { .. })
+                    if Instant::now() < give_up && !self.stop.load(Ordering::Relaxed) =>
+                {
+                    std::thread::sleep(Duration::from_micros(200));
+                }
+                done => return done,
+            }
+        }
     }
 
     /// A failed send onto the bus (full queue), logged at most once a second.
