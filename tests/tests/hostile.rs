@@ -673,12 +673,57 @@ fn a_two_minute_soak_of_random_faults_keeps_every_command_in_limits_and_every_fa
         .count();
     assert!(kinds >= 2, "{stdout}");
     // The robot was shoved, too.
-    let pushes: usize = stdout
+    assert!(soak_pushes(&stdout) >= 1, "{stdout}");
+}
+
+/// The shoves a soak's summary counts.
+fn soak_pushes(summary: &str) -> usize {
+    summary
         .lines()
         .find_map(|l| l.trim().strip_prefix("pushes: "))
-        .and_then(|n| n.parse().ok())
-        .unwrap_or(0);
-    assert!(pushes >= 1, "{stdout}");
+        .and_then(|n| n.split_whitespace().next()?.parse().ok())
+        .unwrap_or(0)
+}
+
+#[test]
+fn a_soak_on_the_humanoid_goes_from_the_harness_to_walking_and_back_with_every_command_in_limits() {
+    // The G1 on holosoma's walking policy: lowered from its harness, walked on random commands,
+    // shoved, faulted, stopped every way its robot.toml allows. (Seed 1 damps the robot after a
+    // stop with its ankle target held past the joint's limit under torque reach: clamped now.)
+    let robot = test_support::fixtures::workspace_root().join("robots/g1/robot.toml");
+    let policy = test_support::fixtures::workspace_root().join("robots/g1/policies/holosoma_loco_ppo.toml");
+    let (code, stdout, stderr) = run_within(
+        &args(&[
+            &"soak",
+            &"--robot",
+            &robot,
+            &"--policy",
+            &policy,
+            &"--minutes",
+            &"2",
+            &"--seed",
+            &"1",
+        ]),
+        Duration::from_secs(600),
+    );
+    assert_eq!(code, Some(0), "{stdout}{stderr}");
+    assert!(
+        stdout.contains("commands outside limits: 0") && stdout.contains("records lost: 0"),
+        "{stdout}"
+    );
+    assert!(stdout.trim_end().ends_with("PASSED"), "{stdout}");
+    let faults = stdout
+        .lines()
+        .filter(|l| l.contains(" on a joint") || l.contains(" on the IMU"))
+        .count();
+    assert!(faults >= 2, "{stdout}");
+    assert!(soak_pushes(&stdout) >= 1, "{stdout}");
+    // The operator stopped it more than one way, back into the harness among them.
+    let stops = stdout
+        .lines()
+        .find_map(|l| l.trim().strip_prefix("operator stops: "))
+        .unwrap_or_else(|| panic!("no operator stops:\n{stdout}"));
+    assert!(stops.contains("harness") && stops.contains(','), "{stdout}");
 }
 
 #[test]

@@ -6,10 +6,16 @@ use anyhow::Result;
 use clap::Args;
 use robots::Robot;
 
-/// Run a soak on the mirror in lockstep: episodes of random clips and lengths with random device
-/// faults (silent, corrupt, overheating or vanishing motors, servos and the IMU at random times),
-/// checking that every command stays inside the joint's limits, that every fault reaches the
-/// safe state within 6 ticks, and that no record is lost from the recordings.
+/// Run a soak on the mirror in lockstep: episodes of random lengths with random device faults
+/// (silent, corrupt, overheating or vanishing motors, servos and the IMU at random times) and
+/// shoves, checking that every command stays inside the joint's limits, that every fault reaches
+/// the safe state within 6 ticks, that nothing stops without a cause, and that no record is lost
+/// from the recordings.
+///
+/// A robot that starts on its PD plays random clips on its gantry. A robot that starts in a
+/// harness (a humanoid) is lowered under its policy, walks on random commands or plays its
+/// export's motion, and is stopped every way robot.toml allows (damp, stay, sit, back into the
+/// harness): `soak --robot robots/g1/robot.toml --policy robots/g1/policies/holosoma_loco_ppo.toml`.
 #[derive(Debug, Args)]
 pub struct SoakArgs {
     /// Robot description.
@@ -18,7 +24,8 @@ pub struct SoakArgs {
     /// Policy manifest.
     #[arg(long, default_value_os_t = robots::reference_robot_path().with_file_name("policies/reference_follower.toml"))]
     policy: PathBuf,
-    /// Clips to draw from (default: every clip beside the robot).
+    /// Clips to draw from (default: the policy's own reference — its commands, or the motion its
+    /// export carries — else every clip beside the robot).
     #[arg(long, num_args = 1..)]
     clips: Vec<PathBuf>,
     /// Simulated minutes to cover.
@@ -32,17 +39,6 @@ pub struct SoakArgs {
 /// Runs `soak`; fails (exit 3) when anything that must hold did not.
 pub fn run(args: &SoakArgs) -> Result<std::process::ExitCode> {
     let robot = Robot::load(&args.robot)?;
-    let clips = if args.clips.is_empty() {
-        let mut found: Vec<PathBuf> = std::fs::read_dir(robot.path.with_file_name("clips"))?
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| p.extension().is_some_and(|x| x == "csv"))
-            .collect();
-        found.sort();
-        found
-    } else {
-        args.clips.clone()
-    };
-    anyhow::ensure!(!clips.is_empty(), "no clips to soak with (--clips)");
     let scratch = std::env::temp_dir().join(format!("robodeploy-soak-{}", std::process::id()));
     let bar = indicatif::ProgressBar::new(1000);
     bar.set_style(
@@ -53,7 +49,7 @@ pub fn run(args: &SoakArgs) -> Result<std::process::ExitCode> {
         &analysis::soak::SoakSpec {
             robot: &robot,
             policy: &args.policy,
-            clips: &clips,
+            clips: &args.clips,
             seconds: args.minutes * 60.0,
             seed: args.seed,
             scratch: &scratch,

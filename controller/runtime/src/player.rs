@@ -1022,9 +1022,21 @@ impl<L: RobotLink> Player<L> {
     }
 
     fn damping_targets(&mut self) {
-        for (t, &kd) in self.targets.iter_mut().zip(&self.policy.layout.kd) {
+        for ((t, &kd), j) in self
+            .targets
+            .iter_mut()
+            .zip(&self.policy.layout.kd)
+            .zip(&self.robot.config.joints)
+        {
+            // Without stiffness the position does nothing, but what leaves the controller stays
+            // inside the joint's limits all the same (a target past them under torque reach).
+            let [lo, hi] = j.position_limits;
             *t = JointTarget {
-                q: t.q,
+                q: if t.q.is_finite() {
+                    t.q.clamp(lo, hi)
+                } else {
+                    j.default_position
+                },
                 kd,
                 enabled: true,
                 ..JointTarget::default()
