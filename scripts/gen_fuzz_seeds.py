@@ -29,6 +29,9 @@ mutates them into the ones it must refuse. None is third-party material:
   onnx_metadata/   the metadata of rd-biped tracking exports as scripts/gen_tracking_export.py
                    writes them (a byte for the time_step input, then key TAB value lines): the
                    BeyondMimic keys, and mjlab's per-term history/scale/clip keys.
+  live_client_messages/  what a viewer sends the live server: the protocol's subscribe,
+                   unsubscribe, advertise, client message data, parameter, connection-graph,
+                   asset and service-call operations, each offered under a subprotocol, and junk.
   mcap_recording/  a tiny recording (two channels, three messages), lz4- and zstd-compressed
                    chunks, written with the `mcap` Python package of the project's venv.
 
@@ -272,3 +275,30 @@ holosoma = {
 write("holosoma_metadata", "reference_robot.json", json.dumps(holosoma, indent=1))
 holosoma["observation"]["groups"]["actor_obs"]["history_length"] = 4
 write("holosoma_metadata", "history_4.json", json.dumps(holosoma))
+
+# What a viewer sends the live server: the subprotocol byte (0 foxglove.sdk.v1, 1 the older
+# foxglove.websocket.v1, 2 none), then frames of a kind byte (0 text, 1 binary, 2 ping, 3 close),
+# a little-endian u16 length and the payload: the protocol's operations as its specification
+# writes them.
+def frame(kind, payload):
+    if isinstance(payload, str):
+        payload = payload.encode()
+    return bytes([kind]) + struct.pack("<H", len(payload)) + payload
+
+
+def op(**fields):
+    return frame(0, json.dumps(fields))
+
+
+write("live_client_messages", "subscribe_unsubscribe",
+      bytes([0]) + op(op="subscribe", subscriptions=[{"id": 1, "channelId": 1}, {"id": 2, "channelId": 99}])
+      + op(op="unsubscribe", subscriptionIds=[1, 2, 3]) + frame(3, b""))
+write("live_client_messages", "advertise_and_publish",
+      bytes([1]) + op(op="advertise", channels=[{"id": 5, "topic": "/cmd", "encoding": "json", "schemaName": "cmd"}])
+      + frame(1, bytes([1]) + struct.pack("<I", 5) + b'{"x": 1}') + op(op="unadvertise", channelIds=[5]))
+write("live_client_messages", "parameters_and_services",
+      bytes([2]) + op(op="getParameters", parameterNames=["a"], id="p")
+      + op(op="setParameters", parameters=[{"name": "a", "value": 1}])
+      + op(op="subscribeConnectionGraph") + op(op="fetchAsset", uri="package://robot.urdf", requestId=1)
+      + frame(1, bytes([2]) + struct.pack("<III", 1, 2, 4) + b"json" + b"{}") + frame(2, b"ping"))
+write("live_client_messages", "junk", bytes([3]) + b"x-proto" + frame(0, "{not json") + frame(1, b"\xff" * 40))

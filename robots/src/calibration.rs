@@ -149,6 +149,7 @@ mod tests {
             std::fs::read_to_string(previous_path_for(&robot_toml)).unwrap(),
             first
         );
+        let _ = std::fs::remove_dir_all(robot_toml.parent().unwrap());
     }
 
     #[test]
@@ -164,5 +165,6 @@ mod tests {
         std::fs::write(path_for(&robot_toml), "[joints.left_knee]\nzero_offset = \"x\"\n").unwrap();
         let e = crate::Robot::load(&robot_toml).unwrap_err().to_string();
         assert!(e.contains("calibration.toml"), "{e}");
+        let _ = std::fs::remove_dir_all(robot_toml.parent().unwrap());
     }
 }

@@ -20,6 +20,7 @@ Prints one JSON line of figures; exits non-zero with the reason on any failure. 
 import argparse
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -183,6 +184,8 @@ def main():
         figures["check_refused"] = sum(1 for r in checked.values() if r["problems"])
     finally:
         sh([VENV_BIN / "ray", "stop", "--force"])
+        # Ray's session logs and object spill (~110 MB a run): nothing a later run reads.
+        shutil.rmtree(temp, ignore_errors=True)
     print(json.dumps(figures), flush=True)
 
 

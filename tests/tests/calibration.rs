@@ -23,8 +23,32 @@ use sim2real::mirror::Mirror;
 
 const PERIOD: Duration = Duration::from_millis(20);
 
-/// A copy of the reference robot in a fresh folder (calibration writes beside robot.toml).
-fn robot_copy(name: &str) -> PathBuf {
+/// A copy of the reference robot's robot.toml in a fresh folder (calibration writes beside it),
+/// the folder removed when the copy goes out of scope.
+struct RobotCopy(PathBuf);
+
+impl std::ops::Deref for RobotCopy {
+    type Target = Path;
+    fn deref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl AsRef<std::ffi::OsStr> for RobotCopy {
+    fn as_ref(&self) -> &std::ffi::OsStr {
+        self.0.as_os_str()
+    }
+}
+
+impl Drop for RobotCopy {
+    fn drop(&mut self) {
+        if let Some(dir) = self.0.parent() {
+            let _ = std::fs::remove_dir_all(dir);
+        }
+    }
+}
+
+fn robot_copy(name: &str) -> RobotCopy {
     let dir = std::env::temp_dir().join(format!("robodeploy-cal-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
@@ -32,7 +56,7 @@ fn robot_copy(name: &str) -> PathBuf {
     for file in ["robot.toml", "biped.xml"] {
         std::fs::copy(src.with_file_name(file), dir.join(file)).unwrap();
     }
-    dir.join("robot.toml")
+    RobotCopy(dir.join("robot.toml"))
 }
 
 /// A machine unlike its description: flipped directions and offsets on both bus kinds (one puts

@@ -56,6 +56,7 @@ fn doctor_rejects_a_bad_model_with_its_path() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
     assert!(stderr.contains(&bad.display().to_string()), "{stderr}");
+    let _ = std::fs::remove_file(&bad);
 }
 
 #[test]

@@ -88,6 +88,7 @@ fn missing_and_corrupt_models_name_the_file() {
     let err = OnnxModel::load(&garbage).unwrap_err();
     assert!(matches!(err, OnnxError::Load { .. }), "{err}");
     assert!(err.to_string().contains(&garbage.display().to_string()), "{err}");
+    let _ = std::fs::remove_file(&garbage);
 }
 
 #[test]

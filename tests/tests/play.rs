@@ -356,6 +356,7 @@ fn a_steady_state_tick_allocates_nothing() {
     });
     assert_eq!(p.mode(), Mode::Running);
     assert!(stats.is_zero(), "{stats:?}");
+    let _ = std::fs::remove_file(&path);
 }
 
 #[test]

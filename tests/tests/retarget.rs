@@ -38,6 +38,7 @@ fn a_cmu_recording_becomes_a_clip_the_checker_accepts() {
     let quality = analysis::motion_check::analyze(&robot, &reference).unwrap();
     assert_eq!(quality.penetration_ticks, 0, "{quality}");
     assert!(quality.problems().is_empty(), "{:?}", quality.problems());
+    let _ = std::fs::remove_file(&path);
 }
 
 #[test]
@@ -98,4 +99,6 @@ fn the_cli_writes_and_checks_the_clip_and_names_bad_input() {
         !ok && text.contains(":4:") && text.contains("expected 3 finite numbers"),
         "{text}"
     );
+    let _ = std::fs::remove_file(&broken);
+    let _ = std::fs::remove_file(&out);
 }

@@ -11,6 +11,7 @@ pub mod dxl_packet;
 pub mod feetech_packets;
 pub mod holosoma_metadata;
 pub mod keypoint_inputs;
+pub mod live_client_messages;
 pub mod mcap_recording;
 pub mod mirror_toml;
 pub mod mit_frames;
@@ -38,6 +39,7 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("feetech_packets", feetech_packets::run),
     ("holosoma_metadata", holosoma_metadata::run),
     ("keypoint_inputs", keypoint_inputs::run),
+    ("live_client_messages", live_client_messages::run),
     ("mcap_recording", mcap_recording::run),
     ("mirror_toml", mirror_toml::run),
     ("mit_frames", mit_frames::run),
