@@ -17,6 +17,19 @@ use sim2real::serve::ServedMirror;
 
 #[test]
 fn drivers_hold_the_served_biped_over_socketcand_and_pseudo_terminals() {
+    // In real time beside the test's own driving: a host starved by other work may time out a
+    // motor (correctly); such an attempt is measured, said and tried again.
+    if let Some(held) = test_support::starvation::judged_unstarved(
+        "driving the served biped",
+        hold_the_served_biped,
+        Result::is_ok,
+    ) {
+        held.unwrap();
+    }
+}
+
+/// Drives the served biped's default pose for 1.5 s over its real wires; what went wrong.
+fn hold_the_served_biped() -> Result<(), String> {
     // This host loop cycles every 20 ms on a shared machine: the motors get a command timeout
     // (200 ms) that a starved test thread cannot outlast, instead of the 40 ms of the robot's own
     // 250 Hz buses.
@@ -80,7 +93,7 @@ fn drivers_hold_the_served_biped_over_socketcand_and_pseudo_terminals() {
                     tau: 0.0,
                 })
                 .collect();
-            d.cycle(&cmds).unwrap();
+            d.cycle(&cmds).map_err(|e| format!("MIT cycle: {e}"))?;
         }
         let cmds: Vec<_> = dxl_idx
             .iter()
@@ -92,34 +105,33 @@ fn drivers_hold_the_served_biped_over_socketcand_and_pseudo_terminals() {
                 ),
             })
             .collect();
-        dxl.cycle(&cmds).unwrap();
-        if imu.poll().unwrap().is_some() {
+        dxl.cycle(&cmds).map_err(|e| format!("Dynamixel cycle: {e}"))?;
+        if imu.poll().map_err(|e| format!("IMU: {e}"))?.is_some() {
             imu_samples += 1;
         }
         std::thread::sleep(Duration::from_millis(20));
     }
     for (d, idx) in &mit {
         for (f, &i) in d.feedback().iter().zip(idx) {
-            assert!(
-                (f.q - joints[i].default_position).abs() < 0.1,
-                "{}: {}",
-                joints[i].name,
-                f.q
-            );
+            if (f.q - joints[i].default_position).abs() >= 0.1 {
+                return Err(format!("{}: {}", joints[i].name, f.q));
+            }
         }
     }
     for (f, &i) in dxl.feedback().iter().zip(&dxl_idx) {
-        assert!(
-            !f.is_stale() && (f.q - joints[i].default_position).abs() < 0.1,
-            "{}: {:?}",
-            joints[i].name,
-            f
-        );
+        if f.is_stale() || (f.q - joints[i].default_position).abs() >= 0.1 {
+            return Err(format!("{}: {f:?}", joints[i].name));
+        }
     }
-    let sample = imu.poll().unwrap().expect("IMU samples arrived").sample;
-    assert!(
-        imu_samples > 10 && (sample.accel[2] - 9.81).abs() < 1.0,
-        "{imu_samples} samples, last {sample:?}"
-    );
+    let sample = imu
+        .poll()
+        .map_err(|e| format!("IMU: {e}"))?
+        .ok_or("no IMU sample arrived")?
+        .sample;
+    if !(imu_samples > 10 && (sample.accel[2] - 9.81).abs() < 1.0) {
+        return Err(format!("{imu_samples} IMU samples, last {sample:?}"));
+    }
+    // A corrupted byte is a fault of the wire, whatever the load.
     assert_eq!(imu.stats().checksum_errors, 0);
+    Ok(())
 }
