@@ -130,6 +130,7 @@ fn the_generator_feeds_the_follower_for_a_minute_without_allocating_in_the_tick(
         "{summary}"
     );
     let (reference_jitter, robot_jitter) = summary.jitter_rad_s3.expect("jitter over the run");
+    let reference_jitter = reference_jitter.expect("a generated reference has its jitter");
     assert!(reference_jitter > 0.0 && robot_jitter > 0.0);
     let stats = run.worker.finish();
     // 61 s of generator time at 10 steps a second, two steps ahead of the loop.

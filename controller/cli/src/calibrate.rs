@@ -283,6 +283,7 @@ impl Rig for RecordedRig<'_> {
             reference_q: &self.reference,
             reference_root: [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
             tracking: false,
+            policy_ran: false,
             anchors: None,
             body_errors: &[],
             generated: None,

@@ -65,7 +65,7 @@ pub struct PlaySummary {
     pub locomotion: Option<LocomotionSummary>,
     /// The jitter (mean |d³q/dt³|, rad/s³) of the reference and of the robot's joints over the
     /// tracked ticks.
-    pub jitter_rad_s3: Option<(f64, f64)>,
+    pub jitter_rad_s3: Option<(Option<f64>, f64)>,
     /// A generated reference: the generator's steps, latency and lateness.
     pub generator: Option<crate::generator::GeneratorSummary>,
     /// 2D keypoint references: the robot's keypoints against them.
@@ -76,6 +76,8 @@ pub struct PlaySummary {
     pub telemetry: Option<crate::telemetry::TelemetryReport>,
     /// Why the recording failed, if it did (the run itself went on).
     pub telemetry_error: Option<String>,
+    /// The policy ran on its commands, with no clip (its figures are the course it walked).
+    pub command_driven: bool,
 }
 
 impl std::fmt::Display for PlaySummary {
@@ -85,10 +87,18 @@ impl std::fmt::Display for PlaySummary {
             "ran {} ticks ({:.2} s), {} overruns",
             self.ticks, self.duration_s, self.overruns
         )?;
-        if let Some(l) = &self.locomotion {
-            write!(f, "{l}")?;
-        } else {
-            writeln!(f, "joint tracking RMSE: {:.2}°", self.joint_rmse.to_degrees())?;
+        // What fits the run: a command-driven one has no clip to track, a run that never
+        // tracked has no error — said, never a NaN.
+        match (&self.locomotion, self.command_driven) {
+            (Some(l), _) => write!(f, "{l}")?,
+            (None, true) => writeln!(
+                f,
+                "distance: not measured (the policy never drove the robot with its pose known)"
+            )?,
+            (None, false) if self.joint_rmse.is_nan() => {
+                writeln!(f, "joint tracking RMSE: none (no tick tracked the reference)")?;
+            }
+            (None, false) => writeln!(f, "joint tracking RMSE: {:.2}°", self.joint_rmse.to_degrees())?,
         }
         if let Some(c) = &self.command_sources {
             writeln!(f, "commands: {c}")?;
@@ -130,7 +140,7 @@ impl std::fmt::Display for PlaySummary {
             )?,
         }
         writeln!(f, "fell: {}", if self.fell { "YES" } else { "no" })?;
-        if self.locomotion.is_some() {
+        if self.command_driven {
             writeln!(
                 f,
                 "success (no fall, no safety stop): {}",
@@ -162,11 +172,13 @@ impl std::fmt::Display for PlaySummary {
         writeln!(f, "compute per tick: {}", self.compute)?;
         writeln!(f, "bus I/O per tick: {}", self.io)?;
         writeln!(f, "tick start lateness: {}", self.jitter)?;
-        if let Some((r, q)) = self.jitter_rad_s3 {
-            writeln!(
+        match self.jitter_rad_s3 {
+            Some((Some(r), q)) => writeln!(
                 f,
                 "jitter (mean |d³q/dt³|): reference {r:.1} rad/s³, robot {q:.1} rad/s³"
-            )?;
+            )?,
+            Some((None, q)) => writeln!(f, "jitter (mean |d³q/dt³|): robot {q:.1} rad/s³")?,
+            None => {}
         }
         if let Some(g) = &self.generator {
             write!(f, "{g}")?;
@@ -740,7 +752,11 @@ impl RunMetrics {
             }),
             estimator_held_ticks: self.estimator.held_ticks,
             locomotion: self.locomotion.as_ref().and_then(LocomotionMetrics::summary),
-            jitter_rad_s3: self.reference_jitter.mean().zip(self.robot_jitter.mean()),
+            jitter_rad_s3: self
+                .robot_jitter
+                .mean()
+                .map(|q| (self.reference_jitter.mean(), q)),
+            command_driven: self.locomotion.is_some(),
             generator: None,
             keypoints: None,
             command_sources: None,

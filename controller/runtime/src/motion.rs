@@ -87,6 +87,17 @@ impl Alignment {
         )
     }
 
+    /// A pose of the robot's world back in the reference's own frame (the inverse of
+    /// [`Self::apply`]).
+    pub fn undo(&self, pose: [f64; 7]) -> [f64; 7] {
+        let p = self.undo_point([pose[0], pose[1], pose[2]]);
+        let q = spatial::quat_mul(
+            spatial::quat_conj(self.turn),
+            [pose[3], pose[4], pose[5], pose[6]],
+        );
+        [p[0], p[1], p[2], q[0], q[1], q[2], q[3]]
+    }
+
     /// `pose` moved with the reference.
     pub fn apply(&self, pose: [f64; 7]) -> [f64; 7] {
         let p = spatial::add(

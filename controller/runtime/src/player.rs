@@ -62,6 +62,10 @@ struct ReferenceStage {
     /// The reference of the previous tick and, per joint, the reference at its sample's time.
     previous_reference: Vec<f64>,
     aligned_reference: Vec<f64>,
+    /// This tick's sample entered the run's tracking metrics, against `aligned_reference` and
+    /// this reference root: what the tick's record says, so a report made from the recording
+    /// measures the same window against the same reference as the loop's summary.
+    tracked: Option<[f64; 7]>,
     /// The robot's anchor and the reference's as the last policy tick observed them.
     anchors: Option<([f64; 7], [f64; 7])>,
     /// Position error of each tracked motion body at the last policy tick, m (simulation).
@@ -92,6 +96,8 @@ struct PolicyStage {
     command_driven: bool,
     /// Steps the policy took since it took control (its phase counter).
     policy_steps: u64,
+    /// The policy drove the robot this tick (its metrics' window).
+    ran: bool,
     /// The gait phase of a policy that observes one.
     gait: Option<policy::GaitClock>,
 }
@@ -299,6 +305,7 @@ impl<L: RobotLink> Player<L> {
                 cursor,
                 previous_reference: default_q.clone(),
                 aligned_reference: default_q.clone(),
+                tracked: None,
                 anchors: None,
                 body_errors: vec![0.0; tracked_bodies],
                 has_body_errors: false,
@@ -339,6 +346,7 @@ impl<L: RobotLink> Player<L> {
                 commands,
                 command_driven,
                 policy_steps: 0,
+                ran: false,
                 gait: policy::GaitClock::of(&layout),
                 layout,
             },
@@ -665,6 +673,8 @@ impl<L: RobotLink> Player<L> {
         let t0 = Instant::now();
         let read = self.io.read(&mut self.state);
         let t_read = t0.elapsed();
+        self.reference.tracked = None;
+        self.policy.ran = false;
         let has_truth = clock.ground_truth(&mut self.world.truth);
         let c0 = Instant::now();
         if let Err(e) = read {
@@ -726,9 +736,21 @@ impl<L: RobotLink> Player<L> {
                 mode: self.lifecycle.machine.mode,
                 state: &self.state,
                 targets: &self.targets,
-                reference_q: self.reference.cursor.current_q(),
-                reference_root: self.reference.cursor.current_root(),
-                tracking: self.lifecycle.machine.mode == Mode::Running && self.reference.cursor.tracked(),
+                // A tracked tick records what its errors were measured against (the reference
+                // at each sample's time, the root before the cursor moved on), the root in the
+                // truth's frame beside the true pose; other ticks the reference in force.
+                reference_q: if self.reference.tracked.is_some() {
+                    &self.reference.aligned_reference
+                } else {
+                    self.reference.cursor.current_q()
+                },
+                reference_root: self.world.truth_to_world.undo(
+                    self.reference
+                        .tracked
+                        .unwrap_or_else(|| self.reference.cursor.current_root()),
+                ),
+                tracking: self.reference.tracked.is_some(),
+                policy_ran: self.policy.ran,
                 anchors: self.reference.anchors,
                 body_errors: if self.reference.has_body_errors {
                     &self.reference.body_errors
@@ -1220,15 +1242,20 @@ impl<L: RobotLink> Player<L> {
             *r = now + (before - now) * back;
         }
         if self.reference.cursor.in_clip() && !self.policy.command_driven {
+            let reference_root = self.reference.cursor.current_root();
             let root = has_truth.then(|| {
                 (
                     self.world.truth_to_world.apply(self.world.truth.root_pose),
-                    self.reference.cursor.current_root(),
+                    reference_root,
                 )
             });
             self.metrics
                 .add_tracking(&self.state.q, &self.reference.aligned_reference, root);
-            self.metrics.reference_jitter.push(current, self.dt);
+            self.reference.tracked = Some(reference_root);
+            // The reference as the samples were compared with it: like against like.
+            self.metrics
+                .reference_jitter
+                .push(&self.reference.aligned_reference, self.dt);
             self.metrics.robot_jitter.push(&self.state.q, self.dt);
             if self.reference.has_body_errors {
                 self.metrics
@@ -1251,6 +1278,11 @@ impl<L: RobotLink> Player<L> {
             self.reference.cursor.step();
         }
         self.policy.policy_steps += 1;
+        self.policy.ran = true;
+        if self.policy.command_driven {
+            // A walk's smoothness: the robot's own jitter over the ticks the policy drove it.
+            self.metrics.robot_jitter.push(&self.state.q, self.dt);
+        }
         // Where the robot went: the simulation's truth where there is one, else the estimate.
         let pose = if has_truth {
             Some(self.world.truth.root_pose)

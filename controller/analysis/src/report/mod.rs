@@ -57,8 +57,9 @@ pub struct RunSummary {
     /// Mean magnitude of the third time derivative of joint positions, rad/s³ (the robot's, over
     /// the tracking window).
     pub jitter: f64,
-    /// The same of the reference (e.g. what a motion generator produced), rad/s³.
-    pub reference_jitter: f64,
+    /// The same of the reference (e.g. what a motion generator produced), rad/s³; none for a
+    /// command-driven run (no reference).
+    pub reference_jitter: Option<f64>,
     /// A generated reference (`play --generator`): the generator's steps and how it kept up.
     pub generator: Option<GeneratorFigures>,
     /// 2D keypoint references (`play --keypoints`): the robot's keypoints against them, per view.
@@ -163,6 +164,8 @@ struct Series {
     joints: Vec<String>,
     /// A safety transition had a fault as its cause.
     faulted: bool,
+    /// The first such cause.
+    fault_cause: Option<String>,
     /// Ticks of the reference, when the recording says.
     reference_ticks: Option<usize>,
     /// The run's tilt limit, rad (the default when the recording does not say).
@@ -292,7 +295,9 @@ fn read(path: &Path) -> Result<Series, AnalysisError> {
                 }
                 s.body_errors
                     .push(v.body_errors.iter().map(|b| b.error_m).collect());
-                s.running.push(v.running);
+                // The policy drove the robot (running, or settling after a stop; recordings
+                // made before `policy_ran` say running only).
+                s.running.push(v.running || v.policy_ran);
                 s.commands.push(v.commands.iter().map(|c| c.value).collect());
                 s.generated.push(
                     v.generated
@@ -342,6 +347,9 @@ fn read(path: &Path) -> Result<Series, AnalysisError> {
             }
             "/safety" => {
                 let v: pb::SafetyTransition = decode(&m)?;
+                if v.fault && !s.faulted {
+                    s.fault_cause = Some(v.cause.clone());
+                }
                 s.faulted |= v.fault;
                 s.safety_time.push(time(m.log_time));
                 s.safety.push((v.tick, v.mode, v.cause));
@@ -510,15 +518,12 @@ fn summarize(s: &Series) -> RunSummary {
         ori_sq += a * a;
         root_max = (root_max.0.max(d), root_max.1.max(a));
     }
-    // Fell: the base tilted beyond the run's limit at any tick (simulation truth).
-    let fell = has_truth.then(|| {
-        s.base_pose
-            .iter()
-            .filter(|p| !p[0].is_nan())
-            .any(|p| controller::safety::tilt_of([p[3], p[4], p[5], p[6]]) > s.tilt_limit)
-    });
+    // Fell: the base tilted beyond the run's limit while in control (simulation truth).
+    let fell = has_truth.then(|| fall_tick(s).is_some());
+    // A command-driven run plays no reference.
     let played = s
         .reference_ticks
+        .filter(|_| !s.command_driven)
         .map(|n| (window.len() as f64 / n.max(1) as f64).min(1.0));
     let recording_cut_at = match s.ending {
         Some(crate::recording::Ending::Cut { at }) => Some(at),
@@ -629,7 +634,11 @@ fn summarize(s: &Series) -> RunSummary {
         replay_recorded,
         failures: Vec::new(),
         jitter: robot_jitter.mean().unwrap_or(0.0),
-        reference_jitter: reference_jitter.mean().unwrap_or(0.0),
+        reference_jitter: if s.command_driven {
+            None
+        } else {
+            reference_jitter.mean()
+        },
         generator: generator_figures(s),
         keypoints: keypoint_figures(s),
         triangulated_mm: {
@@ -724,11 +733,7 @@ pub fn write_report(log: &Path, dir: &Path) -> Result<RunSummary, AnalysisError>
             yes(summary.success)
         );
     }
-    let _ = writeln!(
-        md,
-        "| jitter (mean \\|d³q/dt³\\|): robot / reference | {:.2} / {:.2} rad/s³ |",
-        summary.jitter, summary.reference_jitter
-    );
+    let _ = writeln!(md, "| jitter (mean \\|d³q/dt³\\|) | {} |", jitter_text(&summary));
     if let Some(g) = &summary.generator {
         let _ = writeln!(
             md,
@@ -834,11 +839,25 @@ fn phases(s: &Series) -> Vec<plot::Phase> {
         .collect()
 }
 
-/// The first tick whose base tilted past the run's limit (simulation).
+/// The first tick whose base tilted past the run's limit while the soft start, the policy or the
+/// soft stop had the robot (simulation): the loop's own measure — a robot folding up under
+/// damping after the run handed over has not fallen.
 fn fall_tick(s: &Series) -> Option<usize> {
-    s.base_pose
+    s.base_pose.iter().enumerate().position(|(k, p)| {
+        !p[0].is_nan()
+            && in_control(s, k)
+            && controller::safety::tilt_of([p[3], p[4], p[5], p[6]]) > s.tilt_limit
+    })
+}
+
+/// Whether the soft start, the policy or the soft stop had the robot at tick `k` (the mode the
+/// tick began in, from the safety transitions).
+fn in_control(s: &Series, k: usize) -> bool {
+    s.safety
         .iter()
-        .position(|p| !p[0].is_nan() && controller::safety::tilt_of([p[3], p[4], p[5], p[6]]) > s.tilt_limit)
+        .take_while(|(tick, _, _)| (*tick as usize) < k)
+        .last()
+        .is_some_and(|(_, mode, _)| matches!(mode.as_str(), "SoftStart" | "Running" | "Stopping"))
 }
 
 /// The tracking tick with the largest mean joint error.
@@ -853,6 +872,14 @@ fn worst_tick(s: &Series) -> Option<usize> {
         .filter_map(|k| error(k).map(|e| (k, e)))
         .max_by(|a, b| a.1.total_cmp(&b.1))
         .map(|(k, _)| k)
+}
+
+/// The run's jitter and, with a reference, the reference's.
+fn jitter_text(summary: &RunSummary) -> String {
+    match summary.reference_jitter {
+        Some(r) => format!("robot {:.2}, reference {r:.2} rad/s³", summary.jitter),
+        None => format!("robot {:.2} rad/s³", summary.jitter),
+    }
 }
 
 /// Why a run failed, in words (empty when it succeeded).
@@ -874,12 +901,9 @@ fn failures(s: &Series, summary: &RunSummary) -> Vec<String> {
         why.push(format!("fell{at}"));
     }
     if summary.safety_stop {
-        let cause = s
-            .safety
-            .iter()
-            .find(|(_, mode, _)| mode == "Damped")
-            .map_or("a fault", |(_, _, cause)| cause.as_str());
-        why.push(format!("safety stop ({cause})"));
+        // The fault that stopped the robot, not the hold that followed it.
+        let cause = s.fault_cause.as_deref().unwrap_or("a fault");
+        why.push(format!("safety stop: {cause}"));
     }
     if let Some(p) = summary.played.filter(|&p| p < 0.999) {
         why.push(format!("played {:.0} % of the reference", 100.0 * p));
@@ -935,6 +959,7 @@ fn page(log: &Path, s: &Series, summary: &RunSummary) -> Result<(String, Vec<(St
     );
     // The verdict: the reliability issue's success criterion, and why not.
     let why = failures(s, summary);
+    // (A failure says how much played among its reasons.)
     let played = summary.played.map_or(String::new(), |p| {
         format!(" · played {:.0} % of the reference", 100.0 * p)
     });
@@ -943,7 +968,7 @@ fn page(log: &Path, s: &Series, summary: &RunSummary) -> Result<(String, Vec<(St
     } else {
         let _ = writeln!(
             html,
-            "<div class=\"verdict bad\">✘ Failed: {}{played}</div>",
+            "<div class=\"verdict bad\">✘ Failed: {}</div>",
             escape(&why.join("; "))
         );
     }
@@ -972,10 +997,7 @@ fn page(log: &Path, s: &Series, summary: &RunSummary) -> Result<(String, Vec<(St
             "no".into()
         },
     );
-    row(
-        "jitter (mean |d³q/dt³|): robot / reference",
-        format!("{:.2} / {:.2} rad/s³", summary.jitter, summary.reference_jitter),
-    );
+    row("jitter (mean |d³q/dt³|)", jitter_text(summary));
     if let Some(g) = &summary.generator {
         row(
             "generator: steps, step latency p50 / p99 / max",
@@ -1062,8 +1084,10 @@ fn page(log: &Path, s: &Series, summary: &RunSummary) -> Result<(String, Vec<(St
     if has_truth && !s.q.is_empty() {
         // A recording cut short may hold fewer of one channel than another: every index is checked.
         let at = |k: usize| s.time.get(k).copied().unwrap_or(f64::NAN);
-        let start = s.tracking.iter().position(|&t| t).unwrap_or(0);
-        let mut pick = vec![(format!("start of tracking, {:.2} s", at(start)), start)];
+        // The moment the policy took the robot (the clip proper may begin later, after the
+        // start-up ramp: the timeline above says when).
+        let start = s.running.iter().position(|&t| t).unwrap_or(0);
+        let mut pick = vec![(format!("the policy takes over, {:.2} s", at(start)), start)];
         if let Some(k) = worst_tick(s) {
             pick.push((format!("worst tracking, {:.2} s", at(k)), k));
         }

@@ -182,6 +182,7 @@ impl Messages {
         m.timestamp = Some(pb::timestamp(stamp));
         m.tick = r.tick;
         m.running = usize::from(r.mode) == MODE_NAMES.iter().position(|&n| n == "Running").unwrap_or(3);
+        m.policy_ran = r.policy_ran;
         m.observation.clear();
         m.observation.extend_from_slice(&r.obs[..usize::from(r.obs_len)]);
         m.action.clear();

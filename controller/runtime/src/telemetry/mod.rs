@@ -98,8 +98,12 @@ pub struct TickRecord {
     pub reference_q: [f32; MAX_JOINTS],
     /// Reference root pose `[x, y, z, w, qx, qy, qz]`.
     pub reference_root: [f64; 7],
-    /// Whether the reference is the clip itself (not the start-up ramp or the end).
+    /// Whether the tick's sample entered the run's tracking metrics (the clip itself, not the
+    /// start-up ramp or the end).
     pub tracking: bool,
+    /// Whether the policy drove the robot this tick (running, or settling under it after a
+    /// stop): the window of a command-driven run's figures.
+    pub policy_ran: bool,
     /// The robot's anchor and the reference's (aligned), `[x, y, z, w, qx, qy, qz]`, when the
     /// policy observes an anchor.
     pub anchors: Option<([f64; 7], [f64; 7])>,
@@ -177,6 +181,7 @@ impl Default for TickRecord {
             reference_q: [0.0; MAX_JOINTS],
             reference_root: [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
             tracking: false,
+            policy_ran: false,
             anchors: None,
             estimate: EstimateRecord::default(),
             imu_samples: [[0.0; 11]; IMU_HISTORY],
@@ -223,8 +228,10 @@ pub struct TickView<'a> {
     pub reference_q: &'a [f64],
     /// The reference root pose.
     pub reference_root: [f64; 7],
-    /// Whether the reference was the clip itself.
+    /// Whether the tick's sample entered the tracking metrics.
     pub tracking: bool,
+    /// Whether the policy drove the robot this tick.
+    pub policy_ran: bool,
     /// The robot's anchor and the reference's, when the policy observes one.
     pub anchors: Option<([f64; 7], [f64; 7])>,
     /// Position errors of the tracked motion bodies, m (empty when unknown).
@@ -287,6 +294,7 @@ impl TickRecord {
         }
         r.reference_root = v.reference_root;
         r.tracking = v.tracking;
+        r.policy_ran = v.policy_ran;
         r.anchors = v.anchors;
         r.estimate = match v.estimate {
             Some(e) => EstimateRecord {
