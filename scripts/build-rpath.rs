@@ -5,7 +5,7 @@
 //! `lib/` beside the binary and one level up, where a shipped bundle keeps its libraries.
 //! A missing library is reported here, with the fix, before the linker fails less clearly.
 
-fn main() {
+pub fn main() {
     println!("cargo::rerun-if-env-changed=MUJOCO_DYNAMIC_LINK_DIR");
     let Ok(dir) = std::env::var("MUJOCO_DYNAMIC_LINK_DIR") else {
         println!(

@@ -233,3 +233,73 @@ fn the_report_of_a_walk_gives_the_course_the_run_printed_and_no_clip_figures() {
     assert!(s["played"].is_null() && s["reference_jitter"].is_null(), "{s}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn a_recording_names_the_tool_its_commit_and_carries_the_robots_model() {
+    let dir = scratch("meta");
+    std::fs::create_dir_all(&dir).unwrap();
+    let record = dir.join("run.mcap");
+    let (ok, out, err) = run(&["play", "--max-seconds", "1", "--record", record.to_str().unwrap()]);
+    assert!(ok, "{out}{err}");
+    let bytes = std::fs::read(&record).unwrap();
+    // The header: the project's profile, the tool and the commit it was built from.
+    let header = mcap::read::LinearReader::new(&bytes)
+        .unwrap()
+        .find_map(|r| match r {
+            Ok(mcap::records::Record::Header(h)) => Some(h),
+            _ => None,
+        })
+        .expect("a header");
+    assert_eq!(header.profile, "robodeploy");
+    assert!(
+        header
+            .library
+            .starts_with(concat!("robodeploy ", env!("CARGO_PKG_VERSION"), " (commit ")),
+        "{}",
+        header.library
+    );
+    let summary = mcap::Summary::read(&bytes).unwrap().expect("a summary");
+    let index = summary
+        .metadata_indexes
+        .iter()
+        .find(|m| m.name == "robodeploy")
+        .expect("a robodeploy metadata record");
+    let meta = mcap::read::metadata(&bytes, index).unwrap().metadata;
+    assert_eq!(meta["version"], env!("CARGO_PKG_VERSION"));
+    // (Built outside a git checkout, the commit is unknown, and says so.)
+    let commit = &meta["commit"];
+    if workspace_root().join(".git").exists() {
+        assert!(
+            commit.len() == 12 && commit.chars().all(|c| c.is_ascii_hexdigit()),
+            "{commit}"
+        );
+    } else {
+        assert_eq!(commit, "unknown");
+    }
+    assert!(header.library.contains(commit.as_str()));
+    // The MJCF the run used, beside robot.toml, as it is on disk.
+    let model = summary
+        .attachment_indexes
+        .iter()
+        .find(|a| a.name == "robot/biped.xml")
+        .expect("the MJCF attached");
+    assert_eq!(model.media_type, "application/xml");
+    let attached = mcap::read::attachment(&bytes, model).unwrap();
+    assert_eq!(
+        &attached.data[..],
+        &std::fs::read(workspace_root().join("robots/biped/biped.xml")).unwrap()[..]
+    );
+    // No channel declared that carries nothing: the follower tracks no anchor.
+    let topics: Vec<&str> = summary.channels.values().map(|c| c.topic.as_str()).collect();
+    assert!(!topics.iter().any(|t| t.starts_with("/anchor")), "{topics:?}");
+    let stats = summary.stats.as_ref().unwrap();
+    assert_eq!(stats.channel_count as usize, topics.len());
+    for c in summary.channels.values() {
+        assert!(
+            stats.channel_message_counts.get(&c.id).is_some_and(|&n| n > 0),
+            "{} declared, never written",
+            c.topic
+        );
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}

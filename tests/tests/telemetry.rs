@@ -354,6 +354,7 @@ fn a_recording_carries_the_files_it_was_made_from_and_is_never_overwritten_silen
         names,
         [
             "robot/robot.toml",
+            "robot/biped.xml",
             "policy/reference_follower.toml",
             "clip/squat.csv"
         ],

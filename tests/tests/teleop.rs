@@ -793,7 +793,11 @@ fn a_teleop_session_is_recorded_with_the_files_it_ran_on() {
         .collect();
     assert_eq!(
         names,
-        ["robot/robot.toml", "policy/reference_follower.toml"],
+        [
+            "robot/robot.toml",
+            "robot/biped.xml",
+            "policy/reference_follower.toml"
+        ],
         "{names:?}"
     );
     let run = summary.metadata_indexes.iter().find(|m| m.name == "run").unwrap();

@@ -209,6 +209,7 @@ fn watched(
             robot.mjcf_path.clone(),
             robot.config.joints.iter().map(|j| j.mjcf_joint.clone()).collect(),
         )),
+        commit: Some(env!("ROBODEPLOY_COMMIT").to_owned()),
         ..Default::default()
     };
     let sink = crate::play::start_recording(

@@ -921,6 +921,7 @@ pub(crate) fn record<L: RobotLink>(
     let info = controller::telemetry::RecordingInfo {
         run: Some(run),
         bus_cycles,
+        commit: Some(env!("ROBODEPLOY_COMMIT").to_owned()),
         ..player.recording_info()
     };
     let robot = player.robot_name().to_owned();

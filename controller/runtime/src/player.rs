@@ -580,6 +580,7 @@ impl<L: RobotLink> Player<L> {
             live: None,
             foot_names: self.robot.config.feet.clone(),
             clock: crate::telemetry::RecordingClock::Simulated,
+            commit: None,
         }
     }
 

@@ -475,7 +475,16 @@ pub struct RecordingInfo {
     pub foot_names: Vec<String>,
     /// What the recording's times are.
     pub clock: RecordingClock,
+    /// The commit of the tool that writes it (the binary's build), beside its version.
+    pub commit: Option<String>,
 }
+
+/// The tool that writes recordings, as the file's header and its `robodeploy` metadata name it.
+pub const WRITER: &str = concat!("robodeploy ", env!("CARGO_PKG_VERSION"));
+
+/// The MCAP profile of robodeploy's recordings: protobuf channels (their descriptor sets in the
+/// schemas) and the JSON `/replay` channel, as `telemetry.proto` and the README describe them.
+pub const PROFILE: &str = "robodeploy";
 
 /// What travels through the ring: a tick, or one bus cycle.
 #[derive(Debug, Clone, Copy)]
@@ -594,13 +603,15 @@ pub struct TelemetrySink {
     path: PathBuf,
 }
 
-/// The files a run was made from, inside its recording so it travels with them: robot.toml, the
-/// policy (manifest or export metadata file), the clip, as attachments under their file names;
-/// and a `run` metadata record naming them (file names only) with the run's options. A file
-/// that cannot be read is left out with a warning: the recording still starts.
+/// The files a run was made from, inside its recording so it travels with them: robot.toml and
+/// the robot's MJCF (the file robot.toml names; meshes it includes are not), the policy (manifest
+/// or export metadata file), the clip, as attachments under their file names; and a `run`
+/// metadata record naming them (file names only) with the run's options. A file that cannot be
+/// read is left out with a warning: the recording still starts.
 fn attach_run_files<W: std::io::Write + std::io::Seek>(
     writer: &mut mcap::Writer<W>,
     run: &crate::options::RunMetadata,
+    mjcf: Option<&Path>,
     clock: RecordingClock,
 ) -> Result<(), mcap::McapError> {
     let name = |p: &Path| {
@@ -609,15 +620,18 @@ fn attach_run_files<W: std::io::Write + std::io::Seek>(
     };
     let mut record = BTreeMap::new();
     let files = [
-        ("robot", Some(&run.robot)),
-        ("policy", Some(&run.policy)),
-        ("clip", run.clip.as_ref()),
+        ("robot", Some(run.robot.as_path())),
+        ("model", mjcf),
+        ("policy", Some(run.policy.as_path())),
+        ("clip", run.clip.as_deref()),
     ];
     for (role, path) in files {
         let Some(path) = path else { continue };
         // A policy given as its ONNX export carries weights, not a description: named, not attached.
         let is_model = path.extension().is_some_and(|e| e == "onnx");
         record.insert(role.to_owned(), name(path));
+        // The MJCF travels with robot.toml, under the robot's name.
+        let role = if role == "model" { "robot" } else { role };
         if is_model {
             continue;
         }
@@ -629,6 +643,7 @@ fn attach_run_files<W: std::io::Write + std::io::Seek>(
                 media_type: match path.extension().and_then(|e| e.to_str()) {
                     Some("toml") => "application/toml",
                     Some("csv") => "text/csv",
+                    Some("xml") => "application/xml",
                     _ => "application/octet-stream",
                 }
                 .to_owned(),
@@ -690,7 +705,11 @@ impl TelemetrySink {
         let writer = mcap::WriteOptions::new()
             .compression(Some(mcap::Compression::Lz4))
             .chunk_size(Some(CHUNK_BYTES))
-            .profile("")
+            .profile(PROFILE)
+            .library(match &info.commit {
+                Some(c) => format!("{WRITER} (commit {c})"),
+                None => WRITER.to_owned(),
+            })
             .create(BufWriter::new(file))
             .map_err(|e| wrote(&e))?;
         // After a failed write the mcap writer panics when dropped (it finishes the file in Drop):
@@ -702,8 +721,22 @@ impl TelemetrySink {
             counts: BTreeMap::new(),
             buf: Vec::with_capacity(16 * 1024),
         };
+        // Who wrote it: the version and the commit it was built from.
+        let mut writer_record =
+            BTreeMap::from([("version".to_owned(), env!("CARGO_PKG_VERSION").to_owned())]);
+        writer_record.insert(
+            "commit".to_owned(),
+            info.commit.clone().unwrap_or_else(|| "unknown".to_owned()),
+        );
+        out.mcap
+            .write_metadata(&mcap::records::Metadata {
+                name: "robodeploy".to_owned(),
+                metadata: writer_record,
+            })
+            .map_err(|e| wrote(&e))?;
         if let Some(run) = &info.run {
-            attach_run_files(&mut out.mcap, run, info.clock).map_err(|e| wrote(&e))?;
+            let mjcf = info.kinematics.as_ref().map(|(m, _)| m.as_path());
+            attach_run_files(&mut out.mcap, run, mjcf, info.clock).map_err(|e| wrote(&e))?;
         }
         let dir = path.parent().unwrap_or(Path::new("."));
         let channels = TickChannels::add(&mut out, info, dir).map_err(|e| wrote(&e))?;
@@ -838,8 +871,8 @@ struct TickChannels {
     estimator: Channel,
     tf: Channel,
     robot: Channel,
-    robot_anchor: Channel,
-    reference_anchor: Channel,
+    /// The robot's anchor and the reference's, declared only for a run whose reference has one.
+    anchors: Option<(Channel, Channel)>,
     replay: Channel,
     buses: Vec<Channel>,
 }
@@ -904,8 +937,13 @@ impl TickChannels {
             estimator: out.channel("/estimator", &ours::<pb::StateEstimate>(), &none)?,
             tf: out.channel("/tf", &well_known::<fg::FrameTransforms>(), &none)?,
             robot: out.channel("/robot", &well_known::<fg::SceneUpdate>(), &none)?,
-            robot_anchor: out.channel("/anchor/robot", &well_known::<fg::PoseInFrame>(), &none)?,
-            reference_anchor: out.channel("/anchor/reference", &well_known::<fg::PoseInFrame>(), &none)?,
+            anchors: match info.anchor {
+                Some(_) => Some((
+                    out.channel("/anchor/robot", &well_known::<fg::PoseInFrame>(), &none)?,
+                    out.channel("/anchor/reference", &well_known::<fg::PoseInFrame>(), &none)?,
+                )),
+                None => None,
+            },
             replay: out.channel("/replay", &replay, &replay_meta)?,
             buses,
         })
@@ -940,8 +978,10 @@ impl TickChannels {
         if let Some(estimate) = m.estimate(r, t) {
             out.message(&self.estimator, t, estimate)?;
         }
-        if let Some((robot, reference)) = r.anchors {
-            for (channel, p) in [(&self.robot_anchor, robot), (&self.reference_anchor, reference)] {
+        if let (Some((robot, reference)), Some((robot_channel, reference_channel))) =
+            (r.anchors, &self.anchors)
+        {
+            for (channel, p) in [(robot_channel, robot), (reference_channel, reference)] {
                 let pose = fg::PoseInFrame {
                     timestamp: viewers::fg_time(t),
                     frame_id: "world".into(),
