@@ -1178,8 +1178,11 @@ fn a_run_stopped_by_a_fault_is_no_success_in_the_report_or_the_batch() {
 #[test]
 fn batch_runs_clips_times_seeds_in_parallel_and_tabulates_them() {
     let clips = robots::reference_robot_path().with_file_name("clips");
+    // The README's example: the randomised robot without faults, where the follower succeeds.
     let out = robodeploy()
-        .args(["batch", "--seeds", "0-2", "--jobs", "2", "--clips"])
+        .args(["batch", "--seeds", "0-2", "--jobs", "2", "--mirror"])
+        .arg(test_support::fixtures::workspace_root().join("sim2real/configs/randomized.toml"))
+        .arg("--clips")
         .arg(clips.join("squat.csv"))
         .arg(clips.join("wave_and_look.csv"))
         .output()
