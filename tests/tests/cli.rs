@@ -153,7 +153,76 @@ fn help_teaches_the_commands() {
     let out = robodeploy().arg("--help").output().unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success());
-    assert!(stdout.contains("doctor"), "{stdout}");
+    // Subcommands in the order of use: check and play first, the bus tools later, completions last.
+    let order: Vec<&str> = stdout
+        .lines()
+        .skip_while(|l| !l.starts_with("Commands:"))
+        .skip(1)
+        .map_while(|l| l.split_whitespace().next())
+        .collect();
+    assert_eq!(&order[..3], ["check", "play", "report"], "{stdout}");
+    let at = |name: &str| order.iter().position(|c| *c == name).unwrap_or(usize::MAX);
+    assert!(
+        at("play") < at("calibrate") && at("calibrate") < at("can"),
+        "{order:?}"
+    );
+    assert_eq!(order[order.len() - 2..], ["completions", "help"], "{order:?}");
+    // play's options under headings, none left in a catch-all list beside --help.
+    let out = robodeploy().args(["play", "--help"]).output().unwrap();
+    let help = String::from_utf8_lossy(&out.stdout);
+    for heading in [
+        "What to run:",
+        "Where it runs:",
+        "How the run goes:",
+        "E-stop and harness:",
+        "Operator commands:",
+        "Recording and report:",
+        "Motion generator:",
+        "2D keypoint references:",
+    ] {
+        assert!(help.lines().any(|l| l == heading), "{heading} missing:\n{help}");
+    }
+    let loose: Vec<&str> = help
+        .lines()
+        .skip_while(|l| *l != "Options:")
+        .skip(1)
+        .take_while(|l| !l.ends_with(':') || l.starts_with(' '))
+        .filter(|l| l.trim_start().starts_with('-'))
+        .collect();
+    assert_eq!(loose, ["  -h, --help"], "{help}");
+}
+
+#[test]
+fn completions_are_written_for_each_shell_and_a_closed_pipe_is_no_panic() {
+    for (shell, marker) in [
+        ("bash", "complete -F"),
+        ("zsh", "#compdef robodeploy"),
+        ("fish", "complete -c robodeploy"),
+    ] {
+        let (ok, stdout, stderr) = run(&["completions", shell]);
+        assert!(ok, "{stderr}");
+        assert!(
+            stdout.contains(marker) && stdout.contains("play") && stdout.contains("max-seconds"),
+            "{shell}: {}",
+            &stdout[..stdout.len().min(500)]
+        );
+    }
+    // Read one line and close the pipe: the write fails, said, exit 5.
+    let mut child = robodeploy()
+        .args(["completions", "bash"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert!(
+        out.status.success() || out.status.code() == Some(5),
+        "{:?} {stderr}",
+        out.status
+    );
 }
 
 #[test]

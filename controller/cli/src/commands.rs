@@ -12,6 +12,7 @@ use human::commands::{self, CommandReader, CommandSpec, CommandStats, GilrsPad, 
 /// Where live commands come from (the policy manifest's `[commands]` says what they mean).
 #[derive(Debug, Args)]
 #[group(multiple = false)]
+#[command(next_help_heading = "Operator commands")]
 pub struct CommandArgs {
     /// Live commands from this terminal's keyboard: W/S or ↑/↓ forward and back, A/D sideways,
     /// Q/E or ←/→ turn, space back to the defaults; each press moves a command by the manifest's

@@ -52,35 +52,43 @@ struct Cli {
 enum Command {
     /// CAN bus tools: emulated MIT-mode motors behind socketcand, and bus scans.
     #[command(subcommand)]
+    #[command(display_order = 13)]
     Can(can::CanCommand),
     /// Calibrate a robot without risking it: identity check, joint zeros and directions from a
     /// jig (torque off), IMU bias and mounting, and a gentle verification. Results go to
     /// calibration.toml beside robot.toml, which every later run merges.
     #[command(subcommand)]
+    #[command(display_order = 11)]
     Calibrate(calibrate::CalibrateCommand),
     /// Tools over every bus of a robot: scan and compare with robot.toml.
     #[command(subcommand)]
+    #[command(display_order = 12)]
     Bus(bus::BusCommand),
     /// Dynamixel serial bus tools: emulated X-series servos on a pseudo-terminal, and bus scans.
     #[command(subcommand)]
+    #[command(display_order = 14)]
     Dxl(dxl::DxlCommand),
     /// Pack what a run needs into one tarball for another machine of the same architecture: the
     /// binary, its two native libraries, the robot's folder, the policy's folder and clips.
     ///
     /// Unpacked anywhere, `bin/robodeploy` finds its libraries beside itself; the README.txt
     /// inside says how to run it.
+    #[command(display_order = 18)]
     Bundle(bundle::BundleArgs),
     /// Feetech serial bus tools: emulated STS servos on a pseudo-terminal, and bus scans.
     #[command(subcommand)]
+    #[command(display_order = 15)]
     Feetech(feetech::FeetechCommand),
     /// Write the Foxglove layout for a robot: the robot in 3D, a tracking plot per joint with its
     /// limits (a tab per bus), the safety timeline and log, tick timing. Import it in Foxglove
     /// (Layouts → Import from file), then open a recording or connect to `play --live`.
+    #[command(display_order = 17)]
     Layout(layout::LayoutArgs),
     /// See a 3D clip through cameras as 2D keypoints (robot.toml's [keypoints] map, cameras in a
     /// TOML file), or measure it against 2D keypoint references — a pose estimator's COCO JSON or
     /// keypoints written here: reprojection error per view (px), frames over 100 px, and with two
     /// views or more the triangulated 3D error (mm).
+    #[command(display_order = 10)]
     Project(project::ProjectArgs),
     /// Play a clip through a policy: on the mirrored robot (default, lockstep), in real time over
     /// real wires (--wall), or on the hardware (--hardware).
@@ -90,30 +98,37 @@ enum Command {
     /// (position limits with margin, speed limits, torque bounds) and writes them. The state machine
     /// goes Off → Ready → SoftStart → Running → Stopping → Damped → Off; faults (stale feedback,
     /// device faults, NaN, tilt, overruns) and SIGINT/SIGTERM take the short way to Damped.
+    #[command(display_order = 1)]
     Play(Box<play::PlayArgs>),
     /// Retarget a human BVH recording onto the robot: the retargeting map of robot.toml (scale
     /// and nominal offsets from a T-pose or the first frame), inverse kinematics on the robot's
     /// MuJoCo model within the joints' limits, soles kept out of the floor; writes a clip (CSV)
     /// and checks it as `check --clip` does.
+    #[command(display_order = 9)]
     Retarget(retarget::RetargetArgs),
     /// Drive the robot live from VR trackers: a headset and two controllers sending VMC (OSC over
     /// UDP, 127.0.0.1:39539 by default). A T-pose calibrates the user; the head and hands are
     /// mapped onto the robot and solved by inverse kinematics into the live reference of a
     /// reference-tracking policy (legs standing). Late packets are forecast; a lost stream blends
     /// back to the standby pose; malformed packets are dropped and counted. Mirror by default.
+    #[command(display_order = 7)]
     Teleop(teleop::TeleopArgs),
     /// VR tools: stream a recorded session as a headset and controllers.
     #[command(subcommand)]
+    #[command(display_order = 8)]
     Vr(teleop::VrCommand),
     /// Run many clips × seeds on the mirror in lockstep, in parallel over the cores, and print one
     /// table per clip: success rate, tracking RMSE, governor saturation.
+    #[command(display_order = 5)]
     Batch(batch::BatchArgs),
     /// Validate a robot, a policy manifest with its ONNX file, and a clip, moving nothing: prints
     /// the resolved observation layout and the clip's length, or the first problem with its place.
+    #[command(display_order = 0)]
     Check(play::CheckArgs),
     /// Replay a recorded run (the MCAP `play` writes) through the same controller code: feeds the
     /// recorded bus readings, IMU, ground truth and stop requests tick by tick and reports the first
     /// command that differs from the recording, bit for bit.
+    #[command(display_order = 3)]
     Replay {
         /// The recording.
         log: PathBuf,
@@ -127,6 +142,7 @@ enum Command {
     /// most. Each term's difference is judged against what the buses can resolve of it (encoder
     /// ticks, the MIT fields' steps, the IMU's output steps, through the term's scale): within
     /// quantisation, or beyond it.
+    #[command(display_order = 4)]
     Compare {
         /// A recorded run (MCAP from `play`).
         run: PathBuf,
@@ -147,6 +163,7 @@ enum Command {
     },
     /// Write the report of a recorded run: tracking plots, root error, success, RMSE, jitter,
     /// timing, bus misses, safety events (report.html with plots, summary.md, summary.json).
+    #[command(display_order = 2)]
     Report {
         /// A recorded run (MCAP from `play`).
         run: PathBuf,
@@ -156,14 +173,17 @@ enum Command {
     },
     /// The mirrored simulator: a robot's MuJoCo model behind emulated firmware on its buses.
     #[command(subcommand)]
+    #[command(display_order = 16)]
     Sim(sim::SimCommand),
     /// Soak the stack on the mirror: episodes of random clips with random device faults, checking
     /// commands against the limits, fault reaction times and lost records (exit 3 if any fails).
+    #[command(display_order = 6)]
     Soak(soak::SoakArgs),
     /// Check the native libraries and load a MuJoCo model and an ONNX model, moving nothing.
     ///
     /// Prints the versions of MuJoCo and ONNX Runtime this build loads, the sizes of the MuJoCo
     /// model, and the input/output of the ONNX model with one timed inference on zeros.
+    #[command(display_order = 19)]
     Doctor {
         /// MJCF model to load (default: the reference robot's).
         #[arg(long, default_value_os_t = robots::reference_robot_path().with_file_name("biped.xml"))]
@@ -171,6 +191,15 @@ enum Command {
         /// ONNX policy to load (default: the reference policy).
         #[arg(long, default_value_os_t = robots::reference_robot_path().with_file_name("policies/reference_follower.onnx"))]
         onnx: PathBuf,
+    },
+    /// Write shell completions for robodeploy to stdout: `robodeploy completions bash >
+    /// ~/.local/share/bash-completion/completions/robodeploy` (zsh: a file `_robodeploy` on
+    /// `$fpath`; fish: `~/.config/fish/completions/robodeploy.fish`).
+    #[command(display_order = 99)]
+    Completions {
+        /// The shell.
+        #[arg(value_enum)]
+        shell: clap_complete::Shell,
     },
 }
 
@@ -212,6 +241,15 @@ fn dispatch(command: Command) -> Result<std::process::ExitCode> {
     let done = |r: Result<()>| r.map(|()| std::process::ExitCode::SUCCESS);
     match command {
         Command::Doctor { mjcf, onnx } => done(doctor(&mjcf, &onnx)),
+        Command::Completions { shell } => {
+            use clap::CommandFactory;
+            // Written whole into memory first: the generator panics on a failed write (a closed
+            // pipe), and a failure here is an error, never a panic.
+            let mut script = Vec::new();
+            clap_complete::generate(shell, &mut Cli::command(), "robodeploy", &mut script);
+            std::io::Write::write_all(&mut std::io::stdout(), &script).context("writing the completions")?;
+            Ok(std::process::ExitCode::SUCCESS)
+        }
         Command::Can(cmd) => done(can::run(cmd)),
         Command::Dxl(cmd) => done(dxl::run(cmd)),
         Command::Feetech(cmd) => done(feetech::run(cmd)),

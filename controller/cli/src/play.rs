@@ -26,25 +26,25 @@ pub struct PlayArgs {
     #[command(flatten)]
     files: Files,
     /// Run on the robot's own buses (robot.toml devices) instead of the mirror.
-    #[arg(long, conflicts_with = "wall")]
+    #[arg(help_heading = "Where it runs", long, conflicts_with = "wall")]
     hardware: bool,
     /// Run the mirror in real time behind real wires (socketcand, pseudo-terminals) and connect
     /// to it as to hardware.
-    #[arg(long)]
+    #[arg(help_heading = "Where it runs", long)]
     wall: bool,
     /// Mirror settings (seed, gantry, randomisation, faults), TOML.
-    #[arg(long)]
+    #[arg(help_heading = "Where it runs", long)]
     mirror: Option<PathBuf>,
     /// Hold the mirrored robot on a gantry.
-    #[arg(long)]
+    #[arg(help_heading = "Where it runs", long)]
     gantry: bool,
     /// How the policy takes the robot (default: robot.toml's [start] mode, else pd): harness —
     /// in control from the first tick while a harness lowers the robot onto its feet; policy —
     /// from the first tick on the floor; pd — the joints' PD brings it to the default pose first.
-    #[arg(long, value_enum)]
+    #[arg(help_heading = "How the run goes", long, value_enum)]
     start: Option<crate::args::StartArg>,
     /// What to do when the clip ends.
-    #[arg(long, value_enum, default_value_t = crate::args::EndArg::Hold)]
+    #[arg(help_heading = "How the run goes", long, value_enum, default_value_t = crate::args::EndArg::Hold)]
     end: crate::args::EndArg,
     /// What a soft stop (Ctrl-C, --max-seconds, the clip's end) ends in. First the policy settles
     /// the robot for --settle seconds (the reference held where the stop came and blended to the
@@ -52,60 +52,65 @@ pub struct PlayArgs {
     /// policy until a second Ctrl-C or --stand-for), sit (a slow sit-down on the joints' PD into
     /// robot.toml's sit_keyframe, then let go) or harness (the harness the run started in takes
     /// the weight, then let go). Faults damp at once whatever this says.
-    #[arg(long, value_enum, default_value_t = crate::args::OnStopArg::Damp)]
+    #[arg(help_heading = "How the run goes", long, value_enum, default_value_t = crate::args::OnStopArg::Damp)]
     on_stop: crate::args::OnStopArg,
     /// How long a soft stop settles the robot under the policy before --on-stop, s (0.02–30).
-    #[arg(long, default_value_t = 1.0, value_parser = crate::args::within(0.02, 30.0))]
+    #[arg(help_heading = "How the run goes", long, default_value_t = 1.0, value_parser = crate::args::within(0.02, 30.0))]
     settle: f64,
     /// With --on-stop stay: stand at most this long, s (default: until stopped again).
-    #[arg(long, value_parser = crate::args::within(0.0, 86_400.0))]
+    #[arg(help_heading = "How the run goes", long, value_parser = crate::args::within(0.0, 86_400.0))]
     stand_for: Option<f64>,
     /// With --on-stop sit: how long the sit-down takes, s (0.1–60).
-    #[arg(long, default_value_t = 3.0, value_parser = crate::args::within(0.1, 60.0))]
+    #[arg(help_heading = "How the run goes", long, default_value_t = 3.0, value_parser = crate::args::within(0.1, 60.0))]
     sit_seconds: f64,
     /// Seconds of the start-up ramp ψ (clip held at its first frame).
-    #[arg(long, default_value_t = 1.5, value_parser = crate::args::within(0.0, 60.0))]
+    #[arg(help_heading = "How the run goes", long, default_value_t = 1.5, value_parser = crate::args::within(0.0, 60.0))]
     ramp: f64,
     /// Where the base velocity and height, foot contacts and anchor position a policy observes
     /// come from: the state estimator on the IMU and leg kinematics (`kf`: the filter robot.toml's
     /// [estimator] filter names, the invariant EKF unless it says otherwise; `invariant` or
     /// `linear` choose one for this run; recorded on /estimator with the mirror's truth beside
     /// it), or the mirror's ground truth. The hardware always runs the estimator.
-    #[arg(long, value_enum, default_value_t = crate::args::EstimatorArg::Kf)]
+    #[arg(help_heading = "How the run goes", long, value_enum, default_value_t = crate::args::EstimatorArg::Kf)]
     estimator: crate::args::EstimatorArg,
     /// Stop (softly) after this many seconds of the run, whatever the clip.
-    #[arg(long, value_parser = crate::args::within(0.02, 86_400.0))]
+    #[arg(help_heading = "How the run goes", long, value_parser = crate::args::within(0.02, 86_400.0))]
     max_seconds: Option<f64>,
     /// Bus cycles in a row a joint may stay silent before its bus damps itself and the robot
     /// stops (1–100). Default: 2; 8 with --wall, whose mirror is served on this machine and
     /// competes with the loop for its cores (late, not lost).
-    #[arg(long, value_parser = crate::args::whole_within(1, 100))]
+    #[arg(help_heading = "How the run goes", long, value_parser = crate::args::whole_within(1, 100))]
     stale_cycles: Option<u64>,
     /// Real-time set-up: the loop thread under SCHED_FIFO, memory locked, pinned to the last CPU;
     /// each bus thread under SCHED_FIFO above the loop. Steps the system refuses are reported and
     /// skipped.
-    #[arg(long)]
+    #[arg(help_heading = "Where it runs", long)]
     realtime: bool,
     /// Listen for an e-stop on this UDP address (a datagram `ESTOP` damps the robot at once).
-    #[arg(long)]
+    #[arg(help_heading = "E-stop and harness", long)]
     estop_udp: Option<std::net::SocketAddr>,
     /// With a harness start: the operator's word that the robot stands on its feet, a datagram
     /// `LOWERED` on this UDP address. Until it comes the policy holds the robot on the motion's
     /// first frame; then it settles and the motion plays. On the hardware, Enter on this
     /// terminal says it too; on the mirror, this rehearses the start.
-    #[arg(long, value_name = "ADDR")]
+    #[arg(help_heading = "E-stop and harness", long, value_name = "ADDR")]
     lowered_udp: Option<std::net::SocketAddr>,
     /// Values of the policy's `command` term (e.g. a velocity command `0.3,0,0`), replacing the
     /// manifest's constants; with a `[commands]` section each must lie within its range, and a
     /// live source below starts from them.
-    #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+    #[arg(
+        help_heading = "Operator commands",
+        long,
+        value_delimiter = ',',
+        allow_hyphen_values = true
+    )]
     command: Option<Vec<f64>>,
     #[command(flatten)]
     live: crate::commands::CommandArgs,
     #[command(flatten)]
     rec: RecordArgs,
     /// After the run, write its report (plots, summary) into this folder.
-    #[arg(long, conflicts_with = "no_record")]
+    #[arg(help_heading = "Recording and report", long, conflicts_with = "no_record")]
     report: Option<PathBuf>,
     #[command(flatten)]
     generator: GeneratorArgs,
@@ -115,6 +120,7 @@ pub struct PlayArgs {
 
 /// 2D keypoint references beside the clip (`play --keypoints`).
 #[derive(Debug, Args)]
+#[command(next_help_heading = "2D keypoint references")]
 struct KeypointArgs {
     /// 2D keypoint references of the clip (Mimic2DM): the project's CSV (what `robodeploy
     /// project` writes: time_s, then VIEW/KEYPOINT/u,v,confidence) or a pose estimator's COCO
@@ -180,6 +186,7 @@ fn load_keypoint_references(args: &KeypointArgs, l: &mut Loaded) -> Result<()> {
 
 /// An online motion generator as the reference (`play --generator`).
 #[derive(Debug, Args)]
+#[command(next_help_heading = "Motion generator")]
 struct GeneratorArgs {
     /// Track what an online motion generator produces instead of a clip: its description (TOML
     /// beside its ONNX file: input/output names, history N, horizon K, frame rate, joints, seed
@@ -299,6 +306,7 @@ fn run_with<L: RobotLink>(
 
 /// How a run is recorded and watched (`play`, `teleop`).
 #[derive(Debug, Args)]
+#[command(next_help_heading = "Recording and report")]
 pub struct RecordArgs {
     /// Record the run as MCAP here (default: out/runs/ROBOT-CLIP.mcap, or the next free name;
     /// opens in Foxglove).
@@ -338,6 +346,7 @@ pub struct CheckArgs {
 }
 
 #[derive(Debug, Args)]
+#[command(next_help_heading = "What to run")]
 struct Files {
     /// The robot description.
     #[arg(long, default_value_os_t = robots::reference_robot_path())]
