@@ -162,6 +162,8 @@ def write(facts, out):
         f'root_body = "{facts["root"]}"',
         f'feet = ["{facts["feet"][0]}", "{facts["feet"][1]}"]',
         "control_rate_hz = 50.0",
+        "# The policy a run takes without --policy.",
+        'policy = "policies/holosoma_loco_ppo.toml"',
         "",
         "[imu]",
         'bus = "imu0"',

@@ -228,6 +228,11 @@ pub struct RobotConfig {
     pub feet: Vec<String>,
     /// Policy rate, Hz.
     pub control_rate_hz: f64,
+    /// The policy a run takes when none is given (`--policy`): a manifest or an export, relative
+    /// to the robot.toml. Checked when a run takes it (a robot.toml copied away from its policies
+    /// still loads for what needs no policy: calibration, bus scans).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub policy: Option<PathBuf>,
     /// How far inside each joint's position limits the governor keeps targets, rad (0–0.2, and
     /// less than half of every joint's range). Default 0.02.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -1148,6 +1153,14 @@ pub struct Robot {
 }
 
 impl Robot {
+    /// The policy robot.toml names for runs that give none, resolved beside it.
+    pub fn default_policy(&self) -> Option<PathBuf> {
+        self.config
+            .policy
+            .as_ref()
+            .map(|p| self.path.parent().unwrap_or(Path::new(".")).join(p))
+    }
+
     /// The robot's model as its trainer simulated it, editable before compiling: the MJCF with
     /// robot.toml's `[[joint_dynamics]]` and `[sim]` applied (the file itself untouched).
     pub fn spec(&self) -> Result<mujoco_rs::prelude::MjSpec, mjcf::MujocoError> {

@@ -53,9 +53,13 @@ fn robot_copy(name: &str) -> RobotCopy {
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     let src = robots::reference_robot_path();
-    for file in ["robot.toml", "biped.xml"] {
-        std::fs::copy(src.with_file_name(file), dir.join(file)).unwrap();
-    }
+    std::fs::copy(src.with_file_name("biped.xml"), dir.join("biped.xml")).unwrap();
+    let text = std::fs::read_to_string(&src).unwrap();
+    std::fs::write(
+        dir.join("robot.toml"),
+        test_support::fixtures::policy_from(&text, src.parent().unwrap()),
+    )
+    .unwrap();
     RobotCopy(dir.join("robot.toml"))
 }
 

@@ -535,7 +535,8 @@ fn robot(dir: &Path, from: &str, to: &str) -> PathBuf {
             std::fs::copy(entry.path(), folder.join(entry.file_name())).unwrap();
         }
     }
-    let text = std::fs::read_to_string(&src).unwrap();
+    let text =
+        test_support::fixtures::policy_from(&std::fs::read_to_string(&src).unwrap(), src.parent().unwrap());
     assert!(text.contains(from), "{from:?} not in robot.toml");
     let path = folder.join("robot.toml");
     std::fs::write(&path, text.replacen(from, to, 1)).unwrap();
@@ -948,5 +949,36 @@ fn a_recording_moved_to_another_folder_still_replays_and_compares_and_says_where
             "{list:?}: {err}"
         );
     }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_robot_names_its_own_policy_and_a_run_without_one_is_refused_by_name() {
+    // rd-mini's own policy, not the reference robot's: checked without --policy.
+    let mini = test_support::fixtures::workspace_root().join("robots/mini/robot.toml");
+    let (code, stdout, stderr) = run_within(&args(&[&"check", &"--robot", &mini]), Duration::from_secs(120));
+    assert_eq!(code, Some(0), "{stdout}{stderr}");
+    assert!(
+        stdout.contains("policy robots/mini/policies/stand_walk.toml")
+            || stdout.contains("mini/policies/stand_walk.toml"),
+        "{stdout}"
+    );
+    assert!(!stdout.contains("reference_follower"), "{stdout}");
+    // A robot.toml naming no policy: a run without --policy is refused, naming the flag and the
+    // file; one naming a policy that is not there is refused when a run takes it.
+    let dir = scratch("default-policy");
+    std::fs::copy(biped("biped.xml"), dir.join("biped.xml")).unwrap();
+    let text = std::fs::read_to_string(biped("robot.toml")).unwrap();
+    let line = "policy = \"policies/reference_follower.toml\"\n";
+    assert!(text.contains(line));
+    let none = dir.join("robot.toml");
+    std::fs::write(&none, text.replace(line, "")).unwrap();
+    refused(
+        &args(&[&"play", &"--no-record", &"--robot", &none]),
+        "--policy is not given and",
+    );
+    let gone = dir.join("gone.toml");
+    std::fs::write(&gone, text.replace(line, "policy = \"policies/gone.toml\"\n")).unwrap();
+    refused(&args(&[&"check", &"--robot", &gone]), "is not a file");
     std::fs::remove_dir_all(&dir).unwrap();
 }

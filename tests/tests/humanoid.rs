@@ -369,7 +369,10 @@ fn wall_runs_of_every_shipped_robot_begin_standing() {
 
 fn write_robot(dir: &Path, name: &str, edit: impl Fn(&str) -> String) -> PathBuf {
     let original = workspace_root().join("robots/biped");
-    let text = std::fs::read_to_string(original.join("robot.toml")).unwrap();
+    let text = test_support::fixtures::policy_from(
+        &std::fs::read_to_string(original.join("robot.toml")).unwrap(),
+        &original,
+    );
     let text = edit(&text).replace(
         "mjcf = \"biped.xml\"",
         &format!("mjcf = {:?}", original.join("biped.xml")),

@@ -18,12 +18,14 @@ mod robstride_biped;
 /// rd-biped's robot.toml with `extra` appended, written as `dir/name` (its MJCF where it is).
 fn biped_with(dir: &Path, name: &str, extra: &str) -> PathBuf {
     let original = workspace_root().join("robots/biped");
-    let text = std::fs::read_to_string(original.join("robot.toml"))
-        .unwrap()
-        .replace(
-            "mjcf = \"biped.xml\"",
-            &format!("mjcf = {:?}", original.join("biped.xml")),
-        );
+    let text = test_support::fixtures::policy_from(
+        &std::fs::read_to_string(original.join("robot.toml")).unwrap(),
+        &original,
+    )
+    .replace(
+        "mjcf = \"biped.xml\"",
+        &format!("mjcf = {:?}", original.join("biped.xml")),
+    );
     std::fs::create_dir_all(dir).unwrap();
     let path = dir.join(name);
     std::fs::write(&path, format!("{text}\n{extra}")).unwrap();

@@ -269,6 +269,34 @@ pub fn file_name_of<T: serde::Serialize>(value: &T) -> String {
         .to_owned()
 }
 
+/// The policy of a run: `--policy` when given, else the one robot.toml names (`policy = …`).
+pub fn policy_of(
+    given: Option<&std::path::Path>,
+    robot: &robots::Robot,
+) -> Result<std::path::PathBuf, FlagError> {
+    match given {
+        Some(p) => Ok(p.to_path_buf()),
+        None => match robot.default_policy() {
+            Some(p) if p.is_file() => Ok(p),
+            Some(p) => Err(FlagError::new(
+                "policy",
+                format!(
+                    " is not given, and the policy {} names ({}) is not a file",
+                    robot.path.display(),
+                    p.display()
+                ),
+            )),
+            None => Err(FlagError::new(
+                "policy",
+                format!(
+                    " is not given and {} names no policy of its own (add `policy = \"policies/NAME.toml\"` to it)",
+                    robot.path.display()
+                ),
+            )),
+        },
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

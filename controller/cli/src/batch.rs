@@ -17,8 +17,9 @@ pub struct BatchArgs {
     #[arg(long, default_value_os_t = robots::reference_robot_path())]
     robot: PathBuf,
     /// The policy manifest.
-    #[arg(long, default_value_os_t = robots::reference_robot_path().with_file_name("policies/reference_follower.toml"))]
-    policy: PathBuf,
+    /// Default: the policy robot.toml names (`policy = "policies/…"`).
+    #[arg(long)]
+    policy: Option<PathBuf>,
     /// Clips to run (CSV or NPZ).
     #[arg(long, num_args = 1.., required = true)]
     clips: Vec<PathBuf>,
@@ -58,6 +59,7 @@ fn parse_seeds(s: &str) -> Result<(u64, u64), String> {
 /// Runs `batch`.
 pub fn run(args: &BatchArgs) -> Result<()> {
     let robot = Robot::load(&args.robot)?;
+    let policy = crate::args::policy_of(args.policy.as_deref(), &robot)?;
     let mirror = match &args.mirror {
         Some(p) => load_mirror_config(p, &robot)?,
         None => sim2real::config::MirrorConfig::default(),
@@ -77,7 +79,7 @@ pub fn run(args: &BatchArgs) -> Result<()> {
     );
     let spec = BatchSpec {
         robot: &robot,
-        policy: &args.policy,
+        policy: &policy,
         clips: &args.clips,
         seeds: &seeds,
         mirror: &mirror,

@@ -30,8 +30,9 @@ pub struct BundleArgs {
     #[arg(long, default_value_os_t = robots::reference_robot_path())]
     robot: PathBuf,
     /// The policy (manifest or ONNX export); its whole folder is packed.
-    #[arg(long, default_value_os_t = robots::reference_robot_path().with_file_name("policies/reference_follower.toml"))]
-    policy: PathBuf,
+    /// Default: the policy robot.toml names (`policy = "policies/…"`).
+    #[arg(long)]
+    policy: Option<PathBuf>,
     /// Clips to pack (repeat or list).
     #[arg(long, num_args = 0..)]
     clip: Vec<PathBuf>,
@@ -48,15 +49,16 @@ pub struct BundleArgs {
 pub fn run(args: &BundleArgs) -> Result<()> {
     // Load both as a run would: a bundle of files that do not load helps nobody.
     let robot = robots::Robot::load(&args.robot)?;
-    let layout = policy::PolicyLayout::load(&args.policy, &robot)?;
+    let policy = crate::args::policy_of(args.policy.as_deref(), &robot)?;
+    let layout = policy::PolicyLayout::load(&policy, &robot)?;
     let robot_dir = folder_of(&args.robot)?;
-    let policy_dir = folder_of(&args.policy)?;
+    let policy_dir = folder_of(&policy)?;
     // Compared resolved, as the folders are (a relative --policy names the same files).
     let onnx = std::fs::canonicalize(&layout.onnx_path).unwrap_or_else(|_| layout.onnx_path.clone());
     if !onnx.starts_with(&policy_dir) {
         bail!(
             "--policy {}: its ONNX file {} lies outside the policy's folder, which is what is packed",
-            args.policy.display(),
+            policy.display(),
             layout.onnx_path.display()
         );
     }
@@ -150,7 +152,7 @@ pub fn run(args: &BundleArgs) -> Result<()> {
         clip_names.push(name);
     }
     let robot_file = file_name(&args.robot);
-    let policy_file = file_name(&args.policy);
+    let policy_file = file_name(&policy);
     let clip_arg = clip_names
         .first()
         .map_or_else(String::new, |c| format!(" --clip clips/{c}"));

@@ -355,8 +355,9 @@ struct Files {
     /// carries the contract, as BeyondMimic and mjlab write it (joint_names, gains,
     /// default_joint_pos, action_scale, observation_names, anchor_body_name, body_names): no
     /// manifest needed. A manifest naming such an export may override any of its fields.
-    #[arg(long, default_value_os_t = robots::reference_robot_path().with_file_name("policies/reference_follower.toml"))]
-    policy: PathBuf,
+    /// Default: the policy robot.toml names (`policy = "policies/…"`).
+    #[arg(long)]
+    policy: Option<PathBuf>,
     /// The clip. CSV: `time,root_x,root_y,root_z,root_qw,root_qx,root_qy,root_qz,<joints…>` (joints
     /// named as in robot.toml, quaternion w x y z). NPZ: `joint_names`, `joint_pos`, `root_pos`,
     /// `root_quat` (w x y z), `fps` or `time`. Other tools' motion files with a `<name>.motion.toml`
@@ -388,7 +389,8 @@ struct Loaded {
 
 fn load(files: &Files) -> Result<Loaded> {
     let robot = Robot::load(&files.robot)?;
-    let mut layout = PolicyLayout::load(&files.policy, &robot)?;
+    let policy = crate::args::policy_of(files.policy.as_deref(), &robot)?;
+    let mut layout = PolicyLayout::load(&policy, &robot)?;
     let (reference, source) = controller::motion::load_reference(
         files.clip.as_deref(),
         &Files::default_clip(),
@@ -872,15 +874,16 @@ fn with_recorder<L: RobotLink>(
     options: &PlayOptions,
     source: &ReferenceSource,
 ) -> Result<Player<L>> {
+    let policy = crate::args::policy_of(args.files.policy.as_deref(), player.robot())?;
     let stem = source
         .path()
-        .unwrap_or(&args.files.policy)
+        .unwrap_or(&policy)
         .file_stem()
         .map_or("run".into(), |s| s.to_string_lossy().into_owned());
     let absolute = |p: &PathBuf| std::fs::canonicalize(p).unwrap_or_else(|_| p.clone());
     let run = controller::options::RunMetadata {
         robot: absolute(&args.files.robot),
-        policy: absolute(&args.files.policy),
+        policy: absolute(&policy),
         // What the run played: the clip, the export's own motion, a generator, or nothing
         // (commands).
         clip: match source {

@@ -22,8 +22,9 @@ pub struct SoakArgs {
     #[arg(long, default_value_os_t = robots::reference_robot_path())]
     robot: PathBuf,
     /// Policy manifest.
-    #[arg(long, default_value_os_t = robots::reference_robot_path().with_file_name("policies/reference_follower.toml"))]
-    policy: PathBuf,
+    /// Default: the policy robot.toml names (`policy = "policies/…"`).
+    #[arg(long)]
+    policy: Option<PathBuf>,
     /// Clips to draw from (default: the policy's own reference — its commands, or the motion its
     /// export carries — else every clip beside the robot).
     #[arg(long, num_args = 1..)]
@@ -39,6 +40,7 @@ pub struct SoakArgs {
 /// Runs `soak`; fails (exit 3) when anything that must hold did not.
 pub fn run(args: &SoakArgs) -> Result<std::process::ExitCode> {
     let robot = Robot::load(&args.robot)?;
+    let policy = crate::args::policy_of(args.policy.as_deref(), &robot)?;
     let scratch = std::env::temp_dir().join(format!("robodeploy-soak-{}", std::process::id()));
     let bar = indicatif::ProgressBar::new(1000);
     bar.set_style(
@@ -48,7 +50,7 @@ pub fn run(args: &SoakArgs) -> Result<std::process::ExitCode> {
     let report = analysis::soak::soak(
         &analysis::soak::SoakSpec {
             robot: &robot,
-            policy: &args.policy,
+            policy: &policy,
             clips: &args.clips,
             seconds: args.minutes * 60.0,
             seed: args.seed,

@@ -29,8 +29,9 @@ pub struct TeleopArgs {
     #[arg(long, default_value_os_t = robots::reference_robot_path())]
     robot: PathBuf,
     /// A reference-tracking policy (its reference comes live from the trackers).
-    #[arg(long, default_value_os_t = robots::reference_robot_path().with_file_name("policies/reference_follower.toml"))]
-    policy: PathBuf,
+    /// Default: the policy robot.toml names (`policy = "policies/…"`).
+    #[arg(long)]
+    policy: Option<PathBuf>,
     /// Where to listen for VMC (OSC over UDP). Loopback unless you name another address.
     #[arg(long, default_value_t = SocketAddr::from(([127, 0, 0, 1], VMC_PORT)))]
     listen: SocketAddr,
@@ -139,7 +140,8 @@ pub fn vr(cmd: VrCommand) -> Result<()> {
 /// Runs `teleop`.
 pub fn teleop(args: &TeleopArgs) -> Result<std::process::ExitCode> {
     let robot = Robot::load(&args.robot)?;
-    let mut layout = PolicyLayout::load(&args.policy, &robot)?;
+    let policy = crate::args::policy_of(args.policy.as_deref(), &robot)?;
+    let mut layout = PolicyLayout::load(&policy, &robot)?;
     let model = policy::onnx::OnnxModel::load(&layout.onnx_path)?;
     layout.bind_model(model.inputs(), model.output().1)?;
     if layout
@@ -149,7 +151,7 @@ pub fn teleop(args: &TeleopArgs) -> Result<std::process::ExitCode> {
     {
         bail!(
             "{}: ref_body_pos terms need the whole clip ahead; a live reference has only the present",
-            args.policy.display()
+            policy.display()
         );
     }
     for (what, v) in [
@@ -211,7 +213,7 @@ pub fn teleop(args: &TeleopArgs) -> Result<std::process::ExitCode> {
     let absolute = |p: &PathBuf| std::fs::canonicalize(p).unwrap_or_else(|_| p.clone());
     let run = controller::options::RunMetadata {
         robot: absolute(&args.robot),
-        policy: absolute(&args.policy),
+        policy: absolute(&policy),
         clip: None,
         command: None,
         command_source: Some(format!("vmc udp://{}", receiver.local_addr())),

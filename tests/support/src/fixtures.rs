@@ -57,3 +57,17 @@ pub fn run_python(script: &str, args: &[&std::ffi::OsStr]) {
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+/// `robot_toml`'s text with its `policy = "…"` line pointing at the file beside `original` (the
+/// folder it came from): a copy written elsewhere keeps its robot's own policy.
+pub fn policy_from(robot_toml: &str, original: &Path) -> String {
+    robot_toml
+        .lines()
+        .map(|l| match l.strip_prefix("policy = ") {
+            Some(rel) => format!("policy = {:?}", original.join(rel.trim_matches('"'))),
+            None => l.to_owned(),
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+        + "\n"
+}
