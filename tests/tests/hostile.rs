@@ -662,19 +662,23 @@ fn a_two_minute_soak_of_random_faults_keeps_every_command_in_limits_and_every_fa
         Duration::from_secs(600),
     );
     assert_eq!(code, Some(0), "{stdout}{stderr}");
+    assert_soak_held(&stdout);
+}
+
+/// What every soak must show: it passed with no command beyond limits and no record lost, more
+/// than one kind of fault was injected, and the robot was shoved.
+fn assert_soak_held(summary: &str) {
     assert!(
-        stdout.contains("commands outside limits: 0") && stdout.contains("records lost: 0"),
-        "{stdout}"
+        summary.contains("commands outside limits: 0") && summary.contains("records lost: 0"),
+        "{summary}"
     );
-    assert!(stdout.trim_end().ends_with("PASSED"), "{stdout}");
-    // Faults were injected, and more than one kind.
-    let kinds = stdout
+    assert!(summary.trim_end().ends_with("PASSED"), "{summary}");
+    let kinds = summary
         .lines()
         .filter(|l| l.contains(" on a joint") || l.contains(" on the IMU"))
         .count();
-    assert!(kinds >= 2, "{stdout}");
-    // The robot was shoved, too.
-    assert!(soak_pushes(&stdout) >= 1, "{stdout}");
+    assert!(kinds >= 2, "{summary}");
+    assert!(soak_pushes(summary) >= 1, "{summary}");
 }
 
 /// The shoves a soak's summary counts.
@@ -708,17 +712,7 @@ fn a_soak_on_the_humanoid_goes_from_the_harness_to_walking_and_back_with_every_c
         Duration::from_secs(600),
     );
     assert_eq!(code, Some(0), "{stdout}{stderr}");
-    assert!(
-        stdout.contains("commands outside limits: 0") && stdout.contains("records lost: 0"),
-        "{stdout}"
-    );
-    assert!(stdout.trim_end().ends_with("PASSED"), "{stdout}");
-    let faults = stdout
-        .lines()
-        .filter(|l| l.contains(" on a joint") || l.contains(" on the IMU"))
-        .count();
-    assert!(faults >= 2, "{stdout}");
-    assert!(soak_pushes(&stdout) >= 1, "{stdout}");
+    assert_soak_held(&stdout);
     // The operator stopped it more than one way, back into the harness among them.
     let stops = stdout
         .lines()

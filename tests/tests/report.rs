@@ -93,6 +93,12 @@ fn the_report_of_a_played_clip_gives_the_runs_own_figures() {
         .unwrap();
     check("robot jitter", robot_jitter, s["jitter"].as_f64().unwrap(), 1);
     assert_eq!(s["success"], true, "{s}");
+    // The per-bus plot says what it shows (each bus's cycle on the wire, not the loop's bus I/O
+    // of the table), with each bus's mean in its legend.
+    let html = std::fs::read_to_string(dir.join("report/report.html")).unwrap();
+    assert!(html.contains("bus cycle time, each bus"), "no per-bus plot title");
+    assert!(!html.contains("bus I/O per tick, each bus"));
+    assert!(html.contains("can0 (mean ") && html.contains("dxl0 (mean "));
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -1433,12 +1433,28 @@ fn page(log: &Path, s: &Series, summary: &RunSummary) -> Result<(String, Vec<(St
     )?;
     html.push_str(&add("timing-compute", svg));
     let colors = [BLUE, GREEN, MEASURED, ORANGE, REFERENCE];
-    let bus_lines: Vec<Line<'_>> = s
+    // Each bus's own cycle (its round trips on the wire), not the loop's bus I/O of the table:
+    // the legend gives each bus's mean, so lines that lie on one another still read apart.
+    let bus_labels: Vec<String> = s
         .bus_names
         .iter()
         .enumerate()
-        .map(|(b, bus)| Line {
-            label: bus,
+        .map(|(b, bus)| {
+            let times: Vec<f64> = s
+                .bus_us
+                .iter()
+                .filter_map(|v| v.get(b).copied())
+                .filter(|t| t.is_finite())
+                .collect();
+            let mean = times.iter().sum::<f64>() / times.len().max(1) as f64;
+            format!("{bus} (mean {:.2} ms)", mean / 1e3)
+        })
+        .collect();
+    let bus_lines: Vec<Line<'_>> = bus_labels
+        .iter()
+        .enumerate()
+        .map(|(b, label)| Line {
+            label,
             color: colors[b % colors.len()],
             points: series(&|k| {
                 s.bus_us
@@ -1451,7 +1467,7 @@ fn page(log: &Path, s: &Series, summary: &RunSummary) -> Result<(String, Vec<(St
         .collect();
     let svg = plot::time_plot(
         &TimePlot {
-            title: "bus I/O per tick, each bus",
+            title: "bus cycle time, each bus (round trips on the wire)",
             y_desc: "µs",
             lines: bus_lines,
             limits: Vec::new(),
