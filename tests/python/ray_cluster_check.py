@@ -107,8 +107,9 @@ def main():
 
         # The reference: one machine.
         local = args.work / "local.jsonl"
+        local_csv = args.work / "local.csv"
         t0 = time.monotonic()
-        done = sh([args.binary, "batch", "--clips", *CLIPS, "--seeds", "0-3", "--mirror", args.mirror, "--jobs", "2", "--json", local], cwd=ROOT)
+        done = sh([args.binary, "batch", "--clips", *CLIPS, "--seeds", "0-3", "--mirror", args.mirror, "--jobs", "2", "--json", local, "--csv", local_csv], cwd=ROOT)
         if done.returncode != 0:
             fail(f"local batch: {done.stderr}")
         figures["local_batch_s"] = round(time.monotonic() - t0, 2)
@@ -140,6 +141,10 @@ def main():
         table = json.loads((out1 / "table.json").read_text())
         if keyed(table) != want:
             fail("table.json differs from the local batch")
+        # One CSV format: the cluster's table.csv is the local `batch --csv`, line for line.
+        ours, theirs = (p.read_text().splitlines() for p in (out1 / "table.csv", local_csv))
+        if ours[0] != theirs[0] or sorted(ours[1:]) != sorted(theirs[1:]):
+            fail(f"table.csv differs from `batch --csv`:\n{chr(10).join(ours[:3])}\nagainst\n{chr(10).join(theirs[:3])}")
         figures["killed_worker_pid"] = killed[1]
 
         # 2. The driver stopped half-way, then resumed.

@@ -7,7 +7,7 @@
 
 RESULTS gets `results.jsonl` (every run as it came back), `table.csv`/`table.json` (one row per
 run, in clip and seed order: the same numbers `robodeploy batch --json` gives on one machine, bit
-for bit) and `report.md`. Run the same command again to resume a stopped job: runs already in
+for bit; `table.csv` in `robodeploy batch --csv`'s format) and `report.md`. Run the same command again to resume a stopped job: runs already in
 `results.jsonl` are not run again. A worker lost mid-task costs that task, which Ray runs again
 elsewhere (up to 3 times).
 """

@@ -3,16 +3,20 @@
 from __future__ import annotations
 
 import collections
-import csv
+import decimal
 import json
+import math
 import re
 import statistics
 from pathlib import Path
 
+# `robodeploy batch --csv`'s columns: the same table, in the same format, from either tool.
 BATCH_COLUMNS = [
     "clip", "seed", "success", "fell", "outcome", "ticks", "played",
-    "joint_rmse_deg", "root_rmse_cm", "root_max_error", "limited_ticks", "error",
+    "joint_rmse_deg", "root_rmse_cm", "limited_ticks", "error",
 ]
+# Text columns, always quoted (as `batch --csv` writes them).
+QUOTED = {"clip", "outcome", "error"}
 
 
 def sorted_rows(rows: list[dict]) -> list[dict]:
@@ -20,16 +24,40 @@ def sorted_rows(rows: list[dict]) -> list[dict]:
     return sorted(rows, key=lambda r: (r["clip"], r.get("seed", 0)))
 
 
+def cell(column: str, value) -> str:
+    """One value as `robodeploy batch --csv` writes it: booleans `true`/`false`, numbers at full
+    precision without an exponent (`1`, `0.5`, `0.0000001`, as Rust prints them), nothing for
+    none, text quoted; lists and tables as JSON."""
+    if value is None:
+        return ""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if math.isnan(value):
+            return "NaN"
+        if math.isinf(value):
+            return "inf" if value > 0 else "-inf"
+        text = format(decimal.Decimal(repr(value)), "f")
+        if "." in text:
+            text = text.rstrip("0").rstrip(".")
+        return "-0" if text == "0" and math.copysign(1.0, value) < 0 else text
+    if isinstance(value, (list, dict)):
+        value = json.dumps(value)
+    text = str(value)
+    return '"' + text.replace('"', '""') + '"' if column in QUOTED or isinstance(value, str) and ("," in text or '"' in text) else text
+
+
 def write_table(rows: list[dict], out: Path) -> None:
-    """`table.csv` (numbers at full precision, as JSON writes them) and `table.json`."""
+    """`table.csv` (byte for byte what `robodeploy batch --csv` writes for the same runs) and
+    `table.json` (every field)."""
     rows = sorted_rows(rows)
     (out / "table.json").write_text(json.dumps(rows, sort_keys=True, indent=1) + "\n")
     columns = BATCH_COLUMNS if rows and "seed" in rows[0] else sorted({k for r in rows for k in r})
-    with open(out / "table.csv", "w", newline="", encoding="utf-8") as f:
-        w = csv.writer(f)
-        w.writerow(columns)
-        for r in rows:
-            w.writerow([json.dumps(r.get(c)) if isinstance(r.get(c), (list, dict)) else r.get(c) for c in columns])
+    lines = [",".join(columns)]
+    lines += [",".join(cell(c, r.get(c)) for c in columns) for r in rows]
+    (out / "table.csv").write_text("\n".join(lines) + "\n", encoding="utf-8")
 
 
 def _cause(outcome: str) -> str:
