@@ -55,6 +55,22 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("wit_stream", wit_stream::run),
 ];
 
+/// What must hold of every IMU sample a decoder accepts: finite readings and a unit quaternion.
+///
+/// # Panics
+/// When it does not.
+pub fn assert_imu_sample_sound(s: &firmware_bridge::imu::wit::ImuSample) {
+    assert!(
+        s.quat
+            .iter()
+            .chain(&s.gyro)
+            .chain(&s.accel)
+            .all(|v| v.is_finite())
+    );
+    let norm = s.quat.iter().map(|q| q * q).sum::<f64>();
+    assert!((norm - 1.0).abs() < 1e-9, "{:?}", s.quat);
+}
+
 /// The reference robot, loaded once per process.
 ///
 /// # Panics
