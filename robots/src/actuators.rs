@@ -7,7 +7,9 @@
 use crate::config::{BusKind, JointConfig, RobotConfig, check_range, matches_pattern};
 
 /// The law that makes a joint's torque from its command.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, Eq, serde::Deserialize, schemars::JsonSchema, serde::Serialize,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum ActuatorModel {
     /// The emulated device's own loop at its inner rate: an MIT motor's PD at the firmware
@@ -57,7 +59,7 @@ impl ActuatorModel {
 
 /// The actuator of a joint or group (robot.toml `[[actuators]]`). A later entry wins over an
 /// earlier one, field by field, for the joints both match.
-#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct ActuatorGroup {
     /// Joint names or patterns (`*` matches any run of characters).

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use crate::FileError;
 
 /// One joint's measured actuator mapping.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct JointCalibration {
     /// Actuator angle at joint zero, rad.
@@ -35,7 +35,7 @@ pub fn physical_zero(zero_offset: f64, homing_ticks: i32) -> f64 {
 }
 
 /// The IMU's measured mounting and bias.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct ImuCalibration {
     /// Rotation from the IMU's axes to the site's axes, roll/pitch/yaw in degrees.
@@ -48,7 +48,7 @@ pub struct ImuCalibration {
 }
 
 /// A calibration file.
-#[derive(Debug, Clone, Default, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, Default, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct Calibration {
     /// When and how it was made (free text).

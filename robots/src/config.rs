@@ -9,7 +9,7 @@ use firmware_bridge::{dxl, feetech, mit};
 use crate::mjcf::{self, MjcfSummary};
 
 /// A bus of the robot.
-#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct BusConfig {
     /// Name joints refer to, e.g. `can0`.
@@ -54,7 +54,9 @@ pub const DEFAULT_BUS_LOAD: f64 = 0.5;
 pub const MAX_BUS_RATE_HZ: f64 = 10_000.0;
 
 /// What a bus commands between policy ticks.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, serde::Serialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, schemars::JsonSchema, serde::Serialize,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum Interpolation {
     /// The newest target until the next one.
@@ -110,7 +112,7 @@ pub fn default_command_timeout(kind: BusKind, period: std::time::Duration) -> st
 }
 
 /// The protocol of a bus.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum BusKind {
     /// MIT-mode motors on CAN.
@@ -125,7 +127,7 @@ pub enum BusKind {
 }
 
 /// One actuated joint, in the policy's order.
-#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct JointConfig {
     /// Name the policy and telemetry use.
@@ -163,7 +165,7 @@ pub struct JointConfig {
 }
 
 /// The IMU.
-#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct ImuConfig {
     /// Bus name (an `imu_serial` bus).
@@ -215,7 +217,7 @@ pub const IMU_SENSOR_KINDS: [(&str, &str); 3] = [
 pub type ImuSensorNames = [Option<String>; 3];
 
 /// A robot description.
-#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct RobotConfig {
     /// Robot name.
@@ -300,7 +302,7 @@ pub struct RobotConfig {
 /// Joint dynamics for a joint or a group (robot.toml `[[joint_dynamics]]`): what a trainer such as
 /// mjlab adds per actuator group to a model that lacks it. A later entry wins over an earlier one,
 /// field by field, for the joints both match.
-#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct JointDynamics {
     /// Joint names or patterns (`*` matches any run of characters: `"*knee*"`).
@@ -328,7 +330,7 @@ pub struct JointDynamicsOf {
 }
 
 /// MuJoCo's numerical integrators (robot.toml `[sim] integrator`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Integrator {
     /// Semi-implicit Euler.
@@ -342,7 +344,9 @@ pub enum Integrator {
 }
 
 /// Physics settings (robot.toml `[sim]`): the trainer's, where the model file differs.
-#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize,
+)]
 #[serde(default, deny_unknown_fields)]
 pub struct SimConfig {
     /// Physics step, s (0.0001 up to the policy period, a whole number of steps per period).
@@ -366,7 +370,7 @@ pub struct SimConfig {
 }
 
 /// MuJoCo's constraint solvers (robot.toml `[sim] solver`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Solver {
     /// Projected Gauss-Seidel.
@@ -378,7 +382,7 @@ pub enum Solver {
 }
 
 /// MuJoCo's friction cones (robot.toml `[sim] cone`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum FrictionCone {
     /// Pyramidal (MuJoCo's default).
@@ -485,7 +489,7 @@ impl RobotConfig {
 }
 
 /// A robot's own safety thresholds (robot.toml `[safety]`).
-#[derive(Debug, Clone, Default, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, Default, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SafetyConfig {
     /// Largest base tilt from upright before the robot is stopped, rad (0.1–1.5; default 0.8).
@@ -510,7 +514,9 @@ pub struct SafetyConfig {
 }
 
 /// Where the governor lets a policy's position targets lie.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, Eq, serde::Deserialize, schemars::JsonSchema, serde::Serialize,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum PositionTargets {
     /// Inside each joint's position limits, less the margin.
@@ -530,7 +536,7 @@ impl PositionTargets {
 }
 
 /// The tracking-error stop's threshold for some joints.
-#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct TrackingRule {
     /// Joint names or patterns (`*` matches any run of characters).
@@ -683,7 +689,9 @@ impl SafetyConfig {
 }
 
 /// How a run hands the robot to the policy (robot.toml `[start]`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, serde::Serialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, schemars::JsonSchema, serde::Serialize,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum StartMode {
     /// The policy is in control from its first tick while a harness (a gantry crane's rope)
@@ -710,7 +718,7 @@ impl StartMode {
 }
 
 /// The start (robot.toml `[start]`): the mode, the PD soft start's length and gains, the harness.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct StartConfig {
     /// Which start a run takes unless `play --start` says otherwise.
@@ -745,7 +753,7 @@ impl StartConfig {
 pub const MAX_HARNESS_LIFT_M: f64 = 0.3;
 
 /// The harness of a `harness` start.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct HarnessConfig {
     /// The soles hang this far above the floor when the run begins, m (0–[`MAX_HARNESS_LIFT_M`]).
@@ -797,7 +805,7 @@ impl StartConfig {
 /// An MIT-mode motor model as a robot.toml defines it: the ranges its firmware maps the 16- and
 /// 12-bit command and reply fields onto (position, velocity and torque symmetric about zero,
 /// gains from zero), and its reply format.
-#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct MitModelConfig {
     /// The name joints' `model` refers to.
@@ -868,7 +876,7 @@ impl MitModelConfig {
 /// A serial servo variant as a robot.toml defines it: a shipped model (its protocol, control
 /// table and identity) with the motor constants of the variant the robot carries. Each given
 /// constant must be a positive number; the ones left out are the shipped model's.
-#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct ServoModelConfig {
     /// The name joints' `model` refers to.
@@ -965,7 +973,7 @@ impl ServoModelConfig {
 }
 
 /// A foot switch on a GPIO line (the Linux character-device interface).
-#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct ContactSwitch {
     /// The foot (one of `feet`).
@@ -991,7 +999,9 @@ fn default_touch_threshold() -> f64 {
 }
 
 /// A human body the retargeting map knows (BVH skeletons and VR trackers are mapped onto these).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Deserialize, serde::Serialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Deserialize, schemars::JsonSchema, serde::Serialize,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum HumanBody {
     /// The pelvis (the root pair).
@@ -1018,7 +1028,7 @@ pub enum HumanBody {
 
 /// The point of the model a keypoint is: a body's or site's origin, or a point offset from it in
 /// its frame (m, each within ±0.5).
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize, schemars::JsonSchema)]
 #[serde(untagged)]
 pub enum KeypointFrame {
     /// The frame's origin.
@@ -1051,7 +1061,7 @@ impl KeypointFrame {
 }
 
 /// One body pair of the retargeting map.
-#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct BodyPair {
     /// The human body.
@@ -1085,7 +1095,9 @@ fn x_axis() -> [f64; 3] {
 }
 
 /// Which part of an orientation error inverse kinematics compares (swing–twist decomposition).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, serde::Serialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, schemars::JsonSchema, serde::Serialize,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum OrientationCompare {
     /// The whole rotation.
@@ -1098,7 +1110,7 @@ pub enum OrientationCompare {
 }
 
 /// How human motion maps onto the robot.
-#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct RetargetConfig {
     /// The robot's pose matching a human T-pose, by joint name (joints not named: 0 rad).

@@ -3,7 +3,9 @@
 //! filter itself is `world::estimator`.
 
 /// Which filter estimates the base.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, serde::Serialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, schemars::JsonSchema, serde::Serialize,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum FilterKind {
     /// The linear Kalman filter (Bloesch et al. 2012, linear form): orientation from the IMU's
@@ -26,7 +28,7 @@ impl std::fmt::Display for FilterKind {
 }
 
 /// The filter's noises and the contact thresholds.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct EstimatorConfig {
     /// `"invariant"` (the default) or `"linear"`.

@@ -4,7 +4,7 @@
 use std::time::Duration;
 
 /// A uniform range `[lo, hi]` a quantity is drawn from once per run.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 pub struct Range(pub f64, pub f64);
 
 impl Range {
@@ -15,7 +15,7 @@ impl Range {
 }
 
 /// What is randomised per run (each joint/body draws its own factor).
-#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Randomization {
     /// Scale of every body's mass.
@@ -50,7 +50,7 @@ impl Default for Randomization {
 }
 
 /// A fault the mirror applies at a given simulated time.
-#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct ScheduledFault {
     /// When, seconds after the start.
@@ -62,7 +62,7 @@ pub struct ScheduledFault {
 }
 
 /// A constant force on the robot's root body for a while: a shove, a bump, a tug on the gantry.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct Push {
     /// When it starts, seconds after the start: [0, 86400].
@@ -74,7 +74,7 @@ pub struct Push {
 }
 
 /// Faults a device can be made to show.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(rename_all = "snake_case", tag = "kind")]
 pub enum FaultKind {
     /// The device stops answering for `count` packets/frames (`None`: for good; at least 1).
@@ -97,7 +97,7 @@ pub enum FaultKind {
 
 /// What the real machine is like where it differs from its description: the values a
 /// calibration must find. The mirror builds its physics from these; the host never sees them.
-#[derive(Debug, Clone, Default, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, Default, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct HardwareTruth {
     /// Per joint (robot.toml name): the actuator's true zero offset and direction.
@@ -107,7 +107,7 @@ pub struct HardwareTruth {
 }
 
 /// A joint's true actuator mapping.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct TrueJoint {
     /// Actuator angle at joint zero, rad.
@@ -117,7 +117,7 @@ pub struct TrueJoint {
 }
 
 /// A mirror run's setup.
-#[derive(Debug, Clone, PartialEq, Default, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, Default, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct MirrorConfig {
     /// Seed of every random draw (noise, randomisation): same seed, same run.
@@ -155,7 +155,9 @@ pub struct MirrorConfig {
 }
 
 /// Where the mirrored robot starts: a horizontal position, a heading, and a height to drop from.
-#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Deserialize, serde::Serialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Default, serde::Deserialize, schemars::JsonSchema, serde::Serialize,
+)]
 #[serde(default, deny_unknown_fields)]
 pub struct StartPose {
     /// x and y of the root, m (within ±100).

@@ -441,8 +441,14 @@ fn the_shipped_foxglove_layouts_are_what_the_command_writes_and_every_plot_reads
         schemas.insert(m.channel.topic.clone(), schema);
     }
     for (robot, shipped) in [
-        ("robots/biped/robot.toml", "docs/foxglove/rd-biped.layout.json"),
-        ("robots/mini/robot.toml", "docs/foxglove/rd-mini.layout.json"),
+        (
+            "robots/biped/robot.toml",
+            "docs/guide/src/foxglove/rd-biped.layout.json",
+        ),
+        (
+            "robots/mini/robot.toml",
+            "docs/guide/src/foxglove/rd-mini.layout.json",
+        ),
     ] {
         let out = test_support::bin::robodeploy()
             .args(["layout", "--robot"])

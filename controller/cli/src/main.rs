@@ -21,6 +21,7 @@ mod logging;
 mod play;
 mod project;
 mod retarget;
+mod schema;
 mod sim;
 mod soak;
 mod teleop;
@@ -195,6 +196,13 @@ enum Command {
     /// Write shell completions for robodeploy to stdout: `robodeploy completions bash >
     /// ~/.local/share/bash-completion/completions/robodeploy` (zsh: a file `_robodeploy` on
     /// `$fpath`; fish: `~/.config/fish/completions/robodeploy.fish`).
+    /// Write the JSON Schema of robot.toml, a policy manifest, a mirror file or calibration.toml,
+    /// generated from the types robodeploy reads them with: `robodeploy schema robot --out
+    /// robot.schema.json`, then a first line `#:schema ./robot.schema.json` in robot.toml lets
+    /// taplo and VS Code (Even Better TOML) check and complete it as you type. `--format markdown`
+    /// writes the reference page the user guide carries.
+    #[command(display_order = 98)]
+    Schema(schema::SchemaArgs),
     #[command(display_order = 99)]
     Completions {
         /// The shell.
@@ -250,6 +258,7 @@ fn dispatch(command: Command) -> Result<std::process::ExitCode> {
             std::io::Write::write_all(&mut std::io::stdout(), &script).context("writing the completions")?;
             Ok(std::process::ExitCode::SUCCESS)
         }
+        Command::Schema(args) => done(schema::run(&args)),
         Command::Can(cmd) => done(can::run(cmd)),
         Command::Dxl(cmd) => done(dxl::run(cmd)),
         Command::Feetech(cmd) => done(feetech::run(cmd)),

@@ -6,7 +6,7 @@
 pub const MAX_COMMANDS: usize = 8;
 
 /// What a command means, for the run's metrics (commanded against achieved).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum CommandKind {
     /// Forward speed in the robot's heading frame, m/s.
@@ -34,7 +34,7 @@ impl CommandKind {
 }
 
 /// A gamepad axis, as `gilrs` names the standard layout's.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum PadAxis {
     /// Left stick, right positive.
@@ -48,7 +48,7 @@ pub enum PadAxis {
 }
 
 /// Which gamepad axis drives a command, and in which sense.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct AxisBinding {
     /// The axis.
@@ -59,7 +59,7 @@ pub struct AxisBinding {
 }
 
 /// The manifest's `[commands]`: the live commands of a command-driven policy.
-#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct CommandSpec {
     /// Names, in the order the policy's `command` term observes them (at most [`MAX_COMMANDS`]).

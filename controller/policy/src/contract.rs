@@ -12,7 +12,7 @@ use crate::commands::CommandSpec;
 use robots::Robot;
 
 /// One observation term, as trainers name them.
-#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(tag = "term", rename_all = "snake_case", deny_unknown_fields)]
 pub enum Term {
     /// IMU angular velocity, rad/s (IMU axes).
@@ -210,7 +210,7 @@ fn current_frame() -> Vec<usize> {
 }
 
 /// `(value − offset) · scale`, then clipped, with `history` stacked copies (newest first).
-#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct Shaping {
     /// Multiplier.
@@ -241,7 +241,7 @@ pub struct Shaping {
 }
 
 /// Which function of an angle a term observes.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Trig {
     /// The sine.
@@ -301,7 +301,9 @@ impl GaitClock {
 }
 
 /// How a term's history is stacked.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, Eq, serde::Deserialize, schemars::JsonSchema, serde::Serialize,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum HistoryOrder {
     /// The current value first (this project's manifests).
@@ -561,7 +563,7 @@ impl TermFieldError {
 }
 
 /// How actions become joint commands.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum ActionKind {
     /// Position setpoints: `default + scale · a`, sent with the robot's PD gains.
@@ -571,7 +573,7 @@ pub enum ActionKind {
 }
 
 /// Scale of position actions.
-#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(untagged)]
 pub enum ActionScale {
     /// The same for every joint.
@@ -593,7 +595,7 @@ impl Default for ActionSpec {
 }
 
 /// The action side of the contract.
-#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct ActionSpec {
     /// What an action means.
@@ -615,7 +617,7 @@ pub struct ActionSpec {
 
 /// A policy manifest. Every field but `onnx` may be left to the ONNX file's metadata, as
 /// training frameworks export it (see [`export`]).
-#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct PolicyManifest {
     /// What this policy is (shown by `check` and `play`; default: the metadata's `run_path`).

@@ -78,7 +78,9 @@ fn fast_status_len(servos: usize) -> usize {
 }
 
 /// How a joint's servo is driven.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, serde::Serialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, schemars::JsonSchema, serde::Serialize,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum DxlMode {
     /// Position control within one turn (Operating Mode 3).
@@ -118,7 +120,7 @@ fn default_zero_ticks() -> f64 {
 }
 
 /// One joint driven by a Dynamixel servo.
-#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct DxlJointConfig {
     /// Joint name (for messages and telemetry).

@@ -25,7 +25,7 @@ pub fn rad_s_per_velocity_unit() -> f64 {
 }
 
 /// One servo model: identity, factory defaults and the motor constants the emulator uses.
-#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct DxlModel {
     /// Model name, e.g. `XM430-W350` (the table key).

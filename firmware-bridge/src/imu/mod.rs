@@ -9,7 +9,9 @@ pub mod rvc;
 pub mod wit;
 
 /// What an IMU streams on its serial line.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, serde::Serialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, schemars::JsonSchema, serde::Serialize,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum ImuProtocol {
     /// WIT Motion's 11-byte packets (acceleration, angular velocity, angles, quaternion).

@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 use std::sync::OnceLock;
 
 /// How a motor family lays out its reply frames.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum MotorFamily {
     /// CubeMars AK series: `[id, p16, v12|i12, temperature, error]`, sent with the host's ID 0.
@@ -33,7 +33,7 @@ impl MotorFamily {
 }
 
 /// One motor model: the ranges its 16/12-bit command and reply fields map onto.
-#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct MotorModel {
     /// The model's name, e.g. `AK80-9` (filled from the table key).
