@@ -7,6 +7,7 @@
 
 pub fn main() {
     println!("cargo::rerun-if-env-changed=MUJOCO_DYNAMIC_LINK_DIR");
+    println!("cargo::rerun-if-env-changed=ROBODEPLOY_BUNDLE_BUILD");
     let Ok(dir) = std::env::var("MUJOCO_DYNAMIC_LINK_DIR") else {
         println!(
             "cargo::warning=MUJOCO_DYNAMIC_LINK_DIR is not set; run cargo from the workspace so .cargo/config.toml applies"
@@ -21,7 +22,13 @@ pub fn main() {
             lib.display()
         );
     }
-    // A bundle (bin/robodeploy beside lib/, as `robodeploy-ray` ships it to other machines) finds
-    // its libraries beside it first; a build in the workspace finds .local/lib.
-    println!("cargo::rustc-link-arg=-Wl,-rpath,$ORIGIN/lib:$ORIGIN/../lib:{dir}");
+    // A bundle (bin/robodeploy beside lib/, as `robodeploy bundle` and `robodeploy-ray` ship it
+    // to other machines) finds its libraries beside it first; a build in the workspace finds
+    // .local/lib. A bundle's own build (`scripts/dev bundle` sets ROBODEPLOY_BUNDLE_BUILD) names
+    // no folder of this machine.
+    if std::env::var_os("ROBODEPLOY_BUNDLE_BUILD").is_some() {
+        println!("cargo::rustc-link-arg=-Wl,-rpath,$ORIGIN/lib:$ORIGIN/../lib");
+    } else {
+        println!("cargo::rustc-link-arg=-Wl,-rpath,$ORIGIN/lib:$ORIGIN/../lib:{dir}");
+    }
 }

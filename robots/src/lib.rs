@@ -9,6 +9,7 @@ pub mod calibration;
 pub mod config;
 pub mod drivers;
 pub mod estimator;
+pub mod locate;
 pub mod mjcf;
 pub mod spatial;
 

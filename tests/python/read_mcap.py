@@ -14,6 +14,7 @@ import sys
 
 from google.protobuf.json_format import MessageToDict
 from mcap_protobuf.decoder import DecoderFactory
+from mcap_ros2.decoder import DecoderFactory as Ros2DecoderFactory
 
 from mcap.exceptions import EndOfFile, RecordLengthLimitExceeded
 from mcap.reader import make_reader
@@ -45,10 +46,21 @@ def messages(f, cut_ok):
         cut = True
 
 
-def decode(schema, channel, message, protobuf=DecoderFactory()):
-    """The message as a dict: protobuf by its schema, JSON as JSON; anything else fails."""
+def as_dict(value):
+    """A decoded ROS 2 message (mcap_ros2's dynamic classes) as plain data."""
+    if isinstance(value, list):
+        return [as_dict(v) for v in value]
+    fields = [f for f in dir(value) if not f.startswith("_")] if hasattr(value, "__slots__") else None
+    return {f: as_dict(getattr(value, f)) for f in fields} if fields else value
+
+
+def decode(schema, channel, message, protobuf=DecoderFactory(), ros2=Ros2DecoderFactory()):
+    """The message as a dict: protobuf by its schema, ROS 2 CDR by its ros2msg definition, JSON as
+    JSON; anything else fails."""
     if channel.message_encoding == "json":
         return json.loads(message.data)
+    if channel.message_encoding == "cdr":
+        return as_dict(ros2.decoder_for("cdr", schema)(message.data))
     decoder = protobuf.decoder_for(channel.message_encoding, schema)
     if decoder is None:
         raise SystemExit(f"{channel.topic}: no decoder for {channel.message_encoding} / {schema and schema.encoding}")

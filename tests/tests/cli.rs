@@ -77,18 +77,32 @@ fn doctor_alone_checks_the_reference_robot_and_policy() {
 }
 
 #[test]
-fn a_bundle_runs_from_another_folder_on_its_own_libraries() {
+fn a_bundle_runs_play_with_nothing_else_env_i_and_the_checkout_hidden() {
     let dir = std::env::temp_dir().join(format!("bundle-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let tarball = dir.join("b.tar.gz");
     let clip = robots::reference_robot_path().with_file_name("clips/squat.csv");
-    let out = robodeploy()
-        .args(["bundle", "--clip"])
-        .arg(&clip)
-        .arg("--out")
-        .arg(&tarball)
-        .output()
-        .unwrap();
+    let bundle = |extra: &[&str]| {
+        robodeploy()
+            .args(["bundle", "--clip"])
+            .arg(&clip)
+            .arg("--out")
+            .arg(&tarball)
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    // The test binary is a development build: refused by flag, with the command that makes a
+    // release bundle; nothing written.
+    let refused = bundle(&[]);
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    assert_eq!(refused.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("--allow-dev-build") && stderr.contains("scripts/dev bundle"),
+        "{stderr}"
+    );
+    assert!(!tarball.exists());
+    let out = bundle(&["--allow-dev-build"]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let unpacked = dir.join("elsewhere");
     tar::Archive::new(flate2::read::GzDecoder::new(
@@ -97,11 +111,20 @@ fn a_bundle_runs_from_another_folder_on_its_own_libraries() {
     .unpack(&unpacked)
     .unwrap();
     let home = unpacked.join("robodeploy-rd-biped");
+    // Run as a user on the robot's computer would: an empty environment (`env -i`), from the
+    // unpacked folder, with the checkout this binary was built in hidden under an empty tmpfs in
+    // a mount namespace of the run's own (the run path's .local/lib, the reference robot, the
+    // policies: none of it reachable).
+    let checkout = test_support::fixtures::workspace_root();
     let bundled = |args: &[&str]| {
-        Command::new(home.join("bin/robodeploy"))
+        Command::new("unshare")
+            .args(["--mount", "--propagation", "private", "--", "sh", "-c"])
+            .arg(r#"mount -t tmpfs none "$1" && test ! -e "$1/Cargo.toml" && shift && exec env -i "$@""#)
+            .arg("sh")
+            .arg(&checkout)
+            .arg(home.join("bin/robodeploy"))
             .args(args)
             .current_dir(&home)
-            .env_remove("LD_LIBRARY_PATH")
             .output()
             .unwrap()
     };
@@ -118,33 +141,28 @@ fn a_bundle_runs_from_another_folder_on_its_own_libraries() {
         "{stdout}{}",
         String::from_utf8_lossy(&doctor.stderr)
     );
-    // Its own libraries, from beside the binary: not the checkout's.
+    // Its own libraries, from beside the binary.
     let libs = home.join("lib");
     assert!(
         stdout.contains(&format!("loaded {}/libmujoco.so.3.17.0", libs.display()))
             && stdout.contains(&format!("loaded {}/libonnxruntime.so.1.31.1", libs.display())),
         "{stdout}"
     );
-    let play = bundled(&[
-        "play",
-        "--robot",
-        "robot/robot.toml",
-        "--policy",
-        "policy/reference_follower.toml",
-        "--clip",
-        "clips/squat.csv",
-        "--no-record",
-    ]);
+    // `play` with no flag at all: the bundle's robot, policy and clip (bundle.toml).
+    let play = bundled(&["play"]);
     let stdout = String::from_utf8_lossy(&play.stdout);
     assert!(
         play.status.success() && stdout.contains("result: finished"),
-        "{stdout}"
+        "{stdout}{}",
+        String::from_utf8_lossy(&play.stderr)
+    );
+    assert!(stdout.contains("squat"), "{stdout}");
+    assert!(
+        home.join("out/runs").is_dir(),
+        "the recording is written beside the bundle"
     );
     let readme = std::fs::read_to_string(home.join("README.txt")).unwrap();
-    assert!(
-        readme.contains("./bin/robodeploy play --robot robot/robot.toml"),
-        "{readme}"
-    );
+    assert!(readme.contains("./bin/robodeploy play "), "{readme}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -1402,7 +1420,11 @@ fn bundle_refuses_an_out_it_would_pack_or_overwrite_and_clips_that_clash_or_are_
         ),
     ];
     for (args, needle) in cases {
-        let out = robodeploy().arg("bundle").args(&args).output().unwrap();
+        let out = robodeploy()
+            .args(["bundle", "--allow-dev-build"])
+            .args(&args)
+            .output()
+            .unwrap();
         let stderr = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
         assert!(stderr.contains(needle), "{args:?}: {stderr}");
@@ -1416,6 +1438,7 @@ fn bundle_refuses_an_out_it_would_pack_or_overwrite_and_clips_that_clash_or_are_
         .current_dir(&root)
         .args([
             "bundle",
+            "--allow-dev-build",
             "--policy",
             "robots/biped/policies/reference_follower.toml",
             "--overwrite",

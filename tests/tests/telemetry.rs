@@ -162,6 +162,34 @@ fn a_recorded_run_reads_back_in_python_with_the_reported_counts() {
     assert_eq!(rerun["joints"], serde_json::json!(sorted));
     assert_eq!(rerun["samples"].as_u64(), Some(summary.ticks));
     assert_eq!(rerun["finite"], true);
+    // The robot's URDF on /robot_description (ROS 2's std_msgs/msg/String): Rerun builds the
+    // robot's geometry from it, each link's shapes in the frame `/tf` moves.
+    assert_eq!(v["schemas"]["/robot_description"], "std_msgs/msg/String");
+    assert_eq!(v["counts"]["/robot_description"].as_u64(), Some(1));
+    let urdf_frames: Vec<String> = serde_json::from_value(rerun["urdf_frames"].clone()).unwrap();
+    for body in ["pelvis", "torso", "head", "left_foot", "right_shin"] {
+        assert!(
+            urdf_frames.iter().any(|f| f == body),
+            "{body} has no geometry: {urdf_frames:?}"
+        );
+    }
+    assert_eq!(
+        rerun["urdf_shapes"],
+        serde_json::json!(["Boxes3D", "Cylinders3D", "Ellipsoids3D"])
+    );
+    // Joint positions plottable by name with no code: ROS 2's sensor_msgs/msg/JointState on
+    // /joint_states becomes one named scalar series per joint, value for value /joint_state's.
+    assert_eq!(v["schemas"]["/joint_states"], "sensor_msgs/msg/JointState");
+    // Python's own ROS 2 decoder (mcap-ros2-support) reads both from their ros2msg schemas.
+    assert_eq!(v["first"]["/joint_states"]["name"], serde_json::json!(names));
+    let urdf = v["first"]["/robot_description"]["data"].as_str().unwrap();
+    assert!(
+        urdf.starts_with("<?xml") && urdf.contains("<joint name=\"left_knee\" type=\"revolute\">"),
+        "{urdf}"
+    );
+    assert_eq!(rerun["series"]["names"], serde_json::json!(names));
+    assert_eq!(rerun["series"]["rows"].as_u64(), Some(summary.ticks));
+    assert_eq!(rerun["series"]["agree"], true, "{}", rerun["series"]);
     std::fs::remove_file(&path).unwrap();
 }
 

@@ -276,7 +276,7 @@ pub fn policy_of(
 ) -> Result<std::path::PathBuf, FlagError> {
     match given {
         Some(p) => Ok(p.to_path_buf()),
-        None => match robot.default_policy() {
+        None => match robots::locate::bundle_policy_for(&robot.path).or_else(|| robot.default_policy()) {
             Some(p) if p.is_file() => Ok(p),
             Some(p) => Err(FlagError::new(
                 "policy",

@@ -14,7 +14,7 @@ use crate::sim::load_mirror_config;
 #[derive(Debug, Args)]
 pub struct BatchArgs {
     /// The robot description.
-    #[arg(long, default_value_os_t = robots::reference_robot_path())]
+    #[arg(long, default_value_os_t = robots::locate::default_robot())]
     robot: PathBuf,
     /// The policy manifest.
     /// Default: the policy robot.toml names (`policy = "policies/…"`).

@@ -9,8 +9,13 @@
 //!   robot/                         the robot's folder: robot.toml, MJCF, meshes, calibration.toml
 //!   policy/                        the policy's folder: manifest(s) and ONNX files
 //!   clips/                         the clips asked for
+//!   bundle.toml                    what bin/robodeploy runs given no --robot, --policy, --clip
 //!   README.txt                     how to run it
 //! ```
+//!
+//! The binary packed is the one running: a bundle build (`scripts/dev bundle`: release, no
+//! symbols, no folder of the build machine in it, its libraries found beside it). A development
+//! build is refused unless asked for (`--allow-dev-build`, for trying a bundle on this machine).
 
 use std::path::{Path, PathBuf};
 
@@ -27,7 +32,7 @@ const MAX_FOLDER_BYTES: u64 = 512 * 1024 * 1024;
 #[derive(Debug, Args)]
 pub struct BundleArgs {
     /// The robot description; its whole folder is packed.
-    #[arg(long, default_value_os_t = robots::reference_robot_path())]
+    #[arg(long, default_value_os_t = robots::locate::default_robot())]
     robot: PathBuf,
     /// The policy (manifest or ONNX export); its whole folder is packed.
     /// Default: the policy robot.toml names (`policy = "policies/…"`).
@@ -43,6 +48,36 @@ pub struct BundleArgs {
     /// Replace an existing --out.
     #[arg(long)]
     overwrite: bool,
+    /// Pack this binary even if it is a development build (debug checks on, symbols, folders of
+    /// this machine inside): a bundle to try on this machine. Bundles for a robot come from
+    /// `scripts/dev bundle`.
+    #[arg(long)]
+    allow_dev_build: bool,
+}
+
+/// Why the running binary is no bundle build, or `None` when it is one: debug checks compiled
+/// in, or folders of this machine named in its bytes (the checkout it was built in, the cargo
+/// registry its dependencies came from: panic messages and run paths carry them).
+fn dev_build_reasons(exe: &Path) -> Result<Option<String>> {
+    let mut why = Vec::new();
+    if cfg!(debug_assertions) {
+        why.push("debug checks are compiled in".to_owned());
+    }
+    let bytes = std::fs::read(exe).with_context(|| format!("cannot read {}", exe.display()))?;
+    let cargo_home = std::env::var_os("CARGO_HOME")
+        .map(PathBuf::from)
+        .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".cargo")));
+    for folder in robots::locate::checkout().into_iter().chain(cargo_home) {
+        let needle = folder.to_string_lossy().into_owned();
+        let count = bytes
+            .windows(needle.len())
+            .filter(|w| *w == needle.as_bytes())
+            .count();
+        if count > 0 {
+            why.push(format!("it names {needle} {count} times"));
+        }
+    }
+    Ok((!why.is_empty()).then(|| why.join(", ")))
 }
 
 /// Runs `bundle`.
@@ -82,6 +117,21 @@ pub fn run(args: &BundleArgs) -> Result<()> {
         }
     }
     let exe = std::env::current_exe().context("cannot find this binary")?;
+    let dev_build = dev_build_reasons(&exe)?;
+    match (&dev_build, args.allow_dev_build) {
+        (Some(why), false) => bail!(crate::args::FlagError::new(
+            "allow-dev-build",
+            format!(
+                " is not given, and this robodeploy ({}, {:.0} MB) is a development build: {why}. \
+                 Bundle a release build: `scripts/dev bundle --robot … --out …` builds one without \
+                 symbols or this machine's folders and packs it",
+                exe.display(),
+                std::fs::metadata(&exe).map_or(0.0, |m| m.len() as f64 / 1e6)
+            )
+        )),
+        (Some(why), true) => eprintln!("bundle: packing a development build ({why}): for this machine only"),
+        (None, _) => {}
+    }
     let mut libs = Vec::new();
     for name in LIBRARIES {
         let found = policy::native::search_dirs()
@@ -155,13 +205,36 @@ pub fn run(args: &BundleArgs) -> Result<()> {
     let policy_file = file_name(&policy);
     let clip_arg = clip_names
         .first()
-        .map_or_else(String::new, |c| format!(" --clip clips/{c}"));
+        .map_or_else(String::new, |c| format!(" and clips/{c}"));
+    let defaults = robots::locate::BundleDefaults {
+        robot: PathBuf::from(format!("robot/{robot_file}")),
+        policy: PathBuf::from(format!("policy/{policy_file}")),
+        clip: clip_names.first().map(|c| PathBuf::from(format!("clips/{c}"))),
+    };
+    let defaults_toml = format!(
+        "# Written by robodeploy bundle: what bin/robodeploy runs when given no --robot, --policy or\n\
+         # --clip (paths relative to this folder).\n{}",
+        toml::to_string(&defaults).context("writing bundle.toml")?
+    );
+    let mut header = tar::Header::new_gnu();
+    header.set_size(defaults_toml.len() as u64);
+    header.set_mode(0o644);
+    header.set_cksum();
+    tar.append_data(
+        &mut header,
+        format!("{top}/{}", robots::locate::BUNDLE_FILE),
+        defaults_toml.as_bytes(),
+    )
+    .context("cannot pack bundle.toml")?;
     let readme = format!(
         "robodeploy bundle: {robot_name}, policy {policy_file}\n\
-         Built for {arch} Linux. Unpack anywhere and run from this folder:\n\n  \
+         Built for {arch} Linux. Unpack anywhere; nothing else is needed (no environment variable,\n\
+         no checkout). bin/robodeploy runs robot/{robot_file} with policy/{policy_file}{clip_arg}\n\
+         when given no --robot, --policy or --clip (bundle.toml says so):\n\n  \
          ./bin/robodeploy doctor --mjcf robot/{mjcf} --onnx policy/{onnx}\n  \
-         ./bin/robodeploy play --robot robot/{robot_file} --policy policy/{policy_file}{clip_arg}\n  \
-         ./bin/robodeploy play --hardware --robot robot/{robot_file} --policy policy/{policy_file}{clip_arg}\n\n\
+         ./bin/robodeploy check\n  \
+         ./bin/robodeploy play                 # on the mirror, lockstep\n  \
+         ./bin/robodeploy play --hardware      # on the robot's buses from robot/{robot_file}\n\n\
          bin/robodeploy loads lib/libmujoco.so.3.17.0 and lib/libonnxruntime.so.1.31.1 from beside it.\n",
         robot_name = robot.config.name,
         arch = std::env::consts::ARCH,

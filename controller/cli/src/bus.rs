@@ -30,7 +30,7 @@ pub enum BusCommand {
 #[derive(Debug, Args)]
 pub struct ScanArgs {
     /// The robot description.
-    #[arg(long, default_value_os_t = robots::reference_robot_path())]
+    #[arg(long, default_value_os_t = robots::locate::default_robot())]
     robot: std::path::PathBuf,
     /// Scan the robot's mirror, served locally, instead of the hardware.
     #[arg(long)]

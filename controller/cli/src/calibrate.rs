@@ -57,7 +57,7 @@ pub enum CalibrateCommand {
 #[derive(Debug, Args)]
 pub struct Target {
     /// The robot description (its calibration.toml, if any, is merged).
-    #[arg(long, default_value_os_t = robots::reference_robot_path())]
+    #[arg(long, default_value_os_t = robots::locate::default_robot())]
     robot: PathBuf,
     /// On the robot's own buses instead of the mirror. Every step is then confirmed at the
     /// terminal.

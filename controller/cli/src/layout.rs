@@ -10,7 +10,7 @@ use viewers::layout::{LayoutJoint, foxglove_layout};
 #[derive(Debug, Args)]
 pub struct LayoutArgs {
     /// The robot description whose joints, buses and limits the plots show.
-    #[arg(long, default_value_os_t = robots::reference_robot_path())]
+    #[arg(long, default_value_os_t = robots::locate::default_robot())]
     robot: PathBuf,
     /// Where to write the layout (JSON); standard output when not given.
     #[arg(long, short)]

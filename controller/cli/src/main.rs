@@ -187,10 +187,10 @@ enum Command {
     #[command(display_order = 19)]
     Doctor {
         /// MJCF model to load (default: the reference robot's).
-        #[arg(long, default_value_os_t = robots::reference_robot_path().with_file_name("biped.xml"))]
+        #[arg(long, default_value_os_t = robots::locate::default_robot().with_file_name("biped.xml"))]
         mjcf: PathBuf,
         /// ONNX policy to load (default: the reference policy).
-        #[arg(long, default_value_os_t = robots::reference_robot_path().with_file_name("policies/reference_follower.onnx"))]
+        #[arg(long, default_value_os_t = robots::locate::default_robot().with_file_name("policies/reference_follower.onnx"))]
         onnx: PathBuf,
     },
     /// Write shell completions for robodeploy to stdout: `robodeploy completions bash >

@@ -349,7 +349,7 @@ pub struct CheckArgs {
 #[command(next_help_heading = "What to run")]
 struct Files {
     /// The robot description.
-    #[arg(long, default_value_os_t = robots::reference_robot_path())]
+    #[arg(long, default_value_os_t = robots::locate::default_robot())]
     robot: PathBuf,
     /// The policy: a manifest (TOML beside its ONNX file), or an ONNX export whose metadata
     /// carries the contract, as BeyondMimic and mjlab write it (joint_names, gains,
@@ -376,7 +376,7 @@ struct Files {
 impl Files {
     /// The clip file a run names (the export itself when it plays the export's motion).
     fn default_clip() -> PathBuf {
-        robots::reference_robot_path().with_file_name("clips/squat.csv")
+        robots::locate::default_clip()
     }
 }
 

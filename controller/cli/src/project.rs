@@ -17,7 +17,7 @@ pub struct ProjectArgs {
     #[arg(long)]
     clip: PathBuf,
     /// The robot: its [keypoints] map says which body or site stands for each keypoint.
-    #[arg(long, default_value_os_t = robots::reference_robot_path())]
+    #[arg(long, default_value_os_t = robots::locate::default_robot())]
     robot: PathBuf,
     /// The cameras (TOML: [[camera]] with intrinsics, distortion and a pose in the world).
     #[arg(long)]

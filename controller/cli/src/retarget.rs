@@ -16,7 +16,7 @@ pub struct RetargetArgs {
     #[arg(long)]
     bvh: PathBuf,
     /// The robot (its robot.toml's [retarget] section pairs human and robot bodies).
-    #[arg(long, default_value_os_t = robots::reference_robot_path())]
+    #[arg(long, default_value_os_t = robots::locate::default_robot())]
     robot: PathBuf,
     /// Where to write the clip (CSV).
     #[arg(long, default_value = "out/clips/retargeted.csv")]

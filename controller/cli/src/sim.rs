@@ -36,7 +36,7 @@ pub enum SimCommand {
 #[derive(Debug, Args)]
 pub struct StandArgs {
     /// The robot description.
-    #[arg(long, default_value_os_t = robots::reference_robot_path())]
+    #[arg(long, default_value_os_t = robots::locate::default_robot())]
     robot: PathBuf,
     /// Mirror settings (TOML: seed, gantry, randomization, faults …).
     #[arg(long)]
@@ -73,7 +73,7 @@ fn parse_size(s: &str) -> Result<(u32, u32), String> {
 #[derive(Debug, Args)]
 pub struct ServeArgs {
     /// The robot description.
-    #[arg(long, default_value_os_t = robots::reference_robot_path())]
+    #[arg(long, default_value_os_t = robots::locate::default_robot())]
     robot: PathBuf,
     /// Mirror settings (TOML: seed, gantry, randomization, faults …).
     #[arg(long)]

@@ -19,7 +19,7 @@ use robots::Robot;
 #[derive(Debug, Args)]
 pub struct SoakArgs {
     /// Robot description.
-    #[arg(long, default_value_os_t = robots::reference_robot_path())]
+    #[arg(long, default_value_os_t = robots::locate::default_robot())]
     robot: PathBuf,
     /// Policy manifest.
     /// Default: the policy robot.toml names (`policy = "policies/…"`).

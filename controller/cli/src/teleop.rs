@@ -26,7 +26,7 @@ use crate::sim::load_mirror_config;
 #[derive(Debug, Args)]
 pub struct TeleopArgs {
     /// The robot description (its [retarget] section pairs the user's head and hands with robot frames).
-    #[arg(long, default_value_os_t = robots::reference_robot_path())]
+    #[arg(long, default_value_os_t = robots::locate::default_robot())]
     robot: PathBuf,
     /// A reference-tracking policy (its reference comes live from the trackers).
     /// Default: the policy robot.toml names (`policy = "policies/…"`).

@@ -3,30 +3,17 @@
 //! `scripts/setup` copies `libonnxruntime.so.1.31.1` out of the `onnxruntime==1.31.1` wheel into the
 //! workspace's `.local/lib`. A binary looks for it, in order:
 //! 1. `lib/` beside the executable or one level up (an installed deployment: `bin/` + `lib/`);
-//! 2. the `.local/lib` of the workspace the binary was built from.
+//! 2. the `.local/lib` of the checkout the binary sits in (`target/…`), found from its own place.
 
 use std::path::{Path, PathBuf};
 
 /// File name of the pinned ONNX Runtime (ort 2.0.0-rc.15 with `api-31`).
 pub const ONNXRUNTIME_FILE: &str = "libonnxruntime.so.1.31.1";
 
-/// The workspace's project-local library folder, as seen at build time.
-pub fn workspace_lib_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../.local/lib")
-}
-
-/// Where a library file is looked for, most specific first.
+/// Where a library file is looked for, most specific first (found from the executable's place:
+/// no path of the build machine is compiled in).
 pub fn search_dirs() -> Vec<PathBuf> {
-    let mut dirs = Vec::new();
-    if let Some(exe_dir) = std::env::current_exe()
-        .ok()
-        .and_then(|p| p.parent().map(Path::to_path_buf))
-    {
-        dirs.push(exe_dir.join("lib"));
-        dirs.push(exe_dir.join("../lib"));
-    }
-    dirs.push(workspace_lib_dir());
-    dirs
+    robots::locate::library_dirs()
 }
 
 /// The version ONNX Runtime reports for itself (`OrtGetApiBase()->GetVersionString()`), read from the

@@ -10,6 +10,8 @@
 
 include!(concat!(env!("OUT_DIR"), "/robodeploy.rs"));
 
+pub mod ros2;
+
 /// The encoded `FileDescriptorSet` of telemetry.proto and its imports: the schema data of every
 /// channel whose schema is a message of this crate.
 pub const DESCRIPTOR_SET: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/telemetry.fds"));

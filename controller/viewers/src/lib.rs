@@ -6,6 +6,7 @@
 pub mod layout;
 pub mod live;
 pub mod robot3d;
+pub mod urdf;
 
 use foxglove::schemas as fg;
 

@@ -44,6 +44,9 @@ pub struct Links {
     transforms: fg::FrameTransforms,
     /// (parent body, child body) of `transforms[1..]`.
     pairs: Vec<(usize, usize)>,
+    root_body: usize,
+    /// The MJCF joints in robot order.
+    mjcf_joints: Vec<String>,
 }
 
 impl Links {
@@ -84,8 +87,20 @@ impl Links {
             joint_qpos: index.joints.iter().map(|j| j.qpos).collect(),
             transforms: fg::FrameTransforms { transforms },
             pairs,
+            root_body,
+            mjcf_joints: joints.iter().map(|j| (*j).to_owned()).collect(),
         };
         Ok((links, scene))
+    }
+
+    /// The robot as a URDF (`crate::urdf`) named `robot`, its joints named `names` (robot order,
+    /// robot.toml's names for the MJCF joints this was made with).
+    pub fn urdf(&self, robot: &str, names: &[String]) -> String {
+        let rename = |mjcf: &str| match self.mjcf_joints.iter().position(|j| j == mjcf) {
+            Some(i) => names.get(i).cloned().unwrap_or_else(|| mjcf.to_owned()),
+            None => mjcf.to_owned(),
+        };
+        crate::urdf::urdf(self.data.model(), robot, self.root_body, &rename)
     }
 
     /// Every link's frame for `q` (robot order) with the root at `root_pose` `[x, y, z, w, qx,
@@ -129,11 +144,39 @@ impl std::fmt::Debug for Links {
     }
 }
 
-/// The robot's visible geometry: one entity per body of the tree under `root_body`, locked to
-/// the body's frame. Geoms with zero alpha, planes and height fields are left out.
-fn scene(model: &MjModel, root_body: usize, name: &dyn Fn(usize) -> String) -> fg::SceneUpdate {
+/// A geom's shape, sizes in metres.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) enum Shape {
+    /// Half extents.
+    Box([f64; 3]),
+    /// Radius.
+    Sphere(f64),
+    /// Radii.
+    Ellipsoid([f64; 3]),
+    /// Radius and half length along the geom's z.
+    Cylinder(f64, f64),
+    /// Radius and half length of the axis between the caps' centres (the geom's z).
+    Capsule(f64, f64),
+    /// The model's mesh of the geom, its vertices in the geom's frame.
+    Mesh,
+}
+
+/// One visible geom of the robot: on which body, where in the body's frame (`[x, y, z, w, qx,
+/// qy, qz]`), its colour and shape.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Visual {
+    pub body: usize,
+    pub geom: usize,
+    pub at: [f64; 7],
+    pub rgba: [f32; 4],
+    pub shape: Shape,
+}
+
+/// The robot's visible geoms: the tree under `root_body`, in the model's order; geoms with zero
+/// alpha, planes and height fields left out. What both the scene and the URDF show.
+pub(crate) fn visuals(model: &MjModel, root_body: usize) -> Vec<Visual> {
     let ngeom = usize::try_from(model.ffi().ngeom).unwrap_or(0);
-    let mut entities: Vec<fg::SceneEntity> = Vec::new();
+    let mut out = Vec::new();
     for g in 0..ngeom {
         let body = usize::try_from(model.geom_bodyid()[g]).unwrap_or(0);
         if body == 0 || !sim2real::placement::in_tree(model, body, root_body) {
@@ -146,13 +189,40 @@ fn scene(model: &MjModel, root_body: usize, name: &dyn Fn(usize) -> String) -> f
         if rgba[3] <= 0.0 {
             continue;
         }
-        let color = Some(fg::Color {
-            r: f64::from(rgba[0]),
-            g: f64::from(rgba[1]),
-            b: f64::from(rgba[2]),
-            a: f64::from(rgba[3]),
+        let s = model.geom_size()[g];
+        let shape = match model.geom_type()[g] {
+            G::mjGEOM_BOX => Shape::Box(s),
+            G::mjGEOM_SPHERE => Shape::Sphere(s[0]),
+            G::mjGEOM_ELLIPSOID => Shape::Ellipsoid(s),
+            G::mjGEOM_CYLINDER => Shape::Cylinder(s[0], s[1]),
+            G::mjGEOM_CAPSULE => Shape::Capsule(s[0], s[1]),
+            G::mjGEOM_MESH => Shape::Mesh,
+            _ => continue,
+        };
+        let (p, q) = (model.geom_pos()[g], model.geom_quat()[g]);
+        out.push(Visual {
+            body,
+            geom: g,
+            at: [p[0], p[1], p[2], q[0], q[1], q[2], q[3]],
+            rgba,
+            shape,
         });
-        let frame = name(body);
+    }
+    out
+}
+
+/// The robot's visible geometry: one entity per body of the tree under `root_body`, locked to
+/// the body's frame.
+fn scene(model: &MjModel, root_body: usize, name: &dyn Fn(usize) -> String) -> fg::SceneUpdate {
+    let mut entities: Vec<fg::SceneEntity> = Vec::new();
+    for v in visuals(model, root_body) {
+        let color = Some(fg::Color {
+            r: f64::from(v.rgba[0]),
+            g: f64::from(v.rgba[1]),
+            b: f64::from(v.rgba[2]),
+            a: f64::from(v.rgba[3]),
+        });
+        let frame = name(v.body);
         let entity = match entities.iter().position(|e| e.frame_id == frame) {
             Some(k) => &mut entities[k],
             None => {
@@ -165,53 +235,50 @@ fn scene(model: &MjModel, root_body: usize, name: &dyn Fn(usize) -> String) -> f
                 entities.last_mut().expect("just pushed")
             }
         };
-        let p = model.geom_pos()[g];
-        let q = model.geom_quat()[g];
-        let at = [p[0], p[1], p[2], q[0], q[1], q[2], q[3]];
-        let s = model.geom_size()[g];
+        let at = v.at;
         let size = |x: f64, y: f64, z: f64| Some(fg::Vector3 { x, y, z });
-        match model.geom_type()[g] {
-            G::mjGEOM_BOX => entity.cubes.push(fg::CubePrimitive {
+        match v.shape {
+            Shape::Box(h) => entity.cubes.push(fg::CubePrimitive {
                 pose: Some(fg_pose(at)),
-                size: size(2.0 * s[0], 2.0 * s[1], 2.0 * s[2]),
+                size: size(2.0 * h[0], 2.0 * h[1], 2.0 * h[2]),
                 color,
             }),
-            G::mjGEOM_SPHERE => entity.spheres.push(fg::SpherePrimitive {
+            Shape::Sphere(r) => entity.spheres.push(fg::SpherePrimitive {
                 pose: Some(fg_pose(at)),
-                size: size(2.0 * s[0], 2.0 * s[0], 2.0 * s[0]),
+                size: size(2.0 * r, 2.0 * r, 2.0 * r),
                 color,
             }),
-            G::mjGEOM_ELLIPSOID => entity.spheres.push(fg::SpherePrimitive {
+            Shape::Ellipsoid(r) => entity.spheres.push(fg::SpherePrimitive {
                 pose: Some(fg_pose(at)),
-                size: size(2.0 * s[0], 2.0 * s[1], 2.0 * s[2]),
+                size: size(2.0 * r[0], 2.0 * r[1], 2.0 * r[2]),
                 color,
             }),
-            kind @ (G::mjGEOM_CYLINDER | G::mjGEOM_CAPSULE) => {
+            Shape::Cylinder(r, half) | Shape::Capsule(r, half) => {
                 entity.cylinders.push(fg::CylinderPrimitive {
                     pose: Some(fg_pose(at)),
-                    size: size(2.0 * s[0], 2.0 * s[0], 2.0 * s[1]),
+                    size: size(2.0 * r, 2.0 * r, 2.0 * half),
                     bottom_scale: 1.0,
                     top_scale: 1.0,
                     color,
                 });
-                if kind == G::mjGEOM_CAPSULE {
+                if matches!(v.shape, Shape::Capsule(..)) {
                     // The caps: spheres at the ends of the axis (the geom's z).
-                    for end in [-s[1], s[1]] {
-                        let c = spatial::add([p[0], p[1], p[2]], spatial::quat_rotate(q, [0.0, 0.0, end]));
+                    let q = [at[3], at[4], at[5], at[6]];
+                    for end in [-half, half] {
+                        let c = spatial::add([at[0], at[1], at[2]], spatial::quat_rotate(q, [0.0, 0.0, end]));
                         entity.spheres.push(fg::SpherePrimitive {
                             pose: Some(fg_pose([c[0], c[1], c[2], 1.0, 0.0, 0.0, 0.0])),
-                            size: size(2.0 * s[0], 2.0 * s[0], 2.0 * s[0]),
+                            size: size(2.0 * r, 2.0 * r, 2.0 * r),
                             color,
                         });
                     }
                 }
             }
-            G::mjGEOM_MESH => {
-                if let Some(triangles) = mesh(model, g, at, color) {
+            Shape::Mesh => {
+                if let Some(triangles) = mesh(model, v.geom, at, color) {
                     entity.triangles.push(triangles);
                 }
             }
-            _ => {}
         }
     }
     fg::SceneUpdate {

@@ -157,6 +157,22 @@ impl Messages {
         m
     }
 
+    /// `/joint_states` (ROS 2's `sensor_msgs/msg/JointState`, CDR) into `buf`: each joint by
+    /// name, measured position, velocity and torque.
+    pub(super) fn joint_states_cdr(&self, r: &TickRecord, stamp: u64, buf: &mut Vec<u8>) {
+        let n = usize::from(r.joints);
+        let names = (0..n).map(|i| self.joint_names.get(i).map_or("", String::as_str));
+        telemetry_schema::ros2::encode_joint_state(
+            buf,
+            stamp,
+            "",
+            names,
+            r.q[..n].iter().copied(),
+            r.qd[..n].iter().copied(),
+            r.tau[..n].iter().copied(),
+        );
+    }
+
     /// `/command`.
     pub(super) fn command(&mut self, r: &TickRecord, stamp: u64) -> &pb::JointCommands {
         let n = usize::from(r.joints);

@@ -532,10 +532,10 @@ impl<W: std::io::Write + std::io::Seek> Out<W> {
         schema: &foxglove::Schema,
         metadata: &BTreeMap<String, String>,
     ) -> Result<Channel, mcap::McapError> {
-        let encoding = if schema.encoding == "jsonschema" {
-            "json"
-        } else {
-            "protobuf"
+        let encoding = match schema.encoding.as_str() {
+            "jsonschema" => "json",
+            "ros2msg" => "cdr",
+            _ => "protobuf",
         };
         let schema_id = self
             .mcap
@@ -743,7 +743,14 @@ impl TelemetrySink {
         let mut messages = messages::Messages::new(info);
         // The robot in 3D: its links' frames and its geometry, when the model is known.
         let mut robot = match &info.kinematics {
-            Some((mjcf, joints)) => Some(viewers::robot3d::Links::new(mjcf, joints, &info.root_frame)?),
+            Some((mjcf, joints)) => {
+                let (links, scene) = viewers::robot3d::Links::new(mjcf, joints, &info.root_frame)?;
+                let name = mjcf
+                    .file_stem()
+                    .map_or_else(|| "robot".into(), |s| s.to_string_lossy());
+                let urdf = links.urdf(&name, &info.joint_names);
+                Some((links, scene, urdf))
+            }
             None => None,
         };
         let clock = info.clock;
@@ -871,6 +878,10 @@ struct TickChannels {
     estimator: Channel,
     tf: Channel,
     robot: Channel,
+    /// ROS 2's conventions, which Rerun, Foxglove and RViz read without a layout: the robot's
+    /// URDF (`std_msgs/msg/String`, once) and its joints by name (`sensor_msgs/msg/JointState`).
+    robot_description: Option<Channel>,
+    joint_states: Channel,
     /// The robot's anchor and the reference's, declared only for a run whose reference has one.
     anchors: Option<(Channel, Channel)>,
     replay: Channel,
@@ -937,6 +948,27 @@ impl TickChannels {
             estimator: out.channel("/estimator", &ours::<pb::StateEstimate>(), &none)?,
             tf: out.channel("/tf", &well_known::<fg::FrameTransforms>(), &none)?,
             robot: out.channel("/robot", &well_known::<fg::SceneUpdate>(), &none)?,
+            robot_description: match info.kinematics {
+                Some(_) => Some(out.channel(
+                    "/robot_description",
+                    &foxglove::Schema::new(
+                        "std_msgs/msg/String",
+                        "ros2msg",
+                        telemetry_schema::ros2::STRING_DEFINITION.as_bytes(),
+                    ),
+                    &none,
+                )?),
+                None => None,
+            },
+            joint_states: out.channel(
+                "/joint_states",
+                &foxglove::Schema::new(
+                    "sensor_msgs/msg/JointState",
+                    "ros2msg",
+                    telemetry_schema::ros2::JOINT_STATE_DEFINITION.as_bytes(),
+                ),
+                &none,
+            )?,
             anchors: match info.anchor {
                 Some(_) => Some((
                     out.channel("/anchor/robot", &well_known::<fg::PoseInFrame>(), &none)?,
@@ -954,13 +986,18 @@ impl TickChannels {
         &self,
         out: &mut Out<W>,
         m: &mut messages::Messages,
-        robot: Option<&mut (viewers::robot3d::Links, foxglove::schemas::SceneUpdate)>,
+        robot: Option<&mut (viewers::robot3d::Links, foxglove::schemas::SceneUpdate, String)>,
         text: &mut String,
         r: &TickRecord,
         t: u64,
     ) -> Result<(), mcap::McapError> {
         use foxglove::schemas as fg;
         out.message(&self.joint_state, t, m.joint_state(r, t))?;
+        let mut buf = std::mem::take(&mut out.buf);
+        m.joint_states_cdr(r, t, &mut buf);
+        let written = out.bytes(&self.joint_states, t, &buf);
+        out.buf = buf;
+        written?;
         out.message(&self.command, t, m.command(r, t))?;
         out.message(&self.policy, t, m.policy(r, t))?;
         if let Some((transition, log)) = m.safety(r, t) {
@@ -990,8 +1027,13 @@ impl TickChannels {
                 out.message(channel, t, &pose)?;
             }
         }
-        if let Some((links, scene)) = robot {
+        if let Some((links, scene, urdf)) = robot {
             let first = !out.counts.contains_key("/robot");
+            if let (true, Some(channel)) = (first, &self.robot_description) {
+                let mut buf = Vec::new();
+                telemetry_schema::ros2::encode_string(&mut buf, urdf);
+                out.bytes(channel, t, &buf)?;
+            }
             if first || r.tick.is_multiple_of(SCENE_EVERY) {
                 for e in &mut scene.entities {
                     e.timestamp = viewers::fg_time(t);
@@ -1004,6 +1046,10 @@ impl TickChannels {
                     prost::Message::encode(&*scene, &mut buf)
                         .map_err(|e| mcap::McapError::Io(std::io::Error::other(e)))?;
                     viewers::live::publish(live, &buf, t);
+                    if let Some(live) = self.robot_description.as_ref().and_then(|c| c.live.as_ref()) {
+                        telemetry_schema::ros2::encode_string(&mut buf, urdf);
+                        viewers::live::publish(live, &buf, t);
+                    }
                 }
             }
             let root = root_pose(r);
