@@ -362,9 +362,9 @@ impl<'a, R: Rig + ?Sized, O: Operator + ?Sized> Session<'a, R, O> {
 
     /// Step 1: every device answers with its configured model; torque stays off.
     pub fn identify(&mut self) -> Result<Vec<DeviceIdentity>, CalibrationError> {
-        self.operator.request(Request::Confirm {
-            what: "Step 1/3 identity: ping every device, read model, firmware and current limit (no torque)",
-        })?;
+        // Nothing moves and no torque is on: asked of nobody, so it runs without a terminal too.
+        self.operator
+            .say("Step 1/3 identity: ping every device, read model, firmware and current limit (no torque)");
         let ids = self.rig.identify()?;
         self.operator.say(&format!(
             "  {:<20} {:<5} {:>3}  {:<11} {:<34} {:>5} {:>9} {:>9}",

@@ -482,6 +482,35 @@ fn the_cli_calibrates_verifies_and_refuses_what_it_must() {
     let log = log.to_str().unwrap();
     let truth = truth.to_str().unwrap();
 
+    // The identity check moves nothing and asks nothing: it runs with no terminal and no answers
+    // (standard input empty), prints every device, and leaves no empty recording behind.
+    let identify_record = path.with_file_name("identify.mcap");
+    let (ok, text) = run(
+        &[
+            "calibrate",
+            "identify",
+            "--record",
+            identify_record.to_str().unwrap(),
+        ],
+        "",
+    );
+    assert!(ok, "{text}");
+    assert!(
+        text.contains("Step 1/3 identity") && text.contains("left_knee"),
+        "{text}"
+    );
+    assert!(
+        !identify_record.exists(),
+        "an identity check records no ticks: no file"
+    );
+    // A step that needs an answer, with standard input ended: said, not taken as a yes.
+    let (ok, text) = run(
+        &["calibrate", "run", "--mirror", truth, "--log", log, "--no-record"],
+        "",
+    );
+    assert!(!ok && text.contains("standard input ended"), "{text}");
+    assert!(!robots::calibration::path_for(&path).exists());
+
     // Without --yes the person is asked; "q" at the first question aborts, nothing written.
     let (ok, text) = run(
         &["calibrate", "run", "--mirror", truth, "--log", log, "--no-record"],

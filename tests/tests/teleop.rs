@@ -739,6 +739,7 @@ fn a_teleop_session_is_recorded_with_the_files_it_ran_on() {
     // (exit 3, as it must); that is said and the session tried again. The recording holds its
     // files whatever the end; its length is judged on an unstarved session.
     let session = || {
+        let meter = test_support::starvation::StarvationMeter::start();
         let mut teleop = test_support::bin::Running::start(&[
             "teleop",
             "--listen",
@@ -774,7 +775,13 @@ fn a_teleop_session_is_recorded_with_the_files_it_ran_on() {
         if done.status.code() == Some(3) && text.contains("deadline overruns in a row") {
             return Err("the host starved the loop into its overrun stop".to_owned());
         }
-        assert!(done.status.success(), "{text}");
+        // A bus thread starved past its devices' command timeout: the firmware drops torque and
+        // the loop damps, as it must; measured, said and tried again.
+        let starvation = meter.stop();
+        if done.status.code() == Some(3) && text.contains("device fault") && starvation.starved() {
+            return Err(format!("a device faulted on a starved host ({starvation})"));
+        }
+        assert!(done.status.success(), "{starvation}: {text}");
         Ok(())
     };
     let unstarved_session = unstarved("a recorded teleop session", session).is_some();

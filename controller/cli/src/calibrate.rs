@@ -235,7 +235,13 @@ fn watched(
     };
     let result = body(&mut recorded);
     let report = recorded.sink.finish()?;
-    println!("{report}");
+    if report.written == 0 {
+        // Nothing happened that a recording could show (an identity check, an abort at the first
+        // question): no empty file left behind.
+        let _ = std::fs::remove_file(&report.path);
+    } else {
+        println!("{report}");
+    }
     result
 }
 

@@ -30,6 +30,13 @@ impl ConsoleOperator {
         let mut line = String::new();
         match std::io::stdin().lock().read_line(&mut line) {
             Ok(n) if n > 0 && !matches!(line.trim(), "q" | "Q" | "n" | "N" | "no" | "abort") => Ok(()),
+            Ok(0) => {
+                println!(
+                    "\nstandard input ended: nobody is there to answer (run it at a terminal, or pipe the answers; \
+                     on the mirror --yes answers for you)"
+                );
+                Err(Aborted)
+            }
             _ => Err(Aborted),
         }
     }
