@@ -157,6 +157,9 @@ fn a_bundle_runs_play_with_nothing_else_env_i_and_the_checkout_hidden() {
         String::from_utf8_lossy(&play.stderr)
     );
     assert!(stdout.contains("squat"), "{stdout}");
+    // A lockstep run is not silent while it computes: piped, a progress line on standard error.
+    let stderr = String::from_utf8_lossy(&play.stderr);
+    assert!(stderr.lines().any(|l| l.starts_with("play: 0/")), "{stderr}");
     assert!(
         home.join("out/runs").is_dir(),
         "the recording is written beside the bundle"
@@ -1289,6 +1292,14 @@ fn batch_runs_clips_times_seeds_in_parallel_and_tabulates_them() {
     };
     assert!(row("squat.csv").contains("     3      100%"), "{stdout}");
     assert!(row("wave_and_look.csv").contains("     3      100%"), "{stdout}");
+    // Piped, there is no bar: a plain progress line at once (then every few seconds), on
+    // standard error, the table alone on standard output.
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.lines().any(|l| l.starts_with("batch: 0/6 runs (0 %)")),
+        "{stderr}"
+    );
+    assert!(!stdout.contains("batch:"), "{stdout}");
     // With the elbow servo vanishing during start-up, no run succeeds: the table says why (no
     // NaN), the CSV has every run, and no log line cut through the progress bar.
     let csv = std::env::temp_dir().join(format!("batch-{}.csv", std::process::id()));

@@ -72,11 +72,7 @@ pub fn run(args: &BatchArgs) -> Result<()> {
     // Every run's state changes and faults would cut through the bar: the table below says how
     // each run ended (RUST_LOG brings the lines back).
     crate::logging::errors_only();
-    let bar = indicatif::ProgressBar::new(total).with_message("runs");
-    bar.set_style(
-        indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} {elapsed}")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
+    let bar = crate::console::Progress::new("batch", "runs", Some(total));
     let spec = BatchSpec {
         robot: &robot,
         policy: &policy,
@@ -86,8 +82,8 @@ pub fn run(args: &BatchArgs) -> Result<()> {
         options: PlayOptions::default(),
         jobs,
     };
-    let (totals, runs) = run_batch(&spec, &|done, _| bar.set_position(done as u64))?;
-    bar.finish_and_clear();
+    let (totals, runs) = run_batch(&spec, &|done, _| bar.set(done as u64))?;
+    bar.finish();
     if let Some(path) = &args.json {
         let mut text = String::new();
         for r in &runs {

@@ -1254,10 +1254,26 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         let player = with_estop(player, args, &options, &l.source, reader)?;
         run_with(player, &mut clock, generator)?
     } else {
+        // Lockstep runs as fast as it computes, with nothing to watch: their progress is shown.
+        let total = options.max_ticks.or_else(|| {
+            let finite = matches!(
+                options.end,
+                controller::player::EndMode::Hold | controller::player::EndMode::Blend
+            );
+            // The start ramp, the reference, its end, the soft stop's settling and the damping.
+            let seconds = options.ramp_s + options.end_s + options.settle_s + options.damping_s;
+            (finite && generator.is_none())
+                .then(|| l.reference.len() as u64 + (seconds * l.layout.manifest.rate_hz).round() as u64)
+        });
         let (player, mut clock, _world) =
             lockstep_player(l.robot, l.layout, l.reference, options, config, stop)?;
         let player = with_estop(player, args, &options, &l.source, reader)?;
-        run_with(player, &mut clock, generator)?
+        let ticks = Arc::new(std::sync::atomic::AtomicU64::new(0));
+        let _progress = crate::console::Watch::start(
+            Arc::clone(&ticks),
+            crate::console::Progress::new("play", "ticks", total),
+        );
+        run_with(player.with_progress(ticks), &mut clock, generator)?
     };
     let mut summary = summary;
     summary.command_sources = command_source.map(|s| s.stats.to_string());

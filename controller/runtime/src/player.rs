@@ -52,6 +52,8 @@ pub struct Player<L: RobotLink> {
     reference: ReferenceStage,
     lifecycle: Lifecycle,
     policy: PolicyStage,
+    /// Where the run publishes its tick for a progress display (one relaxed store a tick).
+    progress: Option<Arc<std::sync::atomic::AtomicU64>>,
 }
 
 /// The reference stage of a run: where the reference is this tick, and how the robot's tracked
@@ -310,6 +312,7 @@ impl<L: RobotLink> Player<L> {
                 body_errors: vec![0.0; tracked_bodies],
                 has_body_errors: false,
             },
+            progress: None,
             lifecycle: Lifecycle {
                 monitor: {
                     let (limits, tracking) = options.limits.for_robot(&robot, dt);
@@ -437,6 +440,13 @@ impl<L: RobotLink> Player<L> {
     /// Whether the policy observes no reference (it runs with no clip, on its commands).
     pub fn is_command_driven(&self) -> bool {
         self.policy.command_driven
+    }
+
+    /// Publishes each finished tick's number in `ticks` (a relaxed store: nothing waits), for a
+    /// progress display on another thread.
+    pub fn with_progress(mut self, ticks: Arc<std::sync::atomic::AtomicU64>) -> Self {
+        self.progress = Some(ticks);
+        self
     }
 
     /// An e-stop input: when the flag is set, the robot goes to damping at once (a fault, unlike
@@ -643,6 +653,9 @@ impl<L: RobotLink> Player<L> {
         let start = clock.elapsed();
         while self.lifecycle.machine.mode != Mode::Off {
             self.step(clock)?;
+            if let Some(p) = &self.progress {
+                p.store(self.tick, Ordering::Relaxed);
+            }
             let deadline = start + period * (self.tick as u32);
             let missed = self.io.wait_until(clock, deadline);
             if missed {
