@@ -182,11 +182,7 @@ fn section(page: &mut String, title: &str, anchor: Option<&str>, def: &Value) {
                 None if required.contains(&name.as_str()) => "required".to_owned(),
                 None => "optional".to_owned(),
             };
-            let meaning = prop
-                .get("description")
-                .and_then(Value::as_str)
-                .map(one_paragraph)
-                .unwrap_or_default();
+            let meaning = meaning_of(prop);
             let _ = writeln!(
                 page,
                 "| `{name}` | {} | {default} | {} |",
@@ -200,11 +196,7 @@ fn section(page: &mut String, title: &str, anchor: Option<&str>, def: &Value) {
         if let Some(choices) = def.get(key).and_then(Value::as_array) {
             page.push_str("One of:\n\n");
             for choice in choices {
-                let meaning = choice
-                    .get("description")
-                    .and_then(Value::as_str)
-                    .map(one_paragraph)
-                    .unwrap_or_default();
+                let meaning = meaning_of(choice);
                 let _ = writeln!(
                     page,
                     "- {}{}{}",
@@ -217,8 +209,7 @@ fn section(page: &mut String, title: &str, anchor: Option<&str>, def: &Value) {
         }
     }
     if let Some(values) = def.get("enum").and_then(Value::as_array) {
-        let names: Vec<String> = values.iter().map(|v| format!("`{}`", compact(v))).collect();
-        let _ = writeln!(page, "One of {}.\n", names.join(", "));
+        let _ = writeln!(page, "One of {}.\n", quoted(values).join(", "));
     }
 }
 
@@ -228,8 +219,7 @@ fn choice_of(choice: &Value) -> String {
         return format!("`{}`", compact(c));
     }
     if let Some(values) = choice.get("enum").and_then(Value::as_array) {
-        let names: Vec<String> = values.iter().map(|v| format!("`{}`", compact(v))).collect();
-        return names.join(", ");
+        return quoted(values).join(", ");
     }
     if let Some(props) = choice.get("properties").and_then(Value::as_object) {
         let fields: Vec<String> = props
@@ -264,8 +254,7 @@ fn type_of(prop: &Value) -> String {
         }
     }
     if let Some(values) = prop.get("enum").and_then(Value::as_array) {
-        let names: Vec<String> = values.iter().map(|v| format!("`{}`", compact(v))).collect();
-        return names.join(" or ");
+        return quoted(values).join(" or ");
     }
     let types: Vec<&str> = match prop.get("type") {
         Some(Value::String(t)) => vec![t.as_str()],
@@ -311,6 +300,19 @@ fn anchor_of(name: &str) -> String {
 
 fn compact(v: &Value) -> String {
     v.to_string()
+}
+
+/// What a schema node's doc comment says, on one line.
+fn meaning_of(node: &Value) -> String {
+    node.get("description")
+        .and_then(Value::as_str)
+        .map(one_paragraph)
+        .unwrap_or_default()
+}
+
+/// Constants as a reader sees them: each in code quotes.
+fn quoted(values: &[Value]) -> Vec<String> {
+    values.iter().map(|v| format!("`{}`", compact(v))).collect()
 }
 
 /// Doc comments wrap at the source's width: one line here, so tables hold them; rustdoc's links

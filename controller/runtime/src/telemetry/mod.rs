@@ -503,6 +503,11 @@ fn ours<M: prost::Name>() -> foxglove::Schema {
     foxglove::Schema::new(M::full_name(), "protobuf", telemetry_schema::DESCRIPTOR_SET)
 }
 
+/// The schema of a ROS 2 message: its type name and `ros2msg` definition (messages in CDR).
+fn ros2(name: &str, definition: &str) -> foxglove::Schema {
+    foxglove::Schema::new(name, "ros2msg", definition.as_bytes().to_vec())
+}
+
 /// The schema of a Foxglove well-known message.
 fn well_known<M: foxglove::Encode>() -> foxglove::Schema {
     M::get_schema().expect("Foxglove's well-known schemas carry their descriptors")
@@ -951,21 +956,16 @@ impl TickChannels {
             robot_description: match info.kinematics {
                 Some(_) => Some(out.channel(
                     "/robot_description",
-                    &foxglove::Schema::new(
-                        "std_msgs/msg/String",
-                        "ros2msg",
-                        telemetry_schema::ros2::STRING_DEFINITION.as_bytes(),
-                    ),
+                    &ros2("std_msgs/msg/String", telemetry_schema::ros2::STRING_DEFINITION),
                     &none,
                 )?),
                 None => None,
             },
             joint_states: out.channel(
                 "/joint_states",
-                &foxglove::Schema::new(
+                &ros2(
                     "sensor_msgs/msg/JointState",
-                    "ros2msg",
-                    telemetry_schema::ros2::JOINT_STATE_DEFINITION.as_bytes(),
+                    telemetry_schema::ros2::JOINT_STATE_DEFINITION,
                 ),
                 &none,
             )?,
