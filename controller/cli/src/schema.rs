@@ -178,6 +178,9 @@ fn section(page: &mut String, title: &str, anchor: Option<&str>, def: &Value) {
         page.push_str("| field | type | default | meaning |\n|---|---|---|---|\n");
         for (name, prop) in props {
             let default = match prop.get("default") {
+                // A table's default is its fields' own, listed where the table is.
+                Some(Value::Object(_)) => "each field's".to_owned(),
+                Some(Value::Null) => "none".to_owned(),
                 Some(v) => format!("`{}`", compact(v)),
                 None if required.contains(&name.as_str()) => "required".to_owned(),
                 None => "optional".to_owned(),
