@@ -25,3 +25,4 @@ pub mod plant;
 pub mod ratelimit;
 pub mod serial;
 pub mod time;
+pub mod unitree;

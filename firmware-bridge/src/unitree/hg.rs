@@ -1,0 +1,291 @@
+//! `unitree_hg`: the low-level messages of the G1 and H1-2 (`unitree_hg::msg::dds_::LowCmd_`,
+//! `LowState_`), 35 motor slots each, and their packed layout for the CRC.
+
+use super::crc_of_packed;
+
+/// Motor slots in every message of the family (a robot uses the first ones it has).
+pub const MOTORS: usize = 35;
+
+/// One motor's command.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct MotorCmd {
+    /// 0: off (brake), 1: on (FOC control).
+    pub mode: u8,
+    /// Position target, rad.
+    pub q: f32,
+    /// Velocity target, rad/s.
+    pub dq: f32,
+    /// Feed-forward torque, N·m.
+    pub tau: f32,
+    /// Position gain, N·m/rad.
+    pub kp: f32,
+    /// Velocity gain, N·m·s/rad.
+    pub kd: f32,
+    /// Reserved.
+    pub reserve: u32,
+}
+
+/// `rt/lowcmd`: every motor's command, the machine's modes, and the CRC over all of it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LowCmd {
+    /// Parallel-mechanism (ankle, waist) control mode: 0 pitch/roll, 1 the motors' A/B.
+    pub mode_pr: u8,
+    /// The robot variant the board reports (`LowState::mode_machine`), echoed back.
+    pub mode_machine: u8,
+    /// Commands by motor index.
+    pub motor_cmd: [MotorCmd; MOTORS],
+    /// Reserved.
+    pub reserve: [u32; 4],
+    /// The CRC ([`Self::seal`] sets it).
+    pub crc: u32,
+}
+
+impl Default for LowCmd {
+    fn default() -> Self {
+        Self {
+            mode_pr: 0,
+            mode_machine: 0,
+            motor_cmd: [MotorCmd::default(); MOTORS],
+            reserve: [0; 4],
+            crc: 0,
+        }
+    }
+}
+
+/// Writes little-endian fields at their C offsets.
+struct Packer<'a> {
+    out: &'a mut [u8],
+    at: usize,
+}
+
+impl Packer<'_> {
+    fn bytes(&mut self, b: &[u8]) {
+        self.out[self.at..self.at + b.len()].copy_from_slice(b);
+        self.at += b.len();
+    }
+    fn pad(&mut self, n: usize) {
+        self.out[self.at..self.at + n].fill(0);
+        self.at += n;
+    }
+    fn u8(&mut self, v: u8) {
+        self.bytes(&[v]);
+    }
+    fn f32(&mut self, v: f32) {
+        self.bytes(&v.to_le_bytes());
+    }
+    fn u32(&mut self, v: u32) {
+        self.bytes(&v.to_le_bytes());
+    }
+    fn i16(&mut self, v: i16) {
+        self.bytes(&v.to_le_bytes());
+    }
+}
+
+impl LowCmd {
+    /// Bytes of the packed (C) layout.
+    pub const PACKED_LEN: usize = 1004;
+
+    /// The message in the SDK's C layout, as the CRC reads it.
+    pub fn pack(&self, out: &mut [u8; Self::PACKED_LEN]) {
+        let mut p = Packer { out, at: 0 };
+        p.u8(self.mode_pr);
+        p.u8(self.mode_machine);
+        p.pad(2);
+        for m in &self.motor_cmd {
+            p.u8(m.mode);
+            p.pad(3);
+            for v in [m.q, m.dq, m.tau, m.kp, m.kd] {
+                p.f32(v);
+            }
+            p.u32(m.reserve);
+        }
+        for r in self.reserve {
+            p.u32(r);
+        }
+        p.u32(self.crc);
+        debug_assert_eq!(p.at, Self::PACKED_LEN);
+    }
+
+    /// The CRC this message should carry.
+    pub fn compute_crc(&self) -> u32 {
+        let mut packed = [0u8; Self::PACKED_LEN];
+        self.pack(&mut packed);
+        crc_of_packed(&packed)
+    }
+
+    /// Sets the CRC.
+    pub fn seal(&mut self) {
+        self.crc = self.compute_crc();
+    }
+
+    /// Whether the CRC it carries is right (a command with a wrong one is ignored by the robot).
+    pub fn crc_ok(&self) -> bool {
+        self.crc == self.compute_crc()
+    }
+}
+
+/// The IMU of the robot's torso (`IMUState_`).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ImuState {
+    /// Orientation, w x y z.
+    pub quaternion: [f32; 4],
+    /// Angular rate, rad/s.
+    pub gyroscope: [f32; 3],
+    /// Specific force, m/s².
+    pub accelerometer: [f32; 3],
+    /// Roll, pitch, yaw, rad.
+    pub rpy: [f32; 3],
+    /// °C.
+    pub temperature: i16,
+}
+
+/// One motor's state.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct MotorState {
+    /// The mode it runs in.
+    pub mode: u8,
+    /// Position, rad.
+    pub q: f32,
+    /// Velocity, rad/s.
+    pub dq: f32,
+    /// Acceleration, rad/s².
+    pub ddq: f32,
+    /// Estimated torque, N·m.
+    pub tau_est: f32,
+    /// Winding and case temperature, °C.
+    pub temperature: [i16; 2],
+    /// Supply voltage, V.
+    pub vol: f32,
+    /// Sensor words.
+    pub sensor: [u32; 2],
+    /// Error and status bits.
+    pub motorstate: u32,
+    /// Reserved.
+    pub reserve: [u32; 4],
+}
+
+/// `rt/lowstate`: the IMU, every motor's state, the remote's bytes, and the CRC.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LowState {
+    /// Firmware version words.
+    pub version: [u32; 2],
+    /// Parallel-mechanism control mode (see [`LowCmd::mode_pr`]).
+    pub mode_pr: u8,
+    /// The robot variant.
+    pub mode_machine: u8,
+    /// Milliseconds counter of the board.
+    pub tick: u32,
+    /// The torso's IMU.
+    pub imu_state: ImuState,
+    /// States by motor index.
+    pub motor_state: [MotorState; MOTORS],
+    /// The wireless remote's raw bytes.
+    pub wireless_remote: [u8; 40],
+    /// Reserved.
+    pub reserve: [u32; 4],
+    /// The CRC.
+    pub crc: u32,
+}
+
+impl Default for LowState {
+    fn default() -> Self {
+        Self {
+            version: [0; 2],
+            mode_pr: 0,
+            mode_machine: 0,
+            tick: 0,
+            imu_state: ImuState::default(),
+            motor_state: [MotorState::default(); MOTORS],
+            wireless_remote: [0; 40],
+            reserve: [0; 4],
+            crc: 0,
+        }
+    }
+}
+
+impl LowState {
+    /// Bytes of the packed (C) layout.
+    pub const PACKED_LEN: usize = 2092;
+
+    /// The message in the SDK's C layout, as the CRC reads it.
+    pub fn pack(&self, out: &mut [u8; Self::PACKED_LEN]) {
+        let mut p = Packer { out, at: 0 };
+        for v in self.version {
+            p.u32(v);
+        }
+        p.u8(self.mode_pr);
+        p.u8(self.mode_machine);
+        p.pad(2);
+        p.u32(self.tick);
+        let imu = &self.imu_state;
+        for v in imu
+            .quaternion
+            .iter()
+            .chain(&imu.gyroscope)
+            .chain(&imu.accelerometer)
+            .chain(&imu.rpy)
+        {
+            p.f32(*v);
+        }
+        p.i16(imu.temperature);
+        p.pad(2);
+        for m in &self.motor_state {
+            p.u8(m.mode);
+            p.pad(3);
+            for v in [m.q, m.dq, m.ddq, m.tau_est] {
+                p.f32(v);
+            }
+            p.i16(m.temperature[0]);
+            p.i16(m.temperature[1]);
+            p.f32(m.vol);
+            for v in m.sensor.iter().chain([m.motorstate].iter()).chain(&m.reserve) {
+                p.u32(*v);
+            }
+        }
+        p.bytes(&self.wireless_remote);
+        for r in self.reserve {
+            p.u32(r);
+        }
+        p.u32(self.crc);
+        debug_assert_eq!(p.at, Self::PACKED_LEN);
+    }
+
+    /// The CRC this message should carry.
+    pub fn compute_crc(&self) -> u32 {
+        let mut packed = [0u8; Self::PACKED_LEN];
+        self.pack(&mut packed);
+        crc_of_packed(&packed)
+    }
+
+    /// Sets the CRC.
+    pub fn seal(&mut self) {
+        self.crc = self.compute_crc();
+    }
+
+    /// Whether the CRC it carries is right.
+    pub fn crc_ok(&self) -> bool {
+        self.crc == self.compute_crc()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_sealed_message_checks_and_any_changed_field_breaks_its_crc() {
+        let mut cmd = LowCmd::default();
+        cmd.motor_cmd[4].q = 0.25;
+        cmd.motor_cmd[4].kp = 60.0;
+        cmd.seal();
+        assert!(cmd.crc_ok());
+        cmd.motor_cmd[34].kd = 1.0;
+        assert!(!cmd.crc_ok(), "the last motor slot is covered");
+        let mut state = LowState::default();
+        state.imu_state.quaternion = [1.0, 0.0, 0.0, 0.0];
+        state.seal();
+        assert!(state.crc_ok());
+        state.reserve[3] = 1;
+        assert!(!state.crc_ok(), "the last word before the CRC is covered");
+    }
+}

@@ -1,0 +1,55 @@
+//! Unitree's low-level interface: the messages a Unitree robot's board exchanges with the user's
+//! computer over DDS (`rt/lowcmd`, `rt/lowstate`), as the official SDK's IDL defines them, and the
+//! CRC each one carries. `hg` is the family of the G1 and H1-2.
+//!
+//! The CRC is computed over the message laid out as the SDK's C structs are (each field at its
+//! natural alignment, little-endian), read as 32-bit little-endian words, every word but the last
+//! (the CRC itself): CRC-32 with polynomial 0x04C11DB7, initial value 0xFFFFFFFF, each word fed
+//! most significant bit first, no reflection and no final XOR.
+
+pub mod hg;
+
+/// The polynomial of Unitree's CRC-32.
+const POLYNOMIAL: u32 = 0x04C1_1DB7;
+
+/// Unitree's CRC-32 of `words`.
+pub fn crc32(words: impl IntoIterator<Item = u32>) -> u32 {
+    let mut crc = 0xFFFF_FFFFu32;
+    for word in words {
+        for bit in (0..32).rev() {
+            let top = crc & 0x8000_0000 != 0;
+            crc <<= 1;
+            if top {
+                crc ^= POLYNOMIAL;
+            }
+            if word >> bit & 1 == 1 {
+                crc ^= POLYNOMIAL;
+            }
+        }
+    }
+    crc
+}
+
+/// Unitree's CRC of a packed message: its little-endian words, the last (the CRC) left out.
+pub fn crc_of_packed(packed: &[u8]) -> u32 {
+    let words = packed.len() / 4;
+    crc32(
+        packed
+            .chunks_exact(4)
+            .take(words.saturating_sub(1))
+            .map(|w| u32::from_le_bytes([w[0], w[1], w[2], w[3]])),
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_crc_of_nothing_is_its_initial_value_and_one_bit_changes_it() {
+        assert_eq!(crc32([]), 0xFFFF_FFFF);
+        assert_ne!(crc32([0]), crc32([1]));
+        // The last word of a packed message is its CRC and is not covered.
+        assert_eq!(crc_of_packed(&[1, 0, 0, 0, 9, 9, 9, 9]), crc32([1]));
+    }
+}
