@@ -1,7 +1,7 @@
 //! The `unitree_hg` messages as Unitree's own SDK reads them: robodeploy's packed layout read back
 //! by the SDK's struct formats into every field in IDL order, and its CRC equal to the SDK's.
 
-use firmware_bridge::unitree::hg::{LowCmd, LowState, MOTORS};
+use firmware_bridge::unitree::hg::{LowCmd, LowState, MOTORS, Sealed as _};
 use serde_json::{Value, json};
 
 /// A deterministic stream of varied values (no two fields alike, signs and magnitudes mixed).

@@ -52,6 +52,35 @@ impl Default for LowCmd {
     }
 }
 
+/// A message that carries Unitree's CRC over its packed layout: a command with a wrong one is
+/// ignored by the robot, a state with a wrong one is not to be believed.
+pub trait Sealed {
+    /// Packs the message into the front of `out` (room for the largest of the family); returns
+    /// its length.
+    fn packed(&self, out: &mut [u8; LowState::PACKED_LEN]) -> usize;
+    /// Where the CRC is kept.
+    fn crc_field(&mut self) -> &mut u32;
+    /// The CRC it carries.
+    fn crc(&self) -> u32;
+
+    /// The CRC this message should carry.
+    fn compute_crc(&self) -> u32 {
+        let mut out = [0u8; LowState::PACKED_LEN];
+        let len = self.packed(&mut out);
+        crc_of_packed(&out[..len])
+    }
+
+    /// Sets the CRC.
+    fn seal(&mut self) {
+        *self.crc_field() = self.compute_crc();
+    }
+
+    /// Whether the CRC it carries is right.
+    fn crc_ok(&self) -> bool {
+        self.crc() == self.compute_crc()
+    }
+}
+
 /// Writes little-endian fields at their C offsets.
 struct Packer<'a> {
     out: &'a mut [u8],
@@ -105,22 +134,19 @@ impl LowCmd {
         p.u32(self.crc);
         debug_assert_eq!(p.at, Self::PACKED_LEN);
     }
+}
 
-    /// The CRC this message should carry.
-    pub fn compute_crc(&self) -> u32 {
-        let mut packed = [0u8; Self::PACKED_LEN];
-        self.pack(&mut packed);
-        crc_of_packed(&packed)
+impl Sealed for LowCmd {
+    fn packed(&self, out: &mut [u8; LowState::PACKED_LEN]) -> usize {
+        let (head, _) = out.split_at_mut(Self::PACKED_LEN);
+        self.pack(head.try_into().expect("the first PACKED_LEN bytes"));
+        Self::PACKED_LEN
     }
-
-    /// Sets the CRC.
-    pub fn seal(&mut self) {
-        self.crc = self.compute_crc();
+    fn crc_field(&mut self) -> &mut u32 {
+        &mut self.crc
     }
-
-    /// Whether the CRC it carries is right (a command with a wrong one is ignored by the robot).
-    pub fn crc_ok(&self) -> bool {
-        self.crc == self.compute_crc()
+    fn crc(&self) -> u32 {
+        self.crc
     }
 }
 
@@ -249,22 +275,18 @@ impl LowState {
         p.u32(self.crc);
         debug_assert_eq!(p.at, Self::PACKED_LEN);
     }
+}
 
-    /// The CRC this message should carry.
-    pub fn compute_crc(&self) -> u32 {
-        let mut packed = [0u8; Self::PACKED_LEN];
-        self.pack(&mut packed);
-        crc_of_packed(&packed)
+impl Sealed for LowState {
+    fn packed(&self, out: &mut [u8; LowState::PACKED_LEN]) -> usize {
+        self.pack(out);
+        Self::PACKED_LEN
     }
-
-    /// Sets the CRC.
-    pub fn seal(&mut self) {
-        self.crc = self.compute_crc();
+    fn crc_field(&mut self) -> &mut u32 {
+        &mut self.crc
     }
-
-    /// Whether the CRC it carries is right.
-    pub fn crc_ok(&self) -> bool {
-        self.crc == self.compute_crc()
+    fn crc(&self) -> u32 {
+        self.crc
     }
 }
 
