@@ -1,5 +1,6 @@
 //! The `unitree_hg` messages as Unitree's own SDK reads them: robodeploy's packed layout read back
-//! by the SDK's struct formats into every field in IDL order, and its CRC equal to the SDK's.
+//! by the SDK's struct formats into every field in IDL order, its CRC equal to the SDK's, and its
+//! CDR (what DDS carries) read by the SDK's IDL classes and written back byte for byte.
 
 use firmware_bridge::unitree::hg::{LowCmd, LowState, MOTORS, Sealed as _};
 use serde_json::{Value, json};
@@ -133,15 +134,18 @@ fn packed_messages_and_their_crc_are_what_unitrees_sdk_computes() {
     assert_eq!(MOTORS, 35);
     let mut d = Draw(7);
     let mut cases = Vec::new();
+    let mut cdr = Vec::new();
     for _ in 0..8 {
         let (cmd, fields) = low_cmd(&mut d);
         let mut packed = [0u8; LowCmd::PACKED_LEN];
         cmd.pack(&mut packed);
-        cases.push(json!({"kind": "LowCmd", "packed_hex": hex(&packed), "fields": fields}));
+        cmd.write_cdr(&mut cdr);
+        cases.push(json!({"kind": "LowCmd", "packed_hex": hex(&packed), "cdr_hex": hex(&cdr), "fields": fields}));
         let (state, fields) = low_state(&mut d);
         let mut packed = [0u8; LowState::PACKED_LEN];
         state.pack(&mut packed);
-        cases.push(json!({"kind": "LowState", "packed_hex": hex(&packed), "fields": fields}));
+        state.write_cdr(&mut cdr);
+        cases.push(json!({"kind": "LowState", "packed_hex": hex(&packed), "cdr_hex": hex(&cdr), "fields": fields}));
     }
     let path = std::env::temp_dir().join(format!("unitree-cases-{}.json", std::process::id()));
     std::fs::write(&path, serde_json::to_string(&cases).unwrap()).unwrap();
@@ -157,8 +161,8 @@ fn packed_messages_and_their_crc_are_what_unitrees_sdk_computes() {
     assert_eq!(results.len(), 16, "{verdict}");
     for r in results {
         assert_eq!(
-            (&r["size"], &r["fields"], &r["crc"]),
-            (&json!(true), &json!(true), &json!(true)),
+            (&r["size"], &r["fields"], &r["crc"], &r["cdr"]),
+            (&json!(true), &json!(true), &json!(true), &json!(true)),
             "{verdict}"
         );
     }

@@ -3,13 +3,9 @@
 //! ones viewers and ROS tools read by convention: the robot's description (`std_msgs/msg/String`
 //! on `/robot_description`, a URDF) and its joints (`sensor_msgs/msg/JointState` on
 //! `/joint_states`, each joint by name).
-//!
-//! CDR aligns each primitive to its own size, counted from the end of the 4-byte encapsulation
-//! header; strings are a `uint32` length including the terminating NUL, then the bytes and the
-//! NUL; sequences are a `uint32` count, then the elements.
+//! The encoding itself is `dds::cdr`'s.
 
-/// The encapsulation header of CDR, little-endian (representation id 0x0001, options 0).
-const CDR_LE: [u8; 4] = [0x00, 0x01, 0x00, 0x00];
+use dds::cdr::CdrWriter;
 
 /// `std_msgs/msg/String`'s definition (schema name `std_msgs/msg/String`).
 pub const STRING_DEFINITION: &str = "string data\n";
@@ -32,81 +28,9 @@ int32 sec
 uint32 nanosec
 ";
 
-/// A CDR message being written into a reused buffer.
-#[derive(Debug)]
-pub struct Cdr<'a> {
-    buf: &'a mut Vec<u8>,
-}
-
-impl<'a> Cdr<'a> {
-    /// Starts a message in `buf` (cleared): the encapsulation header.
-    pub fn new(buf: &'a mut Vec<u8>) -> Self {
-        buf.clear();
-        buf.extend_from_slice(&CDR_LE);
-        Self { buf }
-    }
-
-    /// Pads to a multiple of `n` bytes from the end of the header.
-    fn align(&mut self, n: usize) {
-        while !(self.buf.len() - CDR_LE.len()).is_multiple_of(n) {
-            self.buf.push(0);
-        }
-    }
-
-    /// A `uint32`.
-    pub fn u32(&mut self, v: u32) -> &mut Self {
-        self.align(4);
-        self.buf.extend_from_slice(&v.to_le_bytes());
-        self
-    }
-
-    /// An `int32`.
-    pub fn i32(&mut self, v: i32) -> &mut Self {
-        self.align(4);
-        self.buf.extend_from_slice(&v.to_le_bytes());
-        self
-    }
-
-    /// A `float64`.
-    pub fn f64(&mut self, v: f64) -> &mut Self {
-        self.align(8);
-        self.buf.extend_from_slice(&v.to_le_bytes());
-        self
-    }
-
-    /// A `string` (no NUL inside: one is cut there, as a C reader would).
-    pub fn string(&mut self, s: &str) -> &mut Self {
-        let s = s.split('\0').next().unwrap_or("");
-        self.u32(u32::try_from(s.len() + 1).unwrap_or(u32::MAX));
-        self.buf.extend_from_slice(s.as_bytes());
-        self.buf.push(0);
-        self
-    }
-
-    /// A sequence's element count.
-    pub fn count(&mut self, n: usize) -> &mut Self {
-        self.u32(u32::try_from(n).unwrap_or(u32::MAX))
-    }
-
-    /// A `float64[]`.
-    pub fn f64s(&mut self, values: impl ExactSizeIterator<Item = f64>) -> &mut Self {
-        self.count(values.len());
-        for v in values {
-            self.f64(v);
-        }
-        self
-    }
-
-    /// A `builtin_interfaces/Time` of `ns` nanoseconds.
-    pub fn time(&mut self, ns: u64) -> &mut Self {
-        self.i32(i32::try_from(ns / 1_000_000_000).unwrap_or(i32::MAX));
-        self.u32(u32::try_from(ns % 1_000_000_000).unwrap_or(0))
-    }
-}
-
 /// `std_msgs/msg/String` `{ data: text }` into `buf`.
 pub fn encode_string(buf: &mut Vec<u8>, text: &str) {
-    Cdr::new(buf).string(text);
+    CdrWriter::new(buf).string(text);
 }
 
 /// One `sensor_msgs/msg/JointState`: stamp, frame, and per joint its name, position (rad),
@@ -120,7 +44,7 @@ pub fn encode_joint_state<'n>(
     velocity: impl ExactSizeIterator<Item = f64>,
     effort: impl ExactSizeIterator<Item = f64>,
 ) {
-    let mut c = Cdr::new(buf);
+    let mut c = CdrWriter::new(buf);
     c.time(stamp_ns).string(frame_id).count(names.len());
     for n in names {
         c.string(n);
@@ -131,13 +55,6 @@ pub fn encode_joint_state<'n>(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn a_string_is_its_length_with_the_nul_then_its_bytes() {
-        let mut buf = Vec::new();
-        encode_string(&mut buf, "hi");
-        assert_eq!(buf, [0, 1, 0, 0, 3, 0, 0, 0, b'h', b'i', 0]);
-    }
 
     #[test]
     fn a_joint_state_aligns_its_doubles_to_eight_from_the_header() {

@@ -1,7 +1,14 @@
 //! `unitree_hg`: the low-level messages of the G1 and H1-2 (`unitree_hg::msg::dds_::LowCmd_`,
 //! `LowState_`), 35 motor slots each, and their packed layout for the CRC.
 
+use dds::cdr::{CdrError, CdrReader, CdrWriter};
+
 use super::crc_of_packed;
+
+/// The DDS type of [`LowCmd`].
+pub const LOW_CMD_TYPE: &str = "unitree_hg::msg::dds_::LowCmd_";
+/// The DDS type of [`LowState`].
+pub const LOW_STATE_TYPE: &str = "unitree_hg::msg::dds_::LowState_";
 
 /// Motor slots in every message of the family (a robot uses the first ones it has).
 pub const MOTORS: usize = 35;
@@ -133,6 +140,51 @@ impl LowCmd {
         }
         p.u32(self.crc);
         debug_assert_eq!(p.at, Self::PACKED_LEN);
+    }
+
+    /// The message as DDS carries it (CDR, into `buf`).
+    pub fn write_cdr(&self, buf: &mut Vec<u8>) {
+        let mut w = CdrWriter::new(buf);
+        w.u8(self.mode_pr).u8(self.mode_machine);
+        for m in &self.motor_cmd {
+            w.u8(m.mode)
+                .f32(m.q)
+                .f32(m.dq)
+                .f32(m.tau)
+                .f32(m.kp)
+                .f32(m.kd)
+                .u32(m.reserve);
+        }
+        for r in self.reserve {
+            w.u32(r);
+        }
+        w.u32(self.crc);
+    }
+
+    /// The message from its CDR.
+    pub fn read_cdr(sample: &[u8]) -> Result<Self, CdrError> {
+        let mut r = CdrReader::new(sample)?;
+        let mut out = Self {
+            mode_pr: r.u8()?,
+            mode_machine: r.u8()?,
+            ..Self::default()
+        };
+        for m in &mut out.motor_cmd {
+            *m = MotorCmd {
+                mode: r.u8()?,
+                q: r.f32()?,
+                dq: r.f32()?,
+                tau: r.f32()?,
+                kp: r.f32()?,
+                kd: r.f32()?,
+                reserve: r.u32()?,
+            };
+        }
+        for v in &mut out.reserve {
+            *v = r.u32()?;
+        }
+        out.crc = r.u32()?;
+        Ok(out)
     }
 }
 
@@ -275,6 +327,79 @@ impl LowState {
         p.u32(self.crc);
         debug_assert_eq!(p.at, Self::PACKED_LEN);
     }
+
+    /// The message as DDS carries it (CDR, into `buf`).
+    pub fn write_cdr(&self, buf: &mut Vec<u8>) {
+        let mut w = CdrWriter::new(buf);
+        w.u32(self.version[0]).u32(self.version[1]);
+        w.u8(self.mode_pr).u8(self.mode_machine).u32(self.tick);
+        let imu = &self.imu_state;
+        for v in imu
+            .quaternion
+            .iter()
+            .chain(&imu.gyroscope)
+            .chain(&imu.accelerometer)
+            .chain(&imu.rpy)
+        {
+            w.f32(*v);
+        }
+        w.i16(imu.temperature);
+        for m in &self.motor_state {
+            w.u8(m.mode).f32(m.q).f32(m.dq).f32(m.ddq).f32(m.tau_est);
+            w.i16(m.temperature[0]).i16(m.temperature[1]).f32(m.vol);
+            for v in m.sensor.iter().chain([m.motorstate].iter()).chain(&m.reserve) {
+                w.u32(*v);
+            }
+        }
+        w.octets(&self.wireless_remote);
+        for r in self.reserve {
+            w.u32(r);
+        }
+        w.u32(self.crc);
+    }
+
+    /// The message from its CDR.
+    pub fn read_cdr(sample: &[u8]) -> Result<Self, CdrError> {
+        let mut r = CdrReader::new(sample)?;
+        let mut out = Self::default();
+        for v in &mut out.version {
+            *v = r.u32()?;
+        }
+        out.mode_pr = r.u8()?;
+        out.mode_machine = r.u8()?;
+        out.tick = r.u32()?;
+        let imu = &mut out.imu_state;
+        for v in imu
+            .quaternion
+            .iter_mut()
+            .chain(&mut imu.gyroscope)
+            .chain(&mut imu.accelerometer)
+            .chain(&mut imu.rpy)
+        {
+            *v = r.f32()?;
+        }
+        imu.temperature = r.i16()?;
+        for m in &mut out.motor_state {
+            m.mode = r.u8()?;
+            m.q = r.f32()?;
+            m.dq = r.f32()?;
+            m.ddq = r.f32()?;
+            m.tau_est = r.f32()?;
+            m.temperature = [r.i16()?, r.i16()?];
+            m.vol = r.f32()?;
+            m.sensor = [r.u32()?, r.u32()?];
+            m.motorstate = r.u32()?;
+            for v in &mut m.reserve {
+                *v = r.u32()?;
+            }
+        }
+        r.octets(&mut out.wireless_remote)?;
+        for v in &mut out.reserve {
+            *v = r.u32()?;
+        }
+        out.crc = r.u32()?;
+        Ok(out)
+    }
 }
 
 impl Sealed for LowState {
@@ -309,5 +434,29 @@ mod tests {
         assert!(state.crc_ok());
         state.reserve[3] = 1;
         assert!(!state.crc_ok(), "the last word before the CRC is covered");
+    }
+
+    #[test]
+    fn cdr_round_trips_at_the_sizes_of_the_sdk_and_short_samples_are_refused() {
+        let mut cmd = LowCmd {
+            mode_machine: 5,
+            ..LowCmd::default()
+        };
+        cmd.motor_cmd[34].kd = 2.5;
+        cmd.seal();
+        let mut buf = Vec::new();
+        cmd.write_cdr(&mut buf);
+        // The SDK's serializer writes 1004 and 2092 bytes (header included).
+        assert_eq!(buf.len(), 1004);
+        assert_eq!(LowCmd::read_cdr(&buf), Ok(cmd));
+        assert!(LowCmd::read_cdr(&buf[..1000]).is_err());
+        let mut state = LowState::default();
+        state.imu_state.temperature = -3;
+        state.motor_state[0].temperature = [40, 41];
+        state.wireless_remote[39] = 9;
+        state.seal();
+        state.write_cdr(&mut buf);
+        assert_eq!(buf.len(), 2092);
+        assert_eq!(LowState::read_cdr(&buf), Ok(state));
     }
 }

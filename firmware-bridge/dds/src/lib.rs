@@ -1,0 +1,11 @@
+//! DDS on the wire: a participant on one network interface and domain (RustDDS), topics of raw
+//! CDR samples under the names the peers use, the CDR encoding itself, and ROS 2's names.
+//! Unitree's low-level link and ROS 2's topics both ride on it.
+
+pub mod cdr;
+pub mod names;
+mod participant;
+
+pub use participant::{
+    DdsConfig, DdsError, Delivery, MAX_DOMAIN, Participant, Publication, Subscription, interface_addresses,
+};
