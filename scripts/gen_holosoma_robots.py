@@ -11,9 +11,11 @@ configuration (the G1) or holosoma-inference's deployment config (the T1). The m
 the installed package; a robot.toml points at them through .local/holosoma (the T1 through the
 project's scene, robots/t1/scene.xml, which adds the floor holosoma's file lacks).
 
-Neither robot's motors are on a bus the host drives (their own boards run them); until robodeploy
-has those links, each file puts them on five MIT-mode CAN buses with one motor model per actuator
-class, whose ranges are the robot's effort and speed limits. Run: .local/venv/bin/python
+Neither robot's motors are on a bus the host drives: their own boards run them. The G1's board is
+reached over Unitree's low-level DDS link (a `unitree_dds` bus, each joint at the motor index
+holosoma-inference's deployment configuration maps it to); the T1's link is not in robodeploy, so its
+file puts the motors on five MIT-mode CAN buses. Either way one motor model per actuator class
+carries the robot's effort and speed limits as its ranges. Run: .local/venv/bin/python
 scripts/gen_holosoma_robots.py (the output is committed; a test checks it matches).
 """
 
@@ -46,8 +48,17 @@ def robot_config(path, variable, keys):
             and isinstance(node.value, ast.Call)
         ):
             found = {k.arg: k.value for k in node.value.keywords}
-            return {k: ast.literal_eval(found[k]) for k in keys}
+            return {k: literal(found[k]) for k in keys}
     raise SystemExit(f"no robot config {variable} in {path}")
+
+
+def literal(node):
+    """A literal, or `tuple(range(n))` (how holosoma writes an identity mapping)."""
+    if (isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "tuple"
+            and len(node.args) == 1 and isinstance(node.args[0], ast.Call)
+            and isinstance(node.args[0].func, ast.Name) and node.args[0].func.id == "range"):
+        return tuple(range(*(ast.literal_eval(a) for a in node.args[0].args)))
+    return ast.literal_eval(node)
 
 
 def fmt(x):
@@ -60,6 +71,9 @@ def g1_facts():
     robot = json.loads(meta["experiment_config"])["robot"]
     assert robot["dof_names"] == names, "the export's joint order differs from its configuration's"
     default = robot["init_state"]["default_joint_angles"]
+    deployed = robot_config(INFERENCE / "config/config_values/robot.py", "g1_29dof",
+                            ["dof_names", "joint2motor", "message_type"])
+    assert list(deployed["dof_names"]) == names and deployed["message_type"] == "HG"
     return {
         "key": "g1",
         "title": "Unitree G1, 29 DoF",
@@ -85,6 +99,8 @@ def g1_facts():
             ("can4", "right arm", lambda n: n.startswith("right_")),
         ],
         "legs_and_waist": ["*hip*", "*knee*", "*ankle*", "waist_*"],
+        # Unitree's low-level link: each joint's motor index in LowCmd/LowState.
+        "unitree_hg": list(deployed["joint2motor"]),
     }
 
 
@@ -144,19 +160,34 @@ def write(facts, out):
         return f"{prefix}-{e:g}Nm-{v:g}rads"
 
     site, gyro, accel, orientation = facts["imu"]
+    unitree = facts.get("unitree_hg")
+    if unitree:
+        about_buses = [
+            "# Link: the robot's own board runs its motors; robodeploy reaches it over Unitree's low-level",
+            "# DDS link (rt/lowcmd, rt/lowstate, unitree_hg messages with their CRC) at the board's 500 Hz,",
+            "# each joint at the motor index holosoma-inference's deployment maps it to, the IMU read from",
+            "# the board's state. Set `device` to the host's interface on the robot's network. The motors'",
+            "# ranges are MIT-law tables (the board runs the same impedance law; `reply` is not used here).",
+        ]
+        imu_bus, imu_rate = "lowlevel", "500.0"
+    else:
+        about_buses = [
+            "# Buses: the robot's own board drives its motors (the vendor's low-level link, not yet in",
+            "# robodeploy); here they sit on five MIT-mode CAN buses, one motor model per actuator class with",
+            "# the robot's effort and speed limits as its ranges, all cycling at 500 Hz (seven motors: 1.9 ms",
+            "# of wire in a 2 ms period) rather than the default 250 Hz: a humanoid's balance feels every",
+            "# millisecond between a measurement and the command that answers it. On the mirror holosoma's G1",
+            "# dance fell in 1 of 7 seeded runs at 250 Hz, in 1 of 3 with only the arms at 250 Hz, and in none",
+            "# of 10 at 500 Hz.",
+        ]
+        imu_bus, imu_rate = "imu0", "200.0"
     lines = [
         f"# {facts['title']}, as holosoma trained its policies on it (holosoma==0.0.3, Apache-2.0).",
         "# WRITTEN BY scripts/gen_holosoma_robots.py from the installed packages:",
         *(f"# {line}" for line in facts["source"]),
         "# The model files stay in the installed package: run scripts/setup first.",
         "#",
-        "# Buses: the robot's own board drives its motors (the vendor's low-level link, not yet in",
-        "# robodeploy); here they sit on five MIT-mode CAN buses, one motor model per actuator class with",
-        "# the robot's effort and speed limits as its ranges, all cycling at 500 Hz (seven motors: 1.9 ms",
-        "# of wire in a 2 ms period) rather than the default 250 Hz: a humanoid's balance feels every",
-        "# millisecond between a measurement and the command that answers it. On the mirror holosoma's G1",
-        "# dance fell in 1 of 7 seeded runs at 250 Hz, in 1 of 3 with only the arms at 250 Hz, and in none",
-        "# of 10 at 500 Hz.",
+        *about_buses,
         f'name = "{facts["key"]}"',
         f'mjcf = "{facts["mjcf"]}"',
         f'root_body = "{facts["root"]}"',
@@ -166,12 +197,12 @@ def write(facts, out):
         'policy = "policies/holosoma_loco_ppo.toml"',
         "",
         "[imu]",
-        'bus = "imu0"',
+        f'bus = "{imu_bus}"',
         f'site = "{site}"',
         f'gyro = "{gyro}"',
         f'accelerometer = "{accel}"',
         f'orientation = "{orientation}"',
-        "rate_hz = 200.0",
+        f"rate_hz = {imu_rate}",
         "mounting_rpy_deg = [0.0, 0.0, 0.0]",
         "",
         "# A humanoid does not stand on its joints' PD alone: the policy takes it from the first tick,",
@@ -217,7 +248,22 @@ def write(facts, out):
             f"rated_torque = {fmt(e / 2)}",
             "",
         ]
-    for bus, what, _ in facts["buses"]:
+    if unitree:
+        lines += [
+            "[[buses]]",
+            'name = "lowlevel"',
+            'kind = "unitree_dds"',
+            'device = "eth0"',
+            "# Gigabit Ethernet.",
+            "rate = 1000000000",
+            "rate_hz = 500.0",
+            # As on the CAN buses: a host without a real-time kernel stalls 20 ms now and then.
+            "command_timeout_ms = 50.0",
+            "domain = 0",
+            'family = "unitree_hg"',
+            "",
+        ]
+    for bus, what, _ in [] if unitree else facts["buses"]:
         lines += [
             "[[buses]]",
             f'name = "{bus}"          # {what}',
@@ -230,24 +276,29 @@ def write(facts, out):
             "command_timeout_ms = 50.0",
             "",
         ]
-    lines += [
-        "[[buses]]",
-        'name = "imu0"',
-        'kind = "imu_serial"',
-        'device = "/dev/ttyUSB0"',
-        "rate = 921600",
-        "",
-    ]
+    if not unitree:
+        lines += [
+            "[[buses]]",
+            'name = "imu0"',
+            'kind = "imu_serial"',
+            'device = "/dev/ttyUSB0"',
+            "rate = 921600",
+            "",
+        ]
     ids = {b: 0 for b, _, _ in facts["buses"]}
     for i, n in enumerate(names):
-        bus = next(b for b, _, test in facts["buses"] if test(n))
-        ids[bus] += 1
+        if unitree:
+            bus, motor_id = "lowlevel", unitree[i]
+        else:
+            bus = next(b for b, _, test in facts["buses"] if test(n))
+            ids[bus] += 1
+            motor_id = ids[bus]
         lines += [
             "[[joints]]",
             f'name = "{n}"',
             f'mjcf_joint = "{n}"',
             f'bus = "{bus}"',
-            f"id = {ids[bus]}",
+            f"id = {motor_id}",
             f'model = "{motor(effort[i], velocity[i])}"',
             "direction = 1.0",
             "zero_offset = 0.0",

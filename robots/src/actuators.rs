@@ -50,7 +50,8 @@ impl ActuatorModel {
     /// MIT-mode frames carry; serial servos close their own loop.
     pub fn provided_by(self, kind: BusKind) -> bool {
         match kind {
-            BusKind::MitCan => true,
+            // Unitree's boards run the same impedance law on each motor.
+            BusKind::MitCan | BusKind::UnitreeDds => true,
             BusKind::Dynamixel | BusKind::Feetech => self == Self::Firmware,
             BusKind::ImuSerial => false,
         }

@@ -16,9 +16,11 @@ pub struct BusConfig {
     pub name: String,
     /// What runs on it.
     pub kind: BusKind,
-    /// Device on the real robot: a SocketCAN interface (`can0`) or a serial device path.
+    /// Device on the real robot: a SocketCAN interface (`can0`), a serial device path, or the
+    /// network interface the robot is on (`unitree_dds`: `eth0`, `enp3s0`).
     pub device: String,
-    /// Bit rate (CAN) or baud rate (serial).
+    /// Bit rate (CAN), baud rate (serial), or the network link's speed in bit/s (`unitree_dds`:
+    /// 1000000000 for gigabit Ethernet; it sets the wire time of a cycle).
     pub rate: u32,
     /// Bus cycles per second: every device gets one round trip per cycle, on the bus's own
     /// thread. Default: the fastest of [`DEFAULT_BUS_RATES_HZ`] whose worst-case wire time fills
@@ -39,7 +41,32 @@ pub struct BusConfig {
     /// X-series firmware 45 and later) instead of one status each — less wire time per cycle.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub fast_reads: bool,
+    /// `unitree_dds` only: the DDS domain the robot's board is on, 0–232 (default 0, as the
+    /// robot ships).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub domain: Option<u32>,
+    /// `unitree_dds` only: the robot's low-level message family (default `unitree_hg`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub family: Option<UnitreeFamily>,
 }
+
+/// The low-level message family of a Unitree robot's board.
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, schemars::JsonSchema, serde::Serialize,
+)]
+#[serde(rename_all = "snake_case")]
+pub enum UnitreeFamily {
+    /// `unitree_hg`: G1 and H1-2 (35 motor slots, `LowCmd_`/`LowState_` of `unitree_hg::msg::dds_`).
+    #[default]
+    UnitreeHg,
+}
+
+/// Largest DDS domain id robot.toml accepts (RTPS's port mapping stays below 65536).
+pub const MAX_DDS_DOMAIN: u32 = 232;
+
+/// Bytes a `unitree_hg` command and state add on the wire beyond their CDR: RTPS header and data
+/// submessage, UDP, IPv4 and Ethernet framing.
+const DDS_FRAMING_BYTES: u64 = 20 + 24 + 8 + 20 + 38;
 
 /// Bus rates tried for a default, fastest first, Hz.
 pub const DEFAULT_BUS_RATES_HZ: [f64; 6] = [1000.0, 500.0, 250.0, 200.0, 100.0, 50.0];
@@ -124,6 +151,10 @@ pub enum BusKind {
     Feetech,
     /// An IMU streaming on a serial line.
     ImuSerial,
+    /// A Unitree robot's own board over DDS on Ethernet (`rt/lowcmd`, `rt/lowstate`): joint
+    /// `id`s are the motors' indices in the messages, and the robot's IMU can be read from its
+    /// state (`[imu] bus` naming this bus).
+    UnitreeDds,
 }
 
 /// One actuated joint, in the policy's order.
@@ -1456,6 +1487,8 @@ impl Robot {
             ),
             // Position in ticks, speed in ticks per second.
             BusKind::Feetech => (feetech::table::rad_per_tick(), feetech::table::rad_per_tick()),
+            // float32 fields: an ulp at the largest angles and speeds a joint reaches (±8).
+            BusKind::UnitreeDds => (8.0 * f64::from(f32::EPSILON), 8.0 * f64::from(f32::EPSILON)),
             BusKind::ImuSerial => return None,
         };
         Some([position / joint.gear, velocity / joint.gear])
@@ -1579,6 +1612,14 @@ impl Robot {
             }
             BusKind::Dynamixel => dxl::driver::cycle_wire_time(devices, b.rate, std::time::Duration::ZERO),
             BusKind::Feetech => feetech::driver::cycle_wire_time(devices, b.rate),
+            // One command and one state a cycle, whatever the motors.
+            BusKind::UnitreeDds => {
+                let bits = 8
+                    * (firmware_bridge::unitree::hg::LowCmd::CDR_LEN as u64
+                        + firmware_bridge::unitree::hg::LowState::CDR_LEN as u64
+                        + 2 * DDS_FRAMING_BYTES);
+                std::time::Duration::from_nanos(bits * 1_000_000_000 / u64::from(b.rate.max(1)))
+            }
             BusKind::ImuSerial => std::time::Duration::ZERO,
         }
     }
@@ -1595,7 +1636,7 @@ impl Robot {
         let wire = self.bus_wire_time(b);
         let adapter_latency = match b.kind {
             BusKind::Dynamixel | BusKind::Feetech => SERIAL_ADAPTER_LATENCY,
-            BusKind::MitCan | BusKind::ImuSerial => std::time::Duration::ZERO,
+            BusKind::MitCan | BusKind::ImuSerial | BusKind::UnitreeDds => std::time::Duration::ZERO,
         };
         let cycle = (wire + adapter_latency).as_secs_f64();
         let policy = self.config.control_rate_hz;
@@ -1913,7 +1954,7 @@ impl Robot {
             let rates: &[u32] = match b.kind {
                 BusKind::MitCan => &CAN_BITRATES,
                 BusKind::ImuSerial => imu_baud.as_ref().map_or(&WIT_BAUDS[..], |b| &b[..]),
-                BusKind::Dynamixel => &[],
+                BusKind::Dynamixel | BusKind::UnitreeDds => &[],
                 BusKind::Feetech => &feetech::table::BAUDS,
             };
             if !rates.is_empty() && !rates.contains(&b.rate) {
@@ -1931,6 +1972,21 @@ impl Robot {
             if b.rate == 0 {
                 return Err((format!("buses[{i}] ({}).rate", b.name), "0 is not a rate".into()));
             }
+            if b.kind != BusKind::UnitreeDds && (b.domain.is_some() || b.family.is_some()) {
+                let field = if b.domain.is_some() { "domain" } else { "family" };
+                return Err((
+                    format!("buses[{i}] ({}).{field}", b.name),
+                    format!("{field} is for unitree_dds buses; this is a {:?} bus", b.kind),
+                ));
+            }
+            if let Some(d) = b.domain
+                && d > MAX_DDS_DOMAIN
+            {
+                return Err((
+                    format!("buses[{i}] ({}).domain", b.name),
+                    format!("{d} is outside [0, {MAX_DDS_DOMAIN}]"),
+                ));
+            }
             if b.fast_reads && b.kind != BusKind::Dynamixel {
                 return Err((
                     format!("buses[{i}] ({}).fast_reads", b.name),
@@ -1944,10 +2000,13 @@ impl Robot {
         let imu_bus = self
             .bus(&c.imu.bus)
             .ok_or_else(|| ("imu.bus".to_owned(), format!("{:?} is not a bus", c.imu.bus)))?;
-        if imu_bus.kind != BusKind::ImuSerial {
+        if !matches!(imu_bus.kind, BusKind::ImuSerial | BusKind::UnitreeDds) {
             return Err((
                 "imu.bus".into(),
-                format!("{:?} is a {:?} bus, not imu_serial", c.imu.bus, imu_bus.kind),
+                format!(
+                    "{:?} is a {:?} bus, not imu_serial (or unitree_dds, whose state carries the IMU)",
+                    c.imu.bus, imu_bus.kind
+                ),
             ));
         }
         if !m.sites.contains(&c.imu.site) {
@@ -2024,6 +2083,8 @@ impl Robot {
                 BusKind::Dynamixel => 0..=252,
                 // 254 is broadcast in Feetech's protocol.
                 BusKind::Feetech => 0..=253,
+                // The motor's index in Unitree's messages (35 slots).
+                BusKind::UnitreeDds => 0..=(firmware_bridge::unitree::hg::MOTORS as u8 - 1),
                 BusKind::ImuSerial => 0..=255,
             };
             if !ids.contains(&j.id) {
@@ -2126,7 +2187,7 @@ fn check_actuator(
     feetech_own: &[feetech::models::FeetechModel],
 ) -> Result<(), (&'static str, String)> {
     match kind {
-        BusKind::MitCan => {
+        BusKind::MitCan | BusKind::UnitreeDds => {
             let Some(motor) = own
                 .iter()
                 .find(|m| m.name == j.model)

@@ -13,6 +13,7 @@ use firmware_bridge::feetech::driver::SerialFeetechPort;
 use firmware_bridge::serial::{DeviceStream, LockstepStream};
 use firmware_bridge::time::SimInstant;
 use firmware_bridge::time::SimWorld;
+use firmware_bridge::unitree::wire::DdsLowLevelPort;
 use robot_link::{BusPorts, BusRobot, GroundTruth, IoError, TickClock, WallClock};
 use robots::Robot;
 
@@ -41,6 +42,7 @@ pub fn lockstep_robot(robot: &Robot, world: &Arc<Mutex<Mirror>>) -> Result<Locks
             can: ports.can,
             dxl: ports.dxl,
             feetech: ports.feetech,
+            unitree: ports.unitree,
             imu: ports.imu,
         },
         LOCKSTEP_REPLY,
@@ -145,9 +147,23 @@ pub fn wired_robot_with(robot: &Robot, served: &ServedMirror, on_start: fn()) ->
             SerialFeetechPort::open(path, rate).map_err(|e| IoError::Setup(format!("{path}: {e}")))?,
         ));
     }
-    let imu_rate = robot.bus(&robot.config.imu.bus).map_or(921_600, |b| b.rate);
-    let imu =
-        DeviceStream::open(&ep.imu, imu_rate).map_err(|e| IoError::Setup(format!("{}: {e}", ep.imu)))?;
+    let mut unitree = Vec::new();
+    for (name, config) in &ep.unitree {
+        let port = DdsLowLevelPort::open(config).map_err(|e| {
+            IoError::Setup(format!(
+                "{name} on {} (domain {}): {e}",
+                config.interface, config.domain
+            ))
+        })?;
+        unitree.push((name.clone(), port));
+    }
+    let imu = match &ep.imu {
+        Some(path) => {
+            let imu_rate = robot.bus(&robot.config.imu.bus).map_or(921_600, |b| b.rate);
+            Some(DeviceStream::open(path, imu_rate).map_err(|e| IoError::Setup(format!("{path}: {e}")))?)
+        }
+        None => None,
+    };
     let options = DxlDriverOptions {
         // A pseudo-terminal on a busy machine needs more margin than a USB adapter.
         reply_slack: Duration::from_millis(5),
@@ -160,6 +176,7 @@ pub fn wired_robot_with(robot: &Robot, served: &ServedMirror, on_start: fn()) ->
             can,
             dxl,
             feetech,
+            unitree,
             imu,
         },
         Duration::from_millis(20),

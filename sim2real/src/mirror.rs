@@ -28,6 +28,9 @@ use firmware_bridge::plant::MotorPlant;
 use firmware_bridge::serial::{LockstepStream, SerialSimWorld, StreamLine};
 use firmware_bridge::time::SimWorld;
 use firmware_bridge::time::{SimInstant, SimRng};
+use firmware_bridge::unitree::board::{BoardConfig, BoardFault, BoardMotor, UnitreeBoard};
+use firmware_bridge::unitree::hg::ImuState as UnitreeImu;
+use firmware_bridge::unitree::lockstep::{LockstepUnitreePort, UnitreeWorld};
 use mujoco_rs::prelude::*;
 use mujoco_rs::wrappers::mj_model::traits::ModelType;
 use robots::spatial::{quat_conj, quat_mul, quat_of_rpy, quat_rotate};
@@ -131,6 +134,14 @@ struct CanLine {
     motors: Vec<MitMotor>,
 }
 
+/// A Unitree robot's board: its motors on their joints (`joints[k]` is motor `k`'s).
+#[derive(Debug)]
+struct UnitreeLine {
+    name: String,
+    board: UnitreeBoard,
+    joints: Vec<usize>,
+}
+
 #[derive(Debug)]
 struct DxlLine {
     name: String,
@@ -159,6 +170,9 @@ struct Imu {
     quat: usize,
     /// Rotation from the site's axes to the IMU's axes (inverse mounting).
     mount: [f64; 4],
+    /// The IMU is a Unitree board's (`unitree` line number): its samples go into the board's
+    /// state, not onto a line.
+    board: Option<usize>,
 }
 
 /// What reaches the host of a register-read IMU's answers while a fault lasts.
@@ -254,6 +268,11 @@ enum ImuFault {
     Gone,
 }
 
+/// The robot variant an emulated Unitree board reports in `mode_machine` (echoed by the host).
+const UNITREE_MODE_MACHINE: u8 = 5;
+/// The supply voltage an emulated Unitree board's motors report, V (a charged 13-cell pack).
+const UNITREE_SUPPLY_V: f32 = 54.6;
+
 /// The mirrored robot.
 #[derive(Debug)]
 pub struct Mirror {
@@ -266,7 +285,11 @@ pub struct Mirror {
     dxl: Vec<DxlLine>,
     /// Feetech lines: serial lines after the Dynamixel ones.
     feetech: Vec<FeetechLine>,
+    /// Unitree boards.
+    unitree: Vec<UnitreeLine>,
     imu: Imu,
+    /// The newest IMU sample a Unitree board puts in its state.
+    board_imu: UnitreeImu,
     gantry: Option<Gantry>,
     harness: Option<Harness>,
     /// The physics waits for the controller's first drive ([`MirrorConfig::hold_until_driven`]).
@@ -532,6 +555,7 @@ impl Mirror {
         let mut can = Vec::new();
         let mut dxl_lines = Vec::new();
         let mut feetech_lines = Vec::new();
+        let mut unitree = Vec::new();
         let latency = Duration::from_micros(draw(rnd.usb_latency_us).max(0.0) as u64);
         for bus in &robot.config.buses {
             match bus.kind {
@@ -607,6 +631,40 @@ impl Mirror {
                         joints: idx,
                     });
                 }
+                BusKind::UnitreeDds => {
+                    let timing = robot.bus_timing(&bus.name).expect("checked at load");
+                    let (joints, motors): (Vec<_>, Vec<_>) = robot
+                        .joints_on(&bus.name)
+                        .map(|(i, j)| {
+                            let m = robot.mit_model(&j.model).expect("checked at load");
+                            let firmware = MitFirmwareConfig {
+                                command_timeout: Some(timing.command_timeout),
+                                ..MitFirmwareConfig::new(j.id, m)
+                            };
+                            (
+                                i,
+                                BoardMotor {
+                                    slot: usize::from(j.id),
+                                    firmware,
+                                },
+                            )
+                        })
+                        .unzip();
+                    let board = UnitreeBoard::new(
+                        BoardConfig {
+                            motors,
+                            state_period: timing.period,
+                            mode_machine: UNITREE_MODE_MACHINE,
+                            supply_voltage: UNITREE_SUPPLY_V,
+                        },
+                        SimInstant::ZERO,
+                    );
+                    unitree.push(UnitreeLine {
+                        name: bus.name.clone(),
+                        board,
+                        joints,
+                    });
+                }
                 BusKind::ImuSerial => {}
             }
         }
@@ -644,6 +702,7 @@ impl Mirror {
             accel,
             quat,
             mount: [mounting[0], -mounting[1], -mounting[2], -mounting[3]],
+            board: unitree.iter().position(|u| u.name == imu_cfg.bus),
         };
 
         let mut faults = Vec::new();
@@ -664,6 +723,13 @@ impl Mirror {
                     "scheduled fault for {:?}: count = 0 is no fault (leave count out: for good)",
                     f.joint
                 )));
+            }
+            if joint == IMU_TARGET && imu.board.is_some() {
+                return Err(MirrorError::Robot(
+                    "scheduled fault for \"imu\": the IMU is the Unitree board's, in its state; schedule \
+                     the board's faults on one of its joints (silent with a count: the states stop)"
+                        .into(),
+                ));
             }
             if joint == IMU_TARGET && f.fault == FaultKind::Overheat {
                 return Err(MirrorError::Robot(
@@ -722,7 +788,12 @@ impl Mirror {
             can,
             dxl: dxl_lines,
             feetech: feetech_lines,
+            unitree,
             imu,
+            board_imu: UnitreeImu {
+                quaternion: [1.0, 0.0, 0.0, 0.0],
+                ..UnitreeImu::default()
+            },
             gantry: None,
             harness: None,
             held: false,
@@ -1027,6 +1098,23 @@ impl Mirror {
         Some(&mut self.dxl[line].wire.chain_mut().servos_mut()[k])
     }
 
+    /// The Unitree board driving policy joint `joint`, and the joint's motor on it.
+    fn unitree_motor(&mut self, joint: usize) -> Option<(&mut UnitreeLine, usize)> {
+        self.unitree
+            .iter_mut()
+            .find_map(|u| u.joints.iter().position(|&j| j == joint).map(move |k| (u, k)))
+    }
+
+    /// The number of Unitree board `name`.
+    pub fn unitree_line(&self, name: &str) -> Option<usize> {
+        self.unitree.iter().position(|u| u.name == name)
+    }
+
+    /// Unitree board number `line`.
+    pub fn unitree_board(&self, line: usize) -> Option<&UnitreeBoard> {
+        self.unitree.get(line).map(|u| &u.board)
+    }
+
     /// The MIT motor firmware driving policy joint `joint`.
     pub fn motor_mut(&mut self, joint: usize) -> Option<&mut MitMotorFirmware> {
         self.can
@@ -1053,6 +1141,14 @@ impl Mirror {
                 self.plants[m.joint].goal = m.firmware.position_goal();
                 self.plants[m.joint].torque_cap = m.firmware.torque_cap();
                 self.plants[m.joint].law = m.firmware.pd_law();
+            }
+        }
+        for line in &mut self.unitree {
+            for (m, &j) in line.board.motors_mut().iter_mut().zip(&line.joints) {
+                m.tick(t, self.firmware_period, &mut self.plants[j]);
+                self.plants[j].goal = m.position_goal();
+                self.plants[j].torque_cap = m.torque_cap();
+                self.plants[j].law = m.pd_law();
             }
         }
         for line in &mut self.dxl {
@@ -1277,6 +1373,23 @@ impl Mirror {
             accel: quat_rotate(i.mount, site_accel),
             quat: quat_mul(site_quat, quat_conj(i.mount)),
         };
+        if self.imu.board.is_some() {
+            // The board's IMU: the part's sample goes into the board's next state.
+            let x = self.imu.emulator.sample(t, &truth);
+            let narrow = |from: &[f64], to: &mut [f32]| {
+                for (t, f) in to.iter_mut().zip(from) {
+                    *t = *f as f32;
+                }
+            };
+            let b = &mut self.board_imu;
+            narrow(&x.quat, &mut b.quaternion);
+            narrow(&x.gyro, &mut b.gyroscope);
+            narrow(&x.accel, &mut b.accelerometer);
+            narrow(&x.rpy, &mut b.rpy);
+            b.temperature = x.temperature.round() as i16;
+            self.stats.imu_outputs += 1;
+            return;
+        }
         let mut cycle = [0u8; firmware_bridge::imu::emulator::MAX_CYCLE_BYTES];
         let n = match &mut self.imu.chip {
             Some(chip) => {
@@ -1333,7 +1446,17 @@ impl Mirror {
     }
 
     fn apply_fault(&mut self, joint: usize, fault: FaultKind) {
-        if let Some(servo) = self.sts_servo_mut(joint) {
+        if let Some((line, k)) = self.unitree_motor(joint) {
+            // One state carries every motor of the board: lost and corrupted replies are the
+            // board's states; a motor alone can drop out or overheat.
+            let slot = line.board.config().motors[k].slot;
+            line.board.inject(match fault {
+                FaultKind::Silent { count: None } | FaultKind::Vanish => BoardFault::MotorLost(slot),
+                FaultKind::Silent { count: Some(n) } => BoardFault::SilentState(Some(n)),
+                FaultKind::CorruptCrc { count } => BoardFault::CorruptCrc(count),
+                FaultKind::Overheat => BoardFault::Overheat(slot),
+            });
+        } else if let Some(servo) = self.sts_servo_mut(joint) {
             match fault {
                 FaultKind::Silent { count } => servo.inject(ReplyFault::Silent, count),
                 FaultKind::CorruptCrc { count } => servo.inject(ReplyFault::CorruptCrc, Some(count)),
@@ -1410,11 +1533,23 @@ impl Mirror {
                 )
             })
             .collect();
-        let imu = LockstepStream::new(Arc::clone(world), w.imu_line());
+        let unitree = w
+            .unitree
+            .iter()
+            .enumerate()
+            .map(|(i, u)| (u.name.clone(), LockstepUnitreePort::new(Arc::clone(world), i)))
+            .collect();
+        // A board's IMU comes in its state, not on a line.
+        let imu = w
+            .imu
+            .board
+            .is_none()
+            .then(|| LockstepStream::new(Arc::clone(world), w.imu_line()));
         HostPorts {
             can,
             dxl,
             feetech,
+            unitree,
             imu,
         }
     }
@@ -1429,8 +1564,16 @@ pub struct HostPorts {
     pub dxl: Vec<(String, LockstepDxlPort<Mirror>)>,
     /// Feetech lines by name.
     pub feetech: Vec<(String, LockstepFeetechPort<Mirror>)>,
-    /// The IMU's byte stream.
-    pub imu: LockstepStream<Mirror>,
+    /// Unitree boards by name.
+    pub unitree: Vec<(String, LockstepUnitreePort<Mirror>)>,
+    /// The IMU's byte stream (`None`: the IMU is a Unitree board's).
+    pub imu: Option<LockstepStream<Mirror>>,
+}
+
+impl UnitreeWorld for Mirror {
+    fn board_mut(&mut self, line: usize) -> &mut UnitreeBoard {
+        &mut self.unitree[line].board
+    }
 }
 
 impl SimWorld for Mirror {
@@ -1474,6 +1617,9 @@ impl Mirror {
         if let Some(f) = self.faults.get(self.next_fault) {
             t = t.min(f.0);
         }
+        for line in &self.unitree {
+            t = t.min(line.board.next_state());
+        }
         let t = t.max(now);
         self.now = t;
         for line in &mut self.can {
@@ -1513,6 +1659,13 @@ impl Mirror {
         }
         if t >= self.imu.emulator.next_output() {
             self.output_imu(t);
+        }
+        for line in &mut self.unitree {
+            let plants = &self.plants;
+            let joints = &line.joints;
+            line.board.publish(t, &self.board_imu, &mut |k| {
+                (plants[joints[k]].q, plants[joints[k]].qd)
+            });
         }
         t
     }

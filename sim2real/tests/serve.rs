@@ -77,7 +77,7 @@ fn hold_the_served_biped() -> Result<(), String> {
     dxl.configure().unwrap();
     dxl.enable().unwrap();
     let imu_rate = robot.bus(&robot.config.imu.bus).unwrap().rate;
-    let mut imu = ImuReader::new(DeviceStream::open(&ep.imu, imu_rate).unwrap());
+    let mut imu = ImuReader::new(DeviceStream::open(ep.imu.as_deref().unwrap(), imu_rate).unwrap());
 
     let start = Instant::now();
     let mut imu_samples = 0;

@@ -4,27 +4,11 @@
 //! a driver stopped half-way and resumed; the distributed clip check equals the local one. The
 //! steps and their checks are in `tests/python/ray_cluster_check.py`.
 
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::time::{Duration, Instant};
 
 use test_support::fixtures::workspace_root;
-
-/// `script` in a new network namespace with only the loopback interface up: unprivileged (a user
-/// namespace) where the kernel allows it, else as root.
-fn in_private_network(script: &str) -> Command {
-    let works = |flag: &str| {
-        Command::new("unshare")
-            .args([flag, "true"])
-            .status()
-            .is_ok_and(|s| s.success())
-    };
-    let flag = ["-rn", "-n"].into_iter().find(|f| works(f)).unwrap_or_else(|| {
-        panic!("this test needs a network namespace of its own (unshare -rn or -n): the kernel refused both")
-    });
-    let mut c = Command::new("unshare");
-    c.args([flag, "bash", "-c", &format!("ip link set lo up && {script}")]);
-    c
-}
+use test_support::netns::in_private_network;
 
 #[test]
 fn a_ray_cluster_runs_the_batch_like_one_machine_through_a_killed_worker_and_a_resume() {

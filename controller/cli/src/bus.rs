@@ -11,6 +11,10 @@ use firmware_bridge::dxl::transport::{DxlTransport, SerialDxlPort};
 use firmware_bridge::feetech::driver::SerialFeetechPort;
 use firmware_bridge::imu::reader::ImuReader;
 use firmware_bridge::serial::{ByteStream, DeviceStream};
+use firmware_bridge::unitree::board::motor_bits;
+use firmware_bridge::unitree::hg::{LowState, Sealed as _};
+use firmware_bridge::unitree::host::LowLevelPort as _;
+use firmware_bridge::unitree::wire::DdsLowLevelPort;
 use firmware_bridge::{dxl, feetech, mit};
 use robots::{BusKind, Robot};
 
@@ -88,8 +92,26 @@ fn scan(args: &ScanArgs) -> Result<()> {
                     .with_context(|| format!("bus {}: cannot open {path}", bus.name))?;
                 problems += scan_feetech(&robot, &bus.name, port, timeout)?;
             }
+            BusKind::UnitreeDds => {
+                let config = match endpoint.and_then(|e| e.unitree.iter().find(|u| u.0 == bus.name)) {
+                    Some((_, c)) => c.clone(),
+                    None => dds::DdsConfig {
+                        domain: bus.domain.unwrap_or(0),
+                        interface: bus.device.clone(),
+                    },
+                };
+                let port = DdsLowLevelPort::open(&config).with_context(|| {
+                    format!(
+                        "bus {} (robot.toml buses.device {:?}, domain {})",
+                        bus.name, bus.device, config.domain
+                    )
+                })?;
+                problems += scan_unitree(&robot, &bus.name, port, &config)?;
+            }
             BusKind::ImuSerial => {
-                let path = endpoint.map_or(bus.device.clone(), |e| e.imu.clone());
+                let Some(path) = endpoint.map_or(Some(bus.device.clone()), |e| e.imu.clone()) else {
+                    continue;
+                };
                 let stream = DeviceStream::open(&path, bus.rate)
                     .with_context(|| format!("bus {}: cannot open {path}", bus.name))?;
                 problems += scan_imu(&bus.name, stream, &robot.config.imu)?;
@@ -295,6 +317,69 @@ fn scan_feetech(robot: &Robot, bus: &str, port: SerialFeetechPort, timeout: Dura
     Ok(compare_with_file(&joints, &answered, |j| {
         robot.feetech_model(&j.model).map_or(0, |m| m.model_number)
     }))
+}
+
+/// Listens to a Unitree board's states for half a second (sending nothing): their rate and CRC,
+/// and each configured joint's motor in them (mode, status bits, temperature).
+fn scan_unitree(
+    robot: &Robot,
+    bus: &str,
+    mut port: DdsLowLevelPort,
+    config: &dds::DdsConfig,
+) -> Result<usize> {
+    let listen = Duration::from_millis(500);
+    let mut cdr = Vec::new();
+    let (mut good, mut bad_crc, mut malformed) = (0u32, 0u32, 0u32);
+    let mut newest = None;
+    let start = Instant::now();
+    while start.elapsed() < listen {
+        port.wait_state(Duration::from_millis(5))?;
+        if port.newest_state(&mut cdr)? {
+            match LowState::read_cdr(&cdr) {
+                Ok(s) if s.crc_ok() => {
+                    good += 1;
+                    newest = Some(s);
+                }
+                Ok(_) => bad_crc += 1,
+                Err(_) => malformed += 1,
+            }
+        }
+    }
+    println!(
+        "unitree {bus}: {good} states with a right CRC in {:.1} s on {} (domain {}), {bad_crc} with a wrong one, {malformed} malformed",
+        listen.as_secs_f64(),
+        config.interface,
+        config.domain
+    );
+    let Some(state) = newest else {
+        println!("  no state from the robot's board: is it on, on this interface and domain?");
+        return Ok(robot.joints_on(bus).count().max(1));
+    };
+    let rate = robot.bus_timing(bus).map_or(500.0, |t| t.rate_hz);
+    println!(
+        "  board version {}.{}, mode_machine {}, mode_pr {}; about {:.0} states/s (robot.toml: {})",
+        state.version[0],
+        state.version[1],
+        state.mode_machine,
+        state.mode_pr,
+        f64::from(good) / listen.as_secs_f64(),
+        robots::num(rate)
+    );
+    let mut problems = 0;
+    for (_, j) in robot.joints_on(bus) {
+        let m = &state.motor_state[usize::from(j.id)];
+        let verdict = if m.motorstate & !motor_bits::COMMAND_TIMEOUT != 0 {
+            problems += 1;
+            "FAULT"
+        } else {
+            "ok"
+        };
+        println!(
+            "  motor {:>2} {:<28} mode {} status {:#010x} {:>3} °C  {verdict}",
+            j.id, j.name, m.mode, m.motorstate, m.temperature[0]
+        );
+    }
+    Ok(problems)
 }
 
 fn scan_imu<S: ByteStream>(bus: &str, stream: S, imu: &robots::ImuConfig) -> Result<usize> {

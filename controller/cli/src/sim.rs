@@ -90,6 +90,9 @@ pub struct ServeArgs {
     /// First socketcand port (one per CAN bus, counting up; 0: any free port).
     #[arg(long, default_value_t = 29536)]
     port: u16,
+    /// Network interface the Unitree boards' DDS link is served on (each in its bus's domain).
+    #[arg(long, default_value = sim2real::serve::LOOPBACK)]
+    dds_interface: String,
     /// Stop after this many seconds (default: run until interrupted).
     #[arg(long, value_parser = crate::args::whole_within(1, 31_536_000))]
     seconds: Option<u64>,
@@ -202,8 +205,8 @@ fn serve(args: &ServeArgs) -> Result<()> {
     }
     let name = robot.config.name.clone();
     let mirror = Mirror::new(robot, config).context("cannot build the mirror")?;
-    let served =
-        ServedMirror::start(mirror, args.listen, args.port).context("cannot open the mirror's wires")?;
+    let served = ServedMirror::start_on(mirror, args.listen, args.port, &args.dds_interface)
+        .context("cannot open the mirror's wires")?;
     let ep = served.endpoints();
     // As with the other servers: a closed stdout must not stop the robot mid-run.
     let mut out = std::io::stdout().lock();
@@ -214,16 +217,43 @@ fn serve(args: &ServeArgs) -> Result<()> {
     for (bus, path) in &ep.dxl {
         let _ = writeln!(out, "  dxl  {bus:<6} {path}");
     }
-    let _ = writeln!(out, "  imu  {:<6} {}", "", ep.imu);
+    for (bus, c) in &ep.unitree {
+        let _ = writeln!(
+            out,
+            "  unitree {bus:<6} DDS rt/lowstate, rt/lowcmd on {} domain {}",
+            c.interface, c.domain
+        );
+    }
+    match &ep.imu {
+        Some(path) => {
+            let _ = writeln!(out, "  imu  {:<6} {path}", "");
+        }
+        None => {
+            let _ = writeln!(out, "  imu  in the board's rt/lowstate");
+        }
+    }
     let _ = out.flush();
     drop(out);
     let why = stop.wait(args.seconds);
     let _ = writeln!(std::io::stdout(), "stopped ({why})");
-    let stats = served
+    let world = served
         .world
         .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner)
-        .stats();
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let stats = world.stats();
+    for (bus, _) in &ep.unitree {
+        if let Some(b) = world.unitree_line(bus).and_then(|l| world.unitree_board(l)) {
+            let s = b.stats();
+            let _ = writeln!(
+                std::io::stdout(),
+                "unitree {bus}: {} states published, {} commands taken, {} refused for their CRC, {} malformed",
+                s.states,
+                s.accepted,
+                s.bad_crc,
+                s.malformed
+            );
+        }
+    }
     let _ = writeln!(
         std::io::stdout(),
         "stopping: {} physics steps, {} IMU outputs, {} faults applied",

@@ -6,6 +6,9 @@ pub mod cdr;
 pub mod names;
 mod participant;
 
+/// The event loop library topics register with ([`Subscription::register`]).
+pub use rustdds::mio1 as mio;
+
 pub use participant::{
     DdsConfig, DdsError, Delivery, MAX_DOMAIN, Participant, Publication, Subscription, interface_addresses,
 };

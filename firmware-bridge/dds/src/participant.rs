@@ -308,4 +308,14 @@ impl Subscription {
         }
         Ok(n)
     }
+
+    /// Registers the topic with a poll (rustdds's mio 1): `token` turns up when samples arrive.
+    /// Each wake-up must take every sample ([`Self::take_all`]).
+    pub fn register(
+        &mut self,
+        registry: &rustdds::mio1::Registry,
+        token: rustdds::mio1::Token,
+    ) -> std::io::Result<()> {
+        registry.register(&mut self.reader, token, rustdds::mio1::Interest::READABLE)
+    }
 }

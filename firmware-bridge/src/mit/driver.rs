@@ -69,6 +69,24 @@ impl MitJointConfig {
             torque_limit: None,
         }
     }
+
+    /// A joint-side command in the motor's units: through the direction, zero offset and gear.
+    pub fn to_motor(&self, c: &JointCommand) -> MitCommand {
+        let (s, g) = (self.direction, self.gear_ratio);
+        MitCommand {
+            p: s * g * c.q + self.offset,
+            v: s * g * c.qd,
+            kp: c.kp / (g * g),
+            kd: c.kd / (g * g),
+            t: s * c.tau / g,
+        }
+    }
+
+    /// The motor's position, velocity and torque as the joint's: `(q, qd, tau)`.
+    pub fn to_joint(&self, p: f64, v: f64, t: f64) -> (f64, f64, f64) {
+        let (s, g) = (self.direction, self.gear_ratio);
+        (s * (p - self.offset) / g, s * v / g, s * t * g)
+    }
 }
 
 /// A command in joint units.
@@ -304,17 +322,6 @@ impl<B: CanBus> MitBusDriver<B> {
         &mut self.bus
     }
 
-    fn to_motor(j: &MitJointConfig, c: &JointCommand) -> MitCommand {
-        let (s, g) = (j.direction, j.gear_ratio);
-        MitCommand {
-            p: s * g * c.q + j.offset,
-            v: s * g * c.qd,
-            kp: c.kp / (g * g),
-            kd: c.kd / (g * g),
-            t: s * c.tau / g,
-        }
-    }
-
     /// Sends one command per joint and collects replies until all are in or `reply_timeout` passes.
     pub fn cycle(&mut self, commands: &[JointCommand]) -> Result<CycleReport, MitError> {
         self.send_commands(commands)?;
@@ -335,7 +342,7 @@ impl<B: CanBus> MitBusDriver<B> {
         // Pack everything before sending anything: a bad command must not leave half a bus commanded.
         let mut frames = [CanFrame::new8(CanId::Standard(0), [0; 8]); MAX_MOTORS_PER_BUS];
         for (i, (j, c)) in self.joints.iter().zip(commands).enumerate() {
-            let cmd = Self::to_motor(j, c);
+            let cmd = j.to_motor(c);
             if super::codec::needs_clamp(&j.model, &cmd) {
                 report.clamped += 1;
             }
@@ -440,11 +447,8 @@ impl<B: CanBus> MitBusDriver<B> {
             self.stats.rejects.duplicate += 1;
             return Err(());
         }
-        let (s, g) = (j.direction, j.gear_ratio);
         let fb = &mut self.feedback[i];
-        fb.q = s * (r.p - j.offset) / g;
-        fb.qd = s * r.v / g;
-        fb.tau = s * r.t * g;
+        (fb.q, fb.qd, fb.tau) = j.to_joint(r.p, r.v, r.t);
         fb.temperature = r.temperature;
         fb.fault = r.fault;
         fb.enabled = r.enabled;

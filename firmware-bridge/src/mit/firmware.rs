@@ -243,26 +243,61 @@ impl MitMotorFirmware {
         Some(reply)
     }
 
+    /// Torque on, from a zero-gain command (no jump), unless a fault is latched and the winding
+    /// has not cooled.
+    fn enable(&mut self, now: SimInstant) {
+        let cooled = self.temperature < self.cfg.temperature_limit_c - 10.0;
+        if self.injected.fault.is_none() && (self.fault == MotorFault::None || cooled) {
+            self.fault = MotorFault::None;
+            self.enabled = true;
+            self.command = MitCommand::default();
+            self.last_command = Some(now);
+        }
+    }
+
+    /// Torque off; clears a fault that is no longer there when asked to.
+    fn disable(&mut self, clear_faults: bool) {
+        self.enabled = false;
+        self.torque = 0.0;
+        let cooled = self.temperature < self.cfg.temperature_limit_c - 10.0;
+        if clear_faults && self.injected.fault.is_none() && cooled {
+            self.fault = MotorFault::None;
+        }
+    }
+
+    /// The motor run by a board rather than by frames (Unitree's: the robot's board turns each
+    /// low-level command into its motors' commands): `Some` switches torque on if it is off
+    /// (a latched fault permitting) and sets the law, `None` switches it off and clears a fault
+    /// that has passed. Counts as a command for the timeout. A silent motor hears nothing.
+    pub fn drive(&mut self, now: SimInstant, command: Option<MitCommand>) {
+        if self.injected.silent {
+            return;
+        }
+        match command {
+            Some(cmd) => {
+                if !self.enabled {
+                    self.enable(now);
+                }
+                if self.enabled {
+                    self.command = cmd;
+                }
+                self.last_command = Some(now);
+            }
+            None if self.enabled || self.fault != MotorFault::None => self.disable(true),
+            None => {}
+        }
+    }
+
+    /// Whether the motor was made silent ([`InjectedFaults::silent`]): it neither hears nor
+    /// answers.
+    pub fn silent(&self) -> bool {
+        self.injected.silent
+    }
+
     fn special(&mut self, now: SimInstant, which: SpecialFrame, clear_faults: bool, plant: &dyn MotorPlant) {
         match which {
-            SpecialFrame::Enable => {
-                let cooled = self.temperature < self.cfg.temperature_limit_c - 10.0;
-                if self.injected.fault.is_none() && (self.fault == MotorFault::None || cooled) {
-                    self.fault = MotorFault::None;
-                    self.enabled = true;
-                    // Entering motor mode starts from a zero-gain command: no jump.
-                    self.command = MitCommand::default();
-                    self.last_command = Some(now);
-                }
-            }
-            SpecialFrame::Disable => {
-                self.enabled = false;
-                self.torque = 0.0;
-                let cooled = self.temperature < self.cfg.temperature_limit_c - 10.0;
-                if clear_faults && self.injected.fault.is_none() && cooled {
-                    self.fault = MotorFault::None;
-                }
-            }
+            SpecialFrame::Enable => self.enable(now),
+            SpecialFrame::Disable => self.disable(clear_faults),
             SpecialFrame::SetZero => {
                 // Real firmware only rebases while disabled; enabled, it is refused silently.
                 if !self.enabled {

@@ -120,6 +120,8 @@ impl Packer<'_> {
 impl LowCmd {
     /// Bytes of the packed (C) layout.
     pub const PACKED_LEN: usize = 1004;
+    /// Bytes of its CDR, the encapsulation header included.
+    pub const CDR_LEN: usize = 1004;
 
     /// The message in the SDK's C layout, as the CRC reads it.
     pub fn pack(&self, out: &mut [u8; Self::PACKED_LEN]) {
@@ -284,6 +286,8 @@ impl Default for LowState {
 impl LowState {
     /// Bytes of the packed (C) layout.
     pub const PACKED_LEN: usize = 2092;
+    /// Bytes of its CDR, the encapsulation header included.
+    pub const CDR_LEN: usize = 2092;
 
     /// The message in the SDK's C layout, as the CRC reads it.
     pub fn pack(&self, out: &mut [u8; Self::PACKED_LEN]) {
@@ -447,7 +451,7 @@ mod tests {
         let mut buf = Vec::new();
         cmd.write_cdr(&mut buf);
         // The SDK's serializer writes 1004 and 2092 bytes (header included).
-        assert_eq!(buf.len(), 1004);
+        assert_eq!(buf.len(), LowCmd::CDR_LEN);
         assert_eq!(LowCmd::read_cdr(&buf), Ok(cmd));
         assert!(LowCmd::read_cdr(&buf[..1000]).is_err());
         let mut state = LowState::default();
@@ -456,7 +460,7 @@ mod tests {
         state.wireless_remote[39] = 9;
         state.seal();
         state.write_cdr(&mut buf);
-        assert_eq!(buf.len(), 2092);
+        assert_eq!(buf.len(), LowState::CDR_LEN);
         assert_eq!(LowState::read_cdr(&buf), Ok(state));
     }
 }

@@ -7,7 +7,11 @@
 //! (the CRC itself): CRC-32 with polynomial 0x04C11DB7, initial value 0xFFFFFFFF, each word fed
 //! most significant bit first, no reflection and no final XOR.
 
+pub mod board;
 pub mod hg;
+pub mod host;
+pub mod lockstep;
+pub mod wire;
 
 /// The polynomial of Unitree's CRC-32.
 const POLYNOMIAL: u32 = 0x04C1_1DB7;

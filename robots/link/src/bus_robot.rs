@@ -17,16 +17,20 @@ use firmware_bridge::dxl::models as dxl_models;
 use firmware_bridge::dxl::table::addr;
 use firmware_bridge::dxl::transport::DxlTransport;
 use firmware_bridge::feetech::driver::{FeetechBusDriver, FeetechDriverOptions, FeetechTransport};
+use firmware_bridge::imu::reader::ImuReader;
 use firmware_bridge::mit::codec::MotorFault;
 use firmware_bridge::mit::driver::{JointCommand, MitBusDriver};
 use firmware_bridge::serial::ByteStream;
+use firmware_bridge::unitree::host::{HgDriver, LowLevelPort};
 use robots::{BusKind, Robot, drivers};
+use triple_buffer::triple_buffer;
 
 use crate::clock::TickClock;
 use crate::cycle::{BusStats, CycleLog, CycleRecord, Cycler, copy_joints};
-use crate::imu_cycle::{ImuCycle, ImuWorker};
+use crate::imu_cycle::{BoardImu, ImuCycle, ImuInput, ImuWorker};
 use crate::link::{IoError, RobotLink};
 use crate::state::{DeviceIdentity, JointTarget, RobotState};
+use crate::unitree_bus::HgBus;
 use crate::workers::Worker;
 
 /// How long identification waits for the IMU's first sample.
@@ -37,15 +41,17 @@ pub const MAX_BUSES: usize = 16;
 
 /// The ports of a robot's buses, in robot.toml order per kind.
 #[derive(Debug)]
-pub struct BusPorts<C, D, F, S> {
+pub struct BusPorts<C, D, F, U, S> {
     /// One port per `mit_can` bus, by name.
     pub can: Vec<(String, C)>,
     /// One port per `dynamixel` bus, by name.
     pub dxl: Vec<(String, D)>,
     /// One port per `feetech` bus, by name.
     pub feetech: Vec<(String, F)>,
-    /// The IMU stream.
-    pub imu: S,
+    /// One port per `unitree_dds` bus, by name.
+    pub unitree: Vec<(String, U)>,
+    /// The IMU stream, when the IMU has a line of its own (`None`: it is a Unitree board's).
+    pub imu: Option<S>,
 }
 
 /// One bus of joints as its cycles drive it.
@@ -615,9 +621,9 @@ impl<S: ByteStream> BusRobot<S> {
     /// Drivers for `robot` on `ports`, each bus at the rate robot.toml gives it; no reply is
     /// waited for longer than `reply_timeout` or [`crate::cycle::REPLY_SHARE`] of the bus's period. Nothing is
     /// sent yet.
-    pub fn new<C, D, F>(
+    pub fn new<C, D, F, U>(
         robot: &Robot,
-        ports: BusPorts<C, D, F, S>,
+        ports: BusPorts<C, D, F, U, S>,
         reply_timeout: Duration,
         dxl: DxlDriverOptions,
     ) -> Result<Self, IoError>
@@ -628,6 +634,7 @@ impl<S: ByteStream> BusRobot<S> {
         D::Instant: Send,
         F: FeetechTransport + Send + std::fmt::Debug + 'static,
         F::Instant: Send,
+        U: LowLevelPort + 'static,
     {
         let n = robot.config.joints.len();
         let policy_period =
@@ -722,6 +729,35 @@ impl<S: ByteStream> BusRobot<S> {
             let bus = FeetechBus::new(FeetechBusDriver::new(port, cfg, options)?, idx.clone());
             add(Box::new(bus), idx, timing, name, false);
         }
+        let mut board_imu = None;
+        for (name, port) in ports.unitree {
+            check_kind(robot, &name, BusKind::UnitreeDds)?;
+            let timing = timing(&name)?;
+            let (idx, cfg): (Vec<_>, Vec<_>) = robot
+                .joints_on(&name)
+                .map(|(i, j)| (i, drivers::mit_joint(robot, j)))
+                .unzip();
+            let bus_config = robot.bus(&name).expect("checked above");
+            let imu = (robot.config.imu.bus == name).then(|| {
+                let (input, output) = triple_buffer(&BoardImu::default());
+                board_imu = Some(output);
+                input
+            });
+            let bus = HgBus {
+                driver: HgDriver::new(port, cfg).map_err(|e| IoError::Setup(format!("bus {name}: {e}")))?,
+                commands: vec![None; idx.len()],
+                joints: idx.clone(),
+                imu,
+                source: format!(
+                    "rt/lowstate on {}, domain {}",
+                    bus_config.device,
+                    bus_config.domain.unwrap_or(0)
+                ),
+            };
+            // The board's motors hold each joint's torque limit at every step of their law, as
+            // MIT motors do.
+            add(Box::new(bus), idx, timing, name, true);
+        }
         if cyclers.len() > MAX_BUSES {
             return Err(IoError::Setup(format!(
                 "{} buses; at most {MAX_BUSES} are supported",
@@ -749,9 +785,23 @@ impl<S: ByteStream> BusRobot<S> {
             off: vec![JointTarget::default(); n],
             error: None,
             imu: Some(ImuCycle::new(
-                ports.imu,
-                robot.config.imu.protocol,
-                robot.config.imu.rate_hz,
+                match (ports.imu, board_imu) {
+                    (_, Some(newest)) => ImuInput::Board { newest, last: 0 },
+                    (Some(stream), None) => ImuInput::Line {
+                        reader: Box::new(ImuReader::speaking_at(
+                            robot.config.imu.protocol,
+                            stream,
+                            robot.config.imu.rate_hz,
+                        )),
+                        last: None,
+                    },
+                    (None, None) => {
+                        return Err(IoError::Setup(format!(
+                            "the IMU's bus {} has no port",
+                            robot.config.imu.bus
+                        )));
+                    }
+                },
                 robot.config.imu.mounting_rpy_deg,
                 robot.config.imu.gyro_bias,
                 robot.config.imu.accel_bias,

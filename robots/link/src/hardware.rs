@@ -1,5 +1,6 @@
 //! The robot's own buses, opened from the devices robot.toml names: SocketCAN interfaces for the
-//! MIT motors, serial devices for the Dynamixel servos and the IMU.
+//! MIT motors, serial devices for the Dynamixel servos and the IMU, DDS on a network interface for
+//! a Unitree robot's board.
 
 use std::time::Duration;
 
@@ -8,6 +9,7 @@ use firmware_bridge::dxl::driver::DxlDriverOptions;
 use firmware_bridge::dxl::transport::SerialDxlPort;
 use firmware_bridge::feetech::driver::SerialFeetechPort;
 use firmware_bridge::serial::DeviceStream;
+use firmware_bridge::unitree::wire::DdsLowLevelPort;
 use robots::{BusKind, Robot};
 
 use crate::bus_robot::{BusPorts, BusRobot};
@@ -34,6 +36,7 @@ pub fn open_sequential(robot: &Robot) -> Result<HardwareRobot, IoError> {
     let mut can = Vec::new();
     let mut dxl = Vec::new();
     let mut feetech = Vec::new();
+    let mut unitree = Vec::new();
     let mut imu = None;
     for bus in &robot.config.buses {
         let fail = |e: &dyn std::fmt::Display| {
@@ -56,9 +59,34 @@ pub fn open_sequential(robot: &Robot) -> Result<HardwareRobot, IoError> {
                 imu = Some(DeviceStream::open(&bus.device, bus.rate).map_err(|e| fail(&e))?);
             }
             BusKind::ImuSerial => {}
+            BusKind::UnitreeDds => {
+                let config = dds::DdsConfig {
+                    domain: bus.domain.unwrap_or(0),
+                    interface: bus.device.clone(),
+                };
+                let port = DdsLowLevelPort::open(&config).map_err(|e| match e {
+                    dds::DdsError::Interface { .. } => IoError::Open(format!(
+                        "bus {} (robot.toml buses.device = {:?}): {e}",
+                        bus.name, bus.device
+                    )),
+                    dds::DdsError::Domain(_) => {
+                        IoError::Setup(format!("bus {} (robot.toml buses.domain): {e}", bus.name))
+                    }
+                    e => fail(&e),
+                })?;
+                unitree.push((bus.name.clone(), port));
+            }
         }
     }
-    let imu = imu.ok_or_else(|| IoError::Setup(format!("IMU bus {} not found", robot.config.imu.bus)))?;
+    let imu_on_board = robot
+        .bus(&robot.config.imu.bus)
+        .is_some_and(|b| b.kind == BusKind::UnitreeDds);
+    if imu.is_none() && !imu_on_board {
+        return Err(IoError::Setup(format!(
+            "IMU bus {} not found",
+            robot.config.imu.bus
+        )));
+    }
     // USB adapters: the FTDI latency timer should be 1 ms; leave margin for it.
     let options = DxlDriverOptions {
         reply_slack: Duration::from_millis(3),
@@ -70,6 +98,7 @@ pub fn open_sequential(robot: &Robot) -> Result<HardwareRobot, IoError> {
             can,
             dxl,
             feetech,
+            unitree,
             imu,
         },
         Duration::from_millis(2),

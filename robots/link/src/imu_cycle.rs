@@ -9,12 +9,13 @@ use std::time::{Duration, Instant};
 
 use crossbeam::queue::ArrayQueue;
 use firmware_bridge::imu::reader::ImuReader;
+use firmware_bridge::imu::wit::ImuSample;
 use firmware_bridge::serial::ByteStream;
 use robots::spatial;
 use triple_buffer::{Output, triple_buffer};
 
+use crate::IMU_HISTORY;
 use crate::clock::{TickClock, WallClock};
-use crate::{IMU_HISTORY, ImuSample};
 
 /// The newest IMU sample in the base's axes.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -27,13 +28,13 @@ pub(crate) struct ImuNewest {
     /// When the newest arrived (the link's time).
     pub(crate) arrived_at: Duration,
     /// The last [`IMU_HISTORY`] samples: sample number `c` sits at `c % IMU_HISTORY`.
-    pub(crate) recent: [ImuSample; IMU_HISTORY],
+    pub(crate) recent: [crate::ImuSample; IMU_HISTORY],
 }
 
 impl ImuNewest {
     /// The samples after number `seen` up to the newest, oldest first, into `out` (at most
     /// [`IMU_HISTORY`]: the newest of a longer gap).
-    pub(crate) fn samples_since(&self, seen: u64, out: &mut Vec<ImuSample>) {
+    pub(crate) fn samples_since(&self, seen: u64, out: &mut Vec<crate::ImuSample>) {
         out.clear();
         let first = seen.max(self.count.saturating_sub(IMU_HISTORY as u64)) + 1;
         for c in first..=self.count {
@@ -50,16 +51,35 @@ impl Default for ImuNewest {
             quat: [1.0, 0.0, 0.0, 0.0],
             count: 0,
             arrived_at: Duration::ZERO,
-            recent: [ImuSample::default(); IMU_HISTORY],
+            recent: [crate::ImuSample::default(); IMU_HISTORY],
         }
     }
+}
+
+/// The newest IMU sample of a Unitree board's state, as its bus hands it over.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub(crate) struct BoardImu {
+    pub(crate) sample: ImuSample,
+    /// States taken so far: a poll that sees the same count saw no new sample.
+    pub(crate) count: u64,
+}
+
+/// Where the IMU's samples come from.
+#[derive(Debug)]
+pub(crate) enum ImuInput<S: ByteStream> {
+    /// A part streaming on its own line.
+    Line {
+        reader: Box<ImuReader<S>>,
+        last: Option<S::Instant>,
+    },
+    /// The IMU in a Unitree board's state, from the bus that takes it.
+    Board { newest: Output<BoardImu>, last: u64 },
 }
 
 /// The IMU's reader, its calibration and its poll period.
 #[derive(Debug)]
 pub(crate) struct ImuCycle<S: ByteStream> {
-    reader: ImuReader<S>,
-    last: Option<S::Instant>,
+    input: ImuInput<S>,
     /// Mounting (IMU axes to base axes) and biases, from the robot's calibration.
     mount: [f64; 4],
     gyro_bias: [f64; 3],
@@ -70,9 +90,7 @@ pub(crate) struct ImuCycle<S: ByteStream> {
 
 impl<S: ByteStream> ImuCycle<S> {
     pub(crate) fn new(
-        stream: S,
-        protocol: firmware_bridge::imu::ImuProtocol,
-        rate_hz: f64,
+        input: ImuInput<S>,
         mounting_rpy_deg: [f64; 3],
         gyro_bias: [f64; 3],
         accel_bias: [f64; 3],
@@ -80,8 +98,7 @@ impl<S: ByteStream> ImuCycle<S> {
     ) -> Self {
         let [r, p, y] = mounting_rpy_deg.map(f64::to_radians);
         Self {
-            reader: ImuReader::speaking_at(protocol, stream, rate_hz),
-            last: None,
+            input,
             mount: spatial::quat_of_rpy(r, p, y),
             gyro_bias,
             accel_bias,
@@ -92,26 +109,42 @@ impl<S: ByteStream> ImuCycle<S> {
 
     /// Waits (bounded by `within` of the stream's clock) for the part's first sample, then keeps
     /// it, stamped `now`.
+    /// (A board's IMU came with the bus's first state.)
     pub(crate) fn wait_first(&mut self, within: Duration, now: Duration) -> std::io::Result<()> {
-        self.reader.wait_first(within)?;
+        if let ImuInput::Line { reader, .. } = &mut self.input {
+            reader.wait_first(within)?;
+        }
         self.poll(now)
     }
 
-    /// Drains the line; a new sample is kept, stamped `now`.
+    /// Drains the line (or looks at the board's newest); a new sample is kept, stamped `now`.
     pub(crate) fn poll(&mut self, now: Duration) -> std::io::Result<()> {
-        if let Some(r) = self.reader.poll()?
-            && Some(r.received_at) != self.last
-        {
-            self.last = Some(r.received_at);
+        let sample = match &mut self.input {
+            ImuInput::Line { reader, last } => match reader.poll()? {
+                Some(r) if Some(r.received_at) != *last => {
+                    *last = Some(r.received_at);
+                    Some(r.sample)
+                }
+                _ => None,
+            },
+            ImuInput::Board { newest, last } => {
+                let b = *newest.read();
+                (b.count != *last).then(|| {
+                    *last = b.count;
+                    b.sample
+                })
+            }
+        };
+        if let Some(sample) = sample {
             // Into the base's axes: bias off, then the mounting rotation.
             let m = self.mount;
             let n = &mut self.newest;
-            n.gyro = spatial::quat_rotate(m, spatial::sub(r.sample.gyro, self.gyro_bias));
-            n.accel = spatial::quat_rotate(m, spatial::sub(r.sample.accel, self.accel_bias));
-            n.quat = spatial::quat_mul(r.sample.quat, spatial::quat_conj(m));
+            n.gyro = spatial::quat_rotate(m, spatial::sub(sample.gyro, self.gyro_bias));
+            n.accel = spatial::quat_rotate(m, spatial::sub(sample.accel, self.accel_bias));
+            n.quat = spatial::quat_mul(sample.quat, spatial::quat_conj(m));
             n.count += 1;
             n.arrived_at = now;
-            n.recent[(n.count % IMU_HISTORY as u64) as usize] = ImuSample {
+            n.recent[(n.count % IMU_HISTORY as u64) as usize] = crate::ImuSample {
                 gyro: n.gyro,
                 accel: n.accel,
                 quat: n.quat,

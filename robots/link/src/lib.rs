@@ -19,6 +19,7 @@ pub mod hardware;
 mod imu_cycle;
 pub mod link;
 pub mod state;
+mod unitree_bus;
 mod workers;
 
 pub use bus_robot::{BusPorts, BusRobot};

@@ -24,6 +24,12 @@ pub enum IoError {
     /// The IMU stream failed.
     #[error("IMU")]
     Imu(#[from] std::io::Error),
+    /// A Unitree board's DDS link failed.
+    #[error("Unitree DDS link")]
+    Dds(#[source] std::io::Error),
+    /// A device did not answer when the buses were set up.
+    #[error("{0}")]
+    Silent(String),
     /// The robot description and the ports do not fit.
     #[error("{0}")]
     Setup(String),
@@ -110,7 +116,10 @@ impl IoError {
             | Self::Feetech(F::Config { .. } | F::NotFinite { .. } | F::CommandCount { .. }) => {
                 ErrorKind::BadInput
             }
-            Self::Mit(_) | Self::Dxl(_) | Self::Feetech(_) | Self::Imu(_) | Self::Open(_) => ErrorKind::Io,
+            Self::Silent(_) => ErrorKind::Device,
+            Self::Mit(_) | Self::Dxl(_) | Self::Feetech(_) | Self::Imu(_) | Self::Dds(_) | Self::Open(_) => {
+                ErrorKind::Io
+            }
             Self::Setup(_) => ErrorKind::BadInput,
         }
     }

@@ -400,12 +400,14 @@ fn locomotion_course(
     let mut l = controller::metrics::LocomotionMetrics::new(&s.command_kinds);
     let [forward, _, turning] = l.slots();
     let mut course = Vec::new();
-    for k in 1..s.q.len() {
+    // From the first tick: the run's own metrics take the pose of the first tick the policy ran
+    // (a step needs the one before it, so the first gives none and its dt is not used).
+    for k in 0..s.q.len() {
         let (Some(&pose), true) = (s.base_pose.get(k), s.running.get(k).copied().unwrap_or(false)) else {
             continue;
         };
-        let dt = s.time[k] - s.time[k - 1];
-        if dt.is_nan() || dt <= 0.0 || pose[0].is_nan() {
+        let dt = if k == 0 { 0.0 } else { s.time[k] - s.time[k - 1] };
+        if (k > 0 && (dt.is_nan() || dt <= 0.0)) || pose[0].is_nan() {
             continue;
         }
         let commands = s.commands.get(k).map_or(&[][..], Vec::as_slice);

@@ -1,0 +1,255 @@
+//! The host's end of a Unitree board: each cycle one sealed `LowCmd` for every motor the robot
+//! uses, and the newest `LowState` taken, its CRC checked, the motors' states and the IMU read out
+//! of it. Joint units on this side, motor units in the messages (the MIT joint conversion: the
+//! board runs the same impedance law).
+
+use std::time::Duration;
+
+use crate::mit::driver::{JointCommand, MitJointConfig};
+
+use super::board::motor_bits;
+use super::hg::{ImuState, LowCmd, LowState, MOTORS, Sealed as _};
+
+/// Where commands go and states come from: DDS on the robot's network, or the mirror's board
+/// in lockstep.
+pub trait LowLevelPort: Send + std::fmt::Debug {
+    /// Sends a command's CDR.
+    fn send(&mut self, cdr: &[u8]) -> std::io::Result<()>;
+    /// The newest state that arrived since the last call, into `out` (its CDR); whether one did.
+    fn newest_state(&mut self, out: &mut Vec<u8>) -> std::io::Result<bool>;
+    /// Waits up to `within` for a state to arrive (set-up only: the cycle never waits).
+    fn wait_state(&mut self, within: Duration) -> std::io::Result<bool>;
+}
+
+/// One motor's state, in joint units.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct HgFeedback {
+    /// Angle, rad.
+    pub q: f64,
+    /// Velocity, rad/s.
+    pub qd: f64,
+    /// Torque estimate, N·m.
+    pub tau: f64,
+    /// Winding temperature, °C.
+    pub temperature: f64,
+    /// Unitree's status bits ([`motor_bits`]).
+    pub status: u32,
+    /// The board runs the motor (mode ≠ 0).
+    pub enabled: bool,
+    /// Consecutive receives without a fresh state (0: fresh).
+    pub missed_cycles: u32,
+}
+
+impl HgFeedback {
+    /// A status bit that means the motor cannot be trusted or has dropped torque. A command
+    /// timeout alone is not one: it clears when commands flow again.
+    pub fn faulted(&self) -> bool {
+        self.status & !motor_bits::COMMAND_TIMEOUT != 0
+    }
+}
+
+/// What the driver has seen.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct HgStats {
+    /// Commands sent.
+    pub commands: u64,
+    /// States taken with a right CRC.
+    pub states: u64,
+    /// States dropped for their CRC.
+    pub bad_crc: u64,
+    /// Samples that were not a `LowState`.
+    pub malformed: u64,
+}
+
+/// The driver.
+#[derive(Debug)]
+pub struct HgDriver<P> {
+    port: P,
+    joints: Vec<MitJointConfig>,
+    cmd: LowCmd,
+    cmd_cdr: Vec<u8>,
+    state_cdr: Vec<u8>,
+    state: LowState,
+    feedback: Vec<HgFeedback>,
+    /// States taken so far (the IMU's sample count).
+    fresh: u64,
+    stats: HgStats,
+}
+
+/// A joint list the board cannot take.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum HgError {
+    /// A slot out of the message's range.
+    #[error("joint {joint}: motor index {slot} is outside [0, {}]", MOTORS - 1)]
+    Slot {
+        /// The joint.
+        joint: String,
+        /// Its index.
+        slot: u8,
+    },
+    /// Two joints on one slot.
+    #[error("joints {first} and {second} both drive motor index {slot}")]
+    Collision {
+        /// The first joint.
+        first: String,
+        /// The second.
+        second: String,
+        /// The index.
+        slot: u8,
+    },
+}
+
+impl<P: LowLevelPort> HgDriver<P> {
+    /// A driver for `joints` (their `motor_id` is the motor's index in the messages).
+    pub fn new(port: P, joints: Vec<MitJointConfig>) -> Result<Self, HgError> {
+        let mut owner: [Option<usize>; MOTORS] = [None; MOTORS];
+        for (i, j) in joints.iter().enumerate() {
+            let slot = usize::from(j.motor_id);
+            let Some(o) = owner.get_mut(slot) else {
+                return Err(HgError::Slot {
+                    joint: j.name.clone(),
+                    slot: j.motor_id,
+                });
+            };
+            if let Some(first) = *o {
+                return Err(HgError::Collision {
+                    first: joints[first].name.clone(),
+                    second: j.name.clone(),
+                    slot: j.motor_id,
+                });
+            }
+            *o = Some(i);
+        }
+        let n = joints.len();
+        Ok(Self {
+            port,
+            joints,
+            cmd: LowCmd::default(),
+            cmd_cdr: Vec::with_capacity(LowCmd::CDR_LEN),
+            state_cdr: Vec::with_capacity(LowState::CDR_LEN),
+            state: LowState::default(),
+            feedback: vec![HgFeedback::default(); n],
+            fresh: 0,
+            stats: HgStats::default(),
+        })
+    }
+
+    /// Sends one command: each joint's law (`None`: the motor off), the parallel mechanisms
+    /// commanded as pitch and roll (`mode_pr` 0), the robot variant the board reports echoed.
+    /// Allocates nothing.
+    pub fn send(&mut self, commands: &[Option<JointCommand>]) -> std::io::Result<()> {
+        self.cmd.mode_pr = 0;
+        self.cmd.mode_machine = self.state.mode_machine;
+        for (j, c) in self.joints.iter().zip(commands) {
+            let m = &mut self.cmd.motor_cmd[usize::from(j.motor_id)];
+            match c {
+                Some(c) => {
+                    let law = j.to_motor(c);
+                    m.mode = 1;
+                    m.q = law.p as f32;
+                    m.dq = law.v as f32;
+                    m.kp = law.kp as f32;
+                    m.kd = law.kd as f32;
+                    m.tau = law.t as f32;
+                }
+                None => *m = Default::default(),
+            }
+        }
+        self.cmd.seal();
+        self.cmd.write_cdr(&mut self.cmd_cdr);
+        self.stats.commands += 1;
+        self.port.send(&self.cmd_cdr)
+    }
+
+    /// Takes the newest state: with a right CRC every joint's feedback and the IMU are fresh;
+    /// without one (none arrived, a wrong CRC) every joint has missed a cycle. Returns whether it
+    /// was fresh. Allocates nothing.
+    pub fn receive(&mut self) -> std::io::Result<bool> {
+        let fresh = self.port.newest_state(&mut self.state_cdr)? && self.take_state();
+        if fresh {
+            self.fresh += 1;
+            for (j, f) in self.joints.iter().zip(&mut self.feedback) {
+                let m = &self.state.motor_state[usize::from(j.motor_id)];
+                let (q, qd, tau) = j.to_joint(f64::from(m.q), f64::from(m.dq), f64::from(m.tau_est));
+                *f = HgFeedback {
+                    q,
+                    qd,
+                    tau,
+                    temperature: f64::from(m.temperature[0]),
+                    status: m.motorstate,
+                    enabled: m.mode != 0,
+                    missed_cycles: 0,
+                };
+            }
+        } else {
+            for f in &mut self.feedback {
+                f.missed_cycles = f.missed_cycles.saturating_add(1);
+            }
+        }
+        Ok(fresh)
+    }
+
+    fn take_state(&mut self) -> bool {
+        // Read beside the last right state (on the stack), which stays if this one is wrong.
+        match LowState::read_cdr(&self.state_cdr) {
+            Err(_) => {
+                self.stats.malformed += 1;
+                false
+            }
+            Ok(s) if !s.crc_ok() => {
+                self.stats.bad_crc += 1;
+                false
+            }
+            Ok(s) => {
+                self.state = s;
+                self.stats.states += 1;
+                true
+            }
+        }
+    }
+
+    /// Waits up to `within` for the first right state (set-up).
+    pub fn wait_first(&mut self, within: Duration) -> std::io::Result<bool> {
+        let deadline = within;
+        let mut waited = Duration::ZERO;
+        let step = Duration::from_millis(2);
+        while waited < deadline {
+            if self.receive()? {
+                return Ok(true);
+            }
+            self.port.wait_state(step)?;
+            waited += step;
+        }
+        self.receive()
+    }
+
+    /// Each joint's newest feedback.
+    pub fn feedback(&self) -> &[HgFeedback] {
+        &self.feedback
+    }
+
+    /// The joints.
+    pub fn joints(&self) -> &[MitJointConfig] {
+        &self.joints
+    }
+
+    /// The IMU of the newest right state, and how many right states there were.
+    pub fn imu(&self) -> (&ImuState, u64) {
+        (&self.state.imu_state, self.fresh)
+    }
+
+    /// The newest right state.
+    pub fn state(&self) -> &LowState {
+        &self.state
+    }
+
+    /// What the driver has seen.
+    pub fn stats(&self) -> HgStats {
+        self.stats
+    }
+
+    /// The port.
+    pub fn port_mut(&mut self) -> &mut P {
+        &mut self.port
+    }
+}
