@@ -109,6 +109,7 @@ pub struct UnitreeBoard {
     state: LowState,
     cdr: Vec<u8>,
     sequence: u64,
+    published_at: Option<SimInstant>,
     stats: BoardStats,
 }
 
@@ -134,6 +135,7 @@ impl UnitreeBoard {
             },
             cdr: Vec::with_capacity(LowState::PACKED_LEN),
             sequence: 0,
+            published_at: None,
             stats: BoardStats::default(),
             config,
         }
@@ -269,6 +271,7 @@ impl UnitreeBoard {
         }
         s.write_cdr(&mut self.cdr);
         self.sequence += 1;
+        self.published_at = Some(now);
         self.stats.states += 1;
         true
     }
@@ -276,6 +279,11 @@ impl UnitreeBoard {
     /// The newest state's CDR and its sequence number (0: none yet).
     pub fn state_cdr(&self) -> (&[u8], u64) {
         (&self.cdr, self.sequence)
+    }
+
+    /// When the newest state was published.
+    pub fn published_at(&self) -> Option<SimInstant> {
+        self.published_at
     }
 
     /// What the board has seen.

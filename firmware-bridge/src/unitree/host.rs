@@ -19,6 +19,8 @@ pub trait LowLevelPort: Send + std::fmt::Debug {
     fn newest_state(&mut self, out: &mut Vec<u8>) -> std::io::Result<bool>;
     /// Waits up to `within` for a state to arrive (set-up only: the cycle never waits).
     fn wait_state(&mut self, within: Duration) -> std::io::Result<bool>;
+    /// How long ago the newest state arrived, on the port's clock (`None`: none yet).
+    fn state_age(&mut self) -> Option<Duration>;
 }
 
 /// One motor's state, in joint units.
@@ -36,7 +38,7 @@ pub struct HgFeedback {
     pub status: u32,
     /// The board runs the motor (mode ≠ 0).
     pub enabled: bool,
-    /// Consecutive receives without a fresh state (0: fresh).
+    /// Consecutive cycles without a right state (0: fresh, or the newest under a period old).
     pub missed_cycles: u32,
 }
 
@@ -65,6 +67,8 @@ pub struct HgStats {
 #[derive(Debug)]
 pub struct HgDriver<P> {
     port: P,
+    /// The link's cycle: the board publishes at this rate too.
+    period: Duration,
     joints: Vec<MitJointConfig>,
     cmd: LowCmd,
     cmd_cdr: Vec<u8>,
@@ -73,6 +77,8 @@ pub struct HgDriver<P> {
     feedback: Vec<HgFeedback>,
     /// States taken so far (the IMU's sample count).
     fresh: u64,
+    /// Receives in a row without a right state.
+    nonfresh_run: u32,
     stats: HgStats,
 }
 
@@ -100,8 +106,9 @@ pub enum HgError {
 }
 
 impl<P: LowLevelPort> HgDriver<P> {
-    /// A driver for `joints` (their `motor_id` is the motor's index in the messages).
-    pub fn new(port: P, joints: Vec<MitJointConfig>) -> Result<Self, HgError> {
+    /// A driver for `joints` (their `motor_id` is the motor's index in the messages), cycling
+    /// every `period` as the board publishes.
+    pub fn new(port: P, joints: Vec<MitJointConfig>, period: Duration) -> Result<Self, HgError> {
         let mut owner: [Option<usize>; MOTORS] = [None; MOTORS];
         for (i, j) in joints.iter().enumerate() {
             let slot = usize::from(j.motor_id);
@@ -123,6 +130,7 @@ impl<P: LowLevelPort> HgDriver<P> {
         let n = joints.len();
         Ok(Self {
             port,
+            period,
             joints,
             cmd: LowCmd::default(),
             cmd_cdr: Vec::with_capacity(LowCmd::CDR_LEN),
@@ -130,6 +138,7 @@ impl<P: LowLevelPort> HgDriver<P> {
             state: LowState::default(),
             feedback: vec![HgFeedback::default(); n],
             fresh: 0,
+            nonfresh_run: 0,
             stats: HgStats::default(),
         })
     }
@@ -161,13 +170,16 @@ impl<P: LowLevelPort> HgDriver<P> {
         self.port.send(&self.cmd_cdr)
     }
 
-    /// Takes the newest state: with a right CRC every joint's feedback and the IMU are fresh;
-    /// without one (none arrived, a wrong CRC) every joint has missed a cycle. Returns whether it
-    /// was fresh. Allocates nothing.
+    /// Takes the newest state: with a right CRC every joint's feedback and the IMU are fresh.
+    /// Without one (none arrived, a wrong CRC) the joints have missed a cycle — unless it is the
+    /// first such cycle and the newest state arrived under a period ago: the board publishes on
+    /// its own clock at the link's rate, and a cycle that falls just before its next state still
+    /// holds one from the last period. Returns whether it was fresh. Allocates nothing.
     pub fn receive(&mut self) -> std::io::Result<bool> {
         let fresh = self.port.newest_state(&mut self.state_cdr)? && self.take_state();
         if fresh {
             self.fresh += 1;
+            self.nonfresh_run = 0;
             for (j, f) in self.joints.iter().zip(&mut self.feedback) {
                 let m = &self.state.motor_state[usize::from(j.motor_id)];
                 let (q, qd, tau) = j.to_joint(f64::from(m.q), f64::from(m.dq), f64::from(m.tau_est));
@@ -182,8 +194,13 @@ impl<P: LowLevelPort> HgDriver<P> {
                 };
             }
         } else {
+            self.nonfresh_run = self.nonfresh_run.saturating_add(1);
+            // The first cycle without a new state, while the newest is under a period old, is a
+            // phase slip against the board's clock, not a miss.
+            let slip = self.nonfresh_run == 1 && self.port.state_age().is_some_and(|age| age < self.period);
+            let missed = if slip { 0 } else { self.nonfresh_run };
             for f in &mut self.feedback {
-                f.missed_cycles = f.missed_cycles.saturating_add(1);
+                f.missed_cycles = missed;
             }
         }
         Ok(fresh)
@@ -251,5 +268,97 @@ impl<P: LowLevelPort> HgDriver<P> {
     /// The port.
     pub fn port_mut(&mut self) -> &mut P {
         &mut self.port
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::collections::VecDeque;
+
+    use super::*;
+    use crate::mit::models::find;
+
+    /// A port whose cycles are scripted: a new state or none, and the newest one's age.
+    #[derive(Debug)]
+    struct Script {
+        state: Vec<u8>,
+        cycles: VecDeque<(bool, Duration)>,
+        age: Duration,
+    }
+
+    impl LowLevelPort for Script {
+        fn send(&mut self, _: &[u8]) -> std::io::Result<()> {
+            Ok(())
+        }
+        fn newest_state(&mut self, out: &mut Vec<u8>) -> std::io::Result<bool> {
+            let (new, age) = self.cycles.pop_front().unwrap_or((false, Duration::from_secs(1)));
+            self.age = age;
+            out.clone_from(&self.state);
+            Ok(new)
+        }
+        fn wait_state(&mut self, _: Duration) -> std::io::Result<bool> {
+            Ok(true)
+        }
+        fn state_age(&mut self) -> Option<Duration> {
+            Some(self.age)
+        }
+    }
+
+    #[test]
+    fn a_cycle_just_before_the_boards_next_state_is_no_miss_but_a_second_without_one_is() {
+        let mut state = LowState::default();
+        state.seal();
+        let mut cdr = Vec::new();
+        state.write_cdr(&mut cdr);
+        let ms = Duration::from_micros;
+        let cycles = [
+            (true, ms(100)),
+            (false, ms(1_900)), // the board's next state is a hair late: a slip
+            (true, ms(50)),
+            (false, ms(2_100)), // over a period old: a miss
+            (false, ms(4_100)), // and another
+            (true, ms(10)),
+        ];
+        let joints = vec![MitJointConfig::new("knee", 3, find("AK80-9").unwrap())];
+        let port = Script {
+            state: cdr,
+            cycles: cycles.into(),
+            age: Duration::ZERO,
+        };
+        let mut d = HgDriver::new(port, joints, Duration::from_millis(2)).unwrap();
+        let missed: Vec<u32> = (0..6)
+            .map(|_| {
+                d.receive().unwrap();
+                d.feedback()[0].missed_cycles
+            })
+            .collect();
+        assert_eq!(missed, [0, 0, 0, 1, 2, 0]);
+    }
+
+    #[test]
+    fn two_joints_on_one_motor_index_or_an_index_past_the_message_are_refused() {
+        let port = || Script {
+            state: Vec::new(),
+            cycles: VecDeque::new(),
+            age: Duration::ZERO,
+        };
+        let m = find("AK80-9").unwrap();
+        let j = |name: &str, id| MitJointConfig::new(name, id, m);
+        let period = Duration::from_millis(2);
+        assert_eq!(
+            HgDriver::new(port(), vec![j("a", 4), j("b", 4)], period).unwrap_err(),
+            HgError::Collision {
+                first: "a".into(),
+                second: "b".into(),
+                slot: 4
+            }
+        );
+        assert_eq!(
+            HgDriver::new(port(), vec![j("a", 35)], period).unwrap_err(),
+            HgError::Slot {
+                joint: "a".into(),
+                slot: 35
+            }
+        );
     }
 }

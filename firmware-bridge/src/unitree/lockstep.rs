@@ -70,4 +70,13 @@ impl<W: UnitreeWorld + Send + std::fmt::Debug> LowLevelPort for LockstepUnitreeP
         }
         Ok(w.board_mut(line).state_cdr().1 != self.seen)
     }
+
+    fn state_age(&mut self) -> Option<Duration> {
+        let line = self.line;
+        let mut w = lock(&self.world);
+        let now = w.now();
+        w.board_mut(line)
+            .published_at()
+            .map(|at| now.saturating_since(at))
+    }
 }

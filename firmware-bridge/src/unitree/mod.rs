@@ -13,25 +13,18 @@ pub mod host;
 pub mod lockstep;
 pub mod wire;
 
-/// The polynomial of Unitree's CRC-32.
-const POLYNOMIAL: u32 = 0x04C1_1DB7;
+/// Unitree's CRC-32: feeding each 32-bit word most significant bit first into a register that
+/// starts at all ones, shifting before the polynomial is applied, is CRC-32/MPEG-2 (polynomial
+/// 0x04C11DB7, no reflection, no final XOR) over the words' big-endian bytes.
+const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_MPEG_2);
 
 /// Unitree's CRC-32 of `words`.
 pub fn crc32(words: impl IntoIterator<Item = u32>) -> u32 {
-    let mut crc = 0xFFFF_FFFFu32;
+    let mut digest = CRC.digest();
     for word in words {
-        for bit in (0..32).rev() {
-            let top = crc & 0x8000_0000 != 0;
-            crc <<= 1;
-            if top {
-                crc ^= POLYNOMIAL;
-            }
-            if word >> bit & 1 == 1 {
-                crc ^= POLYNOMIAL;
-            }
-        }
+        digest.update(&word.to_be_bytes());
     }
-    crc
+    digest.finalize()
 }
 
 /// Unitree's CRC of a packed message: its little-endian words, the last (the CRC) left out.
@@ -48,6 +41,45 @@ pub fn crc_of_packed(packed: &[u8]) -> u32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Unitree's description, bit by bit: the register shifts, the polynomial goes in when the bit
+    /// shifted out was set, and again when the data bit is.
+    fn bitwise(words: &[u32]) -> u32 {
+        let mut crc = 0xFFFF_FFFFu32;
+        for word in words {
+            for bit in (0..32).rev() {
+                let top = crc & 0x8000_0000 != 0;
+                crc <<= 1;
+                if top {
+                    crc ^= 0x04C1_1DB7;
+                }
+                if word >> bit & 1 == 1 {
+                    crc ^= 0x04C1_1DB7;
+                }
+            }
+        }
+        crc
+    }
+
+    #[test]
+    fn the_table_driven_crc_is_unitrees_bit_by_bit() {
+        let mut x = 0x1234_5678u32;
+        let words: Vec<u32> = (0..64)
+            .map(|_| {
+                x ^= x << 13;
+                x ^= x >> 17;
+                x ^= x << 5;
+                x
+            })
+            .collect();
+        for n in [0, 1, 2, 7, 64] {
+            assert_eq!(
+                crc32(words[..n].iter().copied()),
+                bitwise(&words[..n]),
+                "{n} words"
+            );
+        }
+    }
 
     #[test]
     fn the_crc_of_nothing_is_its_initial_value_and_one_bit_changes_it() {

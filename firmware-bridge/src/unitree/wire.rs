@@ -34,6 +34,8 @@ struct Slot<const N: usize> {
     len: usize,
     /// Samples written so far; a reader that saw this number saw this sample.
     sequence: u64,
+    /// When it arrived.
+    arrived: Option<std::time::Instant>,
 }
 
 impl<const N: usize> Default for Slot<N> {
@@ -42,6 +44,7 @@ impl<const N: usize> Default for Slot<N> {
             bytes: [0; N],
             len: 0,
             sequence: 0,
+            arrived: None,
         }
     }
 }
@@ -52,6 +55,7 @@ impl<const N: usize> Slot<N> {
         self.len = sample.len().min(N);
         self.bytes[..self.len].copy_from_slice(&sample[..self.len]);
         self.sequence = sequence;
+        self.arrived = Some(std::time::Instant::now());
     }
 
     fn bytes(&self) -> &[u8] {
@@ -223,6 +227,10 @@ impl LowLevelPort for DdsLowLevelPort {
             std::thread::sleep(Duration::from_micros(200));
         }
         Ok(self.states.read().sequence != self.seen)
+    }
+
+    fn state_age(&mut self) -> Option<Duration> {
+        self.states.read().arrived.map(|at| at.elapsed())
     }
 }
 

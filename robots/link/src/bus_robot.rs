@@ -744,7 +744,8 @@ impl<S: ByteStream> BusRobot<S> {
                 input
             });
             let bus = HgBus {
-                driver: HgDriver::new(port, cfg).map_err(|e| IoError::Setup(format!("bus {name}: {e}")))?,
+                driver: HgDriver::new(port, cfg, timing.period)
+                    .map_err(|e| IoError::Setup(format!("bus {name}: {e}")))?,
                 commands: vec![None; idx.len()],
                 joints: idx.clone(),
                 imu,
