@@ -740,7 +740,7 @@ fn play_over_real_wires_tracks_in_real_time() {
         String::from_utf8_lossy(&out.stderr)
     );
     assert!(
-        stdout.contains("in real time over socketcand and pseudo-terminals"),
+        stdout.contains("in real time over socketcand, pseudo-terminals"),
         "{stdout}"
     );
     let rmse: f64 = stdout

@@ -32,6 +32,12 @@ pub struct CommandArgs {
     /// counted; silence longer than `timeout_s` hands back to the defaults.
     #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:9870")]
     pub command_udp: Option<SocketAddr>,
+    /// Live commands from ROS 2's /cmd_vel (geometry_msgs/msg/Twist, as a joystick node or a
+    /// navigation stack sends it), on --ros2's interface and domain: linear x → forward speed,
+    /// linear y → leftward, angular z → turning (by the manifest's command kinds), each clamped to
+    /// its range; silence longer than `timeout_s` hands back to the defaults.
+    #[arg(long, requires = "ros2")]
+    pub cmd_vel: bool,
 }
 
 impl CommandArgs {
@@ -41,6 +47,8 @@ impl CommandArgs {
             Some("keyboard".into())
         } else if self.gamepad {
             Some("gamepad".into())
+        } else if self.cmd_vel {
+            Some("ros2 /cmd_vel".into())
         } else {
             self.command_udp.map(|a| format!("udp {a}"))
         }
@@ -68,6 +76,7 @@ pub fn start(
     args: &CommandArgs,
     spec: Option<&CommandSpec>,
     initial: &[f64],
+    ros2: Option<&dds::DdsConfig>,
 ) -> Result<Option<(CommandReader, CommandSource)>> {
     let Some(name) = args.source() else {
         return Ok(None);
@@ -75,6 +84,7 @@ pub fn start(
     let Some(spec) = spec else {
         let flag = match name.as_str() {
             "keyboard" | "gamepad" => name.clone(),
+            _ if args.cmd_vel => "cmd-vel".into(),
             _ => "command-udp".into(),
         };
         return Err(crate::args::FlagError::new(
@@ -106,6 +116,13 @@ pub fn start(
         }
         commands::spawn_gamepad(spec, writer, pad, Arc::clone(&stats), Arc::clone(&stop))
             .context("cannot start the gamepad thread")?;
+    } else if let (true, Some(config)) = (args.cmd_vel, ros2) {
+        commands::spawn_cmd_vel(spec, config, writer, Arc::clone(&stats), Arc::clone(&stop))
+            .context("--cmd-vel: cannot subscribe /cmd_vel")?;
+        println!(
+            "commands: ROS 2 /cmd_vel (geometry_msgs/msg/Twist) on {}, domain {}",
+            config.interface, config.domain
+        );
     } else if let Some(addr) = args.command_udp {
         let (local, _) = commands::spawn_udp(spec, addr, writer, Arc::clone(&stats), Arc::clone(&stop))
             .with_context(|| format!("--command-udp: cannot listen on {addr}"))?;

@@ -331,6 +331,28 @@ pub struct RecordArgs {
     /// not wait; Ctrl-C stops waiting).
     #[arg(long, default_value_t = 60, requires = "live_view", value_parser = crate::args::whole_within(0, 3600))]
     pub(crate) live_wait: u64,
+    /// Publish the run on ROS 2's topics, as ROS 2's DDS middlewares name them: /joint_states
+    /// (sensor_msgs/msg/JointState), /tf (tf2_msgs/msg/TFMessage, every link), /robot_description
+    /// (std_msgs/msg/String, the URDF, transient local) and /diagnostics
+    /// (diagnostic_msgs/msg/DiagnosticArray, once a second). On network interface IFACE (default
+    /// lo: this machine only; name the interface of the network ROS 2 runs on). From the
+    /// recording's thread, so a run with --ros2 records. With --cmd-vel, /cmd_vel drives the
+    /// policy's commands.
+    #[arg(long, value_name = "IFACE", num_args = 0..=1, default_missing_value = "lo", conflicts_with = "no_record")]
+    pub(crate) ros2: Option<String>,
+    /// With --ros2: the DDS domain (ROS 2's ROS_DOMAIN_ID), 0–232.
+    #[arg(long, default_value_t = 0, requires = "ros2", value_parser = crate::args::whole_within(0, 232))]
+    pub(crate) ros2_domain: u64,
+}
+
+impl RecordArgs {
+    /// Where --ros2 publishes (and --cmd-vel listens).
+    pub(crate) fn ros2_dds(&self) -> Option<dds::DdsConfig> {
+        self.ros2.as_ref().map(|interface| dds::DdsConfig {
+            domain: u32::try_from(self.ros2_domain).unwrap_or(u32::MAX),
+            interface: interface.clone(),
+        })
+    }
 }
 
 /// Arguments of `check`.
@@ -1017,6 +1039,10 @@ pub(crate) fn start_recording(
     };
     let info = controller::telemetry::RecordingInfo {
         live: live.clone(),
+        ros2: rec.ros2_dds().map(|dds| controller::telemetry::Ros2Config {
+            dds,
+            robot: robot.to_owned(),
+        }),
         clock: if real_time {
             controller::telemetry::RecordingClock::WallClock
         } else {
@@ -1200,7 +1226,12 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         options.end = controller::player::EndMode::Loop;
     }
     let initial = l.layout.command_values().unwrap_or(&[]).to_vec();
-    let commands = crate::commands::start(&args.live, l.layout.manifest.commands.as_ref(), &initial)?;
+    let commands = crate::commands::start(
+        &args.live,
+        l.layout.manifest.commands.as_ref(),
+        &initial,
+        args.rec.ros2_dds().as_ref(),
+    )?;
     let (reader, command_source) = commands.map_or((None, None), |(r, s)| (Some(r), Some(s)));
     if args.hardware {
         if l.robot.config.feet.is_empty()
@@ -1231,14 +1262,29 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
     if let Some(m) = world_terms_note(&l.layout, &l.robot, options.estimator) {
         eprintln!("note: {m}");
     }
+    // The wires a served mirror puts its buses on, by kind.
+    let wires = {
+        let mut w: Vec<&str> = Vec::new();
+        for b in &l.robot.config.buses {
+            let wire = match b.kind {
+                robots::BusKind::MitCan => "socketcand",
+                robots::BusKind::UnitreeDds => "DDS",
+                _ => "pseudo-terminals",
+            };
+            if !w.contains(&wire) {
+                w.push(wire);
+            }
+        }
+        w.join(", ")
+    };
     println!(
         "{}: {} on the mirror{}",
         l.robot.config.name,
         what_plays(&l),
         if args.wall {
-            " in real time over socketcand and pseudo-terminals"
+            format!(" in real time over {wires}")
         } else {
-            " in lockstep"
+            " in lockstep".to_owned()
         }
     );
     let summary: PlaySummary = if args.wall {

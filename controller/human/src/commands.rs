@@ -746,6 +746,86 @@ pub fn spawn_udp(
     Ok((local, handle))
 }
 
+// ---- ROS 2 /cmd_vel -------------------------------------------------------------------------
+
+/// A `geometry_msgs/msg/Twist` as the manifest's commands: linear x → the forward speed command,
+/// linear y → the leftward one, angular z → the turning rate (by each command's kind), every
+/// other command at its default; each clamped to its range. Returns how many were clamped.
+pub fn twist_commands(spec: &CommandSpec, kinds: &[CommandKind], twist: [f64; 6], out: &mut [f64]) -> usize {
+    let mut clamped = 0;
+    let defaults = spec.defaults();
+    for (((o, kind), range), default) in out.iter_mut().zip(kinds).zip(&spec.ranges).zip(defaults) {
+        let v = match kind {
+            CommandKind::LinVelX => twist[0],
+            CommandKind::LinVelY => twist[1],
+            CommandKind::AngVelZ => twist[5],
+            CommandKind::Other => default,
+        };
+        // NaN goes to the default: a command is never not a number.
+        let v = if v.is_finite() { v } else { default };
+        *o = v.clamp(range[0], range[1]);
+        clamped += usize::from(*o != v);
+    }
+    clamped
+}
+
+/// Subscribes ROS 2's `/cmd_vel` (`geometry_msgs/msg/Twist`, as ROS 2 names it on DDS) on
+/// `config`'s domain and interface and publishes each message's commands ([`twist_commands`]) on
+/// a thread of its own until `stop`. A message that is not a Twist is dropped and counted;
+/// silence hands back to the defaults after the manifest's `timeout_s`, as with UDP.
+pub fn spawn_cmd_vel(
+    spec: &CommandSpec,
+    config: &dds::DdsConfig,
+    mut writer: CommandWriter,
+    stats: Arc<CommandStats>,
+    stop: Arc<AtomicBool>,
+) -> Result<std::thread::JoinHandle<()>, dds::DdsError> {
+    let participant = dds::Participant::join(config)?;
+    let mut subscription = participant.subscription(
+        &dds::names::ros2_topic("/cmd_vel"),
+        &dds::names::ros2_type("geometry_msgs/msg/Twist"),
+        dds::Delivery::Stream,
+    )?;
+    let io = |e: std::io::Error| dds::DdsError::Middleware(format!("/cmd_vel: {e}"));
+    let mut poll = dds::mio::Poll::new().map_err(io)?;
+    subscription
+        .register(poll.registry(), dds::mio::Token(0))
+        .map_err(io)?;
+    let spec = spec.clone();
+    let kinds = spec.kinds();
+    std::thread::Builder::new()
+        .name("cmd-vel".into())
+        .spawn(move || {
+            let mut events = dds::mio::Events::with_capacity(4);
+            let mut values = spec.defaults();
+            while !stop.load(Ordering::Relaxed) {
+                let _ = poll.poll(&mut events, Some(Duration::from_millis(50)));
+                let taken = subscription.take_all(&mut |sample| match dds::ros2::decode_twist(sample) {
+                    Ok(twist) => {
+                        if twist_commands(&spec, &kinds, twist, &mut values) > 0 {
+                            stats.out_of_range.fetch_add(1, Ordering::Relaxed);
+                        }
+                        stats.accepted.fetch_add(1, Ordering::Relaxed);
+                        writer.publish(&values);
+                    }
+                    Err(e) => {
+                        if stats.malformed.fetch_add(1, Ordering::Relaxed) == 0 {
+                            tracing::warn!("/cmd_vel: a message that is not a Twist dropped: {e}");
+                        }
+                    }
+                });
+                if let Err(e) = taken {
+                    tracing::warn!("/cmd_vel: {e}");
+                    break;
+                }
+            }
+            // The topic before its participant.
+            drop(subscription);
+            drop(participant);
+        })
+        .map_err(io)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -782,6 +862,18 @@ mod tests {
         let later = t0 + Duration::from_secs(1);
         let passed = (0..10_000).filter(|_| limiter.allow(flood, later)).count();
         assert_eq!(passed as f64, SOURCE_RATE_HZ / 10.0);
+    }
+
+    #[test]
+    fn a_twist_drives_the_commands_of_its_kinds_clamped_to_their_ranges() {
+        let spec = walk();
+        let kinds = spec.kinds();
+        let mut out = [0.0; 3];
+        // Forward 1 m/s (range to 0.4), leftward 0.1, turning 0.5; linear z and angular x ignored.
+        let clamped = twist_commands(&spec, &kinds, [1.0, 0.1, 9.0, 9.0, 0.0, 0.5], &mut out);
+        assert_eq!((out, clamped), ([0.4, 0.1, 0.5], 1));
+        let clamped = twist_commands(&spec, &kinds, [f64::NAN, -5.0, 0.0, 0.0, 0.0, 0.0], &mut out);
+        assert_eq!((out, clamped), ([0.0, -0.2, 0.0], 1));
     }
 
     #[test]

@@ -588,6 +588,7 @@ impl<L: RobotLink> Player<L> {
                 c.spec().names.iter().cloned().zip(c.spec().kinds()).collect()
             }),
             live: None,
+            ros2: None,
             foot_names: self.robot.config.feet.clone(),
             clock: crate::telemetry::RecordingClock::Simulated,
             commit: None,

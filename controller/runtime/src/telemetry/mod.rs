@@ -11,6 +11,9 @@
 //! it. In lockstep runs simulated time can wait, so the loop blocks instead and nothing is dropped.
 
 mod messages;
+mod ros2;
+
+pub use ros2::Ros2Config;
 
 use robot_link::CycleRecord;
 use std::collections::BTreeMap;
@@ -394,6 +397,9 @@ pub enum TelemetryError {
     /// The logger thread could not start, or died.
     #[error("telemetry logger: {0}")]
     Logger(String),
+    /// The ROS 2 topics could not be set up.
+    #[error("--ros2: {0}")]
+    Ros2(#[from] dds::DdsError),
 }
 
 /// Target size of a recording's chunks, bytes (~0.3 s of a 50 Hz run).
@@ -471,6 +477,8 @@ pub struct RecordingInfo {
     pub commands: Vec<(String, human::commands::CommandKind)>,
     /// A live view that serves every channel as it is written.
     pub live: Option<Arc<viewers::live::LiveView>>,
+    /// ROS 2 topics of the run (`/joint_states`, `/tf`, `/robot_description`, `/diagnostics`).
+    pub ros2: Option<Ros2Config>,
     /// The robot's feet (robot.toml order), named in `/estimator`.
     pub foot_names: Vec<String>,
     /// What the recording's times are.
@@ -524,6 +532,7 @@ struct Channel {
 struct Out<W: std::io::Write + std::io::Seek> {
     mcap: std::mem::ManuallyDrop<mcap::Writer<W>>,
     live: Option<Arc<viewers::live::LiveView>>,
+    ros2: Option<ros2::Ros2Topics>,
     sequence: u32,
     counts: BTreeMap<String, u64>,
     buf: Vec<u8>,
@@ -719,9 +728,14 @@ impl TelemetrySink {
             .map_err(|e| wrote(&e))?;
         // After a failed write the mcap writer panics when dropped (it finishes the file in Drop):
         // it is only ever dropped after a successful finish, and leaked on the error paths.
+        let ros2 = match &info.ros2 {
+            Some(config) => Some(ros2::Ros2Topics::open(config, &info.bus_names)?),
+            None => None,
+        };
         let mut out = Out {
             mcap: std::mem::ManuallyDrop::new(writer),
             live: info.live.clone(),
+            ros2,
             sequence: 0,
             counts: BTreeMap::new(),
             buf: Vec::with_capacity(16 * 1024),
@@ -995,6 +1009,10 @@ impl TickChannels {
         out.message(&self.joint_state, t, m.joint_state(r, t))?;
         let mut buf = std::mem::take(&mut out.buf);
         m.joint_states_cdr(r, t, &mut buf);
+        if let Some(ros) = &mut out.ros2 {
+            ros.joint_states(&buf);
+            ros.diagnostics(t, r);
+        }
         let written = out.bytes(&self.joint_states, t, &buf);
         out.buf = buf;
         written?;
@@ -1033,6 +1051,9 @@ impl TickChannels {
                 let mut buf = Vec::new();
                 telemetry_schema::ros2::encode_string(&mut buf, urdf);
                 out.bytes(channel, t, &buf)?;
+                if let Some(ros) = &mut out.ros2 {
+                    ros.robot_description(&buf);
+                }
             }
             if first || r.tick.is_multiple_of(SCENE_EVERY) {
                 for e in &mut scene.entities {
@@ -1053,7 +1074,11 @@ impl TickChannels {
                 }
             }
             let root = root_pose(r);
-            out.message(&self.tf, t, links.update(root, &r.q[..usize::from(r.joints)], t))?;
+            let frames = links.update(root, &r.q[..usize::from(r.joints)], t);
+            if let Some(ros) = &mut out.ros2 {
+                ros.tf(t, frames);
+            }
+            out.message(&self.tf, t, frames)?;
         }
         text.clear();
         replay_json(text, r);
