@@ -34,7 +34,9 @@ pub fn init() -> Logging {
     use tracing_subscriber::layer::SubscriberExt as _;
     use tracing_subscriber::util::SubscriberInitExt as _;
     let filter =
-        tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info,ort=warn".into());
+        // RustDDS logs its discovery's comings and goings, and its own teardown, at warn and
+        // error: noise to a user (the link reports what matters); RUST_LOG=rustdds=info shows it.
+        tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info,ort=warn,rustdds=off".into());
     let (filter, handle) = tracing_subscriber::reload::Layer::new(filter);
     let _ = FILTER.set(handle);
     use tracing_subscriber::Layer as _;
@@ -106,7 +108,7 @@ pub fn errors_only() {
     if std::env::var_os("RUST_LOG").is_none()
         && let Some(handle) = FILTER.get()
     {
-        let _ = handle.reload(tracing_subscriber::EnvFilter::new("error"));
+        let _ = handle.reload(tracing_subscriber::EnvFilter::new("error,rustdds=off"));
     }
 }
 

@@ -414,6 +414,19 @@ fn doctor(mjcf: &std::path::Path, onnx: &std::path::Path) -> Result<()> {
     for lib in loaded_libraries() {
         println!("              loaded {}", lib.display());
     }
+    // What a unitree_dds bus's `device` or --ros2 can name on this machine.
+    let interfaces: Vec<String> = dds::interfaces()
+        .into_iter()
+        .map(|(name, addrs)| match addrs.first() {
+            Some(a) => format!("{name} {a}"),
+            None => format!("{name} (no address)"),
+        })
+        .collect();
+    println!(
+        "DDS           {} — network interfaces: {}",
+        dds::MIDDLEWARE,
+        interfaces.join(", ")
+    );
 
     let model = sim2real::mujoco::load_model(mjcf)?;
     let s = sim2real::mujoco::sizes(&model);

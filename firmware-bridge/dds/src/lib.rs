@@ -11,5 +11,6 @@ pub mod ros2;
 pub use rustdds::mio1 as mio;
 
 pub use participant::{
-    DdsConfig, DdsError, Delivery, MAX_DOMAIN, Participant, Publication, Subscription, interface_addresses,
+    DdsConfig, DdsError, Delivery, MAX_DOMAIN, MIDDLEWARE, Participant, Publication, Subscription,
+    interface_addresses, interfaces,
 };

@@ -76,6 +76,29 @@ impl std::fmt::Debug for Participant {
     }
 }
 
+/// The DDS implementation robodeploy speaks through (pinned in the workspace's Cargo.toml).
+pub const MIDDLEWARE: &str = "RustDDS 0.15.1";
+
+/// This machine's network interfaces by name, each with its addresses (IPv4 first).
+pub fn interfaces() -> Vec<(String, Vec<IpAddr>)> {
+    let mut out: Vec<(String, Vec<IpAddr>)> = Vec::new();
+    for (name, addr) in all_interfaces().unwrap_or_default() {
+        let at = match out.iter().position(|(n, _)| *n == name) {
+            Some(i) => i,
+            None => {
+                out.push((name, Vec::new()));
+                out.len() - 1
+            }
+        };
+        out[at].1.extend(addr);
+    }
+    for (_, addrs) in &mut out {
+        addrs.sort_by_key(|a| a.is_ipv6());
+    }
+    out.sort_by(|a, b| a.0.cmp(&b.0));
+    out
+}
+
 /// The IP addresses of the interface `name`, or an error that lists the machine's interfaces.
 pub fn interface_addresses(name: &str) -> Result<Vec<IpAddr>, DdsError> {
     let all =
