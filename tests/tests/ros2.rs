@@ -39,9 +39,23 @@ fn a_cyclone_dds_peer_with_ros2_names_sees_the_run_and_walks_the_g1_through_cmd_
         .filter_map(Value::as_str)
         .collect();
     let run_text = run.join("\n");
-    // The joints by name, every tick (776 ticks over 15.5 s, the peer joining after its start-up),
-    // in robot.toml's order.
-    assert!(n("joint_states") >= 600, "{v}");
+    // The joints by name, every tick the peer was there for (it joins within the first second or
+    // so), in robot.toml's order.
+    let ticks: u64 = run
+        .iter()
+        .find_map(|l| l.strip_prefix("ran "))
+        .and_then(|l| l.split_whitespace().next())
+        .and_then(|w| w.parse().ok())
+        .unwrap_or_else(|| {
+            panic!(
+                "no tick count:
+{run_text}"
+            )
+        });
+    assert!(
+        ticks >= 200 && n("joint_states") >= ticks * 3 / 4,
+        "{ticks} ticks: {v}"
+    );
     let robot = robots::Robot::load(&g1).unwrap();
     let names: Vec<&str> = robot.config.joints.iter().map(|j| j.name.as_str()).collect();
     let got: Vec<&str> = v["joint_names"]
@@ -53,7 +67,7 @@ fn a_cyclone_dds_peer_with_ros2_names_sees_the_run_and_walks_the_g1_through_cmd_
     assert_eq!(got, names, "{v}");
     assert_eq!(v["positions_finite"], Value::Bool(true), "{v}");
     // Every link's frame, the root in `world`.
-    assert!(n("tf") >= 600, "{v}");
+    assert!(n("tf") >= ticks * 3 / 4, "{ticks} ticks: {v}");
     let frames = v["frames"].as_array().unwrap();
     assert!(frames.len() >= 30 && frames.iter().any(|f| f == "pelvis"), "{v}");
     assert!(
@@ -64,7 +78,7 @@ fn a_cyclone_dds_peer_with_ros2_names_sees_the_run_and_walks_the_g1_through_cmd_
     assert_eq!(v["description_has_robot"], Value::Bool(true), "{v}");
     assert!(n("description_chars") > 10_000, "{v}");
     // Health once a second and at each change of mode, for the robot by name.
-    assert!(n("diagnostics") >= 10, "{v}");
+    assert!(n("diagnostics") >= ticks / 50 / 2, "{ticks} ticks: {v}");
     let loop_messages = v["loop_messages"].to_string();
     assert!(loop_messages.contains("Running: start"), "{v}");
     assert_eq!(v["loop_hardware"], serde_json::json!(["g1"]), "{v}");
