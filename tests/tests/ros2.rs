@@ -5,32 +5,38 @@
 
 use serde_json::Value;
 use test_support::bin::{robodeploy_path, run};
-use test_support::fixtures::{venv_python, workspace_root};
+use test_support::fixtures::workspace_root;
 
 #[test]
 fn a_cyclone_dds_peer_with_ros2_names_sees_the_run_and_walks_the_g1_through_cmd_vel() {
-    let root = workspace_root();
-    let g1 = root.join("robots/g1/robot.toml");
+    let g1 = workspace_root().join("robots/g1/robot.toml");
     let record = std::env::temp_dir().join(format!("ros2-run-{}.mcap", std::process::id()));
-    let script = format!(
-        "{} {} 0.5 -- {} play --robot {} --wall --ros2 --cmd-vel --max-seconds 14 --record {} --overwrite",
-        venv_python().display(),
-        root.join("tests/python/ros2_client.py").display(),
-        robodeploy_path().display(),
-        g1.display(),
-        record.display()
+    let mut args = vec![
+        "0.5".to_owned(),
+        "--".to_owned(),
+        robodeploy_path().display().to_string(),
+    ];
+    args.extend(
+        [
+            "play",
+            "--robot",
+            &g1.display().to_string(),
+            "--wall",
+            "--ros2",
+            "--cmd-vel",
+        ]
+        .into_iter()
+        .chain([
+            "--max-seconds",
+            "14",
+            "--record",
+            &record.display().to_string(),
+            "--overwrite",
+        ])
+        .map(str::to_owned),
     );
-    let out = test_support::netns::in_private_network(&script)
-        .current_dir(&root)
-        .output()
-        .unwrap();
-    let (stdout, stderr) = (
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr),
-    );
-    assert!(out.status.success(), "{stdout}\n{stderr}");
-    let v: Value = serde_json::from_str(stdout.lines().last().unwrap_or(""))
-        .unwrap_or_else(|e| panic!("{e}: {stdout}\n{stderr}"));
+    let verdict = test_support::netns::python_verdict("tests/python/ros2_client.py", &args);
+    let v: Value = serde_json::from_str(&verdict).unwrap_or_else(|e| panic!("{e}: {verdict}"));
     let n = |k: &str| v[k].as_u64().unwrap_or_else(|| panic!("{k}: {v}"));
     let run: Vec<&str> = v["stdout"]
         .as_array()

@@ -205,26 +205,17 @@ fn g1_dance() -> (Robot, PolicyLayout, controller::clip::Reference) {
 fn unitrees_own_sdk_reads_the_emulated_g1_moves_a_joint_and_its_wrong_crcs_are_ignored() {
     // The SDK client and the served mirror in a network namespace of the test's own: DDS
     // discovery's multicast never leaves it.
-    let root = workspace_root();
     let (slot, target) = (18, 1.2); // left_elbow_joint, from its 0.6 rad standing angle
-    let script = format!(
-        "{} {} {} {} {slot} {target}",
-        test_support::fixtures::venv_python().display(),
-        root.join("tests/python/unitree_sdk_client.py").display(),
-        test_support::bin::robodeploy_path().display(),
-        g1().display(),
+    let verdict = test_support::netns::python_verdict(
+        "tests/python/unitree_sdk_client.py",
+        &[
+            test_support::bin::robodeploy_path().display().to_string(),
+            g1().display().to_string(),
+            slot.to_string(),
+            target.to_string(),
+        ],
     );
-    let out = test_support::netns::in_private_network(&script)
-        .current_dir(&root)
-        .output()
-        .unwrap();
-    let (stdout, stderr) = (
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr),
-    );
-    assert!(out.status.success(), "{stdout}\n{stderr}");
-    let v: Value = serde_json::from_str(stdout.lines().last().unwrap_or(""))
-        .unwrap_or_else(|e| panic!("{e}: {stdout}\n{stderr}"));
+    let v: Value = serde_json::from_str(&verdict).unwrap_or_else(|e| panic!("{e}: {verdict}"));
     let f = |k: &str| v[k].as_f64().unwrap_or_else(|| panic!("{k}: {v}"));
     // 500 Hz, every state's CRC as the SDK computes it, the IMU's quaternion a unit one, the
     // motors at ambient on a 54.6 V supply, the variant the board reports.

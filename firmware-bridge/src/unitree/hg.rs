@@ -88,14 +88,27 @@ pub trait Sealed {
     }
 }
 
+/// Where a message's fields go, in IDL order: its packed C layout (the padding C puts between
+/// fields, written out) or its CDR (aligned by the encoding itself). One walk over the fields
+/// serves both, so the two layouts cannot disagree on order.
+trait FieldSink {
+    fn u8(&mut self, v: u8);
+    fn i16(&mut self, v: i16);
+    fn u32(&mut self, v: u32);
+    fn f32(&mut self, v: f32);
+    fn octets(&mut self, v: &[u8]);
+    /// C's padding before the next field (CDR's alignment covers it).
+    fn pad(&mut self, n: usize);
+}
+
 /// Writes little-endian fields at their C offsets.
 struct Packer<'a> {
     out: &'a mut [u8],
     at: usize,
 }
 
-impl Packer<'_> {
-    fn bytes(&mut self, b: &[u8]) {
+impl FieldSink for Packer<'_> {
+    fn octets(&mut self, b: &[u8]) {
         self.out[self.at..self.at + b.len()].copy_from_slice(b);
         self.at += b.len();
     }
@@ -104,17 +117,36 @@ impl Packer<'_> {
         self.at += n;
     }
     fn u8(&mut self, v: u8) {
-        self.bytes(&[v]);
+        self.octets(&[v]);
     }
     fn f32(&mut self, v: f32) {
-        self.bytes(&v.to_le_bytes());
+        self.octets(&v.to_le_bytes());
     }
     fn u32(&mut self, v: u32) {
-        self.bytes(&v.to_le_bytes());
+        self.octets(&v.to_le_bytes());
     }
     fn i16(&mut self, v: i16) {
-        self.bytes(&v.to_le_bytes());
+        self.octets(&v.to_le_bytes());
     }
+}
+
+impl FieldSink for CdrWriter<'_> {
+    fn u8(&mut self, v: u8) {
+        CdrWriter::u8(self, v);
+    }
+    fn i16(&mut self, v: i16) {
+        CdrWriter::i16(self, v);
+    }
+    fn u32(&mut self, v: u32) {
+        CdrWriter::u32(self, v);
+    }
+    fn f32(&mut self, v: f32) {
+        CdrWriter::f32(self, v);
+    }
+    fn octets(&mut self, v: &[u8]) {
+        CdrWriter::octets(self, v);
+    }
+    fn pad(&mut self, _: usize) {}
 }
 
 impl LowCmd {
@@ -123,44 +155,35 @@ impl LowCmd {
     /// Bytes of its CDR, the encapsulation header included.
     pub const CDR_LEN: usize = 1004;
 
+    /// Every field in IDL order into `sink`.
+    fn fields(&self, sink: &mut impl FieldSink) {
+        sink.u8(self.mode_pr);
+        sink.u8(self.mode_machine);
+        sink.pad(2);
+        for m in &self.motor_cmd {
+            sink.u8(m.mode);
+            sink.pad(3);
+            for v in [m.q, m.dq, m.tau, m.kp, m.kd] {
+                sink.f32(v);
+            }
+            sink.u32(m.reserve);
+        }
+        for r in self.reserve {
+            sink.u32(r);
+        }
+        sink.u32(self.crc);
+    }
+
     /// The message in the SDK's C layout, as the CRC reads it.
     pub fn pack(&self, out: &mut [u8; Self::PACKED_LEN]) {
         let mut p = Packer { out, at: 0 };
-        p.u8(self.mode_pr);
-        p.u8(self.mode_machine);
-        p.pad(2);
-        for m in &self.motor_cmd {
-            p.u8(m.mode);
-            p.pad(3);
-            for v in [m.q, m.dq, m.tau, m.kp, m.kd] {
-                p.f32(v);
-            }
-            p.u32(m.reserve);
-        }
-        for r in self.reserve {
-            p.u32(r);
-        }
-        p.u32(self.crc);
+        self.fields(&mut p);
         debug_assert_eq!(p.at, Self::PACKED_LEN);
     }
 
     /// The message as DDS carries it (CDR, into `buf`).
     pub fn write_cdr(&self, buf: &mut Vec<u8>) {
-        let mut w = CdrWriter::new(buf);
-        w.u8(self.mode_pr).u8(self.mode_machine);
-        for m in &self.motor_cmd {
-            w.u8(m.mode)
-                .f32(m.q)
-                .f32(m.dq)
-                .f32(m.tau)
-                .f32(m.kp)
-                .f32(m.kd)
-                .u32(m.reserve);
-        }
-        for r in self.reserve {
-            w.u32(r);
-        }
-        w.u32(self.crc);
+        self.fields(&mut CdrWriter::new(buf));
     }
 
     /// The message from its CDR.
@@ -289,16 +312,15 @@ impl LowState {
     /// Bytes of its CDR, the encapsulation header included.
     pub const CDR_LEN: usize = 2092;
 
-    /// The message in the SDK's C layout, as the CRC reads it.
-    pub fn pack(&self, out: &mut [u8; Self::PACKED_LEN]) {
-        let mut p = Packer { out, at: 0 };
+    /// Every field in IDL order into `sink`.
+    fn fields(&self, sink: &mut impl FieldSink) {
         for v in self.version {
-            p.u32(v);
+            sink.u32(v);
         }
-        p.u8(self.mode_pr);
-        p.u8(self.mode_machine);
-        p.pad(2);
-        p.u32(self.tick);
+        sink.u8(self.mode_pr);
+        sink.u8(self.mode_machine);
+        sink.pad(2);
+        sink.u32(self.tick);
         let imu = &self.imu_state;
         for v in imu
             .quaternion
@@ -307,59 +329,40 @@ impl LowState {
             .chain(&imu.accelerometer)
             .chain(&imu.rpy)
         {
-            p.f32(*v);
+            sink.f32(*v);
         }
-        p.i16(imu.temperature);
-        p.pad(2);
+        sink.i16(imu.temperature);
+        sink.pad(2);
         for m in &self.motor_state {
-            p.u8(m.mode);
-            p.pad(3);
+            sink.u8(m.mode);
+            sink.pad(3);
             for v in [m.q, m.dq, m.ddq, m.tau_est] {
-                p.f32(v);
+                sink.f32(v);
             }
-            p.i16(m.temperature[0]);
-            p.i16(m.temperature[1]);
-            p.f32(m.vol);
+            sink.i16(m.temperature[0]);
+            sink.i16(m.temperature[1]);
+            sink.f32(m.vol);
             for v in m.sensor.iter().chain([m.motorstate].iter()).chain(&m.reserve) {
-                p.u32(*v);
+                sink.u32(*v);
             }
         }
-        p.bytes(&self.wireless_remote);
+        sink.octets(&self.wireless_remote);
         for r in self.reserve {
-            p.u32(r);
+            sink.u32(r);
         }
-        p.u32(self.crc);
+        sink.u32(self.crc);
+    }
+
+    /// The message in the SDK's C layout, as the CRC reads it.
+    pub fn pack(&self, out: &mut [u8; Self::PACKED_LEN]) {
+        let mut p = Packer { out, at: 0 };
+        self.fields(&mut p);
         debug_assert_eq!(p.at, Self::PACKED_LEN);
     }
 
     /// The message as DDS carries it (CDR, into `buf`).
     pub fn write_cdr(&self, buf: &mut Vec<u8>) {
-        let mut w = CdrWriter::new(buf);
-        w.u32(self.version[0]).u32(self.version[1]);
-        w.u8(self.mode_pr).u8(self.mode_machine).u32(self.tick);
-        let imu = &self.imu_state;
-        for v in imu
-            .quaternion
-            .iter()
-            .chain(&imu.gyroscope)
-            .chain(&imu.accelerometer)
-            .chain(&imu.rpy)
-        {
-            w.f32(*v);
-        }
-        w.i16(imu.temperature);
-        for m in &self.motor_state {
-            w.u8(m.mode).f32(m.q).f32(m.dq).f32(m.ddq).f32(m.tau_est);
-            w.i16(m.temperature[0]).i16(m.temperature[1]).f32(m.vol);
-            for v in m.sensor.iter().chain([m.motorstate].iter()).chain(&m.reserve) {
-                w.u32(*v);
-            }
-        }
-        w.octets(&self.wireless_remote);
-        for r in self.reserve {
-            w.u32(r);
-        }
-        w.u32(self.crc);
+        self.fields(&mut CdrWriter::new(buf));
     }
 
     /// The message from its CDR.

@@ -27,3 +27,32 @@ pub fn in_private_network(script: &str) -> Command {
     ]);
     c
 }
+
+/// Runs the project's Python `script` (a path in the checkout) with `args` in a network of its
+/// own, from the checkout; returns the last line it printed (the script's verdict).
+///
+/// # Panics
+/// When it fails, with everything it printed.
+pub fn python_verdict(script: &str, args: &[String]) -> String {
+    let root = crate::fixtures::workspace_root();
+    let mut line = format!(
+        "{} {}",
+        crate::fixtures::venv_python().display(),
+        root.join(script).display()
+    );
+    for a in args {
+        line.push(' ');
+        line.push_str(a);
+    }
+    let out = in_private_network(&line).current_dir(&root).output().unwrap();
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr),
+    );
+    assert!(out.status.success(), "{script}: {stdout}\n{stderr}");
+    stdout
+        .lines()
+        .last()
+        .unwrap_or_else(|| panic!("{script} printed nothing:\n{stderr}"))
+        .to_owned()
+}
