@@ -183,7 +183,12 @@ enum Command {
     /// Check the native libraries and load a MuJoCo model and an ONNX model, moving nothing.
     ///
     /// Prints the versions of MuJoCo and ONNX Runtime this build loads, the sizes of the MuJoCo
-    /// model, and the input/output of the ONNX model with one timed inference on zeros.
+    /// model, and the input/output of the ONNX model with one timed inference on zeros. With
+    /// --realtime, also what the machine offers the real-time loop, each item with a verdict and
+    /// what to change when it falls short (exit 1 if any does): the kernel (PREEMPT_RT), permission
+    /// for SCHED_FIFO and memory locking, the CPU governor, isolated cores, USB serial adapters'
+    /// latency timers, SocketCAN interfaces, and the timer's wake-up latency measured under the
+    /// loop's real-time set-up. Reads only; changes nothing.
     #[command(display_order = 19)]
     Doctor {
         /// MJCF model to load (default: the reference robot's).
@@ -192,6 +197,16 @@ enum Command {
         /// ONNX policy to load (default: the reference policy).
         #[arg(long, default_value_os_t = robots::locate::default_robot().with_file_name("policies/reference_follower.onnx"))]
         onnx: PathBuf,
+        /// Also check what the machine offers the real-time loop.
+        #[arg(long)]
+        realtime: bool,
+        /// With --realtime: how long to measure the timer's wake-up latency, s (0: not at all).
+        #[arg(long, default_value_t = 10, requires = "realtime", value_parser = crate::args::whole_within(0, 600))]
+        seconds: u64,
+        /// With --realtime: read /proc and /sys under DIR instead of this machine's (files captured
+        /// from a robot's computer); no measurement is made.
+        #[arg(long, value_name = "DIR", requires = "realtime")]
+        root: Option<PathBuf>,
     },
     /// Write shell completions for robodeploy to stdout: `robodeploy completions bash >
     /// ~/.local/share/bash-completion/completions/robodeploy` (zsh: a file `_robodeploy` on
@@ -248,7 +263,19 @@ fn with_result_line(result: Result<std::process::ExitCode>) -> Result<std::proce
 fn dispatch(command: Command) -> Result<std::process::ExitCode> {
     let done = |r: Result<()>| r.map(|()| std::process::ExitCode::SUCCESS);
     match command {
-        Command::Doctor { mjcf, onnx } => done(doctor(&mjcf, &onnx)),
+        Command::Doctor {
+            mjcf,
+            onnx,
+            realtime,
+            seconds,
+            root,
+        } => done(doctor(&mjcf, &onnx).and_then(|()| {
+            if realtime {
+                doctor_realtime(root.as_deref(), seconds)
+            } else {
+                Ok(())
+            }
+        })),
         Command::Completions { shell } => {
             use clap::CommandFactory;
             // Written whole into memory first: the generator panics on a failed write (a closed
@@ -399,6 +426,60 @@ fn loaded_libraries() -> Vec<PathBuf> {
     found.sort();
     found.dedup();
     found
+}
+
+/// `doctor --realtime`: the machine's items, then (on this machine) the timer measured under the
+/// loop's real-time set-up on a thread of its own.
+fn doctor_realtime(root: Option<&std::path::Path>, seconds: u64) -> Result<()> {
+    use controller::readiness::{self, Machine, Verdict};
+    let machine = root.map_or_else(Machine::this, Machine::at);
+    let mut items = machine.audit();
+    println!();
+    match root {
+        Some(r) => println!(
+            "real time: the machine whose /proc and /sys are under {}",
+            r.display()
+        ),
+        None => println!("real time: this machine"),
+    }
+    if root.is_none() && seconds > 0 {
+        println!(
+            "  measuring the timer's wake-up latency for {seconds} s (1 ms sleeps, as the loop's thread)…"
+        );
+        let run = std::time::Duration::from_secs(seconds);
+        let measured = std::thread::Builder::new()
+            .name("wake-latency".into())
+            .spawn(move || {
+                let setup = controller::realtime::setup(readiness::LOOP_PRIORITY as i32, None);
+                (
+                    setup,
+                    readiness::measure_wake_latency(run, std::time::Duration::from_millis(1)),
+                )
+            })?
+            .join()
+            .map_err(|_| anyhow::anyhow!("the measuring thread failed"))?;
+        for step in &measured.0.steps {
+            println!("  set-up: {step}");
+        }
+        // The fastest cycle the loop's threads keep: a 500 Hz bus.
+        items.push(readiness::judge_wake_latency(
+            &measured.1,
+            std::time::Duration::from_millis(2),
+        ));
+    }
+    let mut short = 0;
+    for item in &items {
+        println!("  {:<16} {:<8} {}", item.name, item.verdict, item.found);
+        if let Some(fix) = &item.fix {
+            println!("  {:<16} {:<8} fix: {fix}", "", "");
+        }
+        short += usize::from(item.verdict == Verdict::Short);
+    }
+    if short > 0 {
+        anyhow::bail!("{short} item(s) fall short of what the real-time loop wants (each has its fix above)");
+    }
+    println!("  every item as the real-time loop wants it");
+    Ok(())
 }
 
 fn doctor(mjcf: &std::path::Path, onnx: &std::path::Path) -> Result<()> {

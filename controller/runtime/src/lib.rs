@@ -20,6 +20,7 @@ pub mod motion;
 pub mod npy;
 pub mod options;
 pub mod player;
+pub mod readiness;
 pub mod realtime;
 pub mod reference;
 pub mod safety;
