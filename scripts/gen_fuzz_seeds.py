@@ -12,6 +12,8 @@ mutates them into the ones it must refuse. None is third-party material:
                    and feedback frames for motor 2 and host 0xFD.
   feetech_packets/ Feetech STS traffic: a ping and a read of the present position with their
                    answers, a sync read to three servos.
+  dds_samples/     DDS samples as CDR: a zero unitree_hg LowCmd and LowState with their CRC (Unitree's
+                   CRC-32, MPEG-2 over the packed words' big-endian bytes), a geometry_msgs Twist.
   udp_command/     operator command datagrams (`play --command-udp`): a valid version-1 message,
                    and one with a value out of range.
   osc_vmc/         VMC tracker datagrams as a VR bridge sends them (a bundle of headset and
@@ -106,6 +108,23 @@ def feetech(ident, first, params):
 
 write("feetech_packets", "ping_and_read", feetech(1, 0x01, []) + feetech(1, 0, []) + feetech(1, 0x02, [56, 2]) + feetech(1, 0, [0x00, 0x08]))
 write("feetech_packets", "sync_read", feetech(0xFE, 0x82, [56, 15, 1, 2, 3]))
+def unitree_crc(packed):
+    """Unitree's CRC-32 of a packed message: CRC-32/MPEG-2 over its words, the CRC's left out."""
+    crc = 0xFFFFFFFF
+    for i in range(0, len(packed) - 4, 4):
+        for byte in struct.pack(">I", struct.unpack_from("<I", packed, i)[0]):
+            crc ^= byte << 24
+            for _ in range(8):
+                crc = ((crc << 1) ^ 0x04C11DB7) & 0xFFFFFFFF if crc & 0x80000000 else (crc << 1) & 0xFFFFFFFF
+    return crc
+
+
+# A zero message's CDR is its packed layout's zeros at CDR's offsets: 1000 and 2088 body bytes, the
+# CRC last; the packed layouts (1004 and 2092 bytes) differ only by C's padding, all zeros.
+for name, cdr_body, packed_len in (("low_cmd", 1000, 1004), ("low_state", 2088, 2092)):
+    crc = unitree_crc(bytes(packed_len))
+    write("dds_samples", name, b"\x00\x01\x00\x00" + bytes(cdr_body - 4) + struct.pack("<I", crc))
+write("dds_samples", "twist", b"\x00\x01\x00\x00" + struct.pack("<6d", 0.5, 0.0, 0.0, 0.0, 0.0, -0.25))
 write("udp_command", "walk", b'{"version": 1, "seq": 17, "command": [0.3, 0.0, -0.5]}')
 write("udp_command", "too_fast", b'{"version": 1, "seq": 18, "command": [3.0, 0.0, 0.0]}')
 

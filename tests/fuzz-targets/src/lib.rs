@@ -7,6 +7,7 @@ pub mod bno055_uart;
 pub mod bvh_text;
 pub mod clip_csv;
 pub mod coco_image_ids;
+pub mod dds_samples;
 pub mod dxl_packet;
 pub mod feetech_packets;
 pub mod holosoma_metadata;
@@ -37,6 +38,7 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("coco_image_ids", coco_image_ids::run),
     ("dxl_packet", dxl_packet::run),
     ("feetech_packets", feetech_packets::run),
+    ("dds_samples", dds_samples::run),
     ("holosoma_metadata", holosoma_metadata::run),
     ("keypoint_inputs", keypoint_inputs::run),
     ("live_client_messages", live_client_messages::run),
