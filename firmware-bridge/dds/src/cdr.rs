@@ -256,11 +256,6 @@ impl<'a> CdrReader<'a> {
             _ => Err(CdrError::BadString(at)),
         }
     }
-
-    /// Bytes of the body read so far.
-    pub fn position(&self) -> usize {
-        self.at
-    }
 }
 
 #[cfg(test)]

@@ -179,11 +179,6 @@ impl UnitreeBoard {
         &mut self.motors
     }
 
-    /// The motors, in [`BoardConfig::motors`]' order.
-    pub fn motors(&self) -> &[MitMotorFirmware] {
-        &self.motors
-    }
-
     /// When the next state is due.
     pub fn next_state(&self) -> SimInstant {
         self.next_state

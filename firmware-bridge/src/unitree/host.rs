@@ -264,11 +264,6 @@ impl<P: LowLevelPort> HgDriver<P> {
     pub fn stats(&self) -> HgStats {
         self.stats
     }
-
-    /// The port.
-    pub fn port_mut(&mut self) -> &mut P {
-        &mut self.port
-    }
 }
 
 #[cfg(test)]

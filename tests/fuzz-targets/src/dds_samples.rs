@@ -8,20 +8,7 @@ use firmware_bridge::mit::models::find;
 use firmware_bridge::time::SimInstant;
 use firmware_bridge::unitree::board::{BoardConfig, BoardMotor, CommandVerdict, UnitreeBoard};
 use firmware_bridge::unitree::hg::{LowCmd, LowState, Sealed as _};
-use human::commands::{CommandSpec, twist_commands};
-
-fn spec() -> CommandSpec {
-    CommandSpec {
-        names: vec!["lin_vel_x".into(), "lin_vel_y".into(), "ang_vel_z".into()],
-        ranges: vec![[-0.5, 1.0], [-0.3, 0.3], [-1.0, 1.0]],
-        default: None,
-        ramp: None,
-        step: None,
-        kinds: None,
-        gamepad: None,
-        timeout_s: 0.5,
-    }
-}
+use human::commands::twist_commands;
 
 /// One input.
 pub fn run(data: &[u8]) {
@@ -50,7 +37,7 @@ pub fn run(data: &[u8]) {
         assert!(LowCmd::read_cdr(data).is_ok_and(|c| c.crc_ok()));
     }
     if let Ok(twist) = dds::ros2::decode_twist(data) {
-        let spec = spec();
+        let spec = crate::walk_commands();
         let mut out = [0.0; 3];
         twist_commands(&spec, &spec.kinds(), twist, &mut out);
         assert!(spec.check_values(&out).is_ok(), "{out:?} from {twist:?}");

@@ -57,6 +57,20 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("wit_stream", wit_stream::run),
 ];
 
+/// A walking policy's live commands (forward, leftward, turning), for the targets that feed them.
+pub fn walk_commands() -> human::commands::CommandSpec {
+    human::commands::CommandSpec {
+        names: vec!["lin_vel_x".into(), "lin_vel_y".into(), "ang_vel_z".into()],
+        ranges: vec![[-0.5, 1.0], [-0.3, 0.3], [-1.0, 1.0]],
+        default: None,
+        ramp: None,
+        step: None,
+        kinds: None,
+        gamepad: None,
+        timeout_s: 0.5,
+    }
+}
+
 /// What must hold of every IMU sample a decoder accepts: finite readings and a unit quaternion.
 ///
 /// # Panics

@@ -2,24 +2,11 @@
 //! versioned message parser. An accepted message's commands must lie within the manifest's ranges
 //! (they reach the policy as they are).
 
-use human::commands::{CommandSpec, Newest, parse_datagram};
-
-fn spec() -> CommandSpec {
-    CommandSpec {
-        names: vec!["lin_vel_x".into(), "lin_vel_y".into(), "ang_vel_z".into()],
-        ranges: vec![[-0.5, 1.0], [-0.3, 0.3], [-1.0, 1.0]],
-        default: None,
-        ramp: None,
-        step: None,
-        kinds: None,
-        gamepad: None,
-        timeout_s: 0.5,
-    }
-}
+use human::commands::{Newest, parse_datagram};
 
 /// One input.
 pub fn run(data: &[u8]) {
-    let spec = spec();
+    let spec = crate::walk_commands();
     for newest in [None, Some(Newest { session: 0, seq: 10 })] {
         if let Ok(m) = parse_datagram(&spec, data, newest) {
             assert!(spec.check_values(&m.command).is_ok(), "{:?}", m.command);
