@@ -111,20 +111,11 @@ fn a_bundle_runs_play_with_nothing_else_env_i_and_the_checkout_hidden() {
     .unpack(&unpacked)
     .unwrap();
     let home = unpacked.join("robodeploy-rd-biped");
-    // Run as a user on the robot's computer would: an empty environment (`env -i`), from the
-    // unpacked folder, with the checkout this binary was built in hidden under an empty tmpfs in
-    // a mount namespace of the run's own (the run path's .local/lib, the reference robot, the
-    // policies: none of it reachable).
-    let checkout = test_support::fixtures::workspace_root();
+    // Run as a user on the robot's computer would: from the unpacked folder, nothing of the
+    // checkout reachable (the run path's .local/lib, the reference robot, the policies).
     let bundled = |args: &[&str]| {
-        Command::new("unshare")
-            .args(["--mount", "--propagation", "private", "--", "sh", "-c"])
-            .arg(r#"mount -t tmpfs none "$1" && test ! -e "$1/Cargo.toml" && shift && exec env -i "$@""#)
-            .arg("sh")
-            .arg(&checkout)
-            .arg(home.join("bin/robodeploy"))
+        test_support::bin::with_checkout_hidden(&home, &home.join("bin/robodeploy"))
             .args(args)
-            .current_dir(&home)
             .output()
             .unwrap()
     };

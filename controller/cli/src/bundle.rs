@@ -1,5 +1,5 @@
-//! `robodeploy bundle`: what a run needs, in one tarball for another machine of the same
-//! architecture.
+//! `robodeploy bundle`: what a run needs, in one tarball for another machine: of this machine's
+//! architecture, or a 64-bit ARM robot computer (`--target aarch64-unknown-linux-gnu`).
 //!
 //! ```text
 //! robodeploy-ROBOT/
@@ -13,9 +13,11 @@
 //!   README.txt                     how to run it
 //! ```
 //!
-//! The binary packed is the one running: a bundle build (`scripts/dev bundle`: release, no
+//! The binary packed is the one running, or with `--target` the checkout's cross build for that
+//! architecture: a bundle build either way (`scripts/dev bundle [--target …]`: release, no
 //! symbols, no folder of the build machine in it, its libraries found beside it). A development
 //! build is refused unless asked for (`--allow-dev-build`, for trying a bundle on this machine).
+//! A cross build and its libraries are checked to be ELF files for the target's processor.
 
 use std::path::{Path, PathBuf};
 
@@ -48,6 +50,12 @@ pub struct BundleArgs {
     /// Replace an existing --out.
     #[arg(long)]
     overwrite: bool,
+    /// Pack the build for another kind of computer instead of this binary: this checkout's
+    /// cross build `target/TRIPLE/bundle/robodeploy` with that architecture's libraries from
+    /// `.local/TRIPLE/lib`. `scripts/dev bundle --target aarch64-unknown-linux-gnu …` builds both
+    /// and packs them (a 64-bit ARM robot computer: Jetson Orin, Raspberry Pi 5, RK3588 boards).
+    #[arg(long, value_name = "TRIPLE")]
+    target: Option<Target>,
     /// Pack this binary even if it is a development build (debug checks on, symbols, folders of
     /// this machine inside): a bundle to try on this machine. Bundles for a robot come from
     /// `scripts/dev bundle`.
@@ -55,15 +63,197 @@ pub struct BundleArgs {
     allow_dev_build: bool,
 }
 
-/// Why the running binary is no bundle build, or `None` when it is one: debug checks compiled
-/// in, or folders of this machine named in its bytes (the checkout it was built in, the cargo
+/// A computer a bundle is cross-built for, by its Rust target triple.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Target {
+    /// 64-bit ARM Linux: Jetson Orin (inside a Unitree G1), Raspberry Pi 5, Rockchip boards.
+    #[value(name = "aarch64-unknown-linux-gnu")]
+    Aarch64Linux,
+    /// 64-bit x86 Linux (a cross build from another machine).
+    #[value(name = "x86_64-unknown-linux-gnu")]
+    X86_64Linux,
+}
+
+impl Target {
+    fn triple(self) -> &'static str {
+        match self {
+            Self::Aarch64Linux => "aarch64-unknown-linux-gnu",
+            Self::X86_64Linux => "x86_64-unknown-linux-gnu",
+        }
+    }
+
+    fn arch(self) -> &'static str {
+        match self {
+            Self::Aarch64Linux => "aarch64",
+            Self::X86_64Linux => "x86_64",
+        }
+    }
+
+    /// The ELF header's `e_machine` of its binaries (EM_AARCH64, EM_X86_64).
+    fn elf_machine(self) -> u16 {
+        match self {
+            Self::Aarch64Linux => 183,
+            Self::X86_64Linux => 62,
+        }
+    }
+}
+
+/// What an ELF file says of itself, as far as packing needs.
+struct ElfFacts {
+    /// The processor it is for (`e_machine`).
+    machine: u16,
+    /// It still carries a symbol table (not stripped).
+    symbols: bool,
+    /// The newest glibc symbol version it needs (`GLIBC_2.35` → (2, 35)): the oldest C library
+    /// it starts with.
+    glibc: Option<(u32, u32)>,
+}
+
+/// Reads a 64-bit ELF file's header, section table and version needs.
+fn elf_facts(path: &Path, bytes: &[u8]) -> Result<ElfFacts> {
+    use object::read::elf::{FileHeader, SectionHeader};
+    let unreadable = |e: object::read::Error| {
+        anyhow::Error::new(robots::FileError::new(
+            path,
+            format!("not a readable 64-bit ELF file: {e}"),
+        ))
+    };
+    let header = object::elf::FileHeader64::<object::Endianness>::parse(bytes).map_err(unreadable)?;
+    let endian = header.endian().map_err(unreadable)?;
+    let sections = header.sections(endian, bytes).map_err(unreadable)?;
+    let symbols = sections
+        .iter()
+        .any(|s| s.sh_type(endian) == object::elf::SHT_SYMTAB);
+    let mut glibc = None;
+    if let Some((mut needs, names_at)) = sections.gnu_verneed(endian, bytes).map_err(unreadable)? {
+        let names = sections.strings(endian, bytes, names_at).map_err(unreadable)?;
+        while let Some((_, mut versions)) = needs.next().map_err(unreadable)? {
+            while let Some(version) = versions.next().map_err(unreadable)? {
+                let name = version.name(endian, names).map_err(unreadable)?;
+                glibc = glibc.max(glibc_version(name));
+            }
+        }
+    }
+    Ok(ElfFacts {
+        machine: header.e_machine(endian),
+        symbols,
+        glibc,
+    })
+}
+
+/// `GLIBC_2.35` → (2, 35); `GLIBC_2.2.5` → (2, 2); other version names → `None`.
+fn glibc_version(name: &[u8]) -> Option<(u32, u32)> {
+    let rest = std::str::from_utf8(name).ok()?.strip_prefix("GLIBC_")?;
+    let (major, minor) = rest.split_once('.')?;
+    Some((major.parse().ok()?, minor.split('.').next()?.parse().ok()?))
+}
+
+/// The oldest glibc every file of a build starts with: the newest version any of them needs.
+fn glibc_floor(build: &Build) -> Result<Option<(u32, u32)>> {
+    let mut floor = None;
+    for path in std::iter::once(&build.exe).chain(build.libraries.iter().map(|(_, p)| p)) {
+        let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+        floor = floor.max(elf_facts(path, &bytes)?.glibc);
+    }
+    Ok(floor)
+}
+
+/// What goes into `bin/` and `lib/`: a binary, the libraries it loads, the processor it runs on.
+struct Build {
+    exe: PathBuf,
+    libraries: Vec<(&'static str, PathBuf)>,
+    arch: &'static str,
+    /// Debug checks compiled in (known for the running binary only; a cross build is taken from
+    /// the bundle profile's folder).
+    debug_checks: bool,
+}
+
+impl Build {
+    /// The running binary and the libraries it found.
+    fn this_binary() -> Result<Self> {
+        let exe = std::env::current_exe().context("cannot find this binary")?;
+        let mut libraries = Vec::new();
+        for name in LIBRARIES {
+            let found = policy::native::search_dirs()
+                .into_iter()
+                .map(|d| d.join(name))
+                .find(|p| p.is_file())
+                .with_context(|| {
+                    format!("{name} is not beside the binary nor in .local/lib: run scripts/setup")
+                })?;
+            libraries.push((name, found));
+        }
+        Ok(Self {
+            exe,
+            libraries,
+            arch: std::env::consts::ARCH,
+            debug_checks: cfg!(debug_assertions),
+        })
+    }
+
+    /// The checkout's cross build for `target` and that architecture's libraries, each checked
+    /// to be an ELF file for the target's processor.
+    fn cross(target: Target) -> Result<Self> {
+        let triple = target.triple();
+        let how = format!("`scripts/dev bundle --target {triple} …` cross-builds it and packs it");
+        let checkout = robots::locate::checkout().ok_or_else(|| {
+            crate::args::FlagError::new(
+                "target",
+                format!(
+                    " {triple}: this robodeploy is not in a checkout, where cross builds are made; {how}"
+                ),
+            )
+        })?;
+        let exe = checkout.join("target").join(triple).join("bundle/robodeploy");
+        let local = checkout.join(".local").join(triple).join("lib");
+        let wanted = std::iter::once(("robodeploy", exe.clone()))
+            .chain(LIBRARIES.iter().map(|name| (*name, local.join(name))));
+        let mut libraries = Vec::new();
+        for (name, path) in wanted {
+            if !path.is_file() {
+                bail!(crate::args::FlagError::new(
+                    "target",
+                    format!(" {triple}: {} is not there; {how}", path.display())
+                ));
+            }
+            let bytes = std::fs::read(&path).with_context(|| format!("cannot read {}", path.display()))?;
+            let machine = elf_facts(&path, &bytes)?.machine;
+            if machine != target.elf_machine() {
+                bail!(robots::FileError::new(
+                    &path,
+                    format!(
+                        "an ELF file for machine {machine}, not for {} ({}): rebuild it with {how}",
+                        target.arch(),
+                        target.elf_machine()
+                    )
+                ));
+            }
+            if name != "robodeploy" {
+                libraries.push((name, path));
+            }
+        }
+        Ok(Self {
+            exe,
+            libraries,
+            arch: target.arch(),
+            debug_checks: false,
+        })
+    }
+}
+
+/// Why a binary is no bundle build, or `None` when it is one: debug checks compiled in, a symbol
+/// table, or folders of this machine named in its bytes (the checkout it was built in, the cargo
 /// registry its dependencies came from: panic messages and run paths carry them).
-fn dev_build_reasons(exe: &Path) -> Result<Option<String>> {
+fn dev_build_reasons(build: &Build) -> Result<Option<String>> {
+    let exe = &build.exe;
     let mut why = Vec::new();
-    if cfg!(debug_assertions) {
+    if build.debug_checks {
         why.push("debug checks are compiled in".to_owned());
     }
     let bytes = std::fs::read(exe).with_context(|| format!("cannot read {}", exe.display()))?;
+    if elf_facts(exe, &bytes)?.symbols {
+        why.push("it carries a symbol table".to_owned());
+    }
     let cargo_home = std::env::var_os("CARGO_HOME")
         .map(PathBuf::from)
         .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".cargo")));
@@ -116,32 +306,26 @@ pub fn run(args: &BundleArgs) -> Result<()> {
             );
         }
     }
-    let exe = std::env::current_exe().context("cannot find this binary")?;
-    let dev_build = dev_build_reasons(&exe)?;
+    let build = match args.target {
+        None => Build::this_binary()?,
+        Some(target) => Build::cross(target)?,
+    };
+    let exe = &build.exe;
+    let dev_build = dev_build_reasons(&build)?;
+    let glibc = glibc_floor(&build)?;
     match (&dev_build, args.allow_dev_build) {
         (Some(why), false) => bail!(crate::args::FlagError::new(
             "allow-dev-build",
             format!(
-                " is not given, and this robodeploy ({}, {:.0} MB) is a development build: {why}. \
-                 Bundle a release build: `scripts/dev bundle --robot … --out …` builds one without \
-                 symbols or this machine's folders and packs it",
+                " is not given, and the robodeploy to pack ({}, {:.0} MB) is a development build: {why}. \
+                 Bundle a release build: `scripts/dev bundle [--target …] --robot … --out …` builds \
+                 one without symbols or this machine's folders and packs it",
                 exe.display(),
-                std::fs::metadata(&exe).map_or(0.0, |m| m.len() as f64 / 1e6)
+                std::fs::metadata(exe).map_or(0.0, |m| m.len() as f64 / 1e6)
             )
         )),
         (Some(why), true) => eprintln!("bundle: packing a development build ({why}): for this machine only"),
         (None, _) => {}
-    }
-    let mut libs = Vec::new();
-    for name in LIBRARIES {
-        let found = policy::native::search_dirs()
-            .into_iter()
-            .map(|d| d.join(name))
-            .find(|p| p.is_file())
-            .with_context(|| {
-                format!("{name} is not beside the binary nor in .local/lib: run scripts/setup")
-            })?;
-        libs.push((name, found));
     }
     check_out(&args.out, args.overwrite, &[&robot_dir, &policy_dir])?;
     let mut seen_names: Vec<(String, &Path)> = Vec::new();
@@ -180,8 +364,8 @@ pub fn run(args: &BundleArgs) -> Result<()> {
         tar.append_path_with_name(from, &to)
             .with_context(|| format!("cannot pack {}", from.display()))
     };
-    add(&mut tar, &exe, format!("{top}/bin/robodeploy"))?;
-    for (name, path) in &libs {
+    add(&mut tar, exe, format!("{top}/bin/robodeploy"))?;
+    for (name, path) in &build.libraries {
         add(&mut tar, path, format!("{top}/lib/{name}"))?;
     }
     tar.append_dir_all(format!("{top}/robot"), &robot_dir)
@@ -232,12 +416,17 @@ pub fn run(args: &BundleArgs) -> Result<()> {
          no checkout). bin/robodeploy runs robot/{robot_file} with policy/{policy_file}{clip_arg}\n\
          when given no --robot, --policy or --clip (bundle.toml says so):\n\n  \
          ./bin/robodeploy doctor --mjcf robot/{mjcf} --onnx policy/{onnx}\n  \
+         ./bin/robodeploy doctor --realtime    # can this computer hold the loop? (10 s)\n  \
          ./bin/robodeploy check\n  \
          ./bin/robodeploy play                 # on the mirror, lockstep\n  \
          ./bin/robodeploy play --hardware      # on the robot's buses from robot/{robot_file}\n\n\
-         bin/robodeploy loads lib/libmujoco.so.3.17.0 and lib/libonnxruntime.so.1.31.1 from beside it.\n",
+         bin/robodeploy loads lib/libmujoco.so.3.17.0 and lib/libonnxruntime.so.1.31.1 from beside it.\n\
+         {needs}",
         robot_name = robot.config.name,
-        arch = std::env::consts::ARCH,
+        arch = build.arch,
+        needs = glibc.map_or_else(String::new, |(major, minor)| format!(
+            "It needs glibc {major}.{minor} or newer on that computer (`ldd --version` shows its own).\n"
+        )),
         mjcf = mjcf.strip_prefix(&robot_dir).unwrap_or(&mjcf).display(),
         onnx = layout
             .onnx_path
@@ -255,9 +444,10 @@ pub fn run(args: &BundleArgs) -> Result<()> {
     gz.finish().context("cannot finish the tarball")?;
     let size = std::fs::metadata(&args.out).map_or(0, |m| m.len());
     println!(
-        "bundle: {} ({:.1} MB): {top}/ with bin/, lib/, robot/, policy/{}",
+        "bundle: {} ({:.1} MB, for {} Linux): {top}/ with bin/, lib/, robot/, policy/{}",
         args.out.display(),
         size as f64 / 1e6,
+        build.arch,
         if clip_names.is_empty() { "" } else { ", clips/" }
     );
     print!("{readme}");
@@ -339,4 +529,38 @@ fn folder_bytes(dir: &Path) -> Result<u64> {
         }
     }
     Ok(total)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn glibc_versions_are_read_from_their_symbol_version_names() {
+        assert_eq!(glibc_version(b"GLIBC_2.35"), Some((2, 35)));
+        assert_eq!(glibc_version(b"GLIBC_2.2.5"), Some((2, 2)));
+        assert_eq!(glibc_version(b"GLIBC_PRIVATE"), None);
+        assert_eq!(glibc_version(b"GCC_3.0"), None);
+        assert!(glibc_version(b"GLIBC_2.17") < glibc_version(b"GLIBC_2.35"));
+    }
+
+    #[test]
+    fn an_elf_file_tells_its_processor_symbols_and_glibc_and_other_files_are_refused_by_name() {
+        // This test binary: built here, for this processor, with symbols, against this glibc.
+        let exe = std::env::current_exe().unwrap();
+        let facts = elf_facts(&exe, &std::fs::read(&exe).unwrap()).unwrap();
+        let this_machine = match std::env::consts::ARCH {
+            "aarch64" => Target::Aarch64Linux,
+            _ => Target::X86_64Linux,
+        };
+        assert_eq!(facts.machine, this_machine.elf_machine());
+        assert!(facts.symbols);
+        assert!(facts.glibc >= Some((2, 17)), "{:?}", facts.glibc);
+        let text = Path::new("robot.toml");
+        let err = elf_facts(text, b"name = \"rd-biped\"\n").err().unwrap();
+        assert!(
+            format!("{err:#}").contains("robot.toml") && format!("{err:#}").contains("ELF"),
+            "{err:#}"
+        );
+    }
 }

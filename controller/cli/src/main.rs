@@ -69,11 +69,13 @@ enum Command {
     #[command(subcommand)]
     #[command(display_order = 14)]
     Dxl(dxl::DxlCommand),
-    /// Pack what a run needs into one tarball for another machine of the same architecture: the
-    /// binary, its two native libraries, the robot's folder, the policy's folder and clips.
+    /// Pack what a run needs into one tarball for the robot's computer: the binary, its two
+    /// native libraries, the robot's folder, the policy's folder and clips. This machine's
+    /// architecture, or a 64-bit ARM computer with `--target aarch64-unknown-linux-gnu`.
     ///
     /// Unpacked anywhere, `bin/robodeploy` finds its libraries beside itself; the README.txt
-    /// inside says how to run it.
+    /// inside says how to run it. `scripts/dev bundle [--target …] ARGS` builds the release
+    /// binary to pack and runs this.
     #[command(display_order = 18)]
     Bundle(bundle::BundleArgs),
     /// Feetech serial bus tools: emulated STS servos on a pseudo-terminal, and bus scans.
@@ -208,9 +210,6 @@ enum Command {
         #[arg(long, value_name = "DIR", requires = "realtime")]
         root: Option<PathBuf>,
     },
-    /// Write shell completions for robodeploy to stdout: `robodeploy completions bash >
-    /// ~/.local/share/bash-completion/completions/robodeploy` (zsh: a file `_robodeploy` on
-    /// `$fpath`; fish: `~/.config/fish/completions/robodeploy.fish`).
     /// Write the JSON Schema of robot.toml, a policy manifest, a mirror file or calibration.toml,
     /// generated from the types robodeploy reads them with: `robodeploy schema robot --out
     /// robot.schema.json`, then a first line `#:schema ./robot.schema.json` in robot.toml lets
@@ -218,6 +217,9 @@ enum Command {
     /// writes the reference page the user guide carries.
     #[command(display_order = 98)]
     Schema(schema::SchemaArgs),
+    /// Write shell completions for robodeploy to stdout: `robodeploy completions bash >
+    /// ~/.local/share/bash-completion/completions/robodeploy` (zsh: a file `_robodeploy` on
+    /// `$fpath`; fish: `~/.config/fish/completions/robodeploy.fish`).
     #[command(display_order = 99)]
     Completions {
         /// The shell.

@@ -59,6 +59,22 @@ pub fn robodeploy() -> Command {
     Command::new(robodeploy_path())
 }
 
+/// A command that runs `program` as a user on the robot's computer would: from `home` (an
+/// unpacked bundle), in an empty environment (`env -i`), with the checkout these tests were built
+/// in hidden under an empty tmpfs in a mount namespace of the command's own (its `.local/lib`,
+/// robots and policies unreachable). Arguments added go to `program`.
+pub fn with_checkout_hidden(home: &std::path::Path, program: &std::path::Path) -> Command {
+    let mut command = Command::new("unshare");
+    command
+        .args(["--mount", "--propagation", "private", "--", "sh", "-c"])
+        .arg(r#"mount -t tmpfs none "$1" && test ! -e "$1/Cargo.toml" && shift && exec env -i "$@""#)
+        .arg("sh")
+        .arg(crate::fixtures::workspace_root())
+        .arg(program)
+        .current_dir(home);
+    command
+}
+
 /// A `robodeploy` process whose output is read line by line as it comes: a test waits for the
 /// line that says the process is ready (never a fixed sleep), and both pipes are always drained,
 /// so the process never blocks on a full pipe.
