@@ -1367,7 +1367,8 @@ fn check_flags_limbs_that_pass_through_each_other() {
 }
 
 #[test]
-fn bundle_refuses_an_out_it_would_pack_or_overwrite_and_clips_that_clash_or_are_not_clips() {
+fn bundle_refuses_an_out_it_would_pack_or_overwrite_clips_that_clash_or_are_not_clips_and_an_unknown_target()
+{
     let root = test_support::fixtures::workspace_root();
     let dir = std::env::temp_dir().join(format!("bundle-refused-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
@@ -1388,7 +1389,8 @@ fn bundle_refuses_an_out_it_would_pack_or_overwrite_and_clips_that_clash_or_are_
         dir.join("a.tar.gz"),
         dir.join("b.tar.gz"),
     );
-    let cases: [(Vec<&std::ffi::OsStr>, &str); 5] = [
+    let out_c = dir.join("c.tar.gz");
+    let cases: [(Vec<&std::ffi::OsStr>, &str); 6] = [
         (
             vec!["--out".as_ref(), inside.as_os_str()],
             "which the bundle packs",
@@ -1420,6 +1422,16 @@ fn bundle_refuses_an_out_it_would_pack_or_overwrite_and_clips_that_clash_or_are_
             ],
             "notes.csv",
         ),
+        // A computer no bundle is built for: the ones that are, named.
+        (
+            vec![
+                "--target".as_ref(),
+                "riscv64gc-unknown-linux-gnu".as_ref(),
+                "--out".as_ref(),
+                out_c.as_os_str(),
+            ],
+            "[possible values: aarch64-unknown-linux-gnu]",
+        ),
     ];
     for (args, needle) in cases {
         let out = robodeploy()
@@ -1432,6 +1444,7 @@ fn bundle_refuses_an_out_it_would_pack_or_overwrite_and_clips_that_clash_or_are_
         assert!(stderr.contains(needle), "{args:?}: {stderr}");
     }
     assert!(!inside.exists(), "nothing written inside the robot's folder");
+    assert!(!out_c.exists(), "nothing written for an unknown computer");
     assert_eq!(std::fs::read_to_string(&existing).unwrap(), "keep me");
     assert!(robot_toml.is_file() && std::fs::metadata(&robot_toml).unwrap().len() > 100);
     // A relative --policy inside its folder is what it says, and an existing --out may be

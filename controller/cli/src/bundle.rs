@@ -69,31 +69,25 @@ pub enum Target {
     /// 64-bit ARM Linux: Jetson Orin (inside a Unitree G1), Raspberry Pi 5, Rockchip boards.
     #[value(name = "aarch64-unknown-linux-gnu")]
     Aarch64Linux,
-    /// 64-bit x86 Linux (a cross build from another machine).
-    #[value(name = "x86_64-unknown-linux-gnu")]
-    X86_64Linux,
 }
 
 impl Target {
     fn triple(self) -> &'static str {
         match self {
             Self::Aarch64Linux => "aarch64-unknown-linux-gnu",
-            Self::X86_64Linux => "x86_64-unknown-linux-gnu",
         }
     }
 
     fn arch(self) -> &'static str {
         match self {
             Self::Aarch64Linux => "aarch64",
-            Self::X86_64Linux => "x86_64",
         }
     }
 
-    /// The ELF header's `e_machine` of its binaries (EM_AARCH64, EM_X86_64).
+    /// The ELF header's `e_machine` of its binaries.
     fn elf_machine(self) -> u16 {
         match self {
-            Self::Aarch64Linux => 183,
-            Self::X86_64Linux => 62,
+            Self::Aarch64Linux => object::elf::EM_AARCH64,
         }
     }
 }
@@ -550,10 +544,10 @@ mod tests {
         let exe = std::env::current_exe().unwrap();
         let facts = elf_facts(&exe, &std::fs::read(&exe).unwrap()).unwrap();
         let this_machine = match std::env::consts::ARCH {
-            "aarch64" => Target::Aarch64Linux,
-            _ => Target::X86_64Linux,
+            "aarch64" => object::elf::EM_AARCH64,
+            _ => object::elf::EM_X86_64,
         };
-        assert_eq!(facts.machine, this_machine.elf_machine());
+        assert_eq!(facts.machine, this_machine);
         assert!(facts.symbols);
         assert!(facts.glibc >= Some((2, 17)), "{:?}", facts.glibc);
         let text = Path::new("robot.toml");
