@@ -8,7 +8,7 @@
 //! the bundle, names it in `ROBODEPLOY_ARM_BUNDLE` and runs this with `--run-ignored only`.
 
 use std::path::{Path, PathBuf};
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use test_support::bin::{Running, robodeploy, with_checkout_hidden};
 
@@ -192,13 +192,7 @@ fn the_arm_bundle_checks_plays_scans_and_records_under_qemu() {
         "--seconds",
         "120",
     ]);
-    let serving = emulate.wait_for("/dev/pts/", Duration::from_secs(60));
-    let pty = serving
-        .split(" on ")
-        .nth(1)
-        .and_then(|s| s.split(' ').next())
-        .unwrap()
-        .to_owned();
+    let pty = emulate.wait_for_pty();
     // QEMU 10.0 does not translate the termios2 ioctls serial2 sets the bit rate with (a real ARM
     // kernel has them): tests/qemu/termios2_shim.c serves them with plain termios for the scan.
     let shim = dir.join("termios2_shim.so");

@@ -139,8 +139,8 @@ fn a_bundle_runs_play_with_nothing_else_env_i_and_the_checkout_hidden() {
             && stdout.contains(&format!("loaded {}/libonnxruntime.so.1.31.1", libs.display())),
         "{stdout}"
     );
-    // `play` with no flag at all: the bundle's robot, policy and clip (bundle.toml).
-    let play = bundled(&["play"]);
+    // `play` with no robot, policy or clip: the bundle's (bundle.toml); two seconds of it.
+    let play = bundled(&["play", "--max-seconds", "2"]);
     let stdout = String::from_utf8_lossy(&play.stdout);
     assert!(
         play.status.success() && stdout.contains("result: finished"),
@@ -302,14 +302,7 @@ fn dxl_scan_finds_the_servos_dxl_emulate_serves() {
         "--seconds",
         "20",
     ]);
-    let first = emulate.wait_for("/dev/pts/", Duration::from_secs(60));
-    let path = first
-        .split(" on ")
-        .nth(1)
-        .and_then(|s| s.split(' ').next())
-        .unwrap()
-        .to_owned();
-    assert!(path.starts_with("/dev/pts/"), "{first}");
+    let path = emulate.wait_for_pty();
     let (ok, stdout, stderr) = run(&[
         "dxl", "scan", "--port", &path, "--baud", "4000000", "--ids", "1-4",
     ]);
@@ -336,13 +329,7 @@ fn feetech_scan_finds_the_servos_feetech_emulate_serves_and_bad_ones_are_refused
         "--seconds",
         "20",
     ]);
-    let first = emulate.wait_for("/dev/pts/", Duration::from_secs(60));
-    let path = first
-        .split(" on ")
-        .nth(1)
-        .and_then(|s| s.split(' ').next())
-        .unwrap()
-        .to_owned();
+    let path = emulate.wait_for_pty();
     let (ok, stdout, stderr) = run(&[
         "feetech", "scan", "--port", &path, "--baud", "500000", "--ids", "1-5",
     ]);

@@ -178,6 +178,21 @@ impl Running {
         }
     }
 
+    /// Waits (up to a minute) for the line an emulator prints when it serves on a
+    /// pseudo-terminal (`… on /dev/pts/N at …`) and returns the terminal's path.
+    ///
+    /// # Panics
+    /// When no such line comes, with everything the process printed.
+    pub fn wait_for_pty(&mut self) -> String {
+        let line = self.wait_for("/dev/pts/", std::time::Duration::from_secs(60));
+        line.split(" on ")
+            .nth(1)
+            .and_then(|s| s.split(' ').next())
+            .filter(|p| p.starts_with("/dev/pts/"))
+            .unwrap_or_else(|| panic!("no pseudo-terminal in: {line}"))
+            .to_owned()
+    }
+
     /// The process id.
     pub fn id(&self) -> u32 {
         self.child.id()
