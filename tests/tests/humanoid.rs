@@ -728,9 +728,9 @@ fn play_and_compare(dir: &Path, trace: &Path, args: &[&str]) -> (String, f64) {
 #[test]
 fn the_mirror_dances_the_g1_as_the_trainers_simulation_does_step_for_step() {
     // The Python loop places the G1 in the motion's first frame and holds it there 1.5 s under
-    // the policy before the dance plays; a `policy` start does the same on the mirror (its
-    // reference ramp of 1.5 s from a start already in the first frame), so both runs observe
-    // the same frames at the same steps: the hold and the dance's first 100 frames.
+    // the policy before the dance plays; a `policy` start with `--ramp 1.5` does the same on the
+    // mirror (the operator asks for the hold the policy does not), so both runs observe the same
+    // frames at the same steps: the hold and the dance's first 100 frames.
     let dir = std::env::temp_dir().join(format!("robodeploy-dance-trace-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let trace = dir.join("g1-dance.csv");
@@ -747,7 +747,14 @@ fn the_mirror_dances_the_g1_as_the_trainers_simulation_does_step_for_step() {
     let (out, joint_rms) = play_and_compare(
         &dir,
         &trace,
-        &["--policy", dance().to_str().unwrap(), "--max-seconds", "3.5"],
+        &[
+            "--policy",
+            dance().to_str().unwrap(),
+            "--max-seconds",
+            "3.5",
+            "--ramp",
+            "1.5",
+        ],
     );
     assert!(out.contains("compared 175 steps"), "{out}");
     for term in ["time_step", "motion_command"] {
@@ -778,6 +785,7 @@ fn the_g1_dances_the_whole_motion_on_a_quiet_mirror_as_far_off_its_path_as_the_t
     quiet.randomization.usb_latency_us = sim2real::config::Range(0.0, 0.0);
     let options = PlayOptions {
         start: Some(robots::StartMode::Policy),
+        ramp_s: Some(1.5),
         ..PlayOptions::default()
     };
     let (mut p, mut clock, world) = lockstep_player(

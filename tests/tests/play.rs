@@ -343,6 +343,8 @@ fn a_steady_state_tick_allocates_nothing() {
         &controller::telemetry::RecordingInfo {
             joint_names: names.clone(),
             root_frame: "pelvis".into(),
+            // The whole observation too, through the buffers made here.
+            observation_len: p.recording_info().observation_len,
             ..Default::default()
         },
     )

@@ -55,6 +55,7 @@ fn a_recorded_run_reads_back_in_python_with_the_reported_counts() {
         root_frame: "pelvis".into(),
         kinematics: Some((mjcf.clone(), mjcf_joints.clone())),
         bus_names: p.link().bus_names().to_vec(),
+        observation_len: p.recording_info().observation_len,
         ..Default::default()
     };
     let sink = TelemetrySink::start(&path, 64, Backpressure::Block, &info).unwrap();
@@ -203,20 +204,21 @@ fn an_overflowing_ring_counts_every_dropped_record() {
         &controller::telemetry::RecordingInfo {
             joint_names: vec!["j".into()],
             root_frame: "base".into(),
+            observation_len: 512,
             ..Default::default()
         },
     )
     .unwrap();
     let mut r = TickRecord {
         joints: 1,
-        obs_len: 512,
         ..TickRecord::default()
     };
+    let obs = [0.5f32; 512];
     // Pushing far faster than encoding a 512-value observation can keep up with.
     for k in 0..5000 {
         r.tick = k;
         r.time_ns = k * 1000;
-        sink.push(&r);
+        sink.push_with(&r, &obs);
     }
     let report = sink.finish().unwrap();
     assert_eq!(report.pushed, 5000);
@@ -245,6 +247,7 @@ fn ten_minutes_of_records_at_500_hz_lose_nothing_in_lockstep() {
         &controller::telemetry::RecordingInfo {
             joint_names: names.clone(),
             root_frame: "pelvis".into(),
+            observation_len: 127,
             ..Default::default()
         },
     )
@@ -252,15 +255,16 @@ fn ten_minutes_of_records_at_500_hz_lose_nothing_in_lockstep() {
     let ticks: u64 = 10 * 60 * 500;
     let mut r = TickRecord {
         joints: 20,
-        obs_len: 127,
         mode: 3,
         ..TickRecord::default()
     };
+    let mut obs = [0.0f32; 127];
     for k in 0..ticks {
         r.tick = k;
         r.time_ns = k * 2_000_000;
         r.q[k as usize % 20] = k as f64 * 1e-6;
-        sink.push(&r);
+        obs[k as usize % 127] = k as f32;
+        sink.push_with(&r, &obs);
     }
     let report = sink.finish().unwrap();
     assert_eq!((report.pushed, report.written, report.dropped), (ticks, ticks, 0));

@@ -180,7 +180,7 @@ fn anchor_terms_and_the_command_match_numpy_and_onnx_runtime_on_a_recorded_run()
                     at("motion_anchor_pos_b"),
                     at("motion_command"),
                     20,
-                    (PlayOptions::default().ramp_s * 50.0).round() as i64,
+                    (layout.hold_s() * 50.0).round() as i64,
                 ]
                 .map(|v| v.to_string()),
             )

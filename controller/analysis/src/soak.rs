@@ -379,6 +379,7 @@ pub fn soak(spec: &SoakSpec<'_>, progress: &dyn Fn(f64)) -> Result<SoakReport, A
         let info = RecordingInfo {
             joint_names: joints.clone(),
             root_frame: robot.config.root_body.clone(),
+            observation_len: layout.obs_len,
             ..RecordingInfo::default()
         };
         let sink = TelemetrySink::start(&path, 256, Backpressure::Block, &info)

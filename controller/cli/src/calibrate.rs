@@ -299,7 +299,6 @@ impl Rig for RecordedRig<'_> {
             estimate: None,
             truth_in_world: None,
             actions: &[],
-            obs: &[],
             commands: &[],
             truth: &self.truth,
             has_truth: false,

@@ -199,6 +199,128 @@ pub enum Term {
         #[serde(flatten)]
         shaping: Shaping,
     },
+    /// The reference root's linear velocity, m/s, in `frame` (the reference's own: it needs
+    /// nothing of the robot), the components `axes` names, per frame. Velocities follow the
+    /// manifest's `[reference] velocities` rule.
+    RefRootLinVel {
+        /// Frame offsets, in control ticks.
+        #[serde(default = "current_frame")]
+        frames: Vec<usize>,
+        /// The frame the velocity is expressed in.
+        #[serde(default)]
+        frame: RootFrame,
+        /// Which components, in order: a subset of `"xyz"` (e.g. `"xy"`).
+        #[serde(default = "all_axes")]
+        axes: String,
+        /// Scaling.
+        #[serde(flatten)]
+        shaping: Shaping,
+    },
+    /// The reference root's angular velocity, rad/s, in `frame`, the components `axes` names
+    /// (`"z"`: the yaw rate), per frame.
+    RefRootAngVel {
+        /// Frame offsets, in control ticks.
+        #[serde(default = "current_frame")]
+        frames: Vec<usize>,
+        /// The frame the velocity is expressed in.
+        #[serde(default)]
+        frame: RootFrame,
+        /// Which components, in order: a subset of `"xyz"`.
+        #[serde(default = "all_axes")]
+        axes: String,
+        /// Scaling.
+        #[serde(flatten)]
+        shaping: Shaping,
+    },
+    /// The reference root's height: its absolute z in the motion's world, m, per frame.
+    RefRootHeight {
+        /// Frame offsets, in control ticks.
+        #[serde(default = "current_frame")]
+        frames: Vec<usize>,
+        /// Scaling.
+        #[serde(flatten)]
+        shaping: Shaping,
+    },
+    /// Euler angles of the reference root's orientation (Z-Y-X: roll = atan2(2(wx+yz),
+    /// 1−2(x²+y²)), pitch = asin(2(wy−zx)), yaw about +z), rad, the ones `angles` names, per frame.
+    RefRootRpy {
+        /// Frame offsets, in control ticks.
+        #[serde(default = "current_frame")]
+        frames: Vec<usize>,
+        /// Which angles, in order: a subset of `"rpy"` (e.g. `"rp"`: roll and pitch).
+        #[serde(default = "all_angles")]
+        angles: String,
+        /// Scaling.
+        #[serde(flatten)]
+        shaping: Shaping,
+    },
+    /// The reference root's orientation `[w, x, y, z]` (w ≥ 0), in the motion's world or in its
+    /// own heading frame (its yaw taken out: the tilt alone), per frame.
+    RefRootQuat {
+        /// Frame offsets, in control ticks.
+        #[serde(default = "current_frame")]
+        frames: Vec<usize>,
+        /// `world` or `heading` (`own` is the identity and refused).
+        #[serde(default)]
+        frame: RootFrame,
+        /// Scaling.
+        #[serde(flatten)]
+        shaping: Shaping,
+    },
+    /// Euler angles (Z-Y-X, as [`Term::RefRootRpy`]) of the robot base's orientation from the
+    /// IMU, rad, the ones `angles` names (default `"rp"`: roll and pitch).
+    BaseRpy {
+        /// Which angles, in order: a subset of `"rpy"`.
+        #[serde(default = "roll_pitch")]
+        angles: String,
+        /// Scaling.
+        #[serde(flatten)]
+        shaping: Shaping,
+    },
+}
+
+/// The frame a reference root term is expressed in.
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, Eq, serde::Deserialize, schemars::JsonSchema, serde::Serialize,
+)]
+#[serde(rename_all = "snake_case")]
+pub enum RootFrame {
+    /// The reference root's own frame: a world vector turned by the inverse of its orientation.
+    #[default]
+    Own,
+    /// The reference root's heading frame: turned by the inverse of its yaw only.
+    Heading,
+    /// The motion's world frame.
+    World,
+}
+
+fn all_axes() -> String {
+    "xyz".into()
+}
+
+fn all_angles() -> String {
+    "rpy".into()
+}
+
+fn roll_pitch() -> String {
+    "rp".into()
+}
+
+/// The indices a selection such as `"xy"` of `"xyz"` (or `"rp"` of `"rpy"`) names, in order.
+pub fn selection(chosen: &str, of: &str) -> impl Iterator<Item = usize> {
+    chosen
+        .bytes()
+        .filter_map(move |c| of.bytes().position(|o| o == c))
+}
+
+/// Whether `chosen` is a non-empty selection of distinct letters of `of`.
+fn valid_selection(chosen: &str, of: &str) -> bool {
+    !chosen.is_empty()
+        && chosen.bytes().all(|c| of.as_bytes().contains(&c))
+        && chosen
+            .bytes()
+            .enumerate()
+            .all(|(i, c)| !chosen.as_bytes()[..i].contains(&c))
 }
 
 fn one() -> usize {
@@ -362,7 +484,13 @@ impl Term {
             | Self::RefBodyPos { shaping, .. }
             | Self::RefKeypoints { shaping, .. }
             | Self::Keypoints { shaping, .. }
-            | Self::TrackerPoses { shaping, .. } => shaping,
+            | Self::TrackerPoses { shaping, .. }
+            | Self::RefRootLinVel { shaping, .. }
+            | Self::RefRootAngVel { shaping, .. }
+            | Self::RefRootHeight { shaping, .. }
+            | Self::RefRootRpy { shaping, .. }
+            | Self::RefRootQuat { shaping, .. }
+            | Self::BaseRpy { shaping, .. } => shaping,
         }
     }
 
@@ -396,6 +524,12 @@ impl Term {
             Self::MotionAnchorOriB(_) => "motion_anchor_ori_b",
             Self::BaseAngVel(_) => "base_ang_vel",
             Self::TimeStep(_) => "time_step",
+            Self::RefRootLinVel { .. } => "ref_root_lin_vel",
+            Self::RefRootAngVel { .. } => "ref_root_ang_vel",
+            Self::RefRootHeight { .. } => "ref_root_height",
+            Self::RefRootRpy { .. } => "ref_root_rpy",
+            Self::RefRootQuat { .. } => "ref_root_quat",
+            Self::BaseRpy { .. } => "base_rpy",
         }
     }
 
@@ -434,6 +568,13 @@ impl Term {
                     TRACKER_VALUES
                 }
             }
+            Self::RefRootLinVel { frames, axes, .. } | Self::RefRootAngVel { frames, axes, .. } => {
+                axes.len() * frames.len()
+            }
+            Self::RefRootHeight { frames, .. } => frames.len(),
+            Self::RefRootRpy { frames, angles, .. } => angles.len() * frames.len(),
+            Self::RefRootQuat { frames, .. } => 4 * frames.len(),
+            Self::BaseRpy { angles, .. } => angles.len(),
         }
     }
 
@@ -491,6 +632,11 @@ fn check_term(term: &Term) -> Result<(), TermFieldError> {
         | Term::RefRootPose { frames, .. }
         | Term::RefBodyPos { frames, .. }
         | Term::RefKeypoints { frames, .. }
+        | Term::RefRootLinVel { frames, .. }
+        | Term::RefRootAngVel { frames, .. }
+        | Term::RefRootHeight { frames, .. }
+        | Term::RefRootRpy { frames, .. }
+        | Term::RefRootQuat { frames, .. }
             if frames.is_empty() || frames.iter().any(|&f| f > MAX_FRAMES_AHEAD - 1) =>
         {
             Err(TermFieldError::new(
@@ -501,6 +647,27 @@ fn check_term(term: &Term) -> Result<(), TermFieldError> {
                 ),
             ))
         }
+        Term::RefRootLinVel { axes, .. } | Term::RefRootAngVel { axes, .. }
+            if !valid_selection(axes, "xyz") =>
+        {
+            Err(TermFieldError::new(
+                "axes",
+                format!("axes = {axes:?}: one to three distinct letters of \"xyz\""),
+            ))
+        }
+        Term::RefRootRpy { angles, .. } | Term::BaseRpy { angles, .. } if !valid_selection(angles, "rpy") => {
+            Err(TermFieldError::new(
+                "angles",
+                format!("angles = {angles:?}: one to three distinct letters of \"rpy\" (roll, pitch, yaw)"),
+            ))
+        }
+        Term::RefRootQuat {
+            frame: RootFrame::Own,
+            ..
+        } => Err(TermFieldError::new(
+            "frame",
+            "frame = \"own\": the root's orientation in its own frame is the identity; give \"world\" or \"heading\"",
+        )),
         Term::Command { values, .. } if values.iter().any(|v| !v.is_finite()) || values.len() > 64 => Err(
             TermFieldError::new("values", format!("values {values:?}: at most 64 finite numbers")),
         ),
@@ -665,7 +832,135 @@ pub struct PolicyManifest {
     /// keys, gamepad axes.
     #[serde(default)]
     pub commands: Option<CommandSpec>,
+    /// The observation as blocks: the network's input is these blocks, in this order (give
+    /// `observation` or `layout` with `block`, not both).
+    #[serde(default)]
+    pub layout: Vec<String>,
+    /// Named blocks: a list of terms, the blocks `of` names laid end to end, or past copies of
+    /// them (`frames`, `lag`, `order`, `fill`). A block may only name blocks defined above it.
+    #[serde(default)]
+    pub block: Vec<Block>,
+    /// How the reference is played to this policy: its first-frame hold and how its velocities
+    /// are computed.
+    #[serde(default)]
+    pub reference: ReferenceSpec,
 }
+
+/// One named block of the observation.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Block {
+    /// Its name (letters, digits, `_`), unique in the manifest.
+    pub name: String,
+    /// Its terms, in order (a block of terms).
+    #[serde(default)]
+    pub terms: Vec<Term>,
+    /// The blocks it is made of, end to end (a block of blocks); with `frames`, the block whose
+    /// past values it holds.
+    #[serde(default)]
+    pub of: Vec<String>,
+    /// Past copies of `of`: how many ticks (1–64; none: the values of this tick).
+    #[serde(default)]
+    pub frames: Option<usize>,
+    /// How many ticks back the newest copy is (default 1: the previous tick, the current one
+    /// left out; 0: the current tick included). `frames + lag − 1` is at most 64.
+    #[serde(default)]
+    pub lag: Option<usize>,
+    /// The copies' order (default `oldest_first`).
+    #[serde(default)]
+    pub order: Option<HistoryOrder>,
+    /// What a copy holds for a tick before the policy's first (default `zeros`).
+    #[serde(default)]
+    pub fill: Option<HistoryFill>,
+}
+
+impl Block {
+    /// How many ticks back the newest copy is.
+    pub fn lag(&self) -> usize {
+        self.lag.unwrap_or(1)
+    }
+
+    /// The copies' order.
+    pub fn order(&self) -> HistoryOrder {
+        self.order.unwrap_or(HistoryOrder::OldestFirst)
+    }
+
+    /// What a copy holds before the first tick.
+    pub fn fill(&self) -> HistoryFill {
+        self.fill.unwrap_or_default()
+    }
+}
+
+/// What a block's history holds for ticks before the policy's first.
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, Eq, serde::Deserialize, schemars::JsonSchema, serde::Serialize,
+)]
+#[serde(rename_all = "snake_case")]
+pub enum HistoryFill {
+    /// Zeros (Isaac Lab's and TWIST2's history buffers at an episode's start).
+    #[default]
+    Zeros,
+    /// The first tick's values.
+    First,
+}
+
+/// Deepest history a block may hold, ticks.
+pub const MAX_BLOCK_HISTORY: usize = 64;
+
+/// How the reference is played to a policy.
+#[derive(Debug, Clone, Default, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReferenceSpec {
+    /// Seconds the reference holds its first frame after the policy takes control (0–60;
+    /// default: 1.5 s for a policy that observes the start-up ramp ψ, which asks for it; 0 for
+    /// every other: the motion moves from the first tick, as trainers play it). `play --ramp`
+    /// overrides it.
+    #[serde(default)]
+    pub hold_s: Option<f64>,
+    /// How the reference's velocities (joints, root) are computed.
+    #[serde(default)]
+    pub velocities: VelocityRule,
+    /// What `check` does with a clip the robot could not follow exactly (the floor penetrated,
+    /// feet that cannot carry the motion, torques beyond the motors).
+    #[serde(default)]
+    pub feasibility: Feasibility,
+}
+
+/// What a clip's physical findings mean for a policy.
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, Eq, serde::Deserialize, schemars::JsonSchema, serde::Serialize,
+)]
+#[serde(rename_all = "snake_case")]
+pub enum Feasibility {
+    /// Refused: the policy plays its reference as given (a reference follower, an export's own
+    /// motion).
+    #[default]
+    Refuse,
+    /// Reported, not refused: a tracker trained on retargeted human motion, whose references
+    /// all penetrate the floor, slide and ask for more than the motors have, follows them as well
+    /// as the robot can and is judged by how it tracks. Joint and speed limits still refuse.
+    Report,
+}
+
+/// How a reference's velocities are computed; trainers differ.
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, Eq, serde::Deserialize, schemars::JsonSchema, serde::Serialize,
+)]
+#[serde(rename_all = "snake_case")]
+pub enum VelocityRule {
+    /// Central differences over the reference resampled at the control rate (one-sided at the
+    /// ends); the root's rotation on SO(3).
+    #[default]
+    ControlTicks,
+    /// Central differences over the motion file's own frames (`numpy.gradient`: one-sided at the
+    /// ends; the root's rotation on SO(3): the rotation vector of `q[i+1]·q[i−1]⁻¹` over 2·dt),
+    /// blended linearly between frames like the positions (TWIST2's motion library).
+    MotionFrames,
+}
+
+/// The first-frame hold a policy asks for when neither it nor the operator gives one: ψ-observing
+/// policies were trained with the reference held while ψ rises.
+pub const RAMP_HOLD_S: f64 = 1.5;
 
 impl PolicyManifest {
     /// A manifest that leaves everything to the metadata of `onnx`.
@@ -684,6 +979,9 @@ impl PolicyManifest {
             anchor_body: None,
             motion_bodies: Vec::new(),
             commands: None,
+            layout: Vec::new(),
+            block: Vec::new(),
+            reference: ReferenceSpec::default(),
         }
     }
 }
@@ -703,19 +1001,291 @@ pub struct PolicyError {
 /// Fills what the manifest leaves out from the ONNX file's metadata (see [`export`]); the file
 /// is opened only when something is left out.
 fn fill_from_metadata(m: &mut PolicyManifest, onnx: &Path) -> Result<(), (String, String)> {
-    let needs_anchor = m.observation.iter().any(Term::needs_anchor) && m.anchor_body.is_none();
+    let needs_anchor = m
+        .observation
+        .iter()
+        .chain(m.block.iter().flat_map(|b| &b.terms))
+        .any(Term::needs_anchor)
+        && m.anchor_body.is_none();
     let needs = m.joints.is_empty()
         || m.action.scale.is_none()
         || m.default_pose.is_none()
         || m.stiffness.is_none()
         || m.damping.is_none()
-        || m.observation.is_empty()
+        || (m.observation.is_empty() && m.block.is_empty())
         || needs_anchor;
     if !needs {
         return Ok(());
     }
     let facts = crate::onnx::read_facts(onnx).map_err(|e| ("onnx".to_owned(), e.to_string()))?;
     crate::export::fill(m, &facts)
+}
+
+/// The terms a manifest defines, each once, with where: its `observation` list, or the lists of
+/// its blocks of terms (whose names and kinds are checked here).
+fn term_definitions(m: &mut PolicyManifest) -> Result<Vec<TermDef>, (String, String)> {
+    let e = |place: String, message: String| Err((place, message));
+    if m.block.is_empty() {
+        if !m.layout.is_empty() {
+            return e(
+                "layout".into(),
+                "names blocks, but the manifest defines no [[block]]".into(),
+            );
+        }
+        return Ok(m
+            .observation
+            .iter()
+            .enumerate()
+            .map(|(i, t)| TermDef {
+                place: format!("observation[{i}] ({})", t.name()),
+                term: t.clone(),
+            })
+            .collect());
+    }
+    if !m.observation.is_empty() {
+        return e(
+            "observation".into(),
+            "give the observation as a list of terms ([[observation]]) or as blocks (layout and \
+             [[block]]), not both"
+                .into(),
+        );
+    }
+    if m.layout.is_empty() {
+        return e(
+            "layout".into(),
+            "missing: name the blocks the network's input is made of, in order (layout = [\"current\", …])"
+                .into(),
+        );
+    }
+    let mut defs = Vec::new();
+    for (bi, b) in m.block.iter().enumerate() {
+        let place = |field: &str| format!("block[{bi}] ({}).{field}", b.name);
+        let good_name = !b.name.is_empty()
+            && b.name.len() <= 64
+            && b.name.bytes().all(|c| c.is_ascii_alphanumeric() || c == b'_');
+        if !good_name {
+            return e(
+                format!("block[{bi}].name"),
+                format!("{:?}: 1–64 letters, digits or _", b.name),
+            );
+        }
+        if let Some(j) = m.block[..bi].iter().position(|o| o.name == b.name) {
+            return e(place("name"), format!("block[{j}] has the same name"));
+        }
+        match (b.terms.is_empty(), b.of.is_empty()) {
+            (false, false) => {
+                return e(
+                    place("of"),
+                    "a block holds terms or other blocks (`of`), not both".into(),
+                );
+            }
+            (true, true) => {
+                return e(
+                    place("terms"),
+                    "the block holds no terms and no blocks (`of`)".into(),
+                );
+            }
+            _ => {}
+        }
+        if b.frames.is_none() && (b.lag.is_some() || b.order.is_some() || b.fill.is_some()) {
+            return e(
+                place("frames"),
+                "lag, order and fill describe a history: give `frames` (how many past copies)".into(),
+            );
+        }
+        if let Some(f) = b.frames {
+            if b.of.is_empty() {
+                return e(place("of"), "a history needs the block it copies (`of`)".into());
+            }
+            if !(1..=MAX_BLOCK_HISTORY).contains(&f) {
+                return e(
+                    place("frames"),
+                    format!("{f} is outside [1, {MAX_BLOCK_HISTORY}]"),
+                );
+            }
+            if b.lag() + f - 1 > MAX_BLOCK_HISTORY {
+                return e(
+                    place("lag"),
+                    format!(
+                        "lag {} with {f} frames reaches {} ticks back, beyond the {MAX_BLOCK_HISTORY} a history holds",
+                        b.lag(),
+                        b.lag() + f - 1
+                    ),
+                );
+            }
+        }
+        for (k, name) in b.of.iter().enumerate() {
+            if !m.block[..bi].iter().any(|o| &o.name == name) {
+                let known: Vec<&str> = m.block[..bi].iter().map(|o| o.name.as_str()).collect();
+                return e(
+                    format!("block[{bi}] ({}).of[{k}]", b.name),
+                    format!(
+                        "no block {name:?} above this one (a block names blocks defined before it: {})",
+                        if known.is_empty() {
+                            "none".into()
+                        } else {
+                            known.join(", ")
+                        }
+                    ),
+                );
+            }
+        }
+        for (ti, t) in b.terms.iter().enumerate() {
+            defs.push(TermDef {
+                place: format!("block[{bi}] ({}).terms[{ti}] ({})", b.name, t.name()),
+                term: t.clone(),
+            });
+        }
+    }
+    for (i, name) in m.layout.iter().enumerate() {
+        if !m.block.iter().any(|b| &b.name == name) {
+            let known: Vec<&str> = m.block.iter().map(|b| b.name.as_str()).collect();
+            return e(
+                format!("layout[{i}]"),
+                format!("no block {name:?} (blocks: {})", known.join(", ")),
+            );
+        }
+    }
+    Ok(defs)
+}
+
+/// The slots, the blocks and the observation's length.
+type LaidOut = (Vec<TermSlot>, Vec<BlockSpan>, usize);
+
+/// Longest observation a layout may build, values.
+pub const MAX_OBSERVATION: usize = 65_536;
+
+/// The observation's slots and blocks, in order: the terms of the `observation` list, or the
+/// layout's blocks unfolded (a block of blocks end to end, a history's copies each delayed).
+fn lay_out(m: &PolicyManifest, defs: &[TermDef], widths: &[usize]) -> Result<LaidOut, (String, String)> {
+    let mut out = Unfold {
+        m,
+        defs,
+        widths,
+        first_def: Vec::new(),
+        slots: Vec::new(),
+        blocks: Vec::new(),
+        at: 0,
+    };
+    if m.block.is_empty() {
+        for source in 0..defs.len() {
+            out.push_slot(source, 0, HistoryFill::Zeros)?;
+        }
+        out.blocks.push(BlockSpan {
+            name: "observation".into(),
+            range: 0..out.at,
+            depth: 0,
+        });
+    } else {
+        let mut first = 0;
+        for b in &m.block {
+            out.first_def.push(first);
+            first += b.terms.len();
+        }
+        for name in &m.layout {
+            let b = m.block.iter().position(|b| &b.name == name).unwrap_or(0);
+            out.unfold(b, 0, HistoryFill::Zeros, 0, name.clone())?;
+        }
+    }
+    Ok((out.slots, out.blocks, out.at))
+}
+
+/// The state of [`lay_out`].
+struct Unfold<'a> {
+    m: &'a PolicyManifest,
+    defs: &'a [TermDef],
+    widths: &'a [usize],
+    /// Each block's first term definition.
+    first_def: Vec<usize>,
+    slots: Vec<TermSlot>,
+    blocks: Vec<BlockSpan>,
+    at: usize,
+}
+
+impl Unfold<'_> {
+    fn push_slot(&mut self, source: usize, delay: usize, fill: HistoryFill) -> Result<(), (String, String)> {
+        let term = &self.defs[source].term;
+        let width = self.widths[source];
+        let len = width * term.shaping().history;
+        if self.at + len > MAX_OBSERVATION {
+            return Err((
+                "layout".into(),
+                format!("the observation grows beyond {MAX_OBSERVATION} values"),
+            ));
+        }
+        self.slots.push(TermSlot {
+            term: term.clone(),
+            range: self.at..self.at + len,
+            width,
+            source,
+            delay,
+            fill,
+        });
+        self.at += len;
+        Ok(())
+    }
+
+    /// Lays block `b` out `delay` ticks old, under the name `name` at nesting `depth`.
+    fn unfold(
+        &mut self,
+        b: usize,
+        delay: usize,
+        fill: HistoryFill,
+        depth: usize,
+        name: String,
+    ) -> Result<(), (String, String)> {
+        let block = &self.m.block[b];
+        let span = self.blocks.len();
+        self.blocks.push(BlockSpan {
+            name,
+            range: self.at..self.at,
+            depth,
+        });
+        let children = |s: &Self, of: &str| s.m.block[..b].iter().position(|o| o.name == of).unwrap_or(0);
+        match block.frames {
+            None if block.of.is_empty() => {
+                for k in 0..block.terms.len() {
+                    self.push_slot(self.first_def[b] + k, delay, fill)?;
+                }
+            }
+            None => {
+                for of in &block.of {
+                    let c = children(self, of);
+                    self.unfold(c, delay, fill, depth + 1, of.clone())?;
+                }
+            }
+            Some(frames) => {
+                for j in 0..frames {
+                    let back = match block.order() {
+                        HistoryOrder::OldestFirst => block.lag() + frames - 1 - j,
+                        HistoryOrder::NewestFirst => block.lag() + j,
+                    };
+                    if delay + back > MAX_BLOCK_HISTORY {
+                        return Err((
+                            format!("block[{b}] ({}).frames", block.name),
+                            format!(
+                                "nested histories reach {} ticks back; at most {MAX_BLOCK_HISTORY}",
+                                delay + back
+                            ),
+                        ));
+                    }
+                    let copy = self.blocks.len();
+                    self.blocks.push(BlockSpan {
+                        name: format!("{}[t-{}]", block.name, delay + back),
+                        range: self.at..self.at,
+                        depth: depth + 1,
+                    });
+                    for of in &block.of {
+                        let c = children(self, of);
+                        self.unfold(c, delay + back, block.fill(), depth + 2, of.clone())?;
+                    }
+                    self.blocks[copy].range.end = self.at;
+                }
+            }
+        }
+        self.blocks[span].range.end = self.at;
+        Ok(())
+    }
 }
 
 /// The anchor and the motion's bodies must be bodies of the robot's compiled model.
@@ -757,6 +1327,34 @@ pub struct TermSlot {
     pub range: Range<usize>,
     /// Values per history step.
     pub width: usize,
+    /// Which term definition fills it ([`PolicyLayout::terms`]): each is computed once a tick,
+    /// however many slots show it.
+    pub source: usize,
+    /// How many ticks old its values are (0: this tick's).
+    pub delay: usize,
+    /// What it holds for ticks before the policy's first (delayed slots).
+    pub fill: HistoryFill,
+}
+
+/// A term as the manifest defines it, and where.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TermDef {
+    /// The term.
+    pub term: Term,
+    /// Where the manifest defines it (`observation[3] (joint_pos)`, `block[1] (proprio).terms[2]
+    /// (joint_vel)`).
+    pub place: String,
+}
+
+/// A block of the observation and the values it spans.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BlockSpan {
+    /// The block's name, with the copy's tick for a history's copies (`history[t-3]`).
+    pub name: String,
+    /// Its index range in the observation.
+    pub range: Range<usize>,
+    /// Nesting depth (0: a block of the layout).
+    pub depth: usize,
 }
 
 /// A manifest resolved against a robot.
@@ -770,8 +1368,13 @@ pub struct PolicyLayout {
     pub onnx_path: PathBuf,
     /// For each policy joint, the robot joint index.
     pub robot_index: Vec<usize>,
-    /// Terms with their ranges, in order.
+    /// Terms with their ranges, in the observation's order (a term shown in several blocks, or
+    /// as past copies, has a slot for each place).
     pub slots: Vec<TermSlot>,
+    /// The term definitions the slots show, each computed once a tick.
+    pub terms: Vec<TermDef>,
+    /// The blocks, outermost first (one `observation` block for a manifest of plain terms).
+    pub blocks: Vec<BlockSpan>,
     /// Observation length.
     pub obs_len: usize,
     /// The pose actions and relative terms refer to, robot order.
@@ -953,11 +1556,14 @@ impl PolicyLayout {
         if let Some(spec) = &manifest.commands {
             spec.check().map_err(|(place, m)| err(&place, m))?;
         }
-        for (i, term) in manifest.observation.iter_mut().enumerate() {
+        let n = names.len();
+        let feet = robot.config.feet.len();
+        let mut defs = term_definitions(&mut manifest).map_err(|(place, m)| err(&place, m))?;
+        for TermDef { term, place } in &mut defs {
             let Term::Command { values, .. } = term else {
                 continue;
             };
-            let place = format!("observation[{i}] (command).values");
+            let place = format!("{place}.values");
             match &manifest.commands {
                 Some(spec) if values.is_empty() => *values = spec.defaults(),
                 Some(spec) => spec
@@ -973,10 +1579,9 @@ impl PolicyLayout {
             }
         }
         if manifest.commands.is_some()
-            && manifest
-                .observation
+            && defs
                 .iter()
-                .filter(|t| matches!(t, Term::Command { .. }))
+                .filter(|d| matches!(d.term, Term::Command { .. }))
                 .count()
                 != 1
         {
@@ -985,19 +1590,22 @@ impl PolicyLayout {
                 "live commands need exactly one `command` term in the observation".into(),
             ));
         }
-        let n = names.len();
-        let feet = robot.config.feet.len();
-        let mut slots = Vec::with_capacity(manifest.observation.len());
-        let mut at = 0;
-        for (i, term) in manifest.observation.iter().enumerate() {
+        let mut widths = Vec::with_capacity(defs.len());
+        for (i, TermDef { term, place }) in defs.iter().enumerate() {
             let s = term.shaping();
-            let place = format!("observation[{i}] ({})", term.name());
-            check_term(term).map_err(|e| err(&place, e.to_string()))?;
-            if let Some(j) = manifest.observation[..i].iter().position(|t| t == term) {
+            check_term(term).map_err(|e| err(place, e.to_string()))?;
+            // The same term twice in one list is a paste error; the same term in two blocks is
+            // what blocks are for.
+            let list = |p: &str| p.rsplit_once('[').map_or(String::new(), |(l, _)| l.to_owned());
+            if let Some(j) = defs[..i]
+                .iter()
+                .position(|d| &d.term == term && list(&d.place) == list(place))
+            {
                 return Err(err(
-                    &place,
+                    place,
                     format!(
-                        "the same term as observation[{j}]: a term is observed once (a copy pasted twice?)"
+                        "the same term as {}: a term is observed once in a list (a copy pasted twice?)",
+                        defs[j].place
                     ),
                 ));
             }
@@ -1006,67 +1614,81 @@ impl PolicyLayout {
                 standing_below,
                 ..
             } = term
-                && let Some(first) = manifest.observation.iter().find_map(|t| match t {
+                && let Some(first) = defs.iter().find_map(|d| match d.term {
                     Term::GaitPhase {
                         period_s,
                         standing_below,
                         ..
-                    } => Some((*period_s, *standing_below)),
+                    } => Some((period_s, standing_below)),
                     _ => None,
                 })
                 && first != (*period_s, *standing_below)
             {
                 return Err(err(
-                    &place,
+                    place,
                     "every gait_phase term reads the same gait: give them one period_s and standing_below"
                         .into(),
                 ));
             }
             if s.history == 0 || s.history > 64 || !(s.scale.is_finite() && s.offset.is_finite()) {
                 return Err(err(
-                    &place,
+                    place,
                     format!(
                         "history {} / scale {} / offset {} not allowed",
                         s.history, s.scale, s.offset
                     ),
                 ));
             }
+            if !manifest.block.is_empty() && s.input.is_some() {
+                return Err(err(
+                    place,
+                    "input: a layout of blocks fills the model's one observation input".into(),
+                ));
+            }
             let width = term.width(n, feet);
             if width == 0 {
-                return Err(err(&place, "the term has no values".into()));
+                return Err(err(place, "the term has no values".into()));
             }
-            slots.push(TermSlot {
-                term: term.clone(),
-                range: at..at + width * s.history,
-                width,
-            });
-            at += width * s.history;
-        }
-        if let Some((i, s)) = slots.iter().enumerate().find(|(_, s)| s.term.needs_anchor())
-            && manifest.anchor_body.is_none()
-        {
-            return Err(err(
-                &format!("observation[{i}] ({})", s.term.name()),
-                "needs the motion's anchor body: give anchor_body (exports: anchor_body_name)".into(),
-            ));
-        }
-        for (i, s) in slots.iter().enumerate() {
-            let sh = s.term.shaping();
-            for (field, values) in [("scales", &sh.scales), ("offsets", &sh.offsets)] {
+            for (field, values) in [("scales", &s.scales), ("offsets", &s.offsets)] {
                 if let Some(v) = values
-                    && (v.len() != s.width || v.iter().any(|x| !x.is_finite() || x.abs() > 1e6))
+                    && (v.len() != width || v.iter().any(|x| !x.is_finite() || x.abs() > 1e6))
                 {
                     return Err(err(
-                        &format!("observation[{i}] ({})", s.term.name()),
+                        place,
                         format!(
-                            "{field}: {} finite values within ±1e6 needed, one per value, got {}",
-                            s.width,
+                            "{field}: {width} finite values within ±1e6 needed, one per value, got {}",
                             v.len()
                         ),
                     ));
                 }
             }
+            if let Term::RefBodyPos { bodies, .. } = term
+                && let Some(b) = bodies.iter().find(|b| !robot.mjcf.bodies.contains(b))
+            {
+                return Err(err(
+                    place,
+                    format!("{b:?} is not a body of {}", robot.mjcf_path.display()),
+                ));
+            }
+            widths.push(width);
         }
+        if let Some(d) = defs.iter().find(|d| d.term.needs_anchor())
+            && manifest.anchor_body.is_none()
+        {
+            return Err(err(
+                &d.place,
+                "needs the motion's anchor body: give anchor_body (exports: anchor_body_name)".into(),
+            ));
+        }
+        if let Some(h) = manifest.reference.hold_s
+            && !(h.is_finite() && (0.0..=60.0).contains(&h))
+        {
+            return Err(err(
+                "reference.hold_s",
+                format!("{} is outside [0, 60] s", robots::num(h)),
+            ));
+        }
+        let (slots, blocks, at) = lay_out(&manifest, &defs, &widths).map_err(|(place, m)| err(&place, m))?;
         if manifest.anchor_body.is_some() || !manifest.motion_bodies.is_empty() {
             check_bodies(robot, &manifest).map_err(|(place, m)| err(&place, m))?;
         }
@@ -1131,6 +1753,8 @@ impl PolicyLayout {
             onnx_path,
             robot_index,
             slots,
+            terms: defs,
+            blocks,
             obs_len: at,
             default_q,
             kp,
@@ -1147,13 +1771,8 @@ impl PolicyLayout {
             place: "command".into(),
             message,
         };
-        let slot = self
-            .slots
-            .iter_mut()
-            .find(|s| matches!(s.term, Term::Command { .. }))
-            .ok_or_else(|| err("the policy has no `command` term to set".into()))?;
-        let Term::Command { values: current, .. } = &mut slot.term else {
-            unreachable!("matched above")
+        let Some(current) = self.command_values() else {
+            return Err(err("the policy has no `command` term to set".into()));
         };
         if current.len() != values.len() || values.iter().any(|v| !v.is_finite()) {
             return Err(err(format!(
@@ -1168,7 +1787,13 @@ impl PolicyLayout {
                 message: e.to_string(),
             })?;
         }
-        current.copy_from_slice(values);
+        // Every place the term shows (its definition, and each block or copy that shows it).
+        let terms = self.slots.iter_mut().map(|s| &mut s.term);
+        for term in terms.chain(self.terms.iter_mut().map(|d| &mut d.term)) {
+            if let Term::Command { values: current, .. } = term {
+                current.copy_from_slice(values);
+            }
+        }
         Ok(())
     }
 
@@ -1196,7 +1821,25 @@ impl PolicyLayout {
                     | Term::MotionAnchorOriB(_)
                     | Term::TimeStep(_)
                     | Term::TrackerPoses { .. }
+                    | Term::RefRootLinVel { .. }
+                    | Term::RefRootAngVel { .. }
+                    | Term::RefRootHeight { .. }
+                    | Term::RefRootRpy { .. }
+                    | Term::RefRootQuat { .. }
             )
+        })
+    }
+
+    /// Seconds the reference holds its first frame after the policy takes control: the
+    /// manifest's `[reference] hold_s`, else [`RAMP_HOLD_S`] for a policy that observes the
+    /// start-up ramp ψ (trained with the reference held while ψ rises) and 0 for any other.
+    pub fn hold_s(&self) -> f64 {
+        self.manifest.reference.hold_s.unwrap_or_else(|| {
+            if self.terms.iter().any(|d| matches!(d.term, Term::Ramp(_))) {
+                RAMP_HOLD_S
+            } else {
+                0.0
+            }
         })
     }
 
@@ -1287,7 +1930,53 @@ impl PolicyLayout {
     /// The resolved layout, one line per term.
     pub fn describe(&self) -> String {
         let mut out = String::new();
+        let blocks = !self.manifest.block.is_empty();
+        let mut next_block = 0;
+        let mut top = 0..0;
+        let mut shown: Vec<usize> = Vec::new();
+        let mut depth = 0;
+        // A history's copies after its first are one line each: what they hold is listed once.
+        let (mut copies, mut folded) = (0, 0..0);
         for s in &self.slots {
+            if blocks {
+                // The blocks that start here, outermost first; a term a layout block already
+                // showed (a history's older copies) is not listed again.
+                while let Some(b) = self
+                    .blocks
+                    .get(next_block)
+                    .filter(|b| b.range.start <= s.range.start)
+                {
+                    next_block += 1;
+                    if b.depth == 0 {
+                        top = b.range.clone();
+                        shown.clear();
+                        copies = 0;
+                    }
+                    if folded.contains(&b.range.start) {
+                        continue;
+                    }
+                    out.push_str(&format!(
+                        "  {:indent$}block {} [{}..{}) {} values\n",
+                        "",
+                        b.name,
+                        b.range.start,
+                        b.range.end,
+                        b.range.len(),
+                        indent = 2 * b.depth
+                    ));
+                    depth = b.depth + 1;
+                    if b.name.contains("[t-") {
+                        copies += 1;
+                        if copies > 1 {
+                            folded = b.range.clone();
+                        }
+                    }
+                }
+                if top.contains(&s.range.start) && shown.contains(&s.source) {
+                    continue;
+                }
+                shown.push(s.source);
+            }
             let sh = s.term.shaping();
             let scale = match &sh.scales {
                 Some(v) => format!("scales {v:?}"),
@@ -1354,13 +2043,44 @@ impl PolicyLayout {
             if let Some(i) = &sh.input {
                 extra.push_str(&format!("  → input {i:?}"));
             }
+            if s.delay > 0 {
+                let fill = match s.fill {
+                    HistoryFill::Zeros => "zeros",
+                    HistoryFill::First => "the first tick's values",
+                };
+                extra.push_str(&format!("  {} ticks old ({fill} before)", s.delay));
+            }
+            extra.push_str(&match &s.term {
+                Term::RefRootLinVel {
+                    frames, frame, axes, ..
+                }
+                | Term::RefRootAngVel {
+                    frames, frame, axes, ..
+                } => {
+                    let frame = match frame {
+                        RootFrame::Own => "own",
+                        RootFrame::Heading => "heading",
+                        RootFrame::World => "world",
+                    };
+                    format!("  {axes} in the reference root's {frame} frame, frames {frames:?}")
+                }
+                Term::RefRootRpy { frames, angles, .. } => format!("  {angles}, frames {frames:?}"),
+                Term::RefRootHeight { frames, .. }
+                | Term::RefRootQuat { frames, .. }
+                | Term::RefJointPos { frames, .. }
+                | Term::RefJointVel { frames, .. } => format!("  frames {frames:?}"),
+                Term::BaseRpy { angles, .. } => format!("  {angles} of the IMU's orientation"),
+                _ => String::new(),
+            });
             out.push_str(&format!(
-                "  [{:>4}..{:<4}) {:<18} {:>3} × {} history  {scale} {offset}{extra}\n",
+                "  {:indent$}[{:>4}..{:<4}) {:<18} {:>3} × {} history  {scale} {offset}{extra}\n",
+                "",
                 s.range.start,
                 s.range.end,
                 s.term.name(),
                 s.width,
                 sh.history,
+                indent = 2 * depth,
             ));
         }
         out

@@ -368,7 +368,7 @@ pub fn fill(m: &mut PolicyManifest, facts: &ModelFacts) -> Result<(), Problem> {
             None => "exported policy".to_owned(),
         };
     }
-    if m.observation.is_empty() {
+    if m.observation.is_empty() && m.block.is_empty() {
         m.observation = observation(&meta, has_time_step)?;
     }
     if m.anchor_body.is_none() {

@@ -286,7 +286,7 @@ pub fn fill(m: &mut PolicyManifest, meta: &Metadata<'_>, has_time_step: bool) ->
             .collect::<Result<Vec<_>, _>>()?;
         m.default_pose = Some(pose);
     }
-    if m.observation.is_empty() {
+    if m.observation.is_empty() && m.block.is_empty() {
         let config = config.as_ref().ok_or_else(|| missing_config("observation"))?;
         if !has_time_step {
             return Err((

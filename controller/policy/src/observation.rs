@@ -6,7 +6,9 @@
 use crate::TRACKER_VALUES;
 use robots::spatial;
 
-use crate::contract::{HistoryOrder, PolicyLayout, Term, TermSlot, Trig};
+use std::ops::Range;
+
+use crate::contract::{HistoryFill, HistoryOrder, PolicyLayout, RootFrame, Term, TermSlot, Trig, selection};
 
 /// What the observation is built from at one tick, in policy joint order.
 #[derive(Debug, Clone, Copy)]
@@ -82,66 +84,138 @@ pub trait ReferenceView: std::fmt::Debug {
     /// The 2D keypoint references `offset` ticks ahead, as the `ref_keypoints` term lays them
     /// out (views × keypoints × `(u, v, confidence)`, image coordinates in [−1, 1]).
     fn keypoints(&self, offset: usize) -> &[f64];
+    /// The root's linear velocity `offset` ticks ahead, world frame, m/s.
+    fn root_lin_vel(&self, offset: usize) -> [f64; 3];
+    /// The root's angular velocity `offset` ticks ahead, world frame, rad/s.
+    fn root_ang_vel(&self, offset: usize) -> [f64; 3];
 }
 
-/// Fills observations for one layout; histories live in buffers made once.
+/// Fills observations for one layout; histories live in buffers made once. Each term definition
+/// is computed once a tick into its place in `live` (with its own stacked history); every slot
+/// that shows it — in several blocks, or as a past copy — is copied from there or from the
+/// definition's ring of past ticks.
 #[derive(Debug)]
 pub struct ObservationBuilder {
+    terms: Vec<Term>,
+    /// Each definition's range in `live`.
+    live_ranges: Vec<Range<usize>>,
+    live: Vec<f32>,
+    /// The first tick's `live`, for copies filled with it.
+    first: Vec<f32>,
+    /// Past ticks of each definition that delayed slots read: `depth[i]` copies of its values,
+    /// tick `t` at `t % depth[i]`, from `ring_start[i]`.
+    ring: Vec<f32>,
+    ring_start: Vec<usize>,
+    depth: Vec<usize>,
     slots: Vec<TermSlot>,
     scratch: Vec<f64>,
-    filled: bool,
+    /// Observations built so far.
+    ticks: usize,
 }
 
 impl ObservationBuilder {
     /// A builder for `layout`.
     pub fn new(layout: &PolicyLayout) -> Self {
+        let terms: Vec<Term> = layout.terms.iter().map(|d| d.term.clone()).collect();
+        let mut widths = vec![0; terms.len()];
+        let mut depth = vec![0; terms.len()];
+        for s in &layout.slots {
+            widths[s.source] = s.range.len();
+            if s.delay > 0 {
+                depth[s.source] = depth[s.source].max(s.delay + 1);
+            }
+        }
+        let mut live_ranges = Vec::with_capacity(terms.len());
+        let mut ring_start = Vec::with_capacity(terms.len());
+        let (mut at, mut ring_at) = (0, 0);
+        for (w, d) in widths.iter().zip(&depth) {
+            live_ranges.push(at..at + w);
+            ring_start.push(ring_at);
+            at += w;
+            ring_at += w * d;
+        }
         let widest = layout.slots.iter().map(|s| s.width).max().unwrap_or(0);
         Self {
+            terms,
+            live_ranges,
+            live: vec![0.0; at],
+            first: vec![0.0; at],
+            ring: vec![0.0; ring_at],
+            ring_start,
+            depth,
             slots: layout.slots.clone(),
             scratch: vec![0.0; widest],
-            filled: false,
+            ticks: 0,
         }
     }
 
     /// Writes the observation for `inputs` into `obs` (the layout's length).
     pub fn build(&mut self, inputs: &ObsInputs<'_>, obs: &mut [f32]) {
-        for slot in &self.slots {
-            let w = slot.width;
-            let sh = slot.term.shaping();
-            let r = slot.range.clone();
-            // Age the history: move older copies one step away from the current value's place.
+        let filled = self.ticks > 0;
+        for (term, r) in self.terms.iter().zip(&self.live_ranges) {
+            let live = &mut self.live[r.clone()];
+            let sh = term.shaping();
+            let w = live.len() / sh.history;
+            // Age the term's own history: move older copies one step away from the current
+            // value's place.
             let current = match sh.history_order {
                 HistoryOrder::NewestFirst => {
                     if sh.history > 1 {
-                        obs.copy_within(r.start..r.end - w, r.start + w);
+                        live.copy_within(..live.len() - w, w);
                     }
-                    r.start
+                    0
                 }
                 HistoryOrder::OldestFirst => {
                     if sh.history > 1 {
-                        obs.copy_within(r.start + w..r.end, r.start);
+                        live.copy_within(w.., 0);
                     }
-                    r.end - w
+                    live.len() - w
                 }
             };
             let v = &mut self.scratch[..w];
-            fill_term(&slot.term, inputs, v);
-            for (i, (o, &x)) in obs[current..current + w].iter_mut().zip(v.iter()).enumerate() {
+            fill_term(term, inputs, v);
+            for (i, (o, &x)) in live[current..current + w].iter_mut().zip(v.iter()).enumerate() {
                 let scale = sh.scales.as_ref().map_or(sh.scale, |s| s[i]);
                 let offset = sh.offsets.as_ref().map_or(sh.offset, |o| o[i]);
                 let y = (x - offset) * scale;
                 *o = sh.clip.map_or(y, |c| y.clamp(-c, c)) as f32;
             }
-            if !self.filled && sh.history > 1 {
-                // First tick: the history starts full of the current value.
+            if !filled && sh.history > 1 {
+                // First tick: the term's history starts full of the current value.
                 for k in 0..sh.history {
-                    if r.start + k * w != current {
-                        obs.copy_within(current..current + w, r.start + k * w);
+                    if k * w != current {
+                        live.copy_within(current..current + w, k * w);
                     }
                 }
             }
         }
-        self.filled = true;
+        if !filled {
+            self.first.copy_from_slice(&self.live);
+        }
+        for (i, r) in self.live_ranges.iter().enumerate() {
+            let d = self.depth[i];
+            if d > 0 {
+                let at = self.ring_start[i] + (self.ticks % d) * r.len();
+                self.ring[at..at + r.len()].copy_from_slice(&self.live[r.clone()]);
+            }
+        }
+        for s in &self.slots {
+            let r = self.live_ranges[s.source].clone();
+            let out = &mut obs[s.range.clone()];
+            if s.delay == 0 {
+                out.copy_from_slice(&self.live[r]);
+            } else if self.ticks >= s.delay {
+                let d = self.depth[s.source];
+                let at = self.ring_start[s.source] + ((self.ticks - s.delay) % d) * r.len();
+                out.copy_from_slice(&self.ring[at..at + r.len()]);
+            } else {
+                match s.fill {
+                    HistoryFill::Zeros => out.fill(0.0),
+                    HistoryFill::First => out.copy_from_slice(&self.first[r]),
+                }
+            }
+        }
+        self.ticks += 1;
     }
 }
 
@@ -247,6 +321,69 @@ fn fill_term(term: &Term, x: &ObsInputs<'_>, v: &mut [f64]) {
             }
         }
         Term::Keypoints { .. } => v.copy_from_slice(&x.robot_keypoints[..v.len()]),
+        Term::RefRootLinVel {
+            frames, frame, axes, ..
+        }
+        | Term::RefRootAngVel {
+            frames, frame, axes, ..
+        } => {
+            let w = axes.len();
+            for (f, &offset) in frames.iter().enumerate() {
+                let world = match term {
+                    Term::RefRootLinVel { .. } => x.reference.root_lin_vel(offset),
+                    _ => x.reference.root_ang_vel(offset),
+                };
+                let p = x.reference.root_pose(offset);
+                let e = in_root_frame(*frame, [p[3], p[4], p[5], p[6]], world);
+                for (o, a) in v[f * w..(f + 1) * w].iter_mut().zip(selection(axes, "xyz")) {
+                    *o = e[a];
+                }
+            }
+        }
+        Term::RefRootHeight { frames, .. } => {
+            for (o, &offset) in v.iter_mut().zip(frames) {
+                *o = x.reference.root_pose(offset)[2];
+            }
+        }
+        Term::RefRootRpy { frames, angles, .. } => {
+            let w = angles.len();
+            for (f, &offset) in frames.iter().enumerate() {
+                let p = x.reference.root_pose(offset);
+                let rpy = spatial::rpy_of_quat([p[3], p[4], p[5], p[6]]);
+                for (o, a) in v[f * w..(f + 1) * w].iter_mut().zip(selection(angles, "rpy")) {
+                    *o = rpy[a];
+                }
+            }
+        }
+        Term::RefRootQuat { frames, frame, .. } => {
+            for (f, &offset) in frames.iter().enumerate() {
+                let p = x.reference.root_pose(offset);
+                let q = [p[3], p[4], p[5], p[6]];
+                let q = match frame {
+                    RootFrame::Heading => {
+                        let yaw = -spatial::heading_of_quat(q);
+                        spatial::quat_mul([(yaw / 2.0).cos(), 0.0, 0.0, (yaw / 2.0).sin()], q)
+                    }
+                    RootFrame::World | RootFrame::Own => q,
+                };
+                v[f * 4..(f + 1) * 4].copy_from_slice(&spatial::quat_normalize(q));
+            }
+        }
+        Term::BaseRpy { angles, .. } => {
+            let rpy = spatial::rpy_of_quat(x.quat);
+            for (o, a) in v.iter_mut().zip(selection(angles, "rpy")) {
+                *o = rpy[a];
+            }
+        }
+    }
+}
+
+/// A world vector `v` expressed in `frame` of a root oriented `q` (`[w, x, y, z]`).
+pub fn in_root_frame(frame: RootFrame, q: [f64; 4], v: [f64; 3]) -> [f64; 3] {
+    match frame {
+        RootFrame::Own => spatial::quat_rotate(spatial::quat_conj(q), v),
+        RootFrame::Heading => spatial::mat_apply(&spatial::yaw(-spatial::heading_of_quat(q)), v),
+        RootFrame::World => v,
     }
 }
 

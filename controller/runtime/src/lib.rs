@@ -17,7 +17,8 @@ pub mod keypoints;
 mod lifecycle;
 pub mod metrics;
 pub mod motion;
-pub mod npy;
+/// NumPy's NPY/NPZ, as the `motion` crate reads them.
+pub use ::motion::npy;
 pub mod options;
 pub mod player;
 pub mod readiness;

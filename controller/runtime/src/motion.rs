@@ -73,6 +73,11 @@ impl Alignment {
         Self { turn, from, to }
     }
 
+    /// A world vector (a velocity) of the reference turned with it.
+    pub fn turn_vector(&self, v: [f64; 3]) -> [f64; 3] {
+        spatial::quat_rotate(self.turn, v)
+    }
+
     /// The heading change, rad.
     pub fn yaw(&self) -> f64 {
         spatial::heading_of_quat(self.turn)
@@ -379,6 +384,8 @@ impl EmbeddedMotion {
             q: Vec::with_capacity(ticks * n),
             qd: Vec::with_capacity(ticks * n),
             root: Vec::with_capacity(ticks),
+            root_lin_vel: Vec::new(),
+            root_ang_vel: Vec::new(),
             held_joints: Vec::new(),
             bodies: Vec::new(),
             body_pos: Vec::new(),
@@ -447,6 +454,8 @@ impl EmbeddedMotion {
                 layout.onnx_path.display()
             )));
         }
+        (reference.root_lin_vel, reference.root_ang_vel) =
+            crate::clip::tick_root_velocities(&reference.root, reference.rate_hz);
         self.seek(model, self.start_step)?;
         Ok(reference)
     }
@@ -606,7 +615,12 @@ pub fn load_reference(
         return Ok((reference, ReferenceSource::Commands));
     }
     let clip = Clip::load(clip.unwrap_or(default_clip))?;
-    let reference = Reference::from_clip(&clip, robot, layout.manifest.rate_hz)?;
+    let reference = Reference::from_clip_with(
+        &clip,
+        robot,
+        layout.manifest.rate_hz,
+        layout.manifest.reference.velocities,
+    )?;
     Ok((reference, ReferenceSource::Clip(clip)))
 }
 

@@ -87,8 +87,10 @@ pub struct PlayOptions {
     pub soft_start_s: f64,
     /// Soft start gain factor.
     pub soft_start_gain: f64,
-    /// ψ ramp with the clip held at its first frame, s.
-    pub ramp_s: f64,
+    /// ψ ramp with the clip held at its first frame, s (0–60). None: the policy's own
+    /// (`[reference] hold_s`, else 1.5 s for a policy that observes ψ and 0 for any other).
+    #[serde(default)]
+    pub ramp_s: Option<f64>,
     /// What happens at the end of the clip.
     pub end: EndMode,
     /// End hold or blend time, s.
@@ -150,7 +152,7 @@ impl PlayOptions {
         for (name, value, lo, hi) in [
             ("soft_start_s", self.soft_start_s, 0.0, 60.0),
             ("soft_start_gain", self.soft_start_gain, 0.0, 1.0),
-            ("ramp_s", self.ramp_s, 0.0, 60.0),
+            ("ramp_s", self.ramp_s.unwrap_or(0.0), 0.0, 60.0),
             ("end_s", self.end_s, 0.0, 60.0),
             ("damping_s", self.damping_s, 0.0, 60.0),
             ("sit_s", self.sit_s, 0.1, 60.0),
@@ -224,7 +226,7 @@ impl Default for PlayOptions {
             start: None,
             soft_start_s: 1.0,
             soft_start_gain: 0.3,
-            ramp_s: 1.5,
+            ramp_s: None,
             end: EndMode::Hold,
             end_s: 0.5,
             damping_s: 0.5,
@@ -438,7 +440,7 @@ mod tests {
         // Options a recording leaves out keep their defaults; unknown ones are refused.
         let partial = r#"{"robot":"r","policy":"p","clip":"c","options":{"ramp_s":2.0}}"#;
         let m = RunMetadata::from_json(partial).unwrap();
-        assert_eq!(m.options.ramp_s, 2.0);
+        assert_eq!(m.options.ramp_s, Some(2.0));
         assert_eq!(m.options.end_s, PlayOptions::default().end_s);
         let unknown = r#"{"robot":"r","policy":"p","clip":"c","options":{"ramp":2.0}}"#;
         assert!(

@@ -142,12 +142,15 @@ impl<L: RobotLink> Player<L> {
                 options.start_mode(&robot).name()
             )));
         }
+        // The first-frame hold: the operator's, else the policy's own.
+        let mut hold = options.ramp_s.unwrap_or_else(|| layout.hold_s());
         if options.start_mode(&robot) == robots::StartMode::Harness {
             // The motion waits on its first frame while the harness lowers the robot and it
             // settles on its feet.
             let h = robot.config.start.harness;
-            options.ramp_s = options.ramp_s.max(h.lower_s + h.settle_s);
+            hold = hold.max(h.lower_s + h.settle_s);
         }
+        options.ramp_s = Some(hold);
         if let Some(m) = robot.config.position_margin {
             options.limits.position_margin = m;
         }
@@ -592,6 +595,7 @@ impl<L: RobotLink> Player<L> {
             foot_names: self.robot.config.feet.clone(),
             clock: crate::telemetry::RecordingClock::Simulated,
             commit: None,
+            observation_len: self.policy.obs.len(),
         }
     }
 
@@ -794,7 +798,6 @@ impl<L: RobotLink> Player<L> {
                     (t, self.world.truth.base_lin_vel)
                 }),
                 actions: self.policy.mapper.actions(),
-                obs: &self.policy.obs,
                 commands: self
                     .policy
                     .commands
@@ -809,7 +812,7 @@ impl<L: RobotLink> Player<L> {
                 cause: self.lifecycle.machine.transitions.last().map(|t| t.cause),
                 harness: self.lifecycle.harness_phase,
             });
-            sink.push(&self.record);
+            sink.push_with(&self.record, &self.policy.obs);
             // The buses' cycles since the last tick, when the recording asked for them.
             self.io.drain_cycles(&mut |c| sink.push_cycle(c));
         }

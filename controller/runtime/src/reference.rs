@@ -19,6 +19,9 @@ struct Frames {
     q: Vec<Vec<f64>>,
     qd: Vec<Vec<f64>>,
     root: Vec<[f64; 7]>,
+    /// The root's linear and angular velocity per frame, world frame.
+    root_lin_vel: Vec<[f64; 3]>,
+    root_ang_vel: Vec<[f64; 3]>,
     body: Vec<Vec<f64>>,
     /// The anchor of this tick, aligned.
     anchor: [f64; 7],
@@ -44,6 +47,12 @@ impl ReferenceView for Frames {
     }
     fn keypoints(&self, offset: usize) -> &[f64] {
         &self.keypoints[offset.min(self.keypoints.len() - 1)]
+    }
+    fn root_lin_vel(&self, offset: usize) -> [f64; 3] {
+        self.root_lin_vel[offset.min(self.root_lin_vel.len() - 1)]
+    }
+    fn root_ang_vel(&self, offset: usize) -> [f64; 3] {
+        self.root_ang_vel[offset.min(self.root_ang_vel.len() - 1)]
     }
 }
 
@@ -203,6 +212,8 @@ impl ReferenceCursor {
                 q: vec![vec![0.0; n]; frames],
                 qd: vec![vec![0.0; n]; frames],
                 root: vec![[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]; frames],
+                root_lin_vel: vec![[0.0; 3]; frames],
+                root_ang_vel: vec![[0.0; 3]; frames],
                 body: vec![vec![0.0; body_width]; frames],
                 anchor: [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
                 keypoints: vec![Vec::new(); frames],
@@ -212,7 +223,7 @@ impl ReferenceCursor {
             motion_now: vec![[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]; reference.motion_bodies.len()],
             current_q: default_q.to_vec(),
             tick: 0,
-            ramp_ticks: (options.ramp_s / dt).round() as usize,
+            ramp_ticks: (options.ramp_s.unwrap_or(0.0) / dt).round() as usize,
             end_ticks: (options.end_s / dt).round() as usize,
             end: options.end,
             source: None,
@@ -239,6 +250,8 @@ impl ReferenceCursor {
         for qd in &mut self.frames.qd {
             qd.fill(0.0);
         }
+        self.frames.root_lin_vel.fill([0.0; 3]);
+        self.frames.root_ang_vel.fill([0.0; 3]);
         let (first, ahead) = self.frames.root.split_at_mut(1);
         ahead.fill(first[0]);
         let (first, ahead) = self.frames.body.split_at_mut(1);
@@ -483,6 +496,19 @@ impl ReferenceCursor {
             }
             let root = self.reference.root[k.min(len - 1)];
             self.frames.root[f] = self.alignment.map_or(root, |a| a.apply(root));
+            // The root's velocities: the motion's while it moves, none while held.
+            let (lin, ang) = if moving(k) {
+                let turn = |v: [f64; 3]| self.alignment.map_or(v, |a| a.turn_vector(v));
+                let at = k.min(len - 1);
+                (
+                    turn(self.reference.root_lin_vel[at]),
+                    turn(self.reference.root_ang_vel[at]),
+                )
+            } else {
+                ([0.0; 3], [0.0; 3])
+            };
+            self.frames.root_lin_vel[f] = lin;
+            self.frames.root_ang_vel[f] = ang;
             if !self.reference.bodies.is_empty() {
                 self.frames.body[f].copy_from_slice(self.reference.body_pos_at(k));
             }

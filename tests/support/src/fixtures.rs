@@ -25,6 +25,23 @@ pub fn fixture(name: &str) -> PathBuf {
     path
 }
 
+/// TWIST2's material (a trained general tracker for the G1, its model and retargeted clips:
+/// third-party, never committed), read in place at `../shared/third_party/twist2/` beside the
+/// checkout; `None`, with a line saying the test is skipped, where it is absent (`.ci/run` fails
+/// then, so CI never skips).
+pub fn twist2_dir() -> Option<PathBuf> {
+    let dir = workspace_root().join("../shared/third_party/twist2");
+    if dir.join("README.md").is_file() {
+        Some(dir)
+    } else {
+        eprintln!(
+            "skipped: {} is absent (TWIST2's material is read in place, never committed)",
+            dir.display()
+        );
+        None
+    }
+}
+
 /// The Python interpreter of the project's environment, with the independent third-party
 /// clients and readers the tests drive (`.local/venv/bin/python`).
 ///

@@ -28,6 +28,12 @@ impl ReferenceView for Still {
     fn keypoints(&self, _: usize) -> &[f64] {
         &[]
     }
+    fn root_lin_vel(&self, _: usize) -> [f64; 3] {
+        [0.0; 3]
+    }
+    fn root_ang_vel(&self, _: usize) -> [f64; 3] {
+        [0.0; 3]
+    }
 }
 
 /// The inputs of a robot at rest and upright at `still`'s pose (all joints at `zeros`, past

@@ -193,14 +193,14 @@ impl Messages {
     }
 
     /// `/policy`.
-    pub(super) fn policy(&mut self, r: &TickRecord, stamp: u64) -> &pb::PolicyStep {
+    pub(super) fn policy(&mut self, r: &TickRecord, obs: &[f32], stamp: u64) -> &pb::PolicyStep {
         let m = &mut self.policy;
         m.timestamp = Some(pb::timestamp(stamp));
         m.tick = r.tick;
         m.running = usize::from(r.mode) == MODE_NAMES.iter().position(|&n| n == "Running").unwrap_or(3);
         m.policy_ran = r.policy_ran;
         m.observation.clear();
-        m.observation.extend_from_slice(&r.obs[..usize::from(r.obs_len)]);
+        m.observation.extend_from_slice(obs);
         m.action.clear();
         m.action.extend_from_slice(&r.action[..usize::from(r.joints)]);
         let c = usize::from(r.command_count);

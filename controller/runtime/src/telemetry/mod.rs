@@ -27,8 +27,6 @@ use robot_link::IMU_HISTORY;
 
 /// Most joints a record carries.
 pub const MAX_JOINTS: usize = 48;
-/// Most observation values a record carries (longer observations are truncated in the log).
-pub const MAX_OBS: usize = 512;
 /// A tick's state estimate for the recording.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct EstimateRecord {
@@ -61,8 +59,6 @@ pub struct TickRecord {
     pub joints: u16,
     /// Feet in use.
     pub feet: u8,
-    /// Observation values in use.
-    pub obs_len: u16,
     /// Measured positions, rad.
     pub q: [f64; MAX_JOINTS],
     /// Measured velocities, rad/s.
@@ -131,8 +127,6 @@ pub struct TickRecord {
     pub triangulated_mm: f32,
     /// Raw policy actions (policy order).
     pub action: [f32; MAX_JOINTS],
-    /// The observation the policy saw.
-    pub obs: [f32; MAX_OBS],
     /// The live commands in force (command-driven policies), `command_count` in use.
     pub commands: [f64; human::commands::MAX_COMMANDS],
     /// Commands in use.
@@ -163,7 +157,6 @@ impl Default for TickRecord {
             mode: 0,
             joints: 0,
             feet: 0,
-            obs_len: 0,
             q: [0.0; MAX_JOINTS],
             qd: [0.0; MAX_JOINTS],
             tau: [0.0; MAX_JOINTS],
@@ -196,7 +189,6 @@ impl Default for TickRecord {
             keypoint_views: 0,
             triangulated_mm: f32::NAN,
             action: [0.0; MAX_JOINTS],
-            obs: [0.0; MAX_OBS],
             commands: [0.0; human::commands::MAX_COMMANDS],
             command_count: 0,
             io_us: 0.0,
@@ -251,8 +243,6 @@ pub struct TickView<'a> {
     pub truth_in_world: Option<([f64; 7], [f64; 3])>,
     /// Raw actions.
     pub actions: &'a [f32],
-    /// The observation.
-    pub obs: &'a [f32],
     /// The live commands in force (empty without).
     pub commands: &'a [f64],
     /// Simulation ground truth (its pose counts only with `has_truth`).
@@ -335,9 +325,6 @@ impl TickRecord {
         }
         let m = v.actions.len().min(MAX_JOINTS);
         r.action[..m].copy_from_slice(&v.actions[..m]);
-        let k = v.obs.len().min(MAX_OBS);
-        r.obs_len = k as u16;
-        r.obs[..k].copy_from_slice(&v.obs[..k]);
         let c = v.commands.len().min(r.commands.len());
         r.command_count = c as u8;
         r.commands[..c].copy_from_slice(&v.commands[..c]);
@@ -485,6 +472,9 @@ pub struct RecordingInfo {
     pub clock: RecordingClock,
     /// The commit of the tool that writes it (the binary's build), beside its version.
     pub commit: Option<String>,
+    /// Values of the policy's observation: `/policy` carries it whole, through buffers of this
+    /// size made when the recording starts (0: no observation recorded).
+    pub observation_len: usize,
 }
 
 /// The tool that writes recordings, as the file's header and its `robodeploy` metadata name it.
@@ -494,11 +484,12 @@ pub const WRITER: &str = concat!("robodeploy ", env!("CARGO_PKG_VERSION"));
 /// schemas) and the JSON `/replay` channel, as `telemetry.proto` and the README describe them.
 pub const PROFILE: &str = "robodeploy";
 
-/// What travels through the ring: a tick, or one bus cycle.
-#[derive(Debug, Clone, Copy)]
+/// What travels through the ring: a tick with its observation (a buffer of the pool), or one bus
+/// cycle.
+#[derive(Debug, Clone)]
 #[allow(clippy::large_enum_variant)] // Both live in preallocated ring slots, never on their own.
 enum Record {
-    Tick(TickRecord),
+    Tick(TickRecord, Option<Vec<f32>>),
     Cycle(CycleRecord),
 }
 
@@ -610,6 +601,11 @@ impl<W: std::io::Write + std::io::Seek> Out<W> {
 #[derive(Debug)]
 pub struct TelemetrySink {
     tx: Option<crossbeam::channel::Sender<Record>>,
+    /// Free observation buffers, and where a refused record's goes back.
+    pool: crossbeam::channel::Receiver<Vec<f32>>,
+    pool_tx: crossbeam::channel::Sender<Vec<f32>>,
+    /// Whether the pool was filled (the recording takes observations).
+    observations: bool,
     backpressure: Backpressure,
     pushed: u64,
     dropped: Arc<AtomicU64>,
@@ -714,6 +710,15 @@ impl TelemetrySink {
             message: e.to_string(),
         };
         let (tx, rx) = crossbeam::channel::bounded::<Record>(capacity.max(1));
+        // The observations' buffers, one per ring slot, made now: a tick copies its observation
+        // into a free one, the logger hands it back once written.
+        let (pool_tx, pool) = crossbeam::channel::bounded::<Vec<f32>>(capacity.max(1));
+        if info.observation_len > 0 {
+            for _ in 0..capacity.max(1) {
+                let _ = pool_tx.try_send(Vec::with_capacity(info.observation_len));
+            }
+        }
+        let returned = pool_tx.clone();
         // Small chunks: a crash (SIGKILL, power) loses at most the chunk being built, ~0.3 s of
         // a 50 Hz run; `analysis::recording` reads everything before it.
         let writer = mcap::WriteOptions::new()
@@ -787,7 +792,7 @@ impl TelemetrySink {
                 let mut origin: Option<u64> = None;
                 while let Ok(record) = rx.recv() {
                     let run_ns = match &record {
-                        Record::Tick(r) => r.time_ns,
+                        Record::Tick(r, _) => r.time_ns,
                         Record::Cycle(c) => c.started_ns,
                     };
                     let zero = match origin {
@@ -818,10 +823,14 @@ impl TelemetrySink {
                                 out.message(channel, t, m).map_err(|e| failed(&e))?;
                             }
                         }
-                        Record::Tick(r) => {
+                        Record::Tick(r, obs) => {
+                            let seen = obs.as_deref().unwrap_or(&[]);
                             channels
-                                .write(&mut out, &mut messages, robot.as_mut(), &mut text, &r, t)
+                                .write(&mut out, &mut messages, robot.as_mut(), &mut text, (&r, seen), t)
                                 .map_err(|e| failed(&e))?;
+                            if let Some(b) = obs {
+                                let _ = returned.try_send(b);
+                            }
                         }
                     }
                 }
@@ -833,6 +842,9 @@ impl TelemetrySink {
             .map_err(|e| TelemetryError::Logger(e.to_string()))?;
         Ok(Self {
             tx: Some(tx),
+            pool,
+            pool_tx,
+            observations: info.observation_len > 0,
             backpressure,
             pushed: 0,
             dropped: Arc::new(AtomicU64::new(0)),
@@ -843,7 +855,27 @@ impl TelemetrySink {
 
     /// Hands a record to the logger (no allocation; blocks or drops per the backpressure).
     pub fn push(&mut self, record: &TickRecord) {
-        self.send(Record::Tick(*record));
+        self.push_with(record, &[]);
+    }
+
+    /// [`Self::push`] with the tick's observation, whole: copied into a buffer the recording
+    /// made at its start (none free in a wall-clock run: the tick is recorded without it; a
+    /// recording started without [`RecordingInfo::observation_len`] records none).
+    pub fn push_with(&mut self, record: &TickRecord, obs: &[f32]) {
+        let buffer = if obs.is_empty() || !self.observations {
+            None
+        } else {
+            let free = match self.backpressure {
+                Backpressure::Block => self.pool.recv().ok(),
+                Backpressure::Drop => self.pool.try_recv().ok(),
+            };
+            free.map(|mut b| {
+                b.clear();
+                b.extend_from_slice(obs);
+                b
+            })
+        };
+        self.send(Record::Tick(*record, buffer));
     }
 
     /// Hands one bus cycle to the logger, like [`Self::push`] (recorded on `/bus/<name>` when
@@ -855,12 +887,16 @@ impl TelemetrySink {
     fn send(&mut self, record: Record) {
         let Some(tx) = &self.tx else { return };
         self.pushed += 1;
-        let full = match self.backpressure {
-            Backpressure::Block => tx.send(record).is_err(),
-            Backpressure::Drop => tx.try_send(record).is_err(),
+        let refused = match self.backpressure {
+            Backpressure::Block => tx.send(record).err().map(|e| e.into_inner()),
+            Backpressure::Drop => tx.try_send(record).err().map(|e| e.into_inner()),
         };
-        if full {
+        if let Some(record) = refused {
             self.dropped.fetch_add(1, Ordering::Relaxed);
+            // Its observation's buffer goes back to the pool.
+            if let Record::Tick(_, Some(b)) = record {
+                let _ = self.pool_tx.try_send(b);
+            }
         }
     }
 
@@ -1002,7 +1038,7 @@ impl TickChannels {
         m: &mut messages::Messages,
         robot: Option<&mut (viewers::robot3d::Links, foxglove::schemas::SceneUpdate, String)>,
         text: &mut String,
-        r: &TickRecord,
+        (r, obs): (&TickRecord, &[f32]),
         t: u64,
     ) -> Result<(), mcap::McapError> {
         use foxglove::schemas as fg;
@@ -1017,7 +1053,7 @@ impl TickChannels {
         out.buf = buf;
         written?;
         out.message(&self.command, t, m.command(r, t))?;
-        out.message(&self.policy, t, m.policy(r, t))?;
+        out.message(&self.policy, t, m.policy(r, obs, t))?;
         if let Some((transition, log)) = m.safety(r, t) {
             out.message(&self.safety, t, &transition)?;
             out.message(&self.log, t, &log)?;

@@ -1,0 +1,195 @@
+//! A trained general tracker (TWIST2 on the G1, third-party, read in place) following retargeted
+//! clips frame by frame on the mirror in lockstep, against the project's Python re-statement of its
+//! authors' loop (tests/python/twist2_loop.py, written from the README's facts): every clip to its
+//! end with no fall, the tracking within 1.2× of that loop's, and the observation the run recorded
+//! equal, value by value, to the one rebuilt from the run's own state and the motion file.
+
+use std::path::Path;
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+use std::time::Duration;
+
+use controller::clip::{Clip, Reference};
+use controller::player::PlayOptions;
+use controller::sim::lockstep_player;
+use policy::PolicyLayout;
+use robots::Robot;
+use sim2real::config::MirrorConfig;
+use test_support::bin::run;
+use test_support::fixtures::{twist2_dir, venv_python, workspace_root};
+
+#[global_allocator]
+static ALLOC: test_support::alloc::CountingAllocator = test_support::alloc::CountingAllocator;
+
+fn tracks(clip: &str) {
+    let Some(dir) = twist2_dir() else { return };
+    let root = workspace_root();
+    let motion = dir.join("example_motions").join(clip);
+    let mcap = std::env::temp_dir().join(format!("twist2-{}-{clip}.mcap", std::process::id()));
+    let (ok, out, err) = run(&[
+        "play".as_ref(),
+        "--robot".as_ref(),
+        root.join("robots/g1-twist2/robot.toml").as_os_str(),
+        "--clip".as_ref(),
+        motion.as_os_str(),
+        "--record".as_ref(),
+        mcap.as_os_str(),
+    ]);
+    assert!(ok, "{clip}: {out}\n{err}");
+    assert!(
+        out.contains("reference played: 100 %") && out.contains("fell: no"),
+        "{clip}: {out}"
+    );
+    let figures = compare(&dir, &motion, &mcap);
+    std::fs::remove_file(&mcap).unwrap();
+    let (python, ran) = (&figures["python"], &figures["run"]);
+    let f = |v: &serde_json::Value, k: &str| v[k].as_f64().unwrap();
+    assert_eq!(python["fell"], false, "{clip}: the Python loop fell: {figures}");
+    assert_eq!(ran["fell"], false, "{clip}: {figures}");
+    assert_eq!(ran["ticks"], python["ticks"], "{clip}: the whole clip: {figures}");
+    for k in ["joint_rmse", "body_rmse"] {
+        assert!(f(ran, k) <= 1.2 * f(python, k), "{clip}: {k}: {figures}");
+    }
+    // The observation the run recorded, whole, is the one the README's rules build from the
+    // run's own state at every tick of the clip.
+    assert_eq!(ran["obs_len"], 1432, "{figures}");
+    assert_eq!(ran["obs_ticks"], ran["ticks"], "{figures}");
+    assert!(f(ran, "obs_max_err") <= 1e-5, "{clip}: {figures}");
+}
+
+/// The Python loop's figures and the recording's (tests/python/twist2_loop.py).
+fn compare(dir: &Path, motion: &Path, mcap: &Path) -> serde_json::Value {
+    let script = workspace_root().join("tests/python/twist2_loop.py");
+    let out = std::process::Command::new(venv_python())
+        .arg(script)
+        .args([dir.as_os_str(), motion.as_os_str(), mcap.as_os_str()])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+macro_rules! clips {
+    ($($name:ident: $file:literal,)*) => {$(
+        #[test]
+        fn $name() {
+            tracks($file);
+        }
+    )*};
+}
+
+clips! {
+    twist2_tracks_walk_001: "0807_yanjie_walk_001.pkl",
+    twist2_tracks_walk_002: "0807_yanjie_walk_002.pkl",
+    twist2_tracks_walk_003: "0807_yanjie_walk_003.pkl",
+    twist2_tracks_walk_004_whose_first_frames_are_bad: "0807_yanjie_walk_004.pkl",
+    twist2_tracks_walk_005: "0807_yanjie_walk_005.pkl",
+    twist2_tracks_walk_006: "0807_yanjie_walk_006.pkl",
+    twist2_tracks_walk_007: "0807_yanjie_walk_007.pkl",
+    twist2_tracks_walk_008: "0807_yanjie_walk_008.pkl",
+}
+
+#[test]
+fn the_shipped_twist2_robot_is_what_its_script_writes_from_the_material() {
+    if twist2_dir().is_none() {
+        return;
+    }
+    let out = std::env::temp_dir().join(format!("robodeploy-twist2-robot-{}.toml", std::process::id()));
+    let status = std::process::Command::new(venv_python())
+        .arg(workspace_root().join("scripts/gen_twist2_robot.py"))
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(
+        status.status.success(),
+        "{}",
+        String::from_utf8_lossy(&status.stderr)
+    );
+    let shipped = workspace_root().join("robots/g1-twist2/robot.toml");
+    assert_eq!(
+        std::fs::read_to_string(&out).unwrap(),
+        std::fs::read_to_string(&shipped).unwrap(),
+        "re-run scripts/gen_twist2_robot.py"
+    );
+    std::fs::remove_file(&out).unwrap();
+    // It loads with its policy: 29 joints, the policy in control from the first tick, and the
+    // 1432-value layout the ONNX file takes.
+    let robot = Robot::load(&shipped).unwrap();
+    assert_eq!(robot.config.joints.len(), 29);
+    assert_eq!(robot.config.start.mode, robots::StartMode::Policy);
+    let layout = PolicyLayout::load(&shipped.with_file_name("policies/twist2.toml"), &robot).unwrap();
+    assert_eq!(layout.obs_len, 1432);
+    assert_eq!(layout.hold_s(), 0.0);
+    let walk = twist2_dir()
+        .unwrap()
+        .join("example_motions/0807_yanjie_walk_001.pkl");
+    let (ok, out, err) = run(&[
+        "check",
+        "--robot",
+        shipped.to_str().unwrap(),
+        "--clip",
+        walk.to_str().unwrap(),
+    ]);
+    assert!(ok, "{out}\n{err}");
+    for line in [
+        "block current [0..127) 127 values",
+        "block history [127..1397) 1270 values",
+        "block history[t-10] [127..254) 127 values",
+        "block future [1397..1432) 35 values",
+        "10 ticks old (zeros before)",
+    ] {
+        assert!(out.contains(line), "{line:?} in\n{out}");
+    }
+}
+
+#[test]
+fn twist2s_tick_with_its_1432_value_observation_and_recording_allocates_nothing() {
+    use test_support::alloc::count_allocations;
+    let Some(dir) = twist2_dir() else { return };
+    let root = workspace_root();
+    let robot = Robot::load(&root.join("robots/g1-twist2/robot.toml")).unwrap();
+    let layout = PolicyLayout::load(&root.join("robots/g1-twist2/policies/twist2.toml"), &robot).unwrap();
+    let clip = Clip::load(&dir.join("example_motions/0807_yanjie_walk_001.pkl")).unwrap();
+    let reference = Reference::from_clip_with(
+        &clip,
+        &robot,
+        layout.manifest.rate_hz,
+        layout.manifest.reference.velocities,
+    )
+    .unwrap();
+    let (p, mut clock, _world) = lockstep_player(
+        robot,
+        layout,
+        reference,
+        PlayOptions::default(),
+        MirrorConfig::default(),
+        Arc::new(AtomicBool::new(false)),
+    )
+    .unwrap();
+    let path = std::env::temp_dir().join(format!("twist2-alloc-{}.mcap", std::process::id()));
+    let info = p.recording_info();
+    assert_eq!(info.observation_len, 1432);
+    let sink = controller::telemetry::TelemetrySink::start(
+        &path,
+        256,
+        controller::telemetry::Backpressure::Drop,
+        &info,
+    )
+    .unwrap();
+    let mut p = p.with_telemetry(sink);
+    p.identify().unwrap();
+    let period = Duration::from_millis(20);
+    let mut ticks = |p: &mut controller::player::Player<_>, range: std::ops::RangeInclusive<u32>| {
+        for k in range {
+            p.step(&clock).unwrap();
+            p.wait_until(&mut clock, period * k);
+        }
+    };
+    // Past the first ten ticks, whose history copies are still zeros, into the walk.
+    ticks(&mut p, 1..=60);
+    let (_, stats) = count_allocations(|| ticks(&mut p, 61..=260));
+    assert_eq!(p.mode(), controller::safety::Mode::Running);
+    assert!(stats.is_zero(), "{stats:?}");
+    let _ = std::fs::remove_file(&path);
+}
