@@ -23,6 +23,11 @@ mutates them into the ones it must refuse. None is third-party material:
   motion_csv/      a motion sidecar, a NUL byte, and the headerless CSV it describes (x y z w and
                    w x y z quaternion orders, two joints).
   npy_array/       NumPy .npy arrays (format 1.0), float64 and float32, as np.save writes them.
+  gmr_pickle/      GMR motions (fps, root_pos, root_rot x y z w, dof_pos, link_body_list,
+                   local_body_pos) made here with NumPy and pickled at protocols 2, 4 and 5; and the
+                   hostile ones: a memo bomb (a value copied into itself forty times), nesting deeper
+                   than the reader takes, a length beyond the data, a call of os.system (kept as
+                   data, never run).
   policy_toml/     the project's reference-follower manifest with its default pose, stiffness and
                    damping written out (so the target never needs the ONNX file's metadata); the
                    squat generator's description (the target reads the text as both); the keypoint
@@ -321,3 +326,27 @@ write("live_client_messages", "parameters_and_services",
       + op(op="subscribeConnectionGraph") + op(op="fetchAsset", uri="package://robot.urdf", requestId=1)
       + frame(1, bytes([2]) + struct.pack("<III", 1, 2, 4) + b"json" + b"{}") + frame(2, b"ping"))
 write("live_client_messages", "junk", bytes([3]) + b"x-proto" + frame(0, "{not json") + frame(1, b"\xff" * 40))
+
+
+def gmr_motion(frames=4, dofs=3):
+    import numpy as np  # the project's venv has it
+
+    t = np.arange(frames, dtype=np.float64)
+    return {
+        "fps": np.float64(30.0),
+        "root_pos": np.stack([0.01 * t, 0 * t, 0.8 + 0 * t], axis=1),
+        "root_rot": np.tile([0.0, 0.0, 0.0, 1.0], (frames, 1)),
+        "dof_pos": 0.1 * np.ones((frames, dofs)),
+        "link_body_list": ["pelvis", "foot"],
+        "local_body_pos": np.zeros((frames, 2, 3), dtype=np.float32),
+    }
+
+
+import pickle  # noqa: E402
+
+for proto in (2, 4, 5):
+    write("gmr_pickle", f"motion_protocol_{proto}.pkl", pickle.dumps(gmr_motion(), protocol=proto))
+write("gmr_pickle", "memo_bomb.pkl", b"\x80\x04N\x94" + b"h\x00h\x00\x86q\x00\x30" * 40 + b"h\x00.")
+write("gmr_pickle", "deep.pkl", b"\x80\x04" + b"]" * 100 + b"a" * 99 + b".")
+write("gmr_pickle", "length_beyond.pkl", b"\x80\x04B\xff\xff\xff\x7fabc.")
+write("gmr_pickle", "os_system.pkl", b"\x80\x04\x8c\x02os\x8c\x06system\x93\x8c\x02ls\x85R.")

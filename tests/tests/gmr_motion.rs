@@ -156,6 +156,21 @@ with open(sys.argv[1], "wb") as f:
     let good = dir.join("good.pkl");
     test_support::fixtures::run_python(script, &[good.as_os_str(), "pass".as_ref()]);
     assert_eq!(GmrMotion::load_pickle(&good).unwrap().frames(), 20);
+    // The same motion pickled at protocols 2 (bytes through _codecs.encode) and 5 (NumPy's
+    // buffers through _frombuffer) reads the same.
+    for proto in [2, 5] {
+        let other = dir.join(format!("protocol_{proto}.pkl"));
+        let dump = script.replace(
+            "pickle.dump(m, f)",
+            &format!("pickle.dump(m, f, protocol={proto})"),
+        );
+        test_support::fixtures::run_python(&dump, &[other.as_os_str(), "pass".as_ref()]);
+        assert_eq!(
+            GmrMotion::load_pickle(&other).unwrap(),
+            GmrMotion::load_pickle(&good).unwrap(),
+            "protocol {proto}"
+        );
+    }
     for (name, change, field, words) in cases {
         let path = dir.join(format!("{name}.pkl"));
         test_support::fixtures::run_python(script, &[path.as_os_str(), change.as_ref()]);
@@ -174,4 +189,36 @@ with open(sys.argv[1], "wb") as f:
     let e = motion::Clip::load(&dir.join("cut.pkl")).unwrap_err();
     assert!(e.place == "pickle" && e.message.contains("ends inside"), "{e}");
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn motion_info_says_what_a_gmr_file_holds_and_how_it_maps_onto_the_robot() {
+    let Some(dir) = twist2_dir() else { return };
+    let root = test_support::fixtures::workspace_root();
+    let file = dir.join("example_motions/0807_yanjie_walk_001.pkl");
+    let robot = root.join("robots/g1-twist2/robot.toml");
+    let (ok, out, err) = test_support::bin::run(&[
+        "motion".as_ref(),
+        "info".as_ref(),
+        file.as_os_str(),
+        "--robot".as_ref(),
+        robot.as_os_str(),
+    ]);
+    assert!(ok, "{out}\n{err}");
+    for words in [
+        "GMR motion (Python pickle",
+        "38 bodies with positions per frame",
+        "416 frames over 13.891 s",
+        "29 joint columns in the robot's joint order",
+        "robot  g1-twist2 (29 joints)",
+        "695 ticks at 50 Hz, every frame within the joints' position and speed limits",
+    ] {
+        assert!(out.contains(words), "{words:?} in\n{out}");
+    }
+    // A broken file: refused by file and field, exit 2 (bad input).
+    let bad = std::env::temp_dir().join(format!("gmr-info-{}.pkl", std::process::id()));
+    std::fs::write(&bad, b"\x80\x04}\x94.").unwrap();
+    let (ok, _, err) = test_support::bin::run(&["motion".as_ref(), "info".as_ref(), bad.as_os_str()]);
+    std::fs::remove_file(&bad).unwrap();
+    assert!(!ok && err.contains("fps: missing"), "{err}");
 }

@@ -976,3 +976,84 @@ fn a_robot_names_its_own_policy_and_a_run_without_one_is_refused_by_name() {
     refused(&args(&[&"check", &"--robot", &gone]), "is not a file");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn play_refuses_a_clip_check_refuses_unless_forced_for_a_reason_it_records() {
+    let dir = scratch("forced");
+    // The squat with its root 8 cm lower all through: the feet go through the floor.
+    let text = std::fs::read_to_string(biped("clips/squat.csv")).unwrap();
+    let sunk: Vec<String> = text
+        .lines()
+        .map(|l| {
+            let mut v: Vec<String> = l.split(',').map(str::to_owned).collect();
+            if let Some(z) = v.get(3).and_then(|z| z.parse::<f64>().ok()) {
+                v[3] = format!("{}", z - 0.08);
+            }
+            v.join(",")
+        })
+        .collect();
+    let path = dir.join("sunk.csv");
+    std::fs::write(&path, sunk.join("\n")).unwrap();
+    let clip: OsString = path.clone().into();
+    let (code, out, err) = run_within(
+        &["check".into(), "--clip".into(), clip.clone()],
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, Some(1), "check refuses it: {out}{err}");
+    assert!(err.contains("ground penetration"), "{err}");
+    // play refuses it the same way, as bad input, before anything moves.
+    let (code, out, err) = run_within(
+        &["play".into(), "--clip".into(), clip.clone()],
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, Some(2), "{out}{err}");
+    assert!(
+        err.contains("ground penetration") && err.contains("nothing moved; --force REASON plays it anyway"),
+        "{err}"
+    );
+    assert!(!out.lines().any(|l| l.starts_with("ran ")), "nothing ran: {out}");
+    // Forced, it plays, says so, and the recording keeps the reason.
+    let mcap = dir.join("forced.mcap");
+    let (code, out, err) = run_within::<OsString>(
+        &[
+            "play".into(),
+            "--clip".into(),
+            clip,
+            "--force".into(),
+            "checking the refusal on the mirror".into(),
+            "--max-seconds".into(),
+            "1".into(),
+            "--record".into(),
+            mcap.clone().into(),
+        ],
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, Some(0), "{out}{err}");
+    assert!(
+        out.contains("played anyway, forced: checking the refusal on the mirror"),
+        "{out}"
+    );
+    let bytes = std::fs::read(&mcap).unwrap();
+    let run = mcap::MessageStream::new(&bytes)
+        .unwrap()
+        .map(|m| m.unwrap())
+        .find(|m| m.channel.topic == "/replay")
+        .map(|m| m.channel.metadata["run"].clone())
+        .unwrap();
+    let run: serde_json::Value = serde_json::from_str(&run).unwrap();
+    assert_eq!(run["forced"], "checking the refusal on the mirror", "{run}");
+    // An empty reason is no reason.
+    let (code, _, err) = run_within::<OsString>(
+        &[
+            "play".into(),
+            "--clip".into(),
+            path.into(),
+            "--force".into(),
+            " ".into(),
+        ],
+        Duration::from_secs(60),
+    );
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("--force"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

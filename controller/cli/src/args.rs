@@ -95,6 +95,16 @@ impl StopSignal {
     }
 }
 
+/// A reason given on the command line (`--force`): 1–500 characters, not only blanks.
+pub fn reason(text: &str) -> Result<String, String> {
+    let t = text.trim();
+    if t.is_empty() || t.chars().count() > 500 {
+        Err("give a reason of 1 to 500 characters (it is recorded in the run)".into())
+    } else {
+        Ok(t.to_owned())
+    }
+}
+
 /// A flag's number, refused (by clap, naming the flag) unless finite and within `[lo, hi]`.
 pub fn within(lo: f64, hi: f64) -> impl Fn(&str) -> Result<f64, String> + Clone + Send + Sync + 'static {
     move |text: &str| {

@@ -18,6 +18,7 @@ mod exit;
 mod feetech;
 mod layout;
 mod logging;
+mod motion_files;
 mod play;
 mod project;
 mod retarget;
@@ -103,6 +104,10 @@ enum Command {
     /// device faults, NaN, tilt, overruns) and SIGINT/SIGTERM take the short way to Damped.
     #[command(display_order = 1)]
     Play(Box<play::PlayArgs>),
+    /// Motion files: what one holds and how it maps onto a robot (`motion info FILE --robot …`).
+    #[command(subcommand)]
+    #[command(display_order = 9)]
+    Motion(motion_files::MotionCommand),
     /// Retarget a human BVH recording onto the robot: the retargeting map of robot.toml (scale
     /// and nominal offsets from a T-pose or the first frame), inverse kinematics on the robot's
     /// MuJoCo model within the joints' limits, soles kept out of the floor; writes a clip (CSV)
@@ -301,6 +306,7 @@ fn dispatch(command: Command) -> Result<std::process::ExitCode> {
         Command::Check(args) => done(play::check(&args)),
         Command::Batch(args) => done(batch::run(&args)),
         Command::Retarget(args) => done(retarget::run(&args)),
+        Command::Motion(cmd) => done(motion_files::run(cmd)),
         Command::Teleop(args) => with_result_line(teleop::teleop(&args)),
         Command::Soak(args) => soak::run(&args),
         Command::Vr(cmd) => done(teleop::vr(cmd)),

@@ -38,6 +38,11 @@ pub struct PlayArgs {
     /// Hold the mirrored robot on a gantry.
     #[arg(help_heading = "Where it runs", long)]
     gantry: bool,
+    /// Play a clip that `check` refuses (the robot could not follow it: floor penetrated, feet
+    /// that cannot carry it, torques beyond the motors), saying why; the reason is recorded in
+    /// the run. Without it `play` refuses what `check` refuses.
+    #[arg(help_heading = "What to run", long, value_name = "REASON", value_parser = crate::args::reason)]
+    force: Option<String>,
     /// How the policy takes the robot (default: robot.toml's [start] mode, else pd): harness —
     /// in control from the first tick while a harness lowers the robot onto its feet; policy —
     /// from the first tick on the floor; pd — the joints' PD brings it to the default pose first.
@@ -928,6 +933,7 @@ fn with_recorder<L: RobotLink>(
         generator: args.generator.generator.as_ref().map(absolute),
         keypoints: args.keypoints.source().map(|k| k.map_paths(absolute)),
         options: *options,
+        forced: args.force.clone(),
         recorded_in: None,
     };
     record(player, &args.rec, run, &stem, args.wall || args.hardware)
@@ -1144,6 +1150,32 @@ fn bus_threads(realtime: bool) -> fn() {
 /// Runs `play`.
 pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
     let mut l = load(&args.files)?;
+    // What check refuses, play refuses before anything moves, unless forced for a reason.
+    if let ReferenceSource::Clip(_) = &l.source
+        && l.layout.manifest.reference.feasibility == policy::Feasibility::Refuse
+    {
+        let problems = analysis::motion_check::analyze(&l.robot, &l.reference)?.problems();
+        match (&args.force, problems.is_empty()) {
+            (_, true) => {}
+            (Some(reason), false) => println!(
+                "{}: check refuses this clip ({}); played anyway, forced: {reason}",
+                l.source,
+                problems.join("; ")
+            ),
+            (None, false) => {
+                return Err(FlagError::new(
+                    "force",
+                    format!(
+                        ": {}: the robot should not play this clip (`check` says the same):\n  {}\n\
+                         nothing moved; --force REASON plays it anyway and records why",
+                        l.source,
+                        problems.join("\n  ")
+                    ),
+                )
+                .into());
+            }
+        }
+    }
     if let Some(c) = &l.robot.calibration {
         println!("{}: calibration merged from {}", l.robot.config.name, c.display());
     }

@@ -220,6 +220,7 @@ pub fn teleop(args: &TeleopArgs) -> Result<std::process::ExitCode> {
         generator: None,
         keypoints: None,
         options: play,
+        forced: None,
         recorded_in: None,
     };
     // Teleoperation runs on the wall clock (paced on the mirror): records drop rather than wait.

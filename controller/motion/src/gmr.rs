@@ -42,7 +42,17 @@ impl GmrMotion {
             message,
         };
         let bytes = std::fs::read(path).map_err(|e| err("file", e.to_string()))?;
-        let v = pickle::read(&bytes).map_err(|e| err("pickle", e.to_string()))?;
+        Self::from_pickle(path, &bytes)
+    }
+
+    /// Reads a GMR pickle's `bytes`, as if from `path`.
+    pub fn from_pickle(path: &Path, bytes: &[u8]) -> Result<Self, ClipError> {
+        let err = |place: &str, message: String| ClipError {
+            file: path.to_path_buf(),
+            place: place.to_owned(),
+            message,
+        };
+        let v = pickle::read(bytes).map_err(|e| err("pickle", e.to_string()))?;
         if !matches!(v, Value::Dict(_)) {
             return Err(err(
                 "pickle",

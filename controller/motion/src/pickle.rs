@@ -537,6 +537,23 @@ pub fn ndarray(v: &Value) -> Result<Array, String> {
             let Value::Global { module, name } = callable.as_ref() else {
                 return Err(format!("{}, not a NumPy array", v.kind()));
             };
+            // Protocol 5: numpy.core.numeric._frombuffer(buffer, dtype, shape, order).
+            if matches!(module.as_str(), "numpy.core.numeric" | "numpy._core.numeric")
+                && name == "_frombuffer"
+            {
+                return match args.as_ref() {
+                    Value::Tuple(a) => match a.as_slice() {
+                        [Value::Bytes(b), dtype, Value::Tuple(shape), Value::Str(order)] => {
+                            if order != "C" && shape.len() > 1 {
+                                return Err("a Fortran-ordered array (C order expected)".into());
+                            }
+                            numbers(dtype, b, dimensions(shape)?)
+                        }
+                        _ => Err("a NumPy buffer without (data, dtype, shape, order)".into()),
+                    },
+                    _ => Err("a NumPy buffer without its arguments".into()),
+                };
+            }
             if !matches!(
                 module.as_str(),
                 "numpy.core.multiarray" | "numpy._core.multiarray"
@@ -559,14 +576,7 @@ pub fn ndarray(v: &Value) -> Result<Array, String> {
                         if *fortran && shape.len() > 1 {
                             return Err("a Fortran-ordered array (C order expected)".into());
                         }
-                        let shape = shape
-                            .iter()
-                            .map(|d| match d {
-                                Value::Int(n) => usize::try_from(*n).map_err(|_| format!("dimension {n}")),
-                                other => Err(format!("a dimension that is {}", other.kind())),
-                            })
-                            .collect::<Result<Vec<_>, _>>()?;
-                        numbers(dtype, b, shape)
+                        numbers(dtype, b, dimensions(shape)?)
                     }
                     [_, _, _, _, Value::List(_)] => Err("an array of Python objects, not numbers".into()),
                     _ => {
@@ -578,6 +588,17 @@ pub fn ndarray(v: &Value) -> Result<Array, String> {
         }
         other => Err(format!("{}, not a NumPy array", other.kind())),
     }
+}
+
+/// A shape's dimensions.
+fn dimensions(shape: &[Value]) -> Result<Vec<usize>, String> {
+    shape
+        .iter()
+        .map(|d| match d {
+            Value::Int(n) => usize::try_from(*n).map_err(|_| format!("dimension {n}")),
+            other => Err(format!("a dimension that is {}", other.kind())),
+        })
+        .collect()
 }
 
 /// Reads one number from its bytes, big-endian or not.

@@ -269,6 +269,9 @@ pub struct RunMetadata {
     pub keypoints: Option<crate::keypoints::clip::KeypointSource>,
     /// The options.
     pub options: PlayOptions,
+    /// Why the run played a clip `check` refuses (`play --force REASON`), if it did.
+    #[serde(default)]
+    pub forced: Option<String>,
     /// The folder the recording was written in (absolute): where the files named relative to
     /// it are looked for when the recording has moved since.
     #[serde(default)]
@@ -394,6 +397,7 @@ mod tests {
             generator: None,
             keypoints: None,
             options: PlayOptions::default(),
+            forced: None,
             recorded_in: None,
         }
     }
@@ -434,6 +438,7 @@ mod tests {
                 max_ticks: Some(7),
                 ..PlayOptions::default()
             },
+            forced: Some("the operator watches it on the gantry".into()),
             recorded_in: Some("/data/runs".into()),
         };
         assert_eq!(RunMetadata::from_json(&m.to_json()).unwrap(), m);

@@ -10,6 +10,7 @@ pub mod coco_image_ids;
 pub mod dds_samples;
 pub mod dxl_packet;
 pub mod feetech_packets;
+pub mod gmr_pickle;
 pub mod holosoma_metadata;
 pub mod keypoint_inputs;
 pub mod live_client_messages;
@@ -38,6 +39,7 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("coco_image_ids", coco_image_ids::run),
     ("dxl_packet", dxl_packet::run),
     ("feetech_packets", feetech_packets::run),
+    ("gmr_pickle", gmr_pickle::run),
     ("dds_samples", dds_samples::run),
     ("holosoma_metadata", holosoma_metadata::run),
     ("keypoint_inputs", keypoint_inputs::run),
