@@ -460,6 +460,23 @@ mod tests {
     const H: f64 = std::f64::consts::FRAC_1_SQRT_2;
 
     #[test]
+    fn a_velocity_reads_in_the_roots_own_frame_its_heading_frame_or_the_world() {
+        // A root yawed 90° (facing +y), then rolled 90° about its own x (its left side up):
+        // moving along world +y is moving forward.
+        let yawed = [H, 0.0, 0.0, H];
+        let q = spatial::quat_mul(yawed, [H, H, 0.0, 0.0]);
+        let v = [0.0, 2.0, 0.0];
+        let close = |a: [f64; 3], b: [f64; 3]| a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-12);
+        assert!(close(in_root_frame(RootFrame::World, q, v), [0.0, 2.0, 0.0]));
+        assert!(close(in_root_frame(RootFrame::Heading, q, v), [2.0, 0.0, 0.0]));
+        assert!(close(in_root_frame(RootFrame::Own, q, v), [2.0, 0.0, 0.0]));
+        // Upward: the heading frame keeps it up, the rolled root sees it along its own +y.
+        let up = [0.0, 0.0, 1.0];
+        assert!(close(in_root_frame(RootFrame::Heading, q, up), up));
+        assert!(close(in_root_frame(RootFrame::Own, q, up), [0.0, 1.0, 0.0]));
+    }
+
+    #[test]
     fn anchor_terms_are_zero_and_identity_when_robot_and_reference_coincide() {
         let pose = [0.3, -0.2, 0.9, H, 0.0, H, 0.0];
         assert_eq!(anchor_pos_b(pose, pose), [0.0; 3]);
