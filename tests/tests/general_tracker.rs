@@ -193,3 +193,40 @@ fn twist2s_tick_with_its_1432_value_observation_and_recording_allocates_nothing(
     assert!(stats.is_zero(), "{stats:?}");
     let _ = std::fs::remove_file(&path);
 }
+
+#[test]
+fn compare_takes_twist2s_whole_observation_and_names_each_blocks_copy_of_a_term() {
+    let Some(dir) = twist2_dir() else { return };
+    let root = workspace_root();
+    let motion = dir.join("example_motions/0807_yanjie_walk_002.pkl");
+    let mcap = std::env::temp_dir().join(format!("twist2-compare-{}.mcap", std::process::id()));
+    let robot = root.join("robots/g1-twist2/robot.toml");
+    let (ok, out, err) = run(&[
+        "play".as_ref(),
+        "--robot".as_ref(),
+        robot.as_os_str(),
+        "--clip".as_ref(),
+        motion.as_os_str(),
+        "--max-seconds".as_ref(),
+        "2".as_ref(),
+        "--record".as_ref(),
+        mcap.as_os_str(),
+    ]);
+    assert!(ok, "{out}\n{err}");
+    // A run against itself: all 1432 values of every step, each block's copy of a term apart.
+    let (ok, out, err) = run(&["compare".as_ref(), mcap.as_os_str(), mcap.as_os_str()]);
+    std::fs::remove_file(&mcap).unwrap();
+    assert!(ok, "{out}\n{err}");
+    assert!(out.contains("no term differs"), "{out}");
+    for label in [
+        "current.ref_root_lin_vel",
+        "history[t-10].ref_root_lin_vel",
+        "history[t-1].last_actions",
+        "future.ref_joint_pos",
+    ] {
+        assert!(
+            out.lines().any(|l| l.split_whitespace().next() == Some(label)),
+            "{label} in\n{out}"
+        );
+    }
+}

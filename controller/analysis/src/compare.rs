@@ -176,7 +176,7 @@ pub fn best_offset(
     let slot = layout
         .slots
         .iter()
-        .find(|s| s.term.name() == term)
+        .find(|s| s.term.name() == term || layout.slot_label(s) == term)
         .ok_or_else(|| {
             let names: Vec<&str> = layout.slots.iter().map(|s| s.term.name()).collect();
             AnalysisError::Mismatch(format!(
@@ -310,7 +310,7 @@ pub fn compare(
                 .and_then(|q| q.iter().copied().collect::<Option<Vec<f64>>>())
                 .and_then(|q| q.into_iter().reduce(f64::max));
             TermDiff {
-                term: slot.term.name().to_owned(),
+                term: layout.slot_label(slot),
                 range: slot.range.clone(),
                 first_step: first,
                 max_abs,

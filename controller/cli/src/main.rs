@@ -402,8 +402,10 @@ fn compare(
         None => println!("no term differs by more than {tolerance} over {compared} steps"),
     }
     println!("compared {compared} steps, offset {offset:+}");
+    // Terms shown in several blocks carry their block's name (history[t-3].joint_pos).
+    let w = diffs.iter().map(|d| d.term.len()).max().unwrap_or(0).max(20);
     println!(
-        "{:<20} {:>11} {:>12} {:>12} {:>12}  verdict",
+        "{:<w$} {:>11} {:>12} {:>12} {:>12}  verdict",
         "term", "first step", "max |Δ|", "RMS Δ", "bus step"
     );
     for d in &diffs {
@@ -415,7 +417,7 @@ fn compare(
             (None, _) => ("-".to_owned(), "differs (not measured by a bus)"),
         };
         println!(
-            "{:<20} {first:>11} {:>12.5} {:>12.5} {quantum:>12}  {verdict}",
+            "{:<w$} {first:>11} {:>12.5} {:>12.5} {quantum:>12}  {verdict}",
             d.term, d.max_abs, d.rms
         );
     }

@@ -1843,6 +1843,25 @@ impl PolicyLayout {
         })
     }
 
+    /// What a slot is called where several show one term: the term's name for a plain list;
+    /// with blocks, the layout block (or the history copy) it sits in, then the term —
+    /// `current.ref_joint_pos`, `history[t-3].ref_joint_pos`, `future.ref_joint_pos`.
+    pub fn slot_label(&self, slot: &TermSlot) -> String {
+        if self.manifest.block.is_empty() {
+            return slot.term.name().to_owned();
+        }
+        let at = slot.range.start;
+        let holding = |b: &&BlockSpan| b.range.contains(&at);
+        let place = self
+            .blocks
+            .iter()
+            .filter(holding)
+            .find(|b| b.name.contains("[t-"))
+            .or_else(|| self.blocks.iter().filter(holding).find(|b| b.depth == 0))
+            .map_or("observation", |b| b.name.as_str());
+        format!("{place}.{}", slot.term.name())
+    }
+
     /// Whether any term needs simulation ground truth.
     pub fn needs_ground_truth(&self) -> bool {
         self.slots.iter().any(|s| s.term.needs_ground_truth())
