@@ -151,13 +151,7 @@ fn twist2s_tick_with_its_1432_value_observation_and_recording_allocates_nothing(
     let robot = Robot::load(&root.join("robots/g1-twist2/robot.toml")).unwrap();
     let layout = PolicyLayout::load(&root.join("robots/g1-twist2/policies/twist2.toml"), &robot).unwrap();
     let clip = Clip::load(&dir.join("example_motions/0807_yanjie_walk_001.pkl")).unwrap();
-    let reference = Reference::from_clip_with(
-        &clip,
-        &robot,
-        layout.manifest.rate_hz,
-        layout.manifest.reference.velocities,
-    )
-    .unwrap();
+    let reference = Reference::for_policy(&clip, &robot, &layout).unwrap();
     let (p, mut clock, _world) = lockstep_player(
         robot,
         layout,

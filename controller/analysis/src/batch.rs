@@ -153,12 +153,7 @@ pub fn run_batch(
     let mut references = Vec::with_capacity(clips.len());
     for c in clips {
         let clip = Clip::load(c)?;
-        references.push(Reference::from_clip_with(
-            &clip,
-            robot,
-            layout.manifest.rate_hz,
-            layout.manifest.reference.velocities,
-        )?);
+        references.push(Reference::for_policy(&clip, robot, &layout)?);
     }
     let work: Vec<(usize, u64)> = (0..clips.len())
         .flat_map(|c| seeds.iter().map(move |&s| (c, s)))

@@ -110,6 +110,16 @@ impl Reference {
         Self::from_clip_with(clip, robot, rate_hz, VelocityRule::ControlTicks)
     }
 
+    /// `clip` as `layout`'s policy plays it: at its rate, with its velocity rule.
+    pub fn for_policy(clip: &Clip, robot: &Robot, layout: &policy::PolicyLayout) -> Result<Self, ClipError> {
+        Self::from_clip_with(
+            clip,
+            robot,
+            layout.manifest.rate_hz,
+            layout.manifest.reference.velocities,
+        )
+    }
+
     /// [`Self::from_clip`] with the velocities computed by `rule`.
     pub fn from_clip_with(
         clip: &Clip,

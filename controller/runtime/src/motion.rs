@@ -615,12 +615,7 @@ pub fn load_reference(
         return Ok((reference, ReferenceSource::Commands));
     }
     let clip = Clip::load(clip.unwrap_or(default_clip))?;
-    let reference = Reference::from_clip_with(
-        &clip,
-        robot,
-        layout.manifest.rate_hz,
-        layout.manifest.reference.velocities,
-    )?;
+    let reference = Reference::for_policy(&clip, robot, layout)?;
     Ok((reference, ReferenceSource::Clip(clip)))
 }
 
