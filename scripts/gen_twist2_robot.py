@@ -52,6 +52,121 @@ def fmt(x):
     return repr(round(float(x), 6))
 
 
+# How human motion maps onto this G1 (`robodeploy retarget`, written into robot.toml as is).
+RETARGET = """
+# How human motion maps onto the G1 (`robodeploy retarget`): GMR's recipe for this robot, as the
+# motions TWIST2 was trained on were made (facts of GMR's published BVH-to-G1 table: which body
+# follows which, the posture stage's orientations and the feet, then positions; arms scaled to
+# 0.83 of the legs). Rest-pose alignment is measured from the nominal frame, not tabulated.
+[retarget]
+# The G1 matching a human T-pose: arms straight out to the sides.
+tpose = { left_shoulder_roll_joint = 1.5708, right_shoulder_roll_joint = -1.5708, left_elbow_joint = 1.5708, right_elbow_joint = 1.5708 }
+
+[[retarget.pairs]]
+human = "root"
+frame = "pelvis"
+position_weight = 100.0
+orientation_weight = 5.0
+posture = { orientation_weight = 10.0 }
+
+[[retarget.pairs]]
+human = "chest"
+frame = "torso_link"
+orientation_weight = 10.0
+posture = { orientation_weight = 100.0 }
+
+[[retarget.pairs]]
+human = "left_hip"
+frame = "left_hip_yaw_link"
+position_weight = 10.0
+orientation_weight = 5.0
+posture = { orientation_weight = 10.0 }
+
+[[retarget.pairs]]
+human = "right_hip"
+frame = "right_hip_yaw_link"
+position_weight = 10.0
+orientation_weight = 5.0
+posture = { orientation_weight = 10.0 }
+
+[[retarget.pairs]]
+human = "left_knee"
+frame = "left_knee_link"
+position_weight = 10.0
+orientation_weight = 5.0
+posture = { orientation_weight = 10.0 }
+
+[[retarget.pairs]]
+human = "right_knee"
+frame = "right_knee_link"
+position_weight = 10.0
+orientation_weight = 5.0
+posture = { orientation_weight = 10.0 }
+
+[[retarget.pairs]]
+human = "left_foot"
+frame = "left_ankle_roll_link"
+position_weight = 50.0
+orientation_weight = 10.0
+posture = { position_weight = 50.0, orientation_weight = 10.0 }
+
+[[retarget.pairs]]
+human = "right_foot"
+frame = "right_ankle_roll_link"
+position_weight = 50.0
+orientation_weight = 10.0
+posture = { position_weight = 50.0, orientation_weight = 10.0 }
+
+[[retarget.pairs]]
+human = "left_shoulder"
+frame = "left_shoulder_yaw_link"
+position_weight = 5.0
+orientation_weight = 100.0
+scale = 0.83
+posture = { orientation_weight = 100.0 }
+
+[[retarget.pairs]]
+human = "right_shoulder"
+frame = "right_shoulder_yaw_link"
+position_weight = 5.0
+orientation_weight = 100.0
+scale = 0.83
+posture = { orientation_weight = 100.0 }
+
+[[retarget.pairs]]
+human = "left_elbow"
+frame = "left_elbow_link"
+position_weight = 10.0
+orientation_weight = 5.0
+scale = 0.83
+posture = { orientation_weight = 10.0 }
+
+[[retarget.pairs]]
+human = "right_elbow"
+frame = "right_elbow_link"
+position_weight = 10.0
+orientation_weight = 5.0
+scale = 0.83
+posture = { orientation_weight = 10.0 }
+
+[[retarget.pairs]]
+human = "left_hand"
+frame = "left_wrist_yaw_link"
+position_weight = 10.0
+orientation_weight = 5.0
+scale = 0.83
+posture = { orientation_weight = 10.0 }
+
+[[retarget.pairs]]
+human = "right_hand"
+frame = "right_wrist_yaw_link"
+position_weight = 10.0
+orientation_weight = 5.0
+scale = 0.83
+posture = { orientation_weight = 10.0 }
+"""
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=pathlib.Path, default=ROOT / "robots/g1-twist2/robot.toml")
@@ -141,6 +256,7 @@ def main():
             f"kd = {fmt(kd)}",
             "",
         ]
+    lines += RETARGET.splitlines()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text("\n".join(lines).rstrip() + "\n")
     print(f"wrote {args.out}")

@@ -1055,6 +1055,16 @@ pub enum HumanBody {
     LeftKnee,
     /// Right knee.
     RightKnee,
+    /// Upper chest (the torso above the waist).
+    Chest,
+    /// Left hip joint (the thigh).
+    LeftHip,
+    /// Right hip joint (the thigh).
+    RightHip,
+    /// Left shoulder joint (the upper arm).
+    LeftShoulder,
+    /// Right shoulder joint (the upper arm).
+    RightShoulder,
 }
 
 /// The point of the model a keypoint is: a body's or site's origin, or a point offset from it in
@@ -1119,6 +1129,31 @@ pub struct BodyPair {
     /// The twist axis in the robot frame's own coordinates.
     #[serde(default = "x_axis")]
     pub twist_axis: [f64; 3],
+    /// This body's scale about the root, as a factor of the map's scale (root heights): limbs
+    /// of other proportions than the human's (GMR scales arms and legs apart), 0.3–3.
+    #[serde(default = "unit_scale")]
+    pub scale: f64,
+    /// Its weights in the first, posture stage of inverse kinematics (GMR's first table: mostly
+    /// orientations, the feet's positions), solved before the weights above refine it. Absent
+    /// on every pair: one stage.
+    #[serde(default)]
+    pub posture: Option<StageWeights>,
+}
+
+fn unit_scale() -> f64 {
+    1.0
+}
+
+/// A pair's weights in one stage of inverse kinematics.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, schemars::JsonSchema, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct StageWeights {
+    /// Weight of the position (0: ignored).
+    #[serde(default)]
+    pub position_weight: f64,
+    /// Weight of the orientation (0: ignored).
+    #[serde(default)]
+    pub orientation_weight: f64,
 }
 
 fn x_axis() -> [f64; 3] {
@@ -1790,6 +1825,15 @@ impl Robot {
             let weights = [p.position_weight, p.orientation_weight];
             if weights.iter().any(|w| !(w.is_finite() && *w >= 0.0)) || weights == [0.0, 0.0] {
                 return Err((at.clone(), "weights must be ≥ 0 and not both 0".to_owned()));
+            }
+            if let Some(stage) = &p.posture {
+                let w = [stage.position_weight, stage.orientation_weight];
+                if w.iter().any(|w| !(w.is_finite() && *w >= 0.0)) {
+                    return Err((format!("{at}.posture"), format!("weights {w:?} must be ≥ 0")));
+                }
+            }
+            if !(0.3..=3.0).contains(&p.scale) {
+                return Err((format!("{at}.scale"), format!("{} is outside 0.3–3", p.scale)));
             }
             let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
             if norm(p.twist_axis).is_nan() || norm(p.twist_axis) <= 1e-6 {

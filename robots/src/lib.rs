@@ -18,8 +18,8 @@ pub use config::{
     BodyPair, BusConfig, BusKind, BusTiming, FrictionCone, GainsOutOfRange, HarnessConfig, HumanBody,
     IMU_SENSOR_KINDS, ImuConfig, ImuSensorNames, Integrator, Interpolation, JointConfig, JointDynamics,
     JointDynamicsOf, KeypointFrame, MAX_HARNESS_LIFT_M, MitModelConfig, OrientationCompare, PositionTargets,
-    RetargetConfig, Robot, RobotConfig, RobotError, SafetyConfig, SimConfig, Solver, StartConfig, StartMode,
-    TrackingRule, default_command_timeout, matches_pattern,
+    RetargetConfig, Robot, RobotConfig, RobotError, SafetyConfig, SimConfig, Solver, StageWeights,
+    StartConfig, StartMode, TrackingRule, default_command_timeout, matches_pattern,
 };
 pub use estimator::{EstimatorConfig, FilterKind};
 

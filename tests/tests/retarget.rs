@@ -23,10 +23,11 @@ fn a_cmu_recording_becomes_a_clip_the_checker_accepts() {
     // 25.2 s at 50 Hz; scale from hip heights (1.05 m → 0.46 m).
     assert_eq!(m.times.len(), 1262);
     assert!((m.scale - 0.44).abs() < 0.02, "scale {}", m.scale);
-    // The body follows: pelvis and feet within a few cm of their mapped targets, hands (the
-    // robot's arms are relatively short) within 8 cm on average.
+    // The body follows: pelvis and feet within a few cm of their mapped targets (a foot whose
+    // target would put its sole into the floor stays on it), hands (the robot's arms are
+    // relatively short) within 8 cm on average.
     for (frame, mean, worst) in &m.pair_errors {
-        let bound = if frame.ends_with("hand") { 0.08 } else { 0.01 };
+        let bound = if frame.ends_with("hand") { 0.08 } else { 0.015 };
         assert!(*mean < bound, "{frame}: mean {mean:.3} m (worst {worst:.3})");
     }
     // The clip checker: within every joint's position and speed limit (the loader refuses
@@ -99,6 +100,67 @@ fn the_cli_writes_and_checks_the_clip_and_names_bad_input() {
         !ok && text.contains(":4:") && text.contains("expected 3 finite numbers"),
         "{text}"
     );
+    // A calibrating recording that is broken, or of another skeleton, is named by its flag.
+    let (ok, text) = run(&[
+        "retarget",
+        "--bvh",
+        bvh.to_str().unwrap(),
+        "--nominal-from",
+        broken.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(
+        !ok && text.contains("--nominal-from") && text.contains(":4:"),
+        "{text}"
+    );
+    let other = std::env::temp_dir().join(format!("other-{}.bvh", std::process::id()));
+    std::fs::write(
+        &other,
+        "HIERARCHY\nROOT Hips\n{\nOFFSET 0 0 0\nCHANNELS 6 Xposition Yposition Zposition Zrotation Yrotation Xrotation\n\
+         JOINT LeftHand\n{\nOFFSET 1 0 0\nCHANNELS 3 Zrotation Yrotation Xrotation\nEnd Site\n{\nOFFSET 1 0 0\n}\n}\n}\n\
+         MOTION\nFrames: 1\nFrame Time: 0.01\n0 18 0 0 0 0 0 0 0\n",
+    )
+    .unwrap();
+    let (ok, text) = run(&[
+        "retarget",
+        "--bvh",
+        bvh.to_str().unwrap(),
+        "--nominal-from",
+        other.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(
+        !ok && text.contains("--nominal-from") && text.contains("skeleton"),
+        "{text}"
+    );
+    let _ = std::fs::remove_file(&other);
     let _ = std::fs::remove_file(&broken);
     let _ = std::fs::remove_file(&out);
+}
+
+#[test]
+fn a_retargeting_map_out_of_range_is_refused_by_field() {
+    let path = robots::reference_robot_path();
+    let text = std::fs::read_to_string(&path).unwrap();
+    let root_pair = "human = \"root\"\nframe = \"pelvis\"\n";
+    assert!(
+        text.contains(root_pair),
+        "rd-biped's root pair changed: update this test"
+    );
+    for (extra, field, says) in [
+        ("scale = 5.0\n", "retarget.pairs[0].scale", "outside 0.3–3"),
+        ("scale = 0.0\n", "retarget.pairs[0].scale", "outside 0.3–3"),
+        (
+            "posture = { position_weight = -1.0 }\n",
+            "retarget.pairs[0].posture",
+            "must be ≥ 0",
+        ),
+        ("posture = { weight = 1.0 }\n", "weight", "unknown field"),
+    ] {
+        let edited = text.replacen(root_pair, &format!("{root_pair}{extra}"), 1);
+        let err = Robot::from_str(&path, &edited).unwrap_err().to_string();
+        assert!(err.contains(field) && err.contains(says), "{extra}: {err}");
+    }
 }

@@ -366,7 +366,8 @@ pub fn analyze(robot: &Robot, reference: &Reference) -> Result<MotionQuality, wo
         torque: Vec::with_capacity(n * joints.len()),
     };
     let (mut slide_sum, mut float_sum, mut contact_samples) = (0.0, 0.0, 0usize);
-    let mut previous_feet: Vec<[f64; 3]> = Vec::new();
+    // Each foot's pose the tick before: (origin, rotation, row major).
+    let mut previous_feet: Vec<([f64; 3], [f64; 9])> = Vec::new();
     let mut unsupported_run: Option<(usize, usize)> = None;
     let mut needed = vec![0.0; nv];
     for k in 0..n {
@@ -431,12 +432,42 @@ pub fn analyze(robot: &Robot, reference: &Reference) -> Result<MotionQuality, wo
         for (f, &body) in feet.iter().enumerate() {
             let footprint = sole_footprint(&data, body, &soles[f]);
             let height = footprint.lowest;
-            let p = data.xpos()[body];
-            now_feet.push(p);
+            let (p, r) = (data.xpos()[body], data.xmat()[body]);
+            now_feet.push((p, r));
             if height < CONTACT_HEIGHT {
                 float_sum += height.max(0.0);
-                if let Some(prev) = previous_feet.get(f) {
-                    slide_sum += ((p[0] - prev[0]).powi(2) + (p[1] - prev[1]).powi(2)).sqrt() / dt;
+                // Sliding: how fast the sole's points on the floor move, as points of the foot
+                // (where each was the tick before), so a foot rolling over its toe or heel does
+                // not slide while its ankle moves.
+                if let Some(&(p0, r0)) = previous_feet.get(f) {
+                    let touching: Vec<[f64; 3]> = footprint
+                        .corners
+                        .iter()
+                        .copied()
+                        .filter(|c| c[2] < CONTACT_HEIGHT)
+                        .collect();
+                    let points: &[[f64; 3]] = if touching.is_empty() {
+                        &footprint.corners
+                    } else {
+                        &touching
+                    };
+                    let speed = points
+                        .iter()
+                        .map(|c| {
+                            let d = spatial::sub(*c, p);
+                            // In the foot's frame now, then where the foot was.
+                            let local = [0, 1, 2].map(|i| r[i] * d[0] + r[3 + i] * d[1] + r[6 + i] * d[2]);
+                            let was = [0, 1, 2].map(|i| {
+                                p0[i]
+                                    + r0[3 * i] * local[0]
+                                    + r0[3 * i + 1] * local[1]
+                                    + r0[3 * i + 2] * local[2]
+                            });
+                            ((c[0] - was[0]).powi(2) + (c[1] - was[1]).powi(2)).sqrt() / dt
+                        })
+                        .sum::<f64>()
+                        / points.len().max(1) as f64;
+                    slide_sum += speed;
                 }
                 contact_samples += 1;
                 contacts.extend(

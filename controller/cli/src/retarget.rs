@@ -6,7 +6,7 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use controller::clip::{Clip, Reference};
 use human::bvh::Bvh;
-use human::retarget::{RetargetOptions, retarget};
+use human::retarget::{RetargetOptions, retarget_calibrated};
 use robots::Robot;
 
 /// Arguments of `retarget`.
@@ -18,6 +18,11 @@ pub struct RetargetArgs {
     /// The robot (its robot.toml's [retarget] section pairs human and robot bodies).
     #[arg(long, default_value_os_t = robots::locate::default_robot())]
     robot: PathBuf,
+    /// The policy that will track the clip (default: the robot's own, robot.toml's `policy`):
+    /// a policy whose manifest says `[reference] feasibility = "report"` tracks kinematic
+    /// references, so what the robot could not follow exactly is reported, not refused.
+    #[arg(long)]
+    policy: Option<PathBuf>,
     /// Where to write the clip (CSV).
     #[arg(long, default_value = "out/clips/retargeted.csv")]
     out: PathBuf,
@@ -27,6 +32,11 @@ pub struct RetargetArgs {
     /// The recording's frame that matches the robot's nominal pose (CMU trials start in a T-pose).
     #[arg(long, default_value_t = 0, value_parser = crate::args::frame_index)]
     nominal_frame: usize,
+    /// Calibrate on another recording of the same skeleton (its --nominal-frame): a T-pose or
+    /// standing take of the same performer, for clips that start moving (a walk that starts
+    /// mid-stride has no frame matching the robot's pose). Default: the clip itself.
+    #[arg(long, value_name = "BVH")]
+    nominal_from: Option<PathBuf>,
     /// The recording's first frame in the clip (CMU trials start with a one-frame T-pose: 1).
     #[arg(long, default_value_t = 0, value_parser = crate::args::frame_index)]
     start_frame: usize,
@@ -69,7 +79,15 @@ pub fn run(args: &RetargetArgs) -> Result<()> {
     };
     let bar = indicatif::ProgressBar::new_spinner().with_message("retargeting");
     let started = std::time::Instant::now();
-    let motion = retarget(&robot, &bvh, &options)?;
+    let calibration = match &args.nominal_from {
+        Some(path) => Some(Bvh::load(path).with_context(|| format!("--nominal-from {}", path.display()))?),
+        None => None,
+    };
+    let motion = retarget_calibrated(&robot, &bvh, calibration.as_ref().unwrap_or(&bvh), &options)
+        .with_context(|| match &args.nominal_from {
+            Some(path) => format!("--nominal-from {}", path.display()),
+            None => format!("--bvh {}", args.bvh.display()),
+        })?;
     bar.finish_and_clear();
     println!(
         "retargeted onto {}: scale {:.3}, {} frames at {} Hz in {:.1} s; paired frames off their targets by {:.1} cm on average, {:.1} cm at worst",
@@ -90,11 +108,15 @@ pub fn run(args: &RetargetArgs) -> Result<()> {
                 .map_or_else(String::new, |f| f.to_string_lossy().into_owned())
         ),
         format!(
-            "nominal frame {} ↔ robot {} pose, scale {:.4}; root quaternion is w, x, y, z",
+            "nominal frame {}{} ↔ robot {}, scale {:.4}; root quaternion is w, x, y, z",
             args.nominal_frame,
+            args.nominal_from
+                .as_ref()
+                .and_then(|p| p.file_name())
+                .map_or_else(String::new, |f| format!(" of {}", f.to_string_lossy())),
             match args.nominal {
-                crate::args::NominalArg::Tpose => "T-",
-                crate::args::NominalArg::Default => "default",
+                crate::args::NominalArg::Tpose => "T-pose",
+                crate::args::NominalArg::Default => "default pose",
             },
             motion.scale
         ),
@@ -113,7 +135,23 @@ pub fn run(args: &RetargetArgs) -> Result<()> {
     println!("clip quality on the robot model:");
     print!("{quality}");
     let problems = quality.problems();
-    if !problems.is_empty() {
+    let policy = args.policy.clone().or_else(|| robot.default_policy());
+    let reported = match &policy {
+        Some(path) => {
+            let layout = policy::PolicyLayout::load(path, &robot)
+                .with_context(|| format!("--policy {}", path.display()))?;
+            (layout.manifest.reference.feasibility == policy::Feasibility::Report).then_some(layout.path)
+        }
+        None => None,
+    };
+    if let (false, Some(manifest)) = (problems.is_empty(), reported) {
+        println!(
+            "the robot could not follow this clip exactly ({}); reported, not refused: the policy \
+             tracks kinematic references ({}: [reference] feasibility = \"report\")",
+            problems.join("; "),
+            manifest.display()
+        );
+    } else if !problems.is_empty() {
         bail!(
             "{}: the clip has problems:\n  {}",
             args.out.display(),

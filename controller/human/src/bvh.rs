@@ -8,7 +8,7 @@
 use std::path::Path;
 
 use crate::HumanError;
-use robots::spatial::{IDENTITY, Mat3, mat_apply as apply, mat_mul as mul, transpose};
+use robots::spatial::{self, IDENTITY, Mat3, mat_apply as apply, mat_mul as mul, transpose};
 
 /// One joint of the hierarchy.
 #[derive(Debug, Clone, PartialEq)]
@@ -367,6 +367,40 @@ impl Bvh {
         }
         Pose { pos, rot }
     }
+
+    /// The pose `t` seconds after frame `first`, between the two frames around it: positions
+    /// interpolated linearly, orientations along the shortest arc (a clip resampled at another
+    /// rate moves smoothly instead of holding frames). Past the last frame: the last frame.
+    pub fn pose_at(&self, first: usize, t: f64) -> Pose {
+        let x = (first as f64 + t.max(0.0) / self.frame_time).min((self.frames() - 1) as f64);
+        let k = x.floor() as usize;
+        let w = x - k as f64;
+        let a = self.pose(k);
+        if w < 1e-9 || k + 1 >= self.frames() {
+            return a;
+        }
+        let b = self.pose(k + 1);
+        Pose {
+            pos: a
+                .pos
+                .iter()
+                .zip(&b.pos)
+                .map(|(p, q)| [0, 1, 2].map(|i| p[i] + w * (q[i] - p[i])))
+                .collect(),
+            rot: a
+                .rot
+                .iter()
+                .zip(&b.rot)
+                .map(|(p, q)| {
+                    spatial::mat_of_quat(spatial::slerp(
+                        spatial::quat_of_mat(p),
+                        spatial::quat_of_mat(q),
+                        w,
+                    ))
+                })
+                .collect(),
+        }
+    }
 }
 
 /// `n` finite numbers from the rest of line `line` of `path`.
@@ -459,6 +493,29 @@ mod tests {
         assert!((p.pos[1][2] - 0.90).abs() < 1e-9, "hips {:?}", p.pos[1]);
         // The hand's channels say 20 cm along file X (robot Y), not its OFFSET's 10.
         assert!((p.pos[2][1] - 0.20).abs() < 1e-9, "hand {:?}", p.pos[2]);
+    }
+
+    #[test]
+    fn a_pose_between_frames_is_interpolated_and_the_last_frame_holds() {
+        // One root, two frames 0.1 s apart: x from 0 to 10 cm, yaw (file Y) from 0 to 90°.
+        let text = "HIERARCHY\nROOT Hips\n{\nOFFSET 0 0 0\nCHANNELS 6 Xposition Yposition Zposition Zrotation Yrotation Xrotation\n\
+            JOINT LeftHand\n{\nOFFSET 1 0 0\nCHANNELS 3 Zrotation Yrotation Xrotation\nEnd Site\n{\nOFFSET 1 0 0\n}\n}\n}\n\
+            MOTION\nFrames: 2\nFrame Time: 0.1\n0 0 0 0 0 0 0 0 0\n10 0 0 0 90 0 0 0 0\n";
+        let b = Bvh::parse(Path::new("two.bvh"), text).unwrap();
+        let unit = b.unit();
+        let quarter = b.pose_at(0, 0.025);
+        // File X is the robot's Y.
+        assert!(
+            (quarter.pos[0][1] - 2.5 * unit).abs() < 1e-12,
+            "{:?}",
+            quarter.pos[0]
+        );
+        // A quarter of the way along the arc: 22.5° about the vertical.
+        let yaw = spatial::heading(&quarter.rot[0]);
+        assert!((yaw.abs() - 22.5f64.to_radians()).abs() < 1e-9, "yaw {yaw}");
+        assert_eq!(b.pose_at(0, 0.0), b.pose(0));
+        assert_eq!(b.pose_at(0, 5.0), b.pose(1));
+        assert_eq!(b.pose_at(1, 0.0), b.pose(1));
     }
 
     #[test]

@@ -48,6 +48,8 @@ pub struct Ik {
     pub damping: f64,
     /// Largest joint step per iteration, rad.
     pub max_step: f64,
+    /// Weight of keeping the colliding geoms out of the floor (0: the floor is not looked at).
+    pub floor_weight: f64,
     jac: Vec<f64>,
     err: Vec<f64>,
     normal: Vec<f64>,
@@ -112,6 +114,7 @@ impl Ik {
             compare: vec![(OrientationCompare::Full, [1.0, 0.0, 0.0]); rows / 6],
             damping: 0.05,
             max_step: 0.2,
+            floor_weight: 0.0,
             jac: vec![0.0; rows * nv],
             err: vec![0.0; rows],
             normal: vec![0.0; rows * rows],
@@ -204,24 +207,29 @@ impl Ik {
     /// radius) in the current pose, m: below 0 the soles are in the floor.
     pub fn lowest_point(&self) -> f64 {
         let model = self.data.model();
-        let mut lowest = f64::INFINITY;
-        for g in 0..model.ffi().ngeom as usize {
-            if model.geom_contype()[g] == 0 || model.geom_bodyid()[g] == 0 {
-                continue;
-            }
-            let (c, m, s) = (
-                self.data.geom_xpos()[g],
-                self.data.geom_xmat()[g],
-                model.geom_size()[g],
-            );
-            // Half extent along world z: Σ |R_zk| · size_k for a box (type 6); the radius otherwise.
-            let extent = match model.geom_type()[g] as i32 {
-                6 => (0..3).map(|k| m[6 + k].abs() * s[k]).sum::<f64>(),
-                _ => s[0],
-            };
-            lowest = lowest.min(c[2] - extent);
+        (0..model.ffi().ngeom as usize)
+            .filter_map(|g| self.geom_bottom(g))
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    /// How low colliding geom `g` of a robot body reaches (boxes: their corners; others: their
+    /// radius), m; `None` for the world's geoms and those that collide with nothing.
+    fn geom_bottom(&self, g: usize) -> Option<f64> {
+        let model = self.data.model();
+        if model.geom_contype()[g] == 0 || model.geom_bodyid()[g] == 0 {
+            return None;
         }
-        lowest
+        let (c, m, s) = (
+            self.data.geom_xpos()[g],
+            self.data.geom_xmat()[g],
+            model.geom_size()[g],
+        );
+        // Half extent along world z: Σ |R_zk| · size_k for a box (type 6); the radius otherwise.
+        let extent = match model.geom_type()[g] as i32 {
+            6 => (0..3).map(|k| m[6 + k].abs() * s[k]).sum::<f64>(),
+            _ => s[0],
+        };
+        Some(c[2] - extent)
     }
 
     /// The root pose that stands the robot in pose `q` with its lowest point on the floor, at the
@@ -292,8 +300,34 @@ impl Ik {
                     }
                 }
             }
+            // The floor: one row per geom below it, pushing it up (a one-sided goal, so only
+            // the geoms in the floor count; the frames' goals pick how the robot gets out).
+            let goal_rows = 6 * goals.len();
+            self.jac.truncate(goal_rows * nv);
+            self.err.truncate(goal_rows);
+            if self.floor_weight > 0.0 {
+                for g in 0..self.data.model().ffi().ngeom as usize {
+                    let Some(bottom) = self.geom_bottom(g).filter(|b| *b < 0.0) else {
+                        continue;
+                    };
+                    let body = self.data.model().geom_bodyid()[g] as usize;
+                    let at = self.data.geom_xpos()[g];
+                    let (jp, _) = self.data.jac(true, false, &at, body);
+                    self.err.push(-self.floor_weight * bottom);
+                    let start = self.jac.len();
+                    self.jac.extend((0..nv).map(|c| {
+                        if self.active[c] {
+                            self.floor_weight * jp[2 * nv + c]
+                        } else {
+                            0.0
+                        }
+                    }));
+                    debug_assert_eq!(self.jac.len(), start + nv);
+                }
+            }
             residual = self.err.iter().map(|e| e * e).sum::<f64>().sqrt();
             let m = self.err.len();
+            self.normal.resize(m * m, 0.0);
             // (J Jᵀ + λ² I) y = e, then dq = Jᵀ y.
             for a in 0..m {
                 for b in 0..=a {
@@ -444,5 +478,40 @@ mod tests {
         }
         // The legs, not asked for anything, did not move; the root is held.
         assert_eq!(&q[..12], &q0[..12]);
+    }
+
+    #[test]
+    fn a_sole_in_the_floor_is_pushed_out_by_the_leg_not_the_body() {
+        let robot = Robot::load(&robots::reference_robot_path()).unwrap();
+        let frames = vec!["pelvis".to_owned()];
+        let mut ik = Ik::new(&robot, &frames, true, &[]).unwrap();
+        let q0: Vec<f64> = robot.config.joints.iter().map(|j| j.default_position).collect();
+        let root = ik.standing_root(&q0);
+        // Hold the pelvis where it stands and ask for it 3 cm lower: the soles would go into
+        // the floor with it.
+        let mut goal_root = root;
+        goal_root[2] -= 0.03;
+        let goal = IkGoal {
+            frame: Frame {
+                pos: [goal_root[0], goal_root[1], goal_root[2]],
+                rot: ik.frame(0).rot,
+            },
+            position_weight: 1.0,
+            orientation_weight: 1.0,
+        };
+        ik.solve(&[goal], 60);
+        let sunk = ik.lowest_point();
+        assert!(sunk < -0.02, "without the floor the soles sink: {sunk}");
+        ik.set_pose(root, &q0);
+        ik.floor_weight = 10.0;
+        ik.solve(&[goal], 60);
+        let lowest = ik.lowest_point();
+        assert!(lowest > -0.003, "with the floor the soles stay on it: {lowest}");
+        // The pelvis went down anyway: the knees bent for it.
+        assert!(
+            (ik.frame(0).pos[2] - goal_root[2]).abs() < 0.01,
+            "{:?}",
+            ik.frame(0).pos
+        );
     }
 }

@@ -6,7 +6,7 @@
 use std::fmt::Write as _;
 
 use crate::body_map::{Frame, PairParams, RetargetMap};
-use robots::spatial;
+use robots::spatial::{self, Mat3};
 use robots::{HumanBody, Robot};
 
 use super::bvh::{Bvh, Dialect, Pose};
@@ -35,8 +35,36 @@ pub fn bvh_joint(dialect: Dialect, body: HumanBody) -> &'static str {
         (Dialect::Bandai, H::RightFoot) => "Foot_R",
         (Dialect::Bandai, H::LeftKnee) => "LowerLeg_L",
         (Dialect::Bandai, H::RightKnee) => "LowerLeg_R",
+        (Dialect::Cmu, H::Chest) => "Spine1",
+        (Dialect::Bandai, H::Chest) => "Chest",
+        (Dialect::Cmu, H::LeftHip) => "LeftUpLeg",
+        (Dialect::Cmu, H::RightHip) => "RightUpLeg",
+        (Dialect::Bandai, H::LeftHip) => "UpperLeg_L",
+        (Dialect::Bandai, H::RightHip) => "UpperLeg_R",
+        (Dialect::Cmu, H::LeftShoulder) => "LeftArm",
+        (Dialect::Cmu, H::RightShoulder) => "RightArm",
+        (Dialect::Bandai, H::LeftShoulder) => "UpperArm_L",
+        (Dialect::Bandai, H::RightShoulder) => "UpperArm_R",
     }
 }
+
+/// The BVH joint whose orientation a body takes, where it is not its own: a robot's rigid sole
+/// lies like the human forefoot (the toes' segment), flat on the floor through toe-off while the
+/// heel rises (GMR's feet follow the toes' orientation too).
+fn orientation_joint(dialect: Dialect, body: HumanBody) -> Option<&'static str> {
+    use HumanBody as H;
+    match (dialect, body) {
+        (Dialect::Cmu, H::LeftFoot) => Some("LeftToeBase"),
+        (Dialect::Cmu, H::RightFoot) => Some("RightToeBase"),
+        (Dialect::Bandai, H::LeftFoot) => Some("Toes_L"),
+        (Dialect::Bandai, H::RightFoot) => Some("Toes_R"),
+        _ => None,
+    }
+}
+
+/// A recording turned to face +x (the rotation) and moved over the origin (where its root was,
+/// after the turn).
+type Alignment = (Mat3, [f64; 3]);
 
 /// The thighs' roots, whose line gives a skeleton's heading.
 fn hips(dialect: Dialect) -> [&'static str; 2] {
@@ -104,20 +132,42 @@ pub struct Retargeted {
     pub pair_errors: Vec<(String, f64, f64)>,
 }
 
-/// Retargets `bvh` onto `robot`.
+/// Retargets `bvh` onto `robot`, the map calibrated on the clip's own nominal frame.
 pub fn retarget(robot: &Robot, bvh: &Bvh, options: &RetargetOptions) -> Result<Retargeted, HumanError> {
+    retarget_calibrated(robot, bvh, bvh, options)
+}
+
+/// Retargets `bvh` onto `robot`, the map calibrated on the nominal frame of `calibration` (a
+/// recording of the same skeleton: a T-pose or standing take of the same performer, for clips
+/// that start moving — a walk that starts mid-stride has no frame that matches the robot's pose).
+pub fn retarget_calibrated(
+    robot: &Robot,
+    bvh: &Bvh,
+    calibration: &Bvh,
+    options: &RetargetOptions,
+) -> Result<Retargeted, HumanError> {
     let config = robot.config.retarget.as_ref().ok_or_else(|| {
         HumanError::map(format!(
             "{}: no [retarget] section: which robot body stands for which human one?",
             robot.path.display()
         ))
     })?;
-    if options.nominal_frame >= bvh.frames() || options.start_frame + 1 >= bvh.frames() {
+    if options.nominal_frame >= calibration.frames() || options.start_frame + 1 >= bvh.frames() {
         return Err(HumanError::map(format!(
-            "nominal frame {} and start frame {}, but the recording has {} frames",
+            "nominal frame {} (of {} frames) and start frame {} (of {} frames) are not frames of the recordings",
             options.nominal_frame,
+            calibration.frames(),
             options.start_frame,
             bvh.frames()
+        )));
+    }
+    if calibration.dialect != bvh.dialect || calibration.joints.len() != bvh.joints.len() {
+        return Err(HumanError::map(format!(
+            "the calibrating recording's skeleton ({:?}, {} joints) is not the clip's ({:?}, {} joints)",
+            calibration.dialect,
+            calibration.joints.len(),
+            bvh.dialect,
+            bvh.joints.len()
         )));
     }
     if !(options.rate_hz.is_finite() && options.rate_hz > 0.0) {
@@ -148,24 +198,42 @@ pub fn retarget(robot: &Robot, bvh: &Bvh, options: &RetargetOptions) -> Result<R
         .position(|p| p.human == HumanBody::Root)
         .ok_or_else(|| HumanError::map("[retarget] pairs no robot frame with the root"))?;
 
-    // The human, turned to face +x and moved over the origin at the nominal frame.
-    let nominal = bvh.pose(options.nominal_frame);
-    let lateral = spatial::sub(nominal.pos[lh], nominal.pos[rh]);
-    let align = spatial::yaw(-(lateral[1].atan2(lateral[0]) - std::f64::consts::FRAC_PI_2));
-    let origin = spatial::mat_apply(&align, nominal.pos[human[root_pair]]);
-    let frame_of = |pose: &Pose, j: usize| {
-        let mut pos = spatial::mat_apply(&align, pose.pos[j]);
+    // A recording turned to face +x and moved over the origin at one of its frames: the
+    // nominal frame of the recording that calibrates the map, the clip's own for the clip.
+    let aligned_at = |pose: &Pose| {
+        let lateral = spatial::sub(pose.pos[lh], pose.pos[rh]);
+        let rot = spatial::yaw(-(lateral[1].atan2(lateral[0]) - std::f64::consts::FRAC_PI_2));
+        let origin = spatial::mat_apply(&rot, pose.pos[human[root_pair]]);
+        (rot, origin)
+    };
+    let nominal = calibration.pose(options.nominal_frame);
+    let calibrated = aligned_at(&nominal);
+    let clip_alignment = if std::ptr::eq(calibration, bvh) {
+        calibrated
+    } else {
+        aligned_at(&bvh.pose(options.start_frame))
+    };
+    let frame_of = |(align, origin): &Alignment, pose: &Pose, j: usize| {
+        let mut pos = spatial::mat_apply(align, pose.pos[j]);
         pos[0] -= origin[0];
         pos[1] -= origin[1];
         Frame {
             pos,
-            rot: spatial::mat_mul(&align, &pose.rot[j]),
+            rot: spatial::mat_mul(align, &pose.rot[j]),
         }
     };
 
     // The robot in its nominal pose, soles on the floor.
     let frames: Vec<String> = config.pairs.iter().map(|p| p.frame.clone()).collect();
     let mut ik = Ik::new(robot, &frames, true, &[])?;
+    // Soles stay out of the floor by moving the foot (its pitch, the leg), not by lifting the
+    // whole robot off the other, planted foot: twice the heaviest pair's weight.
+    ik.floor_weight = 2.0
+        * config
+            .pairs
+            .iter()
+            .map(|p| p.position_weight.max(p.orientation_weight))
+            .fold(1.0, f64::max);
     for (k, p) in config.pairs.iter().enumerate() {
         ik.set_compare(k, p.orientation_compare, p.twist_axis);
     }
@@ -182,18 +250,37 @@ pub fn retarget(robot: &Robot, bvh: &Bvh, options: &RetargetOptions) -> Result<R
     let drop = ik.lowest_point();
     ik.lift(-drop);
     let target: Vec<Frame> = (0..frames.len()).map(|k| ik.frame(k)).collect();
-    // Position-only pairs (hands) carry their nominal offset in the pelvis' frame: the offset
-    // stands for different body proportions, which turn with the body, not with the wrist.
+    // Each body's offset from the root scaled by its pair's factor (limbs of other proportions).
     let root_joint = human[root_pair];
-    let position_only: Vec<bool> = config.pairs.iter().map(|p| p.orientation_weight == 0.0).collect();
-    let source_frame = |pose: &Pose, b: usize| {
-        let mut f = frame_of(pose, human[b]);
-        if position_only[b] {
-            f.rot = frame_of(pose, root_joint).rot;
-        }
+    let turned_by: Vec<usize> = config
+        .pairs
+        .iter()
+        .zip(&human)
+        .map(|(p, &j)| {
+            orientation_joint(bvh.dialect, p.human)
+                .and_then(|n| bvh.joint(n))
+                .unwrap_or(j)
+        })
+        .collect();
+    let body_frame = |al: &Alignment, pose: &Pose, b: usize| {
+        let mut f = frame_of(al, pose, human[b]);
+        f.rot = frame_of(al, pose, turned_by[b]).rot;
+        let root = frame_of(al, pose, root_joint);
+        let factor = config.pairs[b].scale;
+        f.pos = spatial::add(root.pos, spatial::scale(spatial::sub(f.pos, root.pos), factor));
         f
     };
-    let source: Vec<Frame> = (0..human.len()).map(|b| source_frame(&nominal, b)).collect();
+    // The nominal position offsets stand for other body proportions (an ankle lower, hips
+    // wider), which turn with the body's heading, not with the limb: a foot pitching about its
+    // ankle leaves the ankle where it is. So positions map in the heading frame (the thighs'
+    // line), orientations in each body's own frame.
+    let heading_frame = |al: &Alignment, pose: &Pose, b: usize| {
+        let lateral = spatial::sub(frame_of(al, pose, lh).pos, frame_of(al, pose, rh).pos);
+        Frame {
+            pos: body_frame(al, pose, b).pos,
+            rot: spatial::yaw(lateral[1].atan2(lateral[0]) - std::f64::consts::FRAC_PI_2),
+        }
+    };
     let params: Vec<PairParams> = config
         .pairs
         .iter()
@@ -202,16 +289,57 @@ pub fn retarget(robot: &Robot, bvh: &Bvh, options: &RetargetOptions) -> Result<R
             p_ori: p.p_ori,
         })
         .collect();
-    let map = RetargetMap::nominal(
-        source[root_pair].pos[2],
-        target[root_pair].pos[2],
-        &source,
-        &target,
-        &params,
-        0.0,
-    )?;
-
+    let nominal_map = |frame: &dyn Fn(&Alignment, &Pose, usize) -> Frame| {
+        let source: Vec<Frame> = (0..human.len())
+            .map(|b| frame(&calibrated, &nominal, b))
+            .collect();
+        RetargetMap::nominal(
+            source[root_pair].pos[2],
+            target[root_pair].pos[2],
+            &source,
+            &target,
+            &params,
+            0.0,
+        )
+    };
+    let (position_map, orientation_map) = (nominal_map(&heading_frame)?, nominal_map(&body_frame)?);
+    // Feet: their height above the floor is the human's above theirs (the foot's lowest 5 % over
+    // the clip), scaled — not the nominal frame's, which may be mid-stride.
     let duration = (bvh.frames() - 1 - options.start_frame) as f64 * bvh.frame_time;
+    let ticks = (duration * options.rate_hz).floor() as usize + 1;
+    let feet_floor: Vec<Option<f64>> = config
+        .pairs
+        .iter()
+        .enumerate()
+        .map(|(b, p)| {
+            matches!(p.human, HumanBody::LeftFoot | HumanBody::RightFoot).then(|| {
+                let mut z: Vec<f64> = (0..ticks)
+                    .map(|k| {
+                        let pose = bvh.pose_at(options.start_frame, k as f64 / options.rate_hz);
+                        body_frame(&clip_alignment, &pose, b).pos[2]
+                    })
+                    .collect();
+                z.sort_by(f64::total_cmp);
+                z[z.len() / 20]
+            })
+        })
+        .collect();
+    let goal_frame = |pose: &Pose, b: usize| {
+        let mut pos = position_map.map(b, &heading_frame(&clip_alignment, pose, b)).pos;
+        if let Some(floor) = feet_floor[b] {
+            let above = body_frame(&clip_alignment, pose, b).pos[2] - floor;
+            pos[2] = target[b].pos[2] + position_map.scale * above;
+        }
+        Frame {
+            pos,
+            rot: orientation_map.map(b, &body_frame(&clip_alignment, pose, b)).rot,
+        }
+    };
+    let map = &position_map;
+    // GMR's two stages where the map names a posture stage: the posture first (orientations,
+    // the feet), then every pair's own weights refine it.
+    let two_stages = config.pairs.iter().any(|p| p.posture.is_some());
+
     let dt = 1.0 / options.rate_hz;
     let speed: Vec<f64> = robot
         .config
@@ -220,7 +348,6 @@ pub fn retarget(robot: &Robot, bvh: &Bvh, options: &RetargetOptions) -> Result<R
         .map(|j| 0.9 * j.velocity_limit * dt)
         .collect();
     let mut previous: Option<Vec<f64>> = None;
-    let ticks = (duration * options.rate_hz).floor() as usize + 1;
     let mut out = Retargeted {
         times: Vec::with_capacity(ticks),
         root: Vec::with_capacity(ticks),
@@ -239,14 +366,13 @@ pub fn retarget(robot: &Robot, bvh: &Bvh, options: &RetargetOptions) -> Result<R
     let mut error_count = 0usize;
     for k in 0..ticks {
         let t = k as f64 / options.rate_hz;
-        let frame = (options.start_frame + (t / bvh.frame_time).round() as usize).min(bvh.frames() - 1);
-        let pose = bvh.pose(frame);
+        let pose = bvh.pose_at(options.start_frame, t);
         let goals: Vec<IkGoal> = config
             .pairs
             .iter()
             .enumerate()
             .map(|(b, p)| IkGoal {
-                frame: map.map(b, &source_frame(&pose, b)),
+                frame: goal_frame(&pose, b),
                 position_weight: p.position_weight,
                 orientation_weight: p.orientation_weight,
             })
@@ -256,6 +382,24 @@ pub fn retarget(robot: &Robot, bvh: &Bvh, options: &RetargetOptions) -> Result<R
         } else {
             options.iterations
         };
+        if two_stages {
+            let posture: Vec<IkGoal> = goals
+                .iter()
+                .zip(&config.pairs)
+                .map(|(g, p)| {
+                    let w = p.posture.unwrap_or(robots::StageWeights {
+                        position_weight: 0.0,
+                        orientation_weight: 0.0,
+                    });
+                    IkGoal {
+                        position_weight: w.position_weight,
+                        orientation_weight: w.orientation_weight,
+                        ..*g
+                    }
+                })
+                .collect();
+            ik.solve(&posture, iterations);
+        }
         ik.solve(&goals, iterations);
         // Within the motors' speed: no joint moves further per frame than 90 % of its limit.
         ik.joints(&mut q);

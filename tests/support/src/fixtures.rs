@@ -42,6 +42,21 @@ pub fn twist2_dir() -> Option<PathBuf> {
     }
 }
 
+/// The human motion capture of `../shared/data/mocap/` (clips whose licence keeps them out of
+/// the repository, read in place); `None`, with a line saying the test is skipped, where absent.
+pub fn shared_mocap_dir() -> Option<PathBuf> {
+    let dir = workspace_root().join("../shared/data/mocap");
+    if dir.join("README.md").is_file() {
+        Some(dir)
+    } else {
+        eprintln!(
+            "skipped: {} is absent (third-party motion capture, read in place)",
+            dir.display()
+        );
+        None
+    }
+}
+
 /// The Python interpreter of the project's environment, with the independent third-party
 /// clients and readers the tests drive (`.local/venv/bin/python`).
 ///
