@@ -208,7 +208,8 @@ fn a_policy_reading_an_estimate_fed_nan_goes_to_the_safe_state() {
     let export = test_support::fixtures::fixture("rd_biped_tracking.onnx");
     let mut layout = PolicyLayout::load(&export, &robot).unwrap();
     let (reference, _) =
-        controller::motion::load_reference(None, &biped("clips/squat.csv"), &mut layout, &robot, 0).unwrap();
+        controller::reference::load_reference(None, &biped("clips/squat.csv"), &mut layout, &robot, 0)
+            .unwrap();
     let world = Arc::new(std::sync::Mutex::new(
         sim2real::mirror::Mirror::new(robot.clone(), MirrorConfig::default()).unwrap(),
     ));
@@ -372,7 +373,8 @@ fn walk_with_turns(robot: &str) -> PlaySummary {
     // Turning rate, forward, leftward.
     layout.set_command(&[0.3, 0.5, 0.0]).unwrap();
     let (reference, _) =
-        controller::motion::load_reference(None, &layout.onnx_path.clone(), &mut layout, &loaded, 0).unwrap();
+        controller::reference::load_reference(None, &layout.onnx_path.clone(), &mut layout, &loaded, 0)
+            .unwrap();
     // A command-driven run goes on until stopped: 20 s of it.
     let options = PlayOptions {
         max_ticks: Some(20 * 50),

@@ -10,9 +10,9 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use controller::clip::Reference;
-use controller::motion::ReferenceSource;
 use controller::options::OnStop;
 use controller::player::{HarnessPhase, PlayOptions, PlaySummary, Player};
+use controller::reference::ReferenceSource;
 use controller::safety::{Cause, Mode, tilt_of};
 use controller::sim::lockstep_player;
 use firmware_bridge::time::{SimInstant, SimWorld};
@@ -36,7 +36,7 @@ fn load_dance() -> (Robot, PolicyLayout, Reference) {
     let robot = Robot::load(&g1()).unwrap();
     let mut layout = PolicyLayout::load(&dance(), &robot).unwrap();
     let (reference, source) =
-        controller::motion::load_reference(None, &dance(), &mut layout, &robot, 0).unwrap();
+        controller::reference::load_reference(None, &dance(), &mut layout, &robot, 0).unwrap();
     assert!(
         matches!(source, ReferenceSource::Embedded { frames: 6574, .. }),
         "{source}"
@@ -482,7 +482,8 @@ fn the_tracking_stop_names_the_joint_and_its_threshold() {
     .unwrap();
     let robot = Robot::load(&path).unwrap();
     let mut layout = PolicyLayout::load(&dance(), &robot).unwrap();
-    let (reference, _) = controller::motion::load_reference(None, &dance(), &mut layout, &robot, 0).unwrap();
+    let (reference, _) =
+        controller::reference::load_reference(None, &dance(), &mut layout, &robot, 0).unwrap();
     let (mut p, mut clock, _w) = lockstep_player(
         robot,
         layout,
@@ -566,7 +567,7 @@ fn the_g1_and_the_t1_walk_from_the_harness_and_stand_under_their_policy_when_sto
         // Turning rate, forward, leftward: 0.5 m/s ahead once the harness has let go.
         layout.set_command(&[0.0, 0.5, 0.0]).unwrap();
         let (clip, source) =
-            controller::motion::load_reference(None, &dance(), &mut layout, &loaded, 0).unwrap();
+            controller::reference::load_reference(None, &dance(), &mut layout, &loaded, 0).unwrap();
         assert!(matches!(source, ReferenceSource::Commands), "{source}");
         let options = PlayOptions {
             // 3 s in the harness, 10 s walking, then the stop: 1 s to rest, 5 s standing.

@@ -47,7 +47,7 @@ fn command_driven_player_on(
     let mut layout = policy::PolicyLayout::load(&mini("policies/stand_walk.toml"), &robot).unwrap();
     let spec = layout.manifest.commands.clone().unwrap();
     let (reference, _) =
-        controller::motion::load_reference(None, Path::new("unused"), &mut layout, &robot, 0).unwrap();
+        controller::reference::load_reference(None, Path::new("unused"), &mut layout, &robot, 0).unwrap();
     let run = controller::sim::lockstep_player(
         robot,
         layout,

@@ -1,8 +1,8 @@
 //! Offline retargeting of real human motion capture (CMU) onto the reference robot.
 
 use controller::clip::{Clip, Reference};
-use human::bvh::Bvh;
 use human::retarget::{RetargetOptions, retarget};
+use motion::bvh::Bvh;
 use robots::Robot;
 
 fn mocap(name: &str) -> std::path::PathBuf {

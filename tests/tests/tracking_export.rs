@@ -6,8 +6,8 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 
-use controller::motion::ReferenceSource;
 use controller::player::{PlayOptions, PlaySummary};
+use controller::reference::ReferenceSource;
 use controller::sim::lockstep_player;
 use controller::telemetry::{Backpressure, TelemetrySink};
 use policy::PolicyLayout;
@@ -27,7 +27,7 @@ fn load(export: &Path, start_step: usize) -> (Robot, PolicyLayout, controller::c
     let robot = Robot::load(&reference_robot_path()).unwrap();
     let mut layout = PolicyLayout::load(export, &robot).unwrap();
     let (reference, source) =
-        controller::motion::load_reference(None, &squat(), &mut layout, &robot, start_step).unwrap();
+        controller::reference::load_reference(None, &squat(), &mut layout, &robot, start_step).unwrap();
     assert!(matches!(source, ReferenceSource::Embedded { .. }), "{source}");
     (robot, layout, reference)
 }

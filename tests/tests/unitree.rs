@@ -197,7 +197,7 @@ fn g1_dance() -> (Robot, PolicyLayout, controller::clip::Reference) {
     let robot = Robot::load(&g1()).unwrap();
     let dance = workspace_root().join(".local/holosoma-inference/models/wbt/ppo_g1_29dof_dancing.onnx");
     let mut layout = PolicyLayout::load(&dance, &robot).unwrap();
-    let (reference, _) = controller::motion::load_reference(None, &dance, &mut layout, &robot, 0).unwrap();
+    let (reference, _) = controller::reference::load_reference(None, &dance, &mut layout, &robot, 0).unwrap();
     (robot, layout, reference)
 }
 

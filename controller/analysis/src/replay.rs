@@ -400,7 +400,7 @@ pub fn replay(path: &Path) -> Result<ReplayReport, AnalysisError> {
             ),
         ));
     }
-    let (mut reference, _) = controller::motion::load_reference(
+    let (mut reference, _) = controller::reference::load_reference(
         run.clip.as_deref(),
         run.clip.as_deref().unwrap_or(&run.policy),
         &mut layout,

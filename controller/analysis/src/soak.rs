@@ -16,8 +16,8 @@ use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
 use controller::clip::Reference;
-use controller::motion::{ReferenceSource, load_reference};
 use controller::options::{EndMode, OnStop, PlayOptions};
+use controller::reference::{ReferenceSource, load_reference};
 use controller::safety::{Cause, Mode};
 use controller::sim::lockstep_player;
 use controller::telemetry::{Backpressure, RecordingInfo, TelemetrySink};

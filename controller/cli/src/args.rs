@@ -143,10 +143,10 @@ pub fn whole_within(
     }
 }
 
-/// A frame index of a motion file: `[0, human::bvh::MAX_FRAMES)` (the file's own length is
+/// A frame index of a motion file: `[0, motion::bvh::MAX_FRAMES)` (the file's own length is
 /// checked when it loads).
 pub fn frame_index(text: &str) -> Result<usize, String> {
-    let max = human::bvh::MAX_FRAMES as u64 - 1;
+    let max = motion::bvh::MAX_FRAMES as u64 - 1;
     whole_within(0, max)(text).map(|v| v as usize)
 }
 

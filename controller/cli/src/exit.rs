@@ -89,11 +89,19 @@ fn code_of(e: &(dyn std::error::Error + 'static)) -> Option<u8> {
             | A::Policy(_) => BAD_INPUT,
         });
     }
+    let bvh = |e: &motion::bvh::BvhError| match e {
+        motion::bvh::BvhError::Read { .. } => IO_FAILURE,
+        motion::bvh::BvhError::Malformed { .. } => BAD_INPUT,
+    };
+    if let Some(e) = e.downcast_ref::<motion::bvh::BvhError>() {
+        return Some(bvh(e));
+    }
     if let Some(e) = e.downcast_ref::<H>() {
         return Some(match e {
-            H::Read { .. } | H::Io { .. } => IO_FAILURE,
+            H::Bvh(e) => bvh(e),
+            H::Io { .. } => IO_FAILURE,
             H::Gamepad(_) => FAILED,
-            H::Motion { .. } | H::Model(_) | H::Mujoco(_) | H::Map(_) | H::Calibration(_) => BAD_INPUT,
+            H::Model(_) | H::Mujoco(_) | H::Map(_) | H::Calibration(_) => BAD_INPUT,
         });
     }
     if let Some(e) = e.downcast_ref::<policy::onnx::OnnxError>() {

@@ -13,8 +13,8 @@ use robots::Robot;
 use crate::sim::load_mirror_config;
 use controller::clip::Reference;
 use controller::generator::{Generator, GeneratorOptions, GeneratorSummary, GeneratorWorker};
-use controller::motion::ReferenceSource;
 use controller::player::{PlayOptions, PlaySummary, Player};
+use controller::reference::ReferenceSource;
 use controller::sim::{lockstep_player, wired_player};
 use controller::telemetry::{Backpressure, TelemetrySink};
 use policy::PolicyLayout;
@@ -420,7 +420,7 @@ fn load(files: &Files) -> Result<Loaded> {
     let robot = Robot::load(&files.robot)?;
     let policy = crate::args::policy_of(files.policy.as_deref(), &robot)?;
     let mut layout = PolicyLayout::load(&policy, &robot)?;
-    let (reference, source) = controller::motion::load_reference(
+    let (reference, source) = controller::reference::load_reference(
         files.clip.as_deref(),
         &Files::default_clip(),
         &mut layout,

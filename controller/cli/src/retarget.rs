@@ -5,8 +5,8 @@ use std::path::PathBuf;
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use controller::clip::{Clip, Reference};
-use human::bvh::Bvh;
 use human::retarget::{RetargetOptions, retarget_calibrated};
+use motion::bvh::Bvh;
 use robots::Robot;
 
 /// Arguments of `retarget`.
@@ -61,8 +61,8 @@ pub fn run(args: &RetargetArgs) -> Result<()> {
         "{}: {} skeleton, {} joints, {} frames at {:.0} Hz ({:.1} s)",
         args.bvh.display(),
         match bvh.dialect {
-            human::bvh::Dialect::Cmu => "CMU",
-            human::bvh::Dialect::Bandai => "Bandai-Namco",
+            motion::bvh::Dialect::Cmu => "CMU",
+            motion::bvh::Dialect::Bandai => "Bandai-Namco",
         },
         bvh.joints.len(),
         bvh.frames(),

@@ -1,32 +1,15 @@
 //! What can go wrong on the human side, by kind: a malformed motion file, a robot model that lacks
 //! what the map names, a map or options that do not fit, a failed user calibration, the network.
 
-use std::path::PathBuf;
-
 use sim2real::model_index::ModelIndexError;
 use sim2real::mujoco::MujocoError;
 
 /// A human-side failure.
 #[derive(Debug, thiserror::Error)]
 pub enum HumanError {
-    /// A motion file is malformed.
-    #[error("{}:{line}: {message}", file.display())]
-    Motion {
-        /// The file.
-        file: PathBuf,
-        /// Its line (1-based; 0: the file as a whole).
-        line: usize,
-        /// What is wrong.
-        message: String,
-    },
-    /// A file cannot be read.
-    #[error("{}: {source}", file.display())]
-    Read {
-        /// The file.
-        file: PathBuf,
-        /// Why.
-        source: std::io::Error,
-    },
+    /// A BVH recording cannot be read or is malformed.
+    #[error(transparent)]
+    Bvh(#[from] motion::bvh::BvhError),
     /// The robot's model lacks a frame or joint the human side names.
     #[error("{0}")]
     Model(#[from] ModelIndexError),

@@ -9,9 +9,9 @@ use crate::body_map::{Frame, PairParams, RetargetMap};
 use robots::spatial::{self, Mat3};
 use robots::{HumanBody, Robot};
 
-use super::bvh::{Bvh, Dialect, Pose};
 use super::ik::{Ik, IkGoal};
 use crate::HumanError;
+use motion::bvh::{Bvh, Dialect, Pose};
 
 /// The BVH joint standing for a human body, per dialect.
 pub fn bvh_joint(dialect: Dialect, body: HumanBody) -> &'static str {

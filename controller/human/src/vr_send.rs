@@ -11,11 +11,11 @@ use crate::body_map::Frame;
 use firmware_bridge::time::SimRng;
 use robots::spatial::{self, Mat3};
 
-use super::bvh::Bvh;
 use super::osc::{self, Arg};
 use super::retarget::bvh_joint;
 use super::vmc::{robot_to_unity_position, robot_to_unity_quat};
 use crate::HumanError;
+use motion::bvh::Bvh;
 use robots::HumanBody;
 
 /// How the session is sent.

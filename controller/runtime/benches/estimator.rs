@@ -95,7 +95,7 @@ fn walk(
     let mut layout = PolicyLayout::load(&dir.join("policies").join(policy), &loaded).unwrap();
     layout.set_command(command).unwrap();
     let onnx = layout.onnx_path.clone();
-    let (reference, _) = controller::motion::load_reference(None, &onnx, &mut layout, &loaded, 0).unwrap();
+    let (reference, _) = controller::reference::load_reference(None, &onnx, &mut layout, &loaded, 0).unwrap();
     let weight = world::RobotKinematics::new(&loaded, None, &[]).unwrap().weight();
     let mut mirror = randomized(seed);
     if pushed {

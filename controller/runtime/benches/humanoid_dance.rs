@@ -34,7 +34,7 @@ fn robodeploy(frames: usize) -> (f64, f64, u64) {
     let robot = Robot::load(&root.join("robots/g1/robot.toml")).unwrap();
     let mut layout = PolicyLayout::load(&root.join(DANCE), &robot).unwrap();
     let (reference, _) =
-        controller::motion::load_reference(None, &root.join(DANCE), &mut layout, &robot, 0).unwrap();
+        controller::reference::load_reference(None, &root.join(DANCE), &mut layout, &robot, 0).unwrap();
     // The harness start's lead-in, then the frames asked for (the run stops softly after).
     let h = robot.config.start.harness;
     let lead_in = ((h.lower_s + h.settle_s) * 50.0).round() as u64;

@@ -12,10 +12,10 @@ use std::time::Duration;
 
 use controller::clip::Reference;
 use controller::player::{EndMode, PlayOptions, Player};
-use human::bvh::Bvh;
 use human::teleop::{Teleop, TeleopOptions};
 use human::vmc::{Serials, VmcReceiver};
 use human::vr_send::{SendOptions, send};
+use motion::bvh::Bvh;
 use policy::PolicyLayout;
 use robots::{Robot, reference_robot_path};
 use sim2real::link::{PacedLockstepClock, lockstep_robot};

@@ -41,7 +41,7 @@ fn tracking_export() -> (Robot, PolicyLayout, Reference) {
     let export = test_support::fixtures::fixture("rd_biped_tracking.onnx");
     let mut layout = PolicyLayout::load(&export, &robot).unwrap();
     let squat = reference_robot_path().with_file_name("clips/squat.csv");
-    let (reference, _) = controller::motion::load_reference(None, &squat, &mut layout, &robot, 0).unwrap();
+    let (reference, _) = controller::reference::load_reference(None, &squat, &mut layout, &robot, 0).unwrap();
     (robot, layout, reference)
 }
 
@@ -52,7 +52,8 @@ fn command_driven() -> (Robot, PolicyLayout, Reference) {
     let mut layout = PolicyLayout::load(&root.join("policies/stand_walk.toml"), &robot).unwrap();
     layout.set_command(&[0.2, 0.0, 0.4]).unwrap();
     let unused = root.join("unused.csv");
-    let (reference, _) = controller::motion::load_reference(None, &unused, &mut layout, &robot, 0).unwrap();
+    let (reference, _) =
+        controller::reference::load_reference(None, &unused, &mut layout, &robot, 0).unwrap();
     (robot, layout, reference)
 }
 

@@ -827,34 +827,6 @@ pub struct PlanReader {
     reached_standby: Option<f64>,
 }
 
-impl crate::reference::LiveSource for PlanReader {
-    /// This tick's frame and those ahead, each sampled from the newest plan at its time; the
-    /// root stays the standby's.
-    fn feed(
-        &mut self,
-        t: f64,
-        dt: f64,
-        robot_index: &[usize],
-        table: &mut Reference,
-        ahead: crate::reference::FramesAhead<'_>,
-    ) -> crate::reference::Fed {
-        self.begin_tick(t, dt);
-        for f in 0..ahead.q.len() {
-            let (q, qd) = self.sample(t + f as f64 * dt);
-            for (p, &r) in robot_index.iter().enumerate() {
-                ahead.q[f][p] = q[r];
-                ahead.qd[f][p] = qd[r];
-            }
-            ahead.root[f] = table.root[0];
-        }
-        crate::reference::Fed::Frames
-    }
-
-    fn plans(&self) -> Option<&PlanReader> {
-        Some(self)
-    }
-}
-
 impl PlanReader {
     /// A reader of `reader`'s plans for the model joints at `robot_index`, blending to
     /// `standby` (robot order).

@@ -7,9 +7,16 @@ use std::time::Instant;
 
 use human::live::{LiveReader, TRACKER_VALUES};
 
-use crate::clip::Reference;
+use std::path::{Path, PathBuf};
+
+use policy::PolicyLayout;
+use policy::onnx::OnnxModel;
+use robots::Robot;
+
+use crate::clip::{Clip, Reference};
+use crate::error::PlayError;
 use crate::generator::PlanReader;
-use crate::motion::{Alignment, MotionFrame};
+use crate::motion::{Alignment, EmbeddedMotion, MODEL_MISMATCH_M, MotionFrame, worst_body_mismatch};
 use crate::options::{EndMode, PlayOptions};
 use policy::ReferenceView;
 
@@ -108,6 +115,35 @@ pub trait LiveSource: std::fmt::Debug + Send {
     /// A motion generator's plans (counts, changes, status), for its telemetry and summary.
     fn plans(&self) -> Option<&PlanReader> {
         None
+    }
+}
+
+// A motion generator's plans, sampled at each tick.
+impl LiveSource for PlanReader {
+    /// This tick's frame and those ahead, each sampled from the newest plan at its time; the
+    /// root stays the standby's.
+    fn feed(
+        &mut self,
+        t: f64,
+        dt: f64,
+        robot_index: &[usize],
+        table: &mut Reference,
+        ahead: FramesAhead<'_>,
+    ) -> Fed {
+        self.begin_tick(t, dt);
+        for f in 0..ahead.q.len() {
+            let (q, qd) = self.sample(t + f as f64 * dt);
+            for (p, &r) in robot_index.iter().enumerate() {
+                ahead.q[f][p] = q[r];
+                ahead.qd[f][p] = qd[r];
+            }
+            ahead.root[f] = table.root[0];
+        }
+        Fed::Frames
+    }
+
+    fn plans(&self) -> Option<&PlanReader> {
+        Some(self)
     }
 }
 
@@ -537,4 +573,123 @@ impl ReferenceCursor {
         }
         psi
     }
+}
+
+/// Where a run's reference comes from.
+#[derive(Debug)]
+pub enum ReferenceSource {
+    /// A clip file.
+    Clip(Clip),
+    /// No clip: a command-driven policy observes no reference; it stands in for one with the
+    /// default pose and runs on its commands until stopped.
+    Commands,
+    /// The motion the policy's export carries.
+    Embedded {
+        /// The export.
+        onnx: PathBuf,
+        /// Its frames.
+        frames: usize,
+        /// The frame the run starts from.
+        start_step: usize,
+    },
+    /// An online motion generator (its description file).
+    Generated(PathBuf),
+}
+
+impl ReferenceSource {
+    /// The file the reference came from (a run's recording names it); none for commands.
+    pub fn path(&self) -> Option<&Path> {
+        match self {
+            Self::Clip(c) => Some(&c.path),
+            Self::Embedded { onnx, .. } => Some(onnx),
+            Self::Generated(description) => Some(description),
+            Self::Commands => None,
+        }
+    }
+}
+
+impl std::fmt::Display for ReferenceSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Clip(c) => write!(f, "{}", c.path.display()),
+            Self::Commands => write!(f, "no clip (a command-driven policy, on its commands)"),
+            Self::Generated(d) => write!(f, "the motion generator {} (online)", d.display()),
+            Self::Embedded {
+                onnx,
+                frames,
+                start_step,
+            } => write!(
+                f,
+                "the motion {} carries ({frames} frames, from step {start_step})",
+                onnx.display()
+            ),
+        }
+    }
+}
+
+fn same_file(a: &Path, b: &Path) -> bool {
+    match (std::fs::canonicalize(a), std::fs::canonicalize(b)) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => a == b,
+    }
+}
+
+/// The reference of a run: the motion the policy's export carries (from `start_step`), else
+/// the clip at `clip`; with no clip, a command-driven policy (one that observes no reference)
+/// holds the default pose, and any other plays `default_clip`. A clip given for an export that
+/// carries its own motion is refused: one of them would be ignored. Binds `layout` to its model
+/// on the way (its terms' sizes checked against the model's inputs and outputs).
+pub fn load_reference(
+    clip: Option<&Path>,
+    default_clip: &Path,
+    layout: &mut PolicyLayout,
+    robot: &Robot,
+    start_step: usize,
+) -> Result<(Reference, ReferenceSource), PlayError> {
+    let mut model = OnnxModel::load(&layout.onnx_path)?;
+    layout.bind_model(model.inputs(), model.output().1)?;
+    let layout = &*layout;
+    if let Some(mut motion) = EmbeddedMotion::find(&mut model, layout, start_step)? {
+        if let Some(c) = clip.filter(|c| !same_file(c, &layout.onnx_path)) {
+            return Err(PlayError::Setup(format!(
+                "{} carries its own motion; leave out the clip {} (or export the policy without one)",
+                layout.onnx_path.display(),
+                c.display()
+            )));
+        }
+        let reference = motion.read(&mut model, layout, robot)?;
+        if let Some((body, error, frame)) = worst_body_mismatch(robot, &reference)?
+            && error > MODEL_MISMATCH_M
+        {
+            return Err(PlayError::Setup(format!(
+                "the motion {} carries does not fit the robot's model: at frame {frame}, body {body} \
+                 lies {:.1} cm from where the model puts it at the motion's own root pose and joint \
+                 positions (at most {:.0} cm): a wrong quaternion order (w x y z expected), joint \
+                 order or body names, or another robot's motion",
+                layout.onnx_path.display(),
+                100.0 * error,
+                100.0 * MODEL_MISMATCH_M
+            )));
+        }
+        return Ok((
+            reference,
+            ReferenceSource::Embedded {
+                onnx: layout.onnx_path.clone(),
+                frames: motion.frames,
+                start_step,
+            },
+        ));
+    }
+    if clip.is_none() && !layout.reads_reference() {
+        // Nothing to track: the default pose, upright, is the reference the loop holds.
+        let reference = Reference::hold(
+            &layout.default_q,
+            [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
+            layout.manifest.rate_hz,
+        );
+        return Ok((reference, ReferenceSource::Commands));
+    }
+    let clip = Clip::load(clip.unwrap_or(default_clip))?;
+    let reference = Reference::for_policy(&clip, robot, layout)?;
+    Ok((reference, ReferenceSource::Clip(clip)))
 }

@@ -6,7 +6,7 @@ pub fn run(data: &[u8]) {
     let Ok(text) = std::str::from_utf8(data) else {
         return;
     };
-    if let Ok(bvh) = human::bvh::Bvh::parse(std::path::Path::new("fuzz.bvh"), text) {
+    if let Ok(bvh) = motion::bvh::Bvh::parse(std::path::Path::new("fuzz.bvh"), text) {
         assert!(bvh.frames() >= 1);
         let _ = bvh.pose(0);
         let _ = bvh.pose(bvh.frames() - 1);

@@ -6,9 +6,10 @@
 //!
 //! Which point of the robot stands for each keypoint is robot.toml's `[keypoints]` map.
 
-pub mod camera;
-pub mod clip;
 pub mod track;
+
+// The files (cameras, keypoint clips) are the `motion` crate's.
+pub use motion::keypoints::{camera, clip};
 
 use robots::{Robot, spatial};
 

@@ -5,9 +5,8 @@
 //! 0.056444 m, only the root has position channels) and Bandai-Namco (centimetres, every joint has
 //! six channels and its position channels *replace* the OFFSET). Both are Y up.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
-use crate::HumanError;
 use robots::spatial::{self, IDENTITY, Mat3, mat_apply as apply, mat_mul as mul, transpose};
 
 /// One joint of the hierarchy.
@@ -80,8 +79,31 @@ pub const MAX_DURATION_S: f64 = 3600.0;
 /// a thousand turns; beyond, the file is not a capture (a body scaled to nothing around it).
 pub const MAX_VALUE: f64 = 1e5;
 
-fn err(path: &Path, line: usize, message: impl std::fmt::Display) -> HumanError {
-    HumanError::Motion {
+/// A BVH file that cannot be read or is malformed, named with its line.
+#[derive(Debug, thiserror::Error)]
+pub enum BvhError {
+    /// The file is malformed.
+    #[error("{}:{line}: {message}", file.display())]
+    Malformed {
+        /// The file.
+        file: PathBuf,
+        /// Its line (1-based; 0: the file as a whole).
+        line: usize,
+        /// What is wrong.
+        message: String,
+    },
+    /// The file cannot be read.
+    #[error("{}: {source}", file.display())]
+    Read {
+        /// The file.
+        file: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+}
+
+fn err(path: &Path, line: usize, message: impl std::fmt::Display) -> BvhError {
+    BvhError::Malformed {
         file: path.to_path_buf(),
         line,
         message: message.to_string(),
@@ -90,13 +112,13 @@ fn err(path: &Path, line: usize, message: impl std::fmt::Display) -> HumanError 
 
 impl Bvh {
     /// Reads and parses `path`.
-    pub fn load(path: &Path) -> Result<Self, HumanError> {
-        robots::check_regular_file(path).map_err(|message| HumanError::Motion {
+    pub fn load(path: &Path) -> Result<Self, BvhError> {
+        robots::check_regular_file(path).map_err(|message| BvhError::Malformed {
             file: path.to_path_buf(),
             line: 0,
             message: message.to_string(),
         })?;
-        let text = std::fs::read_to_string(path).map_err(|source| HumanError::Read {
+        let text = std::fs::read_to_string(path).map_err(|source| BvhError::Read {
             file: path.to_path_buf(),
             source,
         })?;
@@ -104,7 +126,7 @@ impl Bvh {
     }
 
     /// Parses BVH text; errors name the file and line.
-    pub fn parse(path: &Path, text: &str) -> Result<Self, HumanError> {
+    pub fn parse(path: &Path, text: &str) -> Result<Self, BvhError> {
         let mut lines = text.lines().enumerate().map(|(i, l)| (i + 1, l.trim()));
         let mut joints: Vec<BvhJoint> = Vec::new();
         let mut stack: Vec<Option<usize>> = Vec::new();
@@ -202,7 +224,7 @@ impl Bvh {
         if joints.is_empty() || !stack.is_empty() {
             return Err(err(path, last, "the HIERARCHY is incomplete"));
         }
-        let mut next = |what: &str| -> Result<(usize, &str), HumanError> {
+        let mut next = |what: &str| -> Result<(usize, &str), BvhError> {
             lines
                 .by_ref()
                 .find(|(_, l)| !l.is_empty())
@@ -409,7 +431,7 @@ fn floats<'a>(
     n: usize,
     path: &Path,
     line: usize,
-) -> Result<Vec<f64>, HumanError> {
+) -> Result<Vec<f64>, BvhError> {
     let v = words
         .map(|w| {
             w.parse::<f64>()
@@ -453,7 +475,7 @@ fn conjugate_to_robot(r: &Mat3) -> Mat3 {
 mod tests {
     use super::*;
 
-    fn data(name: &str) -> std::path::PathBuf {
+    fn data(name: &str) -> PathBuf {
         test_support::fixtures::workspace_root()
             .join("data/mocap")
             .join(name)
