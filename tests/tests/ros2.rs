@@ -91,9 +91,6 @@ fn a_cyclone_dds_peer_with_ros2_names_sees_the_run_and_walks_the_g1_through_cmd_
         v["tf_parents"].as_array().unwrap().iter().any(|f| f == "world"),
         "{v}"
     );
-    // The URDF, to a reader that joined seconds after it was published (transient local).
-    assert_eq!(v["description_has_robot"], Value::Bool(true), "{v}");
-    assert!(n("description_chars") > 10_000, "{v}");
     // Health once a second and at each change of mode, for the robot by name.
     assert!(n("diagnostics") >= ticks / 50 / 2, "{ticks} ticks: {v}");
     let loop_messages = v["loop_messages"].to_string();
@@ -103,6 +100,10 @@ fn a_cyclone_dds_peer_with_ros2_names_sees_the_run_and_walks_the_g1_through_cmd_
         let _ = std::fs::remove_file(&record);
         return;
     }
+    // The URDF, to a reader that joined seconds after it was published (transient local; a run
+    // a starved machine stopped early may be over before it joins).
+    assert_eq!(v["description_has_robot"], Value::Bool(true), "{v}");
+    assert!(n("description_chars") > 10_000, "{v}");
     // /cmd_vel drove the policy: the commands were taken and the robot walked forward.
     let accepted: u64 = run
         .iter()
