@@ -732,10 +732,16 @@ impl<L: RobotLink> Player<L> {
             let p = self.world.truth.root_pose;
             self.metrics.fell |= in_control && tilt_of([p[3], p[4], p[5], p[6]]) > self.options.limits.tilt;
         }
+        // The harness holds the robot while it lowers it (and until the operator's word).
+        let rig_holds = matches!(
+            self.harness_phase(),
+            HarnessPhase::Lowering | HarnessPhase::WaitingForOperator
+        );
         self.world.update(
             &self.state,
             has_truth,
             self.options.estimator == EstimatorKind::GroundTruth,
+            rig_holds,
             &mut self.metrics,
         );
         self.advance(has_truth);

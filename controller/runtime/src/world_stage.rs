@@ -51,6 +51,7 @@ impl WorldStage {
         state: &RobotState,
         has_truth: bool,
         ground_truth: bool,
+        rig_holds: bool,
         metrics: &mut RunMetrics,
     ) {
         let Some(k) = &mut self.kinematics else {
@@ -62,6 +63,12 @@ impl WorldStage {
         };
         k.update(state.quat, &state.q, &state.qd, None);
         if let Some(e) = &mut self.estimator {
+            // The first tick's read may bring no sample yet: the IMU's start-up reading starts
+            // the filter then (a policy in control from tick 0 reads the estimate at tick 0).
+            if state.imu_samples.is_empty() {
+                e.seed_attitude(state.quat, state.gyro, state.accel);
+            }
+            e.hold_by_rig(rig_holds);
             for sample in &state.imu_samples {
                 e.propagate(sample);
             }

@@ -67,7 +67,8 @@ pub struct Estimate {
 /// Why the state estimate a policy reads is not usable.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum EstimateProblem {
-    /// It never started: the IMU never held still long enough to take gravity's direction.
+    /// It never started: the IMU gave no orientation yet, or the robot was falling and never held
+    /// still long enough since.
     NotInitialised,
     /// It was fed non-finite data, or diverged.
     NonFinite,
@@ -80,7 +81,9 @@ pub enum EstimateProblem {
 impl std::fmt::Display for EstimateProblem {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(match self {
-            Self::NotInitialised => "it never started (the IMU never held still long enough to find gravity)",
+            Self::NotInitialised => {
+                "it never started (no IMU orientation yet, or a robot falling at start that has not held still since)"
+            }
             Self::NonFinite => "it was fed non-finite values or diverged",
             Self::StaleImu => "the IMU's samples stopped coming",
             Self::NoGroundTruth => "the run reads the simulation's ground truth and there is none",
@@ -214,18 +217,26 @@ pub struct Estimator {
     quat: [f64; 4],
     gyro: [f64; 3],
     last_sample: Option<std::time::Duration>,
+    /// The IMU's orientation is known: a sample was integrated, or the start-up reading seeded it.
+    attitude_known: bool,
+    /// The first IMU reading was of a robot something carries (not falling): the filter starts on
+    /// that tick. A robot dropped at start waits for [`STILL_S`] of rest instead.
+    start_at_rest: Option<bool>,
     nominal_dt: f64,
     contacts: [bool; MAX_FEET],
     /// The height each foot's sole last stood at.
     ground: [f64; MAX_FEET],
     initialised: bool,
     /// IMU samples in a row that looked like standing still (specific force ≈ g, slow turn):
-    /// the filter starts only after [`STILL_S`] of them, not in the middle of a drop.
+    /// a robot is judged held only after [`STILL_S`] of them, not in the middle of a drop.
     still: u32,
     /// Inputs were bad this tick (non-finite or stale).
     input_fault: bool,
     /// The feet carry (almost) none of the robot's weight: the filter starts again when they do.
     held: bool,
+    /// A rig (the start's harness) holds the robot, as the run says; `rig_was`: it did last tick.
+    rig: bool,
+    rig_was: bool,
     /// Ticks in a row on which every standing foot's velocity was refused.
     refused_ticks: u32,
 }
@@ -233,7 +244,7 @@ pub struct Estimator {
 /// Ticks the filter may refuse every standing foot's velocity in a row (then it takes them).
 pub const MAX_REFUSED_TICKS: u32 = 5;
 
-/// How long the IMU must look still before the filter starts, s.
+/// How long the IMU must look still before a robot whose feet carry no weight is judged held, s.
 const STILL_S: f64 = 0.2;
 
 /// Samples of a longer gap are integrated as this many nominal periods at most.
@@ -263,6 +274,10 @@ impl Estimator {
             quat: [1.0, 0.0, 0.0, 0.0],
             gyro: [0.0; 3],
             last_sample: None,
+            attitude_known: false,
+            start_at_rest: None,
+            rig: false,
+            rig_was: false,
             nominal_dt: 1.0 / imu_rate_hz.max(1.0),
             contacts: [true; MAX_FEET],
             ground: [0.0; MAX_FEET],
@@ -292,6 +307,18 @@ impl Estimator {
     /// push, a fall or a jump, whose feet are unloaded too); unknown loads (a robot whose buses
     /// report no torque) never say held. True on the tick a held robot stands again.
     fn update_held(&mut self, legs: &LegKinematics, still: bool) -> bool {
+        // What the run knows beats what the loads suggest: held while the rig holds it, on its
+        // feet again the tick the rig lets go.
+        let released = self.rig_was && !self.rig;
+        self.rig_was = self.rig;
+        if self.rig {
+            self.held = true;
+            return false;
+        }
+        if released {
+            self.held = false;
+            return true;
+        }
         let loads = &legs.load[..self.feet];
         if self.feet == 0 || loads.iter().any(|l| !l.is_finite()) || self.weight <= 0.0 {
             self.held = false;
@@ -305,6 +332,41 @@ impl Estimator {
             share < self.config.held_below && still
         };
         was && !self.held
+    }
+
+    /// Whether a rig (a harness start's harness, while it lowers the robot) holds the robot: the
+    /// estimate says held and takes no foot as standing until the rig lets go, then starts again
+    /// with the floor under the feet.
+    pub fn hold_by_rig(&mut self, held: bool) {
+        self.rig = held;
+    }
+
+    /// The IMU's orientation and rate as the robot answered at start-up, before any sample was
+    /// integrated (the first tick's read may bring none): enough to start the filter on that
+    /// tick. Ignored once a sample came, or when not finite.
+    pub fn seed_attitude(&mut self, quat: [f64; 4], gyro: [f64; 3], accel: [f64; 3]) {
+        let finite = quat.iter().chain(&gyro).chain(&accel).all(|v| v.is_finite());
+        let norm = quat.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if self.last_sample.is_none() && finite && norm > 0.5 {
+            self.quat = spatial::quat_normalize(quat);
+            self.gyro = gyro;
+            self.attitude_known = true;
+            let supported = self.supported(accel);
+            self.start_at_rest.get_or_insert(supported);
+        }
+    }
+
+    /// A reading of a robot something carries (the floor, a rig, a hand), not one falling: a
+    /// specific force of at least 40 % of gravity's. A robot placed on the floor reads less than
+    /// g for its first milliseconds while it settles; a dropped one reads almost nothing.
+    fn supported(&self, accel: [f64; 3]) -> bool {
+        spatial::norm(accel) > 0.4 * spatial::norm(self.gravity)
+    }
+
+    /// A reading like rest: the specific force is gravity's (within 10 %), the turn slow.
+    fn resting(&self, accel: [f64; 3], gyro: [f64; 3]) -> bool {
+        let g = spatial::norm(self.gravity);
+        (spatial::norm(accel) - g).abs() < 0.1 * g && spatial::norm(gyro) < 0.3
     }
 
     /// Integrates one IMU sample (base axes): propagates the state and its covariance.
@@ -328,10 +390,12 @@ impl Estimator {
             None => self.nominal_dt,
         };
         self.last_sample = Some(sample.at);
+        self.attitude_known = true;
         self.quat = spatial::quat_normalize(sample.quat);
         self.gyro = sample.gyro;
-        let g = spatial::norm(self.gravity);
-        let resting = (spatial::norm(sample.accel) - g).abs() < 0.1 * g && spatial::norm(sample.gyro) < 0.3;
+        let resting = self.resting(sample.accel, sample.gyro);
+        let supported = self.supported(sample.accel);
+        self.start_at_rest.get_or_insert(supported);
         self.still = if resting { self.still.saturating_add(1) } else { 0 };
         if !self.initialised || dt == 0.0 {
             return;
@@ -362,11 +426,19 @@ impl Estimator {
         }
         let imu_r = spatial::mat_of_quat(self.quat);
         self.filter.get_mut().set_attitude(&imu_r);
-        let settled = f64::from(self.still) * self.nominal_dt >= STILL_S;
+        // At rest: still for a while, or a start that began carried (judged on its first reading).
+        let rest_start = !self.initialised && self.start_at_rest == Some(true);
+        let settled = f64::from(self.still) * self.nominal_dt >= STILL_S || rest_start;
         // Lowered onto its feet (from a harness, a gantry, a hand): the filter that ran in the
         // air starts over with the floor under the feet that now carry the robot.
         let landed = finite && self.update_held(legs, settled);
-        if finite && ((!self.initialised && settled) || (self.initialised && landed)) {
+        // The filter starts on the first tick the IMU's orientation is known and its reading was
+        // of a carried robot: it puts the legs in the world, and every start mode starts at rest
+        // (standing, or hanging in the harness), so a policy in control from tick 0 reads a valid
+        // estimate from tick 0. A robot dropped at start waits until it has been still a while.
+        // A rig's robot starts held, whatever it reads: it starts over when the rig lets go.
+        let first = !self.initialised && self.attitude_known && (settled || self.rig);
+        if finite && (first || (self.initialised && landed)) {
             self.initialise(legs, &imu_r);
         }
         if self.initialised && finite {
@@ -426,6 +498,7 @@ impl Estimator {
         for f in 0..self.feet {
             let was = self.contacts[f];
             self.contacts[f] = match legs.switches {
+                _ if self.rig => false,
                 Some(s) => s[f],
                 None => {
                     let other = (0..self.feet).find(|&j| j != f && standing[j]);
@@ -824,11 +897,14 @@ mod tests {
         for config in both_filters() {
             let mut e = Estimator::new(config, 2, [0.0, 0.0, -9.81], 160.0, 200.0);
             let legs = standing_legs();
-            // Not before the IMU has looked still for 0.2 s (40 samples at 200 Hz).
-            for k in 0..39 {
-                e.propagate(&sample(k, [0.0, 0.0, 9.81]));
-            }
-            assert!(!e.correct(&legs, true).valid, "not settled yet");
+            // Not before an IMU sample came; from the first one on (a policy in control from
+            // tick 0 reads it), whether or not the IMU has looked still yet.
+            assert_eq!(
+                e.correct(&legs, true).problem,
+                Some(EstimateProblem::NotInitialised)
+            );
+            e.propagate(&sample(0, [0.0, 0.0, 9.81]));
+            assert!(e.correct(&legs, true).valid, "valid from the first sample");
             e.propagate(&sample(39, [0.0, 0.0, 9.81]));
             assert!(e.correct(&legs, true).valid);
             e.propagate(&sample(40, [f64::NAN, 0.0, 9.81]));
@@ -839,6 +915,29 @@ mod tests {
             let mut bad = legs;
             bad.contact_velocity[1][0] = f64::INFINITY;
             assert!(!e.correct(&bad, true).valid);
+        }
+    }
+
+    #[test]
+    fn a_robot_falling_at_start_waits_until_it_has_held_still() {
+        for config in both_filters() {
+            let mut e = Estimator::new(config, 2, [0.0, 0.0, -9.81], 160.0, 200.0);
+            let legs = standing_legs();
+            // Dropped: free fall reads no specific force.
+            for k in 0..10 {
+                e.propagate(&sample(k, [0.0, 0.0, 0.1]));
+            }
+            assert_eq!(
+                e.correct(&legs, true).problem,
+                Some(EstimateProblem::NotInitialised)
+            );
+            // On the floor: 0.2 s of rest (40 samples at 200 Hz) before it starts.
+            for k in 10..49 {
+                e.propagate(&sample(k, [0.0, 0.0, 9.81]));
+            }
+            assert!(!e.correct(&legs, true).valid, "not settled yet");
+            e.propagate(&sample(49, [0.0, 0.0, 9.81]));
+            assert!(e.correct(&legs, true).valid);
         }
     }
 }
