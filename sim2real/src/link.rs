@@ -3,6 +3,7 @@
 //! in real time over real wires, and the clocks that go with each.
 
 use std::net::{IpAddr, Ipv4Addr};
+use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
@@ -48,70 +49,39 @@ pub fn lockstep_robot(robot: &Robot, world: &Arc<Mutex<Mirror>>) -> Result<Locks
         LOCKSTEP_REPLY,
         options,
     )?;
-    // A robot with foot switches gets the mirror's contacts behind the same trait as GPIO lines.
-    Ok(if robot.config.contacts.is_empty() {
-        link
-    } else {
-        let touch = {
-            let w = world
-                .lock()
-                .map_err(|_| IoError::Setup("the mirror's lock is poisoned".into()))?;
-            let model = w.data().model();
-            let mut touch = Vec::with_capacity(robot.config.feet.len());
-            for f in &robot.config.feet {
-                let sw = robot.config.contacts.iter().find(|c| c.foot == *f);
-                touch.push(
-                    match sw.and_then(|c| c.sensor.as_ref().map(|s| (s, c.threshold_n))) {
-                        Some((name, threshold)) => Some((
-                            crate::model_index::sensor_address(model, name)
-                                .map_err(|e| IoError::Setup(e.to_string()))?,
-                            threshold,
-                        )),
-                        None => None,
-                    },
-                );
-            }
-            touch
-        };
-        link.with_contacts(Box::new(MirrorSwitches {
-            world: Arc::clone(world),
-            wired: robot
-                .config
-                .feet
-                .iter()
-                .map(|f| robot.config.contacts.iter().any(|c| c.foot == *f))
-                .collect(),
-            touch,
-        }))
-    })
+    with_mirror_switches(link, robot, world)
 }
 
-/// Foot switches on the mirror: each configured foot's contact with the floor, as the simulation
-/// has it this instant (the loop's own thread steps the lockstep mirror, so the lock is free).
+/// A robot with foot switches (robot.toml `[[contacts]]`) gets the mirror's behind the same trait
+/// as GPIO lines, in lockstep and on the wall clock alike.
+fn with_mirror_switches<S: firmware_bridge::serial::ByteStream>(
+    link: BusRobot<S>,
+    robot: &Robot,
+    world: &Arc<Mutex<Mirror>>,
+) -> Result<BusRobot<S>, IoError> {
+    if robot.config.contacts.is_empty() {
+        return Ok(link);
+    }
+    let closed = world
+        .lock()
+        .map_err(|_| IoError::Setup("the mirror's lock is poisoned".into()))?
+        .foot_switches()
+        .map_err(IoError::Setup)?;
+    Ok(link.with_contacts(Box::new(MirrorSwitches { closed })))
+}
+
+/// Foot switches on the mirror: the word of closed switches the mirror publishes after every
+/// physics step (read without its lock: the loop never waits for the simulation's thread).
 #[derive(Debug)]
 struct MirrorSwitches {
-    world: Arc<Mutex<Mirror>>,
-    /// Which feet have a switch.
-    wired: Vec<bool>,
-    /// Per foot, the touch sensor standing for its switch (its `sensordata` address) and the
-    /// force that closes it; `None`: the foot's contacts.
-    touch: Vec<Option<(usize, f64)>>,
+    closed: Arc<AtomicU32>,
 }
 
 impl robot_link::contacts::ContactSource for MirrorSwitches {
     fn read(&mut self, out: &mut [bool]) -> Result<(), IoError> {
-        let world = self
-            .world
-            .lock()
-            .map_err(|_| IoError::Setup("the mirror's lock is poisoned".into()))?;
-        let (mut pose, mut velocity) = ([0.0; 7], [0.0; 3]);
-        world.ground_truth(&mut pose, &mut velocity, out);
-        let sensors = world.data().sensordata();
-        for ((o, &wired), touch) in out.iter_mut().zip(&self.wired).zip(&self.touch) {
-            if let Some((address, threshold)) = touch {
-                *o = sensors[*address] > *threshold;
-            }
-            *o &= wired;
+        let bits = self.closed.load(Ordering::Acquire);
+        for (f, o) in out.iter_mut().enumerate() {
+            *o = f < 32 && bits & (1 << f) != 0;
         }
         Ok(())
     }
@@ -170,7 +140,7 @@ pub fn wired_robot_with(robot: &Robot, served: &ServedMirror, on_start: fn()) ->
         ..DxlDriverOptions::default()
     };
     // Buses on their own threads: the tick's I/O costs the slowest bus.
-    BusRobot::new(
+    let link = BusRobot::new(
         robot,
         BusPorts {
             can,
@@ -181,8 +151,8 @@ pub fn wired_robot_with(robot: &Robot, served: &ServedMirror, on_start: fn()) ->
         },
         Duration::from_millis(20),
         options,
-    )?
-    .parallel_with(on_start)
+    )?;
+    with_mirror_switches(link, robot, &served.world)?.parallel_with(on_start)
 }
 
 /// Serves `mirror` on loopback (free ports) for a wired run.

@@ -7,7 +7,7 @@
 //! outputs and scheduled faults. In lockstep it advances only when a host port waits, so a run
 //! is a pure function of its seed; `sim serve` drives the same loop from the wall clock.
 
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -273,6 +273,19 @@ const UNITREE_MODE_MACHINE: u8 = 5;
 /// The supply voltage an emulated Unitree board's motors report, V (a charged 13-cell pack).
 const UNITREE_SUPPLY_V: f32 = 54.6;
 
+/// The mirror's foot switches: per foot (robot.toml `feet` order), whether it has one and the touch
+/// sensor standing for it (its `sensordata` address and closing force; `None`: the foot's contacts
+/// with anything), and the bits the last physics step closed (bit `f`: foot `f`).
+#[derive(Debug)]
+struct SwitchWiring {
+    wired: Vec<bool>,
+    touch: Vec<Option<(usize, f64)>>,
+    closed: Arc<AtomicU32>,
+}
+
+/// Most feet the mirror's switches publish (bits of one word).
+pub const MAX_SWITCHED_FEET: usize = 32;
+
 /// The mirrored robot.
 #[derive(Debug)]
 pub struct Mirror {
@@ -296,6 +309,8 @@ pub struct Mirror {
     held: bool,
     /// Raised by the controller when a stop hands the robot to the harness: the crane hoists.
     hoist: Arc<AtomicBool>,
+    /// The robot's foot switches as the simulation closes them, published every physics step.
+    switches: Option<SwitchWiring>,
     /// Joint angles a jig holds the joints at (policy order), if any.
     jig: Option<Vec<f64>>,
     root_qpos: usize,
@@ -798,6 +813,7 @@ impl Mirror {
             harness: None,
             held: false,
             hoist: Arc::new(AtomicBool::new(false)),
+            switches: None,
             jig: None,
             root_qpos,
             root_dof,
@@ -906,6 +922,70 @@ impl Mirror {
     /// The share of the robot's weight the harness carries now (0 when slack or without one).
     pub fn harness_load(&self) -> Option<f64> {
         self.harness.map(|h| self.harness_wrench(h).2)
+    }
+
+    /// The robot's foot switches (robot.toml `[[contacts]]`) as the simulation closes them: a
+    /// word whose bit `f` is foot `f`'s switch, published after every physics step, so a loop on
+    /// another thread reads it without the mirror's lock. Wired on the first call.
+    pub fn foot_switches(&mut self) -> Result<Arc<AtomicU32>, String> {
+        if let Some(w) = &self.switches {
+            return Ok(Arc::clone(&w.closed));
+        }
+        let c = &self.robot.config;
+        if c.feet.len() > MAX_SWITCHED_FEET {
+            return Err(format!(
+                "{} feet: the mirror's switches publish at most {MAX_SWITCHED_FEET}",
+                c.feet.len()
+            ));
+        }
+        let model = self.data.model();
+        let mut touch = Vec::with_capacity(c.feet.len());
+        for f in &c.feet {
+            let sw = c.contacts.iter().find(|s| s.foot == *f);
+            touch.push(
+                match sw.and_then(|s| s.sensor.as_ref().map(|n| (n, s.threshold_n))) {
+                    Some((name, threshold)) => Some((
+                        model_index::sensor_address(model, name).map_err(|e| e.to_string())?,
+                        threshold,
+                    )),
+                    None => None,
+                },
+            );
+        }
+        let wiring = SwitchWiring {
+            wired: c
+                .feet
+                .iter()
+                .map(|f| c.contacts.iter().any(|s| s.foot == *f))
+                .collect(),
+            touch,
+            closed: Arc::new(AtomicU32::new(0)),
+        };
+        let closed = Arc::clone(&wiring.closed);
+        self.switches = Some(wiring);
+        self.publish_switches();
+        Ok(closed)
+    }
+
+    /// Closes each wired foot's switch as the simulation has it now.
+    fn publish_switches(&mut self) {
+        let Some(w) = &self.switches else { return };
+        let mut feet = [false; MAX_SWITCHED_FEET];
+        let n = w.wired.len();
+        let (mut pose, mut velocity) = ([0.0; 7], [0.0; 3]);
+        self.ground_truth(&mut pose, &mut velocity, &mut feet[..n]);
+        let sensors = self.data.sensordata();
+        let mut bits = 0u32;
+        for (f, (&wired, touch)) in w.wired.iter().zip(&w.touch).enumerate() {
+            let closed = match touch {
+                Some((address, threshold)) => sensors[*address] > *threshold,
+                None => feet[f],
+            };
+            if wired && closed {
+                bits |= 1 << f;
+            }
+        }
+        w.closed.store(bits, Ordering::Release);
     }
 
     /// The harness's force and torque on the root (world frame) and the share of the weight it
@@ -1228,7 +1308,7 @@ impl Mirror {
             if h.lowering_since.is_none() && self.plants.iter().any(|p| p.torque != 0.0 || p.goal.is_some()) {
                 h.lowering_since = Some(self.data.time());
             }
-            if h.hoisting.is_none() && self.hoist.load(std::sync::atomic::Ordering::Relaxed) {
+            if h.hoisting.is_none() && self.hoist.load(Ordering::Relaxed) {
                 // The crane moves over the robot and takes its weight where it stands.
                 let q = self.data.qpos();
                 let r = self.root_qpos;
@@ -1288,6 +1368,7 @@ impl Mirror {
                 self.data.qvel_mut()[j.dof] = 0.0;
             }
         }
+        self.publish_switches();
         self.stats.physics_steps += 1;
     }
 

@@ -257,6 +257,24 @@ fn robot_with_switches(tag: &str, feet: &[&str]) -> (Result<Robot, String>, Path
 }
 
 #[test]
+fn on_the_wall_clock_the_mirrors_foot_switches_are_read_too() {
+    // `--wall` serves the mirror on its own thread; the switches are published by it every
+    // physics step and read by the loop without the mirror's lock.
+    let (robot, dir) = robot_with_switches("wall", &["left_foot", "right_foot"]);
+    let robot = robot.unwrap();
+    let mirror = sim2real::mirror::Mirror::new(robot.clone(), MirrorConfig::default()).unwrap();
+    let served = sim2real::link::serve_locally(mirror).unwrap();
+    let mut link = sim2real::link::wired_robot(&robot, &served).unwrap();
+    let mut state = RobotState::new(robot.config.joints.len());
+    link.read(&mut state).unwrap();
+    // Standing on the floor at the start: both switches closed.
+    assert_eq!(state.foot_switches, vec![true, true]);
+    drop(link);
+    drop(served);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
 fn foot_switches_give_the_contacts_on_the_mirror_and_a_missing_gpio_chip_is_named() {
     let (robot, dir) = robot_with_switches("mirror", &["left_foot", "right_foot"]);
     let robot = robot.unwrap();
