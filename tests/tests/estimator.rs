@@ -237,6 +237,59 @@ fn a_policy_reading_an_estimate_fed_nan_goes_to_the_safe_state() {
     assert!(t.iter().any(|t| t.to == Mode::Damped), "{s}");
 }
 
+#[test]
+fn an_imu_silent_for_a_few_ticks_within_the_stale_limit_keeps_the_estimate_a_policy_reads() {
+    // The export reads the estimate; a slow IMU (50 Hz) goes silent for 5 samples (5 ticks):
+    // within the 8 of its periods the IMU may miss, so neither the safety monitor nor the
+    // estimate gives up (the estimate once did after a fixed 2 ticks and stopped the run).
+    use sim2real::config::{FaultKind, ScheduledFault};
+    let text = std::fs::read_to_string(reference_robot_path()).unwrap();
+    assert!(
+        text.contains("rate_hz = 200.0"),
+        "rd-biped's IMU rate changed: update this test"
+    );
+    let robot = Robot::from_str(
+        &reference_robot_path(),
+        &text.replacen("rate_hz = 200.0", "rate_hz = 50.0", 1),
+    )
+    .unwrap();
+    assert_eq!(robot.config.imu.rate_hz, 50.0);
+    let export = test_support::fixtures::fixture("rd_biped_tracking.onnx");
+    let mut layout = PolicyLayout::load(&export, &robot).unwrap();
+    let (reference, _) =
+        controller::reference::load_reference(None, &biped("clips/squat.csv"), &mut layout, &robot, 0)
+            .unwrap();
+    let mirror = MirrorConfig {
+        faults: vec![ScheduledFault {
+            at_s: 2.0,
+            joint: "imu".into(),
+            fault: FaultKind::Silent { count: Some(5) },
+        }],
+        ..MirrorConfig::default()
+    };
+    let (mut p, mut clock, _w) = lockstep_player(
+        robot,
+        layout,
+        reference,
+        PlayOptions::default(),
+        mirror,
+        Arc::new(AtomicBool::new(false)),
+    )
+    .unwrap();
+    let s = p.run(&mut clock).unwrap();
+    let stops: Vec<Cause> = p.transitions().iter().map(|t| t.cause).collect();
+    assert!(
+        !stops
+            .iter()
+            .any(|c| matches!(c, Cause::EstimateInvalid(_) | Cause::StaleImu { .. })),
+        "{stops:?}\n{s}"
+    );
+    assert!(
+        !s.fell && s.to_string().contains("reference played: 100 %"),
+        "{s}"
+    );
+}
+
 /// rd-biped with foot switches on GPIO lines (`[[contacts]]` added to its robot.toml), in a
 /// folder of its own beside a copy of its MJCF (removed by the caller).
 fn robot_with_switches(tag: &str, feet: &[&str]) -> (Result<Robot, String>, PathBuf) {

@@ -742,6 +742,7 @@ impl<L: RobotLink> Player<L> {
             has_truth,
             self.options.estimator == EstimatorKind::GroundTruth,
             rig_holds,
+            self.lifecycle.monitor.imu_limit(),
             &mut self.metrics,
         );
         self.advance(has_truth);

@@ -348,7 +348,27 @@ pub struct SafetyMonitor {
 /// or broken: a robot's impacts pass in milliseconds, standing and walking feel about one g.
 pub const SATURATED_G: f64 = 8.0;
 
+/// Ticks in a row without a new IMU sample before the IMU counts as stale — for the safety stop
+/// and for the state estimate alike (one limit: an estimate that gave up after 2 ticks stopped
+/// wall-clock runs of a slow IMU the monitor would have let go on): the joints' allowance
+/// (`stale_cycles`), at least 2 ticks, and [`IMU_STALE_PERIODS`] of the IMU's own periods.
+pub fn imu_stale_ticks(limits: &SafetyLimits, dt: f64, imu_rate_hz: f64) -> u32 {
+    limits
+        .stale_cycles
+        .max(2)
+        .max((IMU_STALE_PERIODS / (dt * imu_rate_hz)).ceil() as u32)
+}
+
+/// The IMU's own periods without a sample it may miss (a slow IMU over a serial line on a busy
+/// machine drops a few; the joints get as many of their bus's cycles on the wall clock).
+pub const IMU_STALE_PERIODS: f64 = 8.0;
+
 impl SafetyMonitor {
+    /// The IMU's stale limit, ticks ([`imu_stale_ticks`]).
+    pub fn imu_limit(&self) -> u32 {
+        self.imu_limit
+    }
+
     /// A monitor for the joints `names` with their tracking-error stops, a loop ticking every
     /// `dt` s and an IMU at `imu_rate_hz`.
     pub fn new(
@@ -359,10 +379,7 @@ impl SafetyMonitor {
         imu_rate_hz: f64,
     ) -> Self {
         Self {
-            imu_limit: limits
-                .stale_cycles
-                .max(2)
-                .max((2.0 / (dt * imu_rate_hz)).ceil() as u32),
+            imu_limit: imu_stale_ticks(&limits, dt, imu_rate_hz),
             limits,
             off_target: vec![0; tracking.len()],
             tracking,

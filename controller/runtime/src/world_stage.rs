@@ -11,9 +11,6 @@ use crate::keypoints::track::KeypointTrack;
 use crate::metrics::RunMetrics;
 use crate::motion::Alignment;
 
-/// Ticks without an IMU sample the estimator still counts as fresh.
-const IMU_FRESH_TICKS: u32 = 2;
-
 /// The world stage of a run: where the robot is, from its kinematics and the estimator or the
 /// simulation's ground truth, and its keypoints through the cameras.
 #[derive(Debug)]
@@ -52,6 +49,7 @@ impl WorldStage {
         has_truth: bool,
         ground_truth: bool,
         rig_holds: bool,
+        imu_stale_ticks: u32,
         metrics: &mut RunMetrics,
     ) {
         let Some(k) = &mut self.kinematics else {
@@ -86,7 +84,7 @@ impl WorldStage {
                 switches[..k.feet()].copy_from_slice(&state.foot_switches);
                 legs.switches = Some(switches);
             }
-            self.estimate = e.correct(&legs, state.imu_missed <= IMU_FRESH_TICKS);
+            self.estimate = e.correct(&legs, state.imu_missed <= imu_stale_ticks);
         }
         if ground_truth || self.estimator.is_none() {
             self.world_valid = has_truth;
