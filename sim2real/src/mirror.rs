@@ -216,6 +216,9 @@ struct Harness {
     /// the weight the rope carries.
     mass: f64,
     gains: [f64; 6],
+    /// The root's own damping in the model (its six degrees of freedom), which the harness's
+    /// dampers add to.
+    root_damping: [f64; 6],
 }
 
 /// The rope's stretch under the robot's whole weight sets its stiffness: g / ω².
@@ -908,6 +911,7 @@ impl Mirror {
                     k_straps,
                     2.0 * HARNESS_ZETA * (k_straps * inertia).sqrt(),
                 ],
+                root_damping: std::array::from_fn(|i| self.data.model().dof_damping()[self.root_dof + i]),
             });
         }
         self.sync_plants();
@@ -921,7 +925,7 @@ impl Mirror {
 
     /// The share of the robot's weight the harness carries now (0 when slack or without one).
     pub fn harness_load(&self) -> Option<f64> {
-        self.harness.map(|h| self.harness_wrench(h).2)
+        self.harness.map(|h| self.harness_wrench(h).3)
     }
 
     /// The robot's foot switches (robot.toml `[[contacts]]`) as the simulation closes them: a
@@ -988,11 +992,14 @@ impl Mirror {
         w.closed.store(bits, Ordering::Release);
     }
 
-    /// The harness's force and torque on the root (world frame) and the share of the weight it
-    /// carries: a rope pulls only, and the pendulum and straps act with the load it carries.
-    fn harness_wrench(&self, h: Harness) -> ([f64; 3], [f64; 3], f64) {
+    /// The harness's springs' force and torque on the root (world frame), the dampers on the
+    /// root's six degrees of freedom (N·s/m, N·m·s/rad), and the share of the weight it carries:
+    /// a rope pulls only, and the pendulum and straps act with the load it carries. The dampers
+    /// go to MuJoCo as joint damping, which it integrates implicitly: a damper on the light
+    /// pelvis, tuned for the whole robot, would otherwise blow up at a trainer's 5 ms step.
+    fn harness_wrench(&self, h: Harness) -> ([f64; 3], [f64; 3], [f64; 6], f64) {
         let r = self.root_qpos;
-        let (q, v) = (self.data.qpos(), self.data.qvel());
+        let q = self.data.qpos();
         let now = self.data.time();
         let smooth = |since: f64| {
             let s = ((now - since) / h.lower_s).clamp(0.0, 1.0);
@@ -1009,22 +1016,19 @@ impl Mirror {
             None => low,
         };
         let stretch = taut - q[r + 2];
-        let pull = if stretch > 0.0 {
-            (k * stretch - c * v[2]).max(0.0)
-        } else {
-            0.0
-        };
+        let pull = if stretch > 0.0 { k * stretch } else { 0.0 };
         let load = (pull / (h.mass * GRAVITY)).min(1.5);
         let mut force = [0.0, 0.0, pull];
         for i in 0..2 {
-            force[i] = load * (kh * (h.hang[i] - q[r + i]) - ch * v[i]);
+            force[i] = load * kh * (h.hang[i] - q[r + i]);
         }
         let cur = [q[r + 3], q[r + 4], q[r + 5], q[r + 6]];
         let err = quat_mul(h.upright, quat_conj(cur));
         let sign = if err[0] < 0.0 { -2.0 } else { 2.0 };
-        let w_world = quat_rotate(cur, [v[3], v[4], v[5]]);
-        let torque: [f64; 3] = std::array::from_fn(|i| load * (kr * sign * err[i + 1] - cr * w_world[i]));
-        (force, torque, load)
+        let torque: [f64; 3] = std::array::from_fn(|i| load * kr * sign * err[i + 1]);
+        let rope = if stretch > 0.0 { c } else { 0.0 };
+        let damping = [load * ch, load * ch, rope, load * cr, load * cr, load * cr];
+        (force, torque, damping, load)
     }
 
     /// The robot it mirrors.
@@ -1320,10 +1324,13 @@ impl Mirror {
                 ));
             }
             let h = *h;
-            let (force, torque, _) = self.harness_wrench(h);
+            let (force, torque, damping, _) = self.harness_wrench(h);
             let x = &mut self.data.xfrc_applied_mut()[self.root_body];
             x[..3].copy_from_slice(&force);
             x[3..].copy_from_slice(&torque);
+            for (i, (d, base)) in damping.iter().zip(h.root_damping).enumerate() {
+                set_dof_damping(&mut self.data, self.root_dof + i, base + d);
+            }
         } else if !self.pushes.is_empty() {
             self.data.xfrc_applied_mut()[self.root_body] = [0.0; 6];
         }

@@ -817,3 +817,44 @@ fn the_g1_dances_the_whole_motion_on_a_quiet_mirror_as_far_off_its_path_as_the_t
         "torso position RMSE {anchor:.3} m against the Python loop's {py_anchor:.3}\n{s}"
     );
 }
+
+/// The G1 at its trainer's 5 ms physics step (holosoma's): the harness's dampers are integrated
+/// implicitly by MuJoCo (as joint damping on the root), so a harness start lowers the robot and
+/// the dance plays — an explicit damper tuned for the whole robot, acting on the light pelvis,
+/// blew up within 0.2 s ("the accelerometer reads 36.2 g") while `check` called the model still.
+#[test]
+fn at_the_trainers_5_ms_step_the_g1_dances_from_its_harness() {
+    let text = std::fs::read_to_string(g1()).unwrap();
+    assert!(
+        !text.contains("[sim]"),
+        "the G1's file has a [sim] table now: update this test"
+    );
+    let robot = Robot::from_str(&g1(), &format!("{text}\n[sim]\ntimestep = 0.005\n")).unwrap();
+    let mut layout = PolicyLayout::load(&dance(), &robot).unwrap();
+    let (reference, _) =
+        controller::reference::load_reference(None, &dance(), &mut layout, &robot, 0).unwrap();
+    let options = PlayOptions {
+        max_ticks: Some(20 * 50),
+        ..PlayOptions::default()
+    };
+    let (mut p, mut clock, world) = lockstep_player(
+        robot,
+        layout,
+        reference,
+        options,
+        MirrorConfig::default(),
+        Arc::new(AtomicBool::new(false)),
+    )
+    .unwrap();
+    assert!(world.lock().unwrap().harness_load().is_some(), "a harness start");
+    let s = p.run(&mut clock).unwrap();
+    let causes: Vec<_> = p.transitions().iter().map(|t| t.cause).collect();
+    assert!(!s.fell, "{s}");
+    assert!(
+        !causes
+            .iter()
+            .any(|c| matches!(c, Cause::ImuSaturated { .. } | Cause::EstimateInvalid(_))),
+        "{causes:?}\n{s}"
+    );
+    assert!(s.ticks >= 20 * 50, "ran the 20 s: {s}");
+}
