@@ -887,10 +887,16 @@ impl<S: ByteStream> BusRobot<S> {
             c.bus.identify()?;
             c.sample(self.now)?;
         }
+        // A part the host configures first (BNO055) answers after a few round trips; a silent
+        // one is left to the safety layer, which stops on a stale IMU. With a thread of its own
+        // the IMU is waited for too: a first tick before its first poll would read "never sent".
         if let Some(imu) = &mut self.imu {
-            // A part the host configures first (BNO055) answers after a few round trips; a
-            // silent one is left to the safety layer, which stops on a stale IMU.
             imu.wait_first(IMU_FIRST_SAMPLE, self.now)?;
+        } else if let Some(w) = &mut self.imu_worker {
+            let give_up = Instant::now() + IMU_FIRST_SAMPLE;
+            while w.newest().count == 0 && Instant::now() < give_up {
+                std::thread::sleep(Duration::from_micros(200));
+            }
         }
         self.identified = true;
         self.start_threads()
