@@ -3,6 +3,9 @@
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
+use std::sync::{Arc, OnceLock};
+
+use mujoco_rs::prelude::MjModel;
 
 use firmware_bridge::{dxl, feetech, mit};
 
@@ -1228,6 +1231,28 @@ pub struct Robot {
     pub feetech_models: Vec<feetech::models::FeetechModel>,
     /// The calibration.toml merged over the description, when there was one.
     pub calibration: Option<PathBuf>,
+    /// The model [`Robot::model`] compiled, once per loaded robot (clones share it).
+    compiled: CompiledModel,
+}
+
+/// A robot's compiled model, shared by its clones: compiling an MJCF takes a large share of a
+/// run's start, and every part of a run (mirror, kinematics, checks) needs the same model. The
+/// description is not edited after loading (edits make a new robot: [`Robot::from_str`]).
+#[derive(Clone, Default)]
+struct CompiledModel(Arc<OnceLock<Arc<MjModel>>>);
+
+impl std::fmt::Debug for CompiledModel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(if self.0.get().is_some() { "compiled" } else { "not compiled yet" })
+    }
+}
+
+/// Two robots are the same by their description; whether one compiled its model yet is not part
+/// of what it is.
+impl PartialEq for CompiledModel {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
 }
 
 impl Robot {
@@ -1247,15 +1272,27 @@ impl Robot {
         Ok(spec)
     }
 
-    /// [`Self::spec`], compiled: the model every simulation and check of this robot uses.
-    pub fn model(&self) -> Result<mujoco_rs::prelude::MjModel, mjcf::MujocoError> {
-        if self.config.joint_dynamics.is_empty() && self.config.sim.is_default() {
-            return mjcf::load_model(&self.mjcf_path);
+    /// [`Self::spec`], compiled: the model every simulation and check of this robot uses, as a
+    /// copy of its own (a simulation changes its model's damping). See [`Self::shared_model`].
+    pub fn model(&self) -> Result<MjModel, mjcf::MujocoError> {
+        Ok(MjModel::clone(&*self.shared_model()?))
+    }
+
+    /// [`Self::spec`], compiled once per loaded robot and shared by every reader that does not
+    /// change it (kinematics, inverse kinematics, views: robot.toml's settings change no geometry).
+    pub fn shared_model(&self) -> Result<Arc<MjModel>, mjcf::MujocoError> {
+        if let Some(model) = self.compiled.0.get() {
+            return Ok(model.clone());
         }
-        self.spec()?.compile().map_err(|e| mjcf::MujocoError::Model {
-            path: self.mjcf_path.display().to_string(),
-            reason: format!("with robot.toml's joint dynamics and [sim] applied: {e}"),
-        })
+        let model = if self.config.joint_dynamics.is_empty() && self.config.sim.is_default() {
+            mjcf::load_model(&self.mjcf_path)?
+        } else {
+            self.spec()?.compile().map_err(|e| mjcf::MujocoError::Model {
+                path: self.mjcf_path.display().to_string(),
+                reason: format!("with robot.toml's joint dynamics and [sim] applied: {e}"),
+            })?
+        };
+        Ok(self.compiled.0.get_or_init(|| Arc::new(model)).clone())
     }
 
     /// Loads and checks `path` (a robot.toml).
@@ -1326,7 +1363,18 @@ impl Robot {
             }
         }
         let mjcf_path = path.parent().unwrap_or(Path::new(".")).join(&config.mjcf);
-        let mjcf = mjcf::summarize(&mjcf_path).map_err(|e| err("mjcf", e.to_string()))?;
+        let raw = mjcf::load_model(&mjcf_path).map_err(|e| {
+            err(
+                "mjcf",
+                crate::FileError::new(&mjcf_path, mjcf::compile_message(e)).to_string(),
+            )
+        })?;
+        let mjcf = mjcf::summarize_model(&raw);
+        // The file as it is is the robot's model when robot.toml changes none of its settings.
+        let compiled = CompiledModel::default();
+        if config.joint_dynamics.is_empty() && config.sim.is_default() {
+            let _ = compiled.0.set(Arc::new(raw));
+        }
         let mut mit_models = Vec::with_capacity(config.mit_models.len());
         for (i, m) in config.mit_models.iter().enumerate() {
             let at = |field: &str| format!("mit_models[{i}] ({}).{field}", m.name);
@@ -1362,6 +1410,7 @@ impl Robot {
             servo_models,
             feetech_models,
             calibration: merged,
+            compiled,
         };
         robot.check().map_err(|(place, message)| err(&place, message))?;
         Ok(robot)

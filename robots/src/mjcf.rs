@@ -444,12 +444,17 @@ impl MjcfSummary {
 pub fn summarize(path: &Path) -> Result<MjcfSummary, FileError> {
     let model = load_model(path).map_err(|e| FileError {
         path: path.to_path_buf(),
-        message: match e {
-            MujocoError::Model { reason, .. } => reason,
-            other => other.to_string(),
-        },
+        message: compile_message(e),
     })?;
     Ok(summarize_model(&model))
+}
+
+/// What went wrong compiling a model, without the path (the caller names the file).
+pub fn compile_message(e: MujocoError) -> String {
+    match e {
+        MujocoError::Model { reason, .. } => reason,
+        other => other.to_string(),
+    }
 }
 
 /// What the robot description cross-checks, read from a compiled model.

@@ -2,6 +2,8 @@
 //! (`mj_jac`) of the frames the retargeting map pairs, weighted per frame, within the joints'
 //! limits. The root is free (offline retargeting) or held (teleoperation); joints may be locked.
 
+use std::sync::Arc;
+
 use crate::body_map::Frame;
 use mujoco_rs::prelude::{MjData, MjModel};
 use robots::spatial;
@@ -38,7 +40,7 @@ struct Slot {
 /// A solver for one robot and one set of frames.
 #[derive(Debug)]
 pub struct Ik {
-    data: MjData<Box<MjModel>>,
+    data: MjData<Arc<MjModel>>,
     frames: Vec<FrameRef>,
     root: Option<(usize, usize)>,
     joints: Vec<Slot>,
@@ -65,7 +67,7 @@ impl Ik {
         free_root: bool,
         locked: &[usize],
     ) -> Result<Self, HumanError> {
-        let model = sim2real::mujoco::load_model(&robot.mjcf_path)?;
+        let model = robot.shared_model()?;
         let frames = frames
             .iter()
             .map(|f| match model_index::frame(&model, f) {
@@ -103,7 +105,7 @@ impl Ik {
             active[s.dof] = !locked.contains(&k);
         }
         let rows = 6 * frames.len();
-        let mut data = MjData::new(Box::new(model));
+        let mut data = MjData::new(model);
         data.kinematics();
         Ok(Self {
             data,
@@ -199,7 +201,7 @@ impl Ik {
     }
 
     /// The model's data (after the last solve or pose).
-    pub fn data(&self) -> &MjData<Box<MjModel>> {
+    pub fn data(&self) -> &MjData<Arc<MjModel>> {
         &self.data
     }
 

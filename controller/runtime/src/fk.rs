@@ -1,6 +1,7 @@
 //! Forward kinematics of a reference on the robot's own model: where each named body is when the
 //! robot stands in the reference's pose, for policies that observe reference body positions.
 
+use mujoco_rs::prelude::MjData;
 use robots::{Robot, spatial};
 use sim2real::model_index::{self, ModelIndex};
 
@@ -35,13 +36,13 @@ pub fn body_poses(
     reference: &Reference,
     bodies: &[String],
 ) -> Result<Vec<[f64; 7]>, KinematicsError> {
-    let model = sim2real::mujoco::load_model(&robot.mjcf_path)?;
+    let model = robot.shared_model()?;
     let index = ModelIndex::of_robot(&model, robot)?;
     let frames = bodies
         .iter()
         .map(|b| model_index::frame(&model, b))
         .collect::<Result<Vec<_>, _>>()?;
-    let mut data = model.make_data();
+    let mut data = MjData::new(model.clone());
     let mut out = Vec::with_capacity(reference.len() * bodies.len());
     for k in 0..reference.len() {
         let r = index.root.qpos;
@@ -75,10 +76,10 @@ pub fn root_poses_from_body(
     body: &str,
     poses: &[[f64; 7]],
 ) -> Result<Vec<[f64; 7]>, KinematicsError> {
-    let model = sim2real::mujoco::load_model(&robot.mjcf_path)?;
+    let model = robot.shared_model()?;
     let index = ModelIndex::of_robot(&model, robot)?;
     let b = model_index::body(&model, body)?;
-    let mut data = model.make_data();
+    let mut data = MjData::new(model.clone());
     let r = index.root.qpos;
     let mut out = Vec::with_capacity(poses.len());
     for (k, pose) in poses.iter().enumerate() {

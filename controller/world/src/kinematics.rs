@@ -2,6 +2,8 @@
 //! tracked bodies, the root's rate, the feet and their soles' contact points, the legs' Jacobians
 //! for the estimator, and the robot's keypoints.
 
+use std::sync::Arc;
+
 use mujoco_rs::prelude::{MjData, MjModel};
 use mujoco_rs::wrappers::mj_model::MjtObjBase;
 use robots::{Robot, spatial};
@@ -27,7 +29,7 @@ pub enum KinematicsError {
 /// anchor's pose, the tracked bodies' positions and the root's angular velocity. Allocates
 /// nothing per tick (MuJoCo's kinematics works in its own arena).
 pub struct RobotKinematics {
-    data: MjData<Box<MjModel>>,
+    data: MjData<Arc<MjModel>>,
     root_qpos: usize,
     joint_qpos: Vec<usize>,
     imu: model_index::FrameId,
@@ -68,7 +70,7 @@ impl std::fmt::Debug for RobotKinematics {
 impl RobotKinematics {
     /// Kinematics of `robot` for `anchor` and `bodies` (MJCF body names).
     pub fn new(robot: &Robot, anchor: Option<&str>, bodies: &[String]) -> Result<Self, KinematicsError> {
-        let model = sim2real::mujoco::load_model(&robot.mjcf_path)?;
+        let model = robot.shared_model()?;
         let index = ModelIndex::of_robot(&model, robot)?;
         let imu = model_index::frame(&model, &robot.config.imu.site)?;
         let anchor = anchor.map(|a| model_index::body(&model, a)).transpose()?;
@@ -153,7 +155,7 @@ impl RobotKinematics {
             legs,
             leg_weights,
             jac: vec![0.0; 3 * nv],
-            data: MjData::new(Box::new(model)),
+            data: MjData::new(model),
             imu,
             anchor,
             bodies,

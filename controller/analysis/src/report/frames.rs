@@ -33,11 +33,11 @@ pub(super) fn render_moments(
     moments: &[Moment],
 ) -> Result<Vec<(String, Vec<u8>)>, FramesError> {
     let robot = robots::Robot::load(robot_toml)?;
-    let model = sim2real::mujoco::load_model(&robot.mjcf_path)?;
+    let model = robot.shared_model()?;
     let index = sim2real::model_index::ModelIndex::of_robot(&model, &robot)?;
     let root = index.root.qpos;
     let adr: Vec<usize> = index.joints.iter().map(|j| j.qpos).collect();
-    let mut data = MjData::new(Box::new(model));
+    let mut data = MjData::new(model);
     let camera = CameraSpec {
         width: 360,
         height: 270,
