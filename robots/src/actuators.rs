@@ -68,7 +68,8 @@ pub struct ActuatorGroup {
     /// The law (default `firmware`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub model: Option<ActuatorModel>,
-    /// Largest torque, N·m at the joint (0–10 000); default: the motor's own range.
+    /// Largest torque, N·m at the joint (0–10 000); default, and never beyond: the joint's
+    /// `torque_limit` (within the motor's own range).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub effort_limit: Option<f64>,
     /// `dc_motor`: stall torque of the torque–speed line, N·m at the joint (0–10 000).
@@ -88,7 +89,8 @@ pub struct ActuatorGroup {
 pub struct ActuatorOf {
     /// The law.
     pub model: ActuatorModel,
-    /// Effort limit, N·m at the joint (none: the motor's).
+    /// Effort limit, N·m at the joint: robot.toml's, within the joint's `torque_limit` (none for a
+    /// name that is no joint of the robot: the motor's).
     pub effort_limit: Option<f64>,
     /// DC motor stall torque, N·m at the joint.
     pub saturation_effort: Option<f64>,
@@ -137,7 +139,56 @@ impl RobotConfig {
             out.velocity_limit = a.velocity_limit.or(out.velocity_limit);
             out.delay_steps = a.delay_steps.unwrap_or(out.delay_steps);
         }
+        // Every torque the robot gives stays within the joint's limit, the trainer's clip too.
+        if let Some(j) = self.joints.iter().find(|j| j.name == name) {
+            out.effort_limit = Some(out.effort_limit.map_or(j.torque_limit, |e| e.min(j.torque_limit)));
+        }
         out
+    }
+}
+
+/// How a joint's torque limit is held where a motor runs the PD law itself (MIT-mode motors,
+/// Unitree's boards) and its own clamp is wider than the limit.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum TorqueHold {
+    /// The motor's range (through the gear) lies within the limit: its own clamp holds it at
+    /// every step of its law, and commands pass unchanged.
+    MotorRange,
+    /// The trainer's clip: robot.toml declares a PD law computed every physics step (`[[actuators]]`),
+    /// whose torque the trainer clipped at each step's state; each bus cycle (the real robot's
+    /// physics step) clips the torque its command asks for at the measured state, and nothing
+    /// else. N·m at the joint.
+    ClipAtMeasurement(f64),
+    /// The motor's own loop (`firmware`), whose stiffness the policy relies on between commands:
+    /// every command is bounded so its PD stays within the limit over the whole coming cycle,
+    /// moving on or stopped dead by an obstacle. N·m at the joint.
+    OverCycle(f64),
+}
+
+impl TorqueHold {
+    /// The limit the bus holds, N·m at the joint (none: the motor's own range holds it).
+    pub fn limit(self) -> Option<f64> {
+        match self {
+            Self::MotorRange => None,
+            Self::ClipAtMeasurement(l) | Self::OverCycle(l) => Some(l),
+        }
+    }
+}
+
+impl crate::Robot {
+    /// How joint `j`'s torque limit is held on its bus (see [`TorqueHold`]); joints whose
+    /// devices cap their own torque (serial servos) are `MotorRange`.
+    pub fn torque_hold(&self, j: &JointConfig) -> TorqueHold {
+        match self.mit_model(&j.model) {
+            Some(m) if m.t_max * j.gear.abs() > j.torque_limit + 1e-9 => {
+                if self.config.actuator_of(&j.name).model.per_physics_step() {
+                    TorqueHold::ClipAtMeasurement(j.torque_limit)
+                } else {
+                    TorqueHold::OverCycle(j.torque_limit)
+                }
+            }
+            _ => TorqueHold::MotorRange,
+        }
     }
 }
 

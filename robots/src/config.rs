@@ -1243,7 +1243,11 @@ struct CompiledModel(Arc<OnceLock<Arc<MjModel>>>);
 
 impl std::fmt::Debug for CompiledModel {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(if self.0.get().is_some() { "compiled" } else { "not compiled yet" })
+        f.write_str(if self.0.get().is_some() {
+            "compiled"
+        } else {
+            "not compiled yet"
+        })
     }
 }
 

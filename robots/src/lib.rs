@@ -13,7 +13,7 @@ pub mod locate;
 pub mod mjcf;
 pub mod spatial;
 
-pub use actuators::{ActuatorGroup, ActuatorModel, ActuatorOf};
+pub use actuators::{ActuatorGroup, ActuatorModel, ActuatorOf, TorqueHold};
 pub use config::{
     BodyPair, BusConfig, BusKind, BusTiming, FrictionCone, GainsOutOfRange, HarnessConfig, HumanBody,
     IMU_SENSOR_KINDS, ImuConfig, ImuSensorNames, Integrator, Interpolation, JointConfig, JointDynamics,

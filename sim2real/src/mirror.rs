@@ -1252,6 +1252,24 @@ impl Mirror {
         self.stats.firmware_ticks += 1;
     }
 
+    /// Motors whose law the mirror computes every physics step report the torque that acted
+    /// (within the effort limit), as their current sensors would, not their own law's.
+    fn sense_stepped_torques(&mut self) {
+        let (joints, plants) = (&self.joints, &self.plants);
+        for m in self.can.iter_mut().flat_map(|c| c.motors.iter_mut()) {
+            if joints[m.joint].law.model.per_physics_step() {
+                m.firmware.sense_torque(plants[m.joint].torque);
+            }
+        }
+        for line in &mut self.unitree {
+            for (m, &j) in line.board.motors_mut().iter_mut().zip(&line.joints) {
+                if joints[j].law.model.per_physics_step() {
+                    m.sense_torque(plants[j].torque);
+                }
+            }
+        }
+    }
+
     /// Whether any joint is driven: a motor gives torque or a servo has a goal.
     fn driven(&self) -> bool {
         self.plants.iter().any(|p| p.torque != 0.0 || p.goal.is_some())
@@ -1267,12 +1285,16 @@ impl Mirror {
             self.held = false;
         }
         // Torques (or position goals) from the firmware's last period.
-        for (i, (j, p)) in self.joints.iter_mut().zip(&self.plants).enumerate() {
+        let mut stepped_laws = false;
+        for (i, (j, p)) in self.joints.iter_mut().zip(&mut self.plants).enumerate() {
             if j.law.model.per_physics_step() {
                 // The trainer's law, from the command that acts at this step.
                 let (q, qd) = (self.data.qpos()[j.qpos], self.data.qvel()[j.dof]);
                 let law = j.delay(p.law);
                 let torque = law.map_or(0.0, |l| j.stepped_torque(&l, q, qd));
+                // What acted, at the motor: the torque its current sensor reports.
+                p.torque = torque / (j.direction * j.gear);
+                stepped_laws = true;
                 self.peak_torque = self.peak_torque.max((torque / j.gear).abs());
                 self.peak_joint_torque[i] = self.peak_joint_torque[i].max(torque.abs());
                 let mut damping = j.passive_damping;
@@ -1305,6 +1327,9 @@ impl Mirror {
                     self.data.qfrc_applied_mut()[j.dof] = joint_torque;
                 }
             }
+        }
+        if stepped_laws {
+            self.sense_stepped_torques();
         }
         if let Some(g) = self.gantry {
             self.hold_on_gantry(g);

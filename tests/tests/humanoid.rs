@@ -858,3 +858,114 @@ fn at_the_trainers_5_ms_step_the_g1_dances_from_its_harness() {
     );
     assert!(s.ticks >= 20 * 50, "ran the 20 s: {s}");
 }
+
+#[test]
+fn a_t1_whose_motors_reach_past_its_torque_limits_walks_as_one_whose_motors_stop_there() {
+    const LIMIT: f64 = 0.8;
+    // holosoma's T1 clips each joint's PD torque at its effort limit every physics step. With
+    // every limit at 80 %, motors whose range ends there walk as motors of the full range held
+    // to it by the trainer's clip at each bus cycle (the mirror's law clips at the limit too): the
+    // same walk, and no reading reports more torque than the limit. (The bound over the whole
+    // cycle, meant for a motor's own loop, moved the commands off the policy's targets.)
+    let dir = workspace_root().join("robots/t1");
+    let text = std::fs::read_to_string(dir.join("robot.toml")).unwrap();
+    // robot.toml with the motors' torque ranges and the joints' torque limits scaled.
+    let scaled = |motors: f64, limits: f64| -> String {
+        let number = |l: &str, key: &str| l.strip_prefix(key).map(|r| r.trim_end_matches(']').to_owned());
+        text.lines()
+            .map(|l| {
+                if let Some(r) =
+                    number(l, "torque = [-").and_then(|r| r.split_once(',').map(|(a, _)| a.to_owned()))
+                {
+                    let r: f64 = r.parse().unwrap();
+                    format!("torque = [{}, {}]\n", -motors * r, motors * r)
+                } else if let Some(r) = number(l, "torque_limit = ") {
+                    format!("torque_limit = {}\n", limits * r.parse::<f64>().unwrap())
+                } else {
+                    format!("{l}\n")
+                }
+            })
+            .collect()
+    };
+    let (low, wide) = (scaled(LIMIT, LIMIT), scaled(1.0, LIMIT));
+    let walk = |robot: Robot| {
+        let mut layout = PolicyLayout::load(&dir.join("policies/holosoma_loco_ppo.toml"), &robot).unwrap();
+        layout.set_command(&[0.0, 0.5, 0.0]).unwrap();
+        let (clip, _) =
+            controller::reference::load_reference(None, &dance(), &mut layout, &robot, 0).unwrap();
+        let limits: Vec<f64> = robot.config.joints.iter().map(|j| j.torque_limit).collect();
+        let holds: Vec<robots::TorqueHold> =
+            robot.config.joints.iter().map(|j| robot.torque_hold(j)).collect();
+        let options = PlayOptions {
+            // 3 s in the harness, 8 s walking.
+            max_ticks: Some(150 + 400),
+            end: controller::player::EndMode::Stand,
+            ..PlayOptions::default()
+        };
+        let (mut p, mut clock, _world) = lockstep_player(
+            robot,
+            layout,
+            clip,
+            options,
+            MirrorConfig::default(),
+            Arc::new(AtomicBool::new(false)),
+        )
+        .unwrap();
+        p.identify().unwrap();
+        let period = Duration::from_millis(20);
+        // The largest torque any joint reported, as a share of its limit.
+        let mut worst = 0.0f64;
+        while p.ticks() < 550 && p.mode() != Mode::Off {
+            p.step(&clock).unwrap();
+            p.wait_until(&mut clock, period * p.ticks() as u32);
+            for (tau, limit) in p.state().tau.iter().zip(&limits) {
+                worst = worst.max(tau.abs() / limit);
+            }
+        }
+        use robot_link::RobotLink as _;
+        let bounded: u64 = p.link().bus_stats().iter().map(|b| b.torque_bounded).sum();
+        let commands: u64 = p
+            .link()
+            .bus_names()
+            .iter()
+            .zip(p.link().bus_stats())
+            .map(|(name, b)| b.cycles * p.robot().joints_on(name).count() as u64)
+            .sum();
+        (p.summary_so_far(), worst, holds, bounded as f64 / commands as f64)
+    };
+    let (shipped, shipped_worst, shipped_holds, _) =
+        walk(Robot::from_str(&dir.join("robot.toml"), &low).unwrap());
+    let (wide, wide_worst, wide_holds, clipped) =
+        walk(Robot::from_str(&dir.join("robot.toml"), &wide).unwrap());
+    assert!(shipped_holds.iter().all(|h| *h == robots::TorqueHold::MotorRange));
+    assert!(
+        wide_holds
+            .iter()
+            .all(|h| matches!(h, robots::TorqueHold::ClipAtMeasurement(_)))
+    );
+    let distance = |s: &PlaySummary| s.locomotion.as_ref().unwrap().displacement_m;
+    let (a, b) = (distance(&shipped), distance(&wide));
+    eprintln!(
+        "T1 walk 8 s, limits at 80 %: motors ending at the limit {a:.3} m, reaching past it {b:.3} m ({:+.2} %); \
+         largest reported torque {:.1} % / {:.1} % of the limit; {:.2} % of the wide motors' commands clipped",
+        100.0 * (b - a) / a,
+        100.0 * shipped_worst,
+        100.0 * wide_worst,
+        100.0 * clipped
+    );
+    for s in [&shipped, &wide] {
+        assert!(
+            !s.fell && s.transitions.iter().all(|t| !t.cause.is_fault()),
+            "{s}"
+        );
+    }
+    assert!(a > 2.0, "the shipped T1 walked {a:.2} m\n{shipped}");
+    assert!(clipped > 0.001, "the limits were reached: {clipped}");
+    // (The bound over the whole cycle: 2.0 % shorter, and readings up to 124 % of the limit.)
+    assert!((b - a).abs() <= 0.015 * a, "{b:.3} m against {a:.3} m");
+    // Readings carry the MIT frame's 12-bit torque field: a step of range/2048.
+    assert!(
+        wide_worst <= 1.01 && shipped_worst <= 1.01,
+        "{wide_worst} {shipped_worst}"
+    );
+}

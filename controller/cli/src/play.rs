@@ -757,8 +757,8 @@ fn print_servo_caps(robot: &Robot) {
         lines.push((format!("servo torque limit: {text}"), j.name.as_str()));
     }
     print_grouped(lines);
-    // MIT-mode motors: the bus bounds every command over its cycle where the joint's limit lies
-    // below the motor's range; Robstride motors also hold it in their own limit_torque.
+    // MIT-mode motors: how the bus holds the joint's limit where it lies below the motor's range
+    // (robots::TorqueHold); Robstride motors also hold it in their own limit_torque.
     let mut lines: Vec<(String, &str)> = Vec::new();
     for j in &robot.config.joints {
         if robot
@@ -771,18 +771,25 @@ fn print_servo_caps(robot: &Robot) {
             continue;
         };
         let range = motor.t_max * j.gear;
-        let text = if j.torque_limit < range {
-            let written = if motor.family == firmware_bridge::mit::models::MotorFamily::Robstride {
-                ", written to its limit_torque"
-            } else {
-                ""
-            };
-            format!(
-                "{} {} N·m of the motor's {range} N·m: every command bounded over its bus cycle{written}",
-                j.model, j.torque_limit
-            )
+        let written = if motor.family == firmware_bridge::mit::models::MotorFamily::Robstride {
+            ", written to its limit_torque"
         } else {
-            format!("{} {} N·m: the motor's own range", j.model, j.torque_limit)
+            ""
+        };
+        let text = match robot.torque_hold(j) {
+            robots::TorqueHold::MotorRange => {
+                format!("{} {} N·m: the motor's own range", j.model, j.torque_limit)
+            }
+            robots::TorqueHold::ClipAtMeasurement(l) => format!(
+                "{} {l} N·m of the motor's {range} N·m: each bus cycle clips the torque at the measured \
+                 state, as the trainer's {} law clipped it every physics step{written}",
+                j.model,
+                robot.config.actuator_of(&j.name).model.name()
+            ),
+            robots::TorqueHold::OverCycle(l) => format!(
+                "{} {l} N·m of the motor's {range} N·m: every command bounded over its bus cycle{written}",
+                j.model
+            ),
         };
         lines.push((format!("motor torque limit: {text}"), j.name.as_str()));
     }

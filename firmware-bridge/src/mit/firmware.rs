@@ -114,6 +114,9 @@ pub struct MitMotorFirmware {
     run_mode: u8,
     /// The torque clamp in force, N·m (Robstride's limit_torque; the model's range elsewhere).
     torque_limit: f64,
+    /// A simulator computes the law every physics step and says what torque acted
+    /// ([`MitMotorFirmware::sense_torque`]): the motor reports that, not its own law's.
+    law_outside: bool,
 }
 
 impl MitMotorFirmware {
@@ -131,8 +134,17 @@ impl MitMotorFirmware {
             frames_answered: 0,
             run_mode: 0,
             torque_limit: cfg.model.t_max,
+            law_outside: false,
             cfg,
         }
+    }
+
+    /// The torque that acted on the shaft, N·m, from a simulator that computes the motor's law
+    /// itself every physics step (a trainer's actuator model, with its own effort limit): from
+    /// then on the motor reports it and heats by it, as its current sensor would.
+    pub fn sense_torque(&mut self, torque: f64) {
+        self.law_outside = true;
+        self.torque = torque;
     }
 
     /// The shaft angle the motor is holding towards (rad, plant frame), while enabled with
@@ -396,6 +408,11 @@ impl MitMotorFirmware {
         let faulted = !matches!(self.fault, MotorFault::None | MotorFault::CommunicationLost);
         if faulted {
             self.enabled = false;
+        }
+        if self.law_outside {
+            // The simulator's own law acts; the plant keeps what it said acted.
+            plant.apply_torque(self.torque);
+            return;
         }
         self.torque = self.pd_law().map_or(0.0, |law| {
             law.torque(plant.position(), plant.velocity())

@@ -645,19 +645,10 @@ impl<S: ByteStream> BusRobot<S> {
                 ))
             })?;
         let damping_kd: Vec<f64> = robot.config.joints.iter().map(|j| j.kd).collect();
-        // Where a motor's own clamp (its model's torque range, at the joint through the gear) is
-        // within the joint's limit, the firmware holds the limit at every step of its PD: the bus
-        // leaves the command alone, as the trainer's simulation clipped the torque. Elsewhere each
-        // cycle pulls its PD target in so the torque at the measured state stays within the limit.
-        let torque_limit: Vec<f64> = robot
-            .config
-            .joints
-            .iter()
-            .map(|j| match robot.mit_model(&j.model) {
-                Some(m) if m.t_max * j.gear.abs() <= j.torque_limit + 1e-9 => f64::INFINITY,
-                _ => j.torque_limit,
-            })
-            .collect();
+        // How each joint's limit is held where a motor runs the PD law (robots::TorqueHold): by
+        // its own clamp, by the trainer's clip at each cycle, or over the whole cycle.
+        let torque_hold: Vec<robots::TorqueHold> =
+            robot.config.joints.iter().map(|j| robot.torque_hold(j)).collect();
         let timing = |name: &str| {
             robot
                 .bus_timing(name)
@@ -675,7 +666,7 @@ impl<S: ByteStream> BusRobot<S> {
                 timing,
                 policy_period,
                 damping_kd.clone(),
-                bound_torque.then(|| torque_limit.clone()),
+                bound_torque.then(|| torque_hold.clone()),
             ));
             names.push(name);
         };

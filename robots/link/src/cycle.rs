@@ -10,7 +10,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use crossbeam::queue::ArrayQueue;
-use robots::{BusTiming, Interpolation};
+use robots::{BusTiming, Interpolation, TorqueHold};
 
 use crate::bus_robot::JointBus;
 use crate::link::IoError;
@@ -179,10 +179,10 @@ pub(crate) struct Cycler {
     policy_period: Duration,
     /// Damping per joint when the bus damps itself (robot order).
     damping_kd: Vec<f64>,
-    /// Torque limit per joint (robot order), when this bus's devices run the PD law themselves
-    /// with nothing else to cap it (MIT motors): every command is bounded against the newest
+    /// How each joint's torque limit is held (robot order), when this bus's devices run the PD
+    /// law themselves (MIT motors, Unitree's boards): every command is bounded against the newest
     /// measured state so the PD torque it asks for stays within it.
-    torque_limit: Option<Vec<f64>>,
+    torque_hold: Option<Vec<TorqueHold>>,
     /// The policy's newest targets, when it issued them and their number.
     order: Vec<JointTarget>,
     issued_at: Duration,
@@ -216,7 +216,7 @@ impl Cycler {
         timing: BusTiming,
         policy_period: Duration,
         damping_kd: Vec<f64>,
-        torque_limit: Option<Vec<f64>>,
+        torque_hold: Option<Vec<TorqueHold>>,
     ) -> Self {
         let n = damping_kd.len();
         Self {
@@ -225,7 +225,7 @@ impl Cycler {
             timing,
             policy_period,
             damping_kd,
-            torque_limit,
+            torque_hold,
             order: vec![JointTarget::default(); n],
             issued_at: Duration::ZERO,
             order_seq: 0,
@@ -320,13 +320,13 @@ impl Cycler {
                 t
             };
         }
-        if let Some(limits) = &self.torque_limit {
+        if let Some(holds) = &self.torque_hold {
             for &i in &self.joints {
                 if bound_pd(
                     &mut self.sent[i],
                     self.state.q[i],
                     self.state.qd[i],
-                    limits[i],
+                    holds[i],
                     self.timing.period.as_secs_f64(),
                 ) {
                     self.stats.torque_bounded += 1;
@@ -417,18 +417,25 @@ impl Cycler {
     }
 }
 
-/// Bounds the torque the PD law of `t` asks for to `limit` over the whole coming cycle, as the
-/// motor runs it at its inner rate until the next command: at the measured `q`, `qd`; where the
-/// joint gets in `horizon` seconds at that speed; and at both places stopped dead (an obstacle
-/// takes the damping's braking away). The position target is pulled into the range that keeps
-/// every one of them within the limit; if damping and feed-forward alone exceed it at the
-/// measurement, the damping is scaled down. Returns whether `t` changed.
-fn bound_pd(t: &mut JointTarget, q: f64, qd: f64, limit: f64, horizon: f64) -> bool {
+/// Bounds the torque the PD law of `t` asks for to the joint's limit as `hold` says. Over the
+/// cycle ([`TorqueHold::OverCycle`]), as the motor runs it at its inner rate until the next
+/// command: at the measured `q`, `qd`; where the joint gets in `horizon` seconds at that speed;
+/// and at both places stopped dead (an obstacle takes the damping's braking away). At the
+/// measurement ([`TorqueHold::ClipAtMeasurement`], the trainer's clip): at `q`, `qd` only. The
+/// position target is pulled into the range that keeps every one of them within the limit; if
+/// damping and feed-forward alone exceed it at the measurement, the damping is scaled down.
+/// Returns whether `t` changed.
+fn bound_pd(t: &mut JointTarget, q: f64, qd: f64, hold: TorqueHold, horizon: f64) -> bool {
+    let (limit, states) = match hold {
+        TorqueHold::MotorRange => return false,
+        TorqueHold::ClipAtMeasurement(limit) => (limit, 1),
+        TorqueHold::OverCycle(limit) => (limit, 4),
+    };
     if !(t.enabled && q.is_finite() && qd.is_finite()) {
         return false;
     }
     let ahead = q + qd * horizon;
-    let states = [(q, qd), (ahead, qd), (q, 0.0), (ahead, 0.0)];
+    let states = &[(q, qd), (ahead, qd), (q, 0.0), (ahead, 0.0)][..states];
     let rest = |t: &JointTarget, v: f64| t.kd * (t.qd - v) + t.tau;
     let torque = |t: &JointTarget, (at, v): (f64, f64)| t.kp * (t.q - at) + rest(t, v);
     if states.iter().all(|&s| torque(t, s).abs() <= limit) {
@@ -437,7 +444,7 @@ fn bound_pd(t: &mut JointTarget, q: f64, qd: f64, limit: f64, horizon: f64) -> b
     if t.kp > 0.0 {
         // Targets within the limit at every state: the intersection of their ranges.
         let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
-        for (at, v) in states {
+        for &(at, v) in states {
             lo = lo.max(at + (-limit - rest(t, v)) / t.kp);
             hi = hi.min(at + (limit - rest(t, v)) / t.kp);
         }
@@ -488,6 +495,7 @@ mod tests {
 
     #[test]
     fn a_pd_command_is_bounded_to_the_joints_torque_limit_over_its_cycle() {
+        const OVER: TorqueHold = TorqueHold::OverCycle(40.0);
         let t = |q, kp, kd, tau| JointTarget {
             q,
             qd: 0.0,
@@ -498,16 +506,16 @@ mod tests {
         };
         // 150 N·m/rad × 0.5 rad = 75 N·m against a 40 N·m limit: the target moves to 40/150 rad.
         let mut a = t(1.0, 150.0, 3.0, 0.0);
-        assert!(bound_pd(&mut a, 0.5, 0.0, 40.0, CYCLE));
+        assert!(bound_pd(&mut a, 0.5, 0.0, OVER, CYCLE));
         assert!((a.q - (0.5 + 40.0 / 150.0)).abs() < 1e-12 && a.kp == 150.0);
         // Within the limit: untouched.
         let mut b = t(0.6, 150.0, 3.0, 0.0);
-        assert!(!bound_pd(&mut b, 0.5, 0.0, 40.0, CYCLE));
+        assert!(!bound_pd(&mut b, 0.5, 0.0, OVER, CYCLE));
         // Moving fast into the target's way: damping alone would give 3 × 20 = 60 N·m. The target
         // keeps the torque within the limit now, where the joint is at the cycle's end, and at
         // both places should the joint stop dead against an obstacle.
         let mut c = t(0.5, 150.0, 3.0, 0.0);
-        assert!(bound_pd(&mut c, 0.5, -20.0, 40.0, CYCLE));
+        assert!(bound_pd(&mut c, 0.5, -20.0, OVER, CYCLE));
         for (at, v) in [
             (0.5, -20.0),
             (0.5 - 20.0 * CYCLE, -20.0),
@@ -519,13 +527,38 @@ mod tests {
         }
         // The other direction, and torque off is never touched.
         let mut d = t(-1.0, 150.0, 3.0, 0.0);
-        assert!(bound_pd(&mut d, 0.0, 0.0, 40.0, CYCLE));
+        assert!(bound_pd(&mut d, 0.0, 0.0, OVER, CYCLE));
         assert!((d.q + 40.0 / 150.0).abs() < 1e-12);
         let mut off = JointTarget {
             enabled: false,
             ..t(5.0, 150.0, 3.0, 0.0)
         };
-        assert!(!bound_pd(&mut off, 0.0, 0.0, 40.0, CYCLE));
+        assert!(!bound_pd(&mut off, 0.0, 0.0, OVER, CYCLE));
+    }
+    #[test]
+    fn the_trainers_clip_bounds_the_torque_at_the_measured_state_only() {
+        const CLIP: TorqueHold = TorqueHold::ClipAtMeasurement(40.0);
+        let t = |q| JointTarget {
+            q,
+            kp: 150.0,
+            kd: 3.0,
+            enabled: true,
+            ..JointTarget::default()
+        };
+        // 75 N·m asked at the measurement: clipped to 40 there, as the trainer clipped it.
+        let mut a = t(1.0);
+        assert!(bound_pd(&mut a, 0.5, 0.0, CLIP, CYCLE));
+        assert!((a.kp * (a.q - 0.5) - 40.0).abs() < 1e-9);
+        // Moving towards the target at 10 rad/s: 150 × 0.3 − 3 × 10 = 15 N·m at the measurement,
+        // which the trainer's clip passes unchanged; the bound over the cycle moves it, since
+        // stopped dead by an obstacle the joint would get 45 N·m.
+        let mut b = t(0.8);
+        assert!(!bound_pd(&mut b, 0.5, 10.0, CLIP, CYCLE));
+        assert_eq!(b, t(0.8));
+        assert!(bound_pd(&mut b, 0.5, 10.0, TorqueHold::OverCycle(40.0), CYCLE));
+        // The motor's own range holds it: never touched.
+        let mut d = t(5.0);
+        assert!(!bound_pd(&mut d, 0.0, 0.0, TorqueHold::MotorRange, CYCLE));
     }
 
     #[test]
