@@ -106,6 +106,9 @@ struct ActuatorPlant {
     torque_cap: f64,
     /// The motor's impedance law while its torque is on (MIT motors).
     law: Option<PdLaw>,
+    /// The stiffness and damping of the device's position loop (actuator side), which a
+    /// position actuator of the model applies in its stead: the gains robot.toml had written.
+    stiffness: Option<[f64; 2]>,
 }
 
 impl MotorPlant for ActuatorPlant {
@@ -428,6 +431,26 @@ fn capped_position_control(
     // The setpoint is an actuator length: gear × joint angle.
     let force = (kp * gear * goal + free).clamp(-limit, limit);
     (force - free) / kp
+}
+
+/// Gives position actuator `a` the stiffness and damping `[kp, kd]` at its joint (N·m/rad,
+/// N·m·s/rad), where they differ from its own: through the actuator's gear `g` it pushes with
+/// `kp / g²` per unit of length.
+fn set_position_gains(data: &mut MjData<Box<MjModel>>, a: usize, [kp, kd]: [f64; 2]) {
+    let m = data.model();
+    let g2 = m.actuator_gear()[a][0].powi(2);
+    let (kp, kv) = (kp / g2, kd / g2);
+    if m.actuator_gainprm()[a][0] != kp || m.actuator_biasprm()[a][2] != -kv {
+        // SAFETY: values of existing arrays change; no size, index or address does (the
+        // actuator's gain and bias types stay those of a position actuator).
+        #[allow(unsafe_code)]
+        unsafe {
+            let model = data.model_mut();
+            model.actuator_gainprm_mut()[a][0] = kp;
+            model.actuator_biasprm_mut()[a][1] = -kp;
+            model.actuator_biasprm_mut()[a][2] = -kv;
+        }
+    }
 }
 
 /// Sets the damping of degree of freedom `dof` in the model `data` steps, where it differs.
@@ -1225,6 +1248,7 @@ impl Mirror {
                 self.plants[m.joint].goal = m.firmware.position_goal();
                 self.plants[m.joint].torque_cap = m.firmware.torque_cap();
                 self.plants[m.joint].law = m.firmware.pd_law();
+                self.plants[m.joint].stiffness = m.firmware.pd_law().map(|l| [l.kp, l.kd]);
             }
         }
         for line in &mut self.unitree {
@@ -1233,6 +1257,7 @@ impl Mirror {
                 self.plants[j].goal = m.position_goal();
                 self.plants[j].torque_cap = m.torque_cap();
                 self.plants[j].law = m.pd_law();
+                self.plants[j].stiffness = m.pd_law().map(|l| [l.kp, l.kd]);
             }
         }
         for line in &mut self.dxl {
@@ -1240,6 +1265,7 @@ impl Mirror {
                 servo.tick(t, &mut self.plants[j]);
                 self.plants[j].goal = servo.position_goal();
                 self.plants[j].torque_cap = servo.torque_cap();
+                self.plants[j].stiffness = Some(servo.position_stiffness());
             }
         }
         for line in &mut self.feetech {
@@ -1247,6 +1273,7 @@ impl Mirror {
                 servo.tick(t, &mut self.plants[j]);
                 self.plants[j].goal = servo.position_goal();
                 self.plants[j].torque_cap = servo.torque_cap();
+                self.plants[j].stiffness = Some(servo.position_stiffness());
             }
         }
         self.stats.firmware_ticks += 1;
@@ -1316,6 +1343,9 @@ impl Mirror {
                     // off) it holds where the joint is, as a position actuator cannot go limp.
                     let q = self.data.qpos()[j.qpos];
                     let goal = p.goal.map_or(q, |g| (g - j.zero_offset) / (j.direction * j.gear));
+                    if let Some(stiffness) = p.stiffness {
+                        set_position_gains(&mut self.data, a, stiffness.map(|k| k * j.gear * j.gear));
+                    }
                     let ctrl = capped_position_control(&self.data, a, j, goal, p.torque_cap);
                     self.data.ctrl_mut()[a] = ctrl;
                     self.data.qfrc_applied_mut()[j.dof] = 0.0;

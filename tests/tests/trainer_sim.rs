@@ -583,3 +583,53 @@ fn the_trainers_actuator_law_drives_the_mirrors_joints() {
     assert!(fastest(&delayed) > 4.0);
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn a_position_actuator_of_the_model_pushes_with_the_gains_robot_toml_writes_into_the_servo() {
+    // rd-mini's MJCF gives its knees <position> actuators at kp 14, kv 0.3. robot.toml's knee
+    // gains go into the servo (Dynamixel's Position P/D, Feetech's P/D) as the hardware gets
+    // them; the mirror's actuator must push with those, not the file's.
+    let dir = workspace_root().join("robots/mini");
+    let dxl_text = std::fs::read_to_string(dir.join("robot.toml")).unwrap();
+    for (bus, text) in [
+        ("dynamixel", dxl_text.clone()),
+        ("feetech", feetech_mini::on_feetech(&dxl_text)),
+    ] {
+        let knee = text.find("name = \"l_knee\"").unwrap();
+        let gains = knee + text[knee..].find("kp = 14.0\nkd = 0.3").unwrap();
+        let text = format!(
+            "{}kp = 28.0\nkd = 0.6{}",
+            &text[..gains],
+            &text[gains + "kp = 14.0\nkd = 0.3".len()..]
+        );
+        let robot = Robot::from_str(&dir.join("robot.toml"), &text).unwrap();
+        let i = robot
+            .config
+            .joints
+            .iter()
+            .position(|j| j.name == "l_knee")
+            .unwrap();
+        let mut host = on_gantry(&robot);
+        let q: Vec<f64> = robot.config.joints.iter().map(|j| j.default_position).collect();
+        let start = host.now();
+        for k in 1..=5u32 {
+            host.command_positions(&robot, &q).unwrap();
+            host.wait_until(start + Duration::from_millis(20) * k);
+        }
+        let w = host.world.lock().unwrap();
+        let m = w.data().model();
+        let id = ModelIndex::of_robot(m, &robot).unwrap().joints[i].id;
+        let a = (0..m.ffi().nu as usize)
+            .find(|&a| m.actuator_trnid()[a][0] == id as i32)
+            .unwrap();
+        let g2 = m.actuator_gear()[a][0].powi(2);
+        let (kp, kd) = (m.actuator_gainprm()[a][0] * g2, -m.actuator_biasprm()[a][2] * g2);
+        eprintln!(
+            "{bus}: the knee's actuator at kp {kp:.2} N·m/rad, kd {kd:.3} N·m·s/rad (robot.toml 28, 0.6)"
+        );
+        // Within the registers' resolution (Feetech's P and D are bytes).
+        assert!((kp - 28.0).abs() < 0.05 * 28.0, "{bus}: kp {kp}");
+        assert_eq!(-m.actuator_biasprm()[a][1] * g2, kp);
+        assert!((kd - 0.6).abs() < 0.1 * 0.6, "{bus}: kd {kd}");
+    }
+}

@@ -236,6 +236,21 @@ impl XSeriesServo {
         self.table[usize::from(addr::TORQUE_ENABLE)] == 1
     }
 
+    /// The stiffness (N·m/rad) and damping (N·m·s/rad) at the shaft that its position loop's P
+    /// and D gains give, at stall and nominal supply (PWM P/128 per tick of error, D/16 per tick
+    /// per control period; full PWM gives the stall torque): what a simulator's position actuator
+    /// applies while it tracks [`Self::position_goal`].
+    pub fn position_stiffness(&self) -> [f64; 2] {
+        let per_tick = models::rad_per_tick();
+        let torque_per_pwm = self.model.stall_torque / PWM_FULL_SCALE;
+        let [p, d] = [addr::POSITION_P_GAIN, addr::POSITION_D_GAIN].map(|a| self.reg(a) as f64);
+        [
+            p / 128.0 * torque_per_pwm / per_tick,
+            // The D term acts on the error's change over one control period.
+            d / 16.0 * torque_per_pwm * self.config.control_period.as_secs_f64() / per_tick,
+        ]
+    }
+
     /// The shaft angle (rad, plant frame) Goal Position asks for, while torque is on in a
     /// position mode: what a simulator's position actuator should track instead of the torque.
     pub fn position_goal(&self) -> Option<f64> {

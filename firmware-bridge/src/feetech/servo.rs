@@ -239,6 +239,19 @@ impl StsServo {
         self.stats
     }
 
+    /// The stiffness (N·m/rad) and damping (N·m·s/rad) at the output that its P and D gains
+    /// give, at stall and nominal supply (duty per tick of error and per tick/s of speed; full
+    /// duty gives the stall torque): what a simulator's position actuator applies while it
+    /// tracks [`Self::position_goal`].
+    pub fn position_stiffness(&self) -> [f64; 2] {
+        let [p, d] = [addr::P_GAIN, addr::D_GAIN].map(|a| f64::from(self.table[usize::from(a)]));
+        let per_tick = table::rad_per_tick();
+        [
+            p * table::P_DUTY_PER_TICK * self.model.stall_torque / per_tick,
+            d * table::D_DUTY_PER_TICK_PER_S * self.model.stall_torque / per_tick,
+        ]
+    }
+
     /// The plant angle (rad) it is holding towards while its output is on in position mode:
     /// what a simulator's position actuator tracks instead of the duty law.
     pub fn position_goal(&self) -> Option<f64> {
