@@ -495,8 +495,15 @@ impl Estimator {
         let patch_z = |f: usize| spatial::mat_apply(r, legs.contact[f])[2];
         let standing = self.contacts;
         let (base, base_velocity) = (self.filter.get().position(), self.filter.get().velocity());
+        // Each point's velocity relative to the base, in the world's axes (the legs alone).
+        let relative = |f: usize| {
+            spatial::mat_apply(
+                r,
+                spatial::add(spatial::cross(omega, legs.contact[f]), legs.contact_velocity[f]),
+            )
+        };
+        let world_speed = |f: usize| spatial::norm(spatial::add(base_velocity, relative(f)));
         for f in 0..self.feet {
-            let was = self.contacts[f];
             self.contacts[f] = match legs.switches {
                 _ if self.rig => false,
                 Some(s) => s[f],
@@ -506,13 +513,7 @@ impl Estimator {
                         Some(j) => patch_z(f) - patch_z(j) + self.ground[j] - self.ground[f],
                         None => base[2] + patch_z(f) - self.ground[f],
                     };
-                    let speed = spatial::norm(spatial::add(
-                        base_velocity,
-                        spatial::mat_apply(
-                            r,
-                            spatial::add(spatial::cross(omega, legs.contact[f]), legs.contact_velocity[f]),
-                        ),
-                    ));
+                    let speed = world_speed(f);
                     // The legs' torques, where they tell: an unloaded foot is not standing
                     // (it hovers, or is about to lift), a landing one takes weight.
                     let (c, load, leg) = (&self.config, legs.load[f], legs.leg_weight[f]);
@@ -529,11 +530,30 @@ impl Estimator {
                     }
                 }
             };
-            if was && !self.contacts[f] {
-                self.filter
-                    .get_mut()
-                    .release_foot(f, self.config.swing_foot_walk.powi(2));
+        }
+        if legs.switches.is_none() && !self.rig {
+            // Two standing feet do not move apart (within twice a landing's speed: soles roll
+            // and flex): where the legs say they do (a kick whose torques read as a load, a
+            // foot dragged along), the one moving faster in the world is in the air. Judged by
+            // the legs alone, so a wrong velocity cannot confirm itself.
+            let feet = self.feet;
+            loop {
+                let apart = (0..feet)
+                    .flat_map(|f| (f + 1..feet).map(move |j| (f, j)))
+                    .filter(|&(f, j)| self.contacts[f] && self.contacts[j])
+                    .find(|&(f, j)| {
+                        spatial::norm(spatial::sub(relative(f), relative(j)))
+                            > 2.0 * self.config.contact_speed
+                    });
+                let Some((f, j)) = apart else { break };
+                let moving = if world_speed(f) > world_speed(j) { f } else { j };
+                self.contacts[moving] = false;
             }
+        }
+        for f in (0..self.feet).filter(|&f| standing[f] && !self.contacts[f]) {
+            self.filter
+                .get_mut()
+                .release_foot(f, self.config.swing_foot_walk.powi(2));
         }
         standing
     }
@@ -544,7 +564,36 @@ impl Estimator {
     fn measure_legs(&mut self, legs: &LegKinematics, stood: &[bool; MAX_FEET]) {
         let c = self.config;
         let (feet, contacts, held, omega) = (self.feet, self.contacts, self.held, self.gyro);
+        let r_v = c.kinematic_velocity_noise.powi(2);
+        // Refused for too long, the legs are believed again until they agree with the filter.
+        let trust_all = self.refused_ticks >= MAX_REFUSED_TICKS;
         let filter = self.filter.get_mut();
+        // Each standing foot's velocity for the base's: where the foot touches stays still, so
+        // the base moves opposite to that point's motion relative to it (a foot rolling onto
+        // its edge keeps the edge still). Gated against the filter's: a foot whose velocity is
+        // refused slips, and is let go where it stood, so its place does not drag the base either.
+        let (r, v, std) = (filter.rotation(), filter.velocity(), filter.velocity_std());
+        let mut taken = [None; MAX_FEET];
+        let (mut standing_feet, mut outside) = (0, 0);
+        for f in (0..feet).filter(|&f| contacts[f]) {
+            standing_feet += 1;
+            let body = spatial::scale(
+                spatial::add(spatial::cross(omega, legs.contact[f]), legs.contact_velocity[f]),
+                -1.0,
+            );
+            let world = spatial::mat_apply(&r, body);
+            let distance2: f64 = (0..3)
+                .map(|k| (world[k] - v[k]).powi(2) / (std[k].powi(2) + r_v))
+                .sum();
+            if distance2 > c.velocity_gate.powi(2) {
+                outside += 1;
+                if !trust_all {
+                    filter.release_foot(f, c.swing_foot_walk.powi(2));
+                    continue;
+                }
+            }
+            taken[f] = Some(body);
+        }
         filter.begin();
         for f in 0..feet {
             filter.foot(f, legs.position[f], c.kinematic_position_noise.powi(2));
@@ -552,41 +601,14 @@ impl Estimator {
         // A level floor: a standing sole is at the height the robot first stood on (z = 0),
         // which makes the height observable; without it, the height drifts.
         if c.floor_noise > 0.0 && !held {
-            let r = filter.rotation();
-            for f in (0..feet).filter(|&f| contacts[f] && stood[f]) {
+            for f in (0..feet).filter(|&f| contacts[f] && stood[f] && taken[f].is_some()) {
                 let sole_below_origin =
                     spatial::mat_apply(&r, spatial::sub(legs.contact[f], legs.position[f]))[2];
                 filter.floor(f, -sole_below_origin, c.floor_noise.powi(2));
             }
         }
-        let r_v = c.kinematic_velocity_noise.powi(2);
-        // Refused for too long, the legs are believed again until they agree with the filter.
-        let trust_all = self.refused_ticks >= MAX_REFUSED_TICKS;
-        let (mut standing_feet, mut outside) = (0, 0);
-        let r = filter.rotation();
-        for f in (0..feet).filter(|&f| contacts[f]) {
-            standing_feet += 1;
-            // Where the foot touches stays still: the base moves opposite to that point's
-            // motion relative to it (a foot rolling onto its edge keeps the edge still).
-            let body = spatial::scale(
-                spatial::add(spatial::cross(omega, legs.contact[f]), legs.contact_velocity[f]),
-                -1.0,
-            );
-            let (world, v, std) = (
-                spatial::mat_apply(&r, body),
-                filter.velocity(),
-                filter.velocity_std(),
-            );
-            let distance2: f64 = (0..3)
-                .map(|k| (world[k] - v[k]).powi(2) / (std[k].powi(2) + r_v))
-                .sum();
-            if distance2 > c.velocity_gate.powi(2) {
-                outside += 1;
-                if !trust_all {
-                    continue;
-                }
-            }
-            filter.base_velocity(body, r_v);
+        for body in taken[..feet].iter().flatten() {
+            filter.base_velocity(*body, r_v);
         }
         filter.finish();
         self.refused_ticks = if standing_feet > 0 && outside == standing_feet {
@@ -813,6 +835,31 @@ mod tests {
             };
             assert!(!run(0.5), "lifting at 0.5 m/s: off the ground");
             assert!(run(0.0), "unloading in place: still touching");
+        }
+    }
+
+    #[test]
+    fn a_kick_whose_torques_read_as_a_load_is_in_the_air_and_does_not_move_the_base() {
+        for config in both_filters() {
+            let weight = 160.0;
+            let mut e = Estimator::new(config, 2, [0.0, 0.0, -9.81], weight, 200.0);
+            let mut legs = standing_legs();
+            legs.load = [0.5 * weight, 0.5 * weight, 0.0, 0.0];
+            let mut step = still_imu_ticks();
+            for _ in 0..60 {
+                step(&mut e, &legs);
+            }
+            // Foot 0 swings forward at 2 m/s relative to the still base, its leg's torques
+            // reading as much load as the standing foot's: it kicks, the base stays.
+            let mut last = Estimate::default();
+            for _ in 0..10 {
+                legs.contact_velocity[0] = [2.0, 0.0, 0.0];
+                legs.position[0][0] += 2.0 * 0.02;
+                legs.contact[0][0] += 2.0 * 0.02;
+                last = step(&mut e, &legs);
+                assert_eq!(&last.contacts[..2], &[false, true], "{last:?}");
+            }
+            assert!(spatial::norm(last.velocity) < 0.05, "{last:?}");
         }
     }
 
