@@ -572,10 +572,11 @@ impl Estimator {
         // the base moves opposite to that point's motion relative to it (a foot rolling onto
         // its edge keeps the edge still). Gated against the filter's: a foot whose velocity is
         // refused slips, and is let go where it stood, so its place does not drag the base either.
+        // A foot that lands this tick gives none yet: its sole is still stopping.
         let (r, v, std) = (filter.rotation(), filter.velocity(), filter.velocity_std());
         let mut taken = [None; MAX_FEET];
         let (mut standing_feet, mut outside) = (0, 0);
-        for f in (0..feet).filter(|&f| contacts[f]) {
+        for f in (0..feet).filter(|&f| contacts[f] && stood[f]) {
             standing_feet += 1;
             let body = spatial::scale(
                 spatial::add(spatial::cross(omega, legs.contact[f]), legs.contact_velocity[f]),
