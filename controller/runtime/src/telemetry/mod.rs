@@ -1169,21 +1169,19 @@ impl RecordingClock {
 }
 /// A JSON array named `name`; non-finite values as null. `{:?}` prints the shortest text that
 /// reads back to the same bits (for f32 and f64 alike).
-fn json_array<T: Copy + Into<f64> + std::fmt::Debug>(
-    out: &mut String,
-    name: &str,
-    values: impl IntoIterator<Item = T>,
-) {
+/// `"name":[v, …]` with each finite value in its shortest round-trip form, `null` otherwise.
+fn json_array(out: &mut String, name: &str, values: impl IntoIterator<Item = f64>) {
     let _ = write!(out, "\"{name}\":[");
+    let mut text = zmij::Buffer::new();
     for (i, v) in values.into_iter().enumerate() {
         if i > 0 {
             out.push(',');
         }
-        if v.into().is_finite() {
-            let _ = write!(out, "{v:?}");
+        out.push_str(if v.is_finite() {
+            text.format_finite(v)
         } else {
-            out.push_str("null");
-        }
+            "null"
+        });
     }
     out.push(']');
 }
