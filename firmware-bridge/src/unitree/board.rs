@@ -5,7 +5,7 @@
 //! faults: the state going silent, its CRC corrupted, a motor dropping out.
 //!
 //! The board is transport-free: [`UnitreeBoard::receive`] takes a command's CDR,
-//! [`UnitreeBoard::publish`] writes the state's CDR at each period into [`UnitreeBoard::state_cdr`].
+//! [`UnitreeBoard::publish`] seals a state at each period; [`UnitreeBoard::state_cdr`] encodes it when read.
 //! The mirror calls both on simulated time; DDS (wall clock) or a lockstep port carries the bytes.
 
 use std::time::Duration;
@@ -108,6 +108,8 @@ pub struct UnitreeBoard {
     corrupt: u32,
     state: LowState,
     cdr: Vec<u8>,
+    /// The sequence number of the state `cdr` holds (written when someone asks for it).
+    cdr_of: u64,
     sequence: u64,
     published_at: Option<SimInstant>,
     stats: BoardStats,
@@ -133,7 +135,8 @@ impl UnitreeBoard {
                 mode_machine: config.mode_machine,
                 ..LowState::default()
             },
-            cdr: Vec::with_capacity(LowState::PACKED_LEN),
+            cdr: Vec::with_capacity(LowState::CDR_LEN),
+            cdr_of: 0,
             sequence: 0,
             published_at: None,
             stats: BoardStats::default(),
@@ -153,6 +156,12 @@ impl UnitreeBoard {
             self.stats.malformed += 1;
             return CommandVerdict::Malformed;
         };
+        self.receive_message(now, &cmd)
+    }
+
+    /// [`Self::receive`] of the message itself, from a host in the same process (lockstep):
+    /// nothing decodes what was never encoded; the CRC is checked all the same.
+    pub fn receive_message(&mut self, now: SimInstant, cmd: &LowCmd) -> CommandVerdict {
         if !cmd.crc_ok() {
             self.stats.bad_crc += 1;
             return CommandVerdict::BadCrc;
@@ -210,8 +219,8 @@ impl UnitreeBoard {
     }
 
     /// If a state is due at `now`: fills it from the motors' plants (`plant(k)` is motor `k`'s)
-    /// and `imu`, seals it and writes its CDR ([`Self::state_cdr`]); returns whether one was
-    /// published. Allocates nothing.
+    /// and `imu` and seals it ([`Self::state`]; its CDR is written when read,
+    /// [`Self::state_cdr`]); returns whether one was published. Allocates nothing.
     pub fn publish(
         &mut self,
         now: SimInstant,
@@ -264,16 +273,26 @@ impl UnitreeBoard {
             self.corrupt -= 1;
             s.crc ^= 0xDEAD_BEEF;
         }
-        s.write_cdr(&mut self.cdr);
         self.sequence += 1;
         self.published_at = Some(now);
         self.stats.states += 1;
         true
     }
 
-    /// The newest state's CDR and its sequence number (0: none yet).
-    pub fn state_cdr(&self) -> (&[u8], u64) {
+    /// The newest state's CDR and its sequence number (0: none yet), encoded on the first read
+    /// of each state.
+    pub fn state_cdr(&mut self) -> (&[u8], u64) {
+        if self.cdr_of != self.sequence {
+            self.state.write_cdr(&mut self.cdr);
+            self.cdr_of = self.sequence;
+        }
         (&self.cdr, self.sequence)
+    }
+
+    /// The newest state as sealed (its CRC as sent, right or not) and its sequence number (0:
+    /// none yet, the state all zeros).
+    pub fn state(&self) -> (&LowState, u64) {
+        (&self.state, self.sequence)
     }
 
     /// When the newest state was published.

@@ -21,6 +21,40 @@ pub trait LowLevelPort: Send + std::fmt::Debug {
     fn wait_state(&mut self, within: Duration) -> std::io::Result<bool>;
     /// How long ago the newest state arrived, on the port's clock (`None`: none yet).
     fn state_age(&mut self) -> Option<Duration>;
+
+    /// Sends a sealed command: its CDR (written into `cdr`) through [`Self::send`]. A port into
+    /// the same process (lockstep) hands over the message itself: nothing decodes what was
+    /// never encoded.
+    fn send_message(&mut self, cmd: &LowCmd, cdr: &mut Vec<u8>) -> std::io::Result<()> {
+        cmd.write_cdr(cdr);
+        self.send(cdr)
+    }
+
+    /// The newest state that arrived since the last call, decoded into `out` (through `cdr`);
+    /// see [`Self::send_message`].
+    fn newest_message(&mut self, out: &mut LowState, cdr: &mut Vec<u8>) -> std::io::Result<Arrived> {
+        if !self.newest_state(cdr)? {
+            return Ok(Arrived::Nothing);
+        }
+        Ok(match LowState::read_cdr(cdr) {
+            Ok(s) => {
+                *out = s;
+                Arrived::State
+            }
+            Err(_) => Arrived::Malformed,
+        })
+    }
+}
+
+/// What [`LowLevelPort::newest_message`] found.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Arrived {
+    /// No state since the last call.
+    Nothing,
+    /// A state, in the message given (its CRC not yet checked).
+    State,
+    /// Bytes that are no `LowState`.
+    Malformed,
 }
 
 /// One motor's state, in joint units.
@@ -74,6 +108,8 @@ pub struct HgDriver<P> {
     cmd_cdr: Vec<u8>,
     state_cdr: Vec<u8>,
     state: LowState,
+    /// Where a state that arrives is read, beside the last right one.
+    incoming: LowState,
     feedback: Vec<HgFeedback>,
     /// States taken so far (the IMU's sample count).
     fresh: u64,
@@ -136,6 +172,7 @@ impl<P: LowLevelPort> HgDriver<P> {
             cmd_cdr: Vec::with_capacity(LowCmd::CDR_LEN),
             state_cdr: Vec::with_capacity(LowState::CDR_LEN),
             state: LowState::default(),
+            incoming: LowState::default(),
             feedback: vec![HgFeedback::default(); n],
             fresh: 0,
             nonfresh_run: 0,
@@ -165,9 +202,8 @@ impl<P: LowLevelPort> HgDriver<P> {
             }
         }
         self.cmd.seal();
-        self.cmd.write_cdr(&mut self.cmd_cdr);
         self.stats.commands += 1;
-        self.port.send(&self.cmd_cdr)
+        self.port.send_message(&self.cmd, &mut self.cmd_cdr)
     }
 
     /// Takes the newest state: with a right CRC every joint's feedback and the IMU are fresh.
@@ -176,7 +212,7 @@ impl<P: LowLevelPort> HgDriver<P> {
     /// its own clock at the link's rate, and a cycle that falls just before its next state still
     /// holds one from the last period. Returns whether it was fresh. Allocates nothing.
     pub fn receive(&mut self) -> std::io::Result<bool> {
-        let fresh = self.port.newest_state(&mut self.state_cdr)? && self.take_state();
+        let fresh = self.take_state()?;
         if fresh {
             self.fresh += 1;
             self.nonfresh_run = 0;
@@ -206,23 +242,30 @@ impl<P: LowLevelPort> HgDriver<P> {
         Ok(fresh)
     }
 
-    fn take_state(&mut self) -> bool {
-        // Read beside the last right state (on the stack), which stays if this one is wrong.
-        match LowState::read_cdr(&self.state_cdr) {
-            Err(_) => {
-                self.stats.malformed += 1;
-                false
-            }
-            Ok(s) if !s.crc_ok() => {
-                self.stats.bad_crc += 1;
-                false
-            }
-            Ok(s) => {
-                self.state = s;
-                self.stats.states += 1;
-                true
-            }
-        }
+    /// Takes the newest state that arrived, if one did and its CRC is right.
+    fn take_state(&mut self) -> std::io::Result<bool> {
+        // Read beside the last right state, which stays if this one is wrong.
+        Ok(
+            match self
+                .port
+                .newest_message(&mut self.incoming, &mut self.state_cdr)?
+            {
+                Arrived::Nothing => false,
+                Arrived::Malformed => {
+                    self.stats.malformed += 1;
+                    false
+                }
+                Arrived::State if !self.incoming.crc_ok() => {
+                    self.stats.bad_crc += 1;
+                    false
+                }
+                Arrived::State => {
+                    std::mem::swap(&mut self.state, &mut self.incoming);
+                    self.stats.states += 1;
+                    true
+                }
+            },
+        )
     }
 
     /// Waits up to `within` for the first right state (set-up).
