@@ -370,6 +370,25 @@ fn flags_with_absurd_values_are_refused_by_name() {
             ]),
             "--servo: servo ID 1 is given twice",
         ),
+        // A flag that would do nothing is refused, not ignored.
+        (
+            args(&[&"play", &"--on-stop", &"damp", &"--stand-for", &"3"]),
+            "--stand-for: only with --on-stop stay",
+        ),
+        (
+            args(&[&"play", &"--stand-for", &"3"]),
+            "--stand-for: only with --on-stop stay",
+        ),
+        // The harness start robot.toml asks for, named as such (no --start was given).
+        (
+            args(&[
+                &"play",
+                &"--robot",
+                &test_support::fixtures::workspace_root().join("robots/g1/robot.toml"),
+                &"--gantry",
+            ]),
+            "robot.toml's [start] mode = \"harness\"",
+        ),
     ] {
         refused(&list, needle);
     }

@@ -612,8 +612,14 @@ fn a_soft_stop_can_end_standing_or_in_a_controlled_sit_down() {
     let dir = scratch("on-stop");
     let course = |mode: &str| {
         let record = dir.join(format!("{mode}.mcap"));
+        // Standing is bounded by --stand-for, which nothing else takes.
+        let stand_for: &[&str] = if mode == "stand" {
+            &["--stand-for", "5"]
+        } else {
+            &[]
+        };
         let (code, out, err) = run_within(
-            &play_args(&record, "3", &["--on-stop", mode, "--stand-for", "5"]),
+            &play_args(&record, "3", &[&["--on-stop", mode][..], stand_for].concat()),
             Duration::from_secs(300),
         );
         assert_eq!(code, Some(0), "{out}{err}");

@@ -62,7 +62,8 @@ pub struct PlayArgs {
     /// How long a soft stop settles the robot under the policy before --on-stop, s (0.02–30).
     #[arg(help_heading = "How the run goes", long, default_value_t = 1.0, value_parser = crate::args::within(0.02, 30.0))]
     settle: f64,
-    /// With --on-stop stay: stand at most this long, s (default: until stopped again).
+    /// With --on-stop stay: stand at most this long, s (default: until stopped again; refused
+    /// with any other --on-stop, where it would do nothing).
     #[arg(help_heading = "How the run goes", long, value_parser = crate::args::within(0.0, 86_400.0))]
     stand_for: Option<f64>,
     /// With --on-stop sit: how long the sit-down takes, s (0.1–60).
@@ -1200,6 +1201,15 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         Some(s) => return Err(FlagError::new("max-seconds", format!(" {s} is not a duration")).into()),
         None => None,
     };
+    if args.stand_for.is_some() && args.on_stop != crate::args::OnStopArg::Stay {
+        let on_stop = clap::ValueEnum::to_possible_value(&args.on_stop)
+            .map_or_else(String::new, |v| v.get_name().to_owned());
+        return Err(FlagError::new(
+            "stand-for",
+            format!(": only with --on-stop stay (this run's soft stop ends in --on-stop {on_stop}, which stands not at all)"),
+        )
+        .into());
+    }
     if args.hardware && args.estimator == crate::args::EstimatorArg::GroundTruth {
         return Err(FlagError::new(
             "estimator",
@@ -1242,10 +1252,14 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         .into());
     }
     if options.start_mode(&l.robot) == robots::StartMode::Harness && args.gantry {
-        return Err(controller::player::PlayError::Setup(
-            "--start harness with --gantry: the robot hangs in the harness or sits on the gantry, not both"
-                .into(),
-        )
+        let harness = if args.start.is_some() {
+            "--start harness"
+        } else {
+            "robot.toml's [start] mode = \"harness\" (--start pd or --start policy overrides it)"
+        };
+        return Err(controller::player::PlayError::Setup(format!(
+            "{harness} with --gantry: the robot hangs in the harness or sits on the gantry, not both"
+        ))
         .into());
     }
     println!(
