@@ -1076,3 +1076,44 @@ fn play_refuses_a_clip_check_refuses_unless_forced_for_a_reason_it_records() {
     assert!(err.contains("--force"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn a_model_with_no_floor_is_named_by_check_and_play_says_it_cannot_tell_a_fall() {
+    // rd-mini's own MJCF without the scene that adds its floor: nothing to stand on.
+    let root = test_support::fixtures::workspace_root();
+    let dir = std::env::temp_dir().join(format!("robodeploy-no-floor-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let text = std::fs::read_to_string(root.join("robots/mini/robot.toml")).unwrap();
+    assert!(text.contains("mjcf = \"scene.xml\""));
+    let toml = dir.join("robot.toml");
+    let mjcf = root.join("robots/mini/mini.xml");
+    std::fs::write(
+        &toml,
+        text.replace("mjcf = \"scene.xml\"", &format!("mjcf = {mjcf:?}")),
+    )
+    .unwrap();
+    let policy = root.join("robots/mini/policies/stand_walk.toml");
+    let (code, out, err) = run_within(
+        &args(&[&"check", &"--robot", &toml, &"--policy", &policy]),
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, Some(0), "{out}{err}");
+    assert!(out.contains("floor: none — no floor in the model"), "{out}");
+    let (code, out, err) = run_within(
+        &args(&[
+            &"play",
+            &"--no-record",
+            &"--robot",
+            &toml,
+            &"--policy",
+            &policy,
+            &"--max-seconds",
+            &"1",
+        ]),
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, Some(0), "{out}{err}");
+    assert!(out.contains("fell: cannot tell, no floor in the model"), "{out}");
+    assert!(!out.contains("fell: no"), "{out}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -614,7 +614,13 @@ fn print_model(robot: &Robot) -> Result<()> {
         m.bodies.len(),
         m.joints.len(),
         m.meshes,
-        list(m.floor.clone())
+        if m.floor.is_empty() {
+            "none — no floor in the model: a robot not held falls through the world, and a run \
+             cannot tell whether it fell"
+                .to_owned()
+        } else {
+            list(m.floor.clone())
+        }
     );
     let mut kinds = std::collections::BTreeMap::<&str, Vec<&str>>::new();
     let mut bare = Vec::new();

@@ -34,6 +34,9 @@ pub struct PlaySummary {
     pub root_rmse: Option<f64>,
     /// Whether the robot fell (tilt beyond the limit).
     pub fell: bool,
+    /// The robot's model has a floor (without one a robot falls through the world upright, and
+    /// neither `fell` nor the root's errors say anything).
+    pub floor: bool,
     /// Policy ticks where the governor changed a command (limit, speed or torque saturation).
     pub limited_ticks: u64,
     /// Policy ticks the governor saw.
@@ -139,7 +142,15 @@ impl std::fmt::Display for PlaySummary {
                  no ground to compare it on"
             )?,
         }
-        writeln!(f, "fell: {}", if self.fell { "YES" } else { "no" })?;
+        if self.floor {
+            writeln!(f, "fell: {}", if self.fell { "YES" } else { "no" })?;
+        } else {
+            writeln!(
+                f,
+                "fell: cannot tell, no floor in the model (the robot falls through the world upright; \
+                 its root errors say nothing)"
+            )?;
+        }
         if self.command_driven {
             writeln!(
                 f,
@@ -709,6 +720,7 @@ impl RunMetrics {
             root_rmse: (self.root_samples > 0)
                 .then(|| (self.sq_root_error / self.root_samples as f64).sqrt()),
             fell: self.fell,
+            floor: true,
             limited_ticks: self.limited_ticks,
             governed_ticks: self.governed_ticks,
             transitions: transitions.to_vec(),

@@ -1339,6 +1339,7 @@ impl<L: RobotLink> Player<L> {
             self.reference.cursor.reference().len(),
         );
         summary.keypoints = self.world.keypoints.as_ref().map(KeypointTrack::summary);
+        summary.floor = !self.robot.mjcf.floor.is_empty();
         summary
     }
 
