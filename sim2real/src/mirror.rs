@@ -1247,8 +1247,9 @@ impl Mirror {
                     .tick(t, self.firmware_period, &mut self.plants[m.joint]);
                 self.plants[m.joint].goal = m.firmware.position_goal();
                 self.plants[m.joint].torque_cap = m.firmware.torque_cap();
-                self.plants[m.joint].law = m.firmware.pd_law();
-                self.plants[m.joint].stiffness = m.firmware.pd_law().map(|l| [l.kp, l.kd]);
+                let law = m.firmware.pd_law();
+                self.plants[m.joint].law = law;
+                self.plants[m.joint].stiffness = law.map(|l| [l.kp, l.kd]);
             }
         }
         for line in &mut self.unitree {
@@ -1256,8 +1257,9 @@ impl Mirror {
                 m.tick(t, self.firmware_period, &mut self.plants[j]);
                 self.plants[j].goal = m.position_goal();
                 self.plants[j].torque_cap = m.torque_cap();
-                self.plants[j].law = m.pd_law();
-                self.plants[j].stiffness = m.pd_law().map(|l| [l.kp, l.kd]);
+                let law = m.pd_law();
+                self.plants[j].law = law;
+                self.plants[j].stiffness = law.map(|l| [l.kp, l.kd]);
             }
         }
         for line in &mut self.dxl {

@@ -562,6 +562,27 @@ fn the_shipped_g1_and_t1_files_are_what_their_script_writes_from_the_installed_p
     }
 }
 
+/// `robot` (the G1 or the T1, or a variant of its robot.toml) under holosoma's locomotion
+/// policy, 0.5 m/s ahead from the first tick (once the harness has let go), on the mirror.
+fn walking_ahead(robot: Robot, options: PlayOptions) -> controller::sim::LockstepRun {
+    let dir = robot.path.parent().unwrap().to_path_buf();
+    let mut layout = PolicyLayout::load(&dir.join("policies/holosoma_loco_ppo.toml"), &robot).unwrap();
+    // Turning rate, forward, leftward.
+    layout.set_command(&[0.0, 0.5, 0.0]).unwrap();
+    let (clip, source) =
+        controller::reference::load_reference(None, &dance(), &mut layout, &robot, 0).unwrap();
+    assert!(matches!(source, ReferenceSource::Commands), "{source}");
+    lockstep_player(
+        robot,
+        layout,
+        clip,
+        options,
+        MirrorConfig::default(),
+        Arc::new(AtomicBool::new(false)),
+    )
+    .unwrap()
+}
+
 #[test]
 fn the_g1_and_the_t1_walk_from_the_harness_and_stand_under_their_policy_when_stopped() {
     for robot in ["g1", "t1"] {
@@ -569,14 +590,7 @@ fn the_g1_and_the_t1_walk_from_the_harness_and_stand_under_their_policy_when_sto
         let reference = python_reference(&[
             "walk", "--robot", robot, "--stand", "3", "--walk", "10", "--rest", "6",
         ]);
-        let dir = workspace_root().join("robots").join(robot);
-        let loaded = Robot::load(&dir.join("robot.toml")).unwrap();
-        let mut layout = PolicyLayout::load(&dir.join("policies/holosoma_loco_ppo.toml"), &loaded).unwrap();
-        // Turning rate, forward, leftward: 0.5 m/s ahead once the harness has let go.
-        layout.set_command(&[0.0, 0.5, 0.0]).unwrap();
-        let (clip, source) =
-            controller::reference::load_reference(None, &dance(), &mut layout, &loaded, 0).unwrap();
-        assert!(matches!(source, ReferenceSource::Commands), "{source}");
+        let loaded = Robot::load(&workspace_root().join("robots").join(robot).join("robot.toml")).unwrap();
         let options = PlayOptions {
             // 3 s in the harness, 10 s walking, then the stop: 1 s to rest, 5 s standing.
             max_ticks: Some(150 + 500),
@@ -585,15 +599,7 @@ fn the_g1_and_the_t1_walk_from_the_harness_and_stand_under_their_policy_when_sto
             end: controller::player::EndMode::Stand,
             ..PlayOptions::default()
         };
-        let (mut p, mut clock, world) = lockstep_player(
-            loaded,
-            layout,
-            clip,
-            options,
-            MirrorConfig::default(),
-            Arc::new(AtomicBool::new(false)),
-        )
-        .unwrap();
+        let (mut p, mut clock, world) = walking_ahead(loaded, options);
         let (s, course) = run_watching(&mut p, &mut clock, &world);
         assert!(
             !s.fell && s.transitions.iter().all(|t| !t.cause.is_fault()),
@@ -897,10 +903,6 @@ fn a_t1_whose_motors_reach_past_its_torque_limits_walks_as_one_whose_motors_stop
     };
     let (low, wide) = (scaled(LIMIT, LIMIT), scaled(1.0, LIMIT));
     let walk = |robot: Robot| {
-        let mut layout = PolicyLayout::load(&dir.join("policies/holosoma_loco_ppo.toml"), &robot).unwrap();
-        layout.set_command(&[0.0, 0.5, 0.0]).unwrap();
-        let (clip, _) =
-            controller::reference::load_reference(None, &dance(), &mut layout, &robot, 0).unwrap();
         let limits: Vec<f64> = robot.config.joints.iter().map(|j| j.torque_limit).collect();
         let holds: Vec<robots::TorqueHold> =
             robot.config.joints.iter().map(|j| robot.torque_hold(j)).collect();
@@ -910,15 +912,7 @@ fn a_t1_whose_motors_reach_past_its_torque_limits_walks_as_one_whose_motors_stop
             end: controller::player::EndMode::Stand,
             ..PlayOptions::default()
         };
-        let (mut p, mut clock, _world) = lockstep_player(
-            robot,
-            layout,
-            clip,
-            options,
-            MirrorConfig::default(),
-            Arc::new(AtomicBool::new(false)),
-        )
-        .unwrap();
+        let (mut p, mut clock, _world) = walking_ahead(robot, options);
         p.identify().unwrap();
         let period = Duration::from_millis(20);
         // The largest torque any joint reported, as a share of its limit.

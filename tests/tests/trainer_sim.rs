@@ -469,18 +469,24 @@ fn joints_stopped_mid_swing_by_an_obstacle_stay_within_their_torque_limits() {
     }
 }
 
+/// robot.toml `text` with the first `from` after joint `joint`'s name replaced by `to`.
+fn in_joint(text: &str, joint: &str, from: &str, to: &str) -> String {
+    let start = text.find(&format!("name = \"{joint}\"")).unwrap();
+    let at = start + text[start..].find(from).unwrap();
+    format!("{}{to}{}", &text[..at], &text[at + from.len()..])
+}
+
 /// rd-biped's left knee on the gantry, told to swing `swing` rad at the robot's stiffness, under
 /// robot.toml with `extra` and the knee's torque limit at `limit` N·m (40 in the file): its
 /// angle and speed every 2 ms for 0.2 s.
 fn knee_swing(dir: &Path, name: &str, extra: &str, swing: f64, limit: f64) -> Vec<(f64, f64)> {
     let path = biped_with(dir, name, extra);
     let text = std::fs::read_to_string(&path).unwrap();
-    let knee = text.find("name = \"left_knee\"").unwrap();
-    let at = knee + text[knee..].find("torque_limit = 40.0").unwrap();
-    let text = format!(
-        "{}torque_limit = {limit:?}{}",
-        &text[..at],
-        &text[at + "torque_limit = 40.0".len()..]
+    let text = in_joint(
+        &text,
+        "left_knee",
+        "torque_limit = 40.0",
+        &format!("torque_limit = {limit:?}"),
     );
     let robot = Robot::from_str(&path, &text).unwrap();
     let i = robot
@@ -595,13 +601,7 @@ fn a_position_actuator_of_the_model_pushes_with_the_gains_robot_toml_writes_into
         ("dynamixel", dxl_text.clone()),
         ("feetech", feetech_mini::on_feetech(&dxl_text)),
     ] {
-        let knee = text.find("name = \"l_knee\"").unwrap();
-        let gains = knee + text[knee..].find("kp = 14.0\nkd = 0.3").unwrap();
-        let text = format!(
-            "{}kp = 28.0\nkd = 0.6{}",
-            &text[..gains],
-            &text[gains + "kp = 14.0\nkd = 0.3".len()..]
-        );
+        let text = in_joint(&text, "l_knee", "kp = 14.0\nkd = 0.3", "kp = 28.0\nkd = 0.6");
         let robot = Robot::from_str(&dir.join("robot.toml"), &text).unwrap();
         let i = robot
             .config

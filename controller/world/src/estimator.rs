@@ -671,6 +671,28 @@ mod tests {
         }
     }
 
+    /// A 160 N robot's weight.
+    const WEIGHT: f64 = 160.0;
+
+    /// An estimator that has stood still 60 ticks on two feet each carrying half the weight; its
+    /// legs, and the ticks of a still IMU that go on.
+    fn settled_on_both_feet(
+        config: EstimatorConfig,
+    ) -> (
+        Estimator,
+        LegKinematics,
+        impl FnMut(&mut Estimator, &LegKinematics) -> Estimate,
+    ) {
+        let mut e = Estimator::new(config, 2, [0.0, 0.0, -9.81], WEIGHT, 200.0);
+        let mut legs = standing_legs();
+        legs.load = [0.5 * WEIGHT, 0.5 * WEIGHT, 0.0, 0.0];
+        let mut step = still_imu_ticks();
+        for _ in 0..60 {
+            step(&mut e, &legs);
+        }
+        (e, legs, step)
+    }
+
     fn standing_legs() -> LegKinematics {
         LegKinematics {
             position: [[0.0, 0.1, -0.4], [0.0, -0.1, -0.4], [0.0; 3], [0.0; 3]],
@@ -842,14 +864,7 @@ mod tests {
     #[test]
     fn a_kick_whose_torques_read_as_a_load_is_in_the_air_and_does_not_move_the_base() {
         for config in both_filters() {
-            let weight = 160.0;
-            let mut e = Estimator::new(config, 2, [0.0, 0.0, -9.81], weight, 200.0);
-            let mut legs = standing_legs();
-            legs.load = [0.5 * weight, 0.5 * weight, 0.0, 0.0];
-            let mut step = still_imu_ticks();
-            for _ in 0..60 {
-                step(&mut e, &legs);
-            }
+            let (mut e, mut legs, mut step) = settled_on_both_feet(config);
             // Foot 0 swings forward at 2 m/s relative to the still base, its leg's torques
             // reading as much load as the standing foot's: it kicks, the base stays.
             let mut last = Estimate::default();
@@ -867,24 +882,17 @@ mod tests {
     #[test]
     fn a_foot_carrying_a_quarter_of_the_weight_stands_wherever_the_legs_put_it() {
         for config in both_filters() {
-            let weight = 160.0;
-            let mut e = Estimator::new(config, 2, [0.0, 0.0, -9.81], weight, 200.0);
-            let mut legs = standing_legs();
-            legs.load = [0.5 * weight, 0.5 * weight, 0.0, 0.0];
-            let mut step = still_imu_ticks();
-            for _ in 0..60 {
-                step(&mut e, &legs);
-            }
+            let (mut e, mut legs, mut step) = settled_on_both_feet(config);
             // Foot 0 lifted 5 cm, unloaded: in the air.
             legs.position[0][2] += 0.05;
             legs.contact[0][2] += 0.05;
-            legs.load = [0.0, weight, 0.0, 0.0];
+            legs.load = [0.0, WEIGHT, 0.0, 0.0];
             assert!(!step(&mut e, &legs).contacts[0]);
             // It carries 30 % of the weight while the kinematics still put it 3 cm up (a step down,
             // a compliant sole): standing.
             legs.position[0][2] -= 0.02;
             legs.contact[0][2] -= 0.02;
-            legs.load = [0.3 * weight, 0.7 * weight, 0.0, 0.0];
+            legs.load = [0.3 * WEIGHT, 0.7 * WEIGHT, 0.0, 0.0];
             assert!(step(&mut e, &legs).contacts[0]);
         }
     }
