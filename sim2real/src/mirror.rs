@@ -429,6 +429,10 @@ fn capped_position_control(
     let free = bias[0] + bias[1] * length + bias[2] * velocity;
     let limit = (torque_cap * j.gear / gear.abs()).max(0.0);
     // The setpoint is an actuator length: gear × joint angle.
+    if kp <= 0.0 {
+        // No stiffness (a servo told to damp only): the setpoint moves nothing; keep it the goal.
+        return gear * goal;
+    }
     let force = (kp * gear * goal + free).clamp(-limit, limit);
     (force - free) / kp
 }
