@@ -54,12 +54,18 @@ pub struct EstimatorConfig {
     pub kinematic_position_noise: f64,
     /// Leg kinematics: base velocity from a standing foot, m/s (1σ).
     pub kinematic_velocity_noise: f64,
-    /// A foot lands within this height of where it last stood, m.
+    /// A foot lands within this height of where it last stood, m (for a robot standing
+    /// `contact_scale_height_m` high).
     pub contact_on_m: f64,
-    /// A foot lifts off beyond this height, m.
+    /// A foot lifts off beyond this height, m (likewise scaled).
     pub contact_off_m: f64,
-    /// A landing foot moves slower than this, m/s.
+    /// A landing foot moves slower than this, m/s (likewise scaled).
     pub contact_speed: f64,
+    /// The standing height the three above are given for, m: its base above its soles. The
+    /// estimator scales them to the robot's own standing height when it starts (heights in
+    /// proportion, the speed by the square root, as in dynamically similar gaits): a 25 cm
+    /// biped's feet lift millimetres where a humanoid's lift centimetres. 0: taken as given.
+    pub contact_scale_height_m: f64,
     /// Where the legs' torques give a foot's load: it lands once carrying this share of the
     /// robot's weight…
     pub contact_load: f64,
@@ -105,6 +111,7 @@ impl Default for EstimatorConfig {
             contact_on_m: 0.012,
             contact_off_m: 0.02,
             contact_speed: 0.35,
+            contact_scale_height_m: 0.75,
             contact_load: 0.03,
             contact_unload: 0.01,
             leg_unload: 0.5,
@@ -152,6 +159,13 @@ impl EstimatorConfig {
             ("contact_on_m", self.contact_on_m, 0.0, 0.5, "m"),
             ("contact_off_m", self.contact_off_m, 0.0, 0.5, "m"),
             ("contact_speed", self.contact_speed, 0.0, 10.0, "m/s"),
+            (
+                "contact_scale_height_m",
+                self.contact_scale_height_m,
+                0.0,
+                5.0,
+                "m",
+            ),
             (
                 "contact_load",
                 self.contact_load,

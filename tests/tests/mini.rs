@@ -14,7 +14,6 @@ use test_support::bin::{Running, run_within};
 use test_support::fixtures::{venv_python, workspace_root};
 
 mod common;
-mod feetech_mini;
 
 #[global_allocator]
 static ALLOC: test_support::alloc::CountingAllocator = test_support::alloc::CountingAllocator;
@@ -924,7 +923,7 @@ fn a_feetech_servo_variant_of_the_robots_own_runs_and_check_shows_its_limit() {
     // shipped STS3215-12V (what the bus identifies: model 777).
     let text = std::fs::read_to_string(mini("robot.toml")).unwrap();
     let variant = "\n[[servo_models]]\nname = \"STS3215-9V\"\nbase = \"STS3215-12V\"\nnominal_voltage = 9.0\nstall_torque = 2.3\nno_load_speed = 40.0\n";
-    let text = feetech_mini::on_feetech(&text)
+    let text = test_support::zoo::on_feetech(&text)
         .replace("model = \"STS3215-12V\"", "model = \"STS3215-9V\"")
         .replace("torque_limit = 2.9", "torque_limit = 2.2")
         .replace("velocity_limit = 4.5", "velocity_limit = 4.0")
@@ -991,7 +990,7 @@ fn a_feetech_servo_variant_of_the_robots_own_runs_and_check_shows_its_limit() {
 fn on_feetech_servos_it_stands_its_servos_identify_and_a_vanished_one_stops_it() {
     use firmware_bridge::feetech::table::addr;
     let text = std::fs::read_to_string(mini("robot.toml")).unwrap();
-    let robot = Robot::from_str(&mini("robot.toml"), &feetech_mini::on_feetech(&text)).unwrap();
+    let robot = Robot::from_str(&mini("robot.toml"), &test_support::zoo::on_feetech(&text)).unwrap();
     assert_eq!(robot.bus("dxl0").unwrap().kind, robots::BusKind::Feetech);
     // `calibrate identify`'s question, answered by the emulated servos.
     {
@@ -1067,14 +1066,14 @@ fn on_feetech_servos_it_stands_its_servos_identify_and_a_vanished_one_stops_it()
     // What the servo cannot do is refused by field, before anything moves.
     let e = Robot::from_str(
         &mini("robot.toml"),
-        &feetech_mini::on_feetech(&text).replace("velocity_limit = 4.5", "velocity_limit = 6.0"),
+        &test_support::zoo::on_feetech(&text).replace("velocity_limit = 4.5", "velocity_limit = 6.0"),
     )
     .unwrap_err()
     .to_string();
     assert!(e.contains("velocity_limit") && e.contains("no-load speed"), "{e}");
     let e = Robot::from_str(
         &mini("robot.toml"),
-        &feetech_mini::on_feetech(&text)
+        &test_support::zoo::on_feetech(&text)
             .replace("rate = 1000000", "rate = 1000000\ncommand_timeout_ms = 100.0"),
     )
     .unwrap_err()

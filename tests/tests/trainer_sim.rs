@@ -12,7 +12,6 @@ use sim2real::model_index::ModelIndex;
 use test_support::bin::run_within;
 use test_support::fixtures::workspace_root;
 
-mod feetech_mini;
 mod robstride_biped;
 
 /// rd-biped's robot.toml with `extra` appended, written as `dir/name` (its MJCF where it is).
@@ -430,7 +429,7 @@ fn joints_stopped_mid_swing_by_an_obstacle_stay_within_their_torque_limits() {
     let biped = Robot::load(&workspace_root().join("robots/biped/robot.toml")).unwrap();
     let mini_dir = workspace_root().join("robots/mini");
     let feetech_text =
-        feetech_mini::on_feetech(&std::fs::read_to_string(mini_dir.join("robot.toml")).unwrap());
+        test_support::zoo::on_feetech(&std::fs::read_to_string(mini_dir.join("robot.toml")).unwrap());
     let on_feetech = Robot::from_str(&mini_dir.join("robot.toml"), &feetech_text).unwrap();
     let biped_path = workspace_root().join("robots/biped/robot.toml");
     let on_robstride = Robot::from_str(
@@ -599,7 +598,7 @@ fn a_position_actuator_of_the_model_pushes_with_the_gains_robot_toml_writes_into
     let dxl_text = std::fs::read_to_string(dir.join("robot.toml")).unwrap();
     for (bus, text) in [
         ("dynamixel", dxl_text.clone()),
-        ("feetech", feetech_mini::on_feetech(&dxl_text)),
+        ("feetech", test_support::zoo::on_feetech(&dxl_text)),
     ] {
         let text = in_joint(&text, "l_knee", "kp = 14.0\nkd = 0.3", "kp = 28.0\nkd = 0.6");
         let robot = Robot::from_str(&dir.join("robot.toml"), &text).unwrap();

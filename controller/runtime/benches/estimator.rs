@@ -7,13 +7,16 @@
 //! RMSE < 0.05 m/s, marching contacts ≥ 98 % and velocity RMSE < 0.05 m/s. Issue 33, per robot on
 //! its own policy (rd-mini, G1, T1; standing, walking with turns, walking pushed sideways, IMU noise
 //! ×1.5 and both biases drifting): velocity RMSE ≤ 0.05 m/s, height RMSE ≤ 1 cm, drift ≤ 2 % of
-//! the distance walked, contacts agree ≥ 97 %. Tables a person reads.
+//! the distance walked, contacts agree ≥ 97 %. Issue 50: the same on the robot zoo
+//! (`test_support::zoo`: rd-mini, a Feetech biped, an 11 kg biped on 5 N·m-clipped MIT motors, no
+//! foot switches) walking on rd-mini's walking fixture. Tables a person reads.
 //!
 //! Run: `cargo bench -p controller --bench estimator` (8 seeds for rd-biped's clips, 3 per walking
 //! robot, 20 s runs, both filters side by side); as a test (`cargo test --benches`) 1 seed and 6 s
 //! runs of the default filter. `-- --bench --filter linear|invariant` runs one filter,
 //! `--walking` only the walking robots.
 
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
@@ -25,6 +28,7 @@ use policy::PolicyLayout;
 use robots::{Robot, reference_robot_path};
 use sim2real::config::{MirrorConfig, Randomization, Range};
 use test_support::stats::Summary;
+use test_support::zoo::ZooRobot;
 use world::estimator::{Estimator, EstimatorConfig, FilterKind, LegKinematics};
 
 fn randomized(seed: u64) -> MirrorConfig {
@@ -79,20 +83,17 @@ fn compute_per_tick(filter: FilterKind) -> Summary {
 /// `command` (the manifest's order) for `seconds`, pushed sideways at a third and two thirds of
 /// the run when `pushed` (0.1 s at half the robot's weight: 0.5 m/s sideways for its mass).
 fn walk(
-    robot: &str,
-    policy: &str,
+    robot: &Path,
+    policy: &Path,
     command: &[f64],
     seconds: f64,
     pushed: bool,
     seed: u64,
     filter: FilterKind,
 ) -> controller::metrics::PlaySummary {
-    let dir = test_support::fixtures::workspace_root()
-        .join("robots")
-        .join(robot);
-    let mut loaded = Robot::load(&dir.join("robot.toml")).unwrap();
+    let mut loaded = Robot::load(robot).unwrap();
     loaded.config.estimator.filter = filter;
-    let mut layout = PolicyLayout::load(&dir.join("policies").join(policy), &loaded).unwrap();
+    let mut layout = PolicyLayout::load(policy, &loaded).unwrap();
     layout.set_command(command).unwrap();
     let onnx = layout.onnx_path.clone();
     let (reference, _) = controller::reference::load_reference(None, &onnx, &mut layout, &loaded, 0).unwrap();
@@ -126,11 +127,14 @@ fn walk(
     p.run(&mut clock).unwrap()
 }
 
+/// A robot's name, its robot.toml and policy, and the walking command in the manifest's order.
+type WalkingRobot = (String, (PathBuf, PathBuf), Option<Vec<f64>>);
+
 fn walking_robots(quick: bool, filters: &[FilterKind]) {
     let (seeds, seconds) = if quick { (1, 6.0) } else { (3, 20.0) };
     println!(
         "\nwalking robots on their own policies, randomised mirror, {seeds} seeds × {seconds} s (median / worst):\n\
-         {:<8} {:<20} {:<10} {:>9} {:>16} {:>16} {:>18} {:>16}",
+         {:<14} {:<20} {:<10} {:>9} {:>16} {:>16} {:>18} {:>16}",
         "robot",
         "scenario",
         "filter",
@@ -140,27 +144,34 @@ fn walking_robots(quick: bool, filters: &[FilterKind]) {
         "drift % (cm)",
         "contacts %"
     );
-    let still = [0.0, 0.0, 0.0];
-    // (robot, policy, walking command in the manifest's order)
-    let robots: [(&str, &str, Option<[f64; 3]>); 3] = [
-        // rd-mini's stand_walk policy (a project fixture) stands; it does not walk.
-        ("mini", "stand_walk.toml", None),
+    let shipped = |robot: &str, policy: &str| {
+        let dir = test_support::fixtures::workspace_root().join("robots").join(robot);
+        (dir.join("robot.toml"), dir.join("policies").join(policy))
+    };
+    let mut robots: Vec<WalkingRobot> = vec![
         // holosoma's order: turning rate, forward, leftward.
-        ("g1", "holosoma_loco_ppo.toml", Some([0.3, 0.5, 0.0])),
-        ("t1", "holosoma_loco_ppo.toml", Some([0.3, 0.5, 0.0])),
+        ("g1".into(), shipped("g1", "holosoma_loco_ppo.toml"), Some(vec![0.3, 0.5, 0.0])),
+        ("t1".into(), shipped("t1", "holosoma_loco_ppo.toml"), Some(vec![0.3, 0.5, 0.0])),
     ];
-    for (robot, policy, walking) in robots {
-        let mut scenarios = vec![("standing", still, false), ("standing, pushed", still, true)];
+    // The zoo (no foot switches) on rd-mini's walking fixture: forward speed only.
+    let zoo = std::env::temp_dir().join(format!("estimator-bench-zoo-{}", std::process::id()));
+    for robot in ZooRobot::ALL {
+        let paths = (robot.write(&zoo), ZooRobot::walking_policy());
+        robots.push((robot.name().into(), paths, Some(vec![0.2])));
+    }
+    for (robot, (robot_toml, policy), walking) in robots {
+        let still = vec![0.0; walking.as_ref().map_or(3, Vec::len)];
+        let mut scenarios = vec![("standing", still.clone(), false), ("standing, pushed", still, true)];
         if let Some(w) = walking {
-            scenarios.push(("walking, turning", w, false));
+            scenarios.push(("walking", w.clone(), false));
             scenarios.push(("walking, pushed", w, true));
         }
         for ((name, command, pushed), &filter) in scenarios
             .iter()
-            .flat_map(|s| filters.iter().map(move |f| (*s, f)))
+            .flat_map(|s| filters.iter().map(move |f| (s, f)))
         {
             let runs: Vec<_> = (0..seeds)
-                .map(|seed| walk(robot, policy, &command, seconds, pushed, seed, filter))
+                .map(|seed| walk(&robot_toml, &policy, command, seconds, *pushed, seed, filter))
                 .collect();
             let filter = filter_name(filter);
             let fell = runs.iter().filter(|s| s.fell).count();
@@ -170,7 +181,7 @@ fn walking_robots(quick: bool, filters: &[FilterKind]) {
                 .filter_map(|s| Some((s.locomotion.as_ref()?.distance_m, s.estimator?)))
                 .collect();
             if measured.is_empty() {
-                println!("{robot:<8} {name:<20} {filter:<10} fell in all {seeds} runs");
+                println!("{robot:<14} {name:<20} {filter:<10} fell in all {seeds} runs");
                 continue;
             }
             let stat = |f: &dyn Fn(&(f64, controller::metrics::EstimatorAccuracy)) -> f64,
@@ -190,7 +201,7 @@ fn walking_robots(quick: bool, filters: &[FilterKind]) {
                 format!("({m:.1} / {w:.1} cm)")
             };
             println!(
-                "{robot:<8} {name:<20} {filter:<10} {walked:>9.2} {:>16} {:>16} {:>18} {:>16}{}",
+                "{robot:<14} {name:<20} {filter:<10} {walked:>9.2} {:>16} {:>16} {:>18} {:>16}{}",
                 pair(stat(&|(_, e)| e.velocity_rmse, true), 3),
                 pair(stat(&|(_, e)| 1000.0 * e.height_rmse, true), 1),
                 drift,

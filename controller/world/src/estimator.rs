@@ -10,7 +10,8 @@
 //! comes from foot switches where the robot has them, otherwise from the legs: a foot lands when
 //! it comes back within `contact_on_m` of the height it last stood at, slowly, and takes a share
 //! of the weight (the ground's push on it, from the joint torques the buses report); it lifts off
-//! when it rises beyond `contact_off_m` or carries almost nothing (hysteresis on both).
+//! when it rises beyond `contact_off_m` or carries almost nothing (hysteresis on both). Those
+//! heights and the speed are scaled to the robot's own standing height when the filter starts.
 //!
 //! The world frame is the robot's start: the base above the origin, the floor at z = 0 under
 //! feet that stand on it, the IMU's heading. Nothing is allocated after construction.
@@ -239,6 +240,34 @@ pub struct Estimator {
     rig_was: bool,
     /// Ticks in a row on which every standing foot's velocity was refused.
     refused_ticks: u32,
+    /// The contact heights and speed scaled to this robot (learned when the filter first starts).
+    thresholds: Option<ContactThresholds>,
+}
+
+/// A foot lands within `on` m of where it last stood, moving slower than `speed` m/s, and lifts
+/// off beyond `off` m: the configured values scaled to the robot's standing height.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ContactThresholds {
+    pub on: f64,
+    pub off: f64,
+    pub speed: f64,
+}
+
+impl ContactThresholds {
+    /// `config`'s thresholds for a robot whose base stands `height` m above its soles.
+    pub fn scaled(config: &EstimatorConfig, height: f64) -> Self {
+        let reference = config.contact_scale_height_m;
+        let s = if reference > 0.0 && height.is_finite() && height > 0.0 {
+            height / reference
+        } else {
+            1.0
+        };
+        Self {
+            on: config.contact_on_m * s,
+            off: config.contact_off_m * s,
+            speed: config.contact_speed * s.sqrt(),
+        }
+    }
 }
 
 /// Ticks the filter may refuse every standing foot's velocity in a row (then it takes them).
@@ -286,7 +315,13 @@ impl Estimator {
             input_fault: false,
             held: false,
             refused_ticks: 0,
+            thresholds: None,
         }
+    }
+
+    /// The contact thresholds in use (none before the filter first started).
+    pub fn contact_thresholds(&self) -> Option<ContactThresholds> {
+        self.thresholds
     }
 
     /// The filter this estimator runs.
@@ -503,6 +538,9 @@ impl Estimator {
             )
         };
         let world_speed = |f: usize| spatial::norm(spatial::add(base_velocity, relative(f)));
+        let t = self
+            .thresholds
+            .unwrap_or_else(|| ContactThresholds::scaled(&self.config, 0.0));
         for f in 0..self.feet {
             self.contacts[f] = match legs.switches {
                 _ if self.rig => false,
@@ -520,13 +558,13 @@ impl Estimator {
                     let unloaded = load.is_finite() && load < c.contact_unload * self.weight;
                     // Lighter than a swinging leg's own reading, and moving: lifting off (a
                     // foot unloading slowly in place still touches).
-                    let lifting = load.is_finite() && load < c.leg_unload * leg && speed > c.contact_speed;
+                    let lifting = load.is_finite() && load < c.leg_unload * leg && speed > t.speed;
                     let loaded = !load.is_finite() || load > c.contact_load * self.weight;
                     let carrying = load.is_finite() && load > c.carrying * self.weight;
                     if self.contacts[f] {
-                        carrying || (height < c.contact_off_m && !unloaded && !lifting)
+                        carrying || (height < t.off && !unloaded && !lifting)
                     } else {
-                        carrying || (height < c.contact_on_m && speed < c.contact_speed && loaded)
+                        carrying || (height < t.on && speed < t.speed && loaded)
                     }
                 }
             };
@@ -543,7 +581,7 @@ impl Estimator {
                     .filter(|&(f, j)| self.contacts[f] && self.contacts[j])
                     .find(|&(f, j)| {
                         spatial::norm(spatial::sub(relative(f), relative(j)))
-                            > 2.0 * self.config.contact_speed
+                            > 2.0 * t.speed
                     });
                 let Some((f, j)) = apart else { break };
                 let moving = if world_speed(f) > world_speed(j) { f } else { j };
@@ -628,6 +666,8 @@ impl Estimator {
             .sum::<f64>()
             / feet.max(1) as f64;
         let base = [0.0, 0.0, height];
+        self.thresholds
+            .get_or_insert_with(|| ContactThresholds::scaled(&self.config, height));
         self.filter.get_mut().start(r, base, &legs.position[..feet]);
         for f in 0..feet {
             self.ground[f] = height + spatial::mat_apply(r, legs.contact[f])[2];

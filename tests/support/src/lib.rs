@@ -16,3 +16,4 @@ pub mod fixtures;
 pub mod netns;
 pub mod starvation;
 pub mod stats;
+pub mod zoo;
