@@ -75,6 +75,11 @@ impl DcMotor {
     pub fn current(&self, duty: f64, supply: f64, omega: f64) -> f64 {
         (duty * supply - self.back_emf() * omega) / self.resistance()
     }
+
+    /// The duty (unbounded) that makes `current` flow at `omega`: [`Self::current`]'s inverse.
+    pub fn duty_for(&self, current: f64, supply: f64, omega: f64) -> f64 {
+        (current * self.resistance() + self.back_emf() * omega) / supply
+    }
 }
 
 /// A rigid load on a shaft: inertia, viscous and Coulomb friction, integrated semi-implicitly.

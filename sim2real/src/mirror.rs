@@ -1127,6 +1127,11 @@ impl Mirror {
         self.joints.iter().filter(|j| j.actuator.is_some()).count()
     }
 
+    /// The model's position actuator that drives joint `j` (robot order), if one does.
+    pub fn joint_actuator(&self, j: usize) -> Option<usize> {
+        self.joints.get(j).and_then(|joint| joint.actuator)
+    }
+
     /// Joint angles in policy order, rad (ground truth, for tests and validation).
     pub fn joint_positions(&self) -> impl Iterator<Item = f64> + '_ {
         self.joints.iter().map(|j| self.data.qpos()[j.qpos])
@@ -1303,6 +1308,35 @@ impl Mirror {
         }
     }
 
+    /// Serial servos whose joint the model's own position actuator drives report the torque that
+    /// actuator gave (their current and load registers), not their emulated loop's: the two
+    /// differ, and a reading of a torque that never acted tells the estimator of loads that are
+    /// not there.
+    fn sense_servo_torques(&mut self) {
+        let (data, joints) = (&self.data, &self.joints);
+        let acted = |j: usize| {
+            let joint = &joints[j];
+            joint.actuator.map(|a| {
+                let joint_torque = data.actuator_force()[a] * data.model().actuator_gear()[a][0];
+                joint_torque / (joint.direction * joint.gear)
+            })
+        };
+        for line in &mut self.dxl {
+            for (servo, &j) in line.wire.chain_mut().servos_mut().iter_mut().zip(&line.joints) {
+                if let Some(t) = acted(j) {
+                    servo.sense_torque(t);
+                }
+            }
+        }
+        for line in &mut self.feetech {
+            for (servo, &j) in line.wire.chain_mut().servos_mut().iter_mut().zip(&line.joints) {
+                if let Some(t) = acted(j) {
+                    servo.sense_torque(t);
+                }
+            }
+        }
+    }
+
     /// Whether any joint is driven: a motor gives torque or a servo has a goal.
     fn driven(&self) -> bool {
         self.plants.iter().any(|p| p.torque != 0.0 || p.goal.is_some())
@@ -1422,6 +1456,7 @@ impl Mirror {
                 self.peak_joint_torque[i] = self.peak_joint_torque[i].max(torque);
             }
         }
+        self.sense_servo_torques();
         if let Some(why) = self.divergence() {
             tracing::warn!(
                 "mirror: the simulation diverged at t = {:.3} s: {why}",

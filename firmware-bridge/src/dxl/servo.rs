@@ -145,6 +145,9 @@ pub struct XSeriesServo {
     overload_seconds: f64,
     /// Torque the motor applied in the last control period, N·m (servo side).
     applied_torque: f64,
+    /// The torque that acted on the shaft, N·m, where a simulator applies its own servo model
+    /// (see [`Self::sense_torque`]): what the current sensor reports instead of the emulated loop's.
+    sensed_torque: Option<f64>,
     last_instruction_at: SimInstant,
     offline_until: Option<SimInstant>,
     vanished: bool,
@@ -169,6 +172,7 @@ impl XSeriesServo {
             boot_turn_pending: true,
             overload_seconds: 0.0,
             applied_torque: 0.0,
+            sensed_torque: None,
             last_instruction_at: SimInstant::ZERO,
             offline_until: None,
             vanished: false,
@@ -229,6 +233,14 @@ impl XSeriesServo {
     /// Torque the motor applied in its last control period, N·m (servo side, signed).
     pub fn applied_torque(&self) -> f64 {
         self.applied_torque
+    }
+
+    /// The torque that acted on the shaft, N·m (servo side), from a simulator whose own servo
+    /// model drives the joint (a position actuator of the model, with this servo's gains): from
+    /// then on the servo's current and load registers report it, and it heats by it, as its sensor
+    /// would; the emulated loop still owns torque on/off, limits and faults.
+    pub fn sense_torque(&mut self, torque: f64) {
+        self.sensed_torque = Some(torque);
     }
 
     /// Whether torque is on.
@@ -910,9 +922,13 @@ impl XSeriesServo {
         } else {
             self.previous_error = 0.0;
         }
-        let torque = kt * current;
+        let mut torque = kt * current;
         self.applied_torque = torque;
         plant.apply_torque(reverse * torque);
+        if let Some(acted) = self.sensed_torque.filter(|_| self.torque_enabled()) {
+            torque = reverse * acted;
+            current = torque / kt;
+        }
         self.set_reg(addr::PRESENT_PWM, pwm.round() as i64);
         let reported = if self.model.current_sensing {
             current / models::CURRENT_UNIT_A

@@ -119,6 +119,9 @@ pub struct StsServo {
     integral: f64,
     temperature: f64,
     applied_torque: f64,
+    /// The torque that acted on the shaft, N·m, where a simulator applies its own servo model
+    /// (see [`Self::sense_torque`]): what the current sensor reports instead of the emulated loop's.
+    sensed_torque: Option<f64>,
     overload_seconds: f64,
     fault: Option<(ReplyFault, Option<u32>)>,
     vanished: bool,
@@ -177,6 +180,7 @@ impl StsServo {
             integral: 0.0,
             temperature: config.ambient_temperature,
             applied_torque: 0.0,
+            sensed_torque: None,
             overload_seconds: 0.0,
             fault: None,
             vanished: false,
@@ -222,6 +226,14 @@ impl StsServo {
     /// Torque at the output in the last period, N·m.
     pub fn applied_torque(&self) -> f64 {
         self.applied_torque
+    }
+
+    /// The torque that acted on the shaft, N·m (servo side), from a simulator whose own servo
+    /// model drives the joint (a position actuator of the model, with this servo's gains): from
+    /// then on the servo's current and load registers report it, and it heats by it, as its sensor
+    /// would; the emulated loop still owns torque on/off, limits and faults.
+    pub fn sense_torque(&mut self, torque: f64) {
+        self.sensed_torque = Some(torque);
     }
 
     /// The most torque it gives now, N·m: stall torque scaled by Torque Limit.
@@ -539,10 +551,15 @@ impl StsServo {
         } else {
             self.setpoint = f64::NAN;
         }
-        let current = motor.current(duty, supply, omega);
+        let mut current = motor.current(duty, supply, omega);
         let torque = motor.torque_constant() * current;
         self.applied_torque = torque;
         plant.apply_torque(torque);
+        if let Some(acted) = self.sensed_torque.filter(|_| self.torque_enabled()) {
+            // The load register reads the bridge's duty: the one that drives this torque.
+            current = acted / motor.torque_constant();
+            duty = motor.duty_for(current, supply, omega).clamp(-1.0, 1.0);
+        }
         set_word(
             &mut self.table,
             addr::PRESENT_LOAD,
