@@ -152,6 +152,35 @@ pub struct MirrorConfig {
     pub start_joints: Option<Vec<f64>>,
     /// The floor tilted about the world's x and y axes, degrees (each within ±20): a slope.
     pub floor_tilt_deg: [f64; 2],
+    /// How much of the robot the mirror is: `wires` (the default) emulates every device's
+    /// firmware behind its bus protocol; `direct` applies each joint's command to MuJoCo as the
+    /// trainer's actuator law (robot.toml `[[actuators]]`, explicit PD within the joint's torque
+    /// limit where none is given; the model's own position servos take it as their goal and
+    /// gains) with no bus, firmware or wire in between, the IMU's samples straight from the model
+    /// (its noise kept): the physics floor, for validating motion libraries.
+    pub fidelity: Fidelity,
+}
+
+/// The mirror's fidelity ([`MirrorConfig::fidelity`]).
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, schemars::JsonSchema, serde::Serialize,
+)]
+#[serde(rename_all = "lowercase")]
+pub enum Fidelity {
+    /// Every device's firmware behind its bus protocol, the host's real drivers on the wires.
+    #[default]
+    Wires,
+    /// The trainer's actuator law on MuJoCo, no buses.
+    Direct,
+}
+
+impl std::fmt::Display for Fidelity {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Wires => "wires (emulated firmware behind each bus protocol)",
+            Self::Direct => "direct (the trainer's actuator law on MuJoCo, no buses)",
+        })
+    }
 }
 
 /// Where the mirrored robot starts: a horizontal position, a heading, and a height to drop from.

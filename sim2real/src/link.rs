@@ -15,7 +15,7 @@ use firmware_bridge::serial::{DeviceStream, LockstepStream};
 use firmware_bridge::time::SimInstant;
 use firmware_bridge::time::SimWorld;
 use firmware_bridge::unitree::wire::DdsLowLevelPort;
-use robot_link::{BusPorts, BusRobot, GroundTruth, IoError, TickClock, WallClock};
+use robot_link::{BusPorts, BusRobot, GroundTruth, IoError, JointTarget, RobotLink, RobotState, TickClock, WallClock};
 use robots::Robot;
 
 use crate::mirror::Mirror;
@@ -50,6 +50,78 @@ pub fn lockstep_robot(robot: &Robot, world: &Arc<Mutex<Mirror>>) -> Result<Locks
         options,
     )?;
     with_mirror_switches(link, robot, world)
+}
+
+/// The robot on a direct mirror ([`crate::config::Fidelity::Direct`]): the loop's commands go
+/// straight to the simulation's actuator laws and its state comes straight back, in lockstep
+/// with [`LockstepClock`]; no device to identify, no bus to cycle.
+#[derive(Debug)]
+pub struct DirectRobot {
+    world: Arc<Mutex<Mirror>>,
+    switches: Option<MirrorSwitches>,
+    feet: usize,
+    joints: usize,
+}
+
+/// The link of a direct mirror; refused for a mirror with wires.
+pub fn direct_robot(robot: &Robot, world: &Arc<Mutex<Mirror>>) -> Result<DirectRobot, IoError> {
+    let mut w = world
+        .lock()
+        .map_err(|_| IoError::Setup("the mirror's lock is poisoned".into()))?;
+    if !w.read_directly(&mut RobotState::new(robot.config.joints.len())) {
+        return Err(IoError::Setup(
+            "the mirror has wires: a direct link needs a mirror of direct fidelity".into(),
+        ));
+    }
+    let switches = if robot.config.contacts.is_empty() {
+        None
+    } else {
+        Some(MirrorSwitches {
+            closed: w.foot_switches().map_err(IoError::Setup)?,
+        })
+    };
+    drop(w);
+    Ok(DirectRobot {
+        world: Arc::clone(world),
+        switches,
+        feet: robot.config.feet.len(),
+        joints: robot.config.joints.len(),
+    })
+}
+
+impl RobotLink for DirectRobot {
+    fn identify(&mut self) -> Result<(), IoError> {
+        Ok(())
+    }
+
+    fn read(&mut self, state: &mut RobotState) -> Result<(), IoError> {
+        self.world
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .read_directly(state);
+        match &mut self.switches {
+            Some(s) => {
+                use robot_link::contacts::ContactSource;
+                state.foot_switches.resize(self.feet, false);
+                s.read(&mut state.foot_switches)?;
+            }
+            None => state.foot_switches.clear(),
+        }
+        Ok(())
+    }
+
+    fn write(&mut self, targets: &[JointTarget]) -> Result<(), IoError> {
+        self.world
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .command_directly(targets);
+        Ok(())
+    }
+
+    fn torque_off(&mut self) -> Result<(), IoError> {
+        let limp = vec![JointTarget::default(); self.joints];
+        self.write(&limp)
+    }
 }
 
 /// A robot with foot switches (robot.toml `[[contacts]]`) gets the mirror's behind the same trait

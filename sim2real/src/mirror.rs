@@ -34,9 +34,10 @@ use firmware_bridge::unitree::lockstep::{LockstepUnitreePort, UnitreeWorld};
 use mujoco_rs::prelude::*;
 use mujoco_rs::wrappers::mj_model::traits::ModelType;
 use robots::spatial::{quat_conj, quat_mul, quat_of_rpy, quat_rotate};
+use robot_link::{ImuSample, JointTarget, RobotState};
 use robots::{ActuatorModel, ActuatorOf, BusKind, Robot};
 
-use crate::config::{FaultKind, MirrorConfig, Range};
+use crate::config::{FaultKind, Fidelity, MirrorConfig, Range};
 use crate::model_index::{self, ModelIndex};
 use crate::mujoco::MujocoError;
 
@@ -340,7 +341,25 @@ pub struct Mirror {
     /// The largest torque each torque-driven joint received at a physics step, N·m (joint side).
     peak_joint_torque: Vec<f64>,
     stats: MirrorStats,
+    /// The direct fidelity's exchange with the host (none: the wires).
+    direct: Option<Direct>,
 }
+
+/// What a direct mirror ([`crate::config::Fidelity::Direct`]) exchanges with its host in place of
+/// buses: each joint's command as the loop gave it, the IMU's samples since the last read.
+#[derive(Debug)]
+struct Direct {
+    targets: Vec<JointTarget>,
+    /// Each joint's torque limit (robot.toml), N·m.
+    torque_limits: Vec<f64>,
+    samples: Vec<ImuSample>,
+    latest: ImuSample,
+    /// A joint has been commanded with torque on.
+    driven: bool,
+}
+
+/// IMU samples a direct mirror keeps between two reads (the oldest give way).
+const DIRECT_SAMPLES: usize = 256;
 
 /// Names the mirror gives the IMU sensors it adds to a model that has none on the IMU's site.
 pub const ADDED_IMU_SENSORS: [&str; 3] = [
@@ -493,6 +512,13 @@ impl Mirror {
     /// Builds the mirror of `robot`: loads and randomises its model, places it in its default
     /// pose standing on the floor (or on the gantry), and wires emulated devices to every bus.
     pub fn new(robot: Robot, config: MirrorConfig) -> Result<Self, MirrorError> {
+        if config.fidelity == Fidelity::Direct && !config.faults.is_empty() {
+            return Err(MirrorError::Robot(format!(
+                "{} scheduled fault(s): faults act on devices and wires, which a mirror of direct \
+                 fidelity does not have (use the wires, or pushes, which act on the robot)",
+                config.faults.len()
+            )));
+        }
         let (mut model, imu_sensors) = model_with_imu_sensors(&robot)?;
         if let Some(q) = &config.start_joints
             && (q.len() != robot.config.joints.len() || q.iter().any(|x| !x.is_finite()))
@@ -862,9 +888,24 @@ impl Mirror {
             peak_torque: 0.0,
             peak_joint_torque: vec![0.0; n_joints],
             stats: MirrorStats::default(),
+            direct: None,
         };
+        if mirror.config.fidelity == Fidelity::Direct {
+            mirror.direct = Some(Direct {
+                targets: vec![JointTarget::default(); n_joints],
+                torque_limits: mirror.robot.config.joints.iter().map(|j| j.torque_limit).collect(),
+                samples: Vec::with_capacity(DIRECT_SAMPLES),
+                latest: ImuSample::default(),
+                driven: false,
+            });
+        }
         mirror.held = mirror.config.hold_until_driven;
         mirror.place_in_default_pose();
+        if mirror.direct.is_some() {
+            // The host's first read finds the IMU's start-up reading, as a device answers one.
+            mirror.data.forward();
+            mirror.sample_imu_directly(SimInstant::ZERO);
+        }
         Ok(mirror)
     }
 
@@ -1339,7 +1380,8 @@ impl Mirror {
 
     /// Whether any joint is driven: a motor gives torque or a servo has a goal.
     fn driven(&self) -> bool {
-        self.plants.iter().any(|p| p.torque != 0.0 || p.goal.is_some())
+        self.direct.as_ref().is_some_and(|d| d.driven)
+            || self.plants.iter().any(|p| p.torque != 0.0 || p.goal.is_some())
     }
 
     fn step_physics(&mut self) {
@@ -1351,10 +1393,14 @@ impl Mirror {
             }
             self.held = false;
         }
+        if self.direct.is_some() {
+            self.apply_direct_commands();
+        }
+        let direct = self.direct.is_some();
         // Torques (or position goals) from the firmware's last period.
         let mut stepped_laws = false;
         for (i, (j, p)) in self.joints.iter_mut().zip(&mut self.plants).enumerate() {
-            if j.law.model.per_physics_step() {
+            if j.law.model.per_physics_step() || (direct && j.actuator.is_none()) {
                 // The trainer's law, from the command that acts at this step.
                 let (q, qd) = (self.data.qpos()[j.qpos], self.data.qvel()[j.dof]);
                 let law = j.delay(p.law);
@@ -1398,7 +1444,7 @@ impl Mirror {
                 }
             }
         }
-        if stepped_laws {
+        if stepped_laws && !direct {
             self.sense_stepped_torques();
         }
         if let Some(g) = self.gantry {
@@ -1775,6 +1821,9 @@ impl SimWorld for Mirror {
 
 impl Mirror {
     fn step_once(&mut self, limit: SimInstant) -> SimInstant {
+        if self.direct.is_some() {
+            return self.step_direct(limit);
+        }
         let now = self.now;
         let mut t = limit
             .min(self.next_physics)
@@ -1852,6 +1901,130 @@ impl Mirror {
             });
         }
         t
+    }
+}
+
+/// The direct fidelity: no bus, firmware or wire; the host's commands act on MuJoCo through the
+/// trainer's actuator law, the IMU's samples go to the host as they are drawn.
+impl Mirror {
+    fn step_direct(&mut self, limit: SimInstant) -> SimInstant {
+        let now = self.now;
+        let mut t = limit.min(self.next_physics).min(self.imu.emulator.next_output());
+        if let Some(f) = self.faults.get(self.next_fault) {
+            t = t.min(f.0);
+        }
+        let t = t.max(now);
+        self.now = t;
+        while let Some(&(at, joint, fault)) = self.faults.get(self.next_fault) {
+            if at > t {
+                break;
+            }
+            self.next_fault += 1;
+            self.apply_fault(joint, fault);
+        }
+        if t >= self.next_physics {
+            self.sync_plants();
+            self.step_physics();
+            self.next_physics = self.next_physics + self.physics_dt;
+        }
+        if t >= self.imu.emulator.next_output() {
+            self.sample_imu_directly(t);
+        }
+        t
+    }
+
+    /// Each joint's command as a law in its actuator's frame: the motors' laws the mirror
+    /// computes every physics step, and the model's position servos' goals and gains.
+    fn apply_direct_commands(&mut self) {
+        let Some(d) = &self.direct else { return };
+        for ((j, p), (t, &limit)) in self
+            .joints
+            .iter()
+            .zip(&mut self.plants)
+            .zip(d.targets.iter().zip(&d.torque_limits))
+        {
+            let to = j.direction * j.gear;
+            let law = t.enabled.then(|| PdLaw {
+                p: j.zero_offset + to * t.q,
+                v: to * t.qd,
+                kp: t.kp / (j.gear * j.gear),
+                kd: t.kd / (j.gear * j.gear),
+                t: t.tau / to,
+                limit: limit / j.gear,
+            });
+            p.law = law;
+            p.torque_cap = limit / j.gear;
+            if j.actuator.is_some() {
+                p.goal = law.filter(|l| l.kp > 0.0).map(|l| l.p);
+                p.stiffness = law.map(|l| [l.kp, l.kd]);
+                p.torque = 0.0;
+            }
+        }
+    }
+
+    /// The IMU's sample drawn from the model's sensors at its site (noise and biases as the
+    /// device's), kept for the host's next read.
+    fn sample_imu_directly(&mut self, t: SimInstant) {
+        let s = self.data.sensordata();
+        let i = &self.imu;
+        let truth = ImuTruth {
+            gyro: [s[i.gyro], s[i.gyro + 1], s[i.gyro + 2]],
+            accel: [s[i.accel], s[i.accel + 1], s[i.accel + 2]],
+            quat: [s[i.quat], s[i.quat + 1], s[i.quat + 2], s[i.quat + 3]],
+        };
+        let x = self.imu.emulator.sample(t, &truth);
+        self.stats.imu_outputs += 1;
+        if let Some(d) = &mut self.direct {
+            let sample = ImuSample {
+                gyro: x.gyro,
+                accel: x.accel,
+                quat: x.quat,
+                at: Duration::from_nanos(t.as_nanos()),
+            };
+            if d.samples.len() == DIRECT_SAMPLES {
+                d.samples.remove(0);
+            }
+            d.samples.push(sample);
+            d.latest = sample;
+        }
+    }
+
+    /// A direct mirror takes the loop's commands (robot order); false on a mirror with wires.
+    pub fn command_directly(&mut self, targets: &[JointTarget]) -> bool {
+        let Some(d) = &mut self.direct else { return false };
+        for (to, from) in d.targets.iter_mut().zip(targets) {
+            *to = *from;
+        }
+        d.driven |= targets.iter().any(|t| t.enabled);
+        true
+    }
+
+    /// A direct mirror's state for the loop (robot order: joint angles, speeds and the torques
+    /// that acted; the IMU's samples since the last read); false on a mirror with wires.
+    pub fn read_directly(&mut self, state: &mut RobotState) -> bool {
+        let Some(d) = &mut self.direct else { return false };
+        let (q, qd) = (self.data.qpos(), self.data.qvel());
+        for (k, (j, p)) in self.joints.iter().zip(&self.plants).enumerate() {
+            state.q[k] = q[j.qpos];
+            state.qd[k] = qd[j.dof];
+            state.tau[k] = match j.actuator {
+                Some(a) => self.data.actuator_force()[a] * self.data.model().actuator_gear()[a][0],
+                None => j.direction * j.gear * p.torque * j.strength,
+            };
+        }
+        state.missed.fill(0);
+        state.faulted.fill(false);
+        state.stale.fill(false);
+        state.age.fill(Duration::ZERO);
+        state.imu_samples.clear();
+        state.imu_samples.extend_from_slice(&d.samples);
+        d.samples.clear();
+        state.gyro = d.latest.gyro;
+        state.accel = d.latest.accel;
+        state.quat = d.latest.quat;
+        state.imu_missed = 0;
+        state.imu_age = Duration::ZERO;
+        true
     }
 }
 

@@ -10,7 +10,7 @@ use sim2real::config::MirrorConfig;
 
 use controller::clip::{Clip, Reference};
 use controller::player::{PlayOptions, PlaySummary};
-use controller::sim::lockstep_player;
+use controller::sim::run_on_mirror;
 use policy::PolicyLayout;
 
 use crate::AnalysisError;
@@ -174,7 +174,7 @@ pub fn run_batch(
                         seed,
                         ..mirror.clone()
                     };
-                    let result = lockstep_player(
+                    let result = run_on_mirror(
                         robot.clone(),
                         layout.clone(),
                         references[clip].clone(),
@@ -182,10 +182,7 @@ pub fn run_batch(
                         config,
                         Arc::new(AtomicBool::new(false)),
                     )
-                    .map_err(|e| robot_link::message_chain(&e))
-                    .and_then(|(mut p, mut clock, _w)| {
-                        p.run(&mut clock).map_err(|e| robot_link::message_chain(&e))
-                    });
+                    .map_err(|e| robot_link::message_chain(&e));
                     results
                         .lock()
                         .unwrap_or_else(PoisonError::into_inner)

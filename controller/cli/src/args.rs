@@ -205,6 +205,25 @@ impl From<OnStopArg> for controller::options::OnStop {
     }
 }
 
+/// How much of the robot the mirror is (`--fidelity`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum FidelityArg {
+    /// Every device's firmware behind its bus protocol, the host's real drivers on the wires.
+    Wires,
+    /// The trainer's actuator law applied to MuJoCo, no buses, firmware or wires: the physics
+    /// floor, for validating motion libraries (lockstep only).
+    Direct,
+}
+
+impl From<FidelityArg> for sim2real::config::Fidelity {
+    fn from(a: FidelityArg) -> Self {
+        match a {
+            FidelityArg::Wires => Self::Wires,
+            FidelityArg::Direct => Self::Direct,
+        }
+    }
+}
+
 /// How the policy takes the robot (`--start`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum StartArg {

@@ -29,6 +29,12 @@ pub struct BatchArgs {
     /// Mirror settings (randomisation, faults, gantry), TOML.
     #[arg(long)]
     mirror: Option<PathBuf>,
+    /// How much of the robot the mirror is (default: the --mirror file's `fidelity`, else
+    /// wires): wires — every device's firmware behind its bus protocol; direct — the trainer's
+    /// actuator law applied to MuJoCo, no buses: the physics floor, for validating a motion
+    /// library fast.
+    #[arg(long, value_enum)]
+    fidelity: Option<crate::args::FidelityArg>,
     /// Parallel runs, 1–256 (default: the number of cores).
     #[arg(long, value_parser = crate::args::jobs)]
     jobs: Option<usize>,
@@ -60,10 +66,13 @@ fn parse_seeds(s: &str) -> Result<(u64, u64), String> {
 pub fn run(args: &BatchArgs) -> Result<()> {
     let robot = Robot::load(&args.robot)?;
     let policy = crate::args::policy_of(args.policy.as_deref(), &robot)?;
-    let mirror = match &args.mirror {
+    let mut mirror = match &args.mirror {
         Some(p) => load_mirror_config(p, &robot)?,
         None => sim2real::config::MirrorConfig::default(),
     };
+    if let Some(f) = args.fidelity {
+        mirror.fidelity = f.into();
+    }
     let seeds: Vec<u64> = (args.seeds.0..=args.seeds.1).collect();
     let jobs = args
         .jobs
@@ -84,6 +93,7 @@ pub fn run(args: &BatchArgs) -> Result<()> {
     };
     let (totals, runs) = run_batch(&spec, &|done, _| bar.set(done as u64))?;
     bar.finish();
+    println!("mirror: {}", mirror.fidelity);
     if let Some(path) = &args.json {
         let mut text = String::new();
         for r in &runs {

@@ -15,7 +15,7 @@ use controller::clip::Reference;
 use controller::generator::{Generator, GeneratorOptions, GeneratorSummary, GeneratorWorker};
 use controller::player::{PlayOptions, PlaySummary, Player};
 use controller::reference::ReferenceSource;
-use controller::sim::{lockstep_player, wired_player};
+use controller::sim::{direct_player, lockstep_player, wired_player};
 use controller::telemetry::{Backpressure, TelemetrySink};
 use policy::PolicyLayout;
 use robot_link::RobotLink;
@@ -38,6 +38,13 @@ pub struct PlayArgs {
     /// Hold the mirrored robot on a gantry.
     #[arg(help_heading = "Where it runs", long)]
     gantry: bool,
+    /// How much of the robot the mirror is (default: the --mirror file's `fidelity`, else wires):
+    /// wires — every device's firmware behind its bus protocol, the host's real drivers; direct —
+    /// each joint's command applied to MuJoCo as the trainer's actuator law (robot.toml
+    /// [[actuators]], explicit PD within the torque limit where none is given), no buses: the
+    /// physics floor, for validating motion libraries. Lockstep only.
+    #[arg(help_heading = "Where it runs", long, value_enum, conflicts_with = "hardware")]
+    fidelity: Option<crate::args::FidelityArg>,
     /// Play a clip that `check` refuses (the robot could not follow it: floor penetrated, feet
     /// that cannot carry it, torques beyond the motors), saying why; the reason is recorded in
     /// the run. Without it `play` refuses what `check` refuses.
@@ -1326,6 +1333,17 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         None => sim2real::config::MirrorConfig::default(),
     };
     config.gantry |= args.gantry;
+    if let Some(f) = args.fidelity {
+        config.fidelity = f.into();
+    }
+    let direct = config.fidelity == sim2real::config::Fidelity::Direct;
+    if direct && args.wall {
+        return Err(FlagError::new(
+            "wall",
+            ": a mirror of direct fidelity has no wires to run in real time behind (drop --fidelity direct or the mirror file's fidelity = \"direct\")",
+        )
+        .into());
+    }
     if let Some(m) = world_terms_note(&l.layout, &l.robot, options.estimator) {
         eprintln!("note: {m}");
     }
@@ -1350,6 +1368,8 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         what_plays(&l),
         if args.wall {
             format!(" in real time over {wires}")
+        } else if direct {
+            " in lockstep, direct: the trainer's actuator law on MuJoCo, no buses".to_owned()
         } else {
             " in lockstep".to_owned()
         }
@@ -1379,15 +1399,22 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
             (finite && generator.is_none())
                 .then(|| l.reference.len() as u64 + (seconds * l.layout.manifest.rate_hz).round() as u64)
         });
-        let (player, mut clock, _world) =
-            lockstep_player(l.robot, l.layout, l.reference, options, config, stop)?;
-        let player = with_estop(player, args, &options, &l.source, reader)?;
         let ticks = Arc::new(std::sync::atomic::AtomicU64::new(0));
         let _progress = crate::console::Watch::start(
             Arc::clone(&ticks),
             crate::console::Progress::new("play", "ticks", total),
         );
-        run_with(player.with_progress(ticks), &mut clock, generator)?
+        if direct {
+            let (player, mut clock, _world) =
+                direct_player(l.robot, l.layout, l.reference, options, config, stop)?;
+            let player = with_estop(player, args, &options, &l.source, reader)?;
+            run_with(player.with_progress(ticks), &mut clock, generator)?
+        } else {
+            let (player, mut clock, _world) =
+                lockstep_player(l.robot, l.layout, l.reference, options, config, stop)?;
+            let player = with_estop(player, args, &options, &l.source, reader)?;
+            run_with(player.with_progress(ticks), &mut clock, generator)?
+        }
     };
     let mut summary = summary;
     summary.command_sources = command_source.map(|s| s.stats.to_string());

@@ -1,10 +1,12 @@
-//! Runs of the loop on the mirror: in lockstep, or served in real time over real wires.
+//! Runs of the loop on the mirror: in lockstep, served in real time over real wires, or direct
+//! (the trainer's actuator law on MuJoCo, no buses).
 
 use std::sync::{Arc, Mutex};
 
 use robots::Robot;
 use sim2real::link::{
-    LockstepClock, LockstepRobot, ServedClock, WiredRobot, lockstep_robot, serve_locally, wired_robot_with,
+    DirectRobot, LockstepClock, LockstepRobot, ServedClock, WiredRobot, direct_robot, lockstep_robot,
+    serve_locally, wired_robot_with,
 };
 use sim2real::mirror::Mirror;
 use sim2real::serve::ServedMirror;
@@ -37,6 +39,51 @@ pub fn lockstep_player(
         player = player.with_harness_hoist(h);
     }
     Ok((player, LockstepClock::new(Arc::clone(&world)), world))
+}
+
+/// A direct run: the player on a direct mirror, the mirror's clock, the mirror.
+pub type DirectRun = (crate::player::Player<DirectRobot>, LockstepClock, Arc<Mutex<Mirror>>);
+
+/// A run on a mirror of direct fidelity (the trainer's actuator law on MuJoCo, no buses), in
+/// lockstep: `mirror.fidelity` is set to direct whatever it said.
+pub fn direct_player(
+    robot: Robot,
+    layout: policy::PolicyLayout,
+    reference: crate::clip::Reference,
+    options: crate::player::PlayOptions,
+    mirror: sim2real::config::MirrorConfig,
+    stop: Arc<std::sync::atomic::AtomicBool>,
+) -> Result<DirectRun, crate::player::PlayError> {
+    let mut mirror = for_run(mirror, &robot, &options, &reference);
+    mirror.fidelity = sim2real::config::Fidelity::Direct;
+    let world =
+        Mirror::new(robot.clone(), mirror).map_err(|e| crate::player::PlayError::Setup(e.to_string()))?;
+    let hoist = world.harness_hoist();
+    let world = Arc::new(Mutex::new(world));
+    let io = direct_robot(&robot, &world)?;
+    let mut player = crate::player::Player::new(robot, layout, reference, options, io, stop)?;
+    if let Some(h) = hoist {
+        player = player.with_harness_hoist(h);
+    }
+    Ok((player, LockstepClock::new(Arc::clone(&world)), world))
+}
+
+/// One lockstep run on the mirror `mirror.fidelity` names (wires or direct), start to end.
+pub fn run_on_mirror(
+    robot: Robot,
+    layout: policy::PolicyLayout,
+    reference: crate::clip::Reference,
+    options: crate::player::PlayOptions,
+    mirror: sim2real::config::MirrorConfig,
+    stop: Arc<std::sync::atomic::AtomicBool>,
+) -> Result<crate::metrics::PlaySummary, crate::player::PlayError> {
+    if mirror.fidelity == sim2real::config::Fidelity::Direct {
+        let (mut player, mut clock, _world) = direct_player(robot, layout, reference, options, mirror, stop)?;
+        player.run(&mut clock)
+    } else {
+        let (mut player, mut clock, _world) = lockstep_player(robot, layout, reference, options, mirror, stop)?;
+        player.run(&mut clock)
+    }
 }
 
 /// The mirror's settings for a run of `reference`: held until driven, in the harness for a
