@@ -209,6 +209,7 @@ fn watched(
             robot.mjcf_path.clone(),
             robot.config.joints.iter().map(|j| j.mjcf_joint.clone()).collect(),
         )),
+        model: robot.shared_model().ok(),
         commit: Some(env!("ROBODEPLOY_COMMIT").to_owned()),
         ..Default::default()
     };

@@ -579,6 +579,7 @@ impl<L: RobotLink> Player<L> {
                     .map(|j| j.mjcf_joint.clone())
                     .collect(),
             )),
+            model: self.robot.shared_model().ok(),
             bus_cycles: None,
             motion_bodies: bodies.to_vec(),
             anchor,

@@ -13,6 +13,8 @@ use std::path::Path;
 
 use foxglove::schemas as fg;
 use mujoco_rs::mujoco_c::_mjtGeomBase as G;
+use std::sync::Arc;
+
 use mujoco_rs::prelude::{MjData, MjModel};
 use robots::spatial;
 
@@ -36,7 +38,7 @@ pub enum Robot3dError {
 
 /// Forward kinematics of the recorded joints: each link's pose in its parent's frame.
 pub struct Links {
-    data: MjData<Box<MjModel>>,
+    data: MjData<Arc<MjModel>>,
     root_qpos: usize,
     joint_qpos: Vec<usize>,
     /// The world→root transform and one per link below the root, parent → child; poses
@@ -52,8 +54,17 @@ pub struct Links {
 impl Links {
     /// The links of `mjcf`, whose joints `joints` are in robot order; the root body is `root`.
     pub fn new(mjcf: &Path, joints: &[String], root: &str) -> Result<(Self, fg::SceneUpdate), Robot3dError> {
+        Self::of_model(mjcf, Arc::new(sim2real::mujoco::load_model(mjcf)?), joints, root)
+    }
+
+    /// [`Self::new`] on `model`, `mjcf` compiled already (a run's own model: not compiled twice).
+    pub fn of_model(
+        mjcf: &Path,
+        model: Arc<MjModel>,
+        joints: &[String],
+        root: &str,
+    ) -> Result<(Self, fg::SceneUpdate), Robot3dError> {
         use mujoco_rs::wrappers::mj_model::MjtObjBase;
-        let model = sim2real::mujoco::load_model(mjcf)?;
         let joints: Vec<&str> = joints.iter().map(String::as_str).collect();
         let index = sim2real::model_index::ModelIndex::new(&model, root, &joints, &[]).map_err(|source| {
             Robot3dError::Model {
@@ -82,7 +93,7 @@ impl Links {
         }
         let scene = scene(&model, root_body, &name);
         let links = Self {
-            data: MjData::new(Box::new(model)),
+            data: MjData::new(model),
             root_qpos,
             joint_qpos: index.joints.iter().map(|j| j.qpos).collect(),
             transforms: fg::FrameTransforms { transforms },

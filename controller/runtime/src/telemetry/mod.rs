@@ -449,6 +449,9 @@ pub struct RecordingInfo {
     /// every link's frame (`/tf`, forward kinematics of the measured joints) and the robot's
     /// geometry (`/robot`).
     pub kinematics: Option<(PathBuf, Vec<String>)>,
+    /// That MJCF as the run compiled it (`Robot::shared_model`), when it did: the logger's links
+    /// use it instead of compiling the model again.
+    pub model: Option<Arc<mujoco_rs::prelude::MjModel>>,
     /// Joints of each bus (robot indices), in the order of `bus_names`: with them the recording
     /// gets a `/bus/<name>` channel per bus for its cycles ([`TelemetrySink::push_cycle`]).
     pub bus_cycles: Option<Vec<Vec<usize>>>,
@@ -768,7 +771,12 @@ impl TelemetrySink {
         // The robot in 3D: its links' frames and its geometry, when the model is known.
         let mut robot = match &info.kinematics {
             Some((mjcf, joints)) => {
-                let (links, scene) = viewers::robot3d::Links::new(mjcf, joints, &info.root_frame)?;
+                let (links, scene) = match &info.model {
+                    Some(model) => {
+                        viewers::robot3d::Links::of_model(mjcf, model.clone(), joints, &info.root_frame)?
+                    }
+                    None => viewers::robot3d::Links::new(mjcf, joints, &info.root_frame)?,
+                };
                 let name = mjcf
                     .file_stem()
                     .map_or_else(|| "robot".into(), |s| s.to_string_lossy());
