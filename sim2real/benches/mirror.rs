@@ -11,6 +11,8 @@
 //!    without control falls in a heap whose contacts cost another amount of solver time) — what
 //!    the mirror adds to the physics.
 //!
+//!    The same on a direct mirror (`Fidelity::Direct`: the commands on MuJoCo, no buses).
+//!
 //! Run: `cargo bench -p sim2real --bench mirror`
 
 use std::time::{Duration, Instant};
@@ -123,6 +125,50 @@ fn mirrored(robot: &Robot, seconds: f64) -> Shares {
     }
 }
 
+/// The same, on a direct mirror (no buses): each tick the pose as a PD command with robot.toml's
+/// gains, the state read back.
+fn direct(robot: &Robot, seconds: f64) -> Shares {
+    use firmware_bridge::time::SimWorld;
+    let config = MirrorConfig {
+        fidelity: sim2real::config::Fidelity::Direct,
+        ..MirrorConfig::default()
+    };
+    let mut world = sim2real::mirror::Mirror::new(robot.clone(), config).unwrap();
+    let targets: Vec<robot_link::JointTarget> = robot
+        .config
+        .joints
+        .iter()
+        .map(|j| robot_link::JointTarget {
+            q: j.default_position,
+            kp: j.kp,
+            kd: j.kd,
+            enabled: true,
+            ..robot_link::JointTarget::default()
+        })
+        .collect();
+    let mut state = robot_link::RobotState::new(targets.len());
+    let tick = Duration::from_millis(20);
+    let ticks = (seconds / tick.as_secs_f64()).round() as u32;
+    let start = world.now();
+    let before = world.stats();
+    let wall = Instant::now();
+    for k in 1..=ticks {
+        world.command_directly(&targets);
+        while world.now() < start + tick * k {
+            world.step_until(start + tick * k);
+        }
+        world.read_directly(&mut state);
+    }
+    let took = wall.elapsed();
+    let after = world.stats();
+    Shares {
+        wall: took,
+        physics: after.physics - before.physics,
+        mirror: (after.busy - before.busy) - (after.physics - before.physics),
+        steps: after.physics_steps - before.physics_steps,
+    }
+}
+
 fn main() {
     let quick = !std::env::args().any(|a| a == "--bench");
     robots_against_bare_physics(if quick { 1.0 } else { 20.0 });
@@ -167,10 +213,13 @@ fn robots_against_bare_physics(seconds: f64) {
         };
         let per_step = |took: Duration, steps: u64| took.as_secs_f64() * 1e6 / steps as f64;
         let mut per_bare = f64::INFINITY;
+        let mut per_direct = f64::INFINITY;
         let mut best: Option<Shares> = None;
         for _ in 0..ROUNDS {
             let (took, steps) = bare(&robot, seconds / ROUNDS as f64);
             per_bare = per_bare.min(per_step(took, steps));
+            let d = direct(&robot, seconds / ROUNDS as f64);
+            per_direct = per_direct.min(per_step(d.wall, d.steps));
             let m = mirrored(&robot, seconds / ROUNDS as f64);
             if best
                 .as_ref()
@@ -184,11 +233,12 @@ fn robots_against_bare_physics(seconds: f64) {
         let (physics, mirror) = (per_step(m.physics, m.steps), per_step(m.mirror, m.steps));
         println!(
             "{:>10} {:>8} {per_bare:>16.1} {per_mirror:>18.1} {:>7.2}×   of which MuJoCo {physics:.1}, \
-             firmware and wires {mirror:.1}, host {:.1} µs/step",
+             firmware and wires {mirror:.1}, host {:.1} µs/step; direct {per_direct:.1} µs/step ({:.2}×)",
             robot.config.name,
             robot.model().unwrap().opt().timestep * 1000.0,
             per_mirror / per_bare,
             per_mirror - physics - mirror,
+            per_direct / per_bare,
         );
     }
 }
