@@ -80,8 +80,20 @@ pub struct ActuatorGroup {
     pub velocity_limit: Option<f64>,
     /// Actuation delay, whole physics steps, drawn per run from `[min, max]` (0–100): the command
     /// acts this many steps after it arrived (Isaac Lab's delayed PD).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "min_max")]
     pub delay_steps: Option<[u32; 2]>,
+}
+
+/// A `[min, max]` pair, exactly two values (TOML's reader would drop a third silently).
+fn min_max<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Option<[u32; 2]>, D::Error> {
+    let values = <Vec<u32> as serde::Deserialize>::deserialize(d)?;
+    match values[..] {
+        [lo, hi] => Ok(Some([lo, hi])),
+        _ => Err(serde::de::Error::custom(format!(
+            "delay_steps: expected [min, max], got {} value(s): {values:?}",
+            values.len()
+        ))),
+    }
 }
 
 /// One joint's actuator after every `[[actuators]]` entry.
@@ -253,6 +265,30 @@ impl ActuatorGroup {
                     format!(
                         "dc_motor for joint {} needs saturation_effort and velocity_limit",
                         j.name
+                    ),
+                ));
+            }
+            if a.model != ActuatorModel::DcMotor
+                && let Some(field) = [
+                    ("saturation_effort", a.saturation_effort),
+                    ("velocity_limit", a.velocity_limit),
+                ]
+                .iter()
+                .find_map(|(f, v)| v.map(|_| *f))
+            {
+                let last = config.actuators.iter().rposition(|g| {
+                    g.joints.iter().any(|p| matches_pattern(p, &j.name))
+                        && match field {
+                            "saturation_effort" => g.saturation_effort.is_some(),
+                            _ => g.velocity_limit.is_some(),
+                        }
+                });
+                return Err((
+                    format!("actuators[{}].{field}", last.unwrap_or(0)),
+                    format!(
+                        "joint {}: only dc_motor has a torque–speed line, and its law is {}",
+                        j.name,
+                        a.model.name()
                     ),
                 ));
             }

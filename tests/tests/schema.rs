@@ -11,7 +11,7 @@ use test_support::fixtures::{venv_python, workspace_root};
 /// Writes the schema of `of` into `dir` and returns its path.
 fn schema_file(of: &str, dir: &Path) -> PathBuf {
     let path = dir.join(format!("{of}.schema.json"));
-    let (ok, _, stderr) = run(&["schema", of, "--out", path.to_str().unwrap()]);
+    let (ok, _, stderr) = run(&["schema", of, "--out", path.to_str().unwrap(), "--overwrite"]);
     assert!(ok, "schema {of}: {stderr}");
     path
 }
@@ -149,4 +149,20 @@ fn the_reference_pages_name_every_table_of_the_schema() {
             assert!(page.contains(&format!("| `{field}` |")), "{of}: {field}");
         }
     }
+}
+
+#[test]
+fn a_schema_is_not_written_over_an_existing_file_unless_asked() {
+    let dir = scratch("overwrite");
+    let robot = dir.join("robot.toml");
+    std::fs::write(&robot, "name = \"mine\"\n").unwrap();
+    let (code, out, err) =
+        test_support::bin::run_within(&["schema", "robot", "--out", robot.to_str().unwrap()], std::time::Duration::from_secs(120));
+    assert_eq!(code, Some(2), "{out}{err}");
+    assert!(err.contains("--out") && err.contains("--overwrite"), "{err}");
+    assert_eq!(std::fs::read_to_string(&robot).unwrap(), "name = \"mine\"\n");
+    let (ok, _, err) = run(&["schema", "robot", "--out", robot.to_str().unwrap(), "--overwrite"]);
+    assert!(ok, "{err}");
+    assert!(std::fs::read_to_string(&robot).unwrap().contains("\"$schema\""));
+    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -186,6 +186,19 @@ fn bad_joint_dynamics_and_physics_are_refused_by_field_and_nothing_moves() {
             "actuators[0].delay_steps: [3, 1] is not a range within [0, 100] steps",
         ),
         (
+            "[[actuators]]\njoints = [\"*knee\"]\nmodel = \"explicit_pd\"\ndelay_steps = [1, 2, 3]\n",
+            "delay_steps: expected [min, max], got 3 value(s): [1, 2, 3]",
+        ),
+        (
+            "[[actuators]]\njoints = [\"*knee\"]\nmodel = \"explicit_pd\"\nsaturation_effort = 20.0\n",
+            "actuators[0].saturation_effort: joint left_knee: only dc_motor has a torque–speed line, and its law is explicit_pd",
+        ),
+        (
+            "[[actuators]]\njoints = [\"*knee\"]\nmodel = \"dc_motor\"\nsaturation_effort = 60.0\nvelocity_limit = 20.0\n\n\
+             [[actuators]]\njoints = [\"left_knee\"]\nmodel = \"implicit_pd\"\n",
+            "actuators[0].saturation_effort: joint left_knee: only dc_motor has a torque–speed line, and its law is implicit_pd",
+        ),
+        (
             "[[actuators]]\njoints = [\"*knee\"]\nmodel = \"explicit_pd\"\neffort_limit = -1.0\n",
             "actuators[0].effort_limit: -1 N·m is outside [0, 10000]",
         ),

@@ -51,9 +51,13 @@ pub struct SchemaArgs {
     /// JSON Schema, or the Markdown reference the user guide carries.
     #[arg(long, value_enum, default_value_t)]
     pub format: SchemaFormat,
-    /// Write here instead of standard output.
+    /// Write here instead of standard output (a new file, or an existing one with --overwrite).
     #[arg(long, value_name = "FILE")]
     pub out: Option<PathBuf>,
+    /// Replace --out's file where it exists (it is refused otherwise: `--out robot.toml` would
+    /// put a schema where the robot's description was).
+    #[arg(long, requires = "out")]
+    pub overwrite: bool,
 }
 
 /// The schema of `of` as JSON.
@@ -88,6 +92,14 @@ pub fn run(args: &SchemaArgs) -> Result<()> {
         SchemaFormat::Markdown => markdown(args.of, &schema),
     };
     match &args.out {
+        Some(path) if path.exists() && !args.overwrite => Err(crate::args::FlagError::new(
+            "out",
+            format!(
+                " {}: the file exists; --overwrite replaces it",
+                path.display()
+            ),
+        )
+        .into()),
         Some(path) => std::fs::write(path, text).with_context(|| format!("writing {}", path.display())),
         None => {
             std::io::Write::write_all(&mut std::io::stdout(), text.as_bytes()).context("writing the schema")
