@@ -733,6 +733,18 @@ impl<L: RobotLink> Player<L> {
             let p = self.world.truth.root_pose;
             self.metrics.fell |= in_control && tilt_of([p[3], p[4], p[5], p[6]]) > self.options.limits.tilt;
         }
+        // The operator's word counts once the robot is down: one that comes while the harness
+        // still lowers it is dropped (and said), so it cannot release the motion later.
+        if self.harness_phase() == HarnessPhase::Lowering
+            && let Some(f) = &self.lifecycle.lowered
+            && f.swap(false, Ordering::Relaxed)
+        {
+            tracing::warn!(
+                tick = self.tick,
+                "the operator's word that the robot stands came while the harness was still \
+                 lowering it: ignored; say it again once the robot stands"
+            );
+        }
         // The harness holds the robot while it lowers it (and until the operator's word).
         let rig_holds = matches!(
             self.harness_phase(),
