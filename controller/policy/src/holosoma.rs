@@ -62,6 +62,19 @@ fn numbers(v: &Value, place: &str, n: usize) -> Result<Vec<f64>, Problem> {
     }
 }
 
+/// A yes/no of the training configuration, absent = no; anything but true or false is refused
+/// (a "yes" read as false would silently change the actions).
+fn flag(config: &Value, path: &str) -> Result<bool, Problem> {
+    match path.split('/').try_fold(config, |v, k| v.get(k)) {
+        None | Some(Value::Null) => Ok(false),
+        Some(Value::Bool(b)) => Ok(*b),
+        Some(v) => Err((
+            format!("ONNX metadata experiment_config {path}"),
+            format!("{v} is not true or false"),
+        )),
+    }
+}
+
 fn number(v: &Value, place: &str) -> Result<f64, Problem> {
     v.as_f64()
         .filter(|x| x.is_finite())
@@ -231,9 +244,8 @@ pub fn fill(m: &mut PolicyManifest, meta: &Metadata<'_>, has_time_step: bool) ->
                     at(control, "action_scale")?,
                     "experiment_config robot/control/action_scale",
                 )?;
-                let by_effort = at(control, "action_scales_by_effort_limit_over_p_gain")?
-                    .as_bool()
-                    .unwrap_or(false);
+                at(control, "action_scales_by_effort_limit_over_p_gain")?;
+                let by_effort = flag(config, "robot/control/action_scales_by_effort_limit_over_p_gain")?;
                 if by_effort {
                     let effort = numbers(
                         at(config, "robot/dof_effort_limit_list")?,
@@ -262,7 +274,7 @@ pub fn fill(m: &mut PolicyManifest, meta: &Metadata<'_>, has_time_step: bool) ->
     if m.action.clip.is_none()
         && let Some(config) = &config
         && let Ok(control) = at(config, "robot/control")
-        && control.get("clip_actions").and_then(Value::as_bool) == Some(true)
+        && flag(config, "robot/control/clip_actions")?
     {
         m.action.clip = Some(number(
             at(control, "action_clip_value")?,
@@ -432,6 +444,20 @@ mod tests {
         );
         let (place, _) = filled(Some(&config)).unwrap_err();
         assert!(place.ends_with("terms/dof_pos/clip"), "{place}");
+        // A yes/no that is neither is refused, not read as no.
+        let config = CONFIG.replace(
+            "\"action_scales_by_effort_limit_over_p_gain\": true",
+            "\"action_scales_by_effort_limit_over_p_gain\": \"yes\"",
+        );
+        assert_ne!(config, CONFIG);
+        let (place, message) = filled(Some(&config)).unwrap_err();
+        assert_eq!(
+            (place.as_str(), message.as_str()),
+            (
+                "ONNX metadata experiment_config robot/control/action_scales_by_effort_limit_over_p_gain",
+                "\"yes\" is not true or false"
+            )
+        );
         let config = CONFIG.replace("x.wbt:dof_vel", "x.wbt:feet_air_time");
         let (place, message) = filled(Some(&config)).unwrap_err();
         assert!(
