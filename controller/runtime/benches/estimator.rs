@@ -79,6 +79,44 @@ fn compute_per_tick(filter: FilterKind) -> Summary {
     Summary::of(&mut samples).unwrap()
 }
 
+/// The world stage's work per tick on `robot`'s own model, timed: the kinematics posed from
+/// joints moving about the default pose, every foot's place, contact point and load (the legs'
+/// Jacobians), and the estimator (4 IMU samples and the legs' correction), as the loop runs it.
+fn world_per_tick(robot: &Robot, filter: FilterKind) -> Summary {
+    let mut k = world::RobotKinematics::new(robot, None, &[]).unwrap();
+    let config = EstimatorConfig {
+        filter,
+        ..robot.config.estimator
+    };
+    let feet = k.feet().min(world::estimator::MAX_FEET);
+    let mut e = Estimator::new(config, feet, k.gravity(), k.weight(), 200.0);
+    let pose: Vec<f64> = robot.config.joints.iter().map(|j| j.default_position).collect();
+    let (mut q, qd, tau) = (pose.clone(), vec![0.1; pose.len()], vec![1.0; pose.len()]);
+    let mut samples = Vec::with_capacity(10_000);
+    for tick in 0..11_000u64 {
+        for (i, (x, p)) in q.iter_mut().zip(&pose).enumerate() {
+            *x = p + 0.05 * (tick as f64 * 0.1 + i as f64).sin();
+        }
+        let t0 = Instant::now();
+        k.update([1.0, 0.0, 0.0, 0.0], &q, &qd, None);
+        for s in 0..4 {
+            e.propagate(&robot_link::ImuSample {
+                gyro: [0.001, -0.002, 0.0],
+                accel: [0.05, -0.02, 9.81],
+                quat: [1.0, 0.0, 0.0, 0.0],
+                at: std::time::Duration::from_micros(5_000 * (4 * tick + s)),
+            });
+        }
+        let legs = k.legs(&tau);
+        let estimate = e.correct(&legs, true);
+        if tick >= 1000 {
+            samples.push(t0.elapsed());
+        }
+        std::hint::black_box(estimate);
+    }
+    Summary::of(&mut samples).unwrap()
+}
+
 /// One command-driven run of `robot`'s `policy` from its own start (a harness for the humanoids):
 /// `command` (the manifest's order) for `seconds`, pushed sideways at a third and two thirds of
 /// the run when `pushed` (0.1 s at half the robot's weight: 0.5 m/s sideways for its mass).
@@ -158,6 +196,13 @@ fn walking_robots(quick: bool, filters: &[FilterKind]) {
     for robot in ZooRobot::ALL {
         let paths = (robot.write(&zoo), ZooRobot::walking_policy());
         robots.push((robot.name().into(), paths, Some(vec![0.2])));
+    }
+    println!("\nthe world stage per tick on each robot's own model (kinematics, legs, estimator):");
+    for (robot, (robot_toml, _), _) in &robots {
+        let loaded = Robot::load(robot_toml).unwrap();
+        for &filter in filters {
+            println!("{robot:<14} {:<10} {}", filter_name(filter), world_per_tick(&loaded, filter));
+        }
     }
     for (robot, (robot_toml, policy), walking) in robots {
         let still = vec![0.0; walking.as_ref().map_or(3, Vec::len)];

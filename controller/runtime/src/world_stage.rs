@@ -5,7 +5,7 @@
 use robot_link::{GroundTruth, RobotState};
 use robots::spatial;
 use world::RobotKinematics;
-use world::estimator::{Estimate, Estimator, LegKinematics, MAX_FEET};
+use world::estimator::{Estimate, Estimator, MAX_FEET};
 
 use crate::keypoints::track::KeypointTrack;
 use crate::metrics::RunMetrics;
@@ -70,14 +70,7 @@ impl WorldStage {
             for sample in &state.imu_samples {
                 e.propagate(sample);
             }
-            let mut legs = LegKinematics::default();
-            for f in 0..k.feet().min(MAX_FEET) {
-                legs.position[f] = k.foot_in_root(f);
-                (legs.contact[f], legs.contact_velocity[f]) = k.foot_contact(f);
-                legs.sole_depth[f] = k.sole_depth(f);
-                legs.load[f] = k.foot_load(f, legs.contact[f], &state.tau);
-                legs.leg_weight[f] = k.leg_weight(f);
-            }
+            let mut legs = k.legs(&state.tau);
             // Foot switches where the robot has them (robot.toml [[contacts]], one per foot).
             if state.foot_switches.len() == k.feet() && k.feet() <= MAX_FEET {
                 let mut switches = [false; MAX_FEET];

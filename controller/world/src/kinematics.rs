@@ -329,6 +329,21 @@ impl RobotKinematics {
         spatial::quat_rotate(self.root_rotation, f)[2]
     }
 
+    /// What the estimator takes from the legs this tick (every foot's place, contact point and
+    /// its speed, sole depth, load from the joint torques `tau` (robot order), leg weight), as
+    /// posed by [`Self::update`]; no foot switches.
+    pub fn legs(&mut self, tau: &[f64]) -> crate::estimator::LegKinematics {
+        let mut legs = crate::estimator::LegKinematics::default();
+        for f in 0..self.feet().min(crate::estimator::MAX_FEET) {
+            legs.position[f] = self.foot_in_root(f);
+            (legs.contact[f], legs.contact_velocity[f]) = self.foot_contact(f);
+            legs.sole_depth[f] = self.sole_depth(f);
+            legs.load[f] = self.foot_load(f, legs.contact[f], tau);
+            legs.leg_weight[f] = self.leg_weight(f);
+        }
+        legs
+    }
+
     /// Leg `k`'s weight (hip to toe), N: what a swinging leg's own dynamics can make its load
     /// read, the scale of the contact thresholds.
     pub fn leg_weight(&self, k: usize) -> f64 {
