@@ -152,6 +152,17 @@ fn clips_with_huge_gaps_durations_or_twice_named_joints_are_refused() {
         let path = clip(&dir, name, |rows, _| rows[2][0] = time.into());
         refused(&args(&[&"check", &"--clip", &path]), needle);
     }
+    // A root 1e300 m away in every row, a joint at 1e30 rad: refused by column, not played
+    // with "inf cm" errors.
+    let far = clip(&dir, "far", |rows, _| {
+        for r in rows.iter_mut() {
+            r[1] = "1e300".into();
+        }
+    });
+    refused(&args(&[&"check", &"--clip", &far]), "root_x = 1e300 m is outside ±10000 m");
+    refused(&args(&[&"play", &"--clip", &far, &"--no-record"]), "root_x = 1e300 m is outside ±10000 m");
+    let wound = clip(&dir, "wound", |rows, _| rows[2][9] = "1e30".into());
+    refused(&args(&[&"check", &"--clip", &wound]), "rad is outside ±100 rad");
     let twice = clip(&dir, "twice", |rows, header| {
         header.push(header[8].clone());
         for r in rows.iter_mut() {

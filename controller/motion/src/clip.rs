@@ -538,6 +538,26 @@ impl Clip {
                     ),
                 ));
             }
+            if let Some((name, x)) = cols[1..4]
+                .iter()
+                .zip(&row[1..4])
+                .find(|(_, x)| x.abs() > MAX_ROOT_M)
+            {
+                return Err(err(
+                    place(),
+                    format!("{name} = {} m is outside ±{MAX_ROOT_M} m", robots::num(*x)),
+                ));
+            }
+            if let Some((name, x)) = cols[ROOT_COLUMNS.len()..]
+                .iter()
+                .zip(&row[ROOT_COLUMNS.len()..])
+                .find(|(_, x)| x.abs() > MAX_JOINT_RAD)
+            {
+                return Err(err(
+                    place(),
+                    format!("{name} = {} rad is outside ±{MAX_JOINT_RAD} rad", robots::num(*x)),
+                ));
+            }
             let quat = [row[4], row[5], row[6], row[7]];
             let norm = quat.iter().map(|x| x * x).sum::<f64>().sqrt();
             if (norm - 1.0).abs() > 1e-3 {
@@ -630,6 +650,12 @@ pub fn root_velocity(a: [f64; 7], b: [f64; 7], dt: f64) -> ([f64; 3], [f64; 3]) 
 
 /// Longest clip, s (an hour; longer programs are several clips).
 pub const MAX_CLIP_S: f64 = 3600.0;
+
+/// How far from the clip's origin its root may go, m: a motion capture volume, or an hour's walk.
+pub const MAX_ROOT_M: f64 = 10_000.0;
+
+/// The largest joint angle a clip may hold, rad (the joint's own range is `check`'s business).
+pub const MAX_JOINT_RAD: f64 = 100.0;
 
 /// Largest time between two frames of a clip, s.
 pub const MAX_FRAME_GAP_S: f64 = 10.0;
