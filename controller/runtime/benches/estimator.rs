@@ -170,18 +170,6 @@ type WalkingRobot = (String, (PathBuf, PathBuf), Option<Vec<f64>>);
 
 fn walking_robots(quick: bool, filters: &[FilterKind]) {
     let (seeds, seconds) = if quick { (1, 6.0) } else { (3, 20.0) };
-    println!(
-        "\nwalking robots on their own policies, randomised mirror, {seeds} seeds × {seconds} s (median / worst):\n\
-         {:<14} {:<20} {:<10} {:>9} {:>16} {:>16} {:>18} {:>16}",
-        "robot",
-        "scenario",
-        "filter",
-        "walked m",
-        "vel RMSE m/s",
-        "height RMSE mm",
-        "drift % (cm)",
-        "contacts %"
-    );
     let shipped = |robot: &str, policy: &str| {
         let dir = test_support::fixtures::workspace_root().join("robots").join(robot);
         (dir.join("robot.toml"), dir.join("policies").join(policy))
@@ -204,6 +192,18 @@ fn walking_robots(quick: bool, filters: &[FilterKind]) {
             println!("{robot:<14} {:<10} {}", filter_name(filter), world_per_tick(&loaded, filter));
         }
     }
+    println!(
+        "\nwalking robots on their own policies, randomised mirror, {seeds} seeds × {seconds} s (median / worst):\n\
+         {:<14} {:<20} {:<10} {:>9} {:>16} {:>16} {:>18} {:>16}",
+        "robot",
+        "scenario",
+        "filter",
+        "walked m",
+        "vel RMSE m/s",
+        "height RMSE mm",
+        "drift % (cm)",
+        "contacts %"
+    );
     for (robot, (robot_toml, policy), walking) in robots {
         let still = vec![0.0; walking.as_ref().map_or(3, Vec::len)];
         let mut scenarios = vec![("standing", still.clone(), false), ("standing, pushed", still, true)];
