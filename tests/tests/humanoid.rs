@@ -282,6 +282,10 @@ fn a_walking_or_dancing_robot_stopped_mid_run_stays_standing_or_is_let_go() {
                 end < height - 0.03,
                 "{on_stop:?}: a damped humanoid folds up ({end:.3} m)"
             );
+            // Not a fall, but said: how far it sank once let go.
+            let after = s.after_control.expect("watched after control ended");
+            assert!(after.sank() > 0.03, "{on_stop:?}: {after:?}");
+            assert!(s.to_string().contains("after control ended ("), "{s}");
         }
         if on_stop == OnStop::Harness {
             let load = world.lock().unwrap().harness_load().unwrap();

@@ -37,6 +37,8 @@ pub struct PlaySummary {
     /// The robot's model has a floor (without one a robot falls through the world upright, and
     /// neither `fell` nor the root's errors say anything).
     pub floor: bool,
+    /// What the robot did once the run had handed it over (damped, or let go), in simulation.
+    pub after_control: Option<AfterControl>,
     /// Policy ticks where the governor changed a command (limit, speed or torque saturation).
     pub limited_ticks: u64,
     /// Policy ticks the governor saw.
@@ -144,6 +146,16 @@ impl std::fmt::Display for PlaySummary {
         }
         if self.floor {
             writeln!(f, "fell: {}", if self.fell { "YES" } else { "no" })?;
+            if let Some(a) = &self.after_control {
+                writeln!(
+                    f,
+                    "after control ended ({:.2} s watched, not counted as a fall): the base sank {:.1} cm \
+                     and tilted up to {:.0}°",
+                    a.ticks as f64 * self.duration_s / self.ticks.max(1) as f64,
+                    100.0 * a.sank(),
+                    a.max_tilt.to_degrees()
+                )?;
+            }
         } else {
             writeln!(
                 f,
@@ -215,6 +227,27 @@ impl std::fmt::Display for PlaySummary {
 }
 
 /// How a run ended. Exit statuses and reports go by it.
+/// The robot after the run had handed it over (the damping at its end, or a damped stop): no
+/// fall is counted there, so the run says what happened instead.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AfterControl {
+    /// The base's height on the last tick under control, m.
+    pub handed_over_at: f64,
+    /// The lowest the base went afterwards, m.
+    pub lowest: f64,
+    /// The most the base tilted afterwards, rad.
+    pub max_tilt: f64,
+    /// Ticks watched after control ended.
+    pub ticks: u64,
+}
+
+impl AfterControl {
+    /// How far the base sank after control ended, m.
+    pub fn sank(&self) -> f64 {
+        (self.handed_over_at - self.lowest).max(0.0)
+    }
+}
+
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum RunOutcome {
     /// The reference played to its end (or the tick budget ran out) without a fault.
@@ -607,6 +640,8 @@ pub struct RunMetrics {
     pub governed_ticks: u64,
     /// The base tilted beyond the limit at some point.
     pub fell: bool,
+    /// The robot after the run handed it over (simulation).
+    pub after_control: Option<AfterControl>,
     /// Compute per tick.
     pub compute: Histogram,
     /// Bus I/O per tick.
@@ -721,6 +756,7 @@ impl RunMetrics {
                 .then(|| (self.sq_root_error / self.root_samples as f64).sqrt()),
             fell: self.fell,
             floor: true,
+            after_control: self.after_control,
             limited_ticks: self.limited_ticks,
             governed_ticks: self.governed_ticks,
             transitions: transitions.to_vec(),

@@ -18,7 +18,7 @@ use crate::action::ActionMapper;
 use crate::clip::Reference;
 use crate::keypoints::track::KeypointTrack;
 use crate::lifecycle::{Lifecycle, Machine};
-use crate::metrics::RunMetrics;
+use crate::metrics::{AfterControl, RunMetrics};
 pub use crate::metrics::{Histogram, PlaySummary};
 use crate::motion::{Alignment, EmbeddedMotion};
 use crate::options::EstimatorKind;
@@ -43,6 +43,8 @@ pub struct Player<L: RobotLink> {
     dt: f64,
     tick: u64,
     metrics: RunMetrics,
+    /// The base's height on the last tick the run had the robot under control (simulation).
+    last_controlled_height: Option<f64>,
     /// What the robot reported this tick and what it is commanded (robot order).
     state: RobotState,
     targets: Vec<JointTarget>,
@@ -358,6 +360,7 @@ impl<L: RobotLink> Player<L> {
             },
             dt,
             metrics,
+            last_controlled_height: None,
             options,
             io,
             tick: 0,
@@ -731,7 +734,22 @@ impl<L: RobotLink> Player<L> {
                 Mode::SoftStart | Mode::Running | Mode::Stopping
             );
             let p = self.world.truth.root_pose;
-            self.metrics.fell |= in_control && tilt_of([p[3], p[4], p[5], p[6]]) > self.options.limits.tilt;
+            let tilt = tilt_of([p[3], p[4], p[5], p[6]]);
+            self.metrics.fell |= in_control && tilt > self.options.limits.tilt;
+            // Handed over (damped, let go): watched and said, not counted.
+            if in_control {
+                self.last_controlled_height = Some(p[2]);
+            } else if let Some(height) = self.last_controlled_height {
+                let a = self.metrics.after_control.get_or_insert(AfterControl {
+                    handed_over_at: height,
+                    lowest: p[2],
+                    max_tilt: tilt,
+                    ticks: 0,
+                });
+                a.lowest = a.lowest.min(p[2]);
+                a.max_tilt = a.max_tilt.max(tilt);
+                a.ticks += 1;
+            }
         }
         // The operator's word counts once the robot is down: one that comes while the harness
         // still lowers it is dropped (and said), so it cannot release the motion later.
