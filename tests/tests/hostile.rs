@@ -390,6 +390,23 @@ fn flags_with_absurd_values_are_refused_by_name() {
             args(&[&"play", &"--stand-for", &"3"]),
             "--stand-for: only with --on-stop stay",
         ),
+        (
+            args(&[&"play", &"--ros2=robodeploy-no-such-if0"]),
+            "--ros2: network interface \"robodeploy-no-such-if0\" does not exist",
+        ),
+        (
+            args(&[
+                &"play",
+                &"--no-record",
+                &"--start",
+                &"harness",
+                &"--estop-udp",
+                &"127.0.0.1:9911",
+                &"--lowered-udp",
+                &"127.0.0.1:9911",
+            ]),
+            "--lowered-udp 127.0.0.1:9911 is --estop-udp's address too",
+        ),
         // The harness start robot.toml asks for, named as such (no --start was given).
         (
             args(&[

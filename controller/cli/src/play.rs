@@ -1214,6 +1214,20 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         Some(s) => return Err(FlagError::new("max-seconds", format!(" {s} is not a duration")).into()),
         None => None,
     };
+    if let Some(iface) = &args.rec.ros2
+        && let Err(e) = dds::interface_addresses(iface)
+    {
+        return Err(FlagError::new("ros2", format!(": {e}")).into());
+    }
+    if let (Some(estop), Some(lowered)) = (args.estop_udp, args.lowered_udp)
+        && estop == lowered
+    {
+        return Err(FlagError::new(
+            "lowered-udp",
+            format!(" {lowered} is --estop-udp's address too: each listens on a port of its own"),
+        )
+        .into());
+    }
     if args.stand_for.is_some() && args.on_stop != crate::args::OnStopArg::Stay {
         let on_stop = clap::ValueEnum::to_possible_value(&args.on_stop)
             .map_or_else(String::new, |v| v.get_name().to_owned());
