@@ -14,7 +14,7 @@ use crate::mit::codec::{MitCommand, MotorFault};
 use crate::mit::firmware::{InjectedFaults, MitFirmwareConfig, MitMotorFirmware};
 use crate::time::SimInstant;
 
-use super::hg::{ImuState, LowCmd, LowState, Sealed as _};
+use super::hg::{ImuState, LowCmd, LowState, MotorCmd, Sealed as _};
 
 /// Unitree's motor status bits (`MotorState_::motorstate`), as the G1's documentation lists them.
 pub mod motor_bits {
@@ -65,6 +65,9 @@ pub enum CommandVerdict {
     BadCrc,
     /// Not a `LowCmd`: ignored.
     Malformed,
+    /// A right CRC, but a motor with torque on was sent a value that is not a number (NaN,
+    /// infinite): ignored whole, the motors keep their last command (and time out on it).
+    NonFinite,
 }
 
 /// A fault a test schedules on the board.
@@ -90,6 +93,8 @@ pub struct BoardStats {
     pub bad_crc: u64,
     /// Samples that were not a `LowCmd`.
     pub malformed: u64,
+    /// Commands ignored for a value that is not a number.
+    pub non_finite: u64,
     /// States published.
     pub states: u64,
 }
@@ -165,6 +170,13 @@ impl UnitreeBoard {
         if !cmd.crc_ok() {
             self.stats.bad_crc += 1;
             return CommandVerdict::BadCrc;
+        }
+        let finite = |c: &MotorCmd| {
+            c.mode == 0 || [c.q, c.dq, c.kp, c.kd, c.tau].iter().all(|v| v.is_finite())
+        };
+        if !self.config.motors.iter().all(|m| finite(&cmd.motor_cmd[m.slot])) {
+            self.stats.non_finite += 1;
+            return CommandVerdict::NonFinite;
         }
         self.state.mode_pr = cmd.mode_pr;
         for (k, m) in self.config.motors.iter().enumerate() {
@@ -328,7 +340,6 @@ mod tests {
     use super::*;
     use crate::mit::models::find;
     use crate::plant::{InertiaPlant, MotorPlant};
-    use crate::unitree::hg::MotorCmd;
 
     fn board() -> UnitreeBoard {
         let model = find("AK80-9").unwrap();
@@ -407,12 +418,17 @@ mod tests {
         assert!((s.motor_state[3].q - 0.5).abs() < 0.02, "{}", s.motor_state[3].q);
         assert_eq!(s.mode_machine, 5);
         assert_eq!(b.receive(t, b"junk"), CommandVerdict::Malformed);
+        // A right CRC over a NaN: ignored whole, the motor holds its last command.
+        assert_eq!(b.receive(t, &command(f32::NAN, true)), CommandVerdict::NonFinite);
+        let s = run(&mut b, &mut plant, &mut t, 2).unwrap();
+        assert!((s.motor_state[3].q - 0.5).abs() < 0.02, "{}", s.motor_state[3].q);
         assert_eq!(
             b.stats(),
             BoardStats {
                 accepted: 51,
                 bad_crc: 1,
                 malformed: 1,
+                non_finite: 1,
                 states: b.stats().states
             }
         );
