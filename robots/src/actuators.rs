@@ -80,7 +80,11 @@ pub struct ActuatorGroup {
     pub velocity_limit: Option<f64>,
     /// Actuation delay, whole physics steps, drawn per run from `[min, max]` (0–100): the command
     /// acts this many steps after it arrived (Isaac Lab's delayed PD).
-    #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "min_max")]
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "min_max"
+    )]
     pub delay_steps: Option<[u32; 2]>,
 }
 

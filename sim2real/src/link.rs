@@ -15,7 +15,9 @@ use firmware_bridge::serial::{DeviceStream, LockstepStream};
 use firmware_bridge::time::SimInstant;
 use firmware_bridge::time::SimWorld;
 use firmware_bridge::unitree::wire::DdsLowLevelPort;
-use robot_link::{BusPorts, BusRobot, GroundTruth, IoError, JointTarget, RobotLink, RobotState, TickClock, WallClock};
+use robot_link::{
+    BusPorts, BusRobot, GroundTruth, IoError, JointTarget, RobotLink, RobotState, TickClock, WallClock,
+};
 use robots::Robot;
 
 use crate::mirror::Mirror;

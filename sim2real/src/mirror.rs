@@ -33,8 +33,8 @@ use firmware_bridge::unitree::hg::ImuState as UnitreeImu;
 use firmware_bridge::unitree::lockstep::{LockstepUnitreePort, UnitreeWorld};
 use mujoco_rs::prelude::*;
 use mujoco_rs::wrappers::mj_model::traits::ModelType;
-use robots::spatial::{quat_conj, quat_mul, quat_of_rpy, quat_rotate};
 use robot_link::{ImuSample, JointTarget, RobotState};
+use robots::spatial::{quat_conj, quat_mul, quat_of_rpy, quat_rotate};
 use robots::{ActuatorModel, ActuatorOf, BusKind, Robot};
 
 use crate::config::{FaultKind, Fidelity, MirrorConfig, Range};
@@ -893,7 +893,13 @@ impl Mirror {
         if mirror.config.fidelity == Fidelity::Direct {
             mirror.direct = Some(Direct {
                 targets: vec![JointTarget::default(); n_joints],
-                torque_limits: mirror.robot.config.joints.iter().map(|j| j.torque_limit).collect(),
+                torque_limits: mirror
+                    .robot
+                    .config
+                    .joints
+                    .iter()
+                    .map(|j| j.torque_limit)
+                    .collect(),
                 samples: Vec::with_capacity(DIRECT_SAMPLES),
                 latest: ImuSample::default(),
                 driven: false,

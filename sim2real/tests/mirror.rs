@@ -683,11 +683,21 @@ fn a_servo_variant_of_the_robots_own_is_driven_and_emulated_with_its_constants()
 fn a_servo_under_the_models_own_actuator_reads_the_torque_that_acted() {
     // rd-mini's knees are XM430s (Present Current) and its MJCF drives them with position
     // actuators: swinging on the gantry, what the host reads is what MuJoCo applied.
-    let root = reference_robot_path().parent().unwrap().parent().unwrap().to_path_buf();
+    let root = reference_robot_path()
+        .parent()
+        .unwrap()
+        .parent()
+        .unwrap()
+        .to_path_buf();
     let robot = Robot::load(&root.join("mini/robot.toml")).unwrap();
     let mut h = host_of(robot, on_gantry());
     let robot = h.robot.clone();
-    let j = robot.config.joints.iter().position(|x| x.name == "l_knee").unwrap();
+    let j = robot
+        .config
+        .joints
+        .iter()
+        .position(|x| x.name == "l_knee")
+        .unwrap();
     let a = h.inner.world.lock().unwrap().joint_actuator(j).unwrap();
     let mut pose = h.default_pose.clone();
     let start = h.inner.now();
@@ -705,5 +715,8 @@ fn a_servo_under_the_models_own_actuator_reads_the_torque_that_acted() {
     }
     // The reading is up to a bus cycle older than the physics step compared with: 0.08 N·m apart
     // at most here; the emulated loop's own torque was 0.38 N·m off.
-    assert!(worst < 0.15, "l_knee read up to {worst:.4} N·m off the torque that acted");
+    assert!(
+        worst < 0.15,
+        "l_knee read up to {worst:.4} N·m off the torque that acted"
+    );
 }

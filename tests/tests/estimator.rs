@@ -599,7 +599,10 @@ fn walking_the_zoos_bipeds_with_no_foot_switch_the_estimate_holds() {
             "--no-record".as_ref(),
         ]);
         let what = robot.name();
-        assert!(ok && out.contains("result: finished") && out.contains("fell: no"), "{what}:\n{out}\n{err}");
+        assert!(
+            ok && out.contains("result: finished") && out.contains("fell: no"),
+            "{what}:\n{out}\n{err}"
+        );
         let distance: f64 = out
             .lines()
             .find_map(|l| l.strip_prefix("distance: "))
@@ -608,7 +611,9 @@ fn walking_the_zoos_bipeds_with_no_foot_switch_the_estimate_holds() {
             .unwrap_or_else(|| panic!("{what}: {out}"));
         assert!(distance > 2.0, "{what} walked only {distance} m:\n{out}");
         let (velocity, height, contacts) = estimate_figures(&out);
-        eprintln!("{what}: walked {distance} m; velocity RMSE {velocity} m/s, height RMSE {height} m, contacts agree {contacts}");
+        eprintln!(
+            "{what}: walked {distance} m; velocity RMSE {velocity} m/s, height RMSE {height} m, contacts agree {contacts}"
+        );
         // Measured (issue 50): 0.032-0.045 m/s, 1.1-1.5 mm, contacts 89-93 % (switches off; the
         // acceptance's 97 % is not reached yet: feet hovering a few millimetres over the floor
         // at the ends of a swing, whose legs' torques read as a load).

@@ -159,8 +159,14 @@ fn clips_with_huge_gaps_durations_or_twice_named_joints_are_refused() {
             r[1] = "1e300".into();
         }
     });
-    refused(&args(&[&"check", &"--clip", &far]), "root_x = 1e300 m is outside ±10000 m");
-    refused(&args(&[&"play", &"--clip", &far, &"--no-record"]), "root_x = 1e300 m is outside ±10000 m");
+    refused(
+        &args(&[&"check", &"--clip", &far]),
+        "root_x = 1e300 m is outside ±10000 m",
+    );
+    refused(
+        &args(&[&"play", &"--clip", &far, &"--no-record"]),
+        "root_x = 1e300 m is outside ±10000 m",
+    );
     let wound = clip(&dir, "wound", |rows, _| rows[2][9] = "1e30".into());
     refused(&args(&[&"check", &"--clip", &wound]), "rad is outside ±100 rad");
     let twice = clip(&dir, "twice", |rows, header| {

@@ -168,7 +168,10 @@ fn it_stands_ten_seconds_on_a_command_driven_policy_with_no_clip() {
     assert!(stdout.contains("Running → Stopping (run time up)"), "{stdout}");
     // Through its stop to Off, the mirror's servos damping with no stiffness: MuJoCo was never
     // handed a NaN control (it prints a warning and resets its state).
-    assert!(!format!("{stdout}{stderr}").contains("unstable"), "{stdout}{stderr}");
+    assert!(
+        !format!("{stdout}{stderr}").contains("unstable"),
+        "{stdout}{stderr}"
+    );
     // No clip-tracking numbers against a made-up clip: where it went instead.
     assert!(!stdout.contains("joint tracking RMSE"), "{stdout}");
     let distance = stdout

@@ -959,16 +959,17 @@ fn a_run_whose_every_command_the_governor_limited_does_not_end_as_a_success() {
 
 /// `robodeploy play ARGS`: exit code and stdout+stderr.
 fn play_cli(args: &[&str]) -> (Option<i32>, String) {
-    let (code, out, err) = test_support::bin::run_within(
-        &[&["play"], args].concat(),
-        Duration::from_secs(300),
-    );
+    let (code, out, err) =
+        test_support::bin::run_within(&[&["play"], args].concat(), Duration::from_secs(300));
     (code, format!("{out}{err}"))
 }
 
 /// A figure of a summary line: the number after `key`.
 fn figure(out: &str, key: &str) -> f64 {
-    let line = out.lines().find(|l| l.starts_with(key)).unwrap_or_else(|| panic!("{key} in:\n{out}"));
+    let line = out
+        .lines()
+        .find(|l| l.starts_with(key))
+        .unwrap_or_else(|| panic!("{key} in:\n{out}"));
     line[key.len()..]
         .trim_start()
         .split(|c: char| !(c.is_ascii_digit() || c == '.' || c == '-'))
@@ -981,12 +982,21 @@ fn figure(out: &str, key: &str) -> f64 {
 fn the_direct_mirror_plays_a_clip_as_the_wires_do_and_says_which_ran() {
     let robot = biped("robot.toml");
     let clip = biped("clips/squat.csv");
-    let common = ["--robot", robot.to_str().unwrap(), "--clip", clip.to_str().unwrap(), "--no-record"];
+    let common = [
+        "--robot",
+        robot.to_str().unwrap(),
+        "--clip",
+        clip.to_str().unwrap(),
+        "--no-record",
+    ];
     let (code, wires) = play_cli(&common);
     assert_eq!(code, Some(0), "{wires}");
     let (code, direct) = play_cli(&[&common[..], &["--fidelity", "direct"]].concat());
     assert_eq!(code, Some(0), "{direct}");
-    assert!(direct.contains("in lockstep, direct: the trainer's actuator law on MuJoCo, no buses"), "{direct}");
+    assert!(
+        direct.contains("in lockstep, direct: the trainer's actuator law on MuJoCo, no buses"),
+        "{direct}"
+    );
     assert!(!wires.contains("direct:"), "{wires}");
     // The same law on the same physics: what the wires add (a bus cycle's delay, the ramp
     // between ticks, the devices' resolution) moves the tracking by a fraction of a degree.
@@ -996,14 +1006,23 @@ fn the_direct_mirror_plays_a_clip_as_the_wires_do_and_says_which_ran() {
         assert!((w - d).abs() <= tolerance, "{key} wires {w}, direct {d}");
     }
     for out in [&wires, &direct] {
-        assert!(out.contains("success (no fall") && out.contains("): yes"), "{out}");
+        assert!(
+            out.contains("success (no fall") && out.contains("): yes"),
+            "{out}"
+        );
     }
     // The mirror file says it too; a direct mirror has no wires to serve in real time.
     let dir = std::env::temp_dir().join(format!("play-direct-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let mirror = dir.join("mirror.toml");
     std::fs::write(&mirror, "fidelity = \"direct\"\n").unwrap();
-    let (code, out) = play_cli(&[&common[..], &["--mirror", mirror.to_str().unwrap(), "--max-seconds", "1"]].concat());
+    let (code, out) = play_cli(
+        &[
+            &common[..],
+            &["--mirror", mirror.to_str().unwrap(), "--max-seconds", "1"],
+        ]
+        .concat(),
+    );
     assert_eq!(code, Some(0), "{out}");
     assert!(out.contains("direct: the trainer's actuator law"), "{out}");
     let (code, out) = play_cli(&[&common[..], &["--mirror", mirror.to_str().unwrap(), "--wall"]].concat());
@@ -1020,13 +1039,32 @@ fn the_direct_mirror_plays_a_clip_as_the_wires_do_and_says_which_ran() {
     assert!(out.contains("faults act on devices and wires"), "{out}");
     // batch takes the same choice and names it above its table.
     let (code, out, err) = test_support::bin::run_within(
-        &["batch", "--robot", robot.to_str().unwrap(), "--clips", clip.to_str().unwrap(), "--seeds", "0-0", "--fidelity", "direct"],
+        &[
+            "batch",
+            "--robot",
+            robot.to_str().unwrap(),
+            "--clips",
+            clip.to_str().unwrap(),
+            "--seeds",
+            "0-0",
+            "--fidelity",
+            "direct",
+        ],
         Duration::from_secs(300),
     );
     assert_eq!(code, Some(0), "{out}{err}");
-    assert!(out.contains("mirror: direct (the trainer's actuator law on MuJoCo, no buses)"), "{out}");
+    assert!(
+        out.contains("mirror: direct (the trainer's actuator law on MuJoCo, no buses)"),
+        "{out}"
+    );
     let d = figure(&direct, "joint tracking RMSE:");
-    let row = out.lines().find(|l| l.starts_with("squat.csv")).unwrap_or_else(|| panic!("{out}"));
-    assert!(row.contains(&format!("{d:.2}")), "the batch's run is play's: {row} vs {d}");
+    let row = out
+        .lines()
+        .find(|l| l.starts_with("squat.csv"))
+        .unwrap_or_else(|| panic!("{out}"));
+    assert!(
+        row.contains(&format!("{d:.2}")),
+        "the batch's run is play's: {row} vs {d}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }

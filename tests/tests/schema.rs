@@ -156,8 +156,10 @@ fn a_schema_is_not_written_over_an_existing_file_unless_asked() {
     let dir = scratch("overwrite");
     let robot = dir.join("robot.toml");
     std::fs::write(&robot, "name = \"mine\"\n").unwrap();
-    let (code, out, err) =
-        test_support::bin::run_within(&["schema", "robot", "--out", robot.to_str().unwrap()], std::time::Duration::from_secs(120));
+    let (code, out, err) = test_support::bin::run_within(
+        &["schema", "robot", "--out", robot.to_str().unwrap()],
+        std::time::Duration::from_secs(120),
+    );
     assert_eq!(code, Some(2), "{out}{err}");
     assert!(err.contains("--out") && err.contains("--overwrite"), "{err}");
     assert_eq!(std::fs::read_to_string(&robot).unwrap(), "name = \"mine\"\n");

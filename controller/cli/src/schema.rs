@@ -94,10 +94,7 @@ pub fn run(args: &SchemaArgs) -> Result<()> {
     match &args.out {
         Some(path) if path.exists() && !args.overwrite => Err(crate::args::FlagError::new(
             "out",
-            format!(
-                " {}: the file exists; --overwrite replaces it",
-                path.display()
-            ),
+            format!(" {}: the file exists; --overwrite replaces it", path.display()),
         )
         .into()),
         Some(path) => std::fs::write(path, text).with_context(|| format!("writing {}", path.display())),

@@ -171,13 +171,23 @@ type WalkingRobot = (String, (PathBuf, PathBuf), Option<Vec<f64>>);
 fn walking_robots(quick: bool, filters: &[FilterKind]) {
     let (seeds, seconds) = if quick { (1, 6.0) } else { (3, 20.0) };
     let shipped = |robot: &str, policy: &str| {
-        let dir = test_support::fixtures::workspace_root().join("robots").join(robot);
+        let dir = test_support::fixtures::workspace_root()
+            .join("robots")
+            .join(robot);
         (dir.join("robot.toml"), dir.join("policies").join(policy))
     };
     let mut robots: Vec<WalkingRobot> = vec![
         // holosoma's order: turning rate, forward, leftward.
-        ("g1".into(), shipped("g1", "holosoma_loco_ppo.toml"), Some(vec![0.3, 0.5, 0.0])),
-        ("t1".into(), shipped("t1", "holosoma_loco_ppo.toml"), Some(vec![0.3, 0.5, 0.0])),
+        (
+            "g1".into(),
+            shipped("g1", "holosoma_loco_ppo.toml"),
+            Some(vec![0.3, 0.5, 0.0]),
+        ),
+        (
+            "t1".into(),
+            shipped("t1", "holosoma_loco_ppo.toml"),
+            Some(vec![0.3, 0.5, 0.0]),
+        ),
     ];
     // The zoo (no foot switches) on rd-mini's walking fixture: forward speed only.
     let zoo = std::env::temp_dir().join(format!("estimator-bench-zoo-{}", std::process::id()));
@@ -189,7 +199,11 @@ fn walking_robots(quick: bool, filters: &[FilterKind]) {
     for (robot, (robot_toml, _), _) in &robots {
         let loaded = Robot::load(robot_toml).unwrap();
         for &filter in filters {
-            println!("{robot:<14} {:<10} {}", filter_name(filter), world_per_tick(&loaded, filter));
+            println!(
+                "{robot:<14} {:<10} {}",
+                filter_name(filter),
+                world_per_tick(&loaded, filter)
+            );
         }
     }
     println!(
@@ -206,14 +220,16 @@ fn walking_robots(quick: bool, filters: &[FilterKind]) {
     );
     for (robot, (robot_toml, policy), walking) in robots {
         let still = vec![0.0; walking.as_ref().map_or(3, Vec::len)];
-        let mut scenarios = vec![("standing", still.clone(), false), ("standing, pushed", still, true)];
+        let mut scenarios = vec![
+            ("standing", still.clone(), false),
+            ("standing, pushed", still, true),
+        ];
         if let Some(w) = walking {
             scenarios.push(("walking", w.clone(), false));
             scenarios.push(("walking, pushed", w, true));
         }
-        for ((name, command, pushed), &filter) in scenarios
-            .iter()
-            .flat_map(|s| filters.iter().map(move |f| (s, f)))
+        for ((name, command, pushed), &filter) in
+            scenarios.iter().flat_map(|s| filters.iter().map(move |f| (s, f)))
         {
             let runs: Vec<_> = (0..seeds)
                 .map(|seed| walk(&robot_toml, &policy, command, seconds, *pushed, seed, filter))

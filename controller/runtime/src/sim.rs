@@ -42,7 +42,11 @@ pub fn lockstep_player(
 }
 
 /// A direct run: the player on a direct mirror, the mirror's clock, the mirror.
-pub type DirectRun = (crate::player::Player<DirectRobot>, LockstepClock, Arc<Mutex<Mirror>>);
+pub type DirectRun = (
+    crate::player::Player<DirectRobot>,
+    LockstepClock,
+    Arc<Mutex<Mirror>>,
+);
 
 /// A run on a mirror of direct fidelity (the trainer's actuator law on MuJoCo, no buses), in
 /// lockstep: `mirror.fidelity` is set to direct whatever it said.
@@ -81,7 +85,8 @@ pub fn run_on_mirror(
         let (mut player, mut clock, _world) = direct_player(robot, layout, reference, options, mirror, stop)?;
         player.run(&mut clock)
     } else {
-        let (mut player, mut clock, _world) = lockstep_player(robot, layout, reference, options, mirror, stop)?;
+        let (mut player, mut clock, _world) =
+            lockstep_player(robot, layout, reference, options, mirror, stop)?;
         player.run(&mut clock)
     }
 }

@@ -579,10 +579,7 @@ impl Estimator {
                 let apart = (0..feet)
                     .flat_map(|f| (f + 1..feet).map(move |j| (f, j)))
                     .filter(|&(f, j)| self.contacts[f] && self.contacts[j])
-                    .find(|&(f, j)| {
-                        spatial::norm(spatial::sub(relative(f), relative(j)))
-                            > 2.0 * t.speed
-                    });
+                    .find(|&(f, j)| spatial::norm(spatial::sub(relative(f), relative(j))) > 2.0 * t.speed);
                 let Some((f, j)) = apart else { break };
                 let moving = if world_speed(f) > world_speed(j) { f } else { j };
                 self.contacts[moving] = false;

@@ -171,9 +171,8 @@ impl UnitreeBoard {
             self.stats.bad_crc += 1;
             return CommandVerdict::BadCrc;
         }
-        let finite = |c: &MotorCmd| {
-            c.mode == 0 || [c.q, c.dq, c.kp, c.kd, c.tau].iter().all(|v| v.is_finite())
-        };
+        let finite =
+            |c: &MotorCmd| c.mode == 0 || [c.q, c.dq, c.kp, c.kd, c.tau].iter().all(|v| v.is_finite());
         if !self.config.motors.iter().all(|m| finite(&cmd.motor_cmd[m.slot])) {
             self.stats.non_finite += 1;
             return CommandVerdict::NonFinite;

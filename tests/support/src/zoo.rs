@@ -119,7 +119,9 @@ fn heavy_on_motors(mjcf: &str, scale: f64) -> String {
                 .and_then(|attrs| attrs.split("joint=\"").nth(1))
                 .and_then(|rest| rest.split('"').next());
             match joint {
-                Some(joint) => format!("    <motor name=\"{joint}\" joint=\"{joint}\" ctrlrange=\"-10 10\"/>"),
+                Some(joint) => {
+                    format!("    <motor name=\"{joint}\" joint=\"{joint}\" ctrlrange=\"-10 10\"/>")
+                }
                 None => line.to_owned(),
             }
         })
