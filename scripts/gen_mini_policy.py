@@ -82,18 +82,30 @@ def main():
         numpy_helper.from_array(np.array([phase + 2], dtype=np.int64), "sin_end"),
         numpy_helper.from_array(np.array([1], dtype=np.int64), "axis1"),
     ]
+    save_fixture(
+        nodes,
+        inits,
+        "rd_mini_stand_walk_fixture",
+        "robodeploy fixture (scripts/gen_mini_policy.py): not a trained policy",
+        (obs_len, n),
+        path.parent / manifest["onnx"],
+    )
+
+
+def save_fixture(nodes, inits, name, doc, shape, out):
+    """Checks and writes a graph of `obs` [1, obs_len] → `actions` [1, n] (`shape`) to `out`."""
+    obs_len, n = shape
     graph = helper.make_graph(
         nodes,
-        "rd_mini_stand_walk_fixture",
+        name,
         [helper.make_tensor_value_info("obs", TensorProto.FLOAT, [1, obs_len])],
         [helper.make_tensor_value_info("actions", TensorProto.FLOAT, [1, n])],
         inits,
     )
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)])
     model.ir_version = 8
-    model.doc_string = "robodeploy fixture (scripts/gen_mini_policy.py): not a trained policy"
+    model.doc_string = doc
     onnx.checker.check_model(model)
-    out = path.parent / manifest["onnx"]
     onnx.save(model, out)
     print(f"wrote {out} ({obs_len} observations → {n} actions)")
 

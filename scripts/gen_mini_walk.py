@@ -26,10 +26,9 @@ import sys
 import tomllib
 
 import numpy as np
-import onnx
-from onnx import TensorProto, helper, numpy_helper
+from onnx import helper, numpy_helper
 
-from gen_mini_policy import OPSET, term_widths
+from gen_mini_policy import save_fixture, term_widths
 
 SWAY = 0.044
 ANKLE_ROLL = 0.223
@@ -115,20 +114,14 @@ def main():
         numpy_helper.from_array(np.array(0.0, dtype=np.float32), "zero"),
         numpy_helper.from_array(np.array(1.0, dtype=np.float32), "one"),
     ]
-    graph = helper.make_graph(
+    save_fixture(
         nodes,
-        "rd_mini_walk_fixture",
-        [helper.make_tensor_value_info("obs", TensorProto.FLOAT, [1, obs_len])],
-        [helper.make_tensor_value_info("actions", TensorProto.FLOAT, [1, n])],
         inits,
+        "rd_mini_walk_fixture",
+        "robodeploy fixture (scripts/gen_mini_walk.py): a fixed gait, not a trained policy",
+        (obs_len, n),
+        path.parent / manifest["onnx"],
     )
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)])
-    model.ir_version = 8
-    model.doc_string = "robodeploy fixture (scripts/gen_mini_walk.py): a fixed gait, not a trained policy"
-    onnx.checker.check_model(model)
-    out = path.parent / manifest["onnx"]
-    onnx.save(model, out)
-    print(f"wrote {out} ({obs_len} observations → {n} actions)")
 
 
 if __name__ == "__main__":

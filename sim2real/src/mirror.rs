@@ -345,11 +345,11 @@ pub struct Mirror {
     direct: Option<Direct>,
 }
 
-/// What a direct mirror ([`crate::config::Fidelity::Direct`]) exchanges with its host in place of
-/// buses: each joint's command as the loop gave it, the IMU's samples since the last read.
+/// What a direct mirror ([`crate::config::Fidelity::Direct`]) keeps for its host in place of
+/// buses: the joints' torque limits its commands are held to, the IMU's samples since the last
+/// read.
 #[derive(Debug)]
 struct Direct {
-    targets: Vec<JointTarget>,
     /// Each joint's torque limit (robot.toml), N·m.
     torque_limits: Vec<f64>,
     samples: Vec<ImuSample>,
@@ -892,7 +892,6 @@ impl Mirror {
         };
         if mirror.config.fidelity == Fidelity::Direct {
             mirror.direct = Some(Direct {
-                targets: vec![JointTarget::default(); n_joints],
                 torque_limits: mirror
                     .robot
                     .config
@@ -1398,9 +1397,6 @@ impl Mirror {
                 return;
             }
             self.held = false;
-        }
-        if self.direct.is_some() {
-            self.apply_direct_commands();
         }
         let direct = self.direct.is_some();
         // Torques (or position goals) from the firmware's last period.
@@ -1939,35 +1935,6 @@ impl Mirror {
         t
     }
 
-    /// Each joint's command as a law in its actuator's frame: the motors' laws the mirror
-    /// computes every physics step, and the model's position servos' goals and gains.
-    fn apply_direct_commands(&mut self) {
-        let Some(d) = &self.direct else { return };
-        for ((j, p), (t, &limit)) in self
-            .joints
-            .iter()
-            .zip(&mut self.plants)
-            .zip(d.targets.iter().zip(&d.torque_limits))
-        {
-            let to = j.direction * j.gear;
-            let law = t.enabled.then(|| PdLaw {
-                p: j.zero_offset + to * t.q,
-                v: to * t.qd,
-                kp: t.kp / (j.gear * j.gear),
-                kd: t.kd / (j.gear * j.gear),
-                t: t.tau / to,
-                limit: limit / j.gear,
-            });
-            p.law = law;
-            p.torque_cap = limit / j.gear;
-            if j.actuator.is_some() {
-                p.goal = law.filter(|l| l.kp > 0.0).map(|l| l.p);
-                p.stiffness = law.map(|l| [l.kp, l.kd]);
-                p.torque = 0.0;
-            }
-        }
-    }
-
     /// The IMU's sample drawn from the model's sensors at its site (noise and biases as the
     /// device's), kept for the host's next read.
     fn sample_imu_directly(&mut self, t: SimInstant) {
@@ -1995,11 +1962,33 @@ impl Mirror {
         }
     }
 
-    /// A direct mirror takes the loop's commands (robot order); false on a mirror with wires.
+    /// A direct mirror takes the loop's commands (robot order), each as a law in its actuator's
+    /// frame: the motors' laws the mirror computes every physics step until the next command, and
+    /// the model's position servos' goals and gains; false on a mirror with wires.
     pub fn command_directly(&mut self, targets: &[JointTarget]) -> bool {
         let Some(d) = &mut self.direct else { return false };
-        for (to, from) in d.targets.iter_mut().zip(targets) {
-            *to = *from;
+        for ((j, p), (t, &limit)) in self
+            .joints
+            .iter()
+            .zip(&mut self.plants)
+            .zip(targets.iter().zip(&d.torque_limits))
+        {
+            let to = j.direction * j.gear;
+            let law = t.enabled.then(|| PdLaw {
+                p: j.zero_offset + to * t.q,
+                v: to * t.qd,
+                kp: t.kp / (j.gear * j.gear),
+                kd: t.kd / (j.gear * j.gear),
+                t: t.tau / to,
+                limit: limit / j.gear,
+            });
+            p.law = law;
+            p.torque_cap = limit / j.gear;
+            if j.actuator.is_some() {
+                p.goal = law.filter(|l| l.kp > 0.0).map(|l| l.p);
+                p.stiffness = law.map(|l| [l.kp, l.kd]);
+                p.torque = 0.0;
+            }
         }
         d.driven |= targets.iter().any(|t| t.enabled);
         true

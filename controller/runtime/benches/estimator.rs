@@ -47,6 +47,18 @@ fn randomized(seed: u64) -> MirrorConfig {
     }
 }
 
+/// Tick `tick`'s four samples of a 200 Hz IMU on a robot standing still, into `e`.
+fn imu_samples_of_tick(e: &mut Estimator, tick: u64) {
+    for k in 0..4 {
+        e.propagate(&robot_link::ImuSample {
+            gyro: [0.001, -0.002, 0.0],
+            accel: [0.05, -0.02, 9.81],
+            quat: [1.0, 0.0, 0.0, 0.0],
+            at: std::time::Duration::from_micros(5_000 * (4 * tick + k)),
+        });
+    }
+}
+
 fn compute_per_tick(filter: FilterKind) -> Summary {
     let config = EstimatorConfig {
         filter,
@@ -62,14 +74,7 @@ fn compute_per_tick(filter: FilterKind) -> Summary {
     let mut samples = Vec::with_capacity(10_000);
     for tick in 0..11_000u64 {
         let t0 = Instant::now();
-        for k in 0..4 {
-            e.propagate(&robot_link::ImuSample {
-                gyro: [0.001, -0.002, 0.0],
-                accel: [0.05, -0.02, 9.81],
-                quat: [1.0, 0.0, 0.0, 0.0],
-                at: std::time::Duration::from_micros(5_000 * (4 * tick + k)),
-            });
-        }
+        imu_samples_of_tick(&mut e, tick);
         let estimate = e.correct(&legs, true);
         if tick >= 1000 {
             samples.push(t0.elapsed());
@@ -99,14 +104,7 @@ fn world_per_tick(robot: &Robot, filter: FilterKind) -> Summary {
         }
         let t0 = Instant::now();
         k.update([1.0, 0.0, 0.0, 0.0], &q, &qd, None);
-        for s in 0..4 {
-            e.propagate(&robot_link::ImuSample {
-                gyro: [0.001, -0.002, 0.0],
-                accel: [0.05, -0.02, 9.81],
-                quat: [1.0, 0.0, 0.0, 0.0],
-                at: std::time::Duration::from_micros(5_000 * (4 * tick + s)),
-            });
-        }
+        imu_samples_of_tick(&mut e, tick);
         let legs = k.legs(&tau);
         let estimate = e.correct(&legs, true);
         if tick >= 1000 {

@@ -11,12 +11,15 @@ use sim2real::link::{
 use sim2real::mirror::Mirror;
 use sim2real::serve::ServedMirror;
 
-/// A lockstep run: the player, the clock that advances the mirror, and the mirror.
-pub type LockstepRun = (
-    crate::player::Player<LockstepRobot>,
-    LockstepClock,
-    Arc<Mutex<Mirror>>,
-);
+/// A run on the mirror in lockstep through link `L`: the player, the clock that advances the
+/// mirror, and the mirror.
+pub type MirrorRun<L> = (crate::player::Player<L>, LockstepClock, Arc<Mutex<Mirror>>);
+
+/// A lockstep run over the robot's buses.
+pub type LockstepRun = MirrorRun<LockstepRobot>;
+
+/// A direct run (no buses).
+pub type DirectRun = MirrorRun<DirectRobot>;
 
 /// A run on the mirror of `robot` in lockstep: the mirror, its drivers, the player and the clock
 /// that advances the mirror between ticks.
@@ -29,24 +32,31 @@ pub fn lockstep_player(
     stop: Arc<std::sync::atomic::AtomicBool>,
 ) -> Result<LockstepRun, crate::player::PlayError> {
     let mirror = for_run(mirror, &robot, &options, &reference);
+    mirror_run(robot, layout, reference, options, mirror, stop, lockstep_robot)
+}
+
+/// The player on a mirror built from `mirror` (already set for the run) through the link
+/// `link` makes of it, the harness's hoist wired, and the mirror's clock.
+fn mirror_run<L: robot_link::RobotLink>(
+    robot: Robot,
+    layout: policy::PolicyLayout,
+    reference: crate::clip::Reference,
+    options: crate::player::PlayOptions,
+    mirror: sim2real::config::MirrorConfig,
+    stop: Arc<std::sync::atomic::AtomicBool>,
+    link: fn(&Robot, &Arc<Mutex<Mirror>>) -> Result<L, robot_link::IoError>,
+) -> Result<MirrorRun<L>, crate::player::PlayError> {
     let world =
         Mirror::new(robot.clone(), mirror).map_err(|e| crate::player::PlayError::Setup(e.to_string()))?;
     let hoist = world.harness_hoist();
     let world = Arc::new(Mutex::new(world));
-    let io = lockstep_robot(&robot, &world)?;
+    let io = link(&robot, &world)?;
     let mut player = crate::player::Player::new(robot, layout, reference, options, io, stop)?;
     if let Some(h) = hoist {
         player = player.with_harness_hoist(h);
     }
     Ok((player, LockstepClock::new(Arc::clone(&world)), world))
 }
-
-/// A direct run: the player on a direct mirror, the mirror's clock, the mirror.
-pub type DirectRun = (
-    crate::player::Player<DirectRobot>,
-    LockstepClock,
-    Arc<Mutex<Mirror>>,
-);
 
 /// A run on a mirror of direct fidelity (the trainer's actuator law on MuJoCo, no buses), in
 /// lockstep: `mirror.fidelity` is set to direct whatever it said.
@@ -60,16 +70,7 @@ pub fn direct_player(
 ) -> Result<DirectRun, crate::player::PlayError> {
     let mut mirror = for_run(mirror, &robot, &options, &reference);
     mirror.fidelity = sim2real::config::Fidelity::Direct;
-    let world =
-        Mirror::new(robot.clone(), mirror).map_err(|e| crate::player::PlayError::Setup(e.to_string()))?;
-    let hoist = world.harness_hoist();
-    let world = Arc::new(Mutex::new(world));
-    let io = direct_robot(&robot, &world)?;
-    let mut player = crate::player::Player::new(robot, layout, reference, options, io, stop)?;
-    if let Some(h) = hoist {
-        player = player.with_harness_hoist(h);
-    }
-    Ok((player, LockstepClock::new(Arc::clone(&world)), world))
+    mirror_run(robot, layout, reference, options, mirror, stop, direct_robot)
 }
 
 /// One lockstep run on the mirror `mirror.fidelity` names (wires or direct), start to end.
