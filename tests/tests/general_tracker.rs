@@ -254,15 +254,35 @@ fn twist2_tracks_human_clips_retargeted_onto_its_g1() {
     let mut report = String::new();
     for (file, flags) in cases {
         let clip = std::env::temp_dir().join(format!("twist2-human-{}-{file}.csv", std::process::id()));
+        let json = clip.with_extension("json");
         let mut args: Vec<&str> = vec!["retarget", "--robot", robot.to_str().unwrap(), "--bvh"];
         let bvh = mocap.join(file);
         args.extend([bvh.to_str().unwrap(), "--out", clip.to_str().unwrap()]);
+        args.extend(["--report", json.to_str().unwrap()]);
         args.extend(flags);
         let os: Vec<&std::ffi::OsStr> = args.iter().map(|a| a.as_ref()).collect();
         let (ok, out, err) = run(&os);
         // What the robot cannot follow exactly (the walks' ankle torques) is reported, not
         // refused: the policy's manifest says it tracks kinematic references.
         assert!(ok, "{file}: {out}\n{err}");
+        // The retargeting itself (issue 49's acceptance): soles never more than 1 cm into the
+        // floor, a foot the human has planted slides at most 2 cm/s (median), every joint
+        // within its limits (the clip loader refuses any beyond).
+        let found: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        std::fs::remove_file(&json).unwrap();
+        let r = &found["retarget"];
+        let number = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
+        assert!(number(&r["deepest_penetration"]) <= 0.01, "{file}: {r}");
+        assert!(number(&r["foot_sliding"]["median"]) <= 0.02, "{file}: {r}");
+        assert!(
+            number(&r["planted_share"]) >= 0.3,
+            "{file}: the feet are seen planted: {r}"
+        );
+        assert!(
+            number(&found["clip"]["limit_margin"][0]) >= 0.0,
+            "{file}: {found}"
+        );
         let (ok, out, err) = run(&[
             "play".as_ref(),
             "--robot".as_ref(),

@@ -23,11 +23,18 @@ fn a_cmu_recording_becomes_a_clip_the_checker_accepts() {
     // 25.2 s at 50 Hz; scale from hip heights (1.05 m → 0.46 m).
     assert_eq!(m.times.len(), 1262);
     assert!((m.scale - 0.44).abs() < 0.02, "scale {}", m.scale);
-    // The body follows: pelvis and feet within a few cm of their mapped targets (a foot whose
-    // target would put its sole into the floor stays on it), hands (the robot's arms are
-    // relatively short) within 8 cm on average.
+    // The body follows: the pelvis within 1.5 cm of where the scaled human's maps, the feet
+    // within 2.5 cm (a planted foot is held where it stands, up to PLANT_DRIFT on the human's
+    // scale from the human's creeping foot; a foot whose target would put its sole into the
+    // floor stays on it), hands (the robot's arms are relatively short) within 8 cm on average.
     for (frame, mean, worst) in &m.pair_errors {
-        let bound = if frame.ends_with("hand") { 0.08 } else { 0.015 };
+        let bound = if frame.ends_with("hand") {
+            0.08
+        } else if frame.ends_with("foot") {
+            0.025
+        } else {
+            0.015
+        };
         assert!(*mean < bound, "{frame}: mean {mean:.3} m (worst {worst:.3})");
     }
     // The clip checker: within every joint's position and speed limit (the loader refuses

@@ -79,6 +79,9 @@ pub struct MotionQuality {
     pub deepest_self: Option<(f64, usize, String)>,
     /// Mean horizontal foot speed while in contact, m/s.
     pub foot_sliding: f64,
+    /// Median of it over the feet's ticks in contact, m/s (a swing foot skimming the floor for a
+    /// tick moves the mean, not this).
+    pub foot_sliding_median: f64,
     /// Mean foot height above the floor while in contact, m.
     pub foot_floating: f64,
     /// Smallest distance to a position limit: rad, joint, tick.
@@ -206,8 +209,10 @@ impl std::fmt::Display for MotionQuality {
         )?;
         writeln!(
             f,
-            "  foot sliding {:.3} m/s, foot floating {:.2} cm (while in contact)",
-            self.foot_sliding,
+            "  soles within {:.0} cm of the floor (swinging feet skimming it included): moving {:.1} cm/s median, {:.1} cm/s mean; {:.2} cm above it on average",
+            CONTACT_HEIGHT * 100.0,
+            self.foot_sliding_median * 100.0,
+            self.foot_sliding * 100.0,
             self.foot_floating * 100.0
         )?;
         let (m, j, k) = &self.limit_margin;
@@ -343,6 +348,7 @@ pub fn analyze(robot: &Robot, reference: &Reference) -> Result<MotionQuality, wo
         self_penetration_ticks: 0,
         deepest_self: None,
         foot_sliding: 0.0,
+        foot_sliding_median: 0.0,
         foot_floating: 0.0,
         limit_margin: (f64::INFINITY, String::new(), 0),
         speed_use: (0.0, String::new(), 0),
@@ -365,7 +371,7 @@ pub fn analyze(robot: &Robot, reference: &Reference) -> Result<MotionQuality, wo
         weight,
         torque: Vec::with_capacity(n * joints.len()),
     };
-    let (mut slide_sum, mut float_sum, mut contact_samples) = (0.0, 0.0, 0usize);
+    let (mut slides, mut float_sum, mut contact_samples) = (Vec::new(), 0.0, 0usize);
     // Each foot's pose the tick before: (origin, rotation, row major).
     let mut previous_feet: Vec<([f64; 3], [f64; 9])> = Vec::new();
     let mut unsupported_run: Option<(usize, usize)> = None;
@@ -467,7 +473,7 @@ pub fn analyze(robot: &Robot, reference: &Reference) -> Result<MotionQuality, wo
                         })
                         .sum::<f64>()
                         / points.len().max(1) as f64;
-                    slide_sum += speed;
+                    slides.push(speed);
                 }
                 contact_samples += 1;
                 contacts.extend(
@@ -551,8 +557,12 @@ pub fn analyze(robot: &Robot, reference: &Reference) -> Result<MotionQuality, wo
         q.penetration_mean /= q.penetration_ticks as f64;
     }
     if contact_samples > 0 {
-        q.foot_sliding = slide_sum / contact_samples as f64;
+        q.foot_sliding = slides.iter().sum::<f64>() / contact_samples as f64;
         q.foot_floating = float_sum / contact_samples as f64;
+    }
+    if !slides.is_empty() {
+        slides.sort_by(f64::total_cmp);
+        q.foot_sliding_median = slides[slides.len() / 2];
     }
     q.torques
         .sort_by(|a, b| (b.peak / b.limit).total_cmp(&(a.peak / a.limit)));

@@ -47,10 +47,15 @@ pub struct RetargetArgs {
     /// Inverse-kinematics iterations per frame.
     #[arg(long, default_value_t = 12, value_parser = crate::args::whole_within(1, 1000))]
     iterations: u64,
-    /// Gaussian smoothing of the result, σ in seconds (0: none): mocap jitter would otherwise
+    /// Gaussian smoothing of the human motion before retargeting, σ in seconds (0: none): mocap jitter would otherwise
     /// ask the motors for accelerations they do not have.
     #[arg(long, default_value_t = 0.08, value_parser = crate::args::within(0.0, 1.0))]
     smoothing: f64,
+    /// Also write the retargeting report as JSON here: the key bodies' distance from the scaled
+    /// human, the feet's sliding while the human's stand planted, soles into the floor, time per
+    /// frame, and the clip's check (`check --clip`'s figures).
+    #[arg(long, value_name = "JSON")]
+    report: Option<PathBuf>,
 }
 
 /// Runs `retarget`.
@@ -127,6 +132,8 @@ pub fn run(args: &RetargetArgs) -> Result<()> {
     std::fs::write(&args.out, motion.to_csv(&robot, &header))
         .with_context(|| format!("cannot write {}", args.out.display()))?;
     println!("wrote {}", args.out.display());
+    println!("retargeting (the robot against the scaled human):");
+    print!("{}", motion.report);
 
     // The clip checker, as `check --clip` runs it.
     let clip = Clip::load(&args.out)?;
@@ -134,6 +141,17 @@ pub fn run(args: &RetargetArgs) -> Result<()> {
     let quality = analysis::motion_check::analyze(&robot, &reference)?;
     println!("clip quality on the robot model:");
     print!("{quality}");
+    if let Some(path) = &args.report {
+        let json = serde_json::json!({
+            "bvh": args.bvh,
+            "robot": robot.config.name,
+            "retarget": motion.report,
+            "clip": quality,
+        });
+        std::fs::write(path, serde_json::to_string_pretty(&json)? + "\n")
+            .with_context(|| format!("--report {}: cannot write", path.display()))?;
+        println!("wrote {}", path.display());
+    }
     let problems = quality.problems();
     let policy = args.policy.clone().or_else(|| robot.default_policy());
     let reported = match &policy {

@@ -35,6 +35,7 @@ struct Slot {
     qpos: usize,
     dof: usize,
     limits: [f64; 2],
+    locked: bool,
 }
 
 /// A solver for one robot and one set of frames.
@@ -44,7 +45,6 @@ pub struct Ik {
     frames: Vec<FrameRef>,
     root: Option<(usize, usize)>,
     joints: Vec<Slot>,
-    active: Vec<bool>,
     compare: Vec<(OrientationCompare, [f64; 3])>,
     /// Damping λ of the least squares.
     pub damping: f64,
@@ -52,10 +52,14 @@ pub struct Ik {
     pub max_step: f64,
     /// Weight of keeping the colliding geoms out of the floor (0: the floor is not looked at).
     pub floor_weight: f64,
-    jac: Vec<f64>,
-    err: Vec<f64>,
-    normal: Vec<f64>,
+    /// Weight of each joint's distance from its anchor, per radian (0: none).
+    pub anchor_weight: f64,
+    anchor: Vec<f64>,
+    /// Per body, the active degrees of freedom that move it (its chain up to the world).
+    chains: Vec<Vec<usize>>,
+    system: NormalEquations,
     dq: Vec<f64>,
+    qpos: Vec<f64>,
 }
 
 impl Ik {
@@ -87,12 +91,14 @@ impl Ik {
             .config
             .joints
             .iter()
-            .map(|j| {
+            .enumerate()
+            .map(|(k, j)| {
                 let ids = model_index::joint(&model, &j.mjcf_joint)?;
                 Ok(Slot {
                     qpos: ids.qpos,
                     dof: ids.dof,
                     limits: j.position_limits,
+                    locked: locked.contains(&k),
                 })
             })
             .collect::<Result<Vec<_>, HumanError>>()?;
@@ -101,44 +107,45 @@ impl Ik {
         if let (true, Some((_, dof))) = (free_root, root) {
             active[dof..dof + 6].fill(true);
         }
-        for (k, s) in joints.iter().enumerate() {
-            active[s.dof] = !locked.contains(&k);
+        for s in &joints {
+            active[s.dof] = !s.locked;
         }
-        let rows = 6 * frames.len();
+        let chains: Vec<Vec<usize>> = (0..model.ffi().nbody as usize)
+            .map(|b| {
+                let mut dofs: Vec<usize> = chain_dofs(&model, b).into_iter().filter(|&d| active[d]).collect();
+                dofs.sort_unstable();
+                dofs
+            })
+            .collect();
+        let nq = model.ffi().nq as usize;
+        let n_joints = joints.len();
         let mut data = MjData::new(model);
         data.kinematics();
         Ok(Self {
             data,
+            compare: vec![(OrientationCompare::Full, [1.0, 0.0, 0.0]); frames.len()],
             frames,
             root,
             joints,
-            active,
-            compare: vec![(OrientationCompare::Full, [1.0, 0.0, 0.0]); rows / 6],
             damping: 0.05,
             max_step: 0.2,
             floor_weight: 0.0,
-            jac: vec![0.0; rows * nv],
-            err: vec![0.0; rows],
-            normal: vec![0.0; rows * rows],
+            anchor_weight: 0.0,
+            anchor: vec![0.0; n_joints],
+            chains,
+            system: NormalEquations::new(nv),
             dq: vec![0.0; nv],
+            qpos: vec![0.0; nq],
         })
     }
 
     /// The robot joints (policy order) on the kinematic chain of frame `k`.
     pub fn joints_moving_frame(&self, k: usize) -> Vec<usize> {
-        let model = self.data.model();
-        let mut body = match self.frames[k] {
+        let body = match self.frames[k] {
             FrameRef::Body(b) => b,
             FrameRef::Site { body, .. } => body,
         };
-        let mut dofs = Vec::new();
-        while body != 0 {
-            let (first, count) = (model.body_dofadr()[body], model.body_dofnum()[body]);
-            if first >= 0 {
-                dofs.extend(first as usize..first as usize + count as usize);
-            }
-            body = model.body_parentid()[body] as usize;
-        }
+        let dofs = chain_dofs(self.data.model(), body);
         (0..self.joints.len())
             .filter(|&j| dofs.contains(&self.joints[j].dof))
             .collect()
@@ -170,6 +177,11 @@ impl Ik {
             self.data.qpos_mut()[s.qpos] = v;
         }
         self.data.kinematics();
+    }
+
+    /// The joints (policy order) that [`Self::anchor_weight`] holds towards.
+    pub fn set_anchor(&mut self, q: &[f64]) {
+        self.anchor.copy_from_slice(q);
     }
 
     /// The root pose.
@@ -253,14 +265,19 @@ impl Ik {
 
     /// Runs `iterations` damped least-squares steps towards `goals` (one per frame); returns the
     /// weighted error left.
+    ///
+    /// Each step solves `(JᵀJ + λ²I) dq = Jᵀe` over the model's degrees of freedom, the rows added
+    /// over the columns of their own kinematic chain only (a frame's Jacobian is zero off it): the
+    /// same step as `Jᵀ(JJᵀ + λ²I)⁻¹e`, in a system of the model's size rather than the goals'.
     pub fn solve(&mut self, goals: &[IkGoal], iterations: usize) -> f64 {
         let nv = self.dq.len();
         let mut residual = 0.0;
         for _ in 0..iterations {
             self.data.kinematics();
             self.data.com_pos();
-            self.jac.fill(0.0);
-            self.err.fill(0.0);
+            self.system.normal.fill(0.0);
+            self.system.rhs.fill(0.0);
+            let mut squared = 0.0;
             for (k, g) in goals.iter().enumerate() {
                 let now = self.frame(k);
                 let body = match self.frames[k] {
@@ -268,7 +285,6 @@ impl Ik {
                     FrameRef::Site { body, .. } => body,
                 };
                 let (jp, jr) = self.data.jac(true, true, &now.pos, body);
-                let rows = 6 * k;
                 let e_pos = spatial::sub(g.frame.pos, now.pos);
                 let mut e_rot = spatial::log(&spatial::mat_mul(&g.frame.rot, &spatial::transpose(&now.rot)));
                 // Swing or twist only: project error and Jacobian on (or off) the twist axis.
@@ -287,26 +303,24 @@ impl Ik {
                 if let Some(p) = &project {
                     e_rot = spatial::mat_apply(p, e_rot);
                 }
+                let chain = &self.chains[body];
                 for i in 0..3 {
-                    self.err[rows + i] = g.position_weight * e_pos[i];
-                    self.err[rows + 3 + i] = g.orientation_weight * e_rot[i];
-                    for c in 0..nv {
-                        if self.active[c] {
-                            self.jac[(rows + i) * nv + c] = g.position_weight * jp[i * nv + c];
-                            let r = match &project {
-                                Some(p) => (0..3).map(|m| p[i][m] * jr[m * nv + c]).sum(),
-                                None => jr[i * nv + c],
-                            };
-                            self.jac[(rows + 3 + i) * nv + c] = g.orientation_weight * r;
-                        }
+                    if g.position_weight > 0.0 {
+                        squared += self
+                            .system
+                            .add(chain, g.position_weight, |c| jp[i * nv + c], e_pos[i]);
+                    }
+                    if g.orientation_weight > 0.0 {
+                        let column = |c| match &project {
+                            Some(p) => (0..3).map(|m| p[i][m] * jr[m * nv + c]).sum(),
+                            None => jr[i * nv + c],
+                        };
+                        squared += self.system.add(chain, g.orientation_weight, column, e_rot[i]);
                     }
                 }
             }
             // The floor: one row per geom below it, pushing it up (a one-sided goal, so only
             // the geoms in the floor count; the frames' goals pick how the robot gets out).
-            let goal_rows = 6 * goals.len();
-            self.jac.truncate(goal_rows * nv);
-            self.err.truncate(goal_rows);
             if self.floor_weight > 0.0 {
                 for g in 0..self.data.model().ffi().ngeom as usize {
                     let Some(bottom) = self.geom_bottom(g).filter(|b| *b < 0.0) else {
@@ -315,51 +329,100 @@ impl Ik {
                     let body = self.data.model().geom_bodyid()[g] as usize;
                     let at = self.data.geom_xpos()[g];
                     let (jp, _) = self.data.jac(true, false, &at, body);
-                    self.err.push(-self.floor_weight * bottom);
-                    let start = self.jac.len();
-                    self.jac.extend((0..nv).map(|c| {
-                        if self.active[c] {
-                            self.floor_weight * jp[2 * nv + c]
-                        } else {
-                            0.0
-                        }
-                    }));
-                    debug_assert_eq!(self.jac.len(), start + nv);
+                    let chain = &self.chains[body];
+                    squared += self
+                        .system
+                        .add(chain, self.floor_weight, |c| jp[2 * nv + c], -bottom);
                 }
             }
-            residual = self.err.iter().map(|e| e * e).sum::<f64>().sqrt();
-            let m = self.err.len();
-            self.normal.resize(m * m, 0.0);
-            // (J Jᵀ + λ² I) y = e, then dq = Jᵀ y.
-            for a in 0..m {
-                for b in 0..=a {
-                    let v: f64 = (0..nv).map(|c| self.jac[a * nv + c] * self.jac[b * nv + c]).sum();
-                    self.normal[a * m + b] = v;
-                    self.normal[b * m + a] = v;
+            // Every joint held towards its anchor (the previous frame): where the goals leave a
+            // choice (a straight knee at its limit, a singular arm), the pose does not jump.
+            if self.anchor_weight > 0.0 {
+                let w2 = self.anchor_weight * self.anchor_weight;
+                for (s, a) in self.joints.iter().zip(&self.anchor) {
+                    if !s.locked {
+                        let e = a - self.data.qpos()[s.qpos];
+                        self.system.normal[s.dof * nv + s.dof] += w2;
+                        self.system.rhs[s.dof] += w2 * e;
+                        squared += w2 * e * e;
+                    }
                 }
-                self.normal[a * m + a] += self.damping * self.damping;
             }
-            let mut y = self.err.clone();
-            cholesky_solve(&mut self.normal, m, &mut y);
-            let mut largest: f64 = 0.0;
+            residual = squared.sqrt();
             for c in 0..nv {
-                self.dq[c] = (0..m).map(|r| self.jac[r * nv + c] * y[r]).sum();
-                largest = largest.max(self.dq[c].abs());
+                self.system.normal[c * nv + c] += self.damping * self.damping;
             }
+            self.dq.copy_from_slice(&self.system.rhs);
+            cholesky_solve(&mut self.system.normal, nv, &mut self.dq);
+            let largest = self.dq.iter().fold(0.0f64, |m, d| m.max(d.abs()));
             if largest > self.max_step {
                 let k = self.max_step / largest;
                 self.dq.iter_mut().for_each(|d| *d *= k);
             }
-            let mut qpos = self.data.qpos().to_vec();
-            self.data.model().integrate_pos(&mut qpos, &self.dq, 1.0);
+            self.qpos.copy_from_slice(self.data.qpos());
+            self.data.model().integrate_pos(&mut self.qpos, &self.dq, 1.0);
             for s in &self.joints {
-                qpos[s.qpos] = qpos[s.qpos].clamp(s.limits[0], s.limits[1]);
+                self.qpos[s.qpos] = self.qpos[s.qpos].clamp(s.limits[0], s.limits[1]);
             }
-            self.data.qpos_mut().copy_from_slice(&qpos);
+            self.data.qpos_mut().copy_from_slice(&self.qpos);
         }
         self.data.kinematics();
         residual
     }
+}
+
+/// The normal equations of one damped least-squares step, `JᵀJ` and `Jᵀe` (nv × nv, nv).
+#[derive(Debug)]
+struct NormalEquations {
+    nv: usize,
+    normal: Vec<f64>,
+    rhs: Vec<f64>,
+    /// One row of the Jacobian on a chain's columns.
+    row: Vec<f64>,
+}
+
+impl NormalEquations {
+    fn new(nv: usize) -> Self {
+        Self {
+            nv,
+            normal: vec![0.0; nv * nv],
+            rhs: vec![0.0; nv],
+            row: vec![0.0; nv],
+        }
+    }
+
+    /// Adds the row `weight · column(c)` over the columns `chain` (the Jacobian is zero off its
+    /// chain) with its error `weight · err`; returns the squared weighted error.
+    fn add(&mut self, chain: &[usize], weight: f64, column: impl Fn(usize) -> f64, err: f64) -> f64 {
+        let err = weight * err;
+        for (r, &c) in self.row.iter_mut().zip(chain) {
+            *r = weight * column(c);
+        }
+        let nv = self.nv;
+        for (a, (&ca, &va)) in chain.iter().zip(&self.row).enumerate() {
+            self.rhs[ca] += va * err;
+            for (&cb, &vb) in chain[..=a].iter().zip(&self.row) {
+                self.normal[ca * nv + cb] += va * vb;
+                if ca != cb {
+                    self.normal[cb * nv + ca] += va * vb;
+                }
+            }
+        }
+        err * err
+    }
+}
+
+/// The degrees of freedom that move `body`: its own and its ancestors' up to the world.
+fn chain_dofs(model: &MjModel, mut body: usize) -> Vec<usize> {
+    let mut dofs = Vec::new();
+    while body != 0 {
+        let (first, count) = (model.body_dofadr()[body], model.body_dofnum()[body]);
+        if first >= 0 {
+            dofs.extend(first as usize..first as usize + count as usize);
+        }
+        body = model.body_parentid()[body] as usize;
+    }
+    dofs
 }
 
 /// Solves `a x = b` in place for a symmetric positive definite `a` (n × n, row major).

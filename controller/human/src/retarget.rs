@@ -96,7 +96,7 @@ pub struct RetargetOptions {
     pub nominal: Nominal,
     /// IK iterations per output frame (the first frame gets twenty times as many).
     pub iterations: usize,
-    /// Gaussian smoothing of the result, σ in seconds (0: none).
+    /// Gaussian smoothing of the human motion before retargeting, σ in seconds (0: none).
     pub smoothing_s: f64,
 }
 
@@ -130,6 +130,636 @@ pub struct Retargeted {
     pub mean_position_error: f64,
     /// Per position pair: robot frame name, mean and worst distance from its target, m.
     pub pair_errors: Vec<(String, f64, f64)>,
+    /// Per frame, which feet the human had planted (pairs' order of [`Retargeter::feet`]).
+    pub planted: Vec<[bool; 2]>,
+    /// How well the result follows the human, measured on the result.
+    pub report: RetargetReport,
+}
+
+/// The number of [`HumanBody`] kinds.
+pub const HUMAN_BODIES: usize = 15;
+
+/// Where a source sees each human body: frames in its world (x forward, y left, z up, m; the
+/// floor at z = 0), `None` where it sees none. Indexed by `HumanBody as usize`.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct HumanPose {
+    /// Per body kind.
+    pub bodies: [Option<Frame>; HUMAN_BODIES],
+}
+
+impl HumanPose {
+    /// Body `b`'s frame, if seen.
+    pub fn get(&self, b: HumanBody) -> Option<&Frame> {
+        self.bodies[b as usize].as_ref()
+    }
+
+    /// Sets body `b`'s frame.
+    pub fn set(&mut self, b: HumanBody, frame: Frame) {
+        self.bodies[b as usize] = Some(frame);
+    }
+}
+
+/// A BVH skeleton's joints for the human bodies: each body at its joint, turned as its
+/// orientation joint (the feet as the toes).
+#[derive(Debug, Clone)]
+pub struct BvhBodies {
+    joints: Vec<(HumanBody, usize, usize)>,
+}
+
+impl BvhBodies {
+    /// The bodies `bvh` has joints for; `needed` must all be there (named in the error).
+    pub fn new(bvh: &Bvh, needed: &[HumanBody]) -> Result<Self, HumanError> {
+        use HumanBody as H;
+        let all = [
+            H::Root,
+            H::Head,
+            H::LeftHand,
+            H::RightHand,
+            H::LeftElbow,
+            H::RightElbow,
+            H::LeftFoot,
+            H::RightFoot,
+            H::LeftKnee,
+            H::RightKnee,
+            H::Chest,
+            H::LeftHip,
+            H::RightHip,
+            H::LeftShoulder,
+            H::RightShoulder,
+        ];
+        let mut joints = Vec::new();
+        for body in all {
+            let name = bvh_joint(bvh.dialect, body);
+            match bvh.joint(name) {
+                Some(j) => {
+                    let turned = orientation_joint(bvh.dialect, body)
+                        .and_then(|n| bvh.joint(n))
+                        .unwrap_or(j);
+                    joints.push((body, j, turned));
+                }
+                None if needed.contains(&body) => {
+                    return Err(HumanError::map(format!(
+                        "the recording has no {name} joint for {body:?}"
+                    )));
+                }
+                None => {}
+            }
+        }
+        Ok(Self { joints })
+    }
+
+    /// The bodies of a pose of the skeleton.
+    pub fn pose(&self, pose: &Pose) -> HumanPose {
+        let mut out = HumanPose::default();
+        for &(body, j, turned) in &self.joints {
+            out.set(
+                body,
+                Frame {
+                    pos: pose.pos[j],
+                    rot: pose.rot[turned],
+                },
+            );
+        }
+        out
+    }
+}
+
+/// How the retargeter runs, whatever feeds it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RetargeterOptions {
+    /// Which robot pose the human's nominal pose matches.
+    pub nominal: Nominal,
+    /// IK iterations per frame (the first frame gets twenty times as many).
+    pub iterations: usize,
+}
+
+/// A human foot below this height over its floor, m, moving slower than [`PLANT_SPEED`], is
+/// planted; it lifts above [`LIFT_HEIGHT`] or faster than [`LIFT_SPEED`] (hysteresis: a foot
+/// rolling over its heel does not flicker).
+pub const PLANT_HEIGHT: f64 = 0.05;
+/// See [`PLANT_HEIGHT`], m/s (horizontal).
+pub const PLANT_SPEED: f64 = 0.25;
+/// See [`PLANT_HEIGHT`], m.
+pub const LIFT_HEIGHT: f64 = 0.08;
+/// See [`PLANT_HEIGHT`], m/s.
+pub const LIFT_SPEED: f64 = 0.5;
+/// After a lift the robot's foot catches up with the human's over this long, s (where the two
+/// parted while planted).
+pub const CATCH_UP_S: f64 = 0.2;
+/// How far a planted robot foot may stay from where the human's foot maps, m on the human's
+/// scale.
+pub const PLANT_DRIFT: f64 = 0.04;
+/// Putting planted feet back after smoothing: weight of each leg joint's change from its
+/// smoothed angle, per radian, against 10 per metre of the foot's distance from where it stood.
+const REPLANT_ANCHOR_WEIGHT: f64 = 0.5;
+/// A planted foot's position weighs this many times its pair's own.
+pub const PLANTED_WEIGHT: f64 = 4.0;
+
+/// One foot pair's planting state.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Foot {
+    /// The human foot's floor: its height when standing, m.
+    floor: f64,
+    /// Where the robot's foot stands while planted (x, y), its goal's offset from the human's
+    /// mapped foot, and the human foot's last position.
+    planted: Option<[f64; 2]>,
+    offset: [f64; 2],
+    last: Option<[f64; 3]>,
+}
+
+/// Human poses onto the robot, one frame at a time, on GMR's recipe: the map calibrated on the
+/// human's nominal pose (rest-pose alignment, scale by height, per body group), then per frame
+/// two inverse-kinematics stages on the robot's model (posture, then every pair's weights),
+/// within joint limits and motor speeds, soles out of the floor, planted feet held where they
+/// stand. Causal: offline retargeting and a live operator run the same steps.
+#[derive(Debug)]
+pub struct Retargeter {
+    pairs: Vec<robots::BodyPair>,
+    root_pair: usize,
+    ik: Ik,
+    target: Vec<Frame>,
+    position_map: RetargetMap,
+    orientation_map: RetargetMap,
+    alignment: Alignment,
+    feet: Vec<(usize, Foot)>,
+    two_stages: bool,
+    iterations: usize,
+    velocity_limits: Vec<f64>,
+    q: Vec<f64>,
+    started: bool,
+    goals: Vec<IkGoal>,
+    posture: Vec<IkGoal>,
+    /// Each pair's place on the scaled human this frame.
+    human: Vec<[f64; 3]>,
+    /// Per pair: squared, plain and worst distance from its goal, frames.
+    errors: Vec<(f64, f64, f64, usize)>,
+}
+
+/// The heading of a pose from its thighs' line (or the root's forward axis), as a turn about z.
+fn heading_of(pose: &HumanPose) -> Option<f64> {
+    match (pose.get(HumanBody::LeftHip), pose.get(HumanBody::RightHip)) {
+        (Some(l), Some(r)) => {
+            let lateral = spatial::sub(l.pos, r.pos);
+            Some(lateral[1].atan2(lateral[0]) - std::f64::consts::FRAC_PI_2)
+        }
+        _ => pose.get(HumanBody::Root).map(|r| spatial::heading(&r.rot)),
+    }
+}
+
+impl Retargeter {
+    /// Calibrates the map on `nominal`, the human in the pose that matches the robot's
+    /// `options.nominal` pose (a T-pose, or standing), feet on the floor. Every body the
+    /// robot's `[retarget]` pairs must be seen.
+    pub fn new(robot: &Robot, nominal: &HumanPose, options: RetargeterOptions) -> Result<Self, HumanError> {
+        let config = robot.config.retarget.as_ref().ok_or_else(|| {
+            HumanError::map(format!(
+                "{}: no [retarget] section: which robot body stands for which human one?",
+                robot.path.display()
+            ))
+        })?;
+        let root_pair = config
+            .pairs
+            .iter()
+            .position(|p| p.human == HumanBody::Root)
+            .ok_or_else(|| HumanError::map("[retarget] pairs no robot frame with the root"))?;
+        if let Some(p) = config.pairs.iter().find(|p| nominal.get(p.human).is_none()) {
+            return Err(HumanError::map(format!(
+                "the source does not see the {:?} that robot.toml pairs with {}",
+                p.human, p.frame
+            )));
+        }
+        if heading_of(nominal).is_none() {
+            return Err(HumanError::map(
+                "the source sees neither thighs nor a root to tell its heading",
+            ));
+        }
+        let frames: Vec<String> = config.pairs.iter().map(|p| p.frame.clone()).collect();
+        let mut ik = Ik::new(robot, &frames, true, &[])?;
+        // Soles stay out of the floor by moving the foot (its pitch, the leg), not by lifting the
+        // whole robot off the other, planted foot: twice the heaviest pair's weight.
+        ik.floor_weight = 2.0
+            * config
+                .pairs
+                .iter()
+                .map(|p| p.position_weight.max(p.orientation_weight))
+                .fold(1.0, f64::max);
+        for (k, p) in config.pairs.iter().enumerate() {
+            ik.set_compare(k, p.orientation_compare, p.twist_axis);
+        }
+        // The robot in its nominal pose, soles on the floor.
+        let q: Vec<f64> = robot
+            .config
+            .joints
+            .iter()
+            .map(|j| match options.nominal {
+                Nominal::Tpose => config.tpose.get(&j.name).copied().unwrap_or(0.0),
+                Nominal::Default => j.default_position,
+            })
+            .collect();
+        ik.standing_root(&q);
+        let target: Vec<Frame> = (0..frames.len()).map(|k| ik.frame(k)).collect();
+        let mut me = Self {
+            pairs: config.pairs.clone(),
+            root_pair,
+            ik,
+            target,
+            position_map: RetargetMap {
+                scale: 1.0,
+                z_shift: 0.0,
+                pairs: Vec::new(),
+            },
+            orientation_map: RetargetMap {
+                scale: 1.0,
+                z_shift: 0.0,
+                pairs: Vec::new(),
+            },
+            alignment: (spatial::IDENTITY, [0.0; 3]),
+            feet: Vec::new(),
+            two_stages: config.pairs.iter().any(|p| p.posture.is_some()),
+            iterations: options.iterations.max(1),
+            velocity_limits: robot.config.joints.iter().map(|j| j.velocity_limit).collect(),
+            q,
+            started: false,
+            goals: Vec::with_capacity(frames.len()),
+            posture: Vec::with_capacity(frames.len()),
+            human: Vec::with_capacity(frames.len()),
+            errors: vec![(0.0, 0.0, 0.0, 0); frames.len()],
+        };
+        me.align_to(nominal);
+        let params: Vec<PairParams> = me
+            .pairs
+            .iter()
+            .map(|p| PairParams {
+                p_pos: p.p_pos,
+                p_ori: p.p_ori,
+            })
+            .collect();
+        let map = |frame: &dyn Fn(usize) -> Frame| {
+            let source: Vec<Frame> = (0..me.pairs.len()).map(frame).collect();
+            RetargetMap::nominal(
+                source[root_pair].pos[2],
+                me.target[root_pair].pos[2],
+                &source,
+                &me.target,
+                &params,
+                0.0,
+            )
+        };
+        let position_map = map(&|b| me.heading_frame(nominal, b))?;
+        let orientation_map = map(&|b| me.body_frame(nominal, b))?;
+        me.position_map = position_map;
+        me.orientation_map = orientation_map;
+        me.feet = (0..me.pairs.len())
+            .filter(|&b| matches!(me.pairs[b].human, HumanBody::LeftFoot | HumanBody::RightFoot))
+            .map(|b| {
+                (
+                    b,
+                    Foot {
+                        floor: me.body_frame(nominal, b).pos[2],
+                        planted: None,
+                        offset: [0.0; 2],
+                        last: None,
+                    },
+                )
+            })
+            .collect();
+        Ok(me)
+    }
+
+    /// Turns the source's world so that `pose` faces +x with its root over the origin (a clip
+    /// calibrated on another recording starts where it starts).
+    pub fn align_to(&mut self, pose: &HumanPose) {
+        let turn = spatial::yaw(-heading_of(pose).unwrap_or(0.0));
+        let root = pose
+            .get(HumanBody::Root)
+            .map_or([0.0; 3], |r| spatial::mat_apply(&turn, r.pos));
+        self.alignment = (turn, root);
+    }
+
+    /// Sets each foot's floor, the human foot's height when standing, m (pairs of [`Self::feet`]).
+    pub fn set_feet_floor(&mut self, floors: &[f64]) {
+        for ((_, f), &z) in self.feet.iter_mut().zip(floors) {
+            f.floor = z;
+        }
+    }
+
+    /// The robot frames of the feet pairs, in the order of the planted flags.
+    pub fn feet(&self) -> Vec<String> {
+        self.feet
+            .iter()
+            .map(|(b, _)| self.pairs[*b].frame.clone())
+            .collect()
+    }
+
+    /// The map's global scale (robot root height over the human's).
+    pub fn scale(&self) -> f64 {
+        self.position_map.scale
+    }
+
+    /// A source frame in the aligned world.
+    fn aligned(&self, f: &Frame) -> Frame {
+        let (turn, origin) = &self.alignment;
+        let mut pos = spatial::mat_apply(turn, f.pos);
+        pos[0] -= origin[0];
+        pos[1] -= origin[1];
+        Frame {
+            pos,
+            rot: spatial::mat_mul(turn, &f.rot),
+        }
+    }
+
+    /// Pair `b`'s body, aligned, its offset from the root scaled by the pair's factor (limbs of
+    /// other proportions).
+    fn body_frame(&self, pose: &HumanPose, b: usize) -> Frame {
+        let pair = &self.pairs[b];
+        let (Some(f), Some(root)) = (pose.get(pair.human), pose.get(self.pairs[self.root_pair].human)) else {
+            return self.target[b];
+        };
+        let (mut f, root) = (self.aligned(f), self.aligned(root));
+        f.pos = spatial::add(
+            root.pos,
+            spatial::scale(spatial::sub(f.pos, root.pos), pair.scale),
+        );
+        f
+    }
+
+    /// The nominal position offsets stand for other body proportions (an ankle lower, hips
+    /// wider), which turn with the body's heading, not with the limb: a foot pitching about its
+    /// ankle leaves the ankle where it is. So positions map in the heading frame, orientations
+    /// in each body's own frame.
+    fn heading_frame(&self, pose: &HumanPose, b: usize) -> Frame {
+        Frame {
+            pos: self.body_frame(pose, b).pos,
+            rot: spatial::mat_mul(&self.alignment.0, &spatial::yaw(heading_of(pose).unwrap_or(0.0))),
+        }
+    }
+
+    /// Pair `b`'s goal for the human in `pose`, before planting.
+    fn goal_frame(&self, pose: &HumanPose, b: usize) -> Frame {
+        let body = self.body_frame(pose, b);
+        let mut pos = self.position_map.map(b, &self.heading_frame(pose, b)).pos;
+        // Feet: their height above the floor is the human's above theirs, scaled.
+        if let Some((_, foot)) = self.feet.iter().find(|(f, _)| *f == b) {
+            pos[2] = self.target[b].pos[2] + self.position_map.scale * (body.pos[2] - foot.floor);
+        }
+        Frame {
+            pos,
+            rot: self.orientation_map.map(b, &body).rot,
+        }
+    }
+
+    /// Retargets one human pose, `dt` seconds after the previous one; returns which feet the
+    /// human had planted. The robot's pose is then [`Self::root`] and [`Self::joints`].
+    pub fn step(&mut self, pose: &HumanPose, dt: f64) -> [bool; 2] {
+        self.goals.clear();
+        self.human.clear();
+        for (b, p) in self.pairs.iter().enumerate() {
+            let frame = self.goal_frame(pose, b);
+            self.human.push(frame.pos);
+            self.goals.push(IkGoal {
+                frame,
+                position_weight: p.position_weight,
+                orientation_weight: p.orientation_weight,
+            });
+        }
+        // Planted feet: a human foot on its floor and still holds the robot's where it stood.
+        let mut planted = [false; 2];
+        for (slot, k) in (0..self.feet.len()).enumerate() {
+            let b = self.feet[k].0;
+            let human = self.body_frame(pose, b).pos;
+            let goal = &mut self.goals[b];
+            let foot = &mut self.feet[k].1;
+            let speed = foot.last.map_or(f64::INFINITY, |l| {
+                ((human[0] - l[0]).powi(2) + (human[1] - l[1]).powi(2)).sqrt() / dt.max(1e-6)
+            });
+            foot.last = Some(human);
+            let above = human[2] - foot.floor;
+            let on = match foot.planted {
+                Some(_) => above <= LIFT_HEIGHT && speed <= LIFT_SPEED,
+                None => above <= PLANT_HEIGHT && speed <= PLANT_SPEED,
+            };
+            match (on, foot.planted) {
+                // Where the robot's foot is (it may trail the human's): planted there, it does
+                // not slide to catch up.
+                (true, None) if self.started => {
+                    let at = self.ik.frame(b).pos;
+                    foot.planted = Some([at[0], at[1]]);
+                }
+                (true, None) => {
+                    foot.planted = Some([goal.frame.pos[0], goal.frame.pos[1]]);
+                }
+                (false, Some(_)) => foot.planted = None,
+                _ => {}
+            }
+            if let Some(at) = &mut foot.planted {
+                // A human foot that creeps while planted (a pivot, mocap drift) drags the robot's
+                // along once the two are PLANT_DRIFT (scaled) apart: held, not left behind.
+                let mut offset = [at[0] - goal.frame.pos[0], at[1] - goal.frame.pos[1]];
+                let (apart, most) = (offset[0].hypot(offset[1]), PLANT_DRIFT * self.position_map.scale);
+                if apart > most {
+                    offset = offset.map(|o| o * most / apart);
+                    *at = [goal.frame.pos[0] + offset[0], goal.frame.pos[1] + offset[1]];
+                }
+                foot.offset = offset;
+                goal.position_weight *= PLANTED_WEIGHT;
+            } else {
+                let keep = (1.0 - dt / CATCH_UP_S).max(0.0);
+                foot.offset = foot.offset.map(|o| o * keep);
+            }
+            goal.frame.pos[0] += foot.offset[0];
+            goal.frame.pos[1] += foot.offset[1];
+            if slot < 2 {
+                planted[slot] = foot.planted.is_some();
+            }
+        }
+        let iterations = if self.started {
+            self.iterations
+        } else {
+            20 * self.iterations
+        };
+        // GMR's two stages where the map names a posture stage: the posture first (orientations,
+        // the feet), then every pair's own weights refine it.
+        if self.two_stages {
+            self.posture.clear();
+            for (g, p) in self.goals.iter().zip(&self.pairs) {
+                let w = p.posture.unwrap_or(robots::StageWeights {
+                    position_weight: 0.0,
+                    orientation_weight: 0.0,
+                });
+                self.posture.push(IkGoal {
+                    position_weight: w.position_weight,
+                    orientation_weight: w.orientation_weight,
+                    ..*g
+                });
+            }
+            self.ik.solve(&self.posture, iterations);
+        }
+        self.ik.solve(&self.goals, iterations);
+        // Within the motors' speed: no joint moves further per frame than 90 % of its limit.
+        if self.started {
+            let mut q = std::mem::take(&mut self.q);
+            let before = q.clone();
+            self.ik.joints(&mut q);
+            for ((v, p), limit) in q.iter_mut().zip(&before).zip(&self.velocity_limits) {
+                let s = 0.9 * limit * dt;
+                *v = v.clamp(p - s, p + s);
+            }
+            let root = self.ik.root();
+            self.ik.set_pose(root, &q);
+            self.q = q;
+        }
+        // Feet out of the floor: lift the whole robot by what its lowest sole sinks in.
+        let sink = self.ik.lowest_point();
+        if sink < 0.0 {
+            self.ik.lift(-sink);
+        }
+        // Against the scaled human, not the planted goal.
+        for (b, h) in self.human.iter().enumerate() {
+            let e = spatial::norm(spatial::sub(self.ik.frame(b).pos, *h));
+            let acc = &mut self.errors[b];
+            *acc = (acc.0 + e * e, acc.1 + e, acc.2.max(e), acc.3 + 1);
+        }
+        self.ik.joints(&mut self.q);
+        self.started = true;
+        planted
+    }
+
+    /// The robot's root pose `[x, y, z, w, qx, qy, qz]` after the last step.
+    pub fn root(&self) -> [f64; 7] {
+        self.ik.root()
+    }
+
+    /// The robot's joints (policy order) after the last step.
+    pub fn joints(&self) -> &[f64] {
+        &self.q
+    }
+
+    /// Per position pair since the start: robot frame, human body, and the robot frame's mean,
+    /// RMS and worst distance from the scaled human's, m.
+    pub fn key_body_errors(&self) -> Vec<KeyBodyError> {
+        self.pairs
+            .iter()
+            .zip(&self.errors)
+            .filter(|(p, _)| p.position_weight > 0.0)
+            .map(|(p, &(sq, sum, worst, n))| KeyBodyError {
+                frame: p.frame.clone(),
+                human: p.human,
+                mean: sum / n.max(1) as f64,
+                rms: (sq / n.max(1) as f64).sqrt(),
+                worst,
+            })
+            .collect()
+    }
+
+    /// The solver on the robot's model (for measuring a pose).
+    pub fn ik_mut(&mut self) -> &mut Ik {
+        &mut self.ik
+    }
+}
+
+/// How far one paired robot frame stayed from the scaled human body, m.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct KeyBodyError {
+    /// The robot frame.
+    pub frame: String,
+    /// The human body it follows.
+    pub human: HumanBody,
+    /// Mean distance, m.
+    pub mean: f64,
+    /// Root mean square, m.
+    pub rms: f64,
+    /// Largest, m.
+    pub worst: f64,
+}
+
+/// Spread of a per-frame figure: median, 90th and 99th percentile, largest.
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize)]
+pub struct Spread {
+    /// Median.
+    pub median: f64,
+    /// 90th percentile.
+    pub p90: f64,
+    /// 99th percentile.
+    pub p99: f64,
+    /// Largest.
+    pub max: f64,
+    /// Samples.
+    pub samples: usize,
+}
+
+impl Spread {
+    /// Of `values` (sorted here).
+    pub fn of(values: &mut [f64]) -> Self {
+        if values.is_empty() {
+            return Self::default();
+        }
+        values.sort_by(f64::total_cmp);
+        let at = |p: f64| values[((values.len() - 1) as f64 * p).round() as usize];
+        Self {
+            median: at(0.5),
+            p90: at(0.9),
+            p99: at(0.99),
+            max: values[values.len() - 1],
+            samples: values.len(),
+        }
+    }
+}
+
+/// How well a retargeted motion follows its human, measured on the result (GMR's and
+/// holosoma-retargeting's kinds of figures).
+#[derive(Debug, Clone, PartialEq, Default, serde::Serialize)]
+pub struct RetargetReport {
+    /// Frames.
+    pub frames: usize,
+    /// Frame rate, Hz.
+    pub rate_hz: f64,
+    /// The map's global scale.
+    pub scale: f64,
+    /// Per position pair, before smoothing.
+    pub key_bodies: Vec<KeyBodyError>,
+    /// The robot's feet's horizontal speed while the human's foot stands planted, m/s.
+    pub foot_sliding: Spread,
+    /// Share of foot-frames planted.
+    pub planted_share: f64,
+    /// Deepest any colliding geom reaches into the floor, m (0: none).
+    pub deepest_penetration: f64,
+    /// Retargeting time per frame after the first, s.
+    pub frame_time: Spread,
+}
+
+impl std::fmt::Display for RetargetReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(
+            f,
+            "  feet planted in {:.0} % of foot-frames; sliding while planted: median {:.2} cm/s, p90 {:.2}, max {:.1} cm/s",
+            100.0 * self.planted_share,
+            100.0 * self.foot_sliding.median,
+            100.0 * self.foot_sliding.p90,
+            100.0 * self.foot_sliding.max
+        )?;
+        writeln!(
+            f,
+            "  soles into the floor: {:.2} cm at most",
+            100.0 * self.deepest_penetration
+        )?;
+        for k in &self.key_bodies {
+            writeln!(
+                f,
+                "  {} ({:?}) from the scaled human: {:.1} cm RMS, {:.1} cm worst",
+                k.frame,
+                k.human,
+                100.0 * k.rms,
+                100.0 * k.worst
+            )?;
+        }
+        writeln!(
+            f,
+            "  time per frame: median {:.3} ms, p99 {:.3} ms, max {:.3} ms",
+            1e3 * self.frame_time.median,
+            1e3 * self.frame_time.p99,
+            1e3 * self.frame_time.max
+        )
+    }
 }
 
 /// Retargets `bvh` onto `robot`, the map calibrated on the clip's own nominal frame.
@@ -176,267 +806,78 @@ pub fn retarget_calibrated(
             options.rate_hz
         )));
     }
-    let human: Vec<usize> = config
-        .pairs
-        .iter()
-        .map(|p| {
-            let name = bvh_joint(bvh.dialect, p.human);
-            bvh.joint(name).ok_or_else(|| {
-                HumanError::map(format!("the recording has no {name} joint for {:?}", p.human))
-            })
-        })
-        .collect::<Result<_, _>>()?;
-    let [lh, rh] = hips(bvh.dialect).map(|n| bvh.joint(n));
-    let (Some(lh), Some(rh)) = (lh, rh) else {
+    let mut needed: Vec<HumanBody> = config.pairs.iter().map(|p| p.human).collect();
+    if hips(bvh.dialect).iter().any(|n| bvh.joint(n).is_none()) {
         return Err(HumanError::map(
             "the recording has no thigh joints to tell its heading",
         ));
-    };
-    let root_pair = config
-        .pairs
-        .iter()
-        .position(|p| p.human == HumanBody::Root)
-        .ok_or_else(|| HumanError::map("[retarget] pairs no robot frame with the root"))?;
-
-    // A recording turned to face +x and moved over the origin at one of its frames: the
-    // nominal frame of the recording that calibrates the map, the clip's own for the clip.
-    let aligned_at = |pose: &Pose| {
-        let lateral = spatial::sub(pose.pos[lh], pose.pos[rh]);
-        let rot = spatial::yaw(-(lateral[1].atan2(lateral[0]) - std::f64::consts::FRAC_PI_2));
-        let origin = spatial::mat_apply(&rot, pose.pos[human[root_pair]]);
-        (rot, origin)
-    };
-    let nominal = calibration.pose(options.nominal_frame);
-    let calibrated = aligned_at(&nominal);
-    let clip_alignment = if std::ptr::eq(calibration, bvh) {
-        calibrated
-    } else {
-        aligned_at(&bvh.pose(options.start_frame))
-    };
-    let frame_of = |(align, origin): &Alignment, pose: &Pose, j: usize| {
-        let mut pos = spatial::mat_apply(align, pose.pos[j]);
-        pos[0] -= origin[0];
-        pos[1] -= origin[1];
-        Frame {
-            pos,
-            rot: spatial::mat_mul(align, &pose.rot[j]),
-        }
-    };
-
-    // The robot in its nominal pose, soles on the floor.
-    let frames: Vec<String> = config.pairs.iter().map(|p| p.frame.clone()).collect();
-    let mut ik = Ik::new(robot, &frames, true, &[])?;
-    // Soles stay out of the floor by moving the foot (its pitch, the leg), not by lifting the
-    // whole robot off the other, planted foot: twice the heaviest pair's weight.
-    ik.floor_weight = 2.0
-        * config
-            .pairs
-            .iter()
-            .map(|p| p.position_weight.max(p.orientation_weight))
-            .fold(1.0, f64::max);
-    for (k, p) in config.pairs.iter().enumerate() {
-        ik.set_compare(k, p.orientation_compare, p.twist_axis);
     }
-    let mut q: Vec<f64> = robot
-        .config
-        .joints
-        .iter()
-        .map(|j| match options.nominal {
-            Nominal::Tpose => config.tpose.get(&j.name).copied().unwrap_or(0.0),
-            Nominal::Default => j.default_position,
-        })
-        .collect();
-    ik.set_pose([0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0], &q);
-    let drop = ik.lowest_point();
-    ik.lift(-drop);
-    let target: Vec<Frame> = (0..frames.len()).map(|k| ik.frame(k)).collect();
-    // Each body's offset from the root scaled by its pair's factor (limbs of other proportions).
-    let root_joint = human[root_pair];
-    let turned_by: Vec<usize> = config
-        .pairs
-        .iter()
-        .zip(&human)
-        .map(|(p, &j)| {
-            orientation_joint(bvh.dialect, p.human)
-                .and_then(|n| bvh.joint(n))
-                .unwrap_or(j)
-        })
-        .collect();
-    let body_frame = |al: &Alignment, pose: &Pose, b: usize| {
-        let mut f = frame_of(al, pose, human[b]);
-        f.rot = frame_of(al, pose, turned_by[b]).rot;
-        let root = frame_of(al, pose, root_joint);
-        let factor = config.pairs[b].scale;
-        f.pos = spatial::add(root.pos, spatial::scale(spatial::sub(f.pos, root.pos), factor));
-        f
-    };
-    // The nominal position offsets stand for other body proportions (an ankle lower, hips
-    // wider), which turn with the body's heading, not with the limb: a foot pitching about its
-    // ankle leaves the ankle where it is. So positions map in the heading frame (the thighs'
-    // line), orientations in each body's own frame.
-    let heading_frame = |al: &Alignment, pose: &Pose, b: usize| {
-        let lateral = spatial::sub(frame_of(al, pose, lh).pos, frame_of(al, pose, rh).pos);
-        Frame {
-            pos: body_frame(al, pose, b).pos,
-            rot: spatial::yaw(lateral[1].atan2(lateral[0]) - std::f64::consts::FRAC_PI_2),
-        }
-    };
-    let params: Vec<PairParams> = config
-        .pairs
-        .iter()
-        .map(|p| PairParams {
-            p_pos: p.p_pos,
-            p_ori: p.p_ori,
-        })
-        .collect();
-    let nominal_map = |frame: &dyn Fn(&Alignment, &Pose, usize) -> Frame| {
-        let source: Vec<Frame> = (0..human.len())
-            .map(|b| frame(&calibrated, &nominal, b))
-            .collect();
-        RetargetMap::nominal(
-            source[root_pair].pos[2],
-            target[root_pair].pos[2],
-            &source,
-            &target,
-            &params,
-            0.0,
-        )
-    };
-    let (position_map, orientation_map) = (nominal_map(&heading_frame)?, nominal_map(&body_frame)?);
-    // Feet: their height above the floor is the human's above theirs (the foot's lowest 5 % over
-    // the clip), scaled — not the nominal frame's, which may be mid-stride.
+    needed.extend([HumanBody::LeftHip, HumanBody::RightHip]);
+    let bodies = BvhBodies::new(bvh, &needed)?;
+    let nominal = bodies.pose(&calibration.pose(options.nominal_frame));
+    let mut retargeter = Retargeter::new(
+        robot,
+        &nominal,
+        RetargeterOptions {
+            nominal: options.nominal,
+            iterations: options.iterations,
+        },
+    )?;
+    if !std::ptr::eq(calibration, bvh) {
+        retargeter.align_to(&bodies.pose(&bvh.pose(options.start_frame)));
+    }
     let duration = (bvh.frames() - 1 - options.start_frame) as f64 * bvh.frame_time;
     let ticks = (duration * options.rate_hz).floor() as usize + 1;
-    let feet_floor: Vec<Option<f64>> = config
-        .pairs
+    let mut poses: Vec<HumanPose> = (0..ticks)
+        .map(|k| bodies.pose(&bvh.pose_at(options.start_frame, k as f64 / options.rate_hz)))
+        .collect();
+    smooth_poses(&mut poses, options.smoothing_s * options.rate_hz);
+    // Feet: their floor is the foot's lowest 5 % over the clip, not the nominal frame's, which
+    // may be mid-stride.
+    let floors: Vec<f64> = retargeter
+        .feet
         .iter()
-        .enumerate()
-        .map(|(b, p)| {
-            matches!(p.human, HumanBody::LeftFoot | HumanBody::RightFoot).then(|| {
-                let mut z: Vec<f64> = (0..ticks)
-                    .map(|k| {
-                        let pose = bvh.pose_at(options.start_frame, k as f64 / options.rate_hz);
-                        body_frame(&clip_alignment, &pose, b).pos[2]
-                    })
-                    .collect();
-                z.sort_by(f64::total_cmp);
-                z[z.len() / 20]
-            })
+        .map(|&(b, _)| {
+            let mut z: Vec<f64> = poses.iter().map(|p| retargeter.body_frame(p, b).pos[2]).collect();
+            z.sort_by(f64::total_cmp);
+            z[z.len() / 20]
         })
         .collect();
-    let goal_frame = |pose: &Pose, b: usize| {
-        let mut pos = position_map.map(b, &heading_frame(&clip_alignment, pose, b)).pos;
-        if let Some(floor) = feet_floor[b] {
-            let above = body_frame(&clip_alignment, pose, b).pos[2] - floor;
-            pos[2] = target[b].pos[2] + position_map.scale * above;
-        }
-        Frame {
-            pos,
-            rot: orientation_map.map(b, &body_frame(&clip_alignment, pose, b)).rot,
-        }
-    };
-    let map = &position_map;
-    // GMR's two stages where the map names a posture stage: the posture first (orientations,
-    // the feet), then every pair's own weights refine it.
-    let two_stages = config.pairs.iter().any(|p| p.posture.is_some());
+    retargeter.set_feet_floor(&floors);
 
     let dt = 1.0 / options.rate_hz;
-    let speed: Vec<f64> = robot
-        .config
-        .joints
-        .iter()
-        .map(|j| 0.9 * j.velocity_limit * dt)
-        .collect();
-    let mut previous: Option<Vec<f64>> = None;
     let mut out = Retargeted {
         times: Vec::with_capacity(ticks),
         root: Vec::with_capacity(ticks),
         q: Vec::with_capacity(ticks),
-        scale: map.scale,
+        scale: retargeter.scale(),
         worst_position_error: 0.0,
         mean_position_error: 0.0,
-        pair_errors: config
-            .pairs
-            .iter()
-            .filter(|p| p.position_weight > 0.0)
-            .map(|p| (p.frame.clone(), 0.0, 0.0))
-            .collect(),
+        pair_errors: Vec::new(),
+        planted: Vec::with_capacity(ticks),
+        report: RetargetReport::default(),
     };
-    let mut error_sum = 0.0;
-    let mut error_count = 0usize;
-    for k in 0..ticks {
-        let t = k as f64 / options.rate_hz;
-        let pose = bvh.pose_at(options.start_frame, t);
-        let goals: Vec<IkGoal> = config
-            .pairs
-            .iter()
-            .enumerate()
-            .map(|(b, p)| IkGoal {
-                frame: goal_frame(&pose, b),
-                position_weight: p.position_weight,
-                orientation_weight: p.orientation_weight,
-            })
-            .collect();
-        let iterations = if k == 0 {
-            20 * options.iterations
-        } else {
-            options.iterations
-        };
-        if two_stages {
-            let posture: Vec<IkGoal> = goals
-                .iter()
-                .zip(&config.pairs)
-                .map(|(g, p)| {
-                    let w = p.posture.unwrap_or(robots::StageWeights {
-                        position_weight: 0.0,
-                        orientation_weight: 0.0,
-                    });
-                    IkGoal {
-                        position_weight: w.position_weight,
-                        orientation_weight: w.orientation_weight,
-                        ..*g
-                    }
-                })
-                .collect();
-            ik.solve(&posture, iterations);
-        }
-        ik.solve(&goals, iterations);
-        // Within the motors' speed: no joint moves further per frame than 90 % of its limit.
-        ik.joints(&mut q);
-        if let Some(prev) = &previous {
-            for ((v, p), s) in q.iter_mut().zip(prev).zip(&speed) {
-                *v = v.clamp(p - s, p + s);
-            }
-            let root = ik.root();
-            ik.set_pose(root, &q);
-        }
-        // Feet out of the floor: lift the whole robot by what its lowest sole sinks in.
-        let sink = ik.lowest_point();
-        if sink < 0.0 {
-            ik.lift(-sink);
-        }
-        let mut slot = 0;
-        for (b, g) in goals.iter().enumerate() {
-            if g.position_weight > 0.0 {
-                let e = spatial::norm(spatial::sub(ik.frame(b).pos, g.frame.pos));
-                out.worst_position_error = out.worst_position_error.max(e);
-                let pair = &mut out.pair_errors[slot];
-                pair.1 += e / ticks as f64;
-                pair.2 = pair.2.max(e);
-                slot += 1;
-                error_sum += e;
-                error_count += 1;
-            }
-        }
-        ik.joints(&mut q);
-        previous = Some(q.clone());
-        out.times.push(t);
-        out.root.push(ik.root());
-        out.q.push(q.clone());
+    let mut times = Vec::with_capacity(ticks);
+    for (k, pose) in poses.iter().enumerate() {
+        let started = std::time::Instant::now();
+        let planted = retargeter.step(pose, dt);
+        times.push(started.elapsed().as_secs_f64());
+        out.times.push(k as f64 * dt);
+        out.root.push(retargeter.root());
+        out.q.push(retargeter.joints().to_vec());
+        out.planted.push(planted);
     }
-    out.mean_position_error = error_sum / error_count.max(1) as f64;
-    smooth(&mut out, options.smoothing_s * options.rate_hz);
+    let key_bodies = retargeter.key_body_errors();
+    out.pair_errors = key_bodies
+        .iter()
+        .map(|k| (k.frame.clone(), k.mean, k.worst))
+        .collect();
+    out.worst_position_error = key_bodies.iter().map(|k| k.worst).fold(0.0, f64::max);
+    out.mean_position_error = key_bodies.iter().map(|k| k.mean).sum::<f64>() / key_bodies.len().max(1) as f64;
+    let feet = retargeter.feet();
+    smooth_keeping_planted_feet(robot, &mut out, &feet, options.smoothing_s * options.rate_hz)?;
     // Smoothing may lower a sole a little: lift those frames back out of the floor.
+    let ik = retargeter.ik_mut();
     for (root, q) in out.root.iter_mut().zip(&out.q) {
         ik.set_pose(*root, q);
         let sink = ik.lowest_point();
@@ -444,7 +885,146 @@ pub fn retarget_calibrated(
             root[2] -= sink;
         }
     }
+    out.report = measure(&mut retargeter, &out, key_bodies, &mut times);
     Ok(out)
+}
+
+/// The report of a retargeted motion, measured on its frames.
+fn measure(
+    retargeter: &mut Retargeter,
+    motion: &Retargeted,
+    key_bodies: Vec<KeyBodyError>,
+    times: &mut [f64],
+) -> RetargetReport {
+    let dt = motion.times.get(1).map_or(1.0, |t| t - motion.times[0]);
+    let feet: Vec<usize> = retargeter.feet.iter().map(|(b, _)| *b).take(2).collect();
+    let mut slides = Vec::new();
+    let mut deepest: f64 = 0.0;
+    let mut previous: Option<Vec<[f64; 3]>> = None;
+    let (mut planted, mut foot_frames) = (0usize, 0usize);
+    for (k, (root, q)) in motion.root.iter().zip(&motion.q).enumerate() {
+        let ik = retargeter.ik_mut();
+        ik.set_pose(*root, q);
+        deepest = deepest.max(-ik.lowest_point());
+        let now: Vec<[f64; 3]> = feet.iter().map(|&b| ik.frame(b).pos).collect();
+        for (f, p) in now.iter().enumerate() {
+            foot_frames += 1;
+            let on = motion.planted[k][f] && k > 0 && motion.planted[k - 1][f];
+            if motion.planted[k][f] {
+                planted += 1;
+            }
+            if let (true, Some(prev)) = (on, &previous) {
+                slides.push(((p[0] - prev[f][0]).powi(2) + (p[1] - prev[f][1]).powi(2)).sqrt() / dt);
+            }
+        }
+        previous = Some(now);
+    }
+    RetargetReport {
+        frames: motion.times.len(),
+        rate_hz: 1.0 / dt,
+        scale: motion.scale,
+        key_bodies,
+        foot_sliding: Spread::of(&mut slides),
+        planted_share: planted as f64 / foot_frames.max(1) as f64,
+        deepest_penetration: deepest,
+        // The first frame solves from the nominal pose with many more iterations.
+        frame_time: Spread::of(times.get_mut(1..).unwrap_or_default()),
+    }
+}
+
+/// Gaussian smoothing (σ in frames) of the human's bodies, zero phase: positions averaged,
+/// orientations averaged as quaternions (on one hemisphere) and renormalised. Smoothing the
+/// human, not the robot's result, keeps what the solver kept: a planted foot stays planted, the
+/// joints within their limits and speeds.
+fn smooth_poses(poses: &mut [HumanPose], sigma: f64) {
+    if sigma <= 0.0 || poses.len() < 3 {
+        return;
+    }
+    let half = (3.0 * sigma).ceil() as isize;
+    let weights: Vec<f64> = (-half..=half)
+        .map(|k| (-0.5 * (k as f64 / sigma).powi(2)).exp())
+        .collect();
+    let n = poses.len() as isize;
+    let source = poses.to_vec();
+    for i in 0..n {
+        for b in 0..HUMAN_BODIES {
+            let Some(centre) = source[i as usize].bodies[b] else {
+                continue;
+            };
+            let reference = spatial::quat_of_mat(&centre.rot);
+            let (mut pos, mut quat, mut total) = ([0.0; 3], [0.0; 4], 0.0);
+            for (w, k) in weights.iter().zip(-half..=half) {
+                let Some(f) = source[(i + k).clamp(0, n - 1) as usize].bodies[b] else {
+                    continue;
+                };
+                total += w;
+                pos = spatial::add(pos, spatial::scale(f.pos, *w));
+                let q = spatial::quat_of_mat(&f.rot);
+                let sign = if (0..4).map(|c| q[c] * reference[c]).sum::<f64>() < 0.0 {
+                    -w
+                } else {
+                    *w
+                };
+                for c in 0..4 {
+                    quat[c] += sign * q[c];
+                }
+            }
+            poses[i as usize].bodies[b] = Some(Frame {
+                pos: spatial::scale(pos, 1.0 / total),
+                rot: spatial::mat_of_quat(spatial::quat_normalize(quat)),
+            });
+        }
+    }
+}
+
+/// Smooths the result ([`smooth`]) and puts each planted foot back where the solver held it:
+/// the legs of planted feet re-solved, root and every other joint as smoothed. Averaging a stance
+/// with the swings around it would otherwise drag the planted foot along.
+fn smooth_keeping_planted_feet(
+    robot: &Robot,
+    m: &mut Retargeted,
+    feet: &[String],
+    sigma: f64,
+) -> Result<(), HumanError> {
+    if sigma <= 0.0 || m.q.len() < 3 || feet.is_empty() {
+        return Ok(());
+    }
+    let ik = Ik::new(robot, feet, false, &[])?;
+    let legs: Vec<usize> = (0..feet.len()).flat_map(|f| ik.joints_moving_frame(f)).collect();
+    let others: Vec<usize> = (0..m.q[0].len()).filter(|j| !legs.contains(j)).collect();
+    let mut ik = Ik::new(robot, feet, false, &others)?;
+    let held: Vec<Vec<Frame>> = m
+        .root
+        .iter()
+        .zip(&m.q)
+        .map(|(root, q)| {
+            ik.set_pose(*root, q);
+            (0..feet.len()).map(|f| ik.frame(f)).collect()
+        })
+        .collect();
+    smooth(m, sigma);
+    let mut goals = Vec::with_capacity(feet.len());
+    ik.anchor_weight = REPLANT_ANCHOR_WEIGHT;
+    for (((planted, held), root), q) in m.planted.iter().zip(&held).zip(&m.root).zip(&mut m.q) {
+        if !planted.iter().any(|p| *p) {
+            continue;
+        }
+        goals.clear();
+        goals.extend(held.iter().enumerate().map(|(f, frame)| {
+            let on = planted.get(f).copied().unwrap_or(false);
+            IkGoal {
+                frame: *frame,
+                position_weight: if on { 10.0 } else { 0.0 },
+                orientation_weight: if on { 2.0 } else { 0.0 },
+            }
+        }));
+        ik.set_pose(*root, q);
+        // Near the smoothed pose: a straight knee does not flip to reach a millimetre further.
+        ik.set_anchor(q);
+        ik.solve(&goals, 8);
+        ik.joints(q);
+    }
+    Ok(())
 }
 
 /// Gaussian smoothing (σ in frames) of joints and root position, zero phase; root orientations are
