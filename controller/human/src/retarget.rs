@@ -1097,3 +1097,119 @@ impl Retargeted {
         s
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// rd-biped's paired frames in its T-pose, standing, as a human twice its size would stand
+    /// in them (soles on the floor).
+    fn giant(robot: &Robot) -> HumanPose {
+        let config = robot.config.retarget.as_ref().unwrap();
+        let frames: Vec<String> = config.pairs.iter().map(|p| p.frame.clone()).collect();
+        let mut ik = Ik::new(robot, &frames, true, &[]).unwrap();
+        let q: Vec<f64> = robot
+            .config
+            .joints
+            .iter()
+            .map(|j| config.tpose.get(&j.name).copied().unwrap_or(0.0))
+            .collect();
+        ik.standing_root(&q);
+        let mut pose = HumanPose::default();
+        for (k, p) in config.pairs.iter().enumerate() {
+            let f = ik.frame(k);
+            pose.set(
+                p.human,
+                Frame {
+                    pos: spatial::scale(f.pos, 2.0),
+                    rot: f.rot,
+                },
+            );
+        }
+        pose
+    }
+
+    fn foot_xy(r: &mut Retargeter, foot: usize) -> [f64; 2] {
+        let b = r.feet[foot].0;
+        let p = r.ik_mut().frame(b).pos;
+        [p[0], p[1]]
+    }
+
+    #[test]
+    fn a_planted_foot_stays_while_the_body_sways_and_a_step_moves_it() {
+        let robot = Robot::load(&robots::reference_robot_path()).unwrap();
+        let nominal = giant(&robot);
+        let mut r = Retargeter::new(
+            &robot,
+            &nominal,
+            RetargeterOptions {
+                nominal: Nominal::Tpose,
+                iterations: 12,
+            },
+        )
+        .unwrap();
+        assert!((r.scale() - 0.5).abs() < 1e-9, "{}", r.scale());
+        let dt = 0.02;
+        r.step(&nominal, dt);
+        let start = [foot_xy(&mut r, 0), foot_xy(&mut r, 1)];
+        let root0 = r.root();
+        // The human sways 6 cm sideways over a second, feet still: both planted, the robot's
+        // feet do not move while its pelvis follows (3 cm on its scale).
+        for k in 1..=50 {
+            let mut pose = nominal;
+            let shift = 0.06 * k as f64 / 50.0;
+            for b in [
+                HumanBody::Root,
+                HumanBody::Head,
+                HumanBody::LeftHand,
+                HumanBody::RightHand,
+            ] {
+                if let Some(f) = pose.bodies[b as usize].as_mut() {
+                    f.pos[1] += shift;
+                }
+            }
+            assert_eq!(r.step(&pose, dt), [true, true], "tick {k}");
+        }
+        for (f, was) in start.iter().enumerate() {
+            let now = foot_xy(&mut r, f);
+            let moved = (now[0] - was[0]).hypot(now[1] - was[1]);
+            assert!(moved < 1e-3, "foot {f} slid {moved} m");
+        }
+        let swayed = r.root()[1] - root0[1];
+        assert!((swayed - 0.03).abs() < 0.01, "pelvis swayed {swayed} m");
+        // The left foot steps 20 cm forward (lifted 10 cm on the way): unplanted while it moves,
+        // planted where it lands, the robot's foot 10 cm on (within PLANT_DRIFT of it).
+        let mut pose = nominal;
+        for b in [
+            HumanBody::Root,
+            HumanBody::Head,
+            HumanBody::LeftHand,
+            HumanBody::RightHand,
+        ] {
+            if let Some(f) = pose.bodies[b as usize].as_mut() {
+                f.pos[1] += 0.06;
+            }
+        }
+        let planted_foot = nominal.get(HumanBody::LeftFoot).unwrap().pos;
+        let mut lifted = false;
+        for k in 1..=25 {
+            let s = k as f64 / 25.0;
+            let foot = pose.bodies[HumanBody::LeftFoot as usize].as_mut().unwrap();
+            foot.pos[0] = planted_foot[0] + 0.2 * s;
+            foot.pos[2] = planted_foot[2] + 0.1 * (std::f64::consts::PI * s).sin();
+            lifted |= !r.step(&pose, dt)[0];
+        }
+        assert!(lifted, "the stepping foot was let go");
+        for _ in 0..25 {
+            r.step(&pose, dt);
+        }
+        assert_eq!(r.step(&pose, dt), [true, true]);
+        let stepped = foot_xy(&mut r, 0)[0] - start[0][0];
+        assert!((stepped - 0.1).abs() < PLANT_DRIFT * 0.5, "stepped {stepped} m");
+        let right = foot_xy(&mut r, 1);
+        assert!(
+            (right[0] - start[1][0]).hypot(right[1] - start[1][1]) < 1e-3,
+            "the other foot stayed"
+        );
+    }
+}
