@@ -1157,7 +1157,7 @@ mod tests {
         // feet do not move while its pelvis follows (3 cm on its scale).
         for k in 1..=50 {
             let mut pose = nominal;
-            let shift = 0.06 * k as f64 / 50.0;
+            let shift = 0.06 * f64::from(k) / 50.0;
             for b in [
                 HumanBody::Root,
                 HumanBody::Head,
@@ -1193,7 +1193,7 @@ mod tests {
         let planted_foot = nominal.get(HumanBody::LeftFoot).unwrap().pos;
         let mut lifted = false;
         for k in 1..=25 {
-            let s = k as f64 / 25.0;
+            let s = f64::from(k) / 25.0;
             let foot = pose.bodies[HumanBody::LeftFoot as usize].as_mut().unwrap();
             foot.pos[0] = planted_foot[0] + 0.2 * s;
             foot.pos[2] = planted_foot[2] + 0.1 * (std::f64::consts::PI * s).sin();
