@@ -290,6 +290,27 @@ impl From<NominalArg> for human::retarget::Nominal {
     }
 }
 
+/// What a VR operator wears, as the sender sends it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum BodyArg {
+    /// A headset and two controllers (VMC `/VMC/Ext/Hmd/Pos`, `/VMC/Ext/Con/Pos`): the head and
+    /// arms follow by inverse kinematics, the legs stand.
+    Devices,
+    /// The whole body (VMC `/VMC/Ext/Root/Pos` and `/VMC/Ext/Bone/Pos`, Unity's humanoid bone
+    /// names: a motion-capture suit, full-body tracking): retargeted whole onto the robot, every
+    /// joint and the root, for a general tracker.
+    Full,
+}
+
+impl From<BodyArg> for human::vr_send::BodySet {
+    fn from(a: BodyArg) -> Self {
+        match a {
+            BodyArg::Devices => Self::Devices,
+            BodyArg::Full => Self::Skeleton,
+        }
+    }
+}
+
 /// The name a value goes by in the project's files (its serde name), for messages to people.
 pub fn file_name_of<T: serde::Serialize>(value: &T) -> String {
     serde_json::to_string(value)

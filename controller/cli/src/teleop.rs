@@ -42,8 +42,15 @@ pub struct TeleopArgs {
     #[arg(long)]
     right_serial: Option<String>,
     /// Only the headset: the arms stay in the standby pose.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "body")]
     headset_only: bool,
+    /// What the operator wears. `devices`: the head and hands drive the arms and head, the legs
+    /// stand (a reference follower). `full`: the whole skeleton's bones are retargeted onto the
+    /// robot frame by frame (robot.toml's [retarget] map, as `retarget` does offline), root and
+    /// every joint, for a general tracker such as TWIST2; the T-pose calibrates the map on the
+    /// operator, and bodies the map pairs but the sender does not send are named.
+    #[arg(long, value_enum, default_value_t = crate::args::BodyArg::Devices)]
+    body: crate::args::BodyArg,
     /// Seconds the user holds the T-pose at the start.
     #[arg(long, default_value_t = 0.5, value_parser = crate::args::within(0.1, 60.0))]
     tpose: f64,
@@ -99,6 +106,9 @@ pub struct SendArgs {
     /// Position noise (standard deviation), mm.
     #[arg(long, default_value_t = 2.0, value_parser = crate::args::within(0.0, 100.0))]
     noise_mm: f64,
+    /// What is sent: a headset and two controllers, or the whole skeleton's bones.
+    #[arg(long, value_enum, default_value_t = crate::args::BodyArg::Devices)]
+    body: crate::args::BodyArg,
 }
 
 /// Runs a `vr` subcommand.
@@ -114,6 +124,7 @@ pub fn vr(cmd: VrCommand) -> Result<()> {
         start_frame: args.start_frame,
         seconds: args.seconds,
         noise_m: args.noise_mm / 1000.0,
+        body: args.body.into(),
         ..SendOptions::default()
     };
     let stop = Arc::new(AtomicBool::new(false));
@@ -183,7 +194,10 @@ pub fn teleop(args: &TeleopArgs) -> Result<std::process::ExitCode> {
         headset_only: args.headset_only,
         ..TeleopOptions::default()
     };
-    let mut teleop = Teleop::start(&robot, &receiver, options)?;
+    let mut teleop = match args.body {
+        crate::args::BodyArg::Devices => Teleop::start(&robot, &receiver, options)?,
+        crate::args::BodyArg::Full => human::body_teleop::start(&robot, &receiver, options)?,
+    };
     let reference = Reference::hold(&teleop.standby, teleop.root, rate);
     let live = teleop
         .live

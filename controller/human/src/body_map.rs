@@ -4,6 +4,7 @@
 //! And a VR user's device-to-joint offsets, measured once in a T-pose, so headsets and controllers
 //! of any size and grip stand for the same body joints.
 
+use robots::HumanBody;
 use robots::spatial::{self, Mat3};
 
 use crate::HumanError;
@@ -15,6 +16,29 @@ pub struct Frame {
     pub pos: [f64; 3],
     /// Orientation.
     pub rot: Mat3,
+}
+
+/// The number of [`HumanBody`] kinds.
+pub const HUMAN_BODIES: usize = 15;
+
+/// Where a source sees each human body: frames in its world (x forward, y left, z up, m; the
+/// floor at z = 0), `None` where it sees none. Indexed by `HumanBody as usize`.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct HumanPose {
+    /// Per body kind.
+    pub bodies: [Option<Frame>; HUMAN_BODIES],
+}
+
+impl HumanPose {
+    /// Body `b`'s frame, if seen.
+    pub fn get(&self, b: HumanBody) -> Option<&Frame> {
+        self.bodies[b as usize].as_ref()
+    }
+
+    /// Sets body `b`'s frame.
+    pub fn set(&mut self, b: HumanBody, frame: Frame) {
+        self.bodies[b as usize] = Some(frame);
+    }
 }
 
 /// The tuning parameters of one body pair (local nominal coordinates).

@@ -4,12 +4,14 @@
 //! loop (teleoperation, handed over lock-free), and a VR sender that plays a BVH as trackers.
 
 pub mod body_map;
+pub mod body_teleop;
 pub mod commands;
 pub mod error;
 pub mod ik;
 pub mod live;
 pub mod osc;
 pub mod retarget;
+pub mod skeleton;
 pub mod teleop;
 pub mod vmc;
 pub mod vr_send;

@@ -24,6 +24,10 @@ pub struct LiveFrame {
     pub qd: Vec<f64>,
     /// Root pose `[x, y, z, w, qx, qy, qz]`.
     pub root: [f64; 7],
+    /// Root velocity, world frame, m/s.
+    pub root_lin_vel: [f64; 3],
+    /// Root angular velocity, world frame, rad/s.
+    pub root_ang_vel: [f64; 3],
     /// Arrival of the newest input sample this frame used.
     pub source: Option<Instant>,
     /// The input devices' poses, as the `tracker_poses` observation term wants them.
@@ -37,6 +41,8 @@ impl LiveFrame {
             qd: vec![0.0; q.len()],
             q,
             root,
+            root_lin_vel: [0.0; 3],
+            root_ang_vel: [0.0; 3],
             source: None,
             trackers: [0.0; TRACKER_VALUES],
         }

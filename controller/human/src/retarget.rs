@@ -6,6 +6,7 @@
 use std::fmt::Write as _;
 
 use crate::body_map::{Frame, PairParams, RetargetMap};
+pub use crate::body_map::{HUMAN_BODIES, HumanPose};
 use robots::spatial::{self, Mat3};
 use robots::{HumanBody, Robot};
 
@@ -51,7 +52,7 @@ pub fn bvh_joint(dialect: Dialect, body: HumanBody) -> &'static str {
 /// The BVH joint whose orientation a body takes, where it is not its own: a robot's rigid sole
 /// lies like the human forefoot (the toes' segment), flat on the floor through toe-off while the
 /// heel rises (GMR's feet follow the toes' orientation too).
-fn orientation_joint(dialect: Dialect, body: HumanBody) -> Option<&'static str> {
+pub(crate) fn orientation_joint(dialect: Dialect, body: HumanBody) -> Option<&'static str> {
     use HumanBody as H;
     match (dialect, body) {
         (Dialect::Cmu, H::LeftFoot) => Some("LeftToeBase"),
@@ -134,29 +135,6 @@ pub struct Retargeted {
     pub planted: Vec<[bool; 2]>,
     /// How well the result follows the human, measured on the result.
     pub report: RetargetReport,
-}
-
-/// The number of [`HumanBody`] kinds.
-pub const HUMAN_BODIES: usize = 15;
-
-/// Where a source sees each human body: frames in its world (x forward, y left, z up, m; the
-/// floor at z = 0), `None` where it sees none. Indexed by `HumanBody as usize`.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct HumanPose {
-    /// Per body kind.
-    pub bodies: [Option<Frame>; HUMAN_BODIES],
-}
-
-impl HumanPose {
-    /// Body `b`'s frame, if seen.
-    pub fn get(&self, b: HumanBody) -> Option<&Frame> {
-        self.bodies[b as usize].as_ref()
-    }
-
-    /// Sets body `b`'s frame.
-    pub fn set(&mut self, b: HumanBody, frame: Frame) {
-        self.bodies[b as usize] = Some(frame);
-    }
 }
 
 /// A BVH skeleton's joints for the human bodies: each body at its joint, turned as its

@@ -125,8 +125,7 @@ pub struct Teleop {
     pub root: [f64; 7],
     /// Phase, calibration and history.
     pub status: Arc<Mutex<TeleopStatus>>,
-    stop: Arc<AtomicBool>,
-    thread: Option<std::thread::JoinHandle<()>>,
+    pub(crate) _thread: WorkerThread,
 }
 
 /// The user's head and wrists in their heading frame (yaw of the T-pose, origin under the head).
@@ -270,29 +269,17 @@ impl Teleop {
             robot_origin: [targets_tpose[0].pos[0], targets_tpose[0].pos[1], 0.0],
             trackers: [0.0; TRACKER_VALUES],
         }));
-        let stop = Arc::new(AtomicBool::new(false));
-        let (tracks, arrivals) = (Arc::clone(&receiver.tracks), receiver.arrivals.clone());
-        let (mut f, st, s) = (writer, Arc::clone(&status), Arc::clone(&stop));
-        let thread = std::thread::Builder::new()
-            .name("teleop".into())
-            .spawn(move || {
-                let mut worker = worker;
-                let start = Instant::now();
-                while !s.load(Ordering::Relaxed) {
-                    let _ = arrivals.recv_timeout(period);
-                    let now = Instant::now();
-                    let t = *tracks.lock().unwrap_or_else(PoisonError::into_inner);
-                    worker.update(&t, now, start, &mut f, &st);
-                }
-            })
-            .map_err(|e| HumanError::io("cannot start the teleoperation thread", e))?;
+        let (mut f, st) = (writer, Arc::clone(&status));
+        let mut worker = worker;
+        let thread = WorkerThread::spawn("teleop", receiver, period, move |t, now, start| {
+            worker.update(t, now, start, &mut f, &st);
+        })?;
         Ok(Self {
             live: Some(live),
             standby,
             root,
             status,
-            stop,
-            thread: Some(thread),
+            _thread: thread,
         })
     }
 
@@ -302,7 +289,43 @@ impl Teleop {
     }
 }
 
-impl Drop for Teleop {
+/// A teleoperation worker's thread: woken by each tracker packet and at least once per period,
+/// it hands the newest tracks to `update` (with the time and the thread's start) until dropped.
+#[derive(Debug)]
+pub(crate) struct WorkerThread {
+    stop: Arc<AtomicBool>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl WorkerThread {
+    pub(crate) fn spawn(
+        name: &str,
+        receiver: &VmcReceiver,
+        period: Duration,
+        mut update: impl FnMut(&Tracks, Instant, Instant) + Send + 'static,
+    ) -> Result<Self, HumanError> {
+        let stop = Arc::new(AtomicBool::new(false));
+        let (tracks, arrivals) = (Arc::clone(&receiver.tracks), receiver.arrivals.clone());
+        let s = Arc::clone(&stop);
+        let thread = std::thread::Builder::new()
+            .name(name.into())
+            .spawn(move || {
+                let start = Instant::now();
+                while !s.load(Ordering::Relaxed) {
+                    let _ = arrivals.recv_timeout(period);
+                    let t = *tracks.lock().unwrap_or_else(PoisonError::into_inner);
+                    update(&t, Instant::now(), start);
+                }
+            })
+            .map_err(|e| HumanError::io("cannot start the teleoperation thread", e))?;
+        Ok(Self {
+            stop,
+            thread: Some(thread),
+        })
+    }
+}
+
+impl Drop for WorkerThread {
     fn drop(&mut self) {
         self.stop.store(true, Ordering::Relaxed);
         if let Some(t) = self.thread.take() {
@@ -311,9 +334,10 @@ impl Drop for Teleop {
     }
 }
 
-fn change(status: &Mutex<TeleopStatus>, at: Duration, phase: Phase, why: String) {
+/// Records a change of phase (or a new reason in the same phase) and logs it.
+pub(crate) fn change(status: &Mutex<TeleopStatus>, at: Duration, phase: Phase, why: String) {
     let mut s = status.lock().unwrap_or_else(PoisonError::into_inner);
-    if s.phase != phase {
+    if s.phase != phase || s.changes.last().is_some_and(|c| c.why != why) {
         match phase {
             Phase::Lost => tracing::warn!(phase = ?phase, "{why}"),
             _ => tracing::info!(phase = ?phase, "{why}"),

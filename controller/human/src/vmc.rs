@@ -1,5 +1,5 @@
 //! VMC (Virtual Motion Capture protocol, OSC over UDP) tracker input: the headset and the two
-//! controllers, converted from the sender's Unity axes (left handed, Y up, Z forward) to the
+//! controllers, and a whole body's bones and root where the sender sends them, converted from the sender's Unity axes (left handed, Y up, Z forward) to the
 //! robot's (right handed, Z up, X forward), kept per device with their arrival times. The receiver
 //! binds to 127.0.0.1 unless told otherwise, ignores addresses it does not use (as VMC asks), and
 //! drops and counts malformed, oversized and out-of-range packets without touching its state.
@@ -13,11 +13,12 @@ use crate::body_map::Frame;
 use robots::spatial;
 
 use super::osc::{self, Arg};
+use crate::skeleton::{self, Skeleton};
 
 /// VMC's default port.
 pub const VMC_PORT: u16 = 39539;
 
-/// Largest datagram accepted, bytes (VMC bundles of a full skeleton stay well below).
+/// Largest datagram accepted, bytes (a VMC bundle of a whole skeleton's bones is about 1.5 kB).
 pub const MAX_PACKET: usize = 8192;
 
 /// The three tracked devices.
@@ -158,6 +159,10 @@ impl Track {
 pub struct Tracks {
     /// Per device (see [`Device`]).
     pub devices: [Track; 3],
+    /// The whole body, where the sender sends bones (each bone's newest pose).
+    pub skeleton: Skeleton,
+    /// Arrival of the newest bone or root pose.
+    pub skeleton_at: Option<Instant>,
 }
 
 /// Decodes one datagram into `tracks`: returns how many poses it accepted. Nothing of a packet is
@@ -170,30 +175,33 @@ pub fn decode(
     counters: &Counters,
 ) -> usize {
     counters.packets.fetch_add(1, Ordering::Relaxed);
-    let mut poses: [Option<(Device, Frame)>; 16] = [None; 16];
+    let mut poses: [Option<(Target, Frame)>; 32] = [None; 32];
     let mut n = 0;
     let mut bad_args = false;
     let mut out_of_range = false;
     let mut ignored = 0;
     let parsed = osc::parse(packet, &mut |m| {
-        let device = match m.address {
-            "/VMC/Ext/Hmd/Pos" => Some(Device::Headset),
-            "/VMC/Ext/Con/Pos" => None,
+        // Poses: a name and a position and rotation (a root may add its scale and offset, VMC 2.1).
+        let (kind, most) = match m.address {
+            "/VMC/Ext/Hmd/Pos" => (Kind::Headset, 7),
+            "/VMC/Ext/Con/Pos" => (Kind::Controller, 7),
+            "/VMC/Ext/Bone/Pos" => (Kind::Bone, 7),
+            "/VMC/Ext/Root/Pos" => (Kind::Root, 13),
             _ => {
                 ignored += 1;
                 return;
             }
         };
         let mut args = m.args();
-        let (Some(Ok(Arg::Str(serial))), values) = (args.next(), args) else {
+        let (Some(Ok(Arg::Str(name))), values) = (args.next(), args) else {
             bad_args = true;
             return;
         };
-        let mut v = [0.0f64; 7];
+        let mut v = [0.0f64; 13];
         let mut count = 0;
         for a in values {
             match a {
-                Ok(Arg::Float(x)) if count < 7 => v[count] = f64::from(x),
+                Ok(Arg::Float(x)) if count < most => v[count] = f64::from(x),
                 _ => {
                     bad_args = true;
                     return;
@@ -201,11 +209,17 @@ pub fn decode(
             }
             count += 1;
         }
-        if count != 7 {
+        if count != 7 && count != most {
             bad_args = true;
             return;
         }
-        let Some(device) = device.or_else(|| serials.hand(serial)) else {
+        let target = match kind {
+            Kind::Headset => Some(Target::Device(Device::Headset)),
+            Kind::Controller => serials.hand(name).map(Target::Device),
+            Kind::Bone => skeleton::bone_index(name).map(Target::Bone),
+            Kind::Root => Some(Target::Root),
+        };
+        let Some(target) = target else {
             ignored += 1;
             return;
         };
@@ -220,7 +234,7 @@ pub fn decode(
         let q = unity_to_robot_quat([v[3] / qn, v[4] / qn, v[5] / qn, v[6] / qn]);
         if n < poses.len() {
             poses[n] = Some((
-                device,
+                target,
                 Frame {
                     pos: unity_to_robot_position([v[0], v[1], v[2]]),
                     rot: spatial::mat_of_quat(q),
@@ -238,11 +252,42 @@ pub fn decode(
         counters.out_of_range.fetch_add(1, Ordering::Relaxed);
         return 0;
     }
-    for (device, frame) in poses[..n].iter().flatten() {
-        tracks.devices[*device as usize].push(at, *frame);
+    let mut skeleton = false;
+    for (target, frame) in poses[..n].iter().flatten() {
+        match *target {
+            Target::Device(device) => tracks.devices[device as usize].push(at, *frame),
+            Target::Bone(b) => {
+                tracks.skeleton.bones[b] = Some(*frame);
+                skeleton = true;
+            }
+            Target::Root => {
+                tracks.skeleton.root = Some(*frame);
+                skeleton = true;
+            }
+        }
+    }
+    if skeleton {
+        tracks.skeleton_at = Some(at);
     }
     counters.poses.fetch_add(n as u64, Ordering::Relaxed);
     n
+}
+
+/// What a pose message is for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Kind {
+    Headset,
+    Controller,
+    Bone,
+    Root,
+}
+
+/// Where an accepted pose goes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Target {
+    Device(Device),
+    Bone(usize),
+    Root,
 }
 
 /// A VMC receiver on its own thread.
@@ -461,8 +506,11 @@ mod tests {
             assert_eq!(decode(p, &serials, now, &mut t, &c), 0);
         }
         assert_eq!(t, before);
-        // Addresses it does not use are ignored, as are controllers that are neither hand.
-        let bone = vmc("/VMC/Ext/Bone/Pos", "Hips", [0.0; 7]);
+        // Addresses it does not use are ignored, as are controllers that are neither hand and
+        // bones outside the humanoid's.
+        let blend = vmc("/VMC/Ext/Blend/Val", "Joy", [0.0; 7]);
+        assert_eq!(decode(&blend, &serials, now, &mut t, &c), 0);
+        let bone = vmc("/VMC/Ext/Bone/Pos", "Tail", [0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0]);
         let other = vmc(
             "/VMC/Ext/Con/Pos",
             "LHR-1234",
@@ -475,8 +523,18 @@ mod tests {
             right: Some("LHR-1234".into()),
         };
         assert_eq!(decode(&other, &named, now, &mut t, &c), 1);
+        // A humanoid bone lands in the skeleton, in robot axes, with its arrival.
+        assert_eq!(t.skeleton_at, None);
+        let hips = vmc("/VMC/Ext/Bone/Pos", "Hips", [0.1, 0.9, 0.2, 0.0, 0.0, 0.0, 1.0]);
+        assert_eq!(decode(&hips, &serials, now, &mut t, &c), 1);
+        let p = t.skeleton.bones[0].unwrap().pos;
+        assert!(
+            (p[0] - 0.2).abs() < 1e-6 && (p[1] + 0.1).abs() < 1e-6 && (p[2] - 0.9).abs() < 1e-6,
+            "{p:?}"
+        );
+        assert_eq!(t.skeleton_at, Some(now));
         let [packets, poses, malformed, _, range, ignored] = c.snapshot();
-        assert_eq!((packets, poses, malformed, range, ignored), (10, 3, 3, 3, 2));
+        assert_eq!((packets, poses, malformed, range, ignored), (12, 4, 3, 3, 3));
     }
 
     #[test]

@@ -1,6 +1,7 @@
 //! A recorded VR session as a sender: headset and controller poses synthesised from a BVH's head
-//! and hands (fixed device offsets, sensor noise, the headset's rate) and streamed as VMC over UDP,
-//! so teleoperation can be tested and shown without a headset. The session starts with the
+//! and hands (fixed device offsets, sensor noise, the headset's rate), or the whole skeleton's
+//! bones as a motion-capture suit sends them, streamed as VMC over UDP, so teleoperation can be
+//! tested and shown without a headset or a suit. The session starts with the
 //! recording's first frame held as the T-pose the receiver calibrates from.
 
 use std::net::{SocketAddr, UdpSocket};
@@ -12,9 +13,10 @@ use firmware_bridge::time::SimRng;
 use robots::spatial::{self, Mat3};
 
 use super::osc::{self, Arg};
-use super::retarget::bvh_joint;
+use super::retarget::{bvh_joint, orientation_joint};
 use super::vmc::{robot_to_unity_position, robot_to_unity_quat};
 use crate::HumanError;
+use crate::skeleton::{self, Skeleton};
 use motion::bvh::Bvh;
 use robots::HumanBody;
 
@@ -35,6 +37,18 @@ pub struct SendOptions {
     pub noise_rad: f64,
     /// Noise seed.
     pub seed: u64,
+    /// What is sent: a headset and two controllers, or the whole skeleton's bones.
+    pub body: BodySet,
+}
+
+/// What a sender sends.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum BodySet {
+    /// A headset and two controllers (`/VMC/Ext/Hmd/Pos`, `/VMC/Ext/Con/Pos`).
+    #[default]
+    Devices,
+    /// The whole skeleton: the root and the bones (`/VMC/Ext/Root/Pos`, `/VMC/Ext/Bone/Pos`).
+    Skeleton,
 }
 
 impl Default for SendOptions {
@@ -47,6 +61,7 @@ impl Default for SendOptions {
             noise_m: 0.002,
             noise_rad: 0.004,
             seed: 1,
+            body: BodySet::Devices,
         }
     }
 }
@@ -111,6 +126,66 @@ impl Rig {
     }
 }
 
+/// The skeleton's bones at a recording's frame: each bone of [`skeleton::BODIES`] at its BVH
+/// joint (the toes' bones at the toes), robot axes, without noise.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SkeletonRig {
+    joints: Vec<(usize, usize)>,
+}
+
+impl SkeletonRig {
+    /// The bones `bvh` has joints for (every body the retargeting map may pair).
+    pub fn new(bvh: &Bvh) -> Result<Self, HumanError> {
+        let mut joints = Vec::new();
+        for (body, bone, toes) in skeleton::BODIES {
+            let name = bvh_joint(bvh.dialect, body);
+            let j = bvh
+                .joint(name)
+                .ok_or_else(|| HumanError::map(format!("the recording has no {name} joint")))?;
+            joints.push((bone, j));
+            if toes != bone
+                && let Some(t) = orientation_joint(bvh.dialect, body).and_then(|n| bvh.joint(n))
+            {
+                joints.push((toes, t));
+            }
+        }
+        Ok(Self { joints })
+    }
+
+    /// Each sent bone's world frame at `frame`.
+    pub fn bones(&self, bvh: &Bvh, frame: usize) -> [Option<Frame>; 22] {
+        let p = bvh.pose(frame);
+        let mut out = [None; 22];
+        for &(bone, j) in &self.joints {
+            out[bone] = Some(Frame {
+                pos: p.pos[j],
+                rot: p.rot[j],
+            });
+        }
+        out
+    }
+}
+
+/// The VMC packet (one bundle: the root, then each sent bone local to its parent) for `skeleton`.
+pub fn skeleton_packet(skeleton: &Skeleton, out: &mut Vec<u8>) {
+    out.clear();
+    let mut messages: Vec<Vec<u8>> = Vec::with_capacity(23);
+    if let Some(root) = &skeleton.root {
+        let mut m = Vec::new();
+        pose_message(&mut m, "/VMC/Ext/Root/Pos", "root", root);
+        messages.push(m);
+    }
+    for (b, f) in skeleton.bones.iter().enumerate() {
+        if let Some(f) = f {
+            let mut m = Vec::new();
+            pose_message(&mut m, "/VMC/Ext/Bone/Pos", skeleton::BONES[b], f);
+            messages.push(m);
+        }
+    }
+    let refs: Vec<&[u8]> = messages.iter().map(Vec::as_slice).collect();
+    osc::encode_bundle(out, &refs);
+}
+
 /// Which recording frame is sent at time `t` since the start.
 pub fn frame_at(bvh: &Bvh, options: &SendOptions, t: f64) -> Option<usize> {
     if t < options.tpose_s {
@@ -118,6 +193,23 @@ pub fn frame_at(bvh: &Bvh, options: &SendOptions, t: f64) -> Option<usize> {
     }
     let f = options.start_frame + ((t - options.tpose_s) / bvh.frame_time).round() as usize;
     (f < bvh.frames()).then_some(f)
+}
+
+/// One VMC pose message: `address` with `name`, the position and the rotation in Unity's axes.
+fn pose_message(out: &mut Vec<u8>, address: &str, name: &str, f: &Frame) {
+    let p = robot_to_unity_position(f.pos);
+    let q = robot_to_unity_quat(spatial::quat_of_mat(&f.rot));
+    let args = [
+        Arg::Str(name),
+        Arg::Float(p[0] as f32),
+        Arg::Float(p[1] as f32),
+        Arg::Float(p[2] as f32),
+        Arg::Float(q[0] as f32),
+        Arg::Float(q[1] as f32),
+        Arg::Float(q[2] as f32),
+        Arg::Float(q[3] as f32),
+    ];
+    osc::encode_message(out, address, &args);
 }
 
 /// The VMC packet (one bundle: headset, left and right controller) for `devices`.
@@ -130,19 +222,7 @@ pub fn packet(devices: &[Frame; 3], out: &mut Vec<u8>) {
     ];
     let mut messages: [Vec<u8>; 3] = Default::default();
     for ((m, (address, serial)), d) in messages.iter_mut().zip(names).zip(devices) {
-        let p = robot_to_unity_position(d.pos);
-        let q = robot_to_unity_quat(spatial::quat_of_mat(&d.rot));
-        let args = [
-            Arg::Str(serial),
-            Arg::Float(p[0] as f32),
-            Arg::Float(p[1] as f32),
-            Arg::Float(p[2] as f32),
-            Arg::Float(q[0] as f32),
-            Arg::Float(q[1] as f32),
-            Arg::Float(q[2] as f32),
-            Arg::Float(q[3] as f32),
-        ];
-        osc::encode_message(m, address, &args);
+        pose_message(m, address, serial, d);
     }
     osc::encode_bundle(out, &[&messages[0], &messages[1], &messages[2]]);
 }
@@ -156,7 +236,10 @@ pub fn send(
     stop: &AtomicBool,
     sent: &mut dyn FnMut(Duration, usize),
 ) -> Result<u64, HumanError> {
-    let rig = Rig::new(bvh)?;
+    let (rig, bones) = match options.body {
+        BodySet::Devices => (Some(Rig::new(bvh)?), None),
+        BodySet::Skeleton => (None, Some(SkeletonRig::new(bvh)?)),
+    };
     let local = if to.is_ipv4() {
         SocketAddr::from(([127, 0, 0, 1], 0))
     } else {
@@ -180,14 +263,22 @@ pub fn send(
         let Some(frame) = frame_at(bvh, options, t) else {
             break;
         };
-        let mut devices = rig.devices(bvh, frame);
-        for d in &mut devices {
+        let mut noisy = |f: &mut Frame| {
             let n = [0; 3].map(|_| options.noise_m * rng.gaussian());
-            d.pos = spatial::add(d.pos, n);
+            f.pos = spatial::add(f.pos, n);
             let w = [0; 3].map(|_| options.noise_rad * rng.gaussian());
-            d.rot = spatial::mat_mul(&spatial::exp(w), &d.rot);
+            f.rot = spatial::mat_mul(&spatial::exp(w), &f.rot);
+        };
+        if let Some(rig) = &rig {
+            let mut devices = rig.devices(bvh, frame);
+            devices.iter_mut().for_each(&mut noisy);
+            packet(&devices, &mut buf);
         }
-        packet(&devices, &mut buf);
+        if let Some(bones) = &bones {
+            let mut world = bones.bones(bvh, frame);
+            world.iter_mut().flatten().for_each(&mut noisy);
+            skeleton_packet(&Skeleton::from_world(&world), &mut buf);
+        }
         if let Some(wait) = (start + period * k).checked_duration_since(Instant::now()) {
             std::thread::sleep(wait);
         }

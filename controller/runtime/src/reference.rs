@@ -81,6 +81,10 @@ pub struct FramesAhead<'a> {
     pub qd: &'a mut [Vec<f64>],
     /// Root poses per frame.
     pub root: &'a mut [[f64; 7]],
+    /// Root velocities per frame, world frame, m/s.
+    pub root_lin_vel: &'a mut [[f64; 3]],
+    /// Root angular velocities per frame, world frame, rad/s.
+    pub root_ang_vel: &'a mut [[f64; 3]],
 }
 
 /// A reference computed while the run goes: a teleoperator's stream, a motion generator's plans.
@@ -138,6 +142,8 @@ impl LiveSource for PlanReader {
                 ahead.qd[f][p] = qd[r];
             }
             ahead.root[f] = table.root[0];
+            ahead.root_lin_vel[f] = [0.0; 3];
+            ahead.root_ang_vel[f] = [0.0; 3];
         }
         Fed::Frames
     }
@@ -171,23 +177,33 @@ impl TeleopStream {
 }
 
 impl LiveSource for TeleopStream {
+    /// The newest frame, for now and every frame ahead (a live stream has no future).
     fn feed(
         &mut self,
         _t: f64,
         _dt: f64,
-        _robot_index: &[usize],
+        robot_index: &[usize],
         table: &mut Reference,
-        _ahead: FramesAhead<'_>,
+        ahead: FramesAhead<'_>,
     ) -> Fed {
         let frame = self.reader.latest();
         let n = table.n;
         table.q[..n].copy_from_slice(&frame.q);
         table.qd[..n].copy_from_slice(&frame.qd);
         table.root[0] = frame.root;
+        for f in 0..ahead.q.len() {
+            for (p, &r) in robot_index.iter().enumerate() {
+                ahead.q[f][p] = frame.q[r];
+                ahead.qd[f][p] = frame.qd[r];
+            }
+            ahead.root[f] = frame.root;
+            ahead.root_lin_vel[f] = frame.root_lin_vel;
+            ahead.root_ang_vel[f] = frame.root_ang_vel;
+        }
         self.trackers = frame.trackers;
         // Latency counts to the first command that uses an input, not the ones after it.
         self.source = frame.source.filter(|s| Some(*s) != self.used);
-        Fed::Table
+        Fed::Frames
     }
 
     fn trackers(&self) -> Option<&[f64; TRACKER_VALUES]> {
@@ -492,6 +508,8 @@ impl ReferenceCursor {
                 q: &mut self.frames.q,
                 qd: &mut self.frames.qd,
                 root: &mut self.frames.root,
+                root_lin_vel: &mut self.frames.root_lin_vel,
+                root_ang_vel: &mut self.frames.root_ang_vel,
             };
             let fed = source.feed(
                 base as f64 * self.dt,
