@@ -198,7 +198,11 @@ pub fn teleop(args: &TeleopArgs) -> Result<std::process::ExitCode> {
         crate::args::BodyArg::Devices => Teleop::start(&robot, &receiver, options)?,
         crate::args::BodyArg::Full => human::body_teleop::start(&robot, &receiver, options)?,
     };
-    let reference = Reference::hold(&teleop.standby, teleop.root, rate);
+    let mut reference = Reference::hold(&teleop.standby, teleop.root, rate);
+    if args.body == crate::args::BodyArg::Full {
+        // The operator's key bodies, measured against the robot's.
+        reference.live_bodies = human::retarget::key_bodies(&robot);
+    }
     let live = teleop
         .live
         .take()

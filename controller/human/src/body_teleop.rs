@@ -192,6 +192,8 @@ impl Worker {
             f.root = frame.root;
             f.root_lin_vel = frame.root_lin_vel;
             f.root_ang_vel = frame.root_ang_vel;
+            f.bodies.clear();
+            f.bodies.extend_from_slice(&frame.bodies);
             f.source = source;
         });
         status.lock().unwrap_or_else(PoisonError::into_inner).updates += 1;
@@ -240,6 +242,7 @@ impl Worker {
         }
         f.q.copy_from_slice(q);
         f.root = root;
+        r.operator_in_root(&mut f.bodies);
         self.history.push_back((input, root, q.to_vec()));
     }
 
@@ -272,6 +275,7 @@ impl Worker {
         f.qd.fill(0.0);
         f.root_lin_vel = [0.0; 3];
         f.root_ang_vel = [0.0; 3];
+        f.bodies.clear();
         self.history.clear();
         a >= 1.0
     }

@@ -32,6 +32,9 @@ pub struct LiveFrame {
     pub source: Option<Instant>,
     /// The input devices' poses, as the `tracker_poses` observation term wants them.
     pub trackers: [f64; TRACKER_VALUES],
+    /// Where the operator's key bodies are, scaled onto the robot, in the frame of `root` (the
+    /// reference's `live_bodies`); empty while no operator is followed.
+    pub bodies: Vec<[f64; 3]>,
 }
 
 impl LiveFrame {
@@ -45,6 +48,7 @@ impl LiveFrame {
             root_ang_vel: [0.0; 3],
             source: None,
             trackers: [0.0; TRACKER_VALUES],
+            bodies: Vec::new(),
         }
     }
 }

@@ -629,10 +629,40 @@ impl Retargeter {
             .collect()
     }
 
+    /// Where the scaled human put each position pair's body at the last step, in the frame of
+    /// the robot's root then (the pairs of [`key_bodies`], in order).
+    pub fn operator_in_root(&self, out: &mut Vec<[f64; 3]>) {
+        out.clear();
+        let root = self.ik.root();
+        let back = spatial::quat_conj([root[3], root[4], root[5], root[6]]);
+        for (p, h) in self.pairs.iter().zip(&self.human) {
+            if p.position_weight > 0.0 {
+                let rel = spatial::sub(*h, [root[0], root[1], root[2]]);
+                out.push(spatial::quat_rotate(back, rel));
+            }
+        }
+    }
+
     /// The solver on the robot's model (for measuring a pose).
     pub fn ik_mut(&mut self) -> &mut Ik {
         &mut self.ik
     }
+}
+
+/// The robot frames of the retargeting map's position pairs: the key bodies placed on the human.
+pub fn key_bodies(robot: &Robot) -> Vec<String> {
+    robot
+        .config
+        .retarget
+        .as_ref()
+        .map(|c| {
+            c.pairs
+                .iter()
+                .filter(|p| p.position_weight > 0.0)
+                .map(|p| p.frame.clone())
+                .collect()
+        })
+        .unwrap_or_default()
 }
 
 /// How far one paired robot frame stayed from the scaled human body, m.

@@ -41,6 +41,9 @@ pub struct Reference {
     pub motion_poses: Vec<[f64; 7]>,
     /// Which motion body is the anchor.
     pub anchor: Option<usize>,
+    /// Robot frames a live source places on its operator (a whole-body teleoperation's key
+    /// bodies), measured against the robot's own in its root's frame each tick.
+    pub live_bodies: Vec<String>,
     /// 2D keypoint references beside the joints (Mimic2DM), at the same ticks.
     pub keypoints: Option<crate::keypoints::track::KeypointReference>,
 }
@@ -97,6 +100,7 @@ impl Reference {
             bodies: Vec::new(),
             body_pos: Vec::new(),
             motion_bodies: Vec::new(),
+            live_bodies: Vec::new(),
             motion_poses: Vec::new(),
             anchor: None,
             keypoints: None,
@@ -248,6 +252,7 @@ impl Reference {
             bodies: Vec::new(),
             body_pos: Vec::new(),
             motion_bodies: Vec::new(),
+            live_bodies: Vec::new(),
             motion_poses: Vec::new(),
             anchor: None,
             keypoints: None,

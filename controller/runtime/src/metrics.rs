@@ -61,6 +61,11 @@ pub struct PlaySummary {
     pub body_rmse: Vec<(String, f64)>,
     /// Which of them is the anchor.
     pub anchor: Option<usize>,
+    /// RMS distance of each key body from where a live source placed it on its operator, in the
+    /// root's frame, m, and the ticks measured (whole-body teleoperation).
+    pub operator_rmse: Vec<(String, f64)>,
+    /// (See `operator_rmse`.)
+    pub operator_ticks: u64,
     /// The state estimate against the simulation's truth (runs with both).
     pub estimator: Option<EstimatorAccuracy>,
     /// Ticks the estimator ran with the robot held (a harness, a gantry): not compared.
@@ -129,6 +134,19 @@ impl std::fmt::Display for PlaySummary {
                 let (name, e) = &self.body_rmse[a];
                 writeln!(f, "anchor ({name}) RMSE: {:.1} cm", 100.0 * e)?;
             }
+        }
+        if !self.operator_rmse.is_empty() {
+            let each: Vec<String> = self
+                .operator_rmse
+                .iter()
+                .map(|(b, e)| format!("{b} {:.1}", 100.0 * e))
+                .collect();
+            writeln!(
+                f,
+                "key bodies from the operator (scaled, in the root's frame), cm RMS over {} ticks: {}",
+                self.operator_ticks,
+                each.join(", ")
+            )?;
         }
         match (&self.estimator, self.estimator_held_ticks) {
             (Some(e), 0) => writeln!(f, "state estimate ({}): {e}", e.filter)?,
@@ -659,6 +677,10 @@ pub struct RunMetrics {
     sq_body_error: Vec<f64>,
     body_samples: u64,
     anchor: Option<usize>,
+    /// A live source's key bodies and their summed squared distances from the operator's.
+    operator_bodies: Vec<String>,
+    sq_operator_error: Vec<f64>,
+    operator_samples: u64,
     /// The reference's and the robot's jitter over the tracked ticks.
     pub reference_jitter: Jitter,
     /// (See `reference_jitter`.)
@@ -726,6 +748,20 @@ impl RunMetrics {
         self.anchor = anchor;
     }
 
+    /// Measures the distance of these robot frames from a live operator's.
+    pub fn track_operator(&mut self, names: &[String]) {
+        self.operator_bodies = names.to_vec();
+        self.sq_operator_error = vec![0.0; names.len()];
+    }
+
+    /// Adds one tick's distances of the key bodies from the operator's, m, in their order.
+    pub fn add_operator(&mut self, errors: impl Iterator<Item = f64>) {
+        for (sum, e) in self.sq_operator_error.iter_mut().zip(errors) {
+            *sum += e * e;
+        }
+        self.operator_samples += 1;
+    }
+
     /// Adds one tick's position errors of the tracked bodies, m, in their order.
     pub fn add_bodies(&mut self, errors: impl Iterator<Item = f64>) {
         for (sum, e) in self.sq_body_error.iter_mut().zip(errors) {
@@ -780,6 +816,16 @@ impl RunMetrics {
                 Vec::new()
             },
             anchor: self.anchor.filter(|_| self.body_samples > 0),
+            operator_rmse: if self.operator_samples > 0 {
+                self.operator_bodies
+                    .iter()
+                    .zip(&self.sq_operator_error)
+                    .map(|(b, s)| (b.clone(), (s / self.operator_samples as f64).sqrt()))
+                    .collect()
+            } else {
+                Vec::new()
+            },
+            operator_ticks: self.operator_samples,
             estimator: (self.estimator.ticks > 0).then(|| {
                 let e = &self.estimator;
                 let n = e.ticks as f64;

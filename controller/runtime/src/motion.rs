@@ -387,6 +387,7 @@ impl EmbeddedMotion {
             bodies: Vec::new(),
             body_pos: Vec::new(),
             motion_bodies: bodies.clone(),
+            live_bodies: Vec::new(),
             motion_poses: Vec::with_capacity(ticks * bodies.len()),
             anchor: layout
                 .manifest

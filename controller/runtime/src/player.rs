@@ -76,6 +76,9 @@ struct ReferenceStage {
     body_errors: Vec<f64>,
     /// Whether `body_errors` holds this run's errors (ground truth and tracked bodies).
     has_body_errors: bool,
+    /// Where the reference's `live_bodies` start among the kinematics' tracked bodies, and how
+    /// many there are (a live source's operator measured against the robot).
+    operator_bodies: Option<(usize, usize)>,
 }
 
 /// The policy stage of a run: the contract, the model, the observation and its buffers (policy
@@ -280,6 +283,11 @@ impl<L: RobotLink> Player<L> {
             metrics.locomotion = Some(crate::metrics::LocomotionMetrics::new(&kinds));
         }
         let tracked_bodies = reference.motion_bodies.len();
+        metrics.track_operator(&reference.live_bodies);
+        let operator_bodies = match (&kinematics, reference.live_bodies.len()) {
+            (Some(k), n) if n > 0 => Some((k.tracked_bodies() - n, n)),
+            _ => None,
+        };
         if let Some(e) = &mut embedded {
             // The first tick observes the first frame: one call before anything moves.
             e.seek(&mut model, e.start_step)?;
@@ -316,6 +324,7 @@ impl<L: RobotLink> Player<L> {
                 anchors: None,
                 body_errors: vec![0.0; tracked_bodies],
                 has_body_errors: false,
+                operator_bodies,
             },
             progress: None,
             lifecycle: Lifecycle {
@@ -1281,6 +1290,20 @@ impl<L: RobotLink> Player<L> {
             }
             self.reference.has_body_errors = !self.reference.body_errors.is_empty();
         }
+        // A live operator's key bodies against the robot's, each in its own root's frame (the
+        // robot's from its measured joints): how closely the robot follows the person.
+        if let (Some(k), Some((first, n)), Some(op)) = (
+            &self.world.kinematics,
+            self.reference.operator_bodies,
+            self.reference.cursor.operator_bodies(),
+        ) && op.len() == n
+        {
+            self.metrics.add_operator(
+                op.iter()
+                    .enumerate()
+                    .map(|(b, o)| spatial::norm(spatial::sub(k.body_in_root(first + b), *o))),
+            );
+        }
         // Tracking error against the clip (not during the ramp or the end).
         // Each joint's sample is compared with the reference at the time it was taken (`age`
         // before the tick, between this tick's frame and the last): the error of the motion, not
@@ -1475,15 +1498,19 @@ fn motion_setup(
             .and_then(|a| bodies.iter().position(|b| b == a));
         reference.motion_bodies = bodies.clone();
     }
+    // A live source's key bodies are measured on the robot after the motion's own.
+    let live = &reference.live_bodies;
+    let mut tracked = bodies.clone();
+    tracked.extend(live.iter().cloned());
     // The estimator needs the legs: every robot with feet gets its kinematics.
-    let needs = !bodies.is_empty()
+    let needs = !tracked.is_empty()
         || !robot.config.feet.is_empty()
         || layout
             .slots
             .iter()
             .any(|s| s.term.needs_anchor() || matches!(s.term, Term::BaseAngVel(_)));
     Ok(if needs {
-        Some(RobotKinematics::new(robot, m.anchor_body.as_deref(), &bodies)?)
+        Some(RobotKinematics::new(robot, m.anchor_body.as_deref(), &tracked)?)
     } else {
         None
     })

@@ -116,6 +116,12 @@ pub trait LiveSource: std::fmt::Debug + Send {
         None
     }
 
+    /// Where the source placed its operator's key bodies this tick (the reference's
+    /// `live_bodies`, in the reference root's frame), while it follows one.
+    fn operator_bodies(&self) -> Option<&[[f64; 3]]> {
+        None
+    }
+
     /// A motion generator's plans (counts, changes, status), for its telemetry and summary.
     fn plans(&self) -> Option<&PlanReader> {
         None
@@ -162,7 +168,13 @@ pub struct TeleopStream {
     /// The input the last command used.
     used: Option<Instant>,
     trackers: [f64; TRACKER_VALUES],
+    /// The operator's key bodies of the newest frame (the first `bodies_len`).
+    bodies: [[f64; 3]; MAX_LIVE_BODIES],
+    bodies_len: usize,
 }
+
+/// The most key bodies a live source places on its operator.
+pub const MAX_LIVE_BODIES: usize = 32;
 
 impl TeleopStream {
     /// The stream `reader` hands over.
@@ -172,6 +184,8 @@ impl TeleopStream {
             source: None,
             used: None,
             trackers: [0.0; TRACKER_VALUES],
+            bodies: [[0.0; 3]; MAX_LIVE_BODIES],
+            bodies_len: 0,
         }
     }
 }
@@ -201,6 +215,8 @@ impl LiveSource for TeleopStream {
             ahead.root_ang_vel[f] = frame.root_ang_vel;
         }
         self.trackers = frame.trackers;
+        self.bodies_len = frame.bodies.len().min(MAX_LIVE_BODIES);
+        self.bodies[..self.bodies_len].copy_from_slice(&frame.bodies[..self.bodies_len]);
         // Latency counts to the first command that uses an input, not the ones after it.
         self.source = frame.source.filter(|s| Some(*s) != self.used);
         Fed::Frames
@@ -208,6 +224,10 @@ impl LiveSource for TeleopStream {
 
     fn trackers(&self) -> Option<&[f64; TRACKER_VALUES]> {
         Some(&self.trackers)
+    }
+
+    fn operator_bodies(&self) -> Option<&[[f64; 3]]> {
+        (self.bodies_len > 0).then(|| &self.bodies[..self.bodies_len])
     }
 
     fn take_input_arrival(&mut self) -> Option<Instant> {
@@ -465,6 +485,11 @@ impl ReferenceCursor {
     /// The live devices' values for the `tracker_poses` term, with a live source.
     pub fn trackers(&self) -> Option<&[f64; TRACKER_VALUES]> {
         self.source.as_deref().and_then(LiveSource::trackers)
+    }
+
+    /// Where the live source placed its operator's key bodies this tick, while it follows one.
+    pub fn operator_bodies(&self) -> Option<&[[f64; 3]]> {
+        self.source.as_deref().and_then(LiveSource::operator_bodies)
     }
 
     /// The arrival of the input behind the command about to be sent, once per input.

@@ -251,6 +251,16 @@ impl RobotKinematics {
         spatial::add(spatial::quat_rotate(self.root_rotation, p), root_position)
     }
 
+    /// Tracked body `k`'s position in the root's frame (this tick's joints).
+    pub fn body_in_root(&self, k: usize) -> [f64; 3] {
+        self.data.xpos()[self.bodies[k]]
+    }
+
+    /// How many bodies it tracks.
+    pub fn tracked_bodies(&self) -> usize {
+        self.bodies.len()
+    }
+
     /// World pose of a body posed relative to the root.
     fn world(&self, body: usize) -> [f64; 7] {
         let (p, q) = (self.data.xpos()[body], self.data.xquat()[body]);
