@@ -109,6 +109,9 @@ pub struct SendArgs {
     /// What is sent: a headset and two controllers, or the whole skeleton's bones.
     #[arg(long, value_enum, default_value_t = crate::args::BodyArg::Devices)]
     body: crate::args::BodyArg,
+    /// Past the recording's end, play its motion again (with --seconds, a session of any length).
+    #[arg(long = "loop")]
+    looped: bool,
 }
 
 /// Runs a `vr` subcommand.
@@ -125,6 +128,7 @@ pub fn vr(cmd: VrCommand) -> Result<()> {
         seconds: args.seconds,
         noise_m: args.noise_mm / 1000.0,
         body: args.body.into(),
+        looped: args.looped,
         ..SendOptions::default()
     };
     let stop = Arc::new(AtomicBool::new(false));

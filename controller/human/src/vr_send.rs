@@ -39,6 +39,8 @@ pub struct SendOptions {
     pub seed: u64,
     /// What is sent: a headset and two controllers, or the whole skeleton's bones.
     pub body: BodySet,
+    /// Past the recording's end, start its motion again (from `start_frame`).
+    pub looped: bool,
 }
 
 /// What a sender sends.
@@ -62,6 +64,7 @@ impl Default for SendOptions {
             noise_rad: 0.004,
             seed: 1,
             body: BodySet::Devices,
+            looped: false,
         }
     }
 }
@@ -191,8 +194,12 @@ pub fn frame_at(bvh: &Bvh, options: &SendOptions, t: f64) -> Option<usize> {
     if t < options.tpose_s {
         return Some(0);
     }
-    let f = options.start_frame + ((t - options.tpose_s) / bvh.frame_time).round() as usize;
-    (f < bvh.frames()).then_some(f)
+    let f = ((t - options.tpose_s) / bvh.frame_time).round() as usize;
+    let motion = bvh.frames().saturating_sub(options.start_frame).max(1);
+    if options.looped {
+        return Some(options.start_frame + f % motion);
+    }
+    (options.start_frame + f < bvh.frames()).then_some(options.start_frame + f)
 }
 
 /// One VMC pose message: `address` with `name`, the position and the rotation in Unity's axes.
