@@ -17,7 +17,8 @@ mutates them into the ones it must refuse. None is third-party material:
   udp_command/     operator command datagrams (`play --command-udp`): a valid version-1 message,
                    and one with a value out of range.
   osc_vmc/         VMC tracker datagrams as a VR bridge sends them (a bundle of headset and
-                   controller poses, one bare message).
+                   controller poses, one bare message), and a skeleton as a suit sends it (the
+                   root, then humanoid bones local to their parents).
   bvh_text/        a two-joint BVH skeleton with three frames.
   clip_csv/        a three-frame clip in the project's CSV layout (time, root pose, one joint).
   motion_csv/      a motion sidecar, a NUL byte, and the headerless CSV it describes (x y z w and
@@ -81,6 +82,21 @@ left = osc_message("/VMC/Ext/Con/Pos", ["LeftHand", -0.3, 1.0, 0.2, 0.0, 0.0, 0.
 right = osc_message("/VMC/Ext/Con/Pos", ["RightHand", 0.3, 1.0, 0.2, 0.0, 0.0, 0.0, 1.0])
 write("osc_vmc", "bundle", osc_bundle([hmd, left, right]))
 write("osc_vmc", "message", hmd)
+# A whole skeleton as a motion-capture suit sends it: the root (VMC 2.1's scale and offset after
+# the pose), then bones local to their parents in Unity's humanoid names.
+root = osc_message("/VMC/Ext/Root/Pos", ["root", 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0])
+bones = [
+    osc_message("/VMC/Ext/Bone/Pos", [name, *offset, 0.0, 0.0, 0.0, 1.0])
+    for name, offset in [
+        ("Hips", (0.0, 0.95, 0.0)),
+        ("Spine", (0.0, 0.1, 0.0)),
+        ("Chest", (0.0, 0.15, 0.0)),
+        ("LeftUpperLeg", (-0.09, -0.05, 0.0)),
+        ("LeftLowerLeg", (0.0, -0.42, 0.0)),
+        ("LeftFoot", (0.0, -0.42, 0.0)),
+    ]
+]
+write("osc_vmc", "skeleton", osc_bundle([root, *bones]))
 DATASHEET_RVC = bytes([0xAA, 0xAA, 0xDE, 0x01, 0x00, 0x92, 0xFF, 0x25, 0x08, 0x8D, 0xFE, 0xEC, 0xFF, 0xD1, 0x03, 0x00, 0x00, 0x00, 0xE7])
 write("rvc_stream", "datasheet", DATASHEET_RVC)
 
