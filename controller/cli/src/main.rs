@@ -114,14 +114,17 @@ enum Command {
     /// and checks it as `check --clip` does.
     #[command(display_order = 9)]
     Retarget(retarget::RetargetArgs),
-    /// Drive the robot live from VR trackers: a headset and two controllers sending VMC (OSC over
-    /// UDP, 127.0.0.1:39539 by default). A T-pose calibrates the user; the head and hands are
-    /// mapped onto the robot and solved by inverse kinematics into the live reference of a
-    /// reference-tracking policy (legs standing). Late packets are forecast; a lost stream blends
-    /// back to the standby pose; malformed packets are dropped and counted. Mirror by default.
+    /// Drive the robot live from VR trackers or a motion-capture suit sending VMC (OSC over UDP,
+    /// 127.0.0.1:39539 by default). A T-pose calibrates the user. With a headset and two
+    /// controllers (`--body devices`) the head and hands are solved by inverse kinematics into a
+    /// reference follower's live reference, legs standing; with the whole skeleton (`--body full`)
+    /// every body is retargeted onto the robot frame by frame, root and joints, for a general
+    /// tracker such as TWIST2, and the summary says how far the robot's key bodies stayed from the
+    /// operator's. Late packets are forecast; a lost stream blends back to standing; malformed
+    /// packets are dropped and counted. Mirror by default.
     #[command(display_order = 7)]
     Teleop(teleop::TeleopArgs),
-    /// VR tools: stream a recorded session as a headset and controllers.
+    /// VR tools: stream a recorded session as a headset and controllers, or as a whole skeleton.
     #[command(subcommand)]
     #[command(display_order = 8)]
     Vr(teleop::VrCommand),

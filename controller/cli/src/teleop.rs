@@ -77,8 +77,9 @@ pub struct TeleopArgs {
 #[derive(Debug, Subcommand)]
 pub enum VrCommand {
     /// Stream a BVH recording as a VR user: headset and controllers synthesised from its head and
-    /// hands (fixed device offsets, noise), sent as VMC over UDP at a headset's rate, starting
-    /// with the recording's first frame held as the T-pose.
+    /// hands (fixed device offsets, noise), or with `--body full` the whole skeleton's bones as a
+    /// motion-capture suit sends them, as VMC over UDP at a headset's rate, starting with the
+    /// recording's first frame held as the T-pose.
     Send(SendArgs),
 }
 

@@ -297,3 +297,32 @@ pub fn send(
     }
     Ok(count)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_t_pose_is_held_then_the_motion_plays_and_loops_only_when_asked() {
+        let bvh = Bvh::load(
+            &test_support::fixtures::workspace_root().join("data/mocap/cmu_13_26_direct-traffic-wave.bvh"),
+        )
+        .unwrap();
+        let options = SendOptions::default();
+        let dt = bvh.frame_time;
+        assert_eq!(frame_at(&bvh, &options, 0.5), Some(0));
+        assert_eq!(frame_at(&bvh, &options, options.tpose_s + 10.0 * dt), Some(11));
+        let past = options.tpose_s + bvh.frames() as f64 * dt;
+        assert_eq!(frame_at(&bvh, &options, past), None);
+        let looped = SendOptions {
+            looped: true,
+            ..options.clone()
+        };
+        // Past the end the motion starts again at start_frame (the T-pose frame is not replayed).
+        let motion = (bvh.frames() - options.start_frame) as f64;
+        assert_eq!(
+            frame_at(&bvh, &looped, options.tpose_s + (motion + 3.0) * dt),
+            Some(4)
+        );
+    }
+}
