@@ -118,16 +118,19 @@ verdict.update(moved_q=moved.q, moved_mode=moved.mode, accel_norm=math.sqrt(sum(
 
 # 3. Wrong CRCs only, the joint asked back to where it started, for as long as it takes the state
 # (through a Python reader that may lag on a busy machine) to show the motor's timeout: were the
-# commands taken, the motor would stay on.
+# commands taken, the motor would stay on. At least 20 are sent whatever the timing (a starved
+# loop may see the timeout after a handful), so the board has that many to refuse.
 end = time.monotonic() + 5.0
 after = newest().motor_state[slot]
+bad_sent = 0
 while time.monotonic() < end:
     publisher.Write(command(lambda i, s: verdict["start_q"] if i == slot else hold[i], crc_wrong=True))
+    bad_sent += 1
     after = newest().motor_state[slot]
-    if after.mode == 0:
+    if after.mode == 0 and bad_sent >= 20:
         break
     time.sleep(0.002)
-verdict.update(after_bad_mode=after.mode, after_bad_status=after.motorstate, after_bad_q=after.q)
+verdict.update(after_bad_mode=after.mode, after_bad_status=after.motorstate, after_bad_q=after.q, bad_sent=bad_sent)
 
 server.send_signal(2)
 out, err = server.communicate(timeout=30)

@@ -34,6 +34,9 @@ def main():
     bus = can.Bus(interface="socketcand", host=host, port=port, channel="can0")
 
     def exchange(data):
+        # Replies to earlier commands that came late (a busy machine) are not this one's.
+        while bus.recv(timeout=0) is not None:
+            pass
         bus.send(can.Message(arbitration_id=motor, data=data, is_extended_id=False))
         deadline = time.time() + 0.5
         while time.time() < deadline:
