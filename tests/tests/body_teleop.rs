@@ -211,3 +211,21 @@ fn a_stream_at_the_wrong_rate_or_an_operator_of_no_adult_height_is_refused_by_na
         "{out}"
     );
 }
+
+/// The operator hands the robot over (the stream stops: it stands under the policy) and takes it
+/// back (the stream returns: it follows again), with no fall.
+#[test]
+fn the_operator_hands_over_and_takes_back() {
+    let Some(out) = session("12", &|addr| {
+        vr_send(addr, "90", "3.5");
+        // The hand-over itself: the operator is away for a second and a half.
+        std::thread::sleep(Duration::from_millis(1500));
+        vr_send(addr, "90", "4");
+    }) else {
+        return;
+    };
+    assert!(out.contains("fell: no"), "{out}");
+    let standing = phase_at(&out, "standing: the operator can take over").expect("it stood");
+    let back = phase_at(&out, "skeleton stream back: tracking again").expect("it was taken back");
+    assert!(standing < back, "{out}");
+}
