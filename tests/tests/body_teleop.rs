@@ -25,8 +25,9 @@ fn phase_at(out: &str, what: &str) -> Option<f64> {
 }
 
 /// Runs `robodeploy teleop --body full` on TWIST2's G1 for `seconds` while `send` streams to the
-/// address it listens on; returns all it printed, from an unstarved attempt (up to three).
-fn session(seconds: &str, send: &dyn Fn(&str)) -> Option<String> {
+/// address it listens on (and may wait for what the teleop prints); returns all it printed, from
+/// an unstarved attempt (up to three).
+fn session(seconds: &str, send: &dyn Fn(&str, &mut Running)) -> Option<String> {
     twist2_dir()?;
     let robot = workspace_root().join("robots/g1-twist2/robot.toml");
     for attempt in 1..=3 {
@@ -54,7 +55,7 @@ fn session(seconds: &str, send: &dyn Fn(&str)) -> Option<String> {
             .and_then(|s| s.split(';').next())
             .expect("the address it listens on")
             .to_owned();
-        send(&addr);
+        send(&addr, &mut teleop);
         let run = teleop.finish();
         let starvation = meter.stop();
         let out = format!("{}\n{}", run.stdout, run.stderr);
@@ -92,7 +93,7 @@ fn vr_send(addr: &str, rate: &str, seconds: &str) {
 
 #[test]
 fn a_whole_body_operator_drives_twist2_on_the_g1_and_losing_them_stands_it() {
-    let Some(out) = session("13", &|addr| vr_send(addr, "90", "9")) else {
+    let Some(out) = session("13", &|addr, _| vr_send(addr, "90", "9")) else {
         return;
     };
     // The operator was taken on, followed, lost, and the robot stood under the policy.
@@ -139,7 +140,7 @@ fn a_whole_body_operator_drives_twist2_on_the_g1_and_losing_them_stands_it() {
 fn an_independent_python_osc_skeleton_drives_twist2() {
     let script = workspace_root().join("tests/python/vmc_skeleton_send.py");
     let python = test_support::fixtures::venv_python();
-    let Some(out) = session("10", &|addr| {
+    let Some(out) = session("10", &|addr, _| {
         let port = addr.rsplit(':').next().expect("a port").to_owned();
         let sent = std::process::Command::new(&python)
             .arg(&script)
@@ -174,7 +175,7 @@ fn an_independent_python_osc_skeleton_drives_twist2() {
 /// name at the T-pose; the robot keeps standing under the policy.
 #[test]
 fn a_stream_at_the_wrong_rate_or_an_operator_of_no_adult_height_is_refused_by_name() {
-    let Some(out) = session("4", &|addr| vr_send(addr, "8", "3")) else {
+    let Some(out) = session("4", &|addr, _| vr_send(addr, "8", "3")) else {
         return;
     };
     assert!(
@@ -192,7 +193,7 @@ fn a_stream_at_the_wrong_rate_or_an_operator_of_no_adult_height_is_refused_by_na
 
     let script = workspace_root().join("tests/python/vmc_skeleton_send.py");
     let python = test_support::fixtures::venv_python();
-    let Some(out) = session("4", &|addr| {
+    let Some(out) = session("4", &|addr, _| {
         let port = addr.rsplit(':').next().expect("a port").to_owned();
         let sent = std::process::Command::new(&python)
             .args([script.as_os_str(), port.as_ref(), "3".as_ref(), "0.4".as_ref()])
@@ -216,10 +217,10 @@ fn a_stream_at_the_wrong_rate_or_an_operator_of_no_adult_height_is_refused_by_na
 /// back (the stream returns: it follows again), with no fall.
 #[test]
 fn the_operator_hands_over_and_takes_back() {
-    let Some(out) = session("12", &|addr| {
+    let Some(out) = session("12", &|addr, teleop| {
         vr_send(addr, "90", "3.5");
-        // The hand-over itself: the operator is away for a second and a half.
-        std::thread::sleep(Duration::from_millis(1500));
+        // The operator comes back once the robot stands on its own.
+        teleop.wait_for("standing: the operator can take over", Duration::from_secs(30));
         vr_send(addr, "90", "4");
     }) else {
         return;

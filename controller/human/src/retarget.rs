@@ -1137,6 +1137,22 @@ mod tests {
         pose
     }
 
+    /// `pose` with the body above the legs moved `by` metres to the left, the feet where they are.
+    fn swayed(pose: &HumanPose, by: f64) -> HumanPose {
+        let mut out = *pose;
+        for b in [
+            HumanBody::Root,
+            HumanBody::Head,
+            HumanBody::LeftHand,
+            HumanBody::RightHand,
+        ] {
+            if let Some(f) = out.bodies[b as usize].as_mut() {
+                f.pos[1] += by;
+            }
+        }
+        out
+    }
+
     fn foot_xy(r: &mut Retargeter, foot: usize) -> [f64; 2] {
         let b = r.feet[foot].0;
         let p = r.ik_mut().frame(b).pos;
@@ -1164,18 +1180,7 @@ mod tests {
         // The human sways 6 cm sideways over a second, feet still: both planted, the robot's
         // feet do not move while its pelvis follows (3 cm on its scale).
         for k in 1..=50 {
-            let mut pose = nominal;
-            let shift = 0.06 * f64::from(k) / 50.0;
-            for b in [
-                HumanBody::Root,
-                HumanBody::Head,
-                HumanBody::LeftHand,
-                HumanBody::RightHand,
-            ] {
-                if let Some(f) = pose.bodies[b as usize].as_mut() {
-                    f.pos[1] += shift;
-                }
-            }
+            let pose = swayed(&nominal, 0.06 * f64::from(k) / 50.0);
             assert_eq!(r.step(&pose, dt), [true, true], "tick {k}");
         }
         for (f, was) in start.iter().enumerate() {
@@ -1183,21 +1188,11 @@ mod tests {
             let moved = (now[0] - was[0]).hypot(now[1] - was[1]);
             assert!(moved < 1e-3, "foot {f} slid {moved} m");
         }
-        let swayed = r.root()[1] - root0[1];
-        assert!((swayed - 0.03).abs() < 0.01, "pelvis swayed {swayed} m");
+        let sway = r.root()[1] - root0[1];
+        assert!((sway - 0.03).abs() < 0.01, "pelvis swayed {sway} m");
         // The left foot steps 20 cm forward (lifted 10 cm on the way): unplanted while it moves,
         // planted where it lands, the robot's foot 10 cm on (within PLANT_DRIFT of it).
-        let mut pose = nominal;
-        for b in [
-            HumanBody::Root,
-            HumanBody::Head,
-            HumanBody::LeftHand,
-            HumanBody::RightHand,
-        ] {
-            if let Some(f) = pose.bodies[b as usize].as_mut() {
-                f.pos[1] += 0.06;
-            }
-        }
+        let mut pose = swayed(&nominal, 0.06);
         let planted_foot = nominal.get(HumanBody::LeftFoot).unwrap().pos;
         let mut lifted = false;
         for k in 1..=25 {

@@ -46,6 +46,42 @@ fn whole_body(seconds: f64) {
     let mut teleop = human::body_teleop::start(&robot, &receiver, TeleopOptions::default()).unwrap();
     let mut reference = Reference::hold(&teleop.standby, teleop.root, 50.0);
     reference.live_bodies = human::retarget::key_bodies(&robot);
+    let options = SendOptions {
+        seconds: Some(seconds),
+        rate_hz: 90.0,
+        body: human::vr_send::BodySet::Skeleton,
+        looped: true,
+        ..SendOptions::default()
+    };
+    let (summary, packets) = session(robot, layout, reference, &mut teleop, &receiver, options);
+    println!(
+        "\nwhole-body teleoperation, {seconds:.0} s: VMC skeleton at 90 Hz ({packets} bundles) → retargeting → TWIST2 at 50 Hz → G1 mirror"
+    );
+    if let Some(latency) = &summary.live_latency {
+        println!("skeleton arrival → first bus command using it: {latency}");
+    }
+    println!("fell: {}", if summary.fell { "yes" } else { "no" });
+    let each: Vec<String> = summary
+        .operator_rmse
+        .iter()
+        .map(|(b, e)| format!("{b} {:.1}", 100.0 * e))
+        .collect();
+    println!("key bodies from the operator, cm RMS: {}", each.join(", "));
+    drop(teleop);
+}
+
+/// Runs `robot` on its mirror in wall clock, the teleoperation's live reference over `reference`,
+/// while CMU's traffic wave is sent to the receiver as `options` say; the run's summary and the
+/// packets sent.
+fn session(
+    robot: Robot,
+    layout: PolicyLayout,
+    reference: Reference,
+    teleop: &mut Teleop,
+    receiver: &VmcReceiver,
+    options: SendOptions,
+) -> (controller::player::PlaySummary, u64) {
+    let seconds = options.seconds.unwrap_or(4.0);
     let world = Arc::new(Mutex::new(
         Mirror::new(robot.clone(), Default::default()).unwrap(),
     ));
@@ -72,34 +108,13 @@ fn whole_body(seconds: f64) {
     )
     .unwrap();
     let addr = receiver.local_addr();
-    let options = SendOptions {
-        seconds: Some(seconds),
-        rate_hz: 90.0,
-        body: human::vr_send::BodySet::Skeleton,
-        looped: true,
-        ..SendOptions::default()
-    };
     let sender = std::thread::Builder::new()
         .name("vr-send".into())
         .spawn(move || send(&bvh, addr, &options, &AtomicBool::new(false), &mut |_, _| {}).unwrap())
         .unwrap();
     let mut clock = PacedLockstepClock::new(world);
     let summary = player.run(&mut clock).unwrap();
-    let packets = sender.join().unwrap();
-    println!(
-        "\nwhole-body teleoperation, {seconds:.0} s: VMC skeleton at 90 Hz ({packets} bundles) → retargeting → TWIST2 at 50 Hz → G1 mirror"
-    );
-    if let Some(latency) = &summary.live_latency {
-        println!("skeleton arrival → first bus command using it: {latency}");
-    }
-    println!("fell: {}", if summary.fell { "yes" } else { "no" });
-    let each: Vec<String> = summary
-        .operator_rmse
-        .iter()
-        .map(|(b, e)| format!("{b} {:.1}", 100.0 * e))
-        .collect();
-    println!("key bodies from the operator, cm RMS: {}", each.join(", "));
-    drop(teleop);
+    (summary, sender.join().unwrap())
 }
 
 /// A headset and two controllers onto rd-biped's reference follower for `seconds`.
@@ -114,44 +129,12 @@ fn devices(seconds: f64) {
     layout.bind_model(model.inputs(), model.output().1).unwrap();
     let receiver = VmcReceiver::start("127.0.0.1:0".parse().unwrap(), Serials::default()).unwrap();
     let mut teleop = Teleop::start(&robot, &receiver, TeleopOptions::default()).unwrap();
-    let (q, root) = (teleop.standby.clone(), teleop.root);
-    let world = Arc::new(Mutex::new(
-        Mirror::new(robot.clone(), Default::default()).unwrap(),
-    ));
-    let io = lockstep_robot(&robot, &world).unwrap();
-    let play = PlayOptions {
-        end: EndMode::Loop,
-        max_ticks: Some((seconds * 50.0) as u64),
-        ..PlayOptions::default()
-    };
-    let mut player = Player::new(
-        robot,
-        layout,
-        Reference::hold(&q, root, 50.0),
-        play,
-        io,
-        Arc::new(AtomicBool::new(false)),
-    )
-    .unwrap()
-    .with_source(controller::reference::TeleopStream::new(
-        teleop.live.take().unwrap(),
-    ));
-    let bvh = Bvh::load(
-        &test_support::fixtures::workspace_root().join("data/mocap/cmu_13_26_direct-traffic-wave.bvh"),
-    )
-    .unwrap();
-    let addr = receiver.local_addr();
+    let reference = Reference::hold(&teleop.standby, teleop.root, 50.0);
     let options = SendOptions {
         seconds: Some(seconds),
         ..SendOptions::default()
     };
-    let sender = std::thread::Builder::new()
-        .name("vr-send".into())
-        .spawn(move || send(&bvh, addr, &options, &AtomicBool::new(false), &mut |_, _| {}).unwrap())
-        .unwrap();
-    let mut clock = PacedLockstepClock::new(world);
-    let summary = player.run(&mut clock).unwrap();
-    let packets = sender.join().unwrap();
+    let (summary, packets) = session(robot, layout, reference, &mut teleop, &receiver, options);
     let latency = summary.live_latency.unwrap();
     let bound = Duration::from_millis(20) + summary.io.quantile(0.99);
     println!(
