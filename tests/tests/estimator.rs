@@ -614,12 +614,19 @@ fn walking_the_zoos_bipeds_with_no_foot_switch_the_estimate_holds() {
         eprintln!(
             "{what}: walked {distance} m; velocity RMSE {velocity} m/s, height RMSE {height} m, contacts agree {contacts}"
         );
-        // Measured (issue 50): 0.032-0.045 m/s, 1.1-1.5 mm, contacts 89-93 % (switches off; the
-        // acceptance's 97 % is not reached yet: feet hovering a few millimetres over the floor
-        // at the ends of a swing, whose legs' torques read as a load).
+        // Measured (issue 50): 0.030-0.045 m/s, 0.9-1.3 mm; contacts 96.3 % (mini), 94.0 % (MIT
+        // biped) with each foot's air load learned from its own steps (93.2 and 92.3 % without),
+        // 89.1 % on Feetech, whose coarse, lagging load swings too wide in the air to be used (the
+        // legs alone decide there). The acceptance's 97 % is not reached yet: what is left are
+        // single-tick landings and lift-offs the torque readings see a bus cycle late.
         assert!(velocity <= 0.05, "{what}: velocity RMSE {velocity}\n{out}");
         assert!(height <= 0.01, "{what}: height RMSE {height}\n{out}");
-        assert!(contacts >= 0.85, "{what}: contacts agree {contacts}\n{out}");
+        let least = match robot {
+            ZooRobot::Mini => 0.955,
+            ZooRobot::MitBiped => 0.935,
+            ZooRobot::FeetechBiped => 0.87,
+        };
+        assert!(contacts >= least, "{what}: contacts agree {contacts}\n{out}");
     }
     std::fs::remove_dir_all(&zoo).unwrap();
 }

@@ -9,8 +9,9 @@
 //! Contact, the held robot and the gates are decided here, the same for both filters. Contact
 //! comes from foot switches where the robot has them, otherwise from the legs: a foot lands when
 //! it comes back within `contact_on_m` of the height it last stood at, slowly, and takes a share
-//! of the weight (the ground's push on it, from the joint torques the buses report); it lifts off
-//! when it rises beyond `contact_off_m` or carries almost nothing (hysteresis on both). Those
+//! of the weight (the ground's push on it, from the joint torques the buses report) above what it
+//! reads in the air (learned from the robot's own steps); it lifts off when it rises beyond
+//! `contact_off_m` or carries almost nothing (hysteresis on both). Those
 //! heights and the speed are scaled to the robot's own standing height when the filter starts.
 //!
 //! The world frame is the robot's start: the base above the origin, the floor at z = 0 under
@@ -242,6 +243,62 @@ pub struct Estimator {
     refused_ticks: u32,
     /// The contact heights and speed scaled to this robot (learned when the filter first starts).
     thresholds: Option<ContactThresholds>,
+    /// What each foot's load reads while the legs put it clearly in the air, learned over the run.
+    air_load: [AirLoad; MAX_FEET],
+}
+
+/// What a foot's load reads while it is in the air: a swinging leg's own dynamics and the
+/// actuator's reading error, learned from the robot's own steps (the loads of the last
+/// [`AIR_LOAD_WINDOW`] ticks a foot spent in the air, the tick before each landing left out). A
+/// landing must rise above its upper decile; a load that falls back into it has lifted off.
+#[derive(Debug, Clone, Copy)]
+struct AirLoad {
+    loads: [f64; AIR_LOAD_WINDOW],
+    len: usize,
+    next: usize,
+    /// The load of the last tick the foot spent in the air, kept once the next tick is in the
+    /// air too (a landing's first tick already carries some weight).
+    pending: Option<f64>,
+    ceiling: Option<f64>,
+}
+
+/// Ticks in the air remembered per foot, and how many before the air load is used.
+const AIR_LOAD_WINDOW: usize = 128;
+const AIR_LOAD_SAMPLES: usize = 20;
+
+impl Default for AirLoad {
+    fn default() -> Self {
+        Self {
+            loads: [0.0; AIR_LOAD_WINDOW],
+            len: 0,
+            next: 0,
+            pending: None,
+            ceiling: None,
+        }
+    }
+}
+
+impl AirLoad {
+    /// This tick's decision: the foot is in the air (or not) with this load.
+    fn update(&mut self, in_air: bool, load: f64) {
+        if let Some(l) = self.pending.take()
+            && in_air
+        {
+            self.loads[self.next] = l;
+            self.next = (self.next + 1) % AIR_LOAD_WINDOW;
+            self.len = (self.len + 1).min(AIR_LOAD_WINDOW);
+            if self.len >= AIR_LOAD_SAMPLES {
+                let mut sorted = self.loads;
+                let sorted = &mut sorted[..self.len];
+                let k = self.len * 9 / 10;
+                let (_, p90, _) = sorted.select_nth_unstable_by(k, f64::total_cmp);
+                self.ceiling = Some(*p90);
+            }
+        }
+        if in_air && load.is_finite() {
+            self.pending = Some(load);
+        }
+    }
 }
 
 /// A foot lands within `on` m of where it last stood, moving slower than `speed` m/s, and lifts
@@ -269,6 +326,15 @@ impl ContactThresholds {
         }
     }
 }
+
+/// A foot whose load fell to its air load lifts off once it moves faster than this share of a
+/// landing's speed, or rises: a foot rolling onto its toe at the end of a step reads almost
+/// nothing while it still touches.
+const LIFT_SPEED_SHARE: f64 = 0.5;
+
+/// The air load is used once below this share of a foot's share of the weight: an actuator
+/// whose reading swings wider in the air (coarse steps, lag) cannot tell, and the legs decide.
+const AIR_LOAD_TRUST: f64 = 0.5;
 
 /// Ticks the filter may refuse every standing foot's velocity in a row (then it takes them).
 pub const MAX_REFUSED_TICKS: u32 = 5;
@@ -316,6 +382,7 @@ impl Estimator {
             held: false,
             refused_ticks: 0,
             thresholds: None,
+            air_load: [AirLoad::default(); MAX_FEET],
         }
     }
 
@@ -555,11 +622,17 @@ impl Estimator {
                     // The legs' torques, where they tell: an unloaded foot is not standing
                     // (it hovers, or is about to lift), a landing one takes weight.
                     let (c, load, leg) = (&self.config, legs.load[f], legs.leg_weight[f]);
+                    let air = self.air_load[f]
+                        .ceiling
+                        .filter(|&a| a < AIR_LOAD_TRUST * self.weight / self.feet as f64);
                     let unloaded = load.is_finite() && load < c.contact_unload * self.weight;
+                    let airborne_load = air.is_some_and(|a| load.is_finite() && load < a);
                     // Lighter than a swinging leg's own reading, and moving: lifting off (a
                     // foot unloading slowly in place still touches).
-                    let lifting = load.is_finite() && load < c.leg_unload * leg && speed > t.speed;
-                    let loaded = !load.is_finite() || load > c.contact_load * self.weight;
+                    let lifting = (load.is_finite() && load < c.leg_unload * leg && speed > t.speed)
+                        || (airborne_load && (speed > LIFT_SPEED_SHARE * t.speed || height > t.on));
+                    let loaded = !load.is_finite()
+                        || (load > c.contact_load * self.weight && air.is_none_or(|a| load > a));
                     let carrying = load.is_finite() && load > c.carrying * self.weight;
                     if self.contacts[f] {
                         carrying || (height < t.off && !unloaded && !lifting)
@@ -584,6 +657,9 @@ impl Estimator {
                 let moving = if world_speed(f) > world_speed(j) { f } else { j };
                 self.contacts[moving] = false;
             }
+        }
+        for f in 0..self.feet {
+            self.air_load[f].update(!self.contacts[f], legs.load[f]);
         }
         for f in (0..self.feet).filter(|&f| standing[f] && !self.contacts[f]) {
             self.filter
@@ -678,6 +754,30 @@ impl Estimator {
 mod tests {
     use super::*;
     use std::time::Duration;
+
+    #[test]
+    fn the_air_load_is_the_upper_decile_of_a_foot_in_the_air_without_the_tick_before_a_landing() {
+        let mut air = AirLoad::default();
+        // Swings reading 0..=9 N, each ended by a landing whose first tick reads 50 N and a
+        // stance of 100 N.
+        for _ in 0..AIR_LOAD_WINDOW {
+            for load in 0..10 {
+                air.update(true, f64::from(load));
+            }
+            air.update(true, 50.0);
+            air.update(false, 100.0);
+            air.update(false, 100.0);
+        }
+        assert_eq!(air.ceiling, Some(9.0), "{air:?}");
+        // Too few samples: not used yet.
+        let mut short = AirLoad::default();
+        for _ in 0..AIR_LOAD_SAMPLES {
+            short.update(true, 1.0);
+        }
+        assert_eq!(short.ceiling, None);
+        short.update(true, 1.0);
+        assert_eq!(short.ceiling, Some(1.0));
+    }
 
     /// Each test of the filters' behaviour runs on both.
     fn both_filters() -> [EstimatorConfig; 2] {
