@@ -318,6 +318,30 @@ fn flags_with_absurd_values_are_refused_by_name() {
             "'--stale-cycles <STALE_CYCLES>'",
         ),
         (
+            args(&[&"play", &"--record-every", &"/replay=2"]),
+            "\"/replay\" is not a channel whose rate can change",
+        ),
+        (
+            args(&[&"play", &"--record-every", &"/tf"]),
+            "\"/tf\" is not TOPIC=N",
+        ),
+        (
+            args(&[&"play", &"--record-every", &"/tf=-1"]),
+            "'--record-every <TOPIC=N>'",
+        ),
+        (
+            args(&[&"play", &"--record-chunk-kib", &"1"]),
+            "'--record-chunk-kib <KIB>': 1 is outside [4, 65536]",
+        ),
+        (
+            args(&[&"play", &"--record-level", &"15"]),
+            "--record-level 15: lz4 takes 0–12",
+        ),
+        (
+            args(&[&"play", &"--record-compression", &"none", &"--record-level", &"3"]),
+            "--record-level 3: --record-compression none has no level",
+        ),
+        (
             args(&[&"sim", &"stand", &"--seconds", &"1e300"]),
             "'--seconds <SECONDS>'",
         ),

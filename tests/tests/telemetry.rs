@@ -428,6 +428,85 @@ fn a_recording_carries_the_files_it_was_made_from_and_is_never_overwritten_silen
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+#[test]
+fn a_recording_is_written_as_its_settings_say_and_the_run_says_what_it_cost() {
+    let dir = std::env::temp_dir().join(format!("telemetry-settings-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let record = dir.join("run.mcap");
+    let out = test_support::bin::robodeploy()
+        .args(["play", "--max-seconds", "2", "--record"])
+        .arg(&record)
+        .args([
+            "--record-compression",
+            "zstd",
+            "--record-level",
+            "1",
+            "--record-chunk-kib",
+            "16",
+        ])
+        .args(["--record-every", "/tf=5", "--record-every", "/imu=0"])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let bytes = std::fs::read(&record).unwrap();
+    let summary = mcap::Summary::read(&bytes).unwrap().expect("a summary");
+    // Every chunk zstd, none much over 16 KiB before compression but for the one carrying the
+    // robot's geometry.
+    assert!(
+        summary.chunk_indexes.len() > 10,
+        "{} chunks",
+        summary.chunk_indexes.len()
+    );
+    assert!(summary.chunk_indexes.iter().all(|c| c.compression == "zstd"));
+    let small = summary
+        .chunk_indexes
+        .iter()
+        .filter(|c| c.uncompressed_size < 2 * 16 * 1024)
+        .count();
+    assert!(
+        small + 1 >= summary.chunk_indexes.len(),
+        "{small} of {}",
+        summary.chunk_indexes.len()
+    );
+    let mut counts = std::collections::BTreeMap::<String, u64>::new();
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        *counts.entry(m.unwrap().channel.topic.clone()).or_default() += 1;
+    }
+    let ticks = counts["/replay"];
+    assert!(ticks >= 100, "{counts:?}");
+    assert_eq!(counts["/joint_state"], ticks, "{counts:?}");
+    assert_eq!(counts["/tf"], ticks.div_ceil(5), "{counts:?}");
+    assert!(!counts.contains_key("/imu"), "{counts:?}");
+    // The run says what it wrote and what that cost.
+    let cost = stdout
+        .lines()
+        .find(|l| l.starts_with("recording cost: "))
+        .unwrap_or_else(|| panic!("{stdout}"));
+    assert!(
+        cost.contains("(zstd level 1 in 16 KiB chunks, /tf every 5 ticks, /imu off)")
+            && cost.contains("s of CPU")
+            && cost.contains("handing records over"),
+        "{cost}"
+    );
+    let mb: f64 = cost["recording cost: ".len()..]
+        .split(" MB")
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(
+        (mb - bytes.len() as f64 / 1e6).abs() < 0.051,
+        "{cost}: {} bytes",
+        bytes.len()
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// The fields of `message` (a `robodeploy.*` or nested type) in the recordings' descriptor set.
 fn fields_of(message: &str) -> Vec<(String, String)> {
     let fds =

@@ -358,9 +358,72 @@ pub struct RecordArgs {
     /// With --ros2: the DDS domain (ROS 2's ROS_DOMAIN_ID), 0–232.
     #[arg(long, default_value_t = 0, requires = "ros2", value_parser = crate::args::whole_within(0, 232))]
     pub(crate) ros2_domain: u64,
+    /// How the recording's chunks are compressed: lz4 (fast, about half the size), zstd (a
+    /// third of lz4's size or less, more CPU on the recording's own thread), none. Every MCAP
+    /// reader opens all three. The run's last lines say what the recording cost.
+    #[arg(long, value_name = "KIND", default_value = "lz4", value_parser = ["none", "lz4", "zstd"], conflicts_with = "no_record")]
+    pub(crate) record_compression: String,
+    /// The compressor's level: 0 its default, lz4 1–12, zstd 1–19 (higher: smaller, slower).
+    #[arg(long, default_value_t = 0, value_parser = crate::args::whole_within(0, 19), conflicts_with = "no_record")]
+    pub(crate) record_level: u64,
+    /// Target size of the recording's chunks, KiB (4–65536): a crash loses at most the chunk
+    /// being built (64 KiB: ~0.3 s of a 50 Hz run); larger chunks compress better.
+    #[arg(long, value_name = "KIB", default_value_t = 64, value_parser = crate::args::whole_within(4, 65_536), conflicts_with = "no_record")]
+    pub(crate) record_chunk_kib: u64,
+    /// Write a channel every N ticks instead of every tick (0: not at all), repeatable:
+    /// `--record-every /tf=5 --record-every /joint_states=0`. Channels: /joint_state,
+    /// /joint_states, /command, /policy, /imu, /timing, /estimator, /tf, /anchor/robot,
+    /// /anchor/reference. /replay, /safety, /log, /robot and /robot_description are always
+    /// whole (replay and report read them). The live view gets what the file gets.
+    #[arg(long, value_name = "TOPIC=N", value_parser = record_every, conflicts_with = "no_record")]
+    pub(crate) record_every: Vec<(String, u32)>,
+}
+
+/// `--record-every`'s `TOPIC=N`: a channel of [`controller::telemetry::THINNABLE_TOPICS`], N in
+/// 0–10000 ticks.
+fn record_every(text: &str) -> Result<(String, u32), String> {
+    let (topic, n) = text
+        .split_once('=')
+        .ok_or_else(|| format!("{text:?} is not TOPIC=N (e.g. /tf=5)"))?;
+    if !controller::telemetry::THINNABLE_TOPICS.contains(&topic) {
+        return Err(format!(
+            "{topic:?} is not a channel whose rate can change; one of {}",
+            controller::telemetry::THINNABLE_TOPICS.join(", ")
+        ));
+    }
+    let n = crate::args::whole_within(0, 10_000)(n)?;
+    Ok((topic.to_owned(), u32::try_from(n).unwrap_or(u32::MAX)))
 }
 
 impl RecordArgs {
+    /// The recording's settings, the level checked against the compression.
+    pub(crate) fn settings(&self) -> Result<controller::telemetry::RecordingSettings, FlagError> {
+        use controller::telemetry::RecordingCompression as C;
+        let compression = match self.record_compression.as_str() {
+            "none" => C::None,
+            "zstd" => C::Zstd,
+            _ => C::Lz4,
+        };
+        let level = u32::try_from(self.record_level).unwrap_or(u32::MAX);
+        if level > compression.max_level() {
+            let why = match compression {
+                C::None => format!(" {level}: --record-compression none has no level"),
+                _ => format!(
+                    " {level}: {} takes 0–{}",
+                    compression.name(),
+                    compression.max_level()
+                ),
+            };
+            return Err(FlagError::new("record-level", why));
+        }
+        Ok(controller::telemetry::RecordingSettings {
+            compression,
+            level,
+            chunk_bytes: self.record_chunk_kib * 1024,
+            every: self.record_every.clone(),
+        })
+    }
+
     /// Where --ros2 publishes (and --cmd-vel listens).
     pub(crate) fn ros2_dds(&self) -> Option<dds::DdsConfig> {
         self.ros2.as_ref().map(|interface| dds::DdsConfig {
@@ -1019,6 +1082,7 @@ pub(crate) fn start_recording(
     if rec.no_record {
         return Ok(None);
     }
+    let settings = rec.settings()?;
     let (path, claimed) = match &rec.record {
         Some(p) => {
             if let Some(dir) = p.parent().filter(|d| !d.as_os_str().is_empty()) {
@@ -1086,6 +1150,7 @@ pub(crate) fn start_recording(
         } else {
             controller::telemetry::RecordingClock::Simulated
         },
+        settings,
         ..info
     };
     let sink = match claimed {
@@ -1170,6 +1235,7 @@ fn bus_threads(realtime: bool) -> fn() {
 
 /// Runs `play`.
 pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
+    args.rec.settings()?;
     let mut l = load(&args.files)?;
     // What check refuses, play refuses before anything moves, unless forced for a reason.
     if let ReferenceSource::Clip(_) = &l.source

@@ -155,6 +155,7 @@ pub fn vr(cmd: VrCommand) -> Result<()> {
 
 /// Runs `teleop`.
 pub fn teleop(args: &TeleopArgs) -> Result<std::process::ExitCode> {
+    args.rec.settings()?;
     let robot = Robot::load(&args.robot)?;
     let policy = crate::args::policy_of(args.policy.as_deref(), &robot)?;
     let mut layout = PolicyLayout::load(&policy, &robot)?;

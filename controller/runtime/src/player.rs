@@ -609,6 +609,7 @@ impl<L: RobotLink> Player<L> {
             clock: crate::telemetry::RecordingClock::Simulated,
             commit: None,
             observation_len: self.policy.obs.len(),
+            settings: crate::telemetry::RecordingSettings::default(),
         }
     }
 

@@ -389,8 +389,111 @@ pub enum TelemetryError {
     Ros2(#[from] dds::DdsError),
 }
 
-/// Target size of a recording's chunks, bytes (~0.3 s of a 50 Hz run).
-const CHUNK_BYTES: u64 = 64 * 1024;
+/// Target size of a recording's chunks, bytes by default (~0.3 s of a 50 Hz run).
+pub const CHUNK_BYTES: u64 = 64 * 1024;
+
+/// How a recording's chunks are compressed (MCAP's own compressions: every MCAP reader opens them).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum RecordingCompression {
+    /// Stored as written: the least CPU, the largest file.
+    None,
+    /// LZ4 (the default): fast, about half the size.
+    #[default]
+    Lz4,
+    /// Zstandard: a third of LZ4's size or less, more CPU on the recording's thread.
+    Zstd,
+}
+
+impl RecordingCompression {
+    /// Its name, as `--record-compression` takes it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::None => "none",
+            Self::Lz4 => "lz4",
+            Self::Zstd => "zstd",
+        }
+    }
+
+    /// The highest level it takes (0 is always its default).
+    pub fn max_level(self) -> u32 {
+        match self {
+            Self::None => 0,
+            Self::Lz4 => 12,
+            Self::Zstd => 19,
+        }
+    }
+}
+
+/// Channels whose rate a recording may lower (`--record-every TOPIC=N`): the per-tick streams a
+/// viewer plots. `/replay` (every tick: `replay` feeds it back), the events (`/safety`, `/log`)
+/// and what is written once (`/robot`, `/robot_description`) are always written whole.
+pub const THINNABLE_TOPICS: [&str; 10] = [
+    "/joint_state",
+    "/joint_states",
+    "/command",
+    "/policy",
+    "/imu",
+    "/timing",
+    "/estimator",
+    "/tf",
+    "/anchor/robot",
+    "/anchor/reference",
+];
+
+/// How a recording is written: its compression, its chunks, and which channels at what rate. The
+/// default writes every channel every tick, LZ4 in 64 KiB chunks.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RecordingSettings {
+    pub compression: RecordingCompression,
+    /// The compressor's level, 0 for its default (LZ4 up to 12, Zstandard up to 19).
+    pub level: u32,
+    /// Target chunk size, bytes: a crash loses at most the chunk being built; larger chunks
+    /// compress better.
+    pub chunk_bytes: u64,
+    /// Channels written every N ticks instead of every tick (0: not at all), of
+    /// [`THINNABLE_TOPICS`]. The live view and ROS 2 get what the file gets, except ROS 2's
+    /// `/tf` and `/joint_states`, which keep the tick rate.
+    pub every: Vec<(String, u32)>,
+}
+
+impl Default for RecordingSettings {
+    fn default() -> Self {
+        Self {
+            compression: RecordingCompression::default(),
+            level: 0,
+            chunk_bytes: CHUNK_BYTES,
+            every: Vec::new(),
+        }
+    }
+}
+
+impl RecordingSettings {
+    /// How often `topic` is written, ticks (0: never).
+    fn every(&self, topic: &str) -> u32 {
+        self.every
+            .iter()
+            .rev()
+            .find(|(t, _)| t == topic)
+            .map_or(1, |&(_, n)| n)
+    }
+}
+
+impl std::fmt::Display for RecordingSettings {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.compression.name())?;
+        if self.level > 0 {
+            write!(f, " level {}", self.level)?;
+        }
+        write!(f, " in {} KiB chunks", self.chunk_bytes / 1024)?;
+        for (topic, n) in &self.every {
+            match n {
+                0 => write!(f, ", {topic} off")?,
+                n => write!(f, ", {topic} every {n} ticks")?,
+            }
+        }
+        Ok(())
+    }
+}
 
 /// What the ring does when the logger falls behind.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -402,7 +505,7 @@ pub enum Backpressure {
 }
 
 /// What the logger wrote.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct TelemetryReport {
     /// The MCAP file.
     pub path: PathBuf,
@@ -414,6 +517,24 @@ pub struct TelemetryReport {
     pub dropped: u64,
     /// Messages per topic.
     pub messages: BTreeMap<String, u64>,
+    /// What it cost.
+    pub cost: RecordingCost,
+}
+
+/// What a recording cost the run.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct RecordingCost {
+    /// How it was written.
+    pub settings: RecordingSettings,
+    /// The file's size, bytes.
+    pub bytes: u64,
+    /// The run time it covers, s.
+    pub run_s: f64,
+    /// CPU time of the recording's own thread (encoding, compression, writing), s.
+    pub thread_cpu_s: f64,
+    /// Time the loop spent handing records over (copying into the ring; in lockstep also
+    /// waiting for a full ring), s.
+    pub loop_s: f64,
 }
 
 impl std::fmt::Display for TelemetryReport {
@@ -425,12 +546,32 @@ impl std::fmt::Display for TelemetryReport {
             self.written,
             self.dropped,
             self.messages.len()
+        )?;
+        let c = &self.cost;
+        let per_s = |v: f64| if c.run_s > 0.0 { 1000.0 * v / c.run_s } else { 0.0 };
+        write!(
+            f,
+            "\nrecording cost: {:.1} MB ({}); its thread {:.2} s of CPU ({:.1} ms per run second), \
+             the loop {:.3} s handing records over ({:.2} ms per run second)",
+            c.bytes as f64 / 1e6,
+            c.settings,
+            c.thread_cpu_s,
+            per_s(c.thread_cpu_s),
+            c.loop_s,
+            per_s(c.loop_s)
         )
     }
 }
 
-/// Records written and messages per topic, as the logger thread returns them.
-type Written = (u64, BTreeMap<String, u64>);
+/// What the logger thread returns: records written, messages per topic, the run time the last
+/// record was at (ns) and the thread's CPU time (s).
+type Written = (u64, BTreeMap<String, u64>, u64, f64);
+
+/// CPU time of the calling thread, s.
+fn thread_cpu_s() -> f64 {
+    let t = rustix::time::clock_gettime(rustix::time::ClockId::ThreadCPUTime);
+    t.tv_sec as f64 + t.tv_nsec as f64 * 1e-9
+}
 
 /// What a recording says about itself.
 #[derive(Debug, Clone, Default)]
@@ -478,6 +619,8 @@ pub struct RecordingInfo {
     /// Values of the policy's observation: `/policy` carries it whole, through buffers of this
     /// size made when the recording starts (0: no observation recorded).
     pub observation_len: usize,
+    /// How the file is written.
+    pub settings: RecordingSettings,
 }
 
 /// The tool that writes recordings, as the file's header and its `robodeploy` metadata name it.
@@ -520,6 +663,15 @@ struct Channel {
     id: u16,
     topic: String,
     live: Option<Arc<foxglove::RawChannel>>,
+    /// Written every this many ticks (0: never).
+    every: u32,
+}
+
+impl Channel {
+    /// Whether tick `tick` is written on it.
+    fn due(&self, tick: u64) -> bool {
+        self.every != 0 && tick.is_multiple_of(u64::from(self.every))
+    }
 }
 
 /// The MCAP writer and the live view, fed the same encoded bytes; counts what it wrote.
@@ -529,6 +681,7 @@ struct Out<W: std::io::Write + std::io::Seek> {
     ros2: Option<ros2::Ros2Topics>,
     sequence: u32,
     counts: BTreeMap<String, u64>,
+    settings: RecordingSettings,
     buf: Vec<u8>,
 }
 
@@ -557,6 +710,7 @@ impl<W: std::io::Write + std::io::Seek> Out<W> {
             id,
             topic: topic.to_owned(),
             live,
+            every: self.settings.every(topic),
         })
     }
 
@@ -614,6 +768,9 @@ pub struct TelemetrySink {
     dropped: Arc<AtomicU64>,
     logger: Option<std::thread::JoinHandle<Result<Written, TelemetryError>>>,
     path: PathBuf,
+    settings: RecordingSettings,
+    /// Time spent in the push calls.
+    handing: std::time::Duration,
 }
 
 /// The files a run was made from, inside its recording so it travels with them: robot.toml and
@@ -725,8 +882,16 @@ impl TelemetrySink {
         // Small chunks: a crash (SIGKILL, power) loses at most the chunk being built, ~0.3 s of
         // a 50 Hz run; `analysis::recording` reads everything before it.
         let writer = mcap::WriteOptions::new()
-            .compression(Some(mcap::Compression::Lz4))
-            .chunk_size(Some(CHUNK_BYTES))
+            .compression(match info.settings.compression {
+                RecordingCompression::None => None,
+                RecordingCompression::Lz4 => Some(mcap::Compression::Lz4),
+                RecordingCompression::Zstd => Some(mcap::Compression::Zstd),
+            })
+            .compression_level(info.settings.level)
+            // Compressed on the recording's own thread: zstd's worker threads would take cores
+            // from the loop and hide what the recording costs.
+            .compression_threads(0)
+            .chunk_size(Some(info.settings.chunk_bytes))
             .profile(PROFILE)
             .library(match &info.commit {
                 Some(c) => format!("{WRITER} (commit {c})"),
@@ -746,6 +911,7 @@ impl TelemetrySink {
             ros2,
             sequence: 0,
             counts: BTreeMap::new(),
+            settings: info.settings.clone(),
             buf: Vec::with_capacity(16 * 1024),
         };
         // Who wrote it: the version and the commit it was built from.
@@ -798,11 +964,13 @@ impl TelemetrySink {
                 let mut text = String::with_capacity(16 * 1024);
                 // The run's time 0 on the recording's clock, set by the first record.
                 let mut origin: Option<u64> = None;
+                let mut last_ns = 0;
                 while let Ok(record) = rx.recv() {
                     let run_ns = match &record {
                         Record::Tick(r, _) => r.time_ns,
                         Record::Cycle(c) => c.started_ns,
                     };
+                    last_ns = last_ns.max(run_ns);
                     let zero = match origin {
                         Some(zero) => zero,
                         None => {
@@ -845,7 +1013,7 @@ impl TelemetrySink {
                 let Out { mut mcap, counts, .. } = out;
                 mcap.finish().map_err(|e| failed(&e))?;
                 drop(std::mem::ManuallyDrop::into_inner(mcap));
-                Ok((written, counts))
+                Ok((written, counts, last_ns, thread_cpu_s()))
             })
             .map_err(|e| TelemetryError::Logger(e.to_string()))?;
         Ok(Self {
@@ -858,6 +1026,8 @@ impl TelemetrySink {
             dropped: Arc::new(AtomicU64::new(0)),
             logger: Some(logger),
             path: path.to_path_buf(),
+            settings: info.settings.clone(),
+            handing: std::time::Duration::ZERO,
         })
     }
 
@@ -870,6 +1040,7 @@ impl TelemetrySink {
     /// made at its start (none free in a wall-clock run: the tick is recorded without it; a
     /// recording started without [`RecordingInfo::observation_len`] records none).
     pub fn push_with(&mut self, record: &TickRecord, obs: &[f32]) {
+        let began = std::time::Instant::now();
         let buffer = if obs.is_empty() || !self.observations {
             None
         } else {
@@ -884,12 +1055,15 @@ impl TelemetrySink {
             })
         };
         self.send(Record::Tick(*record, buffer));
+        self.handing += began.elapsed();
     }
 
     /// Hands one bus cycle to the logger, like [`Self::push`] (recorded on `/bus/<name>` when
     /// the recording was started with [`RecordingInfo::bus_cycles`]).
     pub fn push_cycle(&mut self, record: &CycleRecord) {
+        let began = std::time::Instant::now();
         self.send(Record::Cycle(*record));
+        self.handing += began.elapsed();
     }
 
     fn send(&mut self, record: Record) {
@@ -911,16 +1085,24 @@ impl TelemetrySink {
     /// Closes the ring, waits for the logger to write everything, finishes the file.
     pub fn finish(mut self) -> Result<TelemetryReport, TelemetryError> {
         self.tx.take();
-        let (written, messages) = self.logger.take().map_or(Ok((0, BTreeMap::new())), |h| {
-            h.join()
-                .map_err(|_| TelemetryError::Logger("the thread panicked".into()))?
-        })?;
+        let (written, messages, last_ns, thread_cpu_s) =
+            self.logger.take().map_or(Ok((0, BTreeMap::new(), 0, 0.0)), |h| {
+                h.join()
+                    .map_err(|_| TelemetryError::Logger("the thread panicked".into()))?
+            })?;
         Ok(TelemetryReport {
             path: self.path.clone(),
             pushed: self.pushed,
             written,
             dropped: self.dropped.load(Ordering::Relaxed),
             messages,
+            cost: RecordingCost {
+                settings: self.settings.clone(),
+                bytes: std::fs::metadata(&self.path).map_or(0, |m| m.len()),
+                run_s: last_ns as f64 * 1e-9,
+                thread_cpu_s,
+                loop_s: self.handing.as_secs_f64(),
+            },
         })
     }
 }
@@ -1050,18 +1232,31 @@ impl TickChannels {
         t: u64,
     ) -> Result<(), mcap::McapError> {
         use foxglove::schemas as fg;
-        out.message(&self.joint_state, t, m.joint_state(r, t))?;
-        let mut buf = std::mem::take(&mut out.buf);
-        m.joint_states_cdr(r, t, &mut buf);
-        if let Some(ros) = &mut out.ros2 {
-            ros.joint_states(&buf);
-            ros.diagnostics(t, r);
+        let tick = r.tick;
+        if self.joint_state.due(tick) {
+            out.message(&self.joint_state, t, m.joint_state(r, t))?;
         }
-        let written = out.bytes(&self.joint_states, t, &buf);
-        out.buf = buf;
-        written?;
-        out.message(&self.command, t, m.command(r, t))?;
-        out.message(&self.policy, t, m.policy(r, obs, t))?;
+        if self.joint_states.due(tick) || out.ros2.is_some() {
+            let mut buf = std::mem::take(&mut out.buf);
+            m.joint_states_cdr(r, t, &mut buf);
+            if let Some(ros) = &mut out.ros2 {
+                ros.joint_states(&buf);
+                ros.diagnostics(t, r);
+            }
+            let written = if self.joint_states.due(tick) {
+                out.bytes(&self.joint_states, t, &buf)
+            } else {
+                Ok(())
+            };
+            out.buf = buf;
+            written?;
+        }
+        if self.command.due(tick) {
+            out.message(&self.command, t, m.command(r, t))?;
+        }
+        if self.policy.due(tick) {
+            out.message(&self.policy, t, m.policy(r, obs, t))?;
+        }
         if let Some((transition, log)) = m.safety(r, t) {
             out.message(&self.safety, t, &transition)?;
             out.message(&self.log, t, &log)?;
@@ -1072,15 +1267,24 @@ impl TickChannels {
         if let Some(log) = m.harness_log(r, t) {
             out.message(&self.log, t, &log)?;
         }
-        out.message(&self.imu, t, m.imu(r, t))?;
-        out.message(&self.timing, t, m.timing(r, t))?;
-        if let Some(estimate) = m.estimate(r, t) {
+        if self.imu.due(tick) {
+            out.message(&self.imu, t, m.imu(r, t))?;
+        }
+        if self.timing.due(tick) {
+            out.message(&self.timing, t, m.timing(r, t))?;
+        }
+        if self.estimator.due(tick)
+            && let Some(estimate) = m.estimate(r, t)
+        {
             out.message(&self.estimator, t, estimate)?;
         }
         if let (Some((robot, reference)), Some((robot_channel, reference_channel))) =
             (r.anchors, &self.anchors)
         {
             for (channel, p) in [(robot_channel, robot), (reference_channel, reference)] {
+                if !channel.due(tick) {
+                    continue;
+                }
                 let pose = fg::PoseInFrame {
                     timestamp: viewers::fg_time(t),
                     frame_id: "world".into(),
@@ -1117,12 +1321,16 @@ impl TickChannels {
                     }
                 }
             }
-            let root = root_pose(r);
-            let frames = links.update(root, &r.q[..usize::from(r.joints)], t);
-            if let Some(ros) = &mut out.ros2 {
-                ros.tf(t, frames);
+            if self.tf.due(tick) || out.ros2.is_some() {
+                let root = root_pose(r);
+                let frames = links.update(root, &r.q[..usize::from(r.joints)], t);
+                if let Some(ros) = &mut out.ros2 {
+                    ros.tf(t, frames);
+                }
+                if self.tf.due(tick) {
+                    out.message(&self.tf, t, frames)?;
+                }
             }
-            out.message(&self.tf, t, frames)?;
         }
         text.clear();
         replay_json(text, r);
