@@ -53,46 +53,6 @@ fn run(seconds: f64, gantry: bool) -> (Duration, u64) {
     (took, steps)
 }
 
-/// Bare MuJoCo of `robot`'s compiled model holding its default pose for `seconds`, as a trainer's
-/// loop does: the robot's PD on every joint each physics step, in plain Rust (position actuators
-/// of the model get the pose as their control). Wall time and steps.
-fn bare(robot: &Robot, seconds: f64) -> (Duration, u64) {
-    let model = robot.model().unwrap();
-    let index = sim2real::model_index::ModelIndex::of_robot(&model, robot).unwrap();
-    let mut data = model.make_data();
-    for (j, ids) in robot.config.joints.iter().zip(&index.joints) {
-        data.qpos_mut()[ids.qpos] = j.default_position;
-    }
-    data.forward();
-    let low = sim2real::placement::lowest_point(&data, index.root_body).unwrap_or(0.0);
-    data.qpos_mut()[index.root.qpos + 2] -= low;
-    // The model's own position actuators, by the joint they drive.
-    let actuated: Vec<Option<usize>> = index
-        .joints
-        .iter()
-        .map(|ids| {
-            (0..model.ffi().nu as usize).find(|&a| {
-                model.actuator_trnid()[a][0] == ids.id as i32 && model.actuator_biasprm()[a][1] < 0.0
-            })
-        })
-        .collect();
-    let steps = (seconds / model.opt().timestep).round() as u64;
-    let wall = Instant::now();
-    for _ in 0..steps {
-        for ((j, ids), a) in robot.config.joints.iter().zip(&index.joints).zip(&actuated) {
-            match *a {
-                Some(a) => data.ctrl_mut()[a] = j.default_position,
-                None => {
-                    let (q, qd) = (data.qpos()[ids.qpos], data.qvel()[ids.dof]);
-                    data.qfrc_applied_mut()[ids.dof] = j.kp * (j.default_position - q) - j.kd * qd;
-                }
-            }
-        }
-        data.step();
-    }
-    (wall.elapsed(), steps)
-}
-
 /// Where a lockstep run's time went: wall time, MuJoCo's steps, and the rest of the mirror
 /// (firmware, wires, IMU); the remainder is the host (drivers and the loop around them).
 struct Shares {
@@ -216,7 +176,7 @@ fn robots_against_bare_physics(seconds: f64) {
         let mut per_direct = f64::INFINITY;
         let mut best: Option<Shares> = None;
         for _ in 0..ROUNDS {
-            let (took, steps) = bare(&robot, seconds / ROUNDS as f64);
+            let (took, steps) = sim2real::floor::bare_hold(&robot, seconds / ROUNDS as f64).unwrap();
             per_bare = per_bare.min(per_step(took, steps));
             let d = direct(&robot, seconds / ROUNDS as f64);
             per_direct = per_direct.min(per_step(d.wall, d.steps));

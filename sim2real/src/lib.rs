@@ -2,6 +2,7 @@
 //! firmware driving MuJoCo behind mock wires.
 
 pub mod config;
+pub mod floor;
 pub mod hands;
 pub mod host;
 pub mod link;

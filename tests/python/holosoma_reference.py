@@ -88,7 +88,7 @@ def pd_steps(model, data, index, gains, target):
     every physics step. `index` is (qpos, qvel, actuator) per joint, `gains` (kp, kd, effort)."""
     qadr, vadr, act = index
     kp, kd, effort = gains
-    for _ in range(int(round(POLICY_DT / PHYSICS_DT))):
+    for _ in range(int(round(POLICY_DT / model.opt.timestep))):
         q, qd = data.qpos[qadr], data.qvel[vadr]
         data.ctrl[act] = np.clip(kp * (target - q) - kd * qd, -effort, effort)
         mujoco.mj_step(model, data)
@@ -157,7 +157,7 @@ def dance(a):
     terms = sorted(cfg["observation"]["groups"]["actor_obs"]["terms"])
 
     model = mujoco.MjModel.from_xml_path(str(scene))
-    model.opt.timestep = PHYSICS_DT
+    model.opt.timestep = a.physics_dt
     data = mujoco.MjData(model)
     qadr = np.array([model.jnt_qposadr[model.joint(n).id] for n in names])
     vadr = np.array([model.jnt_dofadr[model.joint(n).id] for n in names])
@@ -303,7 +303,7 @@ def walk(a):
     default = np.array(inference["default_dof_angles"], dtype=float)
 
     model = mujoco.MjModel.from_xml_path(str(a.robot_dir / scene))
-    model.opt.timestep = PHYSICS_DT
+    model.opt.timestep = a.physics_dt
     data = mujoco.MjData(model)
     qadr = np.array([model.jnt_qposadr[model.joint(n).id] for n in names])
     vadr = np.array([model.jnt_dofadr[model.joint(n).id] for n in names])
@@ -392,8 +392,12 @@ def main():
     p.add_argument("--policy-dir", type=pathlib.Path, required=True, help="holosoma-inference (.local/holosoma-inference)")
     p.add_argument("--frames", type=int, default=0, help="play only the first N frames of the motion (0: all)")
     p.add_argument("--hold", type=float, default=1.0, help="seconds the policy stands on the first frame first")
+    p.add_argument("--physics-dt", type=float, default=PHYSICS_DT,
+                   help="physics step, s (holosoma's: 0.005; a divisor of the 20 ms policy step)")
     p.add_argument("--trace", type=pathlib.Path, help="write the observation of every step here (CSV)")
     a = p.parse_args()
+    if not 0.0 < a.physics_dt <= POLICY_DT or abs(POLICY_DT / a.physics_dt - round(POLICY_DT / a.physics_dt)) > 1e-9:
+        p.error(f"--physics-dt {a.physics_dt}: must divide the policy step ({POLICY_DT} s)")
     if a.task == "dance":
         dance(a)
     else:
