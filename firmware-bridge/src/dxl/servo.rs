@@ -699,17 +699,21 @@ impl XSeriesServo {
         }
         let mut staged = self.table;
         let mut written = [false; TABLE_LEN];
+        // The span of table bytes the write reaches (indirect data reaches anywhere): only the
+        // fields within it are checked.
+        let (mut lo, mut hi) = (TABLE_LEN, 0);
         for (i, &byte) in data.iter().enumerate() {
             let Some(target) = self.resolve(start + i) else {
                 return Err(status::DATA_RANGE);
             };
             staged[target] = byte;
             written[target] = true;
+            (lo, hi) = (lo.min(target), hi.max(target + 1));
         }
         let torque_on = self.torque_enabled();
         let watchdog_expired = self.reg(addr::BUS_WATCHDOG) == -1;
-        let mut at = 0;
-        while at < TABLE_LEN {
+        let mut at = table::field_at(lo as u16).map_or(lo, |f| usize::from(f.addr));
+        while at < hi {
             let Some(field) = table::field_at(at as u16) else {
                 // Bytes outside any field keep their value.
                 staged[at] = self.table[at];
