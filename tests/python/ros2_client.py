@@ -120,12 +120,18 @@ reader_thread = threading.Thread(target=lambda: out_lines.extend(play.stdout), d
 reader_thread.start()
 
 dp = DomainParticipant(0)
-# Every sample between two polls (50 ms: 2.5 ticks), not only the newest.
-keep = Qos(Policy.History.KeepLast(64))
+# As ROS 2 subscribers ask by default (tf2 listeners, RViz, diagnostic_aggregator): reliable,
+# volatile; every sample between two polls (50 ms: 2.5 ticks) kept, not only the newest. One
+# best-effort reader (sensor-data profile) beside them: a reliable writer serves both kinds.
+reliable = Qos(Policy.Reliability.Reliable(duration(seconds=1)), Policy.Durability.Volatile,
+               Policy.History.KeepLast(64))
+best_effort = Qos(Policy.Reliability.BestEffort, Policy.History.KeepLast(64))
+joint_states_topic = Topic(dp, "rt/joint_states", JointState)
 streams = {
-    "joint_states": DataReader(dp, Topic(dp, "rt/joint_states", JointState), qos=keep),
-    "tf": DataReader(dp, Topic(dp, "rt/tf", TFMessage), qos=keep),
-    "diagnostics": DataReader(dp, Topic(dp, "rt/diagnostics", DiagnosticArray), qos=keep),
+    "joint_states": DataReader(dp, joint_states_topic, qos=reliable),
+    "joint_states_best_effort": DataReader(dp, joint_states_topic, qos=best_effort),
+    "tf": DataReader(dp, Topic(dp, "rt/tf", TFMessage), qos=reliable),
+    "diagnostics": DataReader(dp, Topic(dp, "rt/diagnostics", DiagnosticArray), qos=reliable),
 }
 cmd_vel = DataWriter(dp, Topic(dp, "rt/cmd_vel", Twist))
 seen = {k: [] for k in streams}
@@ -164,6 +170,7 @@ loop = [s for m in diag for s in m.status if s.name == "robodeploy: loop"]
 print(json.dumps(dict(
     exit=play.returncode,
     joint_states=len(js),
+    joint_states_best_effort=len(seen["joint_states_best_effort"]),
     joint_names=list(js[-1].name) if js else [],
     positions_finite=all(abs(p) < 10 for m in js for p in m.position) if js else False,
     tf=len(tf),

@@ -1,5 +1,6 @@
 //! ROS 2 from a run (`play --ros2`): a peer made of Cyclone DDS and ROS 2's type names only
-//! (`tests/python/ros2_client.py`, in a network namespace of the test's own) receives the run's
+//! (`tests/python/ros2_client.py`, in a network namespace of the test's own), subscribing with
+//! ROS 2's default (reliable) profile as tf2, RViz and diagnostic_aggregator do, receives the run's
 //! `/joint_states`, `/tf`, `/robot_description` (joining late) and `/diagnostics`, and walks the G1
 //! through `/cmd_vel`; bad ROS 2 settings are refused by name.
 
@@ -69,8 +70,11 @@ fn a_cyclone_dds_peer_with_ros2_names_sees_the_run_and_walks_the_g1_through_cmd_
         .and_then(|w| w.parse().ok())
         .unwrap_or_else(|| panic!("no tick count:\n{run_text}"));
     let joined_for = if starved { ticks / 2 } else { ticks * 3 / 4 };
+    // Read as ROS 2 subscribes by default (reliable), and best effort beside it.
     assert!(
-        (starved || ticks >= 200) && n("joint_states") >= joined_for,
+        (starved || ticks >= 200)
+            && n("joint_states") >= joined_for
+            && n("joint_states_best_effort") >= joined_for,
         "{ticks} ticks: {v}"
     );
     let robot = robots::Robot::load(&g1).unwrap();

@@ -9,7 +9,7 @@ use std::net::IpAddr;
 use rustdds::no_key::{
     DataReader, DataWriter, Decode, DefaultDecoder, DeserializerAdapter, SerializerAdapter,
 };
-use rustdds::policy::{Durability, History, Reliability};
+use rustdds::policy::{Durability, History, Reliability, ResourceLimits};
 use rustdds::{
     DomainParticipant, DomainParticipantBuilder, QosPolicyBuilder, RepresentationIdentifier, TopicKind,
 };
@@ -59,7 +59,15 @@ pub enum Delivery {
     /// Kept and resent to readers that join later (ROS 2's "transient local", reliable):
     /// `/robot_description`.
     Latched,
+    /// Reliable, volatile, the newest ten kept: ROS 2's default profile, which every reader
+    /// matches, reliable (tf2 listeners, RViz, diagnostic_aggregator) or best effort. A write
+    /// never waits: with [`RELIABLE_WINDOW`] samples unacknowledged (a reader that stopped), the
+    /// sample is dropped.
+    Reliable,
 }
+
+/// Unacknowledged samples a [`Delivery::Reliable`] writer holds for its readers (5 s at 50 Hz).
+pub const RELIABLE_WINDOW: i32 = 256;
 
 /// One participant: a domain on one interface, with a publisher and a subscriber.
 pub struct Participant {
@@ -195,6 +203,18 @@ impl Participant {
                 })
                 .durability(Durability::TransientLocal)
                 .history(History::KeepLast { depth: 1 })
+                .build(),
+            Delivery::Reliable => QosPolicyBuilder::new()
+                .reliability(Reliability::Reliable {
+                    max_blocking_time: rustdds::Duration::ZERO,
+                })
+                .durability(Durability::Volatile)
+                .history(History::KeepLast { depth: 10 })
+                .resource_limits(ResourceLimits {
+                    max_samples: RELIABLE_WINDOW,
+                    max_instances: 1,
+                    max_samples_per_instance: RELIABLE_WINDOW,
+                })
                 .build(),
         };
         let topic = self

@@ -61,20 +61,22 @@ impl Ros2Topics {
     pub(crate) fn open(config: &Ros2Config, bus_names: &[String]) -> Result<Self, DdsError> {
         let p = Participant::join(&config.dds)?;
         Ok(Self {
+            // ROS 2's default profile (reliable): what tf2 listeners, RViz and
+            // diagnostic_aggregator subscribe with; best-effort readers match it too.
             joint_states: topic(
                 &p,
                 "/joint_states",
                 "sensor_msgs/msg/JointState",
-                Delivery::Stream,
+                Delivery::Reliable,
             )?,
-            tf: topic(&p, "/tf", "tf2_msgs/msg/TFMessage", Delivery::Stream)?,
+            tf: topic(&p, "/tf", "tf2_msgs/msg/TFMessage", Delivery::Reliable)?,
             // Transient local, as robot_state_publisher offers it: a late subscriber gets it.
             robot_description: topic(&p, "/robot_description", "std_msgs/msg/String", Delivery::Latched)?,
             diagnostics: topic(
                 &p,
                 "/diagnostics",
                 "diagnostic_msgs/msg/DiagnosticArray",
-                Delivery::Stream,
+                Delivery::Reliable,
             )?,
             robot: config.robot.clone(),
             bus_names: bus_names.to_vec(),
