@@ -107,6 +107,11 @@ class DiagnosticArray(IdlStruct, typename="diagnostic_msgs::msg::dds_::Diagnosti
 
 
 @dataclass
+class Clock(IdlStruct, typename="rosgraph_msgs::msg::dds_::Clock_"):
+    clock: Time
+
+
+@dataclass
 class Twist(IdlStruct, typename="geometry_msgs::msg::dds_::Twist_"):
     linear: Vector3
     angular: Vector3
@@ -132,6 +137,8 @@ streams = {
     "joint_states_best_effort": DataReader(dp, joint_states_topic, qos=best_effort),
     "tf": DataReader(dp, Topic(dp, "rt/tf", TFMessage), qos=reliable),
     "diagnostics": DataReader(dp, Topic(dp, "rt/diagnostics", DiagnosticArray), qos=reliable),
+    # As rclcpp's clock subscription asks (best effort, the newest): a simulation's time.
+    "clock": DataReader(dp, Topic(dp, "rt/clock", Clock), qos=best_effort),
 }
 cmd_vel = DataWriter(dp, Topic(dp, "rt/cmd_vel", Twist))
 seen = {k: [] for k in streams}
@@ -171,6 +178,9 @@ print(json.dumps(dict(
     exit=play.returncode,
     joint_states=len(js),
     joint_states_best_effort=len(seen["joint_states_best_effort"]),
+    clock=len(seen["clock"]),
+    clock_s=[c.clock.sec + 1e-9 * c.clock.nanosec for c in seen["clock"]],
+    joint_state_stamps_s=[m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for m in js],
     joint_names=list(js[-1].name) if js else [],
     positions_finite=all(abs(p) < 10 for m in js for p in m.position) if js else False,
     tf=len(tf),

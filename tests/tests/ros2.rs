@@ -87,6 +87,8 @@ fn a_cyclone_dds_peer_with_ros2_names_sees_the_run_and_walks_the_g1_through_cmd_
         .collect();
     assert_eq!(got, names, "{v}");
     assert_eq!(v["positions_finite"], Value::Bool(true), "{v}");
+    // A wall-clock run is stamped in Unix time: no /clock.
+    assert_eq!(n("clock"), 0, "{v}");
     // Every link's frame, the root in `world`.
     assert!(n("tf") >= joined_for, "{ticks} ticks: {v}");
     let frames = v["frames"].as_array().unwrap();
@@ -125,6 +127,49 @@ fn a_cyclone_dds_peer_with_ros2_names_sees_the_run_and_walks_the_g1_through_cmd_
         .filter_map(|w| w.parse().ok())
         .collect();
     assert!(numbers[0] > 0.25 && numbers[1] > 0.15, "{forward}");
+    let _ = std::fs::remove_file(&record);
+}
+
+/// A lockstep run (simulated time, faster than real time) publishes `/clock`, and its messages are
+/// stamped on that clock: a node with `use_sim_time` follows the run.
+#[test]
+fn a_lockstep_run_publishes_its_simulated_time_on_clock() {
+    let record = std::env::temp_dir().join(format!("ros2-clock-{}.mcap", std::process::id()));
+    let args: Vec<String> = ["0.0", "--", &robodeploy_path().display().to_string()]
+        .into_iter()
+        .chain([
+            "play",
+            "--ros2",
+            "--end",
+            "loop",
+            "--max-seconds",
+            "240",
+            "--overwrite",
+        ])
+        .map(str::to_owned)
+        .chain(["--record".to_owned(), record.display().to_string()])
+        .collect();
+    let verdict = test_support::netns::python_verdict("tests/python/ros2_client.py", &args);
+    let v: Value = serde_json::from_str(&verdict).unwrap_or_else(|e| panic!("{e}: {verdict}"));
+    assert_eq!(v["exit"], 0, "{v}");
+    let seconds = |k: &str| -> Vec<f64> {
+        v[k].as_array()
+            .unwrap_or_else(|| panic!("{k}: {v}"))
+            .iter()
+            .filter_map(Value::as_f64)
+            .collect()
+    };
+    let (clock, stamps) = (seconds("clock_s"), seconds("joint_state_stamps_s"));
+    assert!(clock.len() >= 50, "{} clock samples: {v}", clock.len());
+    // Simulated time from the run's start, never back.
+    assert!(clock.iter().all(|&t| (0.0..=241.0).contains(&t)), "{clock:?}");
+    assert!(clock.windows(2).all(|w| w[1] > w[0]), "{clock:?}");
+    // The joints are stamped on that clock (the peer keeps what arrived between its polls of each).
+    let both = stamps
+        .iter()
+        .filter(|s| clock.iter().any(|c| (*c - **s).abs() < 1e-9))
+        .count();
+    assert!(both >= 50, "{both} joint states at a /clock time: {v}");
     let _ = std::fs::remove_file(&record);
 }
 

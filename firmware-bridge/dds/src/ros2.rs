@@ -1,7 +1,8 @@
 //! ROS 2's messages in their CDR, as ROS 2's DDS middlewares put them on the wire (and MCAP
 //! files with the `cdr` encoding carry them): the ones a robot's run publishes — its description
 //! (`std_msgs/msg/String`), joints (`sensor_msgs/msg/JointState`), frames (`tf2_msgs/msg/TFMessage`)
-//! and health (`diagnostic_msgs/msg/DiagnosticArray`) — and the one it takes, a velocity command
+//! and health (`diagnostic_msgs/msg/DiagnosticArray`), and a simulation's time
+//! (`rosgraph_msgs/msg/Clock`) — and the one it takes, a velocity command
 //! (`geometry_msgs/msg/Twist`).
 
 use crate::cdr::{CdrError, CdrReader, CdrWriter};
@@ -103,6 +104,12 @@ pub fn encode_diagnostics(buf: &mut Vec<u8>, stamp_ns: u64, statuses: &[Status<'
             c.string(k).string(v);
         }
     }
+}
+
+/// A `rosgraph_msgs/msg/Clock` at `stamp_ns` (the time nodes with `use_sim_time` follow), into
+/// `buf`.
+pub fn encode_clock(buf: &mut Vec<u8>, stamp_ns: u64) {
+    CdrWriter::new(buf).time(stamp_ns);
 }
 
 /// A `geometry_msgs/msg/Twist`: linear (m/s) then angular (rad/s) velocity, x y z each.

@@ -902,7 +902,11 @@ impl TelemetrySink {
         // After a failed write the mcap writer panics when dropped (it finishes the file in Drop):
         // it is only ever dropped after a successful finish, and leaked on the error paths.
         let ros2 = match &info.ros2 {
-            Some(config) => Some(ros2::Ros2Topics::open(config, &info.bus_names)?),
+            Some(config) => Some(ros2::Ros2Topics::open(
+                config,
+                &info.bus_names,
+                info.clock == RecordingClock::Simulated,
+            )?),
             None => None,
         };
         let mut out = Out {
@@ -1240,6 +1244,7 @@ impl TickChannels {
             let mut buf = std::mem::take(&mut out.buf);
             m.joint_states_cdr(r, t, &mut buf);
             if let Some(ros) = &mut out.ros2 {
+                ros.clock(t);
                 ros.joint_states(&buf);
                 ros.diagnostics(t, r);
             }

@@ -2,7 +2,8 @@
 //! ROS 2's names (`rt/joint_states`, `sensor_msgs::msg::dds_::JointState_`, …), from the telemetry
 //! thread — never the loop's. `/joint_states` and `/robot_description` are the recording's own
 //! bytes; `/tf` the recording's link frames in `tf2_msgs/msg/TFMessage`; `/diagnostics` the loop's
-//! and each bus's health once a second and at every change of mode.
+//! and each bus's health once a second and at every change of mode; `/clock` a lockstep run's
+//! simulated time, every tick.
 
 use dds::ros2::{Level, Status, Transform};
 use dds::{DdsConfig, DdsError, Delivery, Participant, Publication};
@@ -27,6 +28,8 @@ pub(crate) struct Ros2Topics {
     tf: Publication,
     robot_description: Publication,
     diagnostics: Publication,
+    /// `/clock`, for a run in simulated time.
+    clock: Option<Publication>,
     robot: String,
     bus_names: Vec<String>,
     last_mode: Option<u8>,
@@ -57,8 +60,9 @@ fn topic(
 }
 
 impl Ros2Topics {
-    /// Joins `config`'s domain on its interface and declares the topics.
-    pub(crate) fn open(config: &Ros2Config, bus_names: &[String]) -> Result<Self, DdsError> {
+    /// Joins `config`'s domain on its interface and declares the topics; with `simulated`, the
+    /// run's time is the simulation's and `/clock` carries it.
+    pub(crate) fn open(config: &Ros2Config, bus_names: &[String], simulated: bool) -> Result<Self, DdsError> {
         let p = Participant::join(&config.dds)?;
         Ok(Self {
             // ROS 2's default profile (reliable): what tf2 listeners, RViz and
@@ -78,6 +82,17 @@ impl Ros2Topics {
                 "diagnostic_msgs/msg/DiagnosticArray",
                 Delivery::Reliable,
             )?,
+            // What a simulator offers (Gazebo, Isaac): nodes with use_sim_time follow it; the
+            // run's messages are stamped in the same time.
+            clock: match simulated {
+                true => Some(topic(
+                    &p,
+                    "/clock",
+                    "rosgraph_msgs/msg/Clock",
+                    Delivery::Reliable,
+                )?),
+                false => None,
+            },
             robot: config.robot.clone(),
             bus_names: bus_names.to_vec(),
             last_mode: None,
@@ -100,6 +115,14 @@ impl Ros2Topics {
     pub(crate) fn joint_states(&mut self, cdr: &[u8]) {
         let r = self.joint_states.publish(cdr);
         self.check("/joint_states", r);
+    }
+
+    /// `/clock` at the tick's time `t` (simulated runs only).
+    pub(crate) fn clock(&mut self, t: u64) {
+        let Some(clock) = &self.clock else { return };
+        dds::ros2::encode_clock(&mut self.buf, t);
+        let r = clock.publish(&self.buf);
+        self.check("/clock", r);
     }
 
     /// `/robot_description`: the recording's CDR of the URDF.
