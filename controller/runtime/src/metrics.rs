@@ -885,9 +885,9 @@ mod tests {
             h.record(Duration::from_micros(us));
         }
         assert_eq!(h.count(), 100);
-        // 10 µs bins, upper edges: the median sample (50 µs) lies in the [50, 60) µs bin.
-        assert_eq!(h.quantile(0.5), Duration::from_micros(60));
-        assert_eq!(h.quantile(0.99), Duration::from_micros(100));
+        // Nearest rank, to the microsecond: the 50th and the 99th sample.
+        assert_eq!(h.quantile(0.5), Duration::from_micros(50));
+        assert_eq!(h.quantile(0.99), Duration::from_micros(99));
         assert_eq!(h.max(), Duration::from_micros(100));
         let mut idle = Histogram::default();
         idle.record(Duration::ZERO);

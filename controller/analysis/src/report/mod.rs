@@ -378,14 +378,21 @@ fn held_note(held: usize) -> String {
     }
 }
 
+/// p50, p99 and max of per-tick times in µs, as the run's own summary computes them (the same
+/// histogram: the run and its report print one number).
 fn quantiles(v: &[f64]) -> [f64; 3] {
     if v.is_empty() {
         return [0.0; 3];
     }
-    let mut s = v.to_vec();
-    s.sort_by(f64::total_cmp);
-    let at = |p: f64| s[((p * (s.len() - 1) as f64).round() as usize).min(s.len() - 1)];
-    [at(0.5), at(0.99), s[s.len() - 1]]
+    let mut h = controller::metrics::Histogram::default();
+    for &us in v {
+        h.record_us(us);
+    }
+    [
+        h.quantile_us(0.5),
+        h.quantile_us(0.99),
+        h.max().as_secs_f64() * 1e6,
+    ]
 }
 
 /// A command-driven run's measure over the ticks its policy ran, and per tick the commanded and
