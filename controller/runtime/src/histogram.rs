@@ -35,11 +35,11 @@ impl Histogram {
         self.max = self.max.max(d);
     }
 
-    /// Adds a sample of `us` microseconds (a recording's per-tick times); non-finite or negative
-    /// ones are skipped.
+    /// Adds a sample of `us` microseconds (a recording's per-tick times); non-finite, negative or
+    /// absurd ones are skipped.
     pub fn record_us(&mut self, us: f64) {
-        if us.is_finite() && us >= 0.0 {
-            self.record(Duration::from_secs_f64(us * 1e-6));
+        if let Ok(d) = Duration::try_from_secs_f64(us * 1e-6) {
+            self.record(d);
         }
     }
 
