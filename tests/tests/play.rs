@@ -1068,3 +1068,107 @@ fn the_direct_mirror_plays_a_clip_as_the_wires_do_and_says_which_ran() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A link whose readings turn impossible from read `from` on, with every checksum right: what a
+/// device with a broken encoder, a firmware bug or a foreign publisher would send.
+#[derive(Debug)]
+struct Garbled<L> {
+    inner: L,
+    reads: u32,
+    from: u32,
+    garble: fn(&mut robot_link::RobotState),
+}
+
+impl<L: robot_link::RobotLink> robot_link::RobotLink for Garbled<L> {
+    fn identify(&mut self) -> Result<(), robot_link::IoError> {
+        self.inner.identify()
+    }
+    fn read(&mut self, state: &mut robot_link::RobotState) -> Result<(), robot_link::IoError> {
+        self.inner.read(state)?;
+        self.reads += 1;
+        if self.reads >= self.from {
+            (self.garble)(state);
+        }
+        Ok(())
+    }
+    fn write(&mut self, targets: &[robot_link::JointTarget]) -> Result<(), robot_link::IoError> {
+        self.inner.write(targets)
+    }
+    fn wait_until(&mut self, clock: &mut dyn robot_link::TickClock, deadline: Duration) -> bool {
+        self.inner.wait_until(clock, deadline)
+    }
+    fn torque_off(&mut self) -> Result<(), robot_link::IoError> {
+        self.inner.torque_off()
+    }
+    fn set_stale_cycles(&mut self, cycles: u32) {
+        self.inner.set_stale_cycles(cycles);
+    }
+}
+
+#[test]
+fn physically_impossible_feedback_is_a_device_fault_on_the_tick_it_arrives() {
+    let cases: [(&str, fn(&mut robot_link::RobotState), &str); 6] = [
+        ("a joint at 100 rad", |s| s.q[3] = 100.0, "implausible position"),
+        ("a joint at 1e30 rad", |s| s.q[0] = 1e30, "implausible position"),
+        ("a joint at 1e4 rad/s", |s| s.qd[5] = -1e4, "implausible speed"),
+        ("a torque of 1e6 N·m", |s| s.tau[2] = 1e6, "implausible torque"),
+        (
+            "a gyro at 1e30 rad/s",
+            |s| s.gyro[1] = 1e30,
+            "IMU: implausible turn rate",
+        ),
+        (
+            "a quaternion of norm 2",
+            |s| s.quat = s.quat.map(|v| 2.0 * v),
+            "IMU: implausible orientation",
+        ),
+    ];
+    for (what, garble, said) in cases {
+        let robot = Robot::load(&reference_robot_path()).unwrap();
+        let layout = PolicyLayout::load(&follower(), &robot).unwrap();
+        let clip = Clip::load(&biped("clips/squat.csv")).unwrap();
+        let reference = Reference::from_clip(&clip, &robot, layout.manifest.rate_hz).unwrap();
+        let world = Arc::new(Mutex::new(
+            Mirror::new(robot.clone(), MirrorConfig::default()).unwrap(),
+        ));
+        let io = Garbled {
+            inner: sim2real::link::lockstep_robot(&robot, &world).unwrap(),
+            reads: 0,
+            from: 150,
+            garble,
+        };
+        let mut clock = LockstepClock::new(Arc::clone(&world));
+        let mut p = Player::new(
+            robot,
+            layout,
+            reference,
+            PlayOptions::default(),
+            io,
+            Arc::new(AtomicBool::new(false)),
+        )
+        .unwrap();
+        let s = p.run(&mut clock).unwrap();
+        let t = p.transitions();
+        let stop = t
+            .iter()
+            .find(|t| matches!(t.to, Mode::Damped | Mode::Stopping))
+            .unwrap_or_else(|| panic!("{what}: no stop\n{s}"));
+        // A device fault damps at once, on the tick whose read carried it (identify's read
+        // counts as the first).
+        assert!(
+            matches!(stop.cause, Cause::ImplausibleFeedback { .. }) && stop.to == Mode::Damped,
+            "{what}: {:?}\n{s}",
+            stop
+        );
+        assert!(
+            (147..=149).contains(&stop.tick),
+            "{what}: tick {}\n{s}",
+            stop.tick
+        );
+        let text = stop.cause.to_string();
+        assert!(
+            text.contains(said) && text.contains("device fault"),
+            "{what}: {text}"
+        );
+    }
+}

@@ -331,7 +331,14 @@ impl<L: RobotLink> Player<L> {
                 monitor: {
                     let (limits, tracking) = options.limits.for_robot(&robot, dt);
                     let names: Vec<String> = robot.config.joints.iter().map(|j| j.name.clone()).collect();
-                    SafetyMonitor::new(limits, tracking, &names, dt, robot.config.imu.rate_hz)
+                    SafetyMonitor::new(limits, tracking, &names, dt, robot.config.imu.rate_hz).with_plausible(
+                        robot
+                            .config
+                            .joints
+                            .iter()
+                            .map(crate::safety::PlausibleJoint::of)
+                            .collect(),
+                    )
                 },
                 stop,
                 estop: None,

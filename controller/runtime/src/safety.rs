@@ -123,6 +123,21 @@ pub enum Cause {
         /// Its name.
         name: JointName,
     },
+    /// A reading no working device gives (a joint far beyond its range or faster than its motor
+    /// can turn, a gyro beyond any IMU's range, a quaternion that is no rotation): a device fault,
+    /// whatever its checksum said.
+    ImplausibleFeedback {
+        /// The joint (robot index), or none for the IMU.
+        joint: Option<usize>,
+        /// The joint's name (the IMU's: "IMU").
+        name: JointName,
+        /// What was read.
+        what: &'static str,
+        /// Its value.
+        value: f64,
+        /// The plausible bound it passed.
+        bound: f64,
+    },
     /// NaN or infinity in the state, observation or action.
     NonFinite {
         /// Where.
@@ -186,6 +201,22 @@ impl std::fmt::Display for Cause {
             Self::StaleImu { ticks: u32::MAX } => write!(f, "IMU: never sent a sample"),
             Self::StaleImu { ticks } => write!(f, "IMU: no sample for {ticks} ticks"),
             Self::DeviceFault { joint, name } => write!(f, "joint {name} ({joint}): device fault"),
+            Self::ImplausibleFeedback {
+                joint,
+                name,
+                what,
+                value,
+                bound,
+            } => {
+                match joint {
+                    Some(j) => write!(f, "joint {name} ({j}): ")?,
+                    None => write!(f, "{name}: ")?,
+                }
+                write!(
+                    f,
+                    "implausible {what} {value:.4e} (a working device reads within {bound:.1}): device fault"
+                )
+            }
             Self::NonFinite { what } => write!(f, "non-finite {what}"),
             Self::Tilt { angle } => write!(f, "base tilted {:.0}°", angle.to_degrees()),
             Self::Overruns { count } => write!(f, "{count} deadline overruns in a row"),
@@ -217,9 +248,14 @@ impl std::fmt::Display for Cause {
 
 impl Cause {
     /// Whether the robot goes straight to damping, without a hold: a joint's bus has damped
-    /// itself already (stale or faulted device), and the rest follow within the tick.
+    /// itself already (stale or faulted device), or a device reads what none can (holding a
+    /// position on a broken encoder's word could throw the joint), and the rest follow within
+    /// the tick.
     pub fn damps_at_once(&self) -> bool {
-        matches!(self, Self::StaleFeedback { .. } | Self::DeviceFault { .. })
+        matches!(
+            self,
+            Self::StaleFeedback { .. } | Self::DeviceFault { .. } | Self::ImplausibleFeedback { .. }
+        )
     }
 
     /// Whether this is a fault (as opposed to the normal course of a run).
@@ -342,6 +378,44 @@ pub struct SafetyMonitor {
     overrun_run: u32,
     /// Ticks in a row the accelerometer read beyond [`SATURATED_G`].
     saturated_run: u32,
+    /// What each joint can read at all (none: not checked).
+    plausible: Vec<PlausibleJoint>,
+}
+
+/// The readings a working joint gives: its position within its limits widened by
+/// [`PLAUSIBLE_POSITION_MARGIN`], its speed and torque within [`PLAUSIBLE_FACTOR`] times its
+/// limits.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PlausibleJoint {
+    /// Positions, rad.
+    pub position: [f64; 2],
+    /// Largest speed, rad/s.
+    pub speed: f64,
+    /// Largest torque, N·m.
+    pub torque: f64,
+}
+
+/// How far beyond its limits a joint may read before the reading is no joint's, rad: half a turn
+/// (limits narrower than the mechanism, a fall, an encoder's turn count are all well within it).
+pub const PLAUSIBLE_POSITION_MARGIN: f64 = std::f64::consts::PI;
+/// How many times its speed and torque limits a joint may read (a fall's impacts, a motor whose
+/// range is wider than its limit).
+pub const PLAUSIBLE_FACTOR: f64 = 10.0;
+/// The fastest turn a robot's IMU reads, rad/s (4000 °/s: beyond every MEMS gyro's range).
+pub const PLAUSIBLE_GYRO: f64 = 70.0;
+/// How far an orientation quaternion's norm may be from 1.
+pub const PLAUSIBLE_QUAT_NORM: f64 = 0.1;
+
+impl PlausibleJoint {
+    /// For joint `j` of robot.toml.
+    pub fn of(j: &JointConfig) -> Self {
+        let [lo, hi] = j.position_limits;
+        Self {
+            position: [lo - PLAUSIBLE_POSITION_MARGIN, hi + PLAUSIBLE_POSITION_MARGIN],
+            speed: PLAUSIBLE_FACTOR * j.velocity_limit,
+            torque: PLAUSIBLE_FACTOR * j.torque_limit,
+        }
+    }
 }
 
 /// An accelerometer reading this many g for longer than the IMU's staleness limit is saturated
@@ -387,7 +461,62 @@ impl SafetyMonitor {
             dt,
             overrun_run: 0,
             saturated_run: 0,
+            plausible: Vec::new(),
         }
+    }
+
+    /// Judges every joint's reading against what it can read at all (robot joint order).
+    pub fn with_plausible(mut self, joints: Vec<PlausibleJoint>) -> Self {
+        self.plausible = joints;
+        self
+    }
+
+    /// The first reading no working device gives, if any.
+    fn implausible(&self, s: &robot_link::RobotState) -> Option<Cause> {
+        let at = |joint: usize, what, value: f64, bound: f64| Cause::ImplausibleFeedback {
+            joint: Some(joint),
+            name: self.name(joint),
+            what,
+            value,
+            bound,
+        };
+        for (j, p) in self.plausible.iter().enumerate() {
+            let (q, qd, tau) = (s.q[j], s.qd[j], s.tau.get(j).copied().unwrap_or(0.0));
+            if !(p.position[0]..=p.position[1]).contains(&q) {
+                let bound = if q < p.position[0] {
+                    p.position[0]
+                } else {
+                    p.position[1]
+                };
+                return Some(at(j, "position (rad)", q, bound));
+            }
+            if qd.abs() > p.speed {
+                return Some(at(j, "speed (rad/s)", qd, p.speed));
+            }
+            if tau.abs() > p.torque {
+                return Some(at(j, "torque (N·m)", tau, p.torque));
+            }
+        }
+        let imu = |what, value: f64, bound: f64| Cause::ImplausibleFeedback {
+            joint: None,
+            name: JointName::new("IMU"),
+            what,
+            value,
+            bound,
+        };
+        let spin = robots::spatial::norm(s.gyro);
+        if spin > PLAUSIBLE_GYRO {
+            return Some(imu("turn rate (rad/s)", spin, PLAUSIBLE_GYRO));
+        }
+        let norm = s.quat.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if (norm - 1.0).abs() > PLAUSIBLE_QUAT_NORM {
+            return Some(imu(
+                "orientation quaternion norm",
+                norm,
+                1.0 + PLAUSIBLE_QUAT_NORM,
+            ));
+        }
+        None
     }
 
     /// The joint's name (empty past the robot's joints).
@@ -463,6 +592,9 @@ impl SafetyMonitor {
         let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
         if !(finite(&s.q) && finite(&s.qd) && finite(&s.gyro) && finite(&s.quat)) {
             return Some(Cause::NonFinite { what: "state" });
+        }
+        if let Some(cause) = self.implausible(s) {
+            return Some(cause);
         }
         let tilt = tilt_of(s.quat);
         if tilt > lim.tilt {
