@@ -1076,7 +1076,7 @@ struct Garbled<L> {
     inner: L,
     reads: u32,
     from: u32,
-    garble: fn(&mut robot_link::RobotState),
+    garble: Garble,
 }
 
 impl<L: robot_link::RobotLink> robot_link::RobotLink for Garbled<L> {
@@ -1105,9 +1105,12 @@ impl<L: robot_link::RobotLink> robot_link::RobotLink for Garbled<L> {
     }
 }
 
+/// What a [`Garbled`] link does to a reading.
+type Garble = fn(&mut robot_link::RobotState);
+
 #[test]
 fn physically_impossible_feedback_is_a_device_fault_on_the_tick_it_arrives() {
-    let cases: [(&str, fn(&mut robot_link::RobotState), &str); 6] = [
+    let cases: [(&str, Garble, &str); 6] = [
         ("a joint at 100 rad", |s| s.q[3] = 100.0, "implausible position"),
         ("a joint at 1e30 rad", |s| s.q[0] = 1e30, "implausible position"),
         ("a joint at 1e4 rad/s", |s| s.qd[5] = -1e4, "implausible speed"),
