@@ -318,6 +318,19 @@ fn flags_with_absurd_values_are_refused_by_name() {
             "'--stale-cycles <STALE_CYCLES>'",
         ),
         (
+            args(&[
+                &"play",
+                &"--robot",
+                &test_support::fixtures::workspace_root().join("robots/mini/robot.toml"),
+                &"--policy",
+                &test_support::fixtures::workspace_root().join("robots/mini/policies/walk.toml"),
+                &"--end",
+                &"stand",
+                &"--no-record",
+            ]),
+            "--end stand: this run plays no clip",
+        ),
+        (
             args(&[&"play", &"--record-every", &"/replay=2"]),
             "\"/replay\" is not a channel whose rate can change",
         ),

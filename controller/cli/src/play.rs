@@ -1237,6 +1237,19 @@ fn bus_threads(realtime: bool) -> fn() {
 pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
     args.rec.settings()?;
     let mut l = load(&args.files)?;
+    // A command-driven policy plays no clip: nothing ends for --end to act on.
+    if matches!(l.source, ReferenceSource::Commands) && args.end != crate::args::EndArg::Hold {
+        let end = clap::ValueEnum::to_possible_value(&args.end)
+            .map_or_else(String::new, |v| v.get_name().to_owned());
+        return Err(FlagError::new(
+            "end",
+            format!(
+                " {end}: this run plays no clip (a command-driven policy runs on its commands until stopped); \
+                 what the robot does when stopped is --on-stop's"
+            ),
+        )
+        .into());
+    }
     // What check refuses, play refuses before anything moves, unless forced for a reason.
     if let ReferenceSource::Clip(_) = &l.source
         && l.layout.manifest.reference.feasibility == policy::Feasibility::Refuse
