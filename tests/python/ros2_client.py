@@ -145,6 +145,7 @@ seen = {k: [] for k in streams}
 latched = Qos(Policy.Durability.TransientLocal, Policy.Reliability.Reliable(duration(seconds=1)),
               Policy.History.KeepLast(1))
 late_reader, description = None, []
+static_reader, statics = None, []
 start = time.monotonic()
 sent = 0
 while play.poll() is None and time.monotonic() - start < 120:
@@ -161,6 +162,11 @@ while play.poll() is None and time.monotonic() - start < 120:
         late_reader = DataReader(dp, Topic(dp, "rt/robot_description", String), qos=latched)
     if late_reader is not None and not description:
         description.extend(s.data for s in late_reader.take(N=4) if not isinstance(s, InvalidSample))
+    # The fixed frames, as tf2 reads /tf_static: transient local, joining late like the description.
+    if static_reader is None and now > 6.0:
+        static_reader = DataReader(dp, Topic(dp, "rt/tf_static", TFMessage), qos=latched)
+    if static_reader is not None and not statics:
+        statics.extend(s for s in static_reader.take(N=4) if not isinstance(s, InvalidSample))
     # Forward once the harness has let the robot go (3 s) and the run is walking.
     if now > 5.0:
         cmd_vel.write(Twist(Vector3(forward, 0.0, 0.0), Vector3(0.0, 0.0, 0.0)))
@@ -187,6 +193,7 @@ print(json.dumps(dict(
     frames=frames,
     tf_parents=sorted({t.header.frame_id for m in tf[-1:] for t in m.transforms}) if tf else [],
     description_chars=len(description[0]) if description else 0,
+    static_frames=sorted({t.child_frame_id for m in statics for t in m.transforms}),
     description_has_robot=bool(description) and "<robot" in description[0] and "<joint" in description[0],
     diagnostics=len(diag),
     loop_messages=sorted({s.message for s in loop}),

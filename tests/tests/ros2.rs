@@ -109,6 +109,14 @@ fn a_cyclone_dds_peer_with_ros2_names_sees_the_run_and_walks_the_g1_through_cmd_
     // The URDF, to a reader that joined seconds after it was published (transient local; a run
     // a starved machine stopped early may be over before it joins).
     assert_eq!(v["description_has_robot"], Value::Bool(true), "{v}");
+    // The frames fixed to their parents (the G1's foot contact points) once on /tf_static, to a
+    // reader joining late, and not every tick on /tf.
+    let fixed = ["left_foot_contact_point", "right_foot_contact_point"];
+    assert_eq!(v["static_frames"], serde_json::json!(fixed), "{v}");
+    assert!(
+        frames.iter().all(|f| !fixed.contains(&f.as_str().unwrap_or(""))),
+        "{v}"
+    );
     assert!(n("description_chars") > 10_000, "{v}");
     // /cmd_vel drove the policy: the commands were taken and the robot walked forward.
     let accepted: u64 = run

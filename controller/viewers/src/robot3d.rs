@@ -49,6 +49,8 @@ pub struct Links {
     root_body: usize,
     /// The MJCF joints in robot order.
     mjcf_joints: Vec<String>,
+    /// Links fixed to their parent (no joint between): their frames never change.
+    fixed: Vec<String>,
 }
 
 impl Links {
@@ -86,10 +88,14 @@ impl Links {
         };
         let mut transforms = vec![frame("world".into(), name(root_body))];
         let mut pairs = Vec::new();
+        let mut fixed = Vec::new();
         for b in (1..model.ffi().nbody as usize).filter(|&b| b != root_body) {
             let p = model.body_parentid()[b] as usize;
             transforms.push(frame(name(p), name(b)));
             pairs.push((p, b));
+            if model.body_jntnum()[b] == 0 {
+                fixed.push(name(b));
+            }
         }
         let scene = scene(&model, root_body, &name);
         let links = Self {
@@ -100,8 +106,15 @@ impl Links {
             pairs,
             root_body,
             mjcf_joints: joints.iter().map(|j| (*j).to_owned()).collect(),
+            fixed,
         };
         Ok((links, scene))
+    }
+
+    /// The links fixed to their parent (no joint between), by name: frames that never change,
+    /// for ROS 2's `/tf_static`.
+    pub fn fixed_frames(&self) -> &[String] {
+        &self.fixed
     }
 
     /// The robot as a URDF (`crate::urdf`) named `robot`, its joints named `names` (robot order,

@@ -951,6 +951,9 @@ impl TelemetrySink {
                     .file_stem()
                     .map_or_else(|| "robot".into(), |s| s.to_string_lossy());
                 let urdf = links.urdf(&name, &info.joint_names);
+                if let Some(ros) = &mut out.ros2 {
+                    ros.set_fixed_frames(links.fixed_frames());
+                }
                 Some((links, scene, urdf))
             }
             None => None,

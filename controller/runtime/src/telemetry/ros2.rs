@@ -26,6 +26,11 @@ const DIAGNOSTICS_EVERY: u64 = 50;
 pub(crate) struct Ros2Topics {
     joint_states: Publication,
     tf: Publication,
+    /// Frames that never change, once (transient local, as robot_state_publisher offers them).
+    tf_static: Publication,
+    /// Their child frames' names, and whether they went out.
+    fixed: Vec<String>,
+    static_sent: bool,
     robot_description: Publication,
     diagnostics: Publication,
     /// `/clock`, for a run in simulated time.
@@ -74,6 +79,9 @@ impl Ros2Topics {
                 Delivery::Reliable,
             )?,
             tf: topic(&p, "/tf", "tf2_msgs/msg/TFMessage", Delivery::Reliable)?,
+            tf_static: topic(&p, "/tf_static", "tf2_msgs/msg/TFMessage", Delivery::Latched)?,
+            fixed: Vec::new(),
+            static_sent: false,
             // Transient local, as robot_state_publisher offers it: a late subscriber gets it.
             robot_description: topic(&p, "/robot_description", "std_msgs/msg/String", Delivery::Latched)?,
             diagnostics: topic(
@@ -131,20 +139,26 @@ impl Ros2Topics {
         self.check("/robot_description", r);
     }
 
-    /// `/tf`: every link's frame of the tick.
+    /// The child frames fixed to their parents: `/tf_static` carries them, `/tf` the rest.
+    pub(crate) fn set_fixed_frames(&mut self, fixed: &[String]) {
+        self.fixed = fixed.to_vec();
+    }
+
+    /// `/tf`: every moving link's frame of the tick; on the first, `/tf_static` the fixed ones.
     pub(crate) fn tf(&mut self, t: u64, frames: &foxglove::schemas::FrameTransforms) {
-        let transforms = frames.transforms.iter().map(|f| {
-            let v = f.translation.as_ref();
-            let q = f.rotation.as_ref();
-            Transform {
-                parent: &f.parent_frame_id,
-                child: &f.child_frame_id,
-                translation: v.map_or([0.0; 3], |v| [v.x, v.y, v.z]),
-                rotation: q.map_or([0.0, 0.0, 0.0, 1.0], |q| [q.x, q.y, q.z, q.w]),
-            }
-        });
-        dds::ros2::encode_tf(&mut self.buf, t, transforms);
+        let fixed = std::mem::take(&mut self.fixed);
+        let is_fixed = |f: &&foxglove::schemas::FrameTransform| fixed.contains(&f.child_frame_id);
+        if !std::mem::replace(&mut self.static_sent, true) && !fixed.is_empty() {
+            let statics: Vec<Transform<'_>> = frames.transforms.iter().filter(is_fixed).map(as_ros).collect();
+            dds::ros2::encode_tf(&mut self.buf, t, statics.into_iter());
+            let r = self.tf_static.publish(&self.buf);
+            self.check("/tf_static", r);
+        }
+        let moving = frames.transforms.iter().filter(|f| !is_fixed(f)).count();
+        let transforms = frames.transforms.iter().filter(|f| !is_fixed(f)).map(as_ros);
+        dds::ros2::encode_tf(&mut self.buf, t, Counted(transforms, moving));
         let r = self.tf.publish(&self.buf);
+        self.fixed = fixed;
         self.check("/tf", r);
     }
 
@@ -222,5 +236,34 @@ impl Ros2Topics {
         dds::ros2::encode_diagnostics(&mut self.buf, t, &statuses);
         let r = self.diagnostics.publish(&self.buf);
         self.check("/diagnostics", r);
+    }
+}
+
+/// An iterator whose length is known beforehand (a filter's is not, to the type system).
+struct Counted<I>(I, usize);
+
+impl<I: Iterator> Iterator for Counted<I> {
+    type Item = I::Item;
+    fn next(&mut self) -> Option<Self::Item> {
+        let item = self.0.next()?;
+        self.1 = self.1.saturating_sub(1);
+        Some(item)
+    }
+    fn size_hint(&self) -> (usize, Option<usize>) {
+        (self.1, Some(self.1))
+    }
+}
+
+impl<I: Iterator> ExactSizeIterator for Counted<I> {}
+
+/// A recorded frame as ROS 2's transform.
+fn as_ros(f: &foxglove::schemas::FrameTransform) -> Transform<'_> {
+    let v = f.translation.as_ref();
+    let q = f.rotation.as_ref();
+    Transform {
+        parent: &f.parent_frame_id,
+        child: &f.child_frame_id,
+        translation: v.map_or([0.0; 3], |v| [v.x, v.y, v.z]),
+        rotation: q.map_or([0.0, 0.0, 0.0, 1.0], |q| [q.x, q.y, q.z, q.w]),
     }
 }
