@@ -78,6 +78,7 @@ fn a_lockstep_run_streams_joint_states_and_transforms_to_a_subscribed_client() {
     // serverInfo, then the channels advertised: the recording's topics.
     let mut channels: HashMap<String, u64> = HashMap::new();
     let mut schemas: HashMap<String, (String, String)> = HashMap::new();
+    let mut capabilities = Vec::new();
     while !(channels.contains_key("/joint_state")
         && channels.contains_key("/tf")
         && channels.contains_key("/robot"))
@@ -86,6 +87,9 @@ fn a_lockstep_run_streams_joint_states_and_transforms_to_a_subscribed_client() {
             continue;
         };
         let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+        if v["op"] == "serverInfo" {
+            capabilities = v["capabilities"].as_array().cloned().unwrap_or_default();
+        }
         if v["op"] == "advertise" {
             for c in v["channels"].as_array().unwrap() {
                 let topic = c["topic"].as_str().unwrap().to_owned();
@@ -98,6 +102,42 @@ fn a_lockstep_run_streams_joint_states_and_transforms_to_a_subscribed_client() {
             }
         }
     }
+    // What the run is, as Foxglove's Parameters panel asks for it (read-only).
+    assert!(capabilities.iter().any(|c| c == "parameters"), "{capabilities:?}");
+    let ask = serde_json::json!({"op": "getParameters", "parameterNames": [], "id": "about"});
+    ws.send(Message::Text(ask.to_string().into())).unwrap();
+    let about: HashMap<String, String> = loop {
+        let Message::Text(text) = ws.read().unwrap() else {
+            continue;
+        };
+        let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+        if v["op"] == "parameterValues" {
+            assert_eq!(v["id"], "about", "{v}");
+            break v["parameters"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|p| {
+                    (
+                        p["name"].as_str().unwrap().to_owned(),
+                        p["value"].as_str().unwrap_or("").to_owned(),
+                    )
+                })
+                .collect();
+        }
+    };
+    assert_eq!(
+        about["robodeploy/version"],
+        env!("CARGO_PKG_VERSION"),
+        "{about:?}"
+    );
+    assert!(!about["robodeploy/commit"].is_empty(), "{about:?}");
+    assert_eq!(about["run/robot_name"], "rd-biped", "{about:?}");
+    assert!(
+        about["run/policy"].ends_with("reference_follower.toml"),
+        "{about:?}"
+    );
+    assert!(about["run/clip"].ends_with("squat.csv"), "{about:?}");
     let subscribe = serde_json::json!({
         "op": "subscribe",
         "subscriptions": [

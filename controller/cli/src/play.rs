@@ -1133,10 +1133,33 @@ pub(crate) fn start_recording(
         Backpressure::Block
     };
     let live = match rec.live_view {
-        Some(addr) => Some(Arc::new(viewers::live::LiveView::serve(
-            addr,
-            &format!("robodeploy: {robot}"),
-        )?)),
+        Some(addr) => {
+            // What the run is, for the viewer's Parameters panel: the recording's own records.
+            let mut about = vec![
+                (
+                    "robodeploy/version".to_owned(),
+                    env!("CARGO_PKG_VERSION").to_owned(),
+                ),
+                (
+                    "robodeploy/commit".to_owned(),
+                    info.commit.clone().unwrap_or_else(|| "unknown".to_owned()),
+                ),
+                ("run/robot_name".to_owned(), robot.to_owned()),
+            ];
+            if let Some(run) = &info.run {
+                let file = |p: &Path| p.display().to_string();
+                about.push(("run/robot".to_owned(), file(&run.robot)));
+                about.push(("run/policy".to_owned(), file(&run.policy)));
+                if let Some(clip) = &run.clip {
+                    about.push(("run/clip".to_owned(), file(clip)));
+                }
+            }
+            Some(Arc::new(viewers::live::LiveView::serve_about(
+                addr,
+                &format!("robodeploy: {robot}"),
+                about,
+            )?))
+        }
         None => None,
     };
     let info = controller::telemetry::RecordingInfo {

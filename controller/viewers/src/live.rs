@@ -15,7 +15,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
-use foxglove::websocket::{ChannelView, Client, ServerListener};
+use foxglove::websocket::{Capability, ChannelView, Client, Parameter, ServerListener};
 
 /// Why the live view could not start.
 #[derive(Debug, thiserror::Error)]
@@ -27,15 +27,41 @@ pub struct LiveError {
     pub message: String,
 }
 
-/// Counts viewers' subscriptions.
+/// Counts viewers' subscriptions, and answers their parameter requests with what the run is.
 #[derive(Debug, Default)]
 struct Subscriptions {
     count: AtomicU64,
+    /// The run's description (tool version, commit, robot, policy, clip), as read-only parameters.
+    about: Vec<(String, String)>,
 }
 
 impl ServerListener for Subscriptions {
     fn on_subscribe(&self, _client: Client, _channel: ChannelView<'_>) {
         self.count.fetch_add(1, Ordering::Relaxed);
+    }
+
+    fn on_get_parameters(
+        &self,
+        _client: Client,
+        names: Vec<String>,
+        _request_id: Option<&str>,
+    ) -> Vec<Parameter> {
+        self.about
+            .iter()
+            .filter(|(n, _)| names.is_empty() || names.contains(n))
+            .map(|(n, v)| Parameter::string(n.clone(), v.clone()))
+            .collect()
+    }
+
+    /// Read-only: a viewer's change is answered with the values as they are.
+    fn on_set_parameters(
+        &self,
+        client: Client,
+        parameters: Vec<Parameter>,
+        request_id: Option<&str>,
+    ) -> Vec<Parameter> {
+        let names = parameters.into_iter().map(|p| p.name).collect();
+        self.on_get_parameters(client, names, request_id)
     }
 }
 
@@ -200,14 +226,28 @@ impl std::fmt::Debug for LiveView {
 impl LiveView {
     /// Starts serving on `addr` (port 0: any free port); `name` is what viewers see.
     pub fn serve(addr: SocketAddr, name: &str) -> Result<Self, LiveError> {
+        Self::serve_about(addr, name, Vec::new())
+    }
+
+    /// [`Self::serve`], answering viewers' parameter requests (Foxglove's *Parameters* panel) with
+    /// `about`: what the run is (tool version and commit, robot, policy, clip), read-only.
+    pub fn serve_about(
+        addr: SocketAddr,
+        name: &str,
+        about: Vec<(String, String)>,
+    ) -> Result<Self, LiveError> {
         let context = foxglove::Context::new();
-        let subscriptions = Arc::new(Subscriptions::default());
+        let subscriptions = Arc::new(Subscriptions {
+            count: AtomicU64::new(0),
+            about,
+        });
         let runtime = runtime().map_err(|message| LiveError { addr, message })?;
         // The SDK's server on loopback, behind the front on the address asked for.
         let builder = context
             .websocket_server()
             .message_backlog_size(VIEWER_BACKLOG)
             .name(name)
+            .capabilities([Capability::Parameters])
             .bind("127.0.0.1", 0)
             .listener(Arc::clone(&subscriptions) as Arc<dyn ServerListener>);
         let failed = |e: &dyn std::fmt::Display| LiveError {
