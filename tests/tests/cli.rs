@@ -1469,3 +1469,27 @@ fn play_that_cannot_open_its_buses_still_ends_with_its_result_line() {
         "{stdout}"
     );
 }
+
+/// `--version` names the commit the binary was built from, as every recording does.
+#[test]
+fn the_version_names_the_commit_it_was_built_from() {
+    let out = robodeploy().arg("--version").output().unwrap();
+    assert!(out.status.success());
+    let text = String::from_utf8_lossy(&out.stdout);
+    let commit = text
+        .trim()
+        .strip_prefix(concat!("robodeploy ", env!("CARGO_PKG_VERSION"), " (commit "))
+        .and_then(|r| r.strip_suffix(')'))
+        .unwrap_or_else(|| panic!("{text}"));
+    let head = Command::new("git")
+        .args(["rev-parse", "--short=12", "HEAD"])
+        .current_dir(test_support::fixtures::workspace_root())
+        .output()
+        .ok()
+        .filter(|o| o.status.success())
+        .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_owned());
+    match head {
+        Some(head) => assert_eq!(commit, head, "{text}"),
+        None => assert_eq!(commit, "unknown", "{text}"),
+    }
+}

@@ -43,8 +43,16 @@ Exit status:
   5  I/O failure: a bus, device or file could not be used
 A run prints how it ended as its last line (`result: …`).";
 
+/// The version and the commit the binary was built from (what every recording names).
+const VERSION: &str = concat!(
+    env!("CARGO_PKG_VERSION"),
+    " (commit ",
+    env!("ROBODEPLOY_COMMIT"),
+    ")"
+);
+
 #[derive(Debug, Parser)]
-#[command(name = "robodeploy", version, about, long_about, after_long_help = EXIT_STATUSES)]
+#[command(name = "robodeploy", version = VERSION, about, long_about, after_long_help = EXIT_STATUSES)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
