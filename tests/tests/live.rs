@@ -246,3 +246,108 @@ fn a_viewer_that_never_comes_holds_the_start_only_as_long_as_asked() {
     assert!(!ok && stderr.contains("--live"), "{stderr}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Foxglove's Teleop panel, as the protocol carries it: a viewer advertises `/cmd_vel`
+/// (geometry_msgs/Twist in JSON) and publishes on it; with `--viewer-commands` the walking policy
+/// takes it as its forward command.
+#[test]
+fn a_viewer_publishing_cmd_vel_drives_a_command_driven_policy() {
+    let dir = scratch("teleop-panel");
+    let root = workspace_root();
+    let mut play = Running::start(&[
+        "play",
+        "--robot",
+        root.join("robots/mini/robot.toml").to_str().unwrap(),
+        "--policy",
+        root.join("robots/mini/policies/walk.toml").to_str().unwrap(),
+        "--max-seconds",
+        "40",
+        "--record",
+        dir.join("run.mcap").to_str().unwrap(),
+        "--live",
+        "127.0.0.1:0",
+        "--live-wait",
+        "120",
+        "--viewer-commands",
+    ]);
+    let line = play.wait_for("live: ws://", Duration::from_secs(120));
+    let url = line.split_whitespace().nth(1).unwrap().to_owned();
+    let mut request = url.as_str().into_client_request().unwrap();
+    request
+        .headers_mut()
+        .insert("Sec-WebSocket-Protocol", "foxglove.sdk.v1".parse().unwrap());
+    let (mut ws, _) = tungstenite::connect(request).unwrap();
+    let mut joint_state = None;
+    let mut capabilities = Vec::new();
+    while joint_state.is_none() {
+        let Message::Text(text) = ws.read().unwrap() else {
+            continue;
+        };
+        let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+        if v["op"] == "serverInfo" {
+            capabilities = v["capabilities"].as_array().cloned().unwrap_or_default();
+        }
+        if v["op"] == "advertise" {
+            joint_state = v["channels"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .find(|c| c["topic"] == "/joint_state")
+                .map(|c| c["id"].as_u64().unwrap());
+        }
+    }
+    assert!(
+        capabilities.iter().any(|c| c == "clientPublish"),
+        "{capabilities:?}"
+    );
+    let advertise = serde_json::json!({"op": "advertise", "channels": [
+        {"id": 7, "topic": "/cmd_vel", "encoding": "json", "schemaName": "geometry_msgs/Twist"}
+    ]});
+    ws.send(Message::Text(advertise.to_string().into())).unwrap();
+    // Forward at 0.2 m/s, as the panel's up arrow sends it; then the run starts (a subscription).
+    let twist = serde_json::json!({"linear": {"x": 0.2, "y": 0.0, "z": 0.0}, "angular": {"x": 0.0, "y": 0.0, "z": 0.0}});
+    let mut frame = vec![1u8];
+    frame.extend_from_slice(&7u32.to_le_bytes());
+    frame.extend_from_slice(twist.to_string().as_bytes());
+    ws.send(Message::Binary(frame.clone().into())).unwrap();
+    let subscribe =
+        serde_json::json!({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": joint_state}]});
+    ws.send(Message::Text(subscribe.to_string().into())).unwrap();
+    // Keep publishing while the run streams (the socket's reads pace the sends).
+    let mut sent = 1;
+    while let Ok(m) = ws.read() {
+        if matches!(m, Message::Close(_)) {
+            break;
+        }
+        if sent < 2000 {
+            ws.send(Message::Binary(frame.clone().into())).unwrap();
+            sent += 1;
+        }
+    }
+    let out = play.finish();
+    assert!(out.status.success(), "{}\n{}", out.stdout, out.stderr);
+    let accepted: u64 = out
+        .stdout
+        .lines()
+        .filter(|l| l.contains(" accepted"))
+        .find_map(|l| l.strip_prefix("commands: "))
+        .and_then(|l| l.split_whitespace().next()?.parse().ok())
+        .unwrap_or_else(|| panic!("no command count:\n{}", out.stdout));
+    assert!(
+        accepted >= 10,
+        "{accepted} of {sent} twists taken:\n{}",
+        out.stdout
+    );
+    let forward = out
+        .stdout
+        .lines()
+        .find(|l| l.starts_with("forward"))
+        .unwrap_or_else(|| panic!("{}", out.stdout));
+    let commanded: f64 = forward
+        .split("commanded ")
+        .nth(1)
+        .and_then(|v| v.split_whitespace().next()?.parse().ok())
+        .unwrap_or_else(|| panic!("{forward}"));
+    assert!(commanded > 0.05, "{forward}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -220,6 +220,7 @@ fn watched(
         "calibrate",
         t.hardware,
         abort,
+        None,
     )?;
     let Some(sink) = sink else {
         return body(rig);

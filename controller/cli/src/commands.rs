@@ -38,6 +38,11 @@ pub struct CommandArgs {
     /// its range; silence longer than `timeout_s` hands back to the defaults.
     #[arg(long, requires = "ros2")]
     pub cmd_vel: bool,
+    /// Live commands from the viewer: Foxglove's *Teleop* panel (or any client of the live
+    /// connection) publishing geometry_msgs/Twist on /cmd_vel (JSON), mapped as --cmd-vel maps
+    /// it. Needs --live.
+    #[arg(long, requires = "live_view")]
+    pub viewer_commands: bool,
 }
 
 impl CommandArgs {
@@ -49,6 +54,8 @@ impl CommandArgs {
             Some("gamepad".into())
         } else if self.cmd_vel {
             Some("ros2 /cmd_vel".into())
+        } else if self.viewer_commands {
+            Some("viewer /cmd_vel".into())
         } else {
             self.command_udp.map(|a| format!("udp {a}"))
         }
@@ -60,6 +67,8 @@ impl CommandArgs {
 pub struct CommandSource {
     /// Accepted and dropped messages.
     pub stats: Arc<CommandStats>,
+    /// Where the live view hands the viewer's twists (`--viewer-commands`).
+    pub viewer: Option<std::sync::mpsc::SyncSender<[f64; 6]>>,
     stop: Arc<AtomicBool>,
     _terminal: Option<TerminalGuard>,
 }
@@ -85,6 +94,7 @@ pub fn start(
         let flag = match name.as_str() {
             "keyboard" | "gamepad" => name.clone(),
             _ if args.cmd_vel => "cmd-vel".into(),
+            _ if args.viewer_commands => "viewer-commands".into(),
             _ => "command-udp".into(),
         };
         return Err(crate::args::FlagError::new(
@@ -97,7 +107,14 @@ pub fn start(
     let stats = Arc::new(CommandStats::default());
     let stop = Arc::new(AtomicBool::new(false));
     let mut terminal = None;
-    if args.keyboard {
+    let mut viewer = None;
+    if args.viewer_commands {
+        let (tx, rx) = std::sync::mpsc::sync_channel(64);
+        commands::spawn_twists(spec, rx, writer, Arc::clone(&stats), Arc::clone(&stop))
+            .context("cannot start the viewer's command thread")?;
+        viewer = Some(tx);
+        println!("commands: the viewer's /cmd_vel (geometry_msgs/Twist, JSON: Foxglove's Teleop panel)");
+    } else if args.keyboard {
         terminal = Some(TerminalGuard::cbreak());
         commands::spawn_keyboard(spec, initial, writer, std::io::stdin(), Arc::clone(&stats))
             .context("cannot start the keyboard thread")?;
@@ -132,6 +149,7 @@ pub fn start(
         reader,
         CommandSource {
             stats,
+            viewer,
             stop,
             _terminal: terminal,
         },

@@ -935,8 +935,9 @@ fn with_estop<L: RobotLink>(
     options: &PlayOptions,
     source: &ReferenceSource,
     commands: Option<human::commands::CommandReader>,
+    viewer: Option<std::sync::mpsc::SyncSender<[f64; 6]>>,
 ) -> Result<Player<L>> {
-    let mut player = with_recorder(player, args, options, source)?;
+    let mut player = with_recorder(player, args, options, source, viewer)?;
     let keyboard = commands.is_some() && args.live.keyboard;
     if let Some(reader) = commands {
         player = player.with_commands(reader)?;
@@ -995,6 +996,7 @@ fn with_recorder<L: RobotLink>(
     args: &PlayArgs,
     options: &PlayOptions,
     source: &ReferenceSource,
+    viewer: Option<std::sync::mpsc::SyncSender<[f64; 6]>>,
 ) -> Result<Player<L>> {
     let policy = crate::args::policy_of(args.files.policy.as_deref(), player.robot())?;
     let stem = source
@@ -1020,7 +1022,7 @@ fn with_recorder<L: RobotLink>(
         forced: args.force.clone(),
         recorded_in: None,
     };
-    record(player, &args.rec, run, &stem, args.wall || args.hardware)
+    record(player, &args.rec, run, &stem, args.wall || args.hardware, viewer)
 }
 
 /// Adds a recorder (and a live view) as `rec` asks to `player`, whose run `run` describes; the
@@ -1032,6 +1034,7 @@ pub(crate) fn record<L: RobotLink>(
     run: controller::options::RunMetadata,
     stem: &str,
     real_time: bool,
+    viewer: Option<std::sync::mpsc::SyncSender<[f64; 6]>>,
 ) -> Result<Player<L>> {
     if rec.no_record {
         return Ok(player);
@@ -1060,7 +1063,7 @@ pub(crate) fn record<L: RobotLink>(
         ..player.recording_info()
     };
     let robot = player.robot_name().to_owned();
-    let sink = start_recording(rec, info, &robot, stem, real_time, player.stop_flag())?;
+    let sink = start_recording(rec, info, &robot, stem, real_time, player.stop_flag(), viewer)?;
     Ok(match sink {
         Some(sink) => player.with_telemetry(sink),
         None => player,
@@ -1078,6 +1081,7 @@ pub(crate) fn start_recording(
     stem: &str,
     real_time: bool,
     stop: &AtomicBool,
+    viewer: Option<std::sync::mpsc::SyncSender<[f64; 6]>>,
 ) -> Result<Option<TelemetrySink>> {
     if rec.no_record {
         return Ok(None);
@@ -1158,6 +1162,7 @@ pub(crate) fn start_recording(
                 addr,
                 &format!("robodeploy: {robot}"),
                 about,
+                viewer,
             )?))
         }
         None => None,
@@ -1423,6 +1428,7 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         args.rec.ros2_dds().as_ref(),
     )?;
     let (reader, command_source) = commands.map_or((None, None), |(r, s)| (Some(r), Some(s)));
+    let viewer = command_source.as_ref().and_then(|s| s.viewer.clone());
     if args.hardware {
         if l.robot.config.feet.is_empty()
             && let Some(m) = world_terms_note(&l.layout, &l.robot, options.estimator)
@@ -1438,6 +1444,7 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
             &options,
             &l.source,
             reader,
+            viewer.clone(),
         )?;
         let mut summary = run_with(player, &mut clock, generator)?;
         summary.command_sources = command_source.map(|s| s.stats.to_string());
@@ -1500,7 +1507,7 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
             stop,
             bus_threads(args.realtime),
         )?;
-        let player = with_estop(player, args, &options, &l.source, reader)?;
+        let player = with_estop(player, args, &options, &l.source, reader, viewer.clone())?;
         run_with(player, &mut clock, generator)?
     } else {
         // Lockstep runs as fast as it computes, with nothing to watch: their progress is shown.
@@ -1523,12 +1530,12 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         if direct {
             let (player, mut clock, _world) =
                 direct_player(l.robot, l.layout, l.reference, options, config, stop)?;
-            let player = with_estop(player, args, &options, &l.source, reader)?;
+            let player = with_estop(player, args, &options, &l.source, reader, viewer.clone())?;
             run_with(player.with_progress(ticks), &mut clock, generator)?
         } else {
             let (player, mut clock, _world) =
                 lockstep_player(l.robot, l.layout, l.reference, options, config, stop)?;
-            let player = with_estop(player, args, &options, &l.source, reader)?;
+            let player = with_estop(player, args, &options, &l.source, reader, viewer.clone())?;
             run_with(player.with_progress(ticks), &mut clock, generator)?
         }
     };

@@ -254,7 +254,7 @@ pub fn teleop(args: &TeleopArgs) -> Result<std::process::ExitCode> {
         let mut clock = robot_link::WallClock::start();
         let player = Player::new(robot, layout, reference, play, io, stop)?
             .with_source(controller::reference::TeleopStream::new(live));
-        let mut player = crate::play::record(player, rec, run, "teleop", true)?;
+        let mut player = crate::play::record(player, rec, run, "teleop", true, None)?;
         player.run(&mut clock)?
     } else {
         let config = match &args.mirror {
@@ -268,7 +268,7 @@ pub fn teleop(args: &TeleopArgs) -> Result<std::process::ExitCode> {
         let mut clock = sim2real::link::PacedLockstepClock::new(Arc::clone(&world));
         let player = Player::new(robot, layout, reference, play, io, stop)?
             .with_source(controller::reference::TeleopStream::new(live));
-        let mut player = crate::play::record(player, rec, run, "teleop", true)?;
+        let mut player = crate::play::record(player, rec, run, "teleop", true, None)?;
         player.run(&mut clock)?
     };
     print!("{summary}");

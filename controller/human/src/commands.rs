@@ -748,6 +748,37 @@ pub fn spawn_udp(
 
 // ---- ROS 2 /cmd_vel -------------------------------------------------------------------------
 
+/// Takes twists `[linear xyz, angular xyz]` from `twists` (a viewer's /cmd_vel) and publishes
+/// them as the manifest's commands ([`twist_commands`]), until `stop` or the sender goes.
+pub fn spawn_twists(
+    spec: &CommandSpec,
+    twists: std::sync::mpsc::Receiver<[f64; 6]>,
+    mut writer: CommandWriter,
+    stats: Arc<CommandStats>,
+    stop: Arc<AtomicBool>,
+) -> std::io::Result<std::thread::JoinHandle<()>> {
+    let spec = spec.clone();
+    let kinds = spec.kinds();
+    std::thread::Builder::new()
+        .name("viewer-commands".into())
+        .spawn(move || {
+            let mut values = spec.defaults();
+            while !stop.load(Ordering::Relaxed) {
+                match twists.recv_timeout(Duration::from_millis(50)) {
+                    Ok(twist) => {
+                        if twist_commands(&spec, &kinds, twist, &mut values) > 0 {
+                            stats.out_of_range.fetch_add(1, Ordering::Relaxed);
+                        }
+                        stats.accepted.fetch_add(1, Ordering::Relaxed);
+                        writer.publish(&values);
+                    }
+                    Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {}
+                    Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => break,
+                }
+            }
+        })
+}
+
 /// A `geometry_msgs/msg/Twist` as the manifest's commands: linear x → the forward speed command,
 /// linear y → the leftward one, angular z → the turning rate (by each command's kind), every
 /// other command at its default; each clamped to its range. Returns how many were clamped.

@@ -15,7 +15,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
-use foxglove::websocket::{Capability, ChannelView, Client, Parameter, ServerListener};
+use foxglove::websocket::{Capability, ChannelView, Client, ClientChannel, Parameter, ServerListener};
 
 /// Why the live view could not start.
 #[derive(Debug, thiserror::Error)]
@@ -33,6 +33,27 @@ struct Subscriptions {
     count: AtomicU64,
     /// The run's description (tool version, commit, robot, policy, clip), as read-only parameters.
     about: Vec<(String, String)>,
+    /// Where a viewer's `/cmd_vel` twists go, when the run takes them.
+    twists: Option<std::sync::Mutex<std::sync::mpsc::SyncSender<[f64; 6]>>>,
+    /// A viewer's message that was no twist was said once.
+    warned: AtomicBool,
+}
+
+/// A `geometry_msgs/Twist` in JSON (`{"linear": {"x": …}, "angular": {…}}`, as Foxglove's Teleop
+/// panel publishes it): `[linear xyz, angular xyz]`; missing components are 0, anything else or a
+/// non-finite value is no twist.
+pub fn twist_of_json(payload: &[u8]) -> Option<[f64; 6]> {
+    let v: serde_json::Value = serde_json::from_slice(payload).ok()?;
+    let part = |k: &str| -> Option<[f64; 3]> {
+        let p = v.get(k)?;
+        let c = |a: &str| match p.get(a) {
+            None => Some(0.0),
+            Some(x) => x.as_f64().filter(|x| x.is_finite()),
+        };
+        Some([c("x")?, c("y")?, c("z")?])
+    };
+    let (l, a) = (part("linear")?, part("angular")?);
+    Some([l[0], l[1], l[2], a[0], a[1], a[2]])
 }
 
 impl ServerListener for Subscriptions {
@@ -51,6 +72,27 @@ impl ServerListener for Subscriptions {
             .filter(|(n, _)| names.is_empty() || names.contains(n))
             .map(|(n, v)| Parameter::string(n.clone(), v.clone()))
             .collect()
+    }
+
+    fn on_message_data(&self, _client: Client, channel: &ClientChannel, payload: &[u8]) {
+        let Some(twists) = &self.twists else { return };
+        if channel.topic != "/cmd_vel" {
+            return;
+        }
+        match (channel.encoding == "json")
+            .then(|| twist_of_json(payload))
+            .flatten()
+        {
+            // A full queue drops the twist: the next one comes within a tick.
+            Some(t) => drop(twists.lock().map(|tx| tx.try_send(t))),
+            None => {
+                if !self.warned.swap(true, Ordering::Relaxed) {
+                    tracing::warn!(
+                        "live view: a /cmd_vel message that is no JSON geometry_msgs/Twist dropped (further ones not reported)"
+                    );
+                }
+            }
+        }
     }
 
     /// Read-only: a viewer's change is answered with the values as they are.
@@ -226,28 +268,38 @@ impl std::fmt::Debug for LiveView {
 impl LiveView {
     /// Starts serving on `addr` (port 0: any free port); `name` is what viewers see.
     pub fn serve(addr: SocketAddr, name: &str) -> Result<Self, LiveError> {
-        Self::serve_about(addr, name, Vec::new())
+        Self::serve_about(addr, name, Vec::new(), None)
     }
 
     /// [`Self::serve`], answering viewers' parameter requests (Foxglove's *Parameters* panel) with
-    /// `about`: what the run is (tool version and commit, robot, policy, clip), read-only.
+    /// `about`: what the run is (tool version and commit, robot, policy, clip), read-only; with
+    /// `twists`, viewers may publish (Foxglove's *Teleop* panel): each JSON geometry_msgs/Twist on
+    /// `/cmd_vel` goes there.
     pub fn serve_about(
         addr: SocketAddr,
         name: &str,
         about: Vec<(String, String)>,
+        twists: Option<std::sync::mpsc::SyncSender<[f64; 6]>>,
     ) -> Result<Self, LiveError> {
         let context = foxglove::Context::new();
+        let publish = twists.is_some();
         let subscriptions = Arc::new(Subscriptions {
             count: AtomicU64::new(0),
             about,
+            twists: twists.map(std::sync::Mutex::new),
+            warned: AtomicBool::new(false),
         });
+        let mut capabilities = vec![Capability::Parameters];
+        if publish {
+            capabilities.push(Capability::ClientPublish);
+        }
         let runtime = runtime().map_err(|message| LiveError { addr, message })?;
         // The SDK's server on loopback, behind the front on the address asked for.
         let builder = context
             .websocket_server()
             .message_backlog_size(VIEWER_BACKLOG)
             .name(name)
-            .capabilities([Capability::Parameters])
+            .capabilities(capabilities)
             .bind("127.0.0.1", 0)
             .listener(Arc::clone(&subscriptions) as Arc<dyn ServerListener>);
         let failed = |e: &dyn std::fmt::Display| LiveError {
@@ -461,5 +513,28 @@ mod tests {
             .unwrap();
         assert_eq!(name.as_deref(), Some("live-view"));
         assert_eq!(nice.unwrap(), 19);
+    }
+}
+
+#[cfg(test)]
+mod twist_tests {
+    use super::twist_of_json;
+
+    #[test]
+    fn a_json_twist_is_read_and_anything_else_is_none() {
+        let full = br#"{"linear": {"x": 0.5, "y": -0.1, "z": 0}, "angular": {"x": 0, "y": 0, "z": 0.3}}"#;
+        assert_eq!(twist_of_json(full), Some([0.5, -0.1, 0.0, 0.0, 0.0, 0.3]));
+        // Missing components are 0, as ROS's defaults.
+        let short = br#"{"linear": {"x": 0.2}, "angular": {}}"#;
+        assert_eq!(twist_of_json(short), Some([0.2, 0.0, 0.0, 0.0, 0.0, 0.0]));
+        for bad in [
+            &b"not json"[..],
+            br#"{"linear": {"x": "fast"}, "angular": {}}"#,
+            br#"{"linear": {"x": 1e999}, "angular": {}}"#,
+            br#"{"angular": {"z": 1}}"#,
+            br#"[1, 2, 3]"#,
+        ] {
+            assert_eq!(twist_of_json(bad), None, "{}", String::from_utf8_lossy(bad));
+        }
     }
 }
