@@ -89,6 +89,12 @@ fn squatting_the_height_and_its_rate_follow_the_truth_and_the_report_says_so() {
         "{f:?} vs {e}"
     );
     assert!((f.contact_agreement_pct - 100.0 * e.contact_agreement).abs() < 1e-9);
+    // The velocity compared as the run compares it, in the estimate's world axes (the report once
+    // compared base-axes velocities: the orientation's error made the two differ).
+    assert!(
+        (f.velocity_rmse - e.velocity_rmse).abs() < 1e-6 * e.velocity_rmse.max(1e-3),
+        "{f:?} vs {e}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
     std::fs::remove_file(&path).unwrap();
 }

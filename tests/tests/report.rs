@@ -208,6 +208,21 @@ fn the_report_of_a_walk_gives_the_course_the_run_printed_and_no_clip_figures() {
         ],
     );
     assert!(out.contains("result: finished"), "{out}");
+    // The estimate's figures: one computation (the report once compared base-frame velocities
+    // where the run compares world-frame ones: 0.274 against 0.276 m/s).
+    let estimate = out
+        .lines()
+        .find(|l| l.starts_with("state estimate"))
+        .unwrap_or_else(|| panic!("{out}"));
+    let printed_rmse: f64 = estimate
+        .split("velocity RMSE ")
+        .nth(1)
+        .and_then(|v| v.split_whitespace().next()?.parse().ok())
+        .unwrap_or_else(|| panic!("{estimate}"));
+    let reported = s["estimator"]["velocity_rmse"]
+        .as_f64()
+        .unwrap_or_else(|| panic!("{s}"));
+    assert!(same(printed_rmse, reported, 3), "{estimate}\n{}", s["estimator"]);
     let l = &s["locomotion"];
     let distance = out
         .lines()

@@ -327,9 +327,15 @@ fn read(path: &Path) -> Result<Series, AnalysisError> {
                     .iter()
                     .filter_map(|f| f.truth_contact.map(|t| (f.contact, t)))
                     .collect();
+                // The run's own comparison (world axes) where the recording has it; base axes
+                // in recordings made before it did.
+                let velocity = match &v.truth_velocity {
+                    Some(t) => distance(xyz(v.velocity.as_ref()), xyz(Some(t))),
+                    None => distance(xyz(v.velocity_base.as_ref()), xyz(v.truth_velocity_base.as_ref())),
+                };
                 s.estimator.push(EstimateTick {
                     time: time(m.log_time),
-                    velocity: distance(xyz(v.velocity_base.as_ref()), xyz(v.truth_velocity_base.as_ref())),
+                    velocity,
                     height: p[2] - t[2],
                     position: distance(p, t),
                     agree: compared.iter().filter(|(a, b)| a == b).count(),

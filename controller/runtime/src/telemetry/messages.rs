@@ -386,9 +386,17 @@ impl Messages {
                 .truth
                 .and_then(|_| (i < usize::from(r.feet)).then(|| r.foot_contacts[i]));
         }
-        (m.truth_position, m.truth_velocity_base) = match e.truth {
-            Some((pose, vel)) => (vec3([pose[0], pose[1], pose[2]]), vec3(vel)),
-            None => (None, None),
+        (m.truth_position, m.truth_velocity_base, m.truth_velocity) = match e.truth {
+            Some((pose, vel)) => (
+                vec3([pose[0], pose[1], pose[2]]),
+                vec3(vel),
+                // As the loop compares it: the base velocity turned by the mapped truth's pose.
+                vec3(robots::spatial::quat_rotate(
+                    [pose[3], pose[4], pose[5], pose[6]],
+                    vel,
+                )),
+            ),
+            None => (None, None, None),
         };
         Some(m)
     }
