@@ -49,6 +49,9 @@ pub struct CommandStats {
     pub malformed: AtomicU64,
     /// Messages with a value outside its range.
     pub out_of_range: AtomicU64,
+    /// Messages taken with a value clamped into its range (a twist's: counted among the
+    /// accepted, not the dropped).
+    pub clamped: AtomicU64,
     /// Messages older than one already taken (sequence number not above the newest).
     pub stale: AtomicU64,
     /// Datagrams beyond their sender's rate ([`SOURCE_RATE_HZ`]), dropped unread.
@@ -115,8 +118,12 @@ impl std::fmt::Display for CommandStats {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "{} accepted, {} dropped ({} malformed, {} out of range, {} out of order",
+            "{} accepted{}, {} dropped ({} malformed, {} out of range, {} out of order",
             self.accepted.load(Ordering::Relaxed),
+            match self.clamped.load(Ordering::Relaxed) {
+                0 => String::new(),
+                n => format!(" ({n} clamped into their ranges)"),
+            },
             self.dropped(),
             self.malformed.load(Ordering::Relaxed),
             self.out_of_range.load(Ordering::Relaxed),
@@ -765,18 +772,50 @@ pub fn spawn_twists(
             let mut values = spec.defaults();
             while !stop.load(Ordering::Relaxed) {
                 match twists.recv_timeout(Duration::from_millis(50)) {
-                    Ok(twist) => {
-                        if twist_commands(&spec, &kinds, twist, &mut values) > 0 {
-                            stats.out_of_range.fetch_add(1, Ordering::Relaxed);
-                        }
-                        stats.accepted.fetch_add(1, Ordering::Relaxed);
-                        writer.publish(&values);
-                    }
+                    Ok(twist) => take_twist(
+                        &spec,
+                        &kinds,
+                        twist,
+                        &mut values,
+                        &stats,
+                        &mut writer,
+                        "the viewer's /cmd_vel",
+                    ),
                     Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {}
                     Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => break,
                 }
             }
         })
+}
+
+/// The largest speed or turning rate a twist may carry, m/s or rad/s: beyond it the message is
+/// no velocity command (a blob read as a Twist), dropped as malformed rather than clamped.
+pub const TWIST_LIMIT: f64 = 100.0;
+
+/// Takes one twist from `source`: a plausible one becomes the commands (clamped into their
+/// ranges, counted as such) and is published; any other is dropped as malformed, said once.
+fn take_twist(
+    spec: &CommandSpec,
+    kinds: &[CommandKind],
+    twist: [f64; 6],
+    values: &mut [f64],
+    stats: &CommandStats,
+    writer: &mut CommandWriter,
+    source: &str,
+) {
+    if !twist.iter().all(|v| v.is_finite() && v.abs() <= TWIST_LIMIT) {
+        if stats.malformed.fetch_add(1, Ordering::Relaxed) == 0 {
+            tracing::warn!(
+                "{source}: a twist beyond ±{TWIST_LIMIT} dropped: {twist:?} (further ones not reported)"
+            );
+        }
+        return;
+    }
+    if twist_commands(spec, kinds, twist, values) > 0 {
+        stats.clamped.fetch_add(1, Ordering::Relaxed);
+    }
+    stats.accepted.fetch_add(1, Ordering::Relaxed);
+    writer.publish(values);
 }
 
 /// A `geometry_msgs/msg/Twist` as the manifest's commands: linear x → the forward speed command,
@@ -833,11 +872,7 @@ pub fn spawn_cmd_vel(
                 let _ = poll.poll(&mut events, Some(Duration::from_millis(50)));
                 let taken = subscription.take_all(&mut |sample| match dds::ros2::decode_twist(sample) {
                     Ok(twist) => {
-                        if twist_commands(&spec, &kinds, twist, &mut values) > 0 {
-                            stats.out_of_range.fetch_add(1, Ordering::Relaxed);
-                        }
-                        stats.accepted.fetch_add(1, Ordering::Relaxed);
-                        writer.publish(&values);
+                        take_twist(&spec, &kinds, twist, &mut values, &stats, &mut writer, "/cmd_vel");
                     }
                     Err(e) => {
                         if stats.malformed.fetch_add(1, Ordering::Relaxed) == 0 {
@@ -905,6 +940,50 @@ mod tests {
         assert_eq!((out, clamped), ([0.4, 0.1, 0.5], 1));
         let clamped = twist_commands(&spec, &kinds, [f64::NAN, -5.0, 0.0, 0.0, 0.0, 0.0], &mut out);
         assert_eq!((out, clamped), ([0.0, -0.2, 0.0], 1));
+    }
+
+    #[test]
+    fn a_clamped_twist_is_taken_and_said_so_and_an_absurd_one_is_dropped_as_malformed() {
+        let spec = walk();
+        let kinds = spec.kinds();
+        let (mut writer, mut reader) = command_channel(3);
+        let stats = CommandStats::default();
+        let mut values = spec.defaults();
+        // 1 m/s forward: clamped to the range's 0.4, applied, not dropped.
+        take_twist(
+            &spec,
+            &kinds,
+            [1.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+            &mut values,
+            &stats,
+            &mut writer,
+            "t",
+        );
+        assert_eq!(reader.latest().values[0], 0.4);
+        // A blob's doubles: no velocity, dropped, the commands as they were.
+        take_twist(
+            &spec,
+            &kinds,
+            [1e300, 0.0, 0.0, 0.0, 0.0, 0.0],
+            &mut values,
+            &stats,
+            &mut writer,
+            "t",
+        );
+        take_twist(
+            &spec,
+            &kinds,
+            [0.1, f64::NAN, 0.0, 0.0, 0.0, 0.0],
+            &mut values,
+            &stats,
+            &mut writer,
+            "t",
+        );
+        assert_eq!(reader.latest().values[0], 0.4);
+        assert_eq!(
+            stats.to_string(),
+            "1 accepted (1 clamped into their ranges), 2 dropped (2 malformed, 0 out of range, 0 out of order)"
+        );
     }
 
     #[test]

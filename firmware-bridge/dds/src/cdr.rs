@@ -122,6 +122,14 @@ pub enum CdrError {
         /// Bytes after the header.
         len: usize,
     },
+    /// A fixed-size type's sample of another size.
+    #[error("CDR sample of {found} bytes where the type takes exactly {expected}")]
+    Length {
+        /// The type's size, header included.
+        expected: usize,
+        /// The sample's.
+        found: usize,
+    },
     /// An encapsulation this reader does not take (only plain CDR, little- or big-endian).
     #[error("CDR encapsulation {0:#06x} is not plain CDR (0x0000 big-endian, 0x0001 little-endian)")]
     Encapsulation(u16),

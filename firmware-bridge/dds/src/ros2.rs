@@ -112,8 +112,18 @@ pub fn encode_clock(buf: &mut Vec<u8>, stamp_ns: u64) {
     CdrWriter::new(buf).time(stamp_ns);
 }
 
+/// A `geometry_msgs/msg/Twist`'s CDR, header included, bytes.
+pub const TWIST_BYTES: usize = 4 + 6 * 8;
+
 /// A `geometry_msgs/msg/Twist`: linear (m/s) then angular (rad/s) velocity, x y z each.
 pub fn decode_twist(sample: &[u8]) -> Result<[f64; 6], CdrError> {
+    // Six doubles behind the encapsulation header, nothing else: a longer sample is another type.
+    if sample.len() != TWIST_BYTES {
+        return Err(CdrError::Length {
+            expected: TWIST_BYTES,
+            found: sample.len(),
+        });
+    }
     let mut r = CdrReader::new(sample)?;
     let mut out = [0.0; 6];
     for v in &mut out {
@@ -125,6 +135,26 @@ pub fn decode_twist(sample: &[u8]) -> Result<[f64; 6], CdrError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_twist_is_exactly_six_doubles_and_a_blob_is_not_one() {
+        let mut sample = vec![0x00, 0x01, 0x00, 0x00];
+        for v in [0.5f64, 0.0, 0.0, 0.0, 0.0, -0.25] {
+            sample.extend_from_slice(&v.to_le_bytes());
+        }
+        assert_eq!(decode_twist(&sample), Ok([0.5, 0.0, 0.0, 0.0, 0.0, -0.25]));
+        // A megabyte published under the Twist type: refused, not read as its first 48 bytes.
+        let mut blob = sample.clone();
+        blob.resize(1 << 20, 0xff);
+        assert_eq!(
+            decode_twist(&blob),
+            Err(CdrError::Length {
+                expected: TWIST_BYTES,
+                found: 1 << 20
+            })
+        );
+        assert!(decode_twist(&sample[..40]).is_err());
+    }
 
     #[test]
     fn a_joint_state_aligns_its_doubles_to_eight_from_the_header() {
