@@ -146,6 +146,10 @@ for name, cdr_body, packed_len in (("low_cmd", 1000, 1004), ("low_state", 2088, 
     crc = unitree_crc(bytes(packed_len))
     write("dds_samples", name, b"\x00\x01\x00\x00" + bytes(cdr_body - 4) + struct.pack("<I", crc))
 write("dds_samples", "twist", b"\x00\x01\x00\x00" + struct.pack("<6d", 0.5, 0.0, 0.0, 0.0, 0.0, -0.25))
+# A blob published under the Twist type: a Twist's bytes with more behind them (read once as the
+# Twist of its first 48 bytes).
+write("dds_samples", "twist_with_a_tail",
+      b"\x00\x01\x00\x00" + struct.pack("<6d", 0.5, 0.0, 0.0, 0.0, 0.0, -0.25) + b"\xff" * 256)
 write("udp_command", "walk", b'{"version": 1, "seq": 17, "command": [0.3, 0.0, -0.5]}')
 write("udp_command", "too_fast", b'{"version": 1, "seq": 18, "command": [3.0, 0.0, 0.0]}')
 

@@ -37,6 +37,8 @@ pub fn run(data: &[u8]) {
         assert!(LowCmd::read_cdr(data).is_ok_and(|c| c.crc_ok()));
     }
     if let Ok(twist) = dds::ros2::decode_twist(data) {
+        // Exactly a Twist's bytes: a longer blob is no Twist.
+        assert_eq!(data.len(), dds::ros2::TWIST_BYTES);
         let spec = crate::walk_commands();
         let mut out = [0.0; 3];
         twist_commands(&spec, &spec.kinds(), twist, &mut out);
