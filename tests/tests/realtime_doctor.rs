@@ -155,3 +155,33 @@ fn a_prepared_robot_computer_passes_every_item() {
     assert!(!out.contains("fix:"), "{out}");
     std::fs::remove_dir_all(&root).unwrap();
 }
+
+/// A captured root with traps in it — a FIFO where a file should be (opening it for reading waits
+/// for a writer forever), a link to `/dev/zero` (reads forever): each is skipped, the report
+/// comes back at once, and the items they stood for are judged as unknown.
+#[test]
+fn fifos_and_endless_devices_under_the_root_are_skipped_not_read_forever() {
+    let root = std::env::temp_dir().join(format!("rt-traps-{}", std::process::id()));
+    machine(
+        &root,
+        &[(
+            "proc/self/limits",
+            "Max locked memory         unlimited            unlimited            bytes\n",
+        )],
+    );
+    let fifo = root.join("proc/cmdline");
+    let made = std::process::Command::new("mkfifo").arg(&fifo).status().unwrap();
+    assert!(made.success());
+    let governor = root.join("sys/devices/system/cpu/cpu0/cpufreq/scaling_governor");
+    std::fs::create_dir_all(governor.parent().unwrap()).unwrap();
+    std::os::unix::fs::symlink("/dev/zero", &governor).unwrap();
+    std::os::unix::fs::symlink("/dev/zero", root.join("proc/version")).unwrap();
+    let (code, out, err) = test_support::bin::run_within(
+        &["doctor", "--realtime", "--root", root.to_str().unwrap()],
+        std::time::Duration::from_secs(60),
+    );
+    assert!(code.is_some(), "{out}{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(out.contains("CPU governor"), "{out}");
+    std::fs::remove_dir_all(&root).unwrap();
+}

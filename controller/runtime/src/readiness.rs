@@ -63,6 +63,28 @@ pub const LOOP_PRIORITY: u64 = 80;
 /// Locked memory the set-up needs to lock everything it maps: more than a run's working set.
 pub const MEMLOCK_NEEDED: u64 = 1 << 30;
 
+/// The most of a `/proc` or `/sys` file read, bytes: they hold a line or a table.
+const MOST_READ: u64 = 64 * 1024;
+
+/// A `/proc` or `/sys` file's text: a regular file only (a FIFO, a device or a link to one under
+/// a captured root is skipped: opened without waiting for a writer, never read), at most
+/// [`MOST_READ`] bytes of it.
+fn read_small(path: &Path) -> Option<String> {
+    use std::io::Read as _;
+    use std::os::unix::fs::OpenOptionsExt as _;
+    let file = std::fs::OpenOptions::new()
+        .read(true)
+        .custom_flags(libc::O_NONBLOCK)
+        .open(path)
+        .ok()?;
+    if !file.metadata().ok()?.is_file() {
+        return None;
+    }
+    let mut text = String::new();
+    file.take(MOST_READ).read_to_string(&mut text).ok()?;
+    Some(text)
+}
+
 /// A machine's `/proc` and `/sys`, under `root`.
 #[derive(Debug, Clone)]
 pub struct Machine {
@@ -81,7 +103,7 @@ impl Machine {
     }
 
     fn read(&self, path: &str) -> Option<String> {
-        std::fs::read_to_string(self.root.join(path.trim_start_matches('/'))).ok()
+        read_small(&self.root.join(path.trim_start_matches('/')))
     }
 
     fn entries(&self, dir: &str) -> Vec<PathBuf> {
@@ -210,7 +232,7 @@ impl Machine {
             {
                 continue;
             }
-            if let Ok(g) = std::fs::read_to_string(cpu.join("cpufreq/scaling_governor")) {
+            if let Ok(g) = read_small(&cpu.join("cpufreq/scaling_governor")).ok_or(()) {
                 governors.push((name, g.trim().to_owned()));
             }
         }
@@ -271,7 +293,7 @@ impl Machine {
     fn serial_latency(&self) -> Item {
         let mut timers = Vec::new();
         for dev in self.entries("sys/bus/usb-serial/devices") {
-            if let Ok(t) = std::fs::read_to_string(dev.join("latency_timer")) {
+            if let Ok(t) = read_small(&dev.join("latency_timer")).ok_or(()) {
                 let name = dev
                     .file_name()
                     .map(|n| n.to_string_lossy().into_owned())
@@ -314,12 +336,17 @@ impl Machine {
         let mut down = Vec::new();
         for iface in self.entries("sys/class/net") {
             // ARPHRD_CAN.
-            if std::fs::read_to_string(iface.join("type")).is_ok_and(|t| t.trim() == "280") {
+            if read_small(&iface.join("type"))
+                .ok_or(())
+                .is_ok_and(|t| t.trim() == "280")
+            {
                 let name = iface
                     .file_name()
                     .map(|n| n.to_string_lossy().into_owned())
                     .unwrap_or_default();
-                let up = std::fs::read_to_string(iface.join("operstate")).is_ok_and(|s| s.trim() != "down");
+                let up = read_small(&iface.join("operstate"))
+                    .ok_or(())
+                    .is_ok_and(|s| s.trim() != "down");
                 let bitrate = if self.root == Path::new("/") {
                     can_bitrate(&name)
                 } else {
