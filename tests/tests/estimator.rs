@@ -5,17 +5,18 @@
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
-use std::time::Duration;
 
 use controller::clip::{Clip, Reference};
 use controller::player::{EndMode, PlayOptions, PlaySummary};
 use controller::safety::{Cause, Mode};
 use controller::sim::lockstep_player;
 use policy::PolicyLayout;
-use robot_link::{IoError, JointTarget, RobotLink, RobotState, TickClock};
+use robot_link::RobotState;
 use robots::{Robot, reference_robot_path};
 use sim2real::config::{MirrorConfig, Push};
 use test_support::zoo::ZooRobot;
+
+mod garbled_link;
 
 fn biped(file: &str) -> PathBuf {
     reference_robot_path().with_file_name(file)
@@ -171,43 +172,6 @@ fn pushed_30_n_s_the_velocity_estimate_follows_within_0_1_m_s_after_50_ms() {
     std::fs::remove_file(&path).unwrap();
 }
 
-/// A link whose IMU samples turn non-finite from some read on (the newest sample stays good, so
-/// only the estimator sees it).
-#[derive(Debug)]
-struct NanImu<L> {
-    inner: L,
-    reads: u32,
-    from: u32,
-}
-
-impl<L: RobotLink> RobotLink for NanImu<L> {
-    fn identify(&mut self) -> Result<(), IoError> {
-        self.inner.identify()
-    }
-    fn read(&mut self, state: &mut RobotState) -> Result<(), IoError> {
-        self.inner.read(state)?;
-        self.reads += 1;
-        if self.reads >= self.from
-            && let Some(s) = state.imu_samples.first_mut()
-        {
-            s.accel[0] = f64::NAN;
-        }
-        Ok(())
-    }
-    fn write(&mut self, targets: &[JointTarget]) -> Result<(), IoError> {
-        self.inner.write(targets)
-    }
-    fn wait_until(&mut self, clock: &mut dyn TickClock, deadline: Duration) -> bool {
-        self.inner.wait_until(clock, deadline)
-    }
-    fn torque_off(&mut self) -> Result<(), IoError> {
-        self.inner.torque_off()
-    }
-    fn set_stale_cycles(&mut self, cycles: u32) {
-        self.inner.set_stale_cycles(cycles);
-    }
-}
-
 #[test]
 fn a_policy_reading_an_estimate_fed_nan_goes_to_the_safe_state() {
     // The BeyondMimic-convention export reads the base velocity and the anchor position.
@@ -220,10 +184,17 @@ fn a_policy_reading_an_estimate_fed_nan_goes_to_the_safe_state() {
     let world = Arc::new(std::sync::Mutex::new(
         sim2real::mirror::Mirror::new(robot.clone(), MirrorConfig::default()).unwrap(),
     ));
-    let io = NanImu {
+    // The IMU's oldest sample of a read turns non-finite (the newest stays good, so only the
+    // estimator sees it).
+    let io = garbled_link::Garbled {
         inner: sim2real::link::lockstep_robot(&robot, &world).unwrap(),
         reads: 0,
         from: 120,
+        garble: |s| {
+            if let Some(s) = s.imu_samples.first_mut() {
+                s.accel[0] = f64::NAN;
+            }
+        },
     };
     let mut clock = sim2real::link::LockstepClock::new(Arc::clone(&world));
     let mut p = controller::player::Player::new(

@@ -51,6 +51,29 @@ struct Entity {
 #[derive(Clone, PartialEq, prost::Message)]
 struct Primitive {}
 
+/// A viewer of `play`'s live view: connected over the protocol's current name to the address the
+/// run prints.
+fn viewer(
+    play: &mut Running,
+) -> tungstenite::WebSocket<tungstenite::stream::MaybeTlsStream<std::net::TcpStream>> {
+    let line = play.wait_for("live: ws://", Duration::from_secs(120));
+    let url = line.split_whitespace().nth(1).unwrap().to_owned();
+    assert!(url.starts_with("ws://127.0.0.1:"), "{line}");
+    let mut request = url.as_str().into_client_request().unwrap();
+    request
+        .headers_mut()
+        .insert("Sec-WebSocket-Protocol", "foxglove.sdk.v1".parse().unwrap());
+    tungstenite::connect(request).unwrap().0
+}
+
+/// A text message's JSON (the protocol's operations); none for binary data.
+fn json_of(m: Message) -> Option<serde_json::Value> {
+    let Message::Text(text) = m else {
+        return None;
+    };
+    Some(serde_json::from_str(&text).unwrap())
+}
+
 #[test]
 fn a_lockstep_run_streams_joint_states_and_transforms_to_a_subscribed_client() {
     let dir = scratch("stream");
@@ -67,14 +90,7 @@ fn a_lockstep_run_streams_joint_states_and_transforms_to_a_subscribed_client() {
         "--live-wait",
         "120",
     ]);
-    let line = play.wait_for("live: ws://", Duration::from_secs(120));
-    let url = line.split_whitespace().nth(1).unwrap().to_owned();
-    assert!(url.starts_with("ws://127.0.0.1:"), "{line}");
-    let mut request = url.as_str().into_client_request().unwrap();
-    request
-        .headers_mut()
-        .insert("Sec-WebSocket-Protocol", "foxglove.sdk.v1".parse().unwrap());
-    let (mut ws, _) = tungstenite::connect(request).unwrap();
+    let mut ws = viewer(&mut play);
     // serverInfo, then the channels advertised: the recording's topics.
     let mut channels: HashMap<String, u64> = HashMap::new();
     let mut schemas: HashMap<String, (String, String)> = HashMap::new();
@@ -83,10 +99,9 @@ fn a_lockstep_run_streams_joint_states_and_transforms_to_a_subscribed_client() {
         && channels.contains_key("/tf")
         && channels.contains_key("/robot"))
     {
-        let Message::Text(text) = ws.read().unwrap() else {
+        let Some(v) = json_of(ws.read().unwrap()) else {
             continue;
         };
-        let v: serde_json::Value = serde_json::from_str(&text).unwrap();
         if v["op"] == "serverInfo" {
             capabilities = v["capabilities"].as_array().cloned().unwrap_or_default();
         }
@@ -107,10 +122,9 @@ fn a_lockstep_run_streams_joint_states_and_transforms_to_a_subscribed_client() {
     let ask = serde_json::json!({"op": "getParameters", "parameterNames": [], "id": "about"});
     ws.send(Message::Text(ask.to_string().into())).unwrap();
     let about: HashMap<String, String> = loop {
-        let Message::Text(text) = ws.read().unwrap() else {
+        let Some(v) = json_of(ws.read().unwrap()) else {
             continue;
         };
-        let v: serde_json::Value = serde_json::from_str(&text).unwrap();
         if v["op"] == "parameterValues" {
             assert_eq!(v["id"], "about", "{v}");
             break v["parameters"]
@@ -270,20 +284,13 @@ fn a_viewer_publishing_cmd_vel_drives_a_command_driven_policy() {
         "120",
         "--viewer-commands",
     ]);
-    let line = play.wait_for("live: ws://", Duration::from_secs(120));
-    let url = line.split_whitespace().nth(1).unwrap().to_owned();
-    let mut request = url.as_str().into_client_request().unwrap();
-    request
-        .headers_mut()
-        .insert("Sec-WebSocket-Protocol", "foxglove.sdk.v1".parse().unwrap());
-    let (mut ws, _) = tungstenite::connect(request).unwrap();
+    let mut ws = viewer(&mut play);
     let mut joint_state = None;
     let mut capabilities = Vec::new();
     while joint_state.is_none() {
-        let Message::Text(text) = ws.read().unwrap() else {
+        let Some(v) = json_of(ws.read().unwrap()) else {
             continue;
         };
-        let v: serde_json::Value = serde_json::from_str(&text).unwrap();
         if v["op"] == "serverInfo" {
             capabilities = v["capabilities"].as_array().cloned().unwrap_or_default();
         }

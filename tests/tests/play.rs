@@ -17,6 +17,7 @@ use sim2real::link::LockstepClock;
 use sim2real::mirror::Mirror;
 
 mod common;
+mod garbled_link;
 mod robstride_biped;
 
 #[global_allocator]
@@ -1069,48 +1070,9 @@ fn the_direct_mirror_plays_a_clip_as_the_wires_do_and_says_which_ran() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// A link whose readings turn impossible from read `from` on, with every checksum right: what a
-/// device with a broken encoder, a firmware bug or a foreign publisher would send.
-#[derive(Debug)]
-struct Garbled<L> {
-    inner: L,
-    reads: u32,
-    from: u32,
-    garble: Garble,
-}
-
-impl<L: robot_link::RobotLink> robot_link::RobotLink for Garbled<L> {
-    fn identify(&mut self) -> Result<(), robot_link::IoError> {
-        self.inner.identify()
-    }
-    fn read(&mut self, state: &mut robot_link::RobotState) -> Result<(), robot_link::IoError> {
-        self.inner.read(state)?;
-        self.reads += 1;
-        if self.reads >= self.from {
-            (self.garble)(state);
-        }
-        Ok(())
-    }
-    fn write(&mut self, targets: &[robot_link::JointTarget]) -> Result<(), robot_link::IoError> {
-        self.inner.write(targets)
-    }
-    fn wait_until(&mut self, clock: &mut dyn robot_link::TickClock, deadline: Duration) -> bool {
-        self.inner.wait_until(clock, deadline)
-    }
-    fn torque_off(&mut self) -> Result<(), robot_link::IoError> {
-        self.inner.torque_off()
-    }
-    fn set_stale_cycles(&mut self, cycles: u32) {
-        self.inner.set_stale_cycles(cycles);
-    }
-}
-
-/// What a [`Garbled`] link does to a reading.
-type Garble = fn(&mut robot_link::RobotState);
-
 #[test]
 fn physically_impossible_feedback_is_a_device_fault_on_the_tick_it_arrives() {
-    let cases: [(&str, Garble, &str); 6] = [
+    let cases: [(&str, garbled_link::Garble, &str); 6] = [
         ("a joint at 100 rad", |s| s.q[3] = 100.0, "implausible position"),
         ("a joint at 1e30 rad", |s| s.q[0] = 1e30, "implausible position"),
         ("a joint at 1e4 rad/s", |s| s.qd[5] = -1e4, "implausible speed"),
@@ -1134,7 +1096,7 @@ fn physically_impossible_feedback_is_a_device_fault_on_the_tick_it_arrives() {
         let world = Arc::new(Mutex::new(
             Mirror::new(robot.clone(), MirrorConfig::default()).unwrap(),
         ));
-        let io = Garbled {
+        let io = garbled_link::Garbled {
             inner: sim2real::link::lockstep_robot(&robot, &world).unwrap(),
             reads: 0,
             from: 150,
