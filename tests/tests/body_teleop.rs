@@ -28,6 +28,11 @@ fn phase_at(out: &str, what: &str) -> Option<f64> {
 /// address it listens on (and may wait for what the teleop prints); returns all it printed, from
 /// an unstarved attempt (up to three).
 fn session(seconds: &str, send: &dyn Fn(&str, &mut Running)) -> Option<String> {
+    session_wearing("full", seconds, send)
+}
+
+/// [`session`] of an operator wearing `body` (`teleop --body`).
+fn session_wearing(body: &str, seconds: &str, send: &dyn Fn(&str, &mut Running)) -> Option<String> {
     twist2_dir()?;
     let robot = workspace_root().join("robots/g1-twist2/robot.toml");
     for attempt in 1..=3 {
@@ -37,7 +42,7 @@ fn session(seconds: &str, send: &dyn Fn(&str, &mut Running)) -> Option<String> {
             "--robot".as_ref(),
             robot.as_os_str(),
             "--body".as_ref(),
-            "full".as_ref(),
+            body.as_ref(),
             "--listen".as_ref(),
             "127.0.0.1:0".as_ref(),
             "--max-seconds".as_ref(),
@@ -72,6 +77,11 @@ fn session(seconds: &str, send: &dyn Fn(&str, &mut Running)) -> Option<String> {
 
 /// `robodeploy vr send --body full` of CMU's traffic wave to `addr` at `rate` Hz for `seconds`.
 fn vr_send(addr: &str, rate: &str, seconds: &str) {
+    vr_send_wearing("full", addr, rate, seconds);
+}
+
+/// [`vr_send`] of what an operator wearing `body` sends (`vr send --body`).
+fn vr_send_wearing(body: &str, addr: &str, rate: &str, seconds: &str) {
     let bvh = workspace_root().join("data/mocap/cmu_13_26_direct-traffic-wave.bvh");
     let sender = Running::start(&[
         "vr".as_ref(),
@@ -81,7 +91,7 @@ fn vr_send(addr: &str, rate: &str, seconds: &str) {
         "--to".as_ref(),
         addr.as_ref(),
         "--body".as_ref(),
-        "full".as_ref(),
+        body.as_ref(),
         "--rate".as_ref(),
         rate.as_ref(),
         "--seconds".as_ref(),
@@ -132,6 +142,62 @@ fn a_whole_body_operator_drives_twist2_on_the_g1_and_losing_them_stands_it() {
         .unwrap_or_else(|| panic!("{out}"));
     let p99 = figure(latency, "p99").expect("a p99");
     assert!(p99 <= 25_000.0, "tracker → bus p99 {p99} µs: {out}");
+}
+
+/// An operator wearing five points (a headset, two controllers, a tracker on each foot: VMC
+/// devices and trackers at 90 Hz with 2 mm of noise): the rest of the body estimated, retargeted
+/// whole, tracked by TWIST2 with no fall; lost, the robot stands.
+#[test]
+fn a_five_point_operator_drives_twist2_and_losing_them_stands_it() {
+    let Some(out) = session_wearing("five-point", "13", &|addr, _| {
+        vr_send_wearing("five-point", addr, "90", "9");
+    }) else {
+        return;
+    };
+    assert!(out.contains("fell: no"), "{out}");
+    let tracking = phase_at(&out, "T-pose taken").expect("the T-pose calibrates the operator");
+    let lost = phase_at(&out, "stream lost").expect("the end of the stream is seen");
+    let standing = phase_at(&out, "standing: the operator can take over").expect("it stands");
+    assert!(tracking < lost && lost < standing, "{out}");
+    assert!(standing - lost <= 0.5, "{standing} - {lost} s:\n{out}");
+    assert!(lost - tracking > 6.0, "followed for the stream's length: {out}");
+    let bodies = out
+        .lines()
+        .find(|l| l.starts_with("key bodies from the operator"))
+        .unwrap_or_else(|| panic!("{out}"));
+    for (body, bound) in [
+        ("left_wrist_yaw_link", 20.0),
+        ("right_wrist_yaw_link", 20.0),
+        ("left_ankle_roll_link", 12.0),
+    ] {
+        let cm = figure(bodies, body).unwrap_or_else(|| panic!("{body} in {bodies}"));
+        assert!(cm <= bound, "{body} {cm} cm RMS from the operator: {bodies}");
+    }
+    assert!(
+        out.contains("dropped: 0 malformed, 0 oversized, 0 out of range"),
+        "{out}"
+    );
+}
+
+/// An operator expected to wear five points who sends only a headset and controllers is told
+/// which devices are missing, and nothing moves.
+#[test]
+fn a_five_point_operator_without_foot_trackers_is_told_which_are_missing() {
+    let Some(out) = session_wearing("five-point", "4", &|addr, _| {
+        vr_send_wearing("devices", addr, "90", "3");
+    }) else {
+        return;
+    };
+    assert!(
+        out.contains(
+            "waiting for the left foot tracker and the right foot tracker (the operator wears 5 devices"
+        ),
+        "{out}"
+    );
+    assert!(
+        phase_at(&out, "T-pose taken").is_none() && out.contains("fell: no"),
+        "{out}"
+    );
 }
 
 /// An independent sender (python-osc, one bundle of Unity humanoid bones per frame) squatting and

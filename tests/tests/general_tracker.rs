@@ -318,3 +318,53 @@ fn twist2_tracks_human_clips_retargeted_onto_its_g1() {
         finished.len()
     );
 }
+
+/// What a VR operator wearing five points (a headset, two controllers, a tracker on each foot)
+/// shows of the CMU performers, the rest of the body estimated (`retarget --wearing five-point`,
+/// as `teleop --body five-point` does live), tracked by TWIST2 to the end with no fall.
+#[test]
+fn twist2_tracks_what_five_points_see_of_a_performer() {
+    let (Some(_), Some(mocap)) = (twist2_dir(), test_support::fixtures::shared_mocap_dir()) else {
+        return;
+    };
+    let robot = workspace_root().join("robots/g1-twist2/robot.toml");
+    let traffic = mocap.join("cmu_13_26_direct-traffic-wave.bvh");
+    let cases: [(&str, &[&str]); 2] = [
+        ("cmu_13_26_direct-traffic-wave.bvh", &["--start-frame", "1"]),
+        (
+            "cmu_13_29_squats_excerpt_f3792-4592.bvh",
+            &["--nominal-from", traffic.to_str().unwrap()],
+        ),
+    ];
+    for (file, flags) in cases {
+        let clip = std::env::temp_dir().join(format!("twist2-five-{}-{file}.csv", std::process::id()));
+        let bvh = mocap.join(file);
+        let mut args: Vec<&std::ffi::OsStr> = vec![
+            "retarget".as_ref(),
+            "--robot".as_ref(),
+            robot.as_os_str(),
+            "--bvh".as_ref(),
+            bvh.as_os_str(),
+            "--wearing".as_ref(),
+            "five-point".as_ref(),
+            "--out".as_ref(),
+            clip.as_os_str(),
+        ];
+        args.extend(flags.iter().map(std::ffi::OsStr::new));
+        let (ok, out, err) = run(&args);
+        assert!(ok, "{file}: {out}\n{err}");
+        let (ok, out, err) = run(&[
+            "play".as_ref(),
+            "--robot".as_ref(),
+            robot.as_os_str(),
+            "--clip".as_ref(),
+            clip.as_os_str(),
+            "--no-record".as_ref(),
+        ]);
+        std::fs::remove_file(&clip).unwrap();
+        assert!(
+            ok && out.contains("reference played: 100 %") && out.contains("fell: no"),
+            "{file}: {out}\n{err}"
+        );
+    }
+}

@@ -296,6 +296,11 @@ pub enum BodyArg {
     /// A headset and two controllers (VMC `/VMC/Ext/Hmd/Pos`, `/VMC/Ext/Con/Pos`): the head and
     /// arms follow by inverse kinematics, the legs stand.
     Devices,
+    /// A headset, two controllers and a tracker on each foot (VMC `/VMC/Ext/Tra/Pos`; serials
+    /// containing "left"/"right", or `--left-foot-serial`/`--right-foot-serial`): the feet where
+    /// the trackers put them (their place on the foot measured in the T-pose), the pelvis under the
+    /// head within the legs' reach, the arms by two-bone IK; retargeted whole like `full`.
+    FivePoint,
     /// The whole body (VMC `/VMC/Ext/Root/Pos` and `/VMC/Ext/Bone/Pos`, Unity's humanoid bone
     /// names: a motion-capture suit, full-body tracking): retargeted whole onto the robot, every
     /// joint and the root, for a general tracker.
@@ -306,6 +311,7 @@ impl From<BodyArg> for human::vr_send::BodySet {
     fn from(a: BodyArg) -> Self {
         match a {
             BodyArg::Devices => Self::Devices,
+            BodyArg::FivePoint => Self::DevicesAndFeet,
             BodyArg::Full => Self::Skeleton,
         }
     }

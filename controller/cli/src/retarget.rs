@@ -51,6 +51,13 @@ pub struct RetargetArgs {
     /// ask the motors for accelerations they do not have.
     #[arg(long, default_value_t = 0.08, value_parser = crate::args::within(0.0, 1.0))]
     smoothing: f64,
+    /// What of the performer is retargeted: `whole-body` (every joint of the recording) or
+    /// `five-point` (only where a headset, two controllers and two foot trackers would be on the
+    /// performer, the rest of the body estimated as `teleop --body five-point` does live): a
+    /// preview of what a VR operator wearing them makes the robot do. Five points calibrate on a
+    /// T-pose (`--nominal tpose`, the nominal frame).
+    #[arg(long, value_enum, default_value_t = WearingArg::WholeBody)]
+    wearing: WearingArg,
     /// Also write the retargeting report as JSON here: the key bodies' distance from the scaled
     /// human, the feet's sliding while the human's stand planted, soles into the floor, time per
     /// frame, and the clip's check (`check --clip`'s figures).
@@ -81,6 +88,10 @@ pub fn run(args: &RetargetArgs) -> Result<()> {
         nominal: args.nominal.into(),
         iterations: args.iterations as usize,
         smoothing_s: args.smoothing,
+        wearing: match args.wearing {
+            WearingArg::WholeBody => human::sparse::Wearing::WholeBody,
+            WearingArg::FivePoint => human::sparse::Wearing::FivePoint,
+        },
     };
     let bar = indicatif::ProgressBar::new_spinner().with_message("retargeting");
     let started = std::time::Instant::now();
@@ -177,4 +188,11 @@ pub fn run(args: &RetargetArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// `--wearing`'s values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum WearingArg {
+    WholeBody,
+    FivePoint,
 }

@@ -41,14 +41,25 @@ pub struct TeleopArgs {
     /// Serial of the right controller (default: any serial containing "right").
     #[arg(long)]
     right_serial: Option<String>,
+    /// Serial of the left foot tracker, with `--body five-point` (default: any tracker serial
+    /// containing "left").
+    #[arg(long)]
+    left_foot_serial: Option<String>,
+    /// Serial of the right foot tracker (default: any tracker serial containing "right").
+    #[arg(long)]
+    right_foot_serial: Option<String>,
     /// Only the headset: the arms stay in the standby pose.
     #[arg(long, conflicts_with = "body")]
     headset_only: bool,
-    /// What the operator wears. `devices`: the head and hands drive the arms and head, the legs
-    /// stand (a reference follower). `full`: the whole skeleton's bones are retargeted onto the
-    /// robot frame by frame (robot.toml's [retarget] map, as `retarget` does offline), root and
-    /// every joint, for a general tracker such as TWIST2; the T-pose calibrates the map on the
-    /// operator, and bodies the map pairs but the sender does not send are named.
+    /// What the operator wears. `devices`: a headset and two controllers; the head and hands
+    /// drive the arms and head, the legs stand (a reference follower). `five-point`: those and a
+    /// tracker on each foot; the feet where the trackers are, the rest of the body estimated
+    /// (pelvis under the head within the legs' reach, arms by two-bone IK) and retargeted whole,
+    /// for a general tracker. `full`: the whole skeleton's bones (a motion-capture suit) are
+    /// retargeted onto the robot frame by frame (robot.toml's [retarget] map, as `retarget` does
+    /// offline), root and every joint, for a general tracker such as TWIST2. For `five-point`
+    /// and `full` the T-pose calibrates the map on the operator, and devices or bodies not sent
+    /// are named.
     #[arg(long, value_enum, default_value_t = crate::args::BodyArg::Devices)]
     body: crate::args::BodyArg,
     /// Seconds the user holds the T-pose at the start.
@@ -186,6 +197,8 @@ pub fn teleop(args: &TeleopArgs) -> Result<std::process::ExitCode> {
         Serials {
             left: args.left_serial.clone(),
             right: args.right_serial.clone(),
+            left_foot: args.left_foot_serial.clone(),
+            right_foot: args.right_foot_serial.clone(),
         },
     )
     .with_context(|| format!("cannot listen for VMC on {}", args.listen))?;
@@ -202,10 +215,17 @@ pub fn teleop(args: &TeleopArgs) -> Result<std::process::ExitCode> {
     };
     let mut teleop = match args.body {
         crate::args::BodyArg::Devices => Teleop::start(&robot, &receiver, options)?,
-        crate::args::BodyArg::Full => human::body_teleop::start(&robot, &receiver, options)?,
+        body => {
+            use human::body_teleop::Wearing;
+            let wearing = match body {
+                crate::args::BodyArg::FivePoint => Wearing::FivePoint,
+                _ => Wearing::WholeBody,
+            };
+            human::body_teleop::start(&robot, &receiver, options, wearing)?
+        }
     };
     let mut reference = Reference::hold(&teleop.standby, teleop.root, rate);
-    if args.body == crate::args::BodyArg::Full {
+    if args.body != crate::args::BodyArg::Devices {
         // The operator's key bodies, measured against the robot's.
         reference.live_bodies = human::retarget::key_bodies(&robot);
     }

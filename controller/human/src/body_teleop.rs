@@ -12,11 +12,14 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, Instant};
 
 use crate::HumanError;
+use crate::body_map::{HumanPose, Template, UserCalibration};
 use crate::ik::Ik;
 use crate::live::{LiveFrame, LiveWriter, TRACKER_VALUES, live_channel};
 use crate::retarget::{Nominal, RetargetOptions, Retargeter, RetargeterOptions};
+pub use crate::sparse::Wearing;
+use crate::sparse::{Devices, SparseBody};
 use crate::teleop::{Phase, PhaseChange, Teleop, TeleopOptions, TeleopStatus, WorkerThread, change};
-use crate::vmc::{Tracks, VmcReceiver};
+use crate::vmc::{Device, Estimate, Tracks, VmcReceiver};
 use robots::{Robot, spatial};
 
 /// The window over which the reference's velocities are taken, s: a tracker's millimetres of
@@ -26,6 +29,9 @@ pub const VELOCITY_WINDOW_S: f64 = 0.1;
 struct Worker {
     robot: Robot,
     options: TeleopOptions,
+    wearing: Wearing,
+    /// The five-point operator's whole body, once calibrated.
+    sparse: Option<SparseBody>,
     retargeter: Option<Retargeter>,
     standby: Vec<f64>,
     standing_height: f64,
@@ -37,12 +43,19 @@ struct Worker {
     history: VecDeque<(Instant, [f64; 7], Vec<f64>)>,
     frame: LiveFrame,
     lost: Option<(Instant, LiveFrame)>,
+    /// The worn devices last said to be missing while waiting for the T-pose.
+    missing_said: Option<Vec<&'static str>>,
 }
 
 /// Starts whole-body teleoperation of `robot` (its `[retarget]` map pairs the human bodies) on
-/// `receiver`'s skeleton: the same handle as head-and-hands teleoperation, the live reference
-/// carrying the whole robot.
-pub fn start(robot: &Robot, receiver: &VmcReceiver, options: TeleopOptions) -> Result<Teleop, HumanError> {
+/// what `receiver` hears of an operator `wearing` a skeleton or five devices: the same handle as
+/// head-and-hands teleoperation, the live reference carrying the whole robot.
+pub fn start(
+    robot: &Robot,
+    receiver: &VmcReceiver,
+    options: TeleopOptions,
+    wearing: Wearing,
+) -> Result<Teleop, HumanError> {
     if robot.config.retarget.is_none() {
         return Err(HumanError::map(format!(
             "{}: no [retarget] section: which robot body stands for which human one?",
@@ -60,7 +73,12 @@ pub fn start(robot: &Robot, receiver: &VmcReceiver, options: TeleopOptions) -> R
         changes: vec![PhaseChange {
             at: Duration::ZERO,
             phase: Phase::WaitingForTpose,
-            why: "waiting for the operator's T-pose (whole body)".into(),
+            why: match wearing {
+                Wearing::WholeBody => "waiting for the operator's T-pose (whole body)".into(),
+                Wearing::FivePoint => {
+                    "waiting for the operator's T-pose (headset, two controllers, two foot trackers; the rest of the body estimated)".into()
+                }
+            },
         }],
         user: None,
         map: None,
@@ -71,6 +89,8 @@ pub fn start(robot: &Robot, receiver: &VmcReceiver, options: TeleopOptions) -> R
     let worker = Worker {
         robot: robot.clone(),
         options,
+        wearing,
+        sparse: None,
         retargeter: None,
         standing_height: root[2],
         standby: standby.clone(),
@@ -80,6 +100,7 @@ pub fn start(robot: &Robot, receiver: &VmcReceiver, options: TeleopOptions) -> R
         history: VecDeque::new(),
         frame: still,
         lost: None,
+        missing_said: None,
     };
     let (mut out, st) = (writer, Arc::clone(&status));
     let mut worker = worker;
@@ -104,9 +125,33 @@ impl Worker {
         out: &mut LiveWriter,
         status: &Mutex<TeleopStatus>,
     ) {
-        let arrived = tracks
-            .skeleton_at
-            .filter(|t| now.saturating_duration_since(*t).as_secs_f64() <= self.options.resampler.lost_after);
+        let lost_after = self.options.resampler.lost_after;
+        let fresh = |t: &Instant| now.saturating_duration_since(*t).as_secs_f64() <= lost_after;
+        // The devices worn now (resampled, forecast when late); the others are not looked at.
+        let worn = self.wearing.devices();
+        let devices: Devices = Device::ALL.map(|d| {
+            if d as usize >= worn {
+                return None;
+            }
+            match self.options.resampler.at(&tracks.devices[d as usize], now) {
+                Estimate::Live(f) | Estimate::Forecast(f) => Some(f),
+                Estimate::Missing => None,
+            }
+        });
+        let arrived = match self.wearing {
+            Wearing::WholeBody => tracks.skeleton_at.filter(fresh),
+            Wearing::FivePoint => devices[..worn]
+                .iter()
+                .all(Option::is_some)
+                .then(|| {
+                    Device::ALL[..worn]
+                        .iter()
+                        .filter_map(|&d| tracks.devices[d as usize].newest().map(|(t, _)| t))
+                        .max()
+                })
+                .flatten()
+                .filter(fresh),
+        };
         let phase = status.lock().unwrap_or_else(PoisonError::into_inner).phase;
         let mut source = None;
         match (phase, arrived) {
@@ -116,16 +161,18 @@ impl Worker {
                     self.tpose_inputs.push(input);
                 }
                 if (now - since).as_secs_f64() >= self.options.tpose_s {
-                    let pose = tracks.skeleton.human_pose();
                     let options = RetargeterOptions {
                         nominal: Nominal::Tpose,
                         iterations: RetargetOptions::default().iterations,
                     };
-                    let taken = check_operator(&pose, &self.tpose_inputs)
-                        .and_then(|()| Retargeter::new(&self.robot, &pose, options));
+                    let stream = self.stream();
+                    let taken = self.tpose_pose(tracks, &devices).and_then(|pose| {
+                        check_operator(&pose, &self.tpose_inputs, stream)?;
+                        Retargeter::new(&self.robot, &pose, options).map(|r| (r, pose))
+                    });
                     self.tpose_inputs.clear();
                     match taken {
-                        Ok(r) => {
+                        Ok((r, pose)) => {
                             let why = format!(
                                 "T-pose taken: the operator's root {:.2} m high, scale {:.3} onto {}",
                                 pose.get(robots::HumanBody::Root).map_or(0.0, |r| r.pos[2]),
@@ -136,6 +183,7 @@ impl Worker {
                             change(status, at, Phase::Tracking, why);
                         }
                         Err(e) => {
+                            self.sparse = None;
                             tracing::warn!("T-pose: {e}");
                             change(status, at, Phase::WaitingForTpose, format!("T-pose refused: {e}"));
                             self.tpose_since = None;
@@ -146,6 +194,28 @@ impl Worker {
             (Phase::WaitingForTpose, None) => {
                 self.tpose_since = None;
                 self.tpose_inputs.clear();
+                // Some of the devices come and some do not: say which, once.
+                let worn = &Device::ALL[..self.wearing.devices()];
+                if worn.iter().any(|&d| devices[d as usize].is_some()) {
+                    let missing: Vec<&'static str> = worn
+                        .iter()
+                        .filter(|&&d| devices[d as usize].is_none())
+                        .map(|&d| d.name())
+                        .collect();
+                    if self.missing_said.as_ref() != Some(&missing) {
+                        change(
+                            status,
+                            at,
+                            Phase::WaitingForTpose,
+                            format!(
+                                "waiting for {} (the operator wears {} devices; a tracker is a foot by its serial)",
+                                missing.join(" and "),
+                                worn.len()
+                            ),
+                        );
+                        self.missing_said = Some(missing);
+                    }
+                }
             }
             (Phase::Tracking | Phase::Lost | Phase::Standby, Some(input)) => {
                 if phase != Phase::Tracking {
@@ -153,13 +223,25 @@ impl Worker {
                         status,
                         at,
                         Phase::Tracking,
-                        "skeleton stream back: tracking again".into(),
+                        format!("{} stream back: tracking again", self.stream()),
                     );
                 }
                 self.lost = None;
                 if self.stepped != Some(input) {
-                    self.step(tracks, input);
-                    source = Some(input);
+                    let dt = self
+                        .stepped
+                        .map_or(1.0 / self.options.rate_hz, |s| {
+                            input.saturating_duration_since(s).as_secs_f64()
+                        })
+                        .clamp(1e-3, 0.1);
+                    let pose = match self.wearing {
+                        Wearing::WholeBody => Some(tracks.skeleton.human_pose()),
+                        Wearing::FivePoint => self.sparse.as_mut().and_then(|b| b.pose(&devices, dt)),
+                    };
+                    if let Some(pose) = pose {
+                        self.step(&pose, dt, input);
+                        source = Some(input);
+                    }
                 }
             }
             (Phase::Tracking | Phase::Lost, None) => {
@@ -169,8 +251,10 @@ impl Worker {
                         at,
                         Phase::Lost,
                         format!(
-                            "skeleton stream lost (nothing for {:.2} s): blending to standing over {:.2} s",
-                            self.options.resampler.lost_after, self.options.blend_s
+                            "{} stream lost (nothing for {:.2} s): blending to standing over {:.2} s",
+                            self.stream(),
+                            self.options.resampler.lost_after,
+                            self.options.blend_s
                         ),
                     );
                 }
@@ -199,18 +283,53 @@ impl Worker {
         status.lock().unwrap_or_else(PoisonError::into_inner).updates += 1;
     }
 
-    /// Retargets the newest skeleton; velocities over the last [`VELOCITY_WINDOW_S`] of output.
-    fn step(&mut self, tracks: &Tracks, input: Instant) {
+    /// What the operator's stream carries, for messages.
+    fn stream(&self) -> &'static str {
+        match self.wearing {
+            Wearing::WholeBody => "skeleton",
+            Wearing::FivePoint => "tracker",
+        }
+    }
+
+    /// The operator's body in the T-pose: the skeleton, or the devices' estimate of it (which
+    /// calibrates the five-point body).
+    fn tpose_pose(&mut self, tracks: &Tracks, devices: &Devices) -> Result<HumanPose, HumanError> {
+        match self.wearing {
+            Wearing::WholeBody => Ok(tracks.skeleton.human_pose()),
+            Wearing::FivePoint => {
+                let missing: Vec<&str> = Device::ALL[..self.wearing.devices()]
+                    .iter()
+                    .filter(|&&d| devices[d as usize].is_none())
+                    .map(|&d| d.name())
+                    .collect();
+                if !missing.is_empty() {
+                    return Err(HumanError::Calibration(format!(
+                        "not seen in the T-pose: {} (the operator wears {} devices)",
+                        missing.join(", "),
+                        self.wearing.devices()
+                    )));
+                }
+                let [Some(hmd), Some(left), Some(right), ..] = devices else {
+                    unreachable!("the worn devices were all seen")
+                };
+                let user = UserCalibration::from_tpose(hmd, left, right, &Template::default())?;
+                let mut body = SparseBody::new(user, devices)
+                    .ok_or_else(|| HumanError::Calibration("no headset in the T-pose".into()))?;
+                let pose = body
+                    .pose(devices, 1.0 / self.options.rate_hz)
+                    .ok_or_else(|| HumanError::Calibration("no headset in the T-pose".into()))?;
+                self.sparse = Some(body);
+                Ok(pose)
+            }
+        }
+    }
+
+    /// Retargets the operator's body now; velocities over the last [`VELOCITY_WINDOW_S`] of output.
+    fn step(&mut self, pose: &HumanPose, dt: f64, input: Instant) {
         let Some(r) = self.retargeter.as_mut() else {
             return;
         };
-        let dt = self
-            .stepped
-            .map_or(1.0 / self.options.rate_hz, |s| {
-                input.saturating_duration_since(s).as_secs_f64()
-            })
-            .clamp(1e-3, 0.1);
-        r.step(&tracks.skeleton.human_pose(), dt);
+        r.step(pose, dt);
         self.stepped = Some(input);
         let (root, q) = (r.root(), r.joints());
         while self
@@ -290,7 +409,7 @@ pub const HIP_HEIGHTS_M: [f64; 2] = [0.55, 1.3];
 /// Refuses, by name, an operator the map cannot be calibrated on: hips out of a standing adult's
 /// range, or a stream at a rate out of [`STREAM_RATES_HZ`] (from the skeletons' arrivals while the
 /// T-pose was held).
-fn check_operator(pose: &crate::body_map::HumanPose, arrivals: &[Instant]) -> Result<(), HumanError> {
+fn check_operator(pose: &HumanPose, arrivals: &[Instant], stream: &str) -> Result<(), HumanError> {
     if let (Some(first), Some(last)) = (arrivals.first(), arrivals.last())
         && arrivals.len() >= 2
     {
@@ -298,14 +417,14 @@ fn check_operator(pose: &crate::body_map::HumanPose, arrivals: &[Instant]) -> Re
         let rate = (arrivals.len() - 1) as f64 / span.max(1e-9);
         if !(STREAM_RATES_HZ[0]..=STREAM_RATES_HZ[1]).contains(&rate) {
             return Err(HumanError::map(format!(
-                "the skeleton stream arrives at {rate:.1} Hz; whole-body teleoperation takes {:.0}–{:.0} Hz",
+                "the {stream} stream arrives at {rate:.1} Hz; whole-body teleoperation takes {:.0}–{:.0} Hz",
                 STREAM_RATES_HZ[0], STREAM_RATES_HZ[1]
             )));
         }
     } else {
-        return Err(HumanError::map(
-            "one skeleton in the whole T-pose: the stream is too slow to follow",
-        ));
+        return Err(HumanError::map(format!(
+            "one {stream} sample in the whole T-pose: the stream is too slow to follow"
+        )));
     }
     let hips = pose.get(robots::HumanBody::Root).map_or(f64::NAN, |r| r.pos[2]);
     if !(HIP_HEIGHTS_M[0]..=HIP_HEIGHTS_M[1]).contains(&hips) {

@@ -12,6 +12,7 @@ pub mod live;
 pub mod osc;
 pub mod retarget;
 pub mod skeleton;
+pub mod sparse;
 pub mod teleop;
 pub mod vmc;
 pub mod vr_send;

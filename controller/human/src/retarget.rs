@@ -99,6 +99,10 @@ pub struct RetargetOptions {
     pub iterations: usize,
     /// Gaussian smoothing of the human motion before retargeting, σ in seconds (0: none).
     pub smoothing_s: f64,
+    /// What of the performer is used: the whole skeleton, or only where a headset, two
+    /// controllers and two foot trackers would be (the rest estimated as live five-point
+    /// teleoperation does).
+    pub wearing: crate::sparse::Wearing,
 }
 
 impl Default for RetargetOptions {
@@ -110,6 +114,7 @@ impl Default for RetargetOptions {
             nominal: Nominal::Tpose,
             iterations: 12,
             smoothing_s: 0.08,
+            wearing: crate::sparse::Wearing::WholeBody,
         }
     }
 }
@@ -285,6 +290,18 @@ fn heading_of(pose: &HumanPose) -> Option<f64> {
 }
 
 impl Retargeter {
+    /// Follows only the positions of `bodies`, not their orientations: a source that estimates
+    /// them (a limb's roll about its own axis, which five points do not see) would
+    /// otherwise turn the robot's limb where the person's did not.
+    pub fn positions_only(&mut self, bodies: &[HumanBody]) {
+        for p in self.pairs.iter_mut().filter(|p| bodies.contains(&p.human)) {
+            p.orientation_weight = 0.0;
+            if let Some(w) = &mut p.posture {
+                w.orientation_weight = 0.0;
+            }
+        }
+    }
+
     /// Calibrates the map on `nominal`, the human in the pose that matches the robot's
     /// `options.nominal` pose (a T-pose, or standing), feet on the floor. Every body the
     /// robot's `[retarget]` pairs must be seen.
@@ -822,7 +839,17 @@ pub fn retarget_calibrated(
     }
     needed.extend([HumanBody::LeftHip, HumanBody::RightHip]);
     let bodies = BvhBodies::new(bvh, &needed)?;
-    let nominal = bodies.pose(&calibration.pose(options.nominal_frame));
+    let duration = (bvh.frames() - 1 - options.start_frame) as f64 * bvh.frame_time;
+    let ticks = (duration * options.rate_hz).floor() as usize + 1;
+    let (nominal, mut poses) = match options.wearing {
+        crate::sparse::Wearing::WholeBody => {
+            let poses: Vec<HumanPose> = (0..ticks)
+                .map(|k| bodies.pose(&bvh.pose_at(options.start_frame, k as f64 / options.rate_hz)))
+                .collect();
+            (bodies.pose(&calibration.pose(options.nominal_frame)), poses)
+        }
+        worn => sparse_poses(bvh, calibration, options, worn.devices(), ticks)?,
+    };
     let mut retargeter = Retargeter::new(
         robot,
         &nominal,
@@ -831,14 +858,12 @@ pub fn retarget_calibrated(
             iterations: options.iterations,
         },
     )?;
-    if !std::ptr::eq(calibration, bvh) {
-        retargeter.align_to(&bodies.pose(&bvh.pose(options.start_frame)));
+    if options.wearing != crate::sparse::Wearing::WholeBody {
+        retargeter.positions_only(&crate::sparse::GUESSED_ORIENTATIONS);
     }
-    let duration = (bvh.frames() - 1 - options.start_frame) as f64 * bvh.frame_time;
-    let ticks = (duration * options.rate_hz).floor() as usize + 1;
-    let mut poses: Vec<HumanPose> = (0..ticks)
-        .map(|k| bodies.pose(&bvh.pose_at(options.start_frame, k as f64 / options.rate_hz)))
-        .collect();
+    if !std::ptr::eq(calibration, bvh) {
+        retargeter.align_to(&poses[0]);
+    }
     smooth_poses(&mut poses, options.smoothing_s * options.rate_hz);
     // Feet: their floor is the foot's lowest 5 % over the clip, not the nominal frame's, which
     // may be mid-stride.
@@ -895,6 +920,49 @@ pub fn retarget_calibrated(
     }
     out.report = measure(&mut retargeter, &out, key_bodies, &mut times);
     Ok(out)
+}
+
+/// The bodies a five-point operator's estimate gives for `bvh`: the first `worn` of a
+/// headset, two controllers and two foot trackers where a VR rig would put them on the performer
+/// ([`crate::vr_send::Rig`], measured on the calibrating recording's nominal frame, a T-pose), the
+/// rest of the body from them ([`crate::sparse::SparseBody`], calibrated there). Returns the
+/// nominal pose and one per tick.
+fn sparse_poses(
+    bvh: &Bvh,
+    calibration: &Bvh,
+    options: &RetargetOptions,
+    worn: usize,
+    ticks: usize,
+) -> Result<(HumanPose, Vec<HumanPose>), HumanError> {
+    let rig = crate::vr_send::Rig::new(calibration)?;
+    let wear = |devices: [Frame; 5]| {
+        let mut k = 0;
+        devices.map(|d| {
+            k += 1;
+            (k <= worn).then_some(d)
+        })
+    };
+    let tpose = wear(rig.devices(calibration, options.nominal_frame));
+    let [Some(hmd), Some(left), Some(right), ..] = &tpose else {
+        unreachable!("every device is placed")
+    };
+    let user = crate::body_map::UserCalibration::from_tpose(
+        hmd,
+        left,
+        right,
+        &crate::body_map::Template::default(),
+    )?;
+    let dt = 1.0 / options.rate_hz;
+    let missing = || HumanError::map("no headset to estimate the body from");
+    let mut body = crate::sparse::SparseBody::new(user, &tpose).ok_or_else(missing)?;
+    let nominal = body.clone().pose(&tpose, dt).ok_or_else(missing)?;
+    let poses = (0..ticks)
+        .map(|k| {
+            let devices = wear(rig.devices_in(&bvh.pose_at(options.start_frame, k as f64 * dt)));
+            body.pose(&devices, dt).ok_or_else(missing)
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok((nominal, poses))
 }
 
 /// The report of a retargeted motion, measured on its frames.

@@ -357,12 +357,13 @@ impl Worker {
         status: &Mutex<TeleopStatus>,
     ) {
         let at = now - start;
-        let estimates = Device::ALL.map(|d| self.options.resampler.at(&tracks.devices[d as usize], now));
+        let estimates =
+            Device::HEAD_AND_HANDS.map(|d| self.options.resampler.at(&tracks.devices[d as usize], now));
         let frames = estimates.map(|e| match e {
             Estimate::Live(f) | Estimate::Forecast(f) => Some(f),
             Estimate::Missing => None,
         });
-        let newest = Device::ALL
+        let newest = Device::HEAD_AND_HANDS
             .iter()
             .filter_map(|&d| tracks.devices[d as usize].newest().map(|(t, _)| t))
             .max();

@@ -1,5 +1,5 @@
-//! VMC (Virtual Motion Capture protocol, OSC over UDP) tracker input: the headset and the two
-//! controllers, and a whole body's bones and root where the sender sends them, converted from the sender's Unity axes (left handed, Y up, Z forward) to the
+//! VMC (Virtual Motion Capture protocol, OSC over UDP) tracker input: the headset, the two
+//! controllers and two foot trackers, and a whole body's bones and root where the sender sends them, converted from the sender's Unity axes (left handed, Y up, Z forward) to the
 //! robot's (right handed, Z up, X forward), kept per device with their arrival times. The receiver
 //! binds to 127.0.0.1 unless told otherwise, ignores addresses it does not use (as VMC asks), and
 //! drops and counts malformed, oversized and out-of-range packets without touching its state.
@@ -21,7 +21,7 @@ pub const VMC_PORT: u16 = 39539;
 /// Largest datagram accepted, bytes (a VMC bundle of a whole skeleton's bones is about 1.5 kB).
 pub const MAX_PACKET: usize = 8192;
 
-/// The three tracked devices.
+/// The tracked devices: what a VR operator wears.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Device {
     /// Head-mounted display.
@@ -30,11 +30,34 @@ pub enum Device {
     Left = 1,
     /// Right hand controller.
     Right = 2,
+    /// A tracker on the left foot (VMC `/VMC/Ext/Tra/Pos`).
+    LeftFoot = 3,
+    /// A tracker on the right foot.
+    RightFoot = 4,
 }
 
 impl Device {
-    /// All three, in index order.
-    pub const ALL: [Device; 3] = [Device::Headset, Device::Left, Device::Right];
+    /// The headset and the controllers, in index order.
+    pub const HEAD_AND_HANDS: [Device; 3] = [Device::Headset, Device::Left, Device::Right];
+    /// The device's name for messages.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Headset => "the headset",
+            Self::Left => "the left controller",
+            Self::Right => "the right controller",
+            Self::LeftFoot => "the left foot tracker",
+            Self::RightFoot => "the right foot tracker",
+        }
+    }
+
+    /// Every device, in index order.
+    pub const ALL: [Device; 5] = [
+        Device::Headset,
+        Device::Left,
+        Device::Right,
+        Device::LeftFoot,
+        Device::RightFoot,
+    ];
 }
 
 /// A Unity position (left handed, Y up, Z forward, X right) in robot axes (X forward, Y left, Z up).
@@ -60,28 +83,46 @@ pub fn robot_to_unity_quat(q: [f64; 4]) -> [f64; 4] {
     [y, -z, -x, w]
 }
 
-/// Which controller serial is which hand.
+/// Which controller serial is which hand, and which tracker serial which foot.
 #[derive(Debug, Clone, PartialEq, Eq, Default)]
 pub struct Serials {
     /// The left controller's serial (default: any serial containing "left").
     pub left: Option<String>,
     /// The right controller's serial (default: any serial containing "right").
     pub right: Option<String>,
+    /// The left foot tracker's serial (default: any tracker serial containing "left").
+    pub left_foot: Option<String>,
+    /// The right foot tracker's serial (default: any tracker serial containing "right").
+    pub right_foot: Option<String>,
 }
 
 impl Serials {
-    fn hand(&self, serial: &str) -> Option<Device> {
+    /// The device a serial names: `sides` are the left and right ones of its kind (controllers
+    /// or trackers), with their serials where given.
+    fn side(serial: &str, wanted: [&Option<String>; 2], sides: [Device; 2]) -> Option<Device> {
         let is = |want: &Option<String>, word: &str| match want {
             Some(s) => s == serial,
             None => serial.to_ascii_lowercase().contains(word),
         };
-        if is(&self.left, "left") {
-            Some(Device::Left)
-        } else if is(&self.right, "right") {
-            Some(Device::Right)
+        if is(wanted[0], "left") {
+            Some(sides[0])
+        } else if is(wanted[1], "right") {
+            Some(sides[1])
         } else {
             None
         }
+    }
+
+    fn hand(&self, serial: &str) -> Option<Device> {
+        Self::side(serial, [&self.left, &self.right], [Device::Left, Device::Right])
+    }
+
+    fn foot(&self, serial: &str) -> Option<Device> {
+        Self::side(
+            serial,
+            [&self.left_foot, &self.right_foot],
+            [Device::LeftFoot, Device::RightFoot],
+        )
     }
 }
 
@@ -158,7 +199,7 @@ impl Track {
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Tracks {
     /// Per device (see [`Device`]).
-    pub devices: [Track; 3],
+    pub devices: [Track; 5],
     /// The whole body, where the sender sends bones (each bone's newest pose).
     pub skeleton: Skeleton,
     /// Arrival of the newest bone or root pose.
@@ -185,6 +226,7 @@ pub fn decode(
         let (kind, most) = match m.address {
             "/VMC/Ext/Hmd/Pos" => (Kind::Headset, 7),
             "/VMC/Ext/Con/Pos" => (Kind::Controller, 7),
+            "/VMC/Ext/Tra/Pos" => (Kind::Tracker, 7),
             "/VMC/Ext/Bone/Pos" => (Kind::Bone, 7),
             "/VMC/Ext/Root/Pos" => (Kind::Root, 13),
             _ => {
@@ -216,6 +258,7 @@ pub fn decode(
         let target = match kind {
             Kind::Headset => Some(Target::Device(Device::Headset)),
             Kind::Controller => serials.hand(name).map(Target::Device),
+            Kind::Tracker => serials.foot(name).map(Target::Device),
             Kind::Bone => skeleton::bone_index(name).map(Target::Bone),
             Kind::Root => Some(Target::Root),
         };
@@ -278,6 +321,7 @@ pub fn decode(
 enum Kind {
     Headset,
     Controller,
+    Tracker,
     Bone,
     Root,
 }
@@ -476,9 +520,16 @@ mod tests {
             "LeftHand",
             [-0.3, 1.0, 0.2, 0.0, 0.0, 0.0, 1.0],
         );
+        let foot = vmc(
+            "/VMC/Ext/Tra/Pos",
+            "RightFoot",
+            [0.1, 0.08, 0.0, 0.0, 0.0, 0.0, 1.0],
+        );
         let mut bundle = Vec::new();
-        osc::encode_bundle(&mut bundle, &[&hmd, &left]);
-        assert_eq!(decode(&bundle, &serials, now, &mut t, &c), 2);
+        osc::encode_bundle(&mut bundle, &[&hmd, &left, &foot]);
+        assert_eq!(decode(&bundle, &serials, now, &mut t, &c), 3);
+        assert!((t.devices[Device::RightFoot as usize].newest().unwrap().1.pos[1] + 0.1).abs() < 1e-6);
+        assert!(t.devices[Device::LeftFoot as usize].newest().is_none());
         assert_eq!(
             t.devices[0].newest().unwrap().1.pos,
             [0.0, 0.0, 1.600000023841858]
@@ -519,10 +570,23 @@ mod tests {
         assert_eq!(decode(&bone, &serials, now, &mut t, &c), 0);
         assert_eq!(decode(&other, &serials, now, &mut t, &c), 0);
         let named = Serials {
-            left: None,
             right: Some("LHR-1234".into()),
+            ..Serials::default()
         };
         assert_eq!(decode(&other, &named, now, &mut t, &c), 1);
+        // A tracker is a foot only by its own serials: the controller's does not name it.
+        let tracker = vmc(
+            "/VMC/Ext/Tra/Pos",
+            "LHR-1234",
+            [0.0, 0.1, 0.0, 0.0, 0.0, 0.0, 1.0],
+        );
+        assert_eq!(decode(&tracker, &named, now, &mut t, &c), 0);
+        let feet = Serials {
+            left_foot: Some("LHR-1234".into()),
+            ..Serials::default()
+        };
+        assert_eq!(decode(&tracker, &feet, now, &mut t, &c), 1);
+        assert!(t.devices[Device::LeftFoot as usize].newest().is_some());
         // A humanoid bone lands in the skeleton, in robot axes, with its arrival.
         assert_eq!(t.skeleton_at, None);
         let hips = vmc("/VMC/Ext/Bone/Pos", "Hips", [0.1, 0.9, 0.2, 0.0, 0.0, 0.0, 1.0]);
@@ -534,7 +598,7 @@ mod tests {
         );
         assert_eq!(t.skeleton_at, Some(now));
         let [packets, poses, malformed, _, range, ignored] = c.snapshot();
-        assert_eq!((packets, poses, malformed, range, ignored), (12, 4, 3, 3, 3));
+        assert_eq!((packets, poses, malformed, range, ignored), (14, 6, 3, 3, 4));
     }
 
     #[test]

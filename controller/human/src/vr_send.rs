@@ -1,5 +1,5 @@
-//! A recorded VR session as a sender: headset and controller poses synthesised from a BVH's head
-//! and hands (fixed device offsets, sensor noise, the headset's rate), or the whole skeleton's
+//! A recorded VR session as a sender: headset, controller and foot tracker poses synthesised from
+//! a BVH's head, hands and feet (fixed device offsets, sensor noise, the headset's rate), or the whole skeleton's
 //! bones as a motion-capture suit sends them, streamed as VMC over UDP, so teleoperation can be
 //! tested and shown without a headset or a suit. The session starts with the
 //! recording's first frame held as the T-pose the receiver calibrates from.
@@ -49,6 +49,8 @@ pub enum BodySet {
     /// A headset and two controllers (`/VMC/Ext/Hmd/Pos`, `/VMC/Ext/Con/Pos`).
     #[default]
     Devices,
+    /// The same and a tracker on each foot (`/VMC/Ext/Tra/Pos`, serials `LeftFoot`, `RightFoot`).
+    DevicesAndFeet,
     /// The whole skeleton: the root and the bones (`/VMC/Ext/Root/Pos`, `/VMC/Ext/Bone/Pos`).
     Skeleton,
 }
@@ -70,13 +72,14 @@ impl Default for SendOptions {
 }
 
 /// Where the devices sit on the body: the headset 8 cm in front of and 7 cm above the head joint,
-/// each controller's grip 9 cm beyond the wrist along the forearm. Device axes: x forward, z up in
-/// the T-pose, turning with the head or hand after.
+/// each controller's grip 9 cm beyond the wrist along the forearm, each foot tracker on the instep
+/// 6 cm in front of and 5 cm above the ankle joint. Device axes: x forward, z up in the T-pose,
+/// turning with the head, hand or foot after.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Rig {
-    joints: [usize; 3],
-    offsets: [[f64; 3]; 3],
-    turn: [Mat3; 3],
+    joints: [usize; 5],
+    offsets: [[f64; 3]; 5],
+    turn: [Mat3; 5],
 }
 
 impl Rig {
@@ -91,6 +94,8 @@ impl Rig {
             find(HumanBody::Head)?,
             find(HumanBody::LeftHand)?,
             find(HumanBody::RightHand)?,
+            find(HumanBody::LeftFoot)?,
+            find(HumanBody::RightFoot)?,
         ];
         let elbows = [find(HumanBody::LeftElbow)?, find(HumanBody::RightElbow)?];
         let p = bvh.pose(0);
@@ -111,15 +116,28 @@ impl Rig {
                 ),
                 grip(0),
                 grip(1),
+                local(
+                    joints[3],
+                    spatial::add(spatial::scale(forward, 0.06), [0.0, 0.0, 0.05]),
+                ),
+                local(
+                    joints[4],
+                    spatial::add(spatial::scale(forward, 0.06), [0.0, 0.0, 0.05]),
+                ),
             ],
             turn: joints.map(|j| spatial::mat_mul(&spatial::transpose(&p.rot[j]), &body)),
         })
     }
 
-    /// Headset, left and right controller at `frame`, robot axes, without noise.
-    pub fn devices(&self, bvh: &Bvh, frame: usize) -> [Frame; 3] {
-        let p = bvh.pose(frame);
-        [0, 1, 2].map(|k| {
+    /// Headset, left and right controller, left and right foot tracker at `frame`, robot axes,
+    /// without noise.
+    pub fn devices(&self, bvh: &Bvh, frame: usize) -> [Frame; 5] {
+        self.devices_in(&bvh.pose(frame))
+    }
+
+    /// The devices on the recording's pose `p`.
+    pub fn devices_in(&self, p: &motion::bvh::Pose) -> [Frame; 5] {
+        [0, 1, 2, 3, 4].map(|k| {
             let j = self.joints[k];
             Frame {
                 pos: spatial::add(p.pos[j], spatial::mat_apply(&p.rot[j], self.offsets[k])),
@@ -219,19 +237,24 @@ fn pose_message(out: &mut Vec<u8>, address: &str, name: &str, f: &Frame) {
     osc::encode_message(out, address, &args);
 }
 
-/// The VMC packet (one bundle: headset, left and right controller) for `devices`.
-pub fn packet(devices: &[Frame; 3], out: &mut Vec<u8>) {
+/// The VMC packet (one bundle) for `devices`: headset, left and right controller, then the left
+/// and right foot tracker where given.
+pub fn packet(devices: &[Frame], out: &mut Vec<u8>) {
     out.clear();
     let names = [
         ("/VMC/Ext/Hmd/Pos", "HMD"),
         ("/VMC/Ext/Con/Pos", "LeftController"),
         ("/VMC/Ext/Con/Pos", "RightController"),
+        ("/VMC/Ext/Tra/Pos", "LeftFoot"),
+        ("/VMC/Ext/Tra/Pos", "RightFoot"),
     ];
-    let mut messages: [Vec<u8>; 3] = Default::default();
+    let mut messages: [Vec<u8>; 5] = Default::default();
     for ((m, (address, serial)), d) in messages.iter_mut().zip(names).zip(devices) {
         pose_message(m, address, serial, d);
     }
-    osc::encode_bundle(out, &[&messages[0], &messages[1], &messages[2]]);
+    let n = devices.len().min(names.len());
+    let refs: [&[u8]; 5] = [0, 1, 2, 3, 4].map(|k| messages[k].as_slice());
+    osc::encode_bundle(out, &refs[..n]);
 }
 
 /// Sends the session to `to` in real time until it ends or `stop` is set; `sent` hears the time
@@ -243,8 +266,12 @@ pub fn send(
     stop: &AtomicBool,
     sent: &mut dyn FnMut(Duration, usize),
 ) -> Result<u64, HumanError> {
+    let worn = match options.body {
+        BodySet::Devices => 3,
+        _ => 5,
+    };
     let (rig, bones) = match options.body {
-        BodySet::Devices => (Some(Rig::new(bvh)?), None),
+        BodySet::Devices | BodySet::DevicesAndFeet => (Some(Rig::new(bvh)?), None),
         BodySet::Skeleton => (None, Some(SkeletonRig::new(bvh)?)),
     };
     let local = if to.is_ipv4() {
@@ -279,7 +306,7 @@ pub fn send(
         if let Some(rig) = &rig {
             let mut devices = rig.devices(bvh, frame);
             devices.iter_mut().for_each(&mut noisy);
-            packet(&devices, &mut buf);
+            packet(&devices[..worn], &mut buf);
         }
         if let Some(bones) = &bones {
             let mut world = bones.bones(bvh, frame);

@@ -43,7 +43,13 @@ fn whole_body(seconds: f64) {
     let model = policy::onnx::OnnxModel::load(&layout.onnx_path).unwrap();
     layout.bind_model(model.inputs(), model.output().1).unwrap();
     let receiver = VmcReceiver::start("127.0.0.1:0".parse().unwrap(), Serials::default()).unwrap();
-    let mut teleop = human::body_teleop::start(&robot, &receiver, TeleopOptions::default()).unwrap();
+    let mut teleop = human::body_teleop::start(
+        &robot,
+        &receiver,
+        TeleopOptions::default(),
+        human::body_teleop::Wearing::WholeBody,
+    )
+    .unwrap();
     let mut reference = Reference::hold(&teleop.standby, teleop.root, 50.0);
     reference.live_bodies = human::retarget::key_bodies(&robot);
     let options = SendOptions {
