@@ -82,6 +82,12 @@ left = osc_message("/VMC/Ext/Con/Pos", ["LeftHand", -0.3, 1.0, 0.2, 0.0, 0.0, 0.
 right = osc_message("/VMC/Ext/Con/Pos", ["RightHand", 0.3, 1.0, 0.2, 0.0, 0.0, 0.0, 1.0])
 write("osc_vmc", "bundle", osc_bundle([hmd, left, right]))
 write("osc_vmc", "message", hmd)
+# Five points: the devices and a tracker on each foot, as `vr send --body five-point` sends them.
+feet = [
+    osc_message("/VMC/Ext/Tra/Pos", [serial, x, 0.12, 0.06, 0.0, 0.0, 0.0, 1.0])
+    for serial, x in [("LeftFoot", -0.1), ("RightFoot", 0.1)]
+]
+write("osc_vmc", "five_point", osc_bundle([hmd, left, right, *feet]))
 # A whole skeleton as a motion-capture suit sends it: the root (VMC 2.1's scale and offset after
 # the pose), then bones local to their parents in Unity's humanoid names.
 root = osc_message("/VMC/Ext/Root/Pos", ["root", 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0])
