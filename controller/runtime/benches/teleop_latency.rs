@@ -3,12 +3,14 @@
 //! teleoperation worker and the 50 Hz loop drive the mirror in real time (lockstep, paced by the
 //! wall clock). Bound: one control period (20 ms) plus the bus time.
 //!
-//! Two sessions: a headset and two controllers at 72 Hz onto rd-biped's reference follower
+//! Three sessions: a headset and two controllers at 72 Hz onto rd-biped's reference follower
 //! (resampling, map, arm IK); and, where `../shared/third_party/twist2` is beside the checkout, the
 //! whole skeleton at 90 Hz onto TWIST2's G1 (forward kinematics, the retargeting step, the trained
-//! tracker), looped for 60 s, with its falls and key bodies against the operator.
+//! tracker) and five points at 90 Hz (headset, controllers, foot trackers: the body estimated,
+//! then the same), each looped for 60 s, with its falls and key bodies against the operator.
 //!
-//! Run: `cargo bench -p controller --bench teleop_latency` (20 s + 60 s; 4 s + 6 s in the smoke run).
+//! Run: `cargo bench -p controller --bench teleop_latency` (20 s + 2 × 60 s; 4 s + 2 × 6 s in the
+//! smoke run).
 
 use std::sync::Arc;
 use std::sync::Mutex;
@@ -17,6 +19,7 @@ use std::time::Duration;
 
 use controller::clip::Reference;
 use controller::player::{EndMode, PlayOptions, Player};
+use human::body_teleop::Wearing;
 use human::teleop::{Teleop, TeleopOptions};
 use human::vmc::{Serials, VmcReceiver};
 use human::vr_send::{SendOptions, send};
@@ -30,12 +33,14 @@ fn main() {
     let quick = !std::env::args().any(|a| a == "--bench");
     devices(if quick { 4.0 } else { 20.0 });
     if test_support::fixtures::twist2_dir().is_some() {
-        whole_body(if quick { 6.0 } else { 60.0 });
+        for wearing in [Wearing::WholeBody, Wearing::FivePoint] {
+            whole_body(wearing, if quick { 6.0 } else { 60.0 });
+        }
     }
 }
 
-/// The whole skeleton onto TWIST2's G1 for `seconds`.
-fn whole_body(seconds: f64) {
+/// An operator `wearing` a skeleton or five points, onto TWIST2's G1 for `seconds`.
+fn whole_body(wearing: Wearing, seconds: f64) {
     let robot =
         Robot::load(&test_support::fixtures::workspace_root().join("robots/g1-twist2/robot.toml")).unwrap();
     let policy = robot.default_policy().unwrap();
@@ -43,28 +48,29 @@ fn whole_body(seconds: f64) {
     let model = policy::onnx::OnnxModel::load(&layout.onnx_path).unwrap();
     layout.bind_model(model.inputs(), model.output().1).unwrap();
     let receiver = VmcReceiver::start("127.0.0.1:0".parse().unwrap(), Serials::default()).unwrap();
-    let mut teleop = human::body_teleop::start(
-        &robot,
-        &receiver,
-        TeleopOptions::default(),
-        human::body_teleop::Wearing::WholeBody,
-    )
-    .unwrap();
+    let mut teleop = human::body_teleop::start(&robot, &receiver, TeleopOptions::default(), wearing).unwrap();
     let mut reference = Reference::hold(&teleop.standby, teleop.root, 50.0);
     reference.live_bodies = human::retarget::key_bodies(&robot);
     let options = SendOptions {
         seconds: Some(seconds),
         rate_hz: 90.0,
-        body: human::vr_send::BodySet::Skeleton,
+        body: match wearing {
+            Wearing::WholeBody => human::vr_send::BodySet::Skeleton,
+            Wearing::FivePoint => human::vr_send::BodySet::DevicesAndFeet,
+        },
         looped: true,
         ..SendOptions::default()
     };
     let (summary, packets) = session(robot, layout, reference, &mut teleop, &receiver, options);
+    let sent = match wearing {
+        Wearing::WholeBody => "VMC skeleton",
+        Wearing::FivePoint => "five points (headset, controllers, foot trackers; the body estimated)",
+    };
     println!(
-        "\nwhole-body teleoperation, {seconds:.0} s: VMC skeleton at 90 Hz ({packets} bundles) → retargeting → TWIST2 at 50 Hz → G1 mirror"
+        "\nwhole-body teleoperation, {seconds:.0} s: {sent} at 90 Hz ({packets} bundles) → retargeting → TWIST2 at 50 Hz → G1 mirror"
     );
     if let Some(latency) = &summary.live_latency {
-        println!("skeleton arrival → first bus command using it: {latency}");
+        println!("tracker arrival → first bus command using it: {latency}");
     }
     println!("fell: {}", if summary.fell { "yes" } else { "no" });
     let each: Vec<String> = summary
