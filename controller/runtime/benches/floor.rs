@@ -11,7 +11,8 @@
 //! policy, safety, the loop).
 //!
 //! Run: `cargo bench -p controller --bench floor` (3 rounds of whole runs); the smoke run of
-//! `cargo test --benches` plays 2 s of each once.
+//! `cargo test --benches` plays 2 s of each once. Words after `--` pick the robots whose names
+//! contain one of them: `cargo bench -p controller --bench floor -- rd-mini`.
 
 use std::process::Command;
 use std::sync::Arc;
@@ -258,6 +259,7 @@ fn cases(seconds: f64) -> Vec<Case> {
 
 fn main() {
     let full = std::env::args().any(|a| a == "--bench");
+    let picked: Vec<String> = std::env::args().skip(1).filter(|a| !a.starts_with('-')).collect();
     let (rounds, seconds) = if full { (3, 20.0) } else { (1, 2.0) };
     println!(
         "the mirror at the physics floor: lockstep policy runs, one core, median of {rounds} alternating rounds;\n\
@@ -280,7 +282,8 @@ fn main() {
         "rec CPU"
     );
     let mut splits = Vec::new();
-    for case in cases(seconds) {
+    let wanted = |c: &Case| picked.is_empty() || picked.iter().any(|p| c.name.contains(p.as_str()));
+    for case in cases(seconds).into_iter().filter(wanted) {
         let (mut wires, mut recorded, mut direct, mut floor, mut py) =
             (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
         let (mut last, mut py_start, mut rec_cpu) = (Run::default(), Vec::new(), Vec::new());

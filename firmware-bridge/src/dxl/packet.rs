@@ -78,19 +78,16 @@ pub enum PacketError {
     },
 }
 
-/// CRC-16 of Dynamixel Protocol 2.0, continued from `crc` over `data`.
-pub fn crc16(mut crc: u16, data: &[u8]) -> u16 {
-    for &byte in data {
-        crc ^= u16::from(byte) << 8;
-        for _ in 0..8 {
-            crc = if crc & 0x8000 != 0 {
-                (crc << 1) ^ 0x8005
-            } else {
-                crc << 1
-            };
-        }
-    }
-    crc
+/// Dynamixel Protocol 2.0's CRC: polynomial 0x8005, initial 0, neither reflected nor inverted
+/// (the catalogue's CRC-16/UMTS), sixteen tables for a byte-sliced update.
+const DXL_CRC: crc::Crc<u16, crc::Table<16>> = crc::Crc::<u16, crc::Table<16>>::new(&crc::CRC_16_UMTS);
+
+/// CRC-16 of Dynamixel Protocol 2.0, continued from `crc` over `data` (neither reflected nor
+/// inverted, so a running value is the register itself).
+pub fn crc16(crc: u16, data: &[u8]) -> u16 {
+    let mut digest = DXL_CRC.digest_with_initial(crc);
+    digest.update(data);
+    digest.finalize()
 }
 
 /// Writes `body` (INST, ERR, params, unstuffed) stuffed into `out`; returns bytes written.
@@ -277,6 +274,11 @@ mod tests {
         );
         assert_eq!(
             crc16(0, &[0xFF, 0xFF, 0xFD, 0x00, 0x01, 0x03, 0x00, 0x01]),
+            0x4E19
+        );
+        // Continued over a packet in pieces (a reply read as it arrives), the same.
+        assert_eq!(
+            crc16(crc16(0, &[0xFF, 0xFF, 0xFD]), &[0x00, 0x01, 0x03, 0x00, 0x01]),
             0x4E19
         );
     }
