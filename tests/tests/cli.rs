@@ -1151,7 +1151,7 @@ fn play_writes_a_report_with_plots_and_the_reactor_metrics() {
     let md = std::fs::read_to_string(dir.join("summary.md")).unwrap();
     assert!(
         md.contains(
-            "| success (no fall, no safety stop, played to the end, root within 1 m and 45°) | yes |"
+            "| success (as tracking trainers end an episode: no fall, no safety stop, played to the end, root height within 0.25 m and gravity's vertical component within 0.8 of the reference's) | yes |"
         ) && md.contains("| reference played | 100 % |"),
         "{md}"
     );
@@ -1215,7 +1215,9 @@ fn a_run_stopped_by_a_fault_is_no_success_in_the_report_or_the_batch() {
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert_eq!(out.status.code(), Some(3), "{stdout}");
     assert!(
-        stdout.contains("success (no fall") && stdout.contains("): NO"),
+        stdout
+            .lines()
+            .any(|l| l.starts_with("success (as tracking trainers end an episode") && l.ends_with(": NO")),
         "{stdout}"
     );
     assert_eq!(summary["success"], false, "{summary}");

@@ -366,5 +366,12 @@ fn twist2_tracks_what_five_points_see_of_a_performer() {
             ok && out.contains("reference played: 100 %") && out.contains("fell: no"),
             "{file}: {out}\n{err}"
         );
+        // Judged as its trainer ends an episode, not by how far the root drifted over the floor
+        // (TWIST2 observes no world position: the traffic wave's root ends ~1 m off).
+        let verdict = out
+            .lines()
+            .find(|l| l.starts_with("success (as tracking trainers end an episode"))
+            .unwrap_or_else(|| panic!("{file}: {out}"));
+        assert!(verdict.ends_with(": yes"), "{file}: {out}");
     }
 }

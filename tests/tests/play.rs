@@ -945,7 +945,9 @@ fn a_run_whose_every_command_the_governor_limited_does_not_end_as_a_success() {
     );
     assert_eq!(code, Some(1), "{out}{err}");
     assert!(
-        out.contains("success (no fall, no safety stop, played to the end"),
+        out.contains(
+            "success (as tracking trainers end an episode: no fall, no safety stop, played to the end"
+        ),
         "{out}"
     );
     assert!(out.contains("): NO"), "{out}");
@@ -1008,7 +1010,9 @@ fn the_direct_mirror_plays_a_clip_as_the_wires_do_and_says_which_ran() {
     }
     for out in [&wires, &direct] {
         assert!(
-            out.contains("success (no fall") && out.contains("): yes"),
+            out.lines().any(
+                |l| l.starts_with("success (as tracking trainers end an episode") && l.ends_with(": yes")
+            ),
             "{out}"
         );
     }

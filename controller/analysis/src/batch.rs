@@ -37,8 +37,8 @@ pub struct RunRow {
     pub seed: u64,
     /// Why the run could not run at all, if it could not.
     pub error: Option<String>,
-    /// No fall, no safety stop, played to the end, root within 1 m and 45° (the report's
-    /// criterion).
+    /// No fall, no safety stop, played to the end, the root's height and tilt within a tracking
+    /// trainer's episode bounds (the report's criterion, `controller::metrics::tracking_success`).
     pub success: bool,
     /// The base fell while in control.
     pub fell: bool,
