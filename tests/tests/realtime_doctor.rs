@@ -185,3 +185,41 @@ fn fifos_and_endless_devices_under_the_root_are_skipped_not_read_forever() {
     assert!(out.contains("CPU governor"), "{out}");
     std::fs::remove_dir_all(&root).unwrap();
 }
+
+/// Limits that are no numbers are unknown, not "unlimited"; a `--root` that is not there is a bad
+/// flag, not a machine with nothing in it.
+#[test]
+fn garbled_limits_are_unknown_and_a_missing_root_is_refused() {
+    let root = std::env::temp_dir().join(format!("rt-garbled-{}", std::process::id()));
+    machine(
+        &root,
+        &[(
+            "proc/self/limits",
+            "Max locked memory         lots                 lots                 bytes\n\
+             Max realtime priority     -\n",
+        )],
+    );
+    // Unknown items are not a pass: the doctor exits 1, as for any shortfall.
+    let (ok, out, err) = run(&["doctor", "--realtime", "--root", root.to_str().unwrap()]);
+    assert!(!ok && !err.contains("panicked"), "{out}{err}");
+    let (memlock, _) = item(&out, "memory locking");
+    assert!(
+        memlock.contains("\"Max locked memory\" reads \"lots\", not a number")
+            && !memlock.contains("unlimited"),
+        "{out}"
+    );
+    let (rtprio, _) = item(&out, "SCHED_FIFO");
+    assert!(rtprio.contains("not a number"), "{out}");
+    std::fs::remove_dir_all(&root).unwrap();
+
+    let (code, out, err) = test_support::bin::run_within(
+        &["doctor", "--realtime", "--root", "/nonexistent/robot-computer"],
+        std::time::Duration::from_secs(60),
+    );
+    assert_eq!(code, Some(2), "{out}{err}");
+    assert!(
+        err.contains("--root /nonexistent/robot-computer: no such directory"),
+        "{err}"
+    );
+    assert!(!out.contains("SCHED_FIFO"), "{out}");
+}

@@ -1,7 +1,5 @@
 //! Argument parsers the bus tools share: `ID:MODEL` device specs and `FIRST-LAST` ID ranges.
 
-/// Parses `ID:MODEL` with the ID in `ids` and the model among `known`; `what` names the device
-/// kind in messages ("motor", "servo").
 /// A flag refused after parsing, where judging it needs the other flags or a file: exit 2
 /// (bad input), like a value clap refuses.
 #[derive(Debug, thiserror::Error)]
@@ -22,6 +20,8 @@ impl FlagError {
     }
 }
 
+/// Parses `ID:MODEL` with the ID in `ids` and the model among `known`; `what` names the device
+/// kind in messages ("motor", "servo").
 pub fn id_and_model(
     s: &str,
     what: &str,

@@ -453,6 +453,18 @@ fn loaded_libraries() -> Vec<PathBuf> {
 /// loop's real-time set-up on a thread of its own.
 fn doctor_realtime(root: Option<&std::path::Path>, seconds: u64) -> Result<()> {
     use controller::readiness::{self, Machine, Verdict};
+    if let Some(r) = root
+        && !r.is_dir()
+    {
+        return Err(args::FlagError::new(
+            "root",
+            format!(
+                " {}: no such directory (a captured machine's /proc and /sys go under it)",
+                r.display()
+            ),
+        )
+        .into());
+    }
     let machine = root.map_or_else(Machine::this, Machine::at);
     let mut items = machine.audit();
     println!();

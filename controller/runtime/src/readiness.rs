@@ -85,6 +85,33 @@ fn read_small(path: &Path) -> Option<String> {
     Some(text)
 }
 
+/// A soft resource limit as `/proc/self/limits` states it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+enum Limit {
+    Unlimited,
+    At(u64),
+    /// Not stated, or not a number: why.
+    Unknown(String),
+}
+
+impl Limit {
+    fn at_least(&self, needed: u64) -> bool {
+        match self {
+            Self::Unlimited => true,
+            Self::At(v) => *v >= needed,
+            Self::Unknown(_) => false,
+        }
+    }
+
+    fn shown(&self, value: impl Fn(u64) -> String) -> String {
+        match self {
+            Self::Unlimited => "unlimited".into(),
+            Self::At(v) => value(*v),
+            Self::Unknown(why) => why.clone(),
+        }
+    }
+}
+
 /// A machine's `/proc` and `/sys`, under `root`.
 #[derive(Debug, Clone)]
 pub struct Machine {
@@ -147,16 +174,22 @@ impl Machine {
         )
     }
 
-    /// The soft limit of `name` in `/proc/self/limits` (`None`: unlimited).
-    fn limit(&self, name: &str) -> Option<Option<u64>> {
-        let limits = self.read("proc/self/limits")?;
-        let line = limits.lines().find(|l| l.starts_with(name))?;
-        let soft = line[name.len()..].split_whitespace().next()?;
-        Some(if soft == "unlimited" {
-            None
-        } else {
-            soft.parse().ok()
-        })
+    /// The soft limit of `name` in `/proc/self/limits`.
+    fn limit(&self, name: &str) -> Limit {
+        let Some(limits) = self.read("proc/self/limits") else {
+            return Limit::Unknown("no /proc/self/limits".into());
+        };
+        let Some(line) = limits.lines().find(|l| l.starts_with(name)) else {
+            return Limit::Unknown(format!("no \"{name}\" line in /proc/self/limits"));
+        };
+        match line[name.len()..].split_whitespace().next() {
+            Some("unlimited") => Limit::Unlimited,
+            Some(soft) => soft.parse().map_or_else(
+                |_| Limit::Unknown(format!("\"{name}\" reads {soft:?}, not a number")),
+                Limit::At,
+            ),
+            None => Limit::Unknown(format!("\"{name}\" has no value")),
+        }
     }
 
     fn is_root(&self) -> bool {
@@ -172,20 +205,12 @@ impl Machine {
         let root = self.is_root();
         let who = if root { " (root)" } else { "" };
         let rtprio = match self.limit("Max realtime priority") {
-            None => Item::new(
-                "SCHED_FIFO",
-                "no /proc/self/limits".into(),
-                Verdict::Unknown,
-                None,
-            ),
-            Some(limit) => {
-                let ok = root || limit.is_none_or(|p| p >= LOOP_PRIORITY);
+            Limit::Unknown(why) => Item::new("SCHED_FIFO", why, Verdict::Unknown, None),
+            limit => {
+                let ok = root || limit.at_least(LOOP_PRIORITY);
                 Item::new(
                     "SCHED_FIFO",
-                    format!(
-                        "realtime priority limit {}{who}",
-                        limit.map_or("unlimited".into(), |p| p.to_string())
-                    ),
+                    format!("realtime priority limit {}{who}", limit.shown(|p| p.to_string())),
                     if ok { Verdict::Good } else { Verdict::Short },
                     format!(
                         "allow priority {LOOP_PRIORITY}+: a line `<user> - rtprio 95` in /etc/security/limits.d/robodeploy.conf \
@@ -195,19 +220,14 @@ impl Machine {
             }
         };
         let memlock = match self.limit("Max locked memory") {
-            None => Item::new(
-                "memory locking",
-                "no /proc/self/limits".into(),
-                Verdict::Unknown,
-                None,
-            ),
-            Some(limit) => {
-                let ok = root || limit.is_none_or(|b| b >= MEMLOCK_NEEDED);
+            Limit::Unknown(why) => Item::new("memory locking", why, Verdict::Unknown, None),
+            limit => {
+                let ok = root || limit.at_least(MEMLOCK_NEEDED);
                 Item::new(
                     "memory locking",
                     format!(
                         "locked memory limit {}{who}",
-                        limit.map_or("unlimited".into(), |b| format!("{} KiB", b / 1024))
+                        limit.shown(|b| format!("{} KiB", b / 1024))
                     ),
                     if ok { Verdict::Good } else { Verdict::Short },
                     "allow locking all memory: a line `<user> - memlock unlimited` in \
