@@ -73,7 +73,16 @@ struct MirrorJoint {
     /// The joint's passive damping in the model (after randomisation), N·m·s/rad; an implicit PD
     /// adds its own to it.
     passive_damping: f64,
+    /// A speed no motor of this joint reaches ([`BLOW_UP_SHARE`] × its velocity limit), rad/s: a
+    /// simulation that puts the joint there has blown up.
+    blow_up_speed: f64,
+    /// robot.toml's name, for messages.
+    name: String,
 }
+
+/// A joint moving faster than this many times its velocity limit means the simulation blew up (the
+/// model is not stable at its step), found before its accelerometer reads tens of g.
+pub const BLOW_UP_SHARE: f64 = 10.0;
 
 impl MirrorJoint {
     /// Takes this physics step's command and returns the one that acts now: `delay` steps old.
@@ -606,6 +615,8 @@ impl Mirror {
                 delayed: vec![None; delay + 1],
                 head: 0,
                 passive_damping: 0.0,
+                blow_up_speed: BLOW_UP_SHARE * j.velocity_limit,
+                name: j.name.clone(),
             });
         }
         for j in &mut joints {
@@ -1550,8 +1561,21 @@ impl Mirror {
             }
         }
         let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
-        (!(finite(self.data.qpos()) && finite(self.data.qvel())))
-            .then(|| "the state is not finite".to_owned())
+        if !(finite(self.data.qpos()) && finite(self.data.qvel())) {
+            return Some("the state is not finite".to_owned());
+        }
+        let qvel = self.data.qvel();
+        self.joints
+            .iter()
+            .find(|j| qvel[j.dof].abs() > j.blow_up_speed)
+            .map(|j| {
+                format!(
+                    "joint {} moves at {:.0} rad/s, more than {BLOW_UP_SHARE} times its velocity limit \
+                     (no motor does: the simulation blew up)",
+                    j.name,
+                    qvel[j.dof].abs()
+                )
+            })
     }
 
     /// Why the simulation stopped being trustworthy, if it did (then it no longer moves).

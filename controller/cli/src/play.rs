@@ -532,11 +532,15 @@ pub fn check(args: &CheckArgs) -> Result<()> {
         }
     }
     if !unstable.is_empty() {
-        bail!(
-            "{}: the robot's model is not stable at its physics step:\n  {}",
-            l.robot.mjcf_path.display(),
-            unstable.join("\n  ")
-        );
+        // Bad input (exit 2): the model or its step is wrong, as a bad field would be.
+        return Err(robots::FileError::new(
+            &l.robot.mjcf_path,
+            format!(
+                "the robot's model is not stable at its physics step:\n  {}",
+                unstable.join("\n  ")
+            ),
+        )
+        .into());
     }
     for b in &l.robot.config.buses {
         if let Some(line) = crate::bus::schedule(&l.robot, &b.name) {

@@ -54,6 +54,9 @@ pub struct PlaySummary {
     pub root_rmse: Option<f64>,
     /// Whether the robot fell (tilt beyond the limit).
     pub fell: bool,
+    /// The tick the mirror's simulation was found diverged (a model unstable at its step): what
+    /// the run read before it stopped may be the blow-up's, not a robot's.
+    pub simulation_failed_at: Option<u64>,
     /// The robot's model has a floor (without one a robot falls through the world upright, and
     /// neither `fell` nor the root's errors say anything).
     pub floor: bool,
@@ -187,6 +190,14 @@ impl std::fmt::Display for PlaySummary {
         }
         if self.floor {
             writeln!(f, "fell: {}", if self.fell { "YES" } else { "no" })?;
+            if let Some(tick) = self.simulation_failed_at {
+                writeln!(
+                    f,
+                    "mirror: the simulation diverged at tick {tick}: the model is not stable at its physics \
+                     step (`robodeploy check` settles it and names the joints); what the run read before \
+                     stopping came from the blow-up, not from a robot"
+                )?;
+            }
             if let Some(a) = &self.after_control {
                 writeln!(
                     f,
@@ -699,6 +710,8 @@ pub struct RunMetrics {
     pub governed_ticks: u64,
     /// The base tilted beyond the limit at some point.
     pub fell: bool,
+    /// The tick the mirror's simulation was found diverged, if it was.
+    pub simulation_failed_at: Option<u64>,
     /// The robot after the run handed it over (simulation).
     pub after_control: Option<AfterControl>,
     /// Compute per tick.
@@ -834,6 +847,7 @@ impl RunMetrics {
             root_rmse: (self.root_samples > 0)
                 .then(|| (self.sq_root_error / self.root_samples as f64).sqrt()),
             fell: self.fell,
+            simulation_failed_at: self.simulation_failed_at,
             floor: true,
             after_control: self.after_control,
             limited_ticks: self.limited_ticks,

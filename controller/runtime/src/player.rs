@@ -731,6 +731,11 @@ impl<L: RobotLink> Player<L> {
             .estop
             .as_ref()
             .is_some_and(|f| f.load(Ordering::Relaxed));
+        // A mirror whose simulation blew up is named before what its sensors then read.
+        if has_truth && self.world.truth.simulation_failed {
+            self.metrics.simulation_failed_at.get_or_insert(self.tick);
+            self.fail(Cause::SimulationFailed);
+        }
         if let Some(cause) = self.lifecycle.monitor.check(
             self.lifecycle.machine.mode,
             &self.state,
@@ -741,9 +746,6 @@ impl<L: RobotLink> Player<L> {
             self.fail(cause);
         }
         if has_truth {
-            if self.world.truth.simulation_failed {
-                self.fail(Cause::SimulationFailed);
-            }
             // A fall counts while the soft start, the policy or the soft stop is in control; a
             // robot folding up under damping after the run has handed over has not fallen.
             let in_control = matches!(
