@@ -631,6 +631,11 @@ pub struct EstimatorAccuracy {
 
 impl std::fmt::Display for EstimatorAccuracy {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if self.ticks == 0 {
+            return f.write_str(
+                "never valid while the robot stood (it did not start, or the run ended first): no figures",
+            );
+        }
         write!(
             f,
             "velocity RMSE {:.3} m/s (vertical {:.3}), height RMSE {:.1} mm, position error {:.1} cm at the end \
@@ -921,6 +926,31 @@ impl RunMetrics {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_estimate_never_compared_prints_no_figures() {
+        let never = EstimatorAccuracy {
+            filter: world::estimator::FilterKind::default(),
+            ticks: 0,
+            velocity_rmse: f64::NAN,
+            vertical_velocity_rmse: f64::NAN,
+            height_rmse: f64::NAN,
+            final_position_error: 0.0,
+            max_position_error: 0.0,
+            contact_agreement: f64::NAN,
+        };
+        let line = never.to_string();
+        assert!(
+            line.starts_with("never valid") && !line.contains("RMSE") && !line.contains("NaN"),
+            "{line}"
+        );
+        let compared = EstimatorAccuracy {
+            ticks: 10,
+            velocity_rmse: 0.05,
+            ..never
+        };
+        assert!(compared.to_string().starts_with("velocity RMSE 0.050 m/s"));
+    }
 
     #[test]
     fn a_drifted_turned_root_is_a_success_a_fallen_or_sunk_one_is_not() {
