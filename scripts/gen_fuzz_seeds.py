@@ -325,6 +325,9 @@ holosoma = {
 write("holosoma_metadata", "reference_robot.json", json.dumps(holosoma, indent=1))
 holosoma["observation"]["groups"]["actor_obs"]["history_length"] = 4
 write("holosoma_metadata", "history_4.json", json.dumps(holosoma))
+# A stiffness table (keys are parts of joint names) that contradicts the target's kp of 40.
+holosoma["robot"]["control"]["stiffness"] = {"hip": 40.0, "knee": 90.0}
+write("holosoma_metadata", "stiffness_contradicting_kp.json", json.dumps(holosoma))
 
 # What a viewer sends the live server: the subprotocol byte (0 foxglove.sdk.v1, 1 the older
 # foxglove.websocket.v1, 2 none), then frames of a kind byte (0 text, 1 binary, 2 ping, 3 close),

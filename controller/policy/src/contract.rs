@@ -749,6 +749,16 @@ pub enum ActionScale {
     PerJoint(Vec<f64>),
 }
 
+impl ActionScale {
+    /// Joint `i`'s scale (policy order; NaN past a list's end).
+    pub fn of(&self, i: usize) -> f64 {
+        match self {
+            Self::One(s) => *s,
+            Self::PerJoint(v) => v.get(i).copied().unwrap_or(f64::NAN),
+        }
+    }
+}
+
 impl Default for ActionSpec {
     fn default() -> Self {
         Self {

@@ -187,10 +187,34 @@ pub fn fill(m: &mut PolicyManifest, meta: &Metadata<'_>, has_time_step: bool) ->
                 .into(),
         ));
     }
+    // Another list of the joints, where an export carries one, must be dof_names' order: the
+    // gains and scales follow one order, and two orders leave which one ambiguous.
+    if let Some(other) = json(meta, "joint_names")? {
+        let other: Option<Vec<&str>> = other
+            .as_array()
+            .map(|a| a.iter().filter_map(Value::as_str).collect());
+        if other.as_ref().is_none_or(|o| *o != names) {
+            return Err((
+                "ONNX metadata joint_names".into(),
+                "differ from dof_names (another order, or other joints): which order the gains and \
+                 actions follow is ambiguous"
+                    .into(),
+            ));
+        }
+    }
     let kp = match json(meta, "kp")? {
         Some(v) => Some(numbers(&v, "ONNX metadata kp", n)?),
         None => None,
     };
+    let config = json(meta, "experiment_config")?;
+    if let (Some(kp), Some(stiffness)) = (
+        &kp,
+        config
+            .as_ref()
+            .and_then(|c| at(c, "robot/control/stiffness").ok()),
+    ) {
+        agree_with_stiffness(&m.joints, kp, stiffness)?;
+    }
     if m.stiffness.is_none() {
         m.stiffness = kp.clone();
     }
@@ -200,7 +224,6 @@ pub fn fill(m: &mut PolicyManifest, meta: &Metadata<'_>, has_time_step: bool) ->
             None => None,
         };
     }
-    let config = json(meta, "experiment_config")?;
     let missing_config = |what: &str| {
         (
             what.to_owned(),
@@ -217,58 +240,37 @@ pub fn fill(m: &mut PolicyManifest, meta: &Metadata<'_>, has_time_step: bool) ->
         };
     }
     if m.action.scale.is_none() {
-        m.action.scale = Some(match meta.text("action_scale") {
-            Some(text) => match serde_json::from_str::<Value>(text) {
-                Ok(v @ Value::Array(_)) => {
-                    ActionScale::PerJoint(numbers(&v, "ONNX metadata action_scale", n)?)
-                }
-                Ok(v) => ActionScale::One(number(&v, "ONNX metadata action_scale")?),
-                Err(_) => {
-                    let v: Result<Vec<f64>, _> = text.split(',').map(|t| t.trim().parse::<f64>()).collect();
-                    match v {
-                        Ok(v) if v.len() == n => ActionScale::PerJoint(v),
-                        Ok(v) if v.len() == 1 => ActionScale::One(v[0]),
-                        _ => {
-                            return Err((
-                                "ONNX metadata action_scale".into(),
-                                format!("{text:?} is not 1 or {n} numbers"),
-                            ));
-                        }
-                    }
-                }
-            },
-            None => {
-                let config = config.as_ref().ok_or_else(|| missing_config("action.scale"))?;
-                let control = at(config, "robot/control")?;
-                let scale = number(
-                    at(control, "action_scale")?,
-                    "experiment_config robot/control/action_scale",
-                )?;
-                at(control, "action_scales_by_effort_limit_over_p_gain")?;
-                let by_effort = flag(config, "robot/control/action_scales_by_effort_limit_over_p_gain")?;
-                if by_effort {
-                    let effort = numbers(
-                        at(config, "robot/dof_effort_limit_list")?,
-                        "ONNX metadata experiment_config robot/dof_effort_limit_list",
-                        n,
-                    )?;
-                    let kp = kp
-                        .as_ref()
-                        .ok_or(("ONNX metadata kp".to_owned(), "missing".to_owned()))?;
-                    if let Some(i) = kp.iter().position(|k| *k <= 0.0) {
-                        return Err((
-                            "ONNX metadata kp".into(),
-                            format!(
-                                "{} of {} is not positive: no action scale effort / kp",
-                                kp[i], m.joints[i]
-                            ),
-                        ));
-                    }
-                    ActionScale::PerJoint(effort.iter().zip(kp).map(|(e, k)| scale * e / k).collect())
-                } else {
-                    ActionScale::One(scale)
-                }
+        let stated = meta
+            .text("action_scale")
+            .map(|text| stated_action_scale(text, n))
+            .transpose()?;
+        let configured = match &config {
+            Some(c) if stated.is_none() || at(c, "robot/control/action_scale").is_ok() => {
+                Some(configured_action_scale(c, kp.as_deref(), &m.joints)?)
             }
+            _ => None,
+        };
+        m.action.scale = Some(match (stated, configured) {
+            (Some(stated), Some(configured)) => {
+                if let Some(i) = (0..n).find(|&i| {
+                    let (a, b) = (stated.of(i), configured.of(i));
+                    (a - b).abs() > 1e-6 * a.abs().max(b.abs())
+                }) {
+                    return Err((
+                        "ONNX metadata action_scale".into(),
+                        format!(
+                            "{} for {} contradicts the experiment_config's {} (robot/control): which one \
+                             the policy was trained with is not known",
+                            stated.of(i),
+                            m.joints[i],
+                            configured.of(i)
+                        ),
+                    ));
+                }
+                stated
+            }
+            (Some(scale), None) | (None, Some(scale)) => scale,
+            (None, None) => return Err(missing_config("action.scale")),
         });
     }
     if m.action.clip.is_none()
@@ -328,6 +330,94 @@ pub fn fill(m: &mut PolicyManifest, meta: &Metadata<'_>, has_time_step: bool) ->
     {
         // The export returns the anchor's pose only.
         m.motion_bodies = vec![a.clone()];
+    }
+    Ok(())
+}
+
+/// The metadata's own `action_scale`: JSON (a number or a list), or comma-separated numbers.
+fn stated_action_scale(text: &str, n: usize) -> Result<ActionScale, Problem> {
+    match serde_json::from_str::<Value>(text) {
+        Ok(v @ Value::Array(_)) => Ok(ActionScale::PerJoint(numbers(
+            &v,
+            "ONNX metadata action_scale",
+            n,
+        )?)),
+        Ok(v) => Ok(ActionScale::One(number(&v, "ONNX metadata action_scale")?)),
+        Err(_) => {
+            let v: Result<Vec<f64>, _> = text.split(',').map(|t| t.trim().parse::<f64>()).collect();
+            match v {
+                Ok(v) if v.len() == n => Ok(ActionScale::PerJoint(v)),
+                Ok(v) if v.len() == 1 => Ok(ActionScale::One(v[0])),
+                _ => Err((
+                    "ONNX metadata action_scale".into(),
+                    format!("{text:?} is not 1 or {n} numbers"),
+                )),
+            }
+        }
+    }
+}
+
+/// The action scale the training configuration gives: `robot/control/action_scale`, per joint
+/// × effort limit / kp where `action_scales_by_effort_limit_over_p_gain` says so.
+fn configured_action_scale(
+    config: &Value,
+    kp: Option<&[f64]>,
+    joints: &[String],
+) -> Result<ActionScale, Problem> {
+    let n = joints.len();
+    let control = at(config, "robot/control")?;
+    let scale = number(
+        at(control, "action_scale")?,
+        "experiment_config robot/control/action_scale",
+    )?;
+    at(control, "action_scales_by_effort_limit_over_p_gain")?;
+    if !flag(config, "robot/control/action_scales_by_effort_limit_over_p_gain")? {
+        return Ok(ActionScale::One(scale));
+    }
+    let effort = numbers(
+        at(config, "robot/dof_effort_limit_list")?,
+        "ONNX metadata experiment_config robot/dof_effort_limit_list",
+        n,
+    )?;
+    let kp = kp.ok_or(("ONNX metadata kp".to_owned(), "missing".to_owned()))?;
+    if let Some(i) = kp.iter().position(|k| *k <= 0.0) {
+        return Err((
+            "ONNX metadata kp".into(),
+            format!(
+                "{} of {} is not positive: no action scale effort / kp",
+                kp[i], joints[i]
+            ),
+        ));
+    }
+    Ok(ActionScale::PerJoint(
+        effort.iter().zip(kp).map(|(e, k)| scale * e / k).collect(),
+    ))
+}
+
+/// The metadata's kp against the training configuration's `robot/control/stiffness` (keys are
+/// parts of joint names, as holosoma matches them: the longest key a joint's name contains).
+fn agree_with_stiffness(joints: &[String], kp: &[f64], stiffness: &Value) -> Result<(), Problem> {
+    let Some(table) = stiffness.as_object() else {
+        return Ok(());
+    };
+    for (joint, &k) in joints.iter().zip(kp) {
+        let Some((key, value)) = table
+            .iter()
+            .filter(|(key, _)| joint.contains(key.as_str()))
+            .max_by_key(|(key, _)| key.len())
+        else {
+            continue;
+        };
+        let Some(value) = value.as_f64() else { continue };
+        if (value - k).abs() > 1e-6 * value.abs().max(k.abs()) {
+            return Err((
+                "ONNX metadata kp".into(),
+                format!(
+                    "{k} for {joint} contradicts the experiment_config's stiffness {value} (robot/control/stiffness \
+                     {key:?}): which gains the policy was trained with is not known"
+                ),
+            ));
+        }
     }
     Ok(())
 }
@@ -464,5 +554,44 @@ mod tests {
             place.ends_with("terms/dof_vel") && message.contains("feet_air_time"),
             "{place}: {message}"
         );
+    }
+
+    #[test]
+    fn contradictions_between_the_metadata_and_its_training_configuration_are_refused() {
+        // kp against the configuration's stiffness (keys are parts of joint names).
+        let with_stiffness = CONFIG.replace(
+            r#""control": {"#,
+            r#""control": {"stiffness": {"hip": 40.0, "knee": 90.0}, "#,
+        );
+        let (key, why) = filled(Some(&with_stiffness)).unwrap_err();
+        assert_eq!(key, "ONNX metadata kp");
+        assert!(
+            why.contains("100 for knee contradicts the experiment_config's stiffness 90"),
+            "{why}"
+        );
+        let agreeing = with_stiffness.replace("\"knee\": 90.0", "\"knee\": 100.0");
+        assert!(filled(Some(&agreeing)).is_ok());
+        // A top-level action_scale against the configured one (0.25 × effort / kp).
+        let mut m = meta(Some(CONFIG));
+        m.insert("action_scale".into(), "0.25".into());
+        let mut manifest = PolicyManifest::for_onnx("p.onnx".into());
+        let (key, why) = fill(&mut manifest, &Metadata(&m), true).unwrap_err();
+        assert_eq!(key, "ONNX metadata action_scale");
+        assert!(
+            why.contains("0.25 for hip contradicts the experiment_config's 0.55"),
+            "{why}"
+        );
+        m.insert("action_scale".into(), "[0.55, 0.3475]".into());
+        let mut manifest = PolicyManifest::for_onnx("p.onnx".into());
+        assert!(fill(&mut manifest, &Metadata(&m), true).is_ok());
+        // joint_names in another order than dof_names.
+        let mut m = meta(Some(CONFIG));
+        m.insert("joint_names".into(), r#"["knee", "hip"]"#.into());
+        let mut manifest = PolicyManifest::for_onnx("p.onnx".into());
+        let (key, _) = fill(&mut manifest, &Metadata(&m), true).unwrap_err();
+        assert_eq!(key, "ONNX metadata joint_names");
+        m.insert("joint_names".into(), r#"["hip", "knee"]"#.into());
+        let mut manifest = PolicyManifest::for_onnx("p.onnx".into());
+        assert!(fill(&mut manifest, &Metadata(&m), true).is_ok());
     }
 }
