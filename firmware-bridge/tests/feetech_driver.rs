@@ -50,10 +50,11 @@ fn tick(d: &mut Driver, q: &[f64]) -> usize {
 }
 
 /// A line on which every answer to a read of servo `garbled` arrives with a bad checksum (its
-/// pings come through).
+/// pings come through) — of every read, or only of reads from `only_from` on (the state block).
 struct GarbledReads {
     inner: LockstepFeetechPort<FeetechRig>,
     garbled: u8,
+    only_from: Option<u8>,
     reading_it: bool,
 }
 
@@ -70,7 +71,11 @@ impl ServoTransport for GarbledReads {
     }
 
     fn send(&mut self, id: u8, instruction: u8, params: &[u8]) -> Result<(), LinkError> {
-        self.reading_it = id == self.garbled && instruction == firmware_bridge::feetech::packet::inst::READ;
+        self.reading_it = id == self.garbled
+            && instruction == firmware_bridge::feetech::packet::inst::READ
+            && self
+                .only_from
+                .is_none_or(|from| params.first().is_some_and(|&a| a >= from));
         self.inner.send(id, instruction, params)
     }
 
@@ -93,6 +98,7 @@ fn a_scan_goes_on_past_a_servo_whose_reads_come_back_garbled() {
     let port = GarbledReads {
         inner: LockstepFeetechPort::new(Arc::clone(&rig), 0, BAUD),
         garbled: 2,
+        only_from: None,
         reading_it: false,
     };
     // Servo 2 answers pings but not one read: it is not listed (its model is unknown), and
@@ -100,6 +106,26 @@ fn a_scan_goes_on_past_a_servo_whose_reads_come_back_garbled() {
     let hits = scan(port, 1..=3, Duration::from_millis(5)).unwrap();
     let ids: Vec<u8> = hits.iter().map(|h| h.id).collect();
     assert_eq!(ids, [1, 3], "{hits:?}");
+    // Its model read comes through, its state read does not: listed, its readings unknown (it
+    // was listed at 0 ticks and 0 °C).
+    let port = GarbledReads {
+        inner: LockstepFeetechPort::new(Arc::clone(&rig), 0, BAUD),
+        garbled: 2,
+        only_from: Some(firmware_bridge::feetech::table::addr::PRESENT_POSITION),
+        reading_it: false,
+    };
+    let hits = scan(port, 1..=3, Duration::from_millis(5)).unwrap();
+    let two = hits.iter().find(|h| h.id == 2).expect("servo 2 is listed");
+    assert_eq!(
+        (two.position, two.temperature, two.status),
+        (None, None, None),
+        "{two:?}"
+    );
+    let one = &hits[0];
+    assert!(
+        one.position.is_some() && one.temperature.is_some_and(|t| t > 0),
+        "{one:?}"
+    );
 }
 
 #[test]

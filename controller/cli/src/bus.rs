@@ -247,8 +247,10 @@ fn scan_dxl<T: DxlTransport>(robot: &Robot, bus: &str, port: &mut T, timeout: Du
         .iter()
         .map(|h| {
             let state = format!(
-                "pos {:>5} ticks  {} °C  hw error {:#04x}",
-                h.position, h.temperature, h.hardware_error
+                "pos {:>5} ticks  {} °C  hw error {}",
+                or_dash(h.position),
+                or_dash(h.temperature),
+                h.hardware_error.map_or("-".to_owned(), |e| format!("{e:#04x}"))
             );
             (h.id, h.model_number, state)
         })
@@ -308,8 +310,12 @@ fn scan_feetech(robot: &Robot, bus: &str, port: SerialFeetechPort, timeout: Dura
         .iter()
         .map(|h| {
             let state = format!(
-                "pos {:>5} ticks  {} °C  firmware {}.{}  status {:#04x}",
-                h.position, h.temperature, h.firmware[0], h.firmware[1], h.status
+                "pos {:>5} ticks  {} °C  firmware {}.{}  status {}",
+                or_dash(h.position),
+                or_dash(h.temperature),
+                h.firmware[0],
+                h.firmware[1],
+                h.status.map_or("-".to_owned(), |s| format!("{s:#04x}"))
             );
             (h.id, h.model_number, state)
         })
@@ -406,4 +412,9 @@ fn scan_imu<S: ByteStream>(bus: &str, stream: S, imu: &robots::ImuConfig) -> Res
     Ok(usize::from(
         (stats.samples as f64) < 0.5 * expected || samples == 0,
     ))
+}
+
+/// A scan's reading, or "-" where its reply came late or garbled.
+pub fn or_dash<T: std::fmt::Display>(v: Option<T>) -> String {
+    v.map_or("-".to_owned(), |v| v.to_string())
 }

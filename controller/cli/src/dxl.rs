@@ -164,17 +164,16 @@ fn scan_cmd(args: &ScanArgs) -> Result<()> {
         let name = models::find_by_number(h.model_number)
             .map_or_else(|| format!("#{}", h.model_number), |m| m.name.clone());
         println!(
-            "{:>4} {:>12} {:>5} {:>9} {:>8}  {:#04x} {}",
+            "{:>4} {:>12} {:>5} {:>9} {:>8}  {}",
             h.id,
             name,
             h.firmware,
-            h.position,
-            h.temperature,
-            h.hardware_error,
-            if h.hardware_error == 0 {
-                ""
-            } else {
-                hardware_error_names(h.hardware_error)
+            crate::bus::or_dash(h.position),
+            crate::bus::or_dash(h.temperature),
+            match h.hardware_error {
+                None => "not read: its reply came late or garbled".to_owned(),
+                Some(0) => "0x00".to_owned(),
+                Some(e) => format!("{e:#04x} {}", hardware_error_names(e)),
             }
         );
     }

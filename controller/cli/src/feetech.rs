@@ -144,14 +144,16 @@ fn scan_cmd(args: &ScanArgs) -> Result<()> {
             .find(|m| m.model_number == h.model_number)
             .map_or_else(|| format!("#{}", h.model_number), |m| m.name.clone());
         println!(
-            "{:>4} {:>12} {:>6} {:>9} {:>8}  {:#04x} {}",
+            "{:>4} {:>12} {:>6} {:>9} {:>8}  {}",
             h.id,
             name,
             format!("{}.{}", h.firmware[0], h.firmware[1]),
-            h.position,
-            h.temperature,
-            h.status,
-            error_names(h.status)
+            crate::bus::or_dash(h.position),
+            crate::bus::or_dash(h.temperature),
+            h.status.map_or_else(
+                || "state not read: its reply came late or garbled".to_owned(),
+                |s| format!("{s:#04x} {}", error_names(s))
+            )
         );
     }
     println!(

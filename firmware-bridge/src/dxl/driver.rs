@@ -1237,12 +1237,12 @@ pub struct ScanHit {
     pub model_number: u16,
     /// Firmware version from ping.
     pub firmware: u8,
-    /// Hardware Error Status.
-    pub hardware_error: u8,
-    /// Present Position, ticks.
-    pub position: i32,
-    /// Present Temperature, °C.
-    pub temperature: u8,
+    /// Hardware Error Status (`None`: its read came back late or garbled).
+    pub hardware_error: Option<u8>,
+    /// Present Position, ticks (`None`: not read).
+    pub position: Option<i32>,
+    /// Present Temperature, °C (`None`: not read).
+    pub temperature: Option<u8>,
 }
 
 /// Pings per ID before a scan calls it missing.
@@ -1289,16 +1289,17 @@ pub fn scan<T: DxlTransport>(
             let [n0, n1] = n.to_le_bytes();
             [a0, a1, n0, n1]
         };
-        let hw = ask(inst::READ, &read(addr::HARDWARE_ERROR_STATUS, 1), 1)?.unwrap_or_default();
-        let pos = ask(inst::READ, &read(addr::PRESENT_POSITION, 4), 4)?.unwrap_or_default();
-        let temp = ask(inst::READ, &read(addr::PRESENT_TEMPERATURE, 1), 1)?.unwrap_or_default();
+        // A reading that comes back late or garbled is unknown, not zero.
+        let hw = ask(inst::READ, &read(addr::HARDWARE_ERROR_STATUS, 1), 1)?;
+        let pos = ask(inst::READ, &read(addr::PRESENT_POSITION, 4), 4)?;
+        let temp = ask(inst::READ, &read(addr::PRESENT_TEMPERATURE, 1), 1)?;
         hits.push(ScanHit {
             id,
             model_number: u16::from_le_bytes([ping[0], ping[1]]),
             firmware: ping[2],
-            hardware_error: hw[0],
-            position: i32::from_le_bytes(pos),
-            temperature: temp[0],
+            hardware_error: hw.map(|b| b[0]),
+            position: pos.map(i32::from_le_bytes),
+            temperature: temp.map(|b| b[0]),
         });
     }
     Ok(hits)

@@ -584,12 +584,12 @@ pub struct ScanHit {
     pub model_number: u16,
     /// Firmware major and minor version.
     pub firmware: [u8; 2],
-    /// Present position, ticks.
-    pub position: u16,
-    /// Present temperature, °C.
-    pub temperature: u8,
-    /// Error bits in force (Status, 65).
-    pub status: u8,
+    /// Present position, ticks (`None`: the state read came back late or garbled).
+    pub position: Option<u16>,
+    /// Present temperature, °C (`None`: not read).
+    pub temperature: Option<u8>,
+    /// Error bits in force (Status, 65; `None`: not read).
+    pub status: Option<u8>,
 }
 
 /// Pings each ID in `ids` (three tries each, `timeout` per answer) and reads what answered:
@@ -606,19 +606,22 @@ pub fn scan<T: FeetechTransport>(
         let Some((model_number, firmware)) = d.ping(id)? else {
             continue;
         };
-        // A servo whose state read comes back late or garbled is still listed (its readings
-        // zero, as `dxl scan` does); one bad reply never ends the scan of the others.
+        // A servo whose state read comes back late or garbled is still listed, its readings
+        // unknown (not zero: a servo at 0 rad and 0 °C would be a reading); one bad reply never
+        // ends the scan of the others.
         let mut state = [0u8; 10];
-        if let Err(FeetechError::Link(LinkError::Io(e))) = d.read(id, addr::PRESENT_POSITION, &mut state) {
-            return Err(FeetechError::Link(LinkError::Io(e)));
-        }
+        let read = match d.read(id, addr::PRESENT_POSITION, &mut state) {
+            Err(FeetechError::Link(LinkError::Io(e))) => return Err(FeetechError::Link(LinkError::Io(e))),
+            Err(_) => None,
+            Ok(_) => Some(state),
+        };
         hits.push(ScanHit {
             id,
             model_number,
             firmware,
-            position: u16::from_le_bytes([state[0], state[1]]),
-            temperature: state[usize::from(addr::PRESENT_TEMPERATURE - addr::PRESENT_POSITION)],
-            status: state[usize::from(addr::STATUS - addr::PRESENT_POSITION)],
+            position: read.map(|s| u16::from_le_bytes([s[0], s[1]])),
+            temperature: read.map(|s| s[usize::from(addr::PRESENT_TEMPERATURE - addr::PRESENT_POSITION)]),
+            status: read.map(|s| s[usize::from(addr::STATUS - addr::PRESENT_POSITION)]),
         });
     }
     Ok(hits)
