@@ -50,7 +50,8 @@ impl ActionMapper {
     }
 
     /// Maps this tick's actions into `targets` (robot order) and returns how many joints the
-    /// governor limited. `q` is the measured position (robot order).
+    /// governor limited, and how many of those only into the joint's range (as a trainer's joint
+    /// limits bound the same target). `q` is the measured position (robot order).
     pub fn map(
         &mut self,
         layout: &PolicyLayout,
@@ -59,7 +60,7 @@ impl ActionMapper {
         targets: &mut [JointTarget],
         dt: f64,
         rule: TargetRule,
-    ) -> u64 {
+    ) -> Governed {
         // Remember actions, newest first.
         let n = self.actions.len();
         let kept = self.past.len() - n;
@@ -70,7 +71,7 @@ impl ActionMapper {
             let rc = 1.0 / (std::f64::consts::TAU * fc);
             dt / (rc + dt)
         });
-        let mut limited = 0u64;
+        let mut governed = Governed::default();
         for (p, &r) in layout.robot_index.iter().enumerate() {
             let j = &joints[r];
             let a = f64::from(self.actions[p]);
@@ -81,12 +82,15 @@ impl ActionMapper {
                     self.filtered[r] += alpha * (wanted - self.filtered[r]);
                     let previous = targets[r].q;
                     let range = rule.range(j, layout.kp[r]);
-                    let governed = govern_position(j, previous, self.filtered[r], dt, range, spec.rate_limit);
-                    if governed != self.filtered[r] {
-                        limited += 1;
+                    let sent = govern_position(j, previous, self.filtered[r], dt, range, spec.rate_limit);
+                    if sent != self.filtered[r] {
+                        governed.limited += 1;
+                        if sent == self.filtered[r].clamp(range[0], range[1]) {
+                            governed.into_range += 1;
+                        }
                     }
                     JointTarget {
-                        q: governed,
+                        q: sent,
                         qd: 0.0,
                         kp: layout.kp[r],
                         kd: layout.kd[r],
@@ -98,7 +102,7 @@ impl ActionMapper {
                     let wanted = a * j.torque_limit;
                     let tau = govern_torque(j, wanted);
                     if tau != wanted {
-                        limited += 1;
+                        governed.limited += 1;
                     }
                     JointTarget {
                         q: q[r],
@@ -111,6 +115,16 @@ impl ActionMapper {
                 }
             };
         }
-        limited
+        governed
     }
+}
+
+/// What the governor did to one tick's commands.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Governed {
+    /// Joints whose command it changed.
+    pub limited: u64,
+    /// Of those, joints whose position target it only brought into the joint's range: a target
+    /// beyond the joint's range ends at the limit in the trainer's simulation too.
+    pub into_range: u64,
 }

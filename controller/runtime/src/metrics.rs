@@ -64,6 +64,9 @@ pub struct PlaySummary {
     pub after_control: Option<AfterControl>,
     /// Policy ticks where the governor changed a command (limit, speed or torque saturation).
     pub limited_ticks: u64,
+    /// Of those, ticks where it only brought position targets into their joints' range (what a
+    /// trainer's joint limits do to the same targets).
+    pub into_range_ticks: u64,
     /// Policy ticks the governor saw.
     pub governed_ticks: u64,
     /// The state machine's course.
@@ -252,11 +255,20 @@ impl std::fmt::Display for PlaySummary {
                 )?;
             }
         }
-        writeln!(
-            f,
-            "ticks where the governor limited a command: {} of {}",
-            self.limited_ticks, self.governed_ticks
-        )?;
+        if self.into_range_ticks > 0 {
+            writeln!(
+                f,
+                "ticks where the governor limited a command: {} of {} ({} only into the joints' range, as the \
+                 trainer's joint limits end the same targets)",
+                self.limited_ticks, self.governed_ticks, self.into_range_ticks
+            )?;
+        } else {
+            writeln!(
+                f,
+                "ticks where the governor limited a command: {} of {}",
+                self.limited_ticks, self.governed_ticks
+            )?;
+        }
         if self.governor_saturated() {
             writeln!(f, "governor: {}", self.saturation())?;
         }
@@ -439,18 +451,26 @@ impl PlaySummary {
     }
 
     /// The governor changed more than [`SATURATED_SHARE`] of the policy's commands (over at
-    /// least 10 of them): the policy's actions do not fit the robot.
+    /// least 10 of them) beyond bringing targets into their joints' range, which the trainer's
+    /// joint limits do as well: the policy's actions do not fit the robot.
     pub fn governor_saturated(&self) -> bool {
-        self.governed_ticks >= 10 && self.limited_ticks as f64 > SATURATED_SHARE * self.governed_ticks as f64
+        self.governed_ticks >= 10
+            && self.unfitting_ticks() as f64 > SATURATED_SHARE * self.governed_ticks as f64
+    }
+
+    /// Ticks the governor changed for more than the joints' range.
+    fn unfitting_ticks(&self) -> u64 {
+        self.limited_ticks - self.into_range_ticks.min(self.limited_ticks)
     }
 
     /// What a saturated governor means, for the verdict.
     pub fn saturation(&self) -> String {
         format!(
-            "the governor limited {:.0} % of the policy's commands ({} of {} ticks): its actions do not fit \
-             this robot (action scale, default pose, joint order?)",
-            100.0 * self.limited_ticks as f64 / self.governed_ticks.max(1) as f64,
-            self.limited_ticks,
+            "the governor limited {:.0} % of the policy's commands ({} of {} ticks, beyond bringing targets \
+             into their joints' range): its actions do not fit this robot (action scale, default pose, joint \
+             order?)",
+            100.0 * self.unfitting_ticks() as f64 / self.governed_ticks.max(1) as f64,
+            self.unfitting_ticks(),
             self.governed_ticks
         )
     }
@@ -711,6 +731,8 @@ pub struct RunMetrics {
     pub overruns: u64,
     /// Policy ticks where the governor changed a command.
     pub limited_ticks: u64,
+    /// Of those, ticks where it only brought targets into their joints' range.
+    pub into_range_ticks: u64,
     /// Policy ticks the governor saw.
     pub governed_ticks: u64,
     /// The base tilted beyond the limit at some point.
@@ -856,6 +878,7 @@ impl RunMetrics {
             floor: true,
             after_control: self.after_control,
             limited_ticks: self.limited_ticks,
+            into_range_ticks: self.into_range_ticks,
             governed_ticks: self.governed_ticks,
             transitions: transitions.to_vec(),
             compute: self.compute.clone(),
@@ -926,6 +949,30 @@ impl RunMetrics {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn targets_only_brought_into_the_joints_range_do_not_make_the_governor_saturated() {
+        // A spin kick whose targets pass the joints' range on 98 of 100 ticks: the trainer's joint
+        // limits end them the same way, so the policy fits the robot.
+        let mut m = RunMetrics {
+            governed_ticks: 100,
+            limited_ticks: 98,
+            into_range_ticks: 98,
+            ..RunMetrics::default()
+        };
+        let s = m.summary(100, Duration::from_secs(2), &[], false, 100);
+        assert!(!s.governor_saturated() && s.shortfall().is_none());
+        assert!(
+            s.to_string()
+                .contains("98 of 100 (98 only into the joints' range"),
+            "{s}"
+        );
+        // Speed limits on 60 of them: that the trainer does not do.
+        m.into_range_ticks = 38;
+        let s = m.summary(100, Duration::from_secs(2), &[], false, 100);
+        assert!(s.governor_saturated(), "{s}");
+        assert!(s.saturation().contains("60 of 100 ticks"), "{}", s.saturation());
+    }
 
     #[test]
     fn an_estimate_never_compared_prints_no_figures() {

@@ -1284,8 +1284,11 @@ impl<L: RobotLink> Player<L> {
             },
         );
         self.metrics.governed_ticks += 1;
-        if limited > 0 {
+        if limited.limited > 0 {
             self.metrics.limited_ticks += 1;
+            if limited.into_range == limited.limited {
+                self.metrics.into_range_ticks += 1;
+            }
         }
         // Where each tracked body is against the reference's (simulation: the robot's place is
         // known).
