@@ -280,19 +280,24 @@ impl TickClock for LockstepClock {
     }
 }
 
-/// The wall clock of a served mirror, with the mirror's ground truth.
+/// The wall clock of a served mirror, with the mirror's ground truth and how far its simulation
+/// is behind real time.
 #[derive(Debug)]
 pub struct ServedClock {
     wall: WallClock,
     world: Arc<Mutex<Mirror>>,
+    /// The mirror's time when the clock started.
+    origin: SimInstant,
 }
 
 impl ServedClock {
     /// Starts now.
     pub fn new(world: Arc<Mutex<Mirror>>) -> Self {
+        let origin = world.lock().unwrap_or_else(PoisonError::into_inner).now();
         Self {
             wall: WallClock::start(),
             world,
+            origin,
         }
     }
 }
@@ -307,7 +312,10 @@ impl TickClock for ServedClock {
     }
 
     fn ground_truth(&self, truth: &mut GroundTruth) -> bool {
-        truth_of(&self.world, truth)
+        truth_of(&self.world, truth);
+        let simulated = self.world.lock().unwrap_or_else(PoisonError::into_inner).now() - self.origin;
+        truth.mirror_behind = self.wall.elapsed().saturating_sub(simulated);
+        true
     }
 }
 

@@ -135,3 +135,39 @@ fn hold_the_served_biped() -> Result<(), String> {
     assert_eq!(imu.stats().checksum_errors, 0);
     Ok(())
 }
+
+/// A served mirror's clock measures how far the simulation is behind real time: a mirror whose
+/// physics does not run (a host too busy to step it) falls behind by the wall time that passed,
+/// and a run's ground truth says so.
+#[test]
+fn a_mirror_that_does_not_keep_up_is_measured_behind_real_time() {
+    use robot_link::{GroundTruth, TickClock};
+    let robot = Robot::load(&reference_robot_path()).unwrap();
+    let mirror = Mirror::new(robot, MirrorConfig::default()).unwrap();
+    let world = std::sync::Arc::new(std::sync::Mutex::new(mirror));
+    // No runner steps this world: its simulated time stands still.
+    let clock = sim2real::link::ServedClock::new(std::sync::Arc::clone(&world));
+    let start = Instant::now();
+    while start.elapsed() < Duration::from_millis(30) {
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let mut truth = GroundTruth::default();
+    assert!(clock.ground_truth(&mut truth));
+    assert!(
+        truth.mirror_behind >= Duration::from_millis(30) && truth.mirror_behind <= clock.elapsed(),
+        "{:?} behind after {:?}",
+        truth.mirror_behind,
+        clock.elapsed()
+    );
+    // Stepped up to the wall clock, it is on time again.
+    {
+        use firmware_bridge::time::SimWorld;
+        let mut w = world.lock().unwrap();
+        let target = w.now() + clock.elapsed() + Duration::from_millis(5);
+        while w.now() < target {
+            w.step_until(target);
+        }
+    }
+    assert!(clock.ground_truth(&mut truth));
+    assert_eq!(truth.mirror_behind, Duration::ZERO);
+}

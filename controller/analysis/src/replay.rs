@@ -174,6 +174,7 @@ pub fn read_recording(path: &Path) -> Result<Recording, AnalysisError> {
                 base_lin_vel: [lin[0], lin[1], lin[2]],
                 foot_contacts: numbers(&v, "feet")?.iter().map(|&f| f != 0.0).collect(),
                 simulation_failed: v["simulation_failed"].as_bool().unwrap_or(false),
+                mirror_behind: Duration::from_micros(v["mirror_behind_us"].as_u64().unwrap_or(0)),
             })
         });
         let t = numbers(&v, "target")?;

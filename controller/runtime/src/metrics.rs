@@ -57,6 +57,8 @@ pub struct PlaySummary {
     /// The tick the mirror's simulation was found diverged (a model unstable at its step): what
     /// the run read before it stopped may be the blow-up's, not a robot's.
     pub simulation_failed_at: Option<u64>,
+    /// The most a mirror served in real time fell behind the wall clock (zero in lockstep).
+    pub mirror_behind_max: Duration,
     /// The robot's model has a floor (without one a robot falls through the world upright, and
     /// neither `fell` nor the root's errors say anything).
     pub floor: bool,
@@ -193,6 +195,13 @@ impl std::fmt::Display for PlaySummary {
         }
         if self.floor {
             writeln!(f, "fell: {}", if self.fell { "YES" } else { "no" })?;
+            if self.mirror_behind_max > Duration::ZERO {
+                writeln!(
+                    f,
+                    "mirror: at most {:.1} ms behind real time",
+                    self.mirror_behind_max.as_secs_f64() * 1000.0
+                )?;
+            }
             if let Some(tick) = self.simulation_failed_at {
                 writeln!(
                     f,
@@ -739,6 +748,8 @@ pub struct RunMetrics {
     pub fell: bool,
     /// The tick the mirror's simulation was found diverged, if it was.
     pub simulation_failed_at: Option<u64>,
+    /// The most a mirror served in real time fell behind the wall clock.
+    pub mirror_behind_max: Duration,
     /// The robot after the run handed it over (simulation).
     pub after_control: Option<AfterControl>,
     /// Compute per tick.
@@ -875,6 +886,7 @@ impl RunMetrics {
                 .then(|| (self.sq_root_error / self.root_samples as f64).sqrt()),
             fell: self.fell,
             simulation_failed_at: self.simulation_failed_at,
+            mirror_behind_max: self.mirror_behind_max,
             floor: true,
             after_control: self.after_control,
             limited_ticks: self.limited_ticks,

@@ -736,6 +736,10 @@ impl<L: RobotLink> Player<L> {
             self.metrics.simulation_failed_at.get_or_insert(self.tick);
             self.fail(Cause::SimulationFailed);
         }
+        if has_truth {
+            self.metrics.mirror_behind_max =
+                self.metrics.mirror_behind_max.max(self.world.truth.mirror_behind);
+        }
         if let Some(cause) = self.lifecycle.monitor.check(
             self.lifecycle.machine.mode,
             &self.state,
@@ -743,7 +747,13 @@ impl<L: RobotLink> Player<L> {
             estop,
             self.lifecycle.stop_seen,
         ) {
-            self.fail(cause);
+            // A served mirror that fell behind real time answers late: stale feedback is its.
+            let behind = if has_truth {
+                self.world.truth.mirror_behind
+            } else {
+                Duration::ZERO
+            };
+            self.fail(cause.blaming_a_late_mirror(behind));
         }
         if has_truth {
             // A fall counts while the soft start, the policy or the soft stop is in control; a

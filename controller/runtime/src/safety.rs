@@ -174,6 +174,16 @@ pub enum Cause {
     },
     /// The mirrored simulation diverged (unstable or non-finite physics).
     SimulationFailed,
+    /// A mirror served in real time fell behind the wall clock (its host could not simulate fast
+    /// enough) and a device's feedback went stale for it: the mirror's failure, not the device's.
+    MirrorBehind {
+        /// How far behind, ms.
+        ms: u32,
+        /// What went stale: a joint's name, or the IMU's.
+        stale: JointName,
+        /// A joint went stale (its bus damped itself): the rest damp at once.
+        joint: bool,
+    },
     /// The state estimate a policy reads is not usable, and why.
     EstimateInvalid(world::estimator::EstimateProblem),
     /// An e-stop input fired.
@@ -237,6 +247,11 @@ impl std::fmt::Display for Cause {
                 "IMU: the accelerometer reads {g:.1} g for {ticks} ticks (saturated or broken; a robot feels about 1 g)"
             ),
             Self::SimulationFailed => write!(f, "the mirror's simulation diverged"),
+            Self::MirrorBehind { ms, stale, .. } => write!(
+                f,
+                "the mirror fell {ms} ms behind real time (its host could not simulate fast enough): \
+                 {stale}'s replies went stale for it, not for a fault of its own"
+            ),
             Self::EstimateInvalid(why) => write!(f, "the state estimate the policy reads is invalid: {why}"),
             Self::EStop => write!(f, "e-stop"),
             Self::BusFailure => write!(f, "bus failure"),
@@ -254,7 +269,10 @@ impl Cause {
     pub fn damps_at_once(&self) -> bool {
         matches!(
             self,
-            Self::StaleFeedback { .. } | Self::DeviceFault { .. } | Self::ImplausibleFeedback { .. }
+            Self::StaleFeedback { .. }
+                | Self::DeviceFault { .. }
+                | Self::ImplausibleFeedback { .. }
+                | Self::MirrorBehind { joint: true, .. }
         )
     }
 
@@ -627,6 +645,34 @@ impl SafetyMonitor {
     }
 }
 
+/// A mirror this far behind real time when a device's feedback goes stale is blamed for it: its
+/// devices answer that late, beyond what a working line's jitter explains.
+pub const MIRROR_BEHIND_BLAME: std::time::Duration = std::time::Duration::from_millis(5);
+
+impl Cause {
+    /// This cause as the served mirror's, where it is a stale device's and the mirror was `behind`
+    /// real time by more than [`MIRROR_BEHIND_BLAME`].
+    pub fn blaming_a_late_mirror(self, behind: std::time::Duration) -> Self {
+        if behind <= MIRROR_BEHIND_BLAME {
+            return self;
+        }
+        let ms = u32::try_from(behind.as_millis()).unwrap_or(u32::MAX);
+        match self {
+            Self::StaleFeedback { name, .. } => Self::MirrorBehind {
+                ms,
+                stale: name,
+                joint: true,
+            },
+            Self::StaleImu { .. } => Self::MirrorBehind {
+                ms,
+                stale: JointName::new("IMU"),
+                joint: false,
+            },
+            other => other,
+        }
+    }
+}
+
 /// Where a joint's position targets may lie: inside its limits less `margin`, or with
 /// [`robots::PositionTargets::TorqueReach`] beyond them by as far as its torque limit reaches at
 /// stiffness `kp` (no farther: past that the PD's torque saturates anyway).
@@ -687,6 +733,44 @@ pub fn govern_torque(j: &JointConfig, tau: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::time::Duration;
+
+    #[test]
+    fn stale_feedback_from_a_mirror_behind_real_time_is_the_mirrors() {
+        let stale = Cause::StaleFeedback {
+            joint: 3,
+            name: JointName::new("left_knee"),
+            cycles: 8,
+        };
+        // On time, or within a line's jitter: the joint's.
+        assert_eq!(stale.blaming_a_late_mirror(Duration::ZERO), stale);
+        assert_eq!(stale.blaming_a_late_mirror(MIRROR_BEHIND_BLAME), stale);
+        // 40 ms behind: the mirror's, and the robot still damps at once as for the joint.
+        let blamed = stale.blaming_a_late_mirror(Duration::from_millis(40));
+        assert!(
+            matches!(
+                blamed,
+                Cause::MirrorBehind {
+                    ms: 40,
+                    joint: true,
+                    ..
+                }
+            ),
+            "{blamed:?}"
+        );
+        assert!(blamed.damps_at_once() && blamed.is_fault());
+        assert!(
+            blamed
+                .to_string()
+                .starts_with("the mirror fell 40 ms behind real time"),
+            "{blamed}"
+        );
+        let imu = Cause::StaleImu { ticks: 3 }.blaming_a_late_mirror(Duration::from_millis(40));
+        assert!(imu.to_string().contains("IMU's replies went stale"), "{imu}");
+        // Other causes stay theirs.
+        let tilt = Cause::Tilt { angle: 1.0 };
+        assert_eq!(tilt.blaming_a_late_mirror(Duration::from_millis(40)), tilt);
+    }
 
     #[test]
     fn the_governor_never_panics_on_a_target_that_is_not_a_number() {

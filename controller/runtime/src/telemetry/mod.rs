@@ -89,6 +89,8 @@ pub struct TickRecord {
     pub stop_requested: bool,
     /// Whether the simulation had diverged (ground truth says so).
     pub simulation_failed: bool,
+    /// How far a mirror served in real time was behind the wall clock, µs.
+    pub mirror_behind_us: u64,
     /// Commanded targets: q, qd, kp, kd, tau.
     pub target: [[f64; 5]; MAX_JOINTS],
     /// Commanded torque on/off.
@@ -172,6 +174,7 @@ impl Default for TickRecord {
             foot_contacts: [false; MAX_FEET],
             stop_requested: false,
             simulation_failed: false,
+            mirror_behind_us: 0,
             target: [[0.0; 5]; MAX_JOINTS],
             enabled: [false; MAX_JOINTS],
             reference_q: [0.0; MAX_JOINTS],
@@ -341,6 +344,11 @@ impl TickRecord {
         r.foot_contacts[..feet].copy_from_slice(&t.foot_contacts[..feet]);
         r.stop_requested = v.stop_requested;
         r.simulation_failed = v.has_truth && t.simulation_failed;
+        r.mirror_behind_us = if v.has_truth {
+            u64::try_from(t.mirror_behind.as_micros()).unwrap_or(u64::MAX)
+        } else {
+            0
+        };
         let b = v.bus_times.len().min(r.bus_us.len());
         r.buses = b as u8;
         for (slot, t) in r.bus_us.iter_mut().zip(&v.bus_times[..b]) {
@@ -1448,8 +1456,8 @@ fn replay_json(out: &mut String, r: &TickRecord) {
     let f = usize::from(r.feet);
     let _ = write!(
         out,
-        "{{\"tick\":{},\"time_ns\":{},\"imu_missed\":{},\"stop\":{},\"simulation_failed\":{},",
-        r.tick, r.time_ns, r.imu_missed, r.stop_requested, r.simulation_failed
+        "{{\"tick\":{},\"time_ns\":{},\"imu_missed\":{},\"stop\":{},\"simulation_failed\":{},\"mirror_behind_us\":{},",
+        r.tick, r.time_ns, r.imu_missed, r.stop_requested, r.simulation_failed, r.mirror_behind_us
     );
     joint_state_fields(out, r, n);
     out.push(',');
