@@ -262,6 +262,7 @@ impl PtyServer {
         let thread = std::thread::Builder::new()
             .name("serial-pty".into())
             .spawn(move || {
+                crate::time::serve_in_real_time();
                 // Keeping the slave open means the master never reads EIO between clients.
                 let _slave = slave;
                 let start = std::time::Instant::now();

@@ -115,6 +115,42 @@ pub trait SimWorld {
     fn step_until(&mut self, limit: SimInstant) -> SimInstant;
 }
 
+/// Puts the calling thread under SCHED_FIFO at `priority` (1–99): the kernel runs it before every
+/// normally scheduled thread. Refused without CAP_SYS_NICE or an rtprio limit that allows it.
+pub fn set_fifo_priority(priority: i32) -> std::io::Result<()> {
+    let param = libc::sched_param {
+        sched_priority: priority,
+    };
+    #[allow(unsafe_code, reason = "one POSIX call with plain-value arguments")]
+    // SAFETY: pid 0 is the calling thread; `param` is a valid sched_param.
+    let r = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
+    if r == 0 {
+        Ok(())
+    } else {
+        Err(std::io::Error::last_os_error())
+    }
+}
+
+/// The SCHED_FIFO priority of a served mirror's threads (its physics, its servers): above every
+/// normal thread, so a busy host does not slow the simulated robot down (a real robot's firmware
+/// runs on its own chips), below a `--realtime` controller's loop (80) and bus threads (85).
+pub const MIRROR_PRIORITY: i32 = 60;
+
+/// Asks for [`MIRROR_PRIORITY`] for the calling thread of a served mirror; where the host refuses
+/// (no CAP_SYS_NICE), says so once and runs on at normal priority — its lateness is then measured
+/// ([`StarvationProbe`]) and named.
+pub fn serve_in_real_time() {
+    static SAID: std::sync::Once = std::sync::Once::new();
+    if let Err(e) = set_fifo_priority(MIRROR_PRIORITY) {
+        SAID.call_once(|| {
+            tracing::info!(
+                "the served mirror's threads run at normal priority (SCHED_FIFO {MIRROR_PRIORITY} refused: {e}): \
+                 a busy host delays them; grant CAP_SYS_NICE or an rtprio limit to keep them on time"
+            );
+        });
+    }
+}
+
 /// Runs a simulated world in real time on its own thread, for serving it over real wires
 /// (socketcand, pseudo-terminals) to a controller in another process.
 #[derive(Debug)]
@@ -137,6 +173,7 @@ impl WallClockRunner {
         let thread = std::thread::Builder::new()
             .name("sim-wall-clock".into())
             .spawn(move || {
+                serve_in_real_time();
                 let origin = world
                     .lock()
                     .unwrap_or_else(std::sync::PoisonError::into_inner)
@@ -162,6 +199,109 @@ impl WallClockRunner {
     /// Wall time since the runner started: the timestamp for frames served to clients.
     pub fn elapsed(&self) -> Duration {
         self.start.elapsed()
+    }
+}
+
+/// How long this host keeps a normal thread waiting beyond a 1 ms sleep: a probe thread beside a
+/// served mirror's threads (its physics, its serial and CAN servers), which wait as long. A mirror
+/// whose threads are held off the CPU answers that much late, however fast its physics is.
+#[derive(Debug)]
+pub struct StarvationProbe {
+    shared: std::sync::Arc<ProbeShared>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+#[derive(Debug)]
+struct ProbeShared {
+    start: std::time::Instant,
+    stop: std::sync::atomic::AtomicBool,
+    /// The worst wait of the current and the previous window, µs (slot = window index % 2).
+    worst_us: [std::sync::atomic::AtomicU64; 2],
+    /// When the probe last woke, µs since `start`.
+    woke_us: std::sync::atomic::AtomicU64,
+}
+
+/// The probe's sleep and the window its worst waits are kept over.
+const PROBE_SLEEP: Duration = Duration::from_millis(1);
+const PROBE_WINDOW_US: u64 = 250_000;
+
+fn micros(d: Duration) -> u64 {
+    u64::try_from(d.as_micros()).unwrap_or(u64::MAX)
+}
+
+impl StarvationProbe {
+    /// Starts probing.
+    pub fn spawn() -> std::io::Result<Self> {
+        use std::sync::atomic::Ordering::Relaxed;
+        let shared = std::sync::Arc::new(ProbeShared {
+            start: std::time::Instant::now(),
+            stop: std::sync::atomic::AtomicBool::new(false),
+            worst_us: Default::default(),
+            woke_us: std::sync::atomic::AtomicU64::new(0),
+        });
+        let s = std::sync::Arc::clone(&shared);
+        let thread = std::thread::Builder::new()
+            .name("mirror-probe".into())
+            .spawn(move || {
+                // At the mirror's threads' priority: it waits as they do.
+                serve_in_real_time();
+                let mut window = 0;
+                while !s.stop.load(Relaxed) {
+                    let asked = std::time::Instant::now();
+                    std::thread::sleep(PROBE_SLEEP);
+                    let late_us = micros(asked.elapsed().saturating_sub(PROBE_SLEEP));
+                    let now_us = micros(s.start.elapsed());
+                    let this = now_us / PROBE_WINDOW_US;
+                    let slot = &s.worst_us[usize::from(this % 2 == 1)];
+                    if this == window {
+                        slot.fetch_max(late_us, Relaxed);
+                    } else {
+                        window = this;
+                        slot.store(late_us, Relaxed);
+                    }
+                    s.woke_us.store(now_us, Relaxed);
+                }
+            })?;
+        Ok(Self {
+            shared,
+            thread: Some(thread),
+        })
+    }
+
+    /// A handle that reads the probe from another thread.
+    pub fn reader(&self) -> StarvationReader {
+        StarvationReader {
+            shared: std::sync::Arc::clone(&self.shared),
+        }
+    }
+}
+
+/// Reads a [`StarvationProbe`].
+#[derive(Debug, Clone)]
+pub struct StarvationReader {
+    shared: std::sync::Arc<ProbeShared>,
+}
+
+impl StarvationReader {
+    /// The longest a normal thread waited beyond its wake-up over the last quarter to half a
+    /// second, or has been waiting now.
+    pub fn recent(&self) -> Duration {
+        use std::sync::atomic::Ordering::Relaxed;
+        let s = &self.shared;
+        let worst = s.worst_us[0].load(Relaxed).max(s.worst_us[1].load(Relaxed));
+        let waiting = micros(s.start.elapsed())
+            .saturating_sub(s.woke_us.load(Relaxed))
+            .saturating_sub(micros(PROBE_SLEEP));
+        Duration::from_micros(worst.max(waiting))
+    }
+}
+
+impl Drop for StarvationProbe {
+    fn drop(&mut self) {
+        self.shared.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
     }
 }
 

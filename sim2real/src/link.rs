@@ -280,14 +280,15 @@ impl TickClock for LockstepClock {
     }
 }
 
-/// The wall clock of a served mirror, with the mirror's ground truth and how far its simulation
-/// is behind real time.
+/// The wall clock of a served mirror, with the mirror's ground truth and how late it is: its
+/// simulation behind real time, or its threads kept off the CPU.
 #[derive(Debug)]
 pub struct ServedClock {
     wall: WallClock,
     world: Arc<Mutex<Mirror>>,
     /// The mirror's time when the clock started.
     origin: SimInstant,
+    starvation: Option<firmware_bridge::time::StarvationReader>,
 }
 
 impl ServedClock {
@@ -298,6 +299,15 @@ impl ServedClock {
             wall: WallClock::start(),
             world,
             origin,
+            starvation: None,
+        }
+    }
+
+    /// Starts now on `served`, whose threads' starvation counts as lateness too.
+    pub fn of(served: &ServedMirror) -> Self {
+        Self {
+            starvation: Some(served.starvation()),
+            ..Self::new(Arc::clone(&served.world))
         }
     }
 }
@@ -314,7 +324,8 @@ impl TickClock for ServedClock {
     fn ground_truth(&self, truth: &mut GroundTruth) -> bool {
         truth_of(&self.world, truth);
         let simulated = self.world.lock().unwrap_or_else(PoisonError::into_inner).now() - self.origin;
-        truth.mirror_behind = self.wall.elapsed().saturating_sub(simulated);
+        let starved = self.starvation.as_ref().map_or(Duration::ZERO, |s| s.recent());
+        truth.mirror_behind = self.wall.elapsed().saturating_sub(simulated).max(starved);
         true
     }
 }

@@ -40,6 +40,8 @@ pub struct ServedMirror {
     endpoints: Endpoints,
     // Kept for their threads; dropped (stopped) with the server.
     _runner: WallClockRunner,
+    /// How long the host keeps the mirror's threads off the CPU.
+    probe: firmware_bridge::time::StarvationProbe,
     _can: Vec<SocketcandServer>,
     _ptys: Vec<PtyServer>,
     _boards: Vec<BoardServer>,
@@ -100,6 +102,7 @@ impl ServedMirror {
             .collect();
         let world = Arc::new(Mutex::new(mirror));
         let runner = WallClockRunner::spawn(Arc::clone(&world), Duration::from_micros(200))?;
+        let probe = firmware_bridge::time::StarvationProbe::spawn()?;
         let start = std::time::Instant::now();
         let mut can = Vec::new();
         let mut can_endpoints = Vec::new();
@@ -159,10 +162,16 @@ impl ServedMirror {
                 unitree,
             },
             _runner: runner,
+            probe,
             _can: can,
             _ptys: ptys,
             _boards: board_servers,
         })
+    }
+
+    /// Reads how long the host keeps the mirror's threads waiting for the CPU.
+    pub fn starvation(&self) -> firmware_bridge::time::StarvationReader {
+        self.probe.reader()
     }
 
     /// Where the buses are.

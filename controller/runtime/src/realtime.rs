@@ -2,7 +2,7 @@
 //! Each step that the system refuses (no CAP_SYS_NICE, RLIMIT_MEMLOCK, …) is reported and skipped:
 //! the loop still runs, with the jitter the histogram then shows.
 
-#![allow(unsafe_code, reason = "three POSIX calls with plain-value arguments")]
+#![allow(unsafe_code, reason = "two POSIX calls with plain-value arguments")]
 
 /// What the set-up achieved, step by step.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -14,18 +14,9 @@ pub struct RealtimeReport {
 /// Puts the calling thread under SCHED_FIFO at `priority`, locks all memory, pins it to `cpu`.
 pub fn setup(priority: i32, cpu: Option<usize>) -> RealtimeReport {
     let mut steps = Vec::new();
-    let param = libc::sched_param {
-        sched_priority: priority,
-    };
-    // SAFETY: pid 0 is the calling thread; `param` is a valid sched_param.
-    let r = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
-    steps.push(if r == 0 {
-        format!("SCHED_FIFO priority {priority}: ok")
-    } else {
-        format!(
-            "SCHED_FIFO priority {priority}: refused ({}); running with normal scheduling",
-            std::io::Error::last_os_error()
-        )
+    steps.push(match firmware_bridge::time::set_fifo_priority(priority) {
+        Ok(()) => format!("SCHED_FIFO priority {priority}: ok"),
+        Err(e) => format!("SCHED_FIFO priority {priority}: refused ({e}); running with normal scheduling"),
     });
     // SAFETY: flags only.
     let r = unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) };
@@ -60,15 +51,7 @@ pub const BUS_PRIORITY: i32 = 85;
 /// Real-time set-up of a bus thread (run first on each, see `BusRobot::parallel_with`):
 /// SCHED_FIFO at [`BUS_PRIORITY`]; a refusal is logged and the thread runs on normally.
 pub fn bus_thread() {
-    let param = libc::sched_param {
-        sched_priority: BUS_PRIORITY,
-    };
-    // SAFETY: pid 0 is the calling thread; `param` is a valid sched_param.
-    let r = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
-    if r != 0 {
-        tracing::warn!(
-            "bus thread: SCHED_FIFO priority {BUS_PRIORITY} refused ({}); normal scheduling",
-            std::io::Error::last_os_error()
-        );
+    if let Err(e) = firmware_bridge::time::set_fifo_priority(BUS_PRIORITY) {
+        tracing::warn!("bus thread: SCHED_FIFO priority {BUS_PRIORITY} refused ({e}); normal scheduling");
     }
 }

@@ -174,8 +174,9 @@ pub enum Cause {
     },
     /// The mirrored simulation diverged (unstable or non-finite physics).
     SimulationFailed,
-    /// A mirror served in real time fell behind the wall clock (its host could not simulate fast
-    /// enough) and a device's feedback went stale for it: the mirror's failure, not the device's.
+    /// A mirror served in real time fell behind the wall clock (its host did not give its physics or
+    /// its servers the CPU in time) and a device's feedback went stale for it: the mirror's failure,
+    /// not the device's.
     MirrorBehind {
         /// How far behind, ms.
         ms: u32,
@@ -249,8 +250,9 @@ impl std::fmt::Display for Cause {
             Self::SimulationFailed => write!(f, "the mirror's simulation diverged"),
             Self::MirrorBehind { ms, stale, .. } => write!(
                 f,
-                "the mirror fell {ms} ms behind real time (its host could not simulate fast enough): \
-                 {stale}'s replies went stale for it, not for a fault of its own"
+                "the mirror fell {ms} ms behind real time (its host did not give its physics or its \
+                 servers the CPU in time): {stale}'s replies went stale or its emulated watchdog fired \
+                 for it, not for a fault of its own"
             ),
             Self::EstimateInvalid(why) => write!(f, "the state estimate the policy reads is invalid: {why}"),
             Self::EStop => write!(f, "e-stop"),
@@ -650,8 +652,9 @@ impl SafetyMonitor {
 pub const MIRROR_BEHIND_BLAME: std::time::Duration = std::time::Duration::from_millis(5);
 
 impl Cause {
-    /// This cause as the served mirror's, where it is a stale device's and the mirror was `behind`
-    /// real time by more than [`MIRROR_BEHIND_BLAME`].
+    /// This cause as the served mirror's, where it is a stale or faulted device's and the mirror
+    /// was `behind` real time by more than [`MIRROR_BEHIND_BLAME`] (a late mirror answers late, and
+    /// its emulated watchdogs fire when it catches up in a burst).
     pub fn blaming_a_late_mirror(self, behind: std::time::Duration) -> Self {
         if behind <= MIRROR_BEHIND_BLAME {
             return self;
@@ -667,6 +670,13 @@ impl Cause {
                 ms,
                 stale: JointName::new("IMU"),
                 joint: false,
+            },
+            // An emulated motor whose commands' watchdog fired because its clock jumped ahead
+            // when the late mirror caught up.
+            Self::DeviceFault { name, .. } => Self::MirrorBehind {
+                ms,
+                stale: name,
+                joint: true,
             },
             other => other,
         }
@@ -767,6 +777,15 @@ mod tests {
         );
         let imu = Cause::StaleImu { ticks: 3 }.blaming_a_late_mirror(Duration::from_millis(40));
         assert!(imu.to_string().contains("IMU's replies went stale"), "{imu}");
+        let fault = Cause::DeviceFault {
+            joint: 4,
+            name: JointName::new("left_ankle_pitch"),
+        };
+        assert!(matches!(
+            fault.blaming_a_late_mirror(Duration::from_millis(40)),
+            Cause::MirrorBehind { joint: true, .. }
+        ));
+        assert_eq!(fault.blaming_a_late_mirror(Duration::from_millis(1)), fault);
         // Other causes stay theirs.
         let tilt = Cause::Tilt { angle: 1.0 };
         assert_eq!(tilt.blaming_a_late_mirror(Duration::from_millis(40)), tilt);

@@ -136,5 +136,5 @@ pub fn wired_player(
     if let Some(h) = hoist {
         player = player.with_harness_hoist(h);
     }
-    Ok((player, ServedClock::new(Arc::clone(&served.world)), served))
+    Ok((player, ServedClock::of(&served), served))
 }

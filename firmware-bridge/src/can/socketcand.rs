@@ -500,7 +500,10 @@ impl SocketcandServer {
         };
         let thread = std::thread::Builder::new()
             .name(format!("socketcand-{bus}"))
-            .spawn(move || session.serve(&listener))?;
+            .spawn(move || {
+                crate::time::serve_in_real_time();
+                session.serve(&listener);
+            })?;
         Ok(Self {
             addr,
             stop,

@@ -147,7 +147,8 @@ pub struct GroundTruth {
     pub foot_contacts: Vec<bool>,
     /// The simulation itself failed (diverged): nothing it says about the robot holds.
     pub simulation_failed: bool,
-    /// How far a mirror served in real time is behind the wall clock (its host could not
-    /// simulate fast enough): its devices answer that much late. Zero in lockstep.
+    /// How late a mirror served in real time is: its simulation behind the wall clock, or its
+    /// threads kept waiting for the CPU (the worst of the last quarter second); its devices answer
+    /// that much late. Zero in lockstep.
     pub mirror_behind: std::time::Duration,
 }
