@@ -1578,6 +1578,14 @@ impl Mirror {
             })
     }
 
+    /// Bytes MuJoCo holds for this mirror: the compiled model's buffer, and the data's buffer and
+    /// arena (contacts, constraints) — what a bare MuJoCo loop of the same model holds too.
+    pub fn mujoco_bytes(&self) -> usize {
+        let size = |n: i64| usize::try_from(n).unwrap_or(0);
+        let data = self.data.ffi();
+        size(self.data.model().ffi().nbuffer) + size(data.nbuffer) + size(data.narena)
+    }
+
     /// Why the simulation stopped being trustworthy, if it did (then it no longer moves).
     pub fn diverged(&self) -> Option<&str> {
         self.diverged.as_deref()

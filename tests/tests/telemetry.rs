@@ -482,6 +482,12 @@ fn a_recording_is_written_as_its_settings_say_and_the_run_says_what_it_cost() {
     assert_eq!(counts["/joint_state"], ticks, "{counts:?}");
     assert_eq!(counts["/tf"], ticks.div_ceil(5), "{counts:?}");
     assert!(!counts.contains_key("/imu"), "{counts:?}");
+    // The run says what it held: its peak and MuJoCo's share of it.
+    let memory = stdout
+        .lines()
+        .find(|l| l.starts_with("memory: peak "))
+        .unwrap_or_else(|| panic!("{stdout}"));
+    assert!(memory.contains("MuJoCo's model and data"), "{memory}");
     // The run says what it wrote and what that cost.
     let cost = stdout
         .lines()

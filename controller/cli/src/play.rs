@@ -1501,8 +1501,10 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
             " in lockstep".to_owned()
         }
     );
+    // What MuJoCo itself holds, beside the run's peak: what a run holds beyond a bare loop.
+    let mujoco_bytes: Option<usize>;
     let summary: PlaySummary = if args.wall {
-        let (player, mut clock, _served) = wired_player(
+        let (player, mut clock, served) = wired_player(
             l.robot,
             l.layout,
             l.reference,
@@ -1512,7 +1514,15 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
             bus_threads(args.realtime),
         )?;
         let player = with_estop(player, args, &options, &l.source, reader, viewer.clone())?;
-        run_with(player, &mut clock, generator)?
+        let summary = run_with(player, &mut clock, generator)?;
+        mujoco_bytes = Some(
+            served
+                .world
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .mujoco_bytes(),
+        );
+        summary
     } else {
         // Lockstep runs as fast as it computes, with nothing to watch: their progress is shown.
         let total = options.max_ticks.or_else(|| {
@@ -1532,20 +1542,35 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
             crate::console::Progress::new("play", "ticks", total),
         );
         if direct {
-            let (player, mut clock, _world) =
+            let (player, mut clock, world) =
                 direct_player(l.robot, l.layout, l.reference, options, config, stop)?;
             let player = with_estop(player, args, &options, &l.source, reader, viewer.clone())?;
-            run_with(player.with_progress(ticks), &mut clock, generator)?
+            let summary = run_with(player.with_progress(ticks), &mut clock, generator)?;
+            mujoco_bytes = Some(
+                world
+                    .lock()
+                    .unwrap_or_else(std::sync::PoisonError::into_inner)
+                    .mujoco_bytes(),
+            );
+            summary
         } else {
-            let (player, mut clock, _world) =
+            let (player, mut clock, world) =
                 lockstep_player(l.robot, l.layout, l.reference, options, config, stop)?;
             let player = with_estop(player, args, &options, &l.source, reader, viewer.clone())?;
-            run_with(player.with_progress(ticks), &mut clock, generator)?
+            let summary = run_with(player.with_progress(ticks), &mut clock, generator)?;
+            mujoco_bytes = Some(
+                world
+                    .lock()
+                    .unwrap_or_else(std::sync::PoisonError::into_inner)
+                    .mujoco_bytes(),
+            );
+            summary
         }
     };
     let mut summary = summary;
     summary.command_sources = command_source.map(|s| s.stats.to_string());
     print!("{summary}");
+    print_memory(mujoco_bytes);
     if let (Some(dir), Some(t)) = (&args.report, &summary.telemetry) {
         let r = analysis::report::write_report(&t.path, dir)?;
         let headline = match &r.locomotion {
@@ -1555,6 +1580,26 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         println!("report: {} ({headline})", dir.join("report.html").display());
     }
     Ok(finish(&summary))
+}
+
+/// The run's peak resident memory (`VmHWM`), and how much of it MuJoCo's model and data are: what
+/// the run holds beyond a bare MuJoCo loop of the same model.
+fn print_memory(mujoco_bytes: Option<usize>) {
+    let peak_kib = std::fs::read_to_string("/proc/self/status").ok().and_then(|s| {
+        s.lines()
+            .find_map(|l| l.strip_prefix("VmHWM:"))
+            .and_then(|v| v.split_whitespace().next()?.parse::<u64>().ok())
+    });
+    let mib = |bytes: f64| bytes / (1024.0 * 1024.0);
+    match (peak_kib, mujoco_bytes) {
+        (Some(peak), Some(mj)) => println!(
+            "memory: peak {:.0} MiB resident; MuJoCo's model and data {:.0} MiB of it",
+            mib(peak as f64 * 1024.0),
+            mib(mj as f64)
+        ),
+        (Some(peak), None) => println!("memory: peak {:.0} MiB resident", mib(peak as f64 * 1024.0)),
+        _ => {}
+    }
 }
 
 /// How a run's start reads: the mode and what it does, in the robot's figures.
