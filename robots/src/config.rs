@@ -327,8 +327,8 @@ pub struct RobotConfig {
     /// group (the mirror does the same; the real robot's firmware is what it is).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub actuators: Vec<crate::actuators::ActuatorGroup>,
-    /// The state estimator's noises and thresholds (`[estimator]`, every field optional; see
-    /// [`crate::EstimatorConfig`] for each one's default and range).
+    /// The state estimator's noises and thresholds (`[estimator]`, every field optional; each
+    /// one's default and range are in its own entry below).
     #[serde(default, skip_serializing_if = "crate::EstimatorConfig::is_default")]
     pub estimator: crate::EstimatorConfig,
 }
