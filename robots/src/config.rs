@@ -1367,18 +1367,38 @@ impl Robot {
             }
         }
         let mjcf_path = path.parent().unwrap_or(Path::new(".")).join(&config.mjcf);
-        let raw = mjcf::load_model(&mjcf_path).map_err(|e| {
-            err(
-                "mjcf",
-                crate::FileError::new(&mjcf_path, mjcf::compile_message(e)).to_string(),
-            )
-        })?;
-        let mjcf = mjcf::summarize_model(&raw);
-        // The file as it is is the robot's model when robot.toml changes none of its settings.
+        // The model is compiled once: the file as it is where robot.toml changes none of its
+        // settings, else the file with them applied (what every simulation of it uses; they change
+        // no geometry, so it summarises the same). Where that fails, the file alone is compiled to
+        // say whether the file or robot.toml's settings are at fault.
         let compiled = CompiledModel::default();
-        if config.joint_dynamics.is_empty() && config.sim.is_default() {
-            let _ = compiled.0.set(Arc::new(raw));
-        }
+        let applied = (!(config.joint_dynamics.is_empty() && config.sim.is_default()))
+            .then(|| {
+                let mut spec = mjcf::load_spec(&mjcf_path).ok()?;
+                mjcf::apply_trainer_settings(&mut spec, &config).ok()?;
+                spec.compile().ok()
+            })
+            .flatten();
+        let mjcf = match applied {
+            Some(model) => {
+                let summary = mjcf::summarize_model(&model);
+                let _ = compiled.0.set(Arc::new(model));
+                summary
+            }
+            None => {
+                let raw = mjcf::load_model(&mjcf_path).map_err(|e| {
+                    err(
+                        "mjcf",
+                        crate::FileError::new(&mjcf_path, mjcf::compile_message(e)).to_string(),
+                    )
+                })?;
+                let summary = mjcf::summarize_model(&raw);
+                if config.joint_dynamics.is_empty() && config.sim.is_default() {
+                    let _ = compiled.0.set(Arc::new(raw));
+                }
+                summary
+            }
+        };
         let mut mit_models = Vec::with_capacity(config.mit_models.len());
         for (i, m) in config.mit_models.iter().enumerate() {
             let at = |field: &str| format!("mit_models[{i}] ({}).{field}", m.name);
