@@ -179,6 +179,32 @@ fn a_five_point_operator_drives_twist2_and_losing_them_stands_it() {
     );
 }
 
+/// An independent five-point sender (python-osc: a headset, two controllers and two foot trackers
+/// at 72 Hz) squatting and waving: taken on by its T-pose, followed, nothing dropped, no fall.
+#[test]
+fn an_independent_python_osc_five_point_operator_drives_twist2() {
+    let script = workspace_root().join("tests/python/vmc_devices_send.py");
+    let python = test_support::fixtures::venv_python();
+    let Some(out) = session_wearing("five-point", "10", &|addr, _| {
+        let port = addr.rsplit(':').next().expect("a port").to_owned();
+        let sent = std::process::Command::new(&python)
+            .args([script.as_os_str(), port.as_ref(), "7".as_ref()])
+            .output()
+            .expect("python runs");
+        assert!(sent.status.success(), "{}", String::from_utf8_lossy(&sent.stderr));
+    }) else {
+        return;
+    };
+    let tracking = phase_at(&out, "T-pose taken").expect("the T-pose calibrates the operator");
+    let lost = phase_at(&out, "tracker stream lost").expect("the end of the stream is seen");
+    assert!(lost - tracking > 4.0, "followed: {out}");
+    assert!(out.contains("fell: no"), "{out}");
+    assert!(
+        out.contains("dropped: 0 malformed, 0 oversized, 0 out of range"),
+        "{out}"
+    );
+}
+
 /// An operator expected to wear five points who sends only a headset and controllers is told
 /// which devices are missing, and nothing moves.
 #[test]
