@@ -234,7 +234,8 @@ pub fn serve_locally(mirror: Mirror) -> std::io::Result<ServedMirror> {
     ServedMirror::start(mirror, IpAddr::V4(Ipv4Addr::LOCALHOST), 0)
 }
 
-fn truth_of(world: &Arc<Mutex<Mirror>>, truth: &mut GroundTruth) -> bool {
+/// Fills `truth` from the mirror under one lock; returns the mirror's time then.
+fn truth_of(world: &Arc<Mutex<Mirror>>, truth: &mut GroundTruth) -> SimInstant {
     let w = world.lock().unwrap_or_else(PoisonError::into_inner);
     w.ground_truth(
         &mut truth.root_pose,
@@ -242,7 +243,7 @@ fn truth_of(world: &Arc<Mutex<Mirror>>, truth: &mut GroundTruth) -> bool {
         &mut truth.foot_contacts,
     );
     truth.simulation_failed = w.diverged().is_some();
-    true
+    w.now()
 }
 
 /// The mirror's clock, advanced by the loop.
@@ -276,7 +277,8 @@ impl TickClock for LockstepClock {
     }
 
     fn ground_truth(&self, truth: &mut GroundTruth) -> bool {
-        truth_of(&self.world, truth)
+        truth_of(&self.world, truth);
+        true
     }
 }
 
@@ -322,8 +324,7 @@ impl TickClock for ServedClock {
     }
 
     fn ground_truth(&self, truth: &mut GroundTruth) -> bool {
-        truth_of(&self.world, truth);
-        let simulated = self.world.lock().unwrap_or_else(PoisonError::into_inner).now() - self.origin;
+        let simulated = truth_of(&self.world, truth) - self.origin;
         let starved = self.starvation.as_ref().map_or(Duration::ZERO, |s| s.recent());
         truth.mirror_behind = self.wall.elapsed().saturating_sub(simulated).max(starved);
         true

@@ -101,36 +101,46 @@ fn vr_send_wearing(body: &str, addr: &str, rate: &str, seconds: &str) {
     assert!(sender.status.success(), "{}\n{}", sender.stdout, sender.stderr);
 }
 
+/// What a whole-body session printed says the operator was taken on, followed for the stream's
+/// length, lost (`lost_line`), and the robot stood within 0.5 s of the loss (blend 0.25 s) with no
+/// fall; each of `bounds`' key bodies stayed within its cm RMS of the scaled operator.
+fn followed_lost_and_stood(out: &str, lost_line: &str, bounds: &[(&str, f64)]) {
+    assert!(out.contains("fell: no"), "{out}");
+    let tracking = phase_at(out, "T-pose taken").expect("the T-pose calibrates the operator");
+    let lost = phase_at(out, lost_line).expect("the end of the stream is seen");
+    let standing = phase_at(out, "standing: the operator can take over").expect("it stands");
+    assert!(tracking < lost && lost < standing, "{out}");
+    assert!(standing - lost <= 0.5, "{standing} - {lost} s:\n{out}");
+    assert!(lost - tracking > 6.0, "followed for the stream's length: {out}");
+    let bodies = out
+        .lines()
+        .find(|l| l.starts_with("key bodies from the operator"))
+        .unwrap_or_else(|| panic!("{out}"));
+    for (body, bound) in bounds {
+        let cm = figure(bodies, body).unwrap_or_else(|| panic!("{body} in {bodies}"));
+        assert!(cm <= *bound, "{body} {cm} cm RMS from the operator: {bodies}");
+    }
+}
+
 #[test]
 fn a_whole_body_operator_drives_twist2_on_the_g1_and_losing_them_stands_it() {
     let Some(out) = session("13", &|addr, _| vr_send(addr, "90", "9")) else {
         return;
     };
-    // The operator was taken on, followed, lost, and the robot stood under the policy.
-    assert!(out.contains("fell: no"), "{out}");
-    let tracking = phase_at(&out, "T-pose taken").expect("the T-pose calibrates the operator");
-    let lost = phase_at(&out, "skeleton stream lost").expect("the end of the stream is seen");
-    let standing = phase_at(&out, "standing: the operator can take over").expect("it stands");
-    assert!(tracking < lost && lost < standing, "{out}");
-    // Trackers lost -> standing within 0.5 s of the loss being declared (blend 0.25 s).
-    assert!(standing - lost <= 0.5, "{standing} - {lost} s:\n{out}");
-    assert!(lost - tracking > 6.0, "followed for the stream's length: {out}");
-    // The robot follows the person: each key body's distance from where the scaled operator's is,
-    // both in their root's frame (the 10 cm the issue asks of the hands is not met yet: the
-    // wrists were 11-14 cm off, the shoulders 10; a robot that ignored the waving arm would be
-    // far beyond these bounds).
-    let bodies = out
-        .lines()
-        .find(|l| l.starts_with("key bodies from the operator"))
-        .unwrap_or_else(|| panic!("{out}"));
-    for (body, bound) in [
-        ("left_wrist_yaw_link", 20.0),
-        ("right_wrist_yaw_link", 20.0),
-        ("left_knee_link", 8.0),
-    ] {
-        let cm = figure(bodies, body).unwrap_or_else(|| panic!("{body} in {bodies}"));
-        assert!(cm <= bound, "{body} {cm} cm RMS from the operator: {bodies}");
-    }
+    // The operator was taken on, followed, lost, and the robot stood under the policy. The robot
+    // follows the person: each key body's distance from where the scaled operator's is, both in
+    // their root's frame (the 10 cm the issue asks of the hands is not met yet: the wrists were
+    // 11-14 cm off, the shoulders 10; a robot that ignored the waving arm would be far beyond
+    // these bounds).
+    followed_lost_and_stood(
+        &out,
+        "skeleton stream lost",
+        &[
+            ("left_wrist_yaw_link", 20.0),
+            ("right_wrist_yaw_link", 20.0),
+            ("left_knee_link", 8.0),
+        ],
+    );
     // Every skeleton packet was taken; the input reached the bus within a control period.
     assert!(
         out.contains("dropped: 0 malformed, 0 oversized, 0 out of range"),
@@ -154,25 +164,15 @@ fn a_five_point_operator_drives_twist2_and_losing_them_stands_it() {
     }) else {
         return;
     };
-    assert!(out.contains("fell: no"), "{out}");
-    let tracking = phase_at(&out, "T-pose taken").expect("the T-pose calibrates the operator");
-    let lost = phase_at(&out, "stream lost").expect("the end of the stream is seen");
-    let standing = phase_at(&out, "standing: the operator can take over").expect("it stands");
-    assert!(tracking < lost && lost < standing, "{out}");
-    assert!(standing - lost <= 0.5, "{standing} - {lost} s:\n{out}");
-    assert!(lost - tracking > 6.0, "followed for the stream's length: {out}");
-    let bodies = out
-        .lines()
-        .find(|l| l.starts_with("key bodies from the operator"))
-        .unwrap_or_else(|| panic!("{out}"));
-    for (body, bound) in [
-        ("left_wrist_yaw_link", 20.0),
-        ("right_wrist_yaw_link", 20.0),
-        ("left_ankle_roll_link", 12.0),
-    ] {
-        let cm = figure(bodies, body).unwrap_or_else(|| panic!("{body} in {bodies}"));
-        assert!(cm <= bound, "{body} {cm} cm RMS from the operator: {bodies}");
-    }
+    followed_lost_and_stood(
+        &out,
+        "tracker stream lost",
+        &[
+            ("left_wrist_yaw_link", 20.0),
+            ("right_wrist_yaw_link", 20.0),
+            ("left_ankle_roll_link", 12.0),
+        ],
+    );
     assert!(
         out.contains("dropped: 0 malformed, 0 oversized, 0 out of range"),
         "{out}"

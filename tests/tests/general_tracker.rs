@@ -225,6 +225,20 @@ fn compare_takes_twist2s_whole_observation_and_names_each_blocks_copy_of_a_term(
     }
 }
 
+/// `play` of `clip` on `robot`, unrecorded, the clip removed after: (ok, stdout, stderr).
+fn play_once(robot: &Path, clip: &Path) -> (bool, String, String) {
+    let played = run(&[
+        "play".as_ref(),
+        "--robot".as_ref(),
+        robot.as_os_str(),
+        "--clip".as_ref(),
+        clip.as_os_str(),
+        "--no-record".as_ref(),
+    ]);
+    std::fs::remove_file(clip).unwrap();
+    played
+}
+
 /// Human motion capture (CMU, Bandai-Namco) retargeted onto TWIST2's G1 by `robodeploy retarget`
 /// (the robot.toml's GMR-style map) and tracked by TWIST2 to the end with no fall: at least four
 /// of the five clips of `../shared/data/mocap`. Clips that start moving are calibrated on a
@@ -283,15 +297,7 @@ fn twist2_tracks_human_clips_retargeted_onto_its_g1() {
             number(&found["clip"]["limit_margin"][0]) >= 0.0,
             "{file}: {found}"
         );
-        let (ok, out, err) = run(&[
-            "play".as_ref(),
-            "--robot".as_ref(),
-            robot.as_os_str(),
-            "--clip".as_ref(),
-            clip.as_os_str(),
-            "--no-record".as_ref(),
-        ]);
-        std::fs::remove_file(&clip).unwrap();
+        let (ok, out, err) = play_once(&robot, &clip);
         let line = |prefix: &str| {
             out.lines()
                 .find(|l| l.starts_with(prefix))
@@ -353,15 +359,7 @@ fn twist2_tracks_what_five_points_see_of_a_performer() {
         args.extend(flags.iter().map(std::ffi::OsStr::new));
         let (ok, out, err) = run(&args);
         assert!(ok, "{file}: {out}\n{err}");
-        let (ok, out, err) = run(&[
-            "play".as_ref(),
-            "--robot".as_ref(),
-            robot.as_os_str(),
-            "--clip".as_ref(),
-            clip.as_os_str(),
-            "--no-record".as_ref(),
-        ]);
-        std::fs::remove_file(&clip).unwrap();
+        let (ok, out, err) = play_once(&robot, &clip);
         assert!(
             ok && out.contains("reference played: 100 %") && out.contains("fell: no"),
             "{file}: {out}\n{err}"

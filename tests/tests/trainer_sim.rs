@@ -270,19 +270,14 @@ fn the_g1_holds_still_on_the_gantry_with_its_armature_and_check_names_the_instab
         "g1-bare.toml",
         "[[joint_dynamics]]\njoints = [\"*\"]\narmature = 0.0\n\n[sim]\ntimestep = 0.005\n",
     );
-    let (code, out, err) = run_within(
-        &[
-            "check",
-            "--robot",
-            bare.to_str().unwrap(),
-            "--policy",
-            workspace_root()
-                .join("robots/g1/policies/holosoma_loco_ppo.toml")
-                .to_str()
-                .unwrap(),
-        ],
-        Duration::from_secs(120),
-    );
+    let policy = workspace_root().join("robots/g1/policies/holosoma_loco_ppo.toml");
+    let on_bare = [
+        "--robot",
+        bare.to_str().unwrap(),
+        "--policy",
+        policy.to_str().unwrap(),
+    ];
+    let (code, out, err) = run_within(&[&["check"][..], &on_bare].concat(), Duration::from_secs(120));
     assert_eq!(code, Some(2), "bad input: {out}{err}");
     let line = out
         .lines()
@@ -300,19 +295,7 @@ fn the_g1_holds_still_on_the_gantry_with_its_armature_and_check_names_the_instab
     );
     // Played anyway, the run says the mirror blew up, not only what its IMU read then.
     let (code, out, err) = run_within(
-        &[
-            "play",
-            "--robot",
-            bare.to_str().unwrap(),
-            "--policy",
-            workspace_root()
-                .join("robots/g1/policies/holosoma_loco_ppo.toml")
-                .to_str()
-                .unwrap(),
-            "--max-seconds",
-            "2",
-            "--no-record",
-        ],
+        &[&["play"][..], &on_bare, &["--max-seconds", "2", "--no-record"]].concat(),
         Duration::from_secs(120),
     );
     assert_eq!(code, Some(3), "{out}{err}");

@@ -1515,13 +1515,7 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         )?;
         let player = with_estop(player, args, &options, &l.source, reader, viewer.clone())?;
         let summary = run_with(player, &mut clock, generator)?;
-        mujoco_bytes = Some(
-            served
-                .world
-                .lock()
-                .unwrap_or_else(std::sync::PoisonError::into_inner)
-                .mujoco_bytes(),
-        );
+        mujoco_bytes = Some(mujoco_bytes_of(&served.world));
         summary
     } else {
         // Lockstep runs as fast as it computes, with nothing to watch: their progress is shown.
@@ -1546,24 +1540,14 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
                 direct_player(l.robot, l.layout, l.reference, options, config, stop)?;
             let player = with_estop(player, args, &options, &l.source, reader, viewer.clone())?;
             let summary = run_with(player.with_progress(ticks), &mut clock, generator)?;
-            mujoco_bytes = Some(
-                world
-                    .lock()
-                    .unwrap_or_else(std::sync::PoisonError::into_inner)
-                    .mujoco_bytes(),
-            );
+            mujoco_bytes = Some(mujoco_bytes_of(&world));
             summary
         } else {
             let (player, mut clock, world) =
                 lockstep_player(l.robot, l.layout, l.reference, options, config, stop)?;
             let player = with_estop(player, args, &options, &l.source, reader, viewer.clone())?;
             let summary = run_with(player.with_progress(ticks), &mut clock, generator)?;
-            mujoco_bytes = Some(
-                world
-                    .lock()
-                    .unwrap_or_else(std::sync::PoisonError::into_inner)
-                    .mujoco_bytes(),
-            );
+            mujoco_bytes = Some(mujoco_bytes_of(&world));
             summary
         }
     };
@@ -1580,6 +1564,14 @@ pub fn play(args: &PlayArgs) -> Result<std::process::ExitCode> {
         println!("report: {} ({headline})", dir.join("report.html").display());
     }
     Ok(finish(&summary))
+}
+
+/// What MuJoCo holds for a run's mirror.
+fn mujoco_bytes_of(world: &std::sync::Mutex<sim2real::mirror::Mirror>) -> usize {
+    world
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+        .mujoco_bytes()
 }
 
 /// The run's peak resident memory (`VmHWM`), and how much of it MuJoCo's model and data are: what
